@@ -1,0 +1,35 @@
+# Two commands do all the set-up on a fresh clone:
+#   make demo   - the end-to-end demo on the simulated sensor
+#   make test   - the test suite
+# Each creates .venv and builds the Cython extensions itself.
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+PIP    := $(VENV)/bin/pip
+STAMP  := $(VENV)/.installed
+PYX    := $(shell find springtrack firmware_sim -name '*.pyx' -o -name '*.pxd' -o -name '*.h' | sort)
+
+.PHONY: demo test build bench clean
+
+$(STAMP): pyproject.toml setup.py
+	$(PYTHON) -m venv $(VENV)
+	$(PIP) install -q --upgrade pip
+	$(PIP) install -q "setuptools>=64" wheel "cython>=3.0" "numpy>=1.24"
+	$(PIP) install -q --no-build-isolation -e '.[test,plots,sweep]'
+	touch $(STAMP)
+
+build: $(STAMP) $(PYX)
+	$(PY) setup.py -q build_ext --inplace 2>&1 | grep -v -E '^(running|copying|skipping)' || true
+	@$(PY) -c "import springtrack._kernel" || (echo "extension build failed" && exit 1)
+
+demo: build
+	$(PY) -m springtrack.demo
+
+test: build
+	$(PY) -m pytest -q tests; rc=$$?; if [ $$rc -eq 5 ]; then echo "no tests ran"; exit 1; fi; exit $$rc
+
+bench: build
+	$(PY) benchmarks/kernel.py
+
+clean:
+	rm -rf $(VENV) build springtrack/*.so firmware_sim/*.so

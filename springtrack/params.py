@@ -1,0 +1,139 @@
+"""Tracker parameters: names, units, defaults and valid ranges.
+
+Defaults reproduce the paper's face experiment (section IV-B): alpha1 = 0.2,
+alpha2 = 2e-4, delta_p = 0.1, s = 2.5, springs every 55 events, Euclidean energy.
+See docs/algorithm.md for how each parameter enters the equations.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, asdict
+from typing import Mapping
+
+ENERGY_KINDS = ("euclidean", "torsional", "cartesian")
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    name: str
+    kind: type
+    default: object
+    lo: float | None
+    hi: float | None
+    unit: str
+    doc: str
+
+
+SPECS: dict[str, ParamSpec] = {s.name: s for s in [
+    ParamSpec("alpha_position", float, 0.2, 0.0, 1.0, "",
+              "alpha1, eq. (3): weight of a new event in the tracker mean"),
+    ParamSpec("alpha_covariance", float, 2e-4, 0.0, 1.0, "",
+              "alpha2, eq. (4): weight of a new event in the tracker covariance"),
+    ParamSpec("p_threshold", float, 0.1, 1e-6, 0.999, "",
+              "delta_p, eq. (2): accept an event if exp(-d^2/2) > delta_p"),
+    ParamSpec("activity_tau_us", float, 10_000.0, 1.0, 1e9, "us",
+              "tau, eq. (6): time constant of the activity decay"),
+    ParamSpec("activity_threshold", float, 5.0, 0.0, 1e9, "",
+              "A_up: a tracker is active while its activity exceeds this"),
+    ParamSpec("energy_scale", float, 2.5, 0.0, 1e12, "",
+              "s, eqs. (21)-(22): energy threshold as a multiple of the mean energy"),
+    ParamSpec("energy_gain", float, 0.05, 0.0, 1.0, "",
+              "alpha_en, eq. (22): pull toward the equilibrium position about G"),
+    ParamSpec("spring_period", int, 55, 1, 1_000_000, "events",
+              "springs and energy criteria are applied every this many events"),
+    ParamSpec("energy_kind", str, "euclidean", None, None, "",
+              "energy feeding eqs. (21)-(22): euclidean | torsional | cartesian"),
+    ParamSpec("sigma_min_px", float, 0.5, 0.05, 64.0, "px",
+              "lower bound on a tracker's standard deviation along x and y"),
+    ParamSpec("sigma_max_px", float, 64.0, 0.5, 1024.0, "px",
+              "upper bound on a tracker's standard deviation along x and y"),
+]}
+
+
+class ParamError(ValueError):
+    """A parameter has an unknown name, a wrong type or an out-of-range value."""
+
+
+@dataclass(frozen=True)
+class Params:
+    alpha_position: float = SPECS["alpha_position"].default
+    alpha_covariance: float = SPECS["alpha_covariance"].default
+    p_threshold: float = SPECS["p_threshold"].default
+    activity_tau_us: float = SPECS["activity_tau_us"].default
+    activity_threshold: float = SPECS["activity_threshold"].default
+    energy_scale: float = SPECS["energy_scale"].default
+    energy_gain: float = SPECS["energy_gain"].default
+    spring_period: int = SPECS["spring_period"].default
+    energy_kind: str = SPECS["energy_kind"].default
+    sigma_min_px: float = SPECS["sigma_min_px"].default
+    sigma_max_px: float = SPECS["sigma_max_px"].default
+
+    def __post_init__(self):
+        for f in fields(self):
+            object.__setattr__(self, f.name, check(f.name, getattr(self, f.name)))
+        if self.sigma_min_px >= self.sigma_max_px:
+            raise ParamError(f"sigma_min_px ({self.sigma_min_px}) must be below "
+                             f"sigma_max_px ({self.sigma_max_px})")
+
+    def replace(self, **changes) -> "Params":
+        return Params(**{**asdict(self), **changes})
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+    @property
+    def energy_kind_index(self) -> int:
+        return ENERGY_KINDS.index(self.energy_kind)
+
+    @property
+    def gate_d2(self) -> float:
+        """Mahalanobis gate: exp(-d2/2) > p_threshold  <=>  d2 < -2 ln(p_threshold)."""
+        return -2.0 * math.log(self.p_threshold)
+
+
+def check(name: str, value, where: str = "") -> object:
+    """Validate one parameter; return it converted to its type or raise ParamError."""
+    ctx = f"{where}: " if where else ""
+    spec = SPECS.get(name)
+    if spec is None:
+        raise ParamError(f"{ctx}unknown parameter {name!r}; known: {', '.join(SPECS)}")
+    if spec.kind is str:
+        if not isinstance(value, str) or value not in ENERGY_KINDS:
+            raise ParamError(f"{ctx}{name} must be one of {', '.join(ENERGY_KINDS)}, got {value!r}")
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ParamError(f"{ctx}{name} must be a number, got {type(value).__name__} {value!r}")
+    if spec.kind is int:
+        if float(value) != int(value):
+            raise ParamError(f"{ctx}{name} must be a whole number, got {value!r}")
+        value = int(value)
+    else:
+        value = float(value)
+        if not math.isfinite(value):
+            raise ParamError(f"{ctx}{name} must be finite, got {value!r}")
+    if (spec.lo is not None and value < spec.lo) or (spec.hi is not None and value > spec.hi):
+        raise ParamError(f"{ctx}{name}={value!r} out of range [{spec.lo}, {spec.hi}] {spec.unit}".rstrip())
+    return value
+
+
+def from_mapping(values: Mapping, base: Params | None = None, where: str = "") -> Params:
+    """Params from a dict (e.g. a TOML ``[params]`` table), over ``base`` or defaults."""
+    base = base or Params()
+    merged = base.as_dict()
+    for k, v in values.items():
+        merged[k] = check(k, v, where)
+    try:
+        return Params(**merged)
+    except ParamError as e:
+        raise ParamError(f"{where}: {e}" if where else str(e)) from None
+
+
+def load(path) -> Params:
+    """Read a params TOML file: either a top-level table of names or a ``[params]`` table."""
+    import tomllib
+    with open(path, "rb") as f:
+        try:
+            data = tomllib.load(f)
+        except tomllib.TOMLDecodeError as e:
+            raise ParamError(f"{path}: not valid TOML: {e}") from None
+    return from_mapping(data.get("params", data), where=str(path))
