@@ -1,0 +1,679 @@
+"""The host-link wire protocol, shared by the firmware (``firmware_sim.link``) and the
+host (``hostctl``).  Byte-by-byte description: docs/protocol.md.
+
+A frame on the wire is ``COBS(body) 0x00``; the body is::
+
+    version u8 | type u8 | flags u8 | seq u16 | payload ... | [counter u64 | tag 16B] | crc32 u32
+
+All integers little-endian.  ``flags`` bit 0 (SIGNED) says a signature trailer follows
+the payload: a 64-bit monotonically increasing counter and the first 16 bytes of
+HMAC-SHA256(key, nonce || header || payload || counter) (MAVLink-2-style signing; the
+session nonce comes from INFO).  The CRC is CRC-32 (IEEE 802.3, ``zlib.crc32``) over
+everything before it.  The header layout and the NACK payload are frozen across protocol
+versions so that two ends of different versions can still refuse each other politely.
+"""
+from __future__ import annotations
+
+import hashlib
+import hmac
+import json
+import math
+import struct
+import time
+import zlib
+from dataclasses import dataclass
+from enum import IntEnum
+
+import numpy as np
+
+PROTOCOL_VERSION = 1
+
+HEADER = struct.Struct("<BBBH")          # version, type, flags, seq
+CRC = struct.Struct("<I")
+COUNTER = struct.Struct("<Q")
+TAG_LEN = 16
+SIG_LEN = COUNTER.size + TAG_LEN
+FLAG_SIGNED = 0x01
+MAX_PAYLOAD = 1024
+MAX_BODY = HEADER.size + MAX_PAYLOAD + SIG_LEN + CRC.size
+MAX_ENCODED = MAX_BODY + MAX_BODY // 254 + 2   # COBS worst case: one code byte per 254
+MODEL_CHUNK_SIZE = 512
+NONCE_LEN = 8
+
+
+class MsgType(IntEnum):
+    HELLO = 0x01          # H->F  open a session, name the host's protocol version
+    INFO = 0x02           # F->H  versions, geometry, capacities, model, nonce
+    ACK = 0x03            # F->H  a command succeeded
+    NACK = 0x04           # F->H  a command was refused (code + reason)
+    MODEL_BEGIN = 0x10    # H->F  total length + CRC-32 of the model TOML
+    MODEL_CHUNK = 0x11    # H->F  offset + bytes
+    MODEL_COMMIT = 0x12   # H->F  validate and apply atomically
+    PARAM_SET = 0x20      # H->F  name + typed value
+    PARAM_GET = 0x21      # H->F  names (none = all)
+    PARAM_VALUE = 0x22    # F->H  names + typed values
+    START = 0x30
+    STOP = 0x31
+    RESET = 0x32
+    STATS = 0x33          # H->F request (empty) / F->H counters
+    TELEMETRY = 0x40      # F->H  one compact tracker snapshot
+    ENERGIES = 0x41       # F->H  reserved: per-connection energies at a lower rate
+    HEARTBEAT = 0x50      # both: liveness; the firmware's carries its link counters
+    LOG = 0x60            # F->H  level + text
+    ERROR = 0x61          # F->H  unsolicited error: code + text
+
+
+HOST_COMMANDS = frozenset({MsgType.HELLO, MsgType.MODEL_BEGIN, MsgType.MODEL_CHUNK,
+                           MsgType.MODEL_COMMIT, MsgType.PARAM_SET, MsgType.PARAM_GET,
+                           MsgType.START, MsgType.STOP, MsgType.RESET, MsgType.STATS,
+                           MsgType.HEARTBEAT})
+
+
+class Nack(IntEnum):
+    UNKNOWN_NAME = 1
+    OUT_OF_RANGE = 2
+    WRONG_TYPE = 3
+    BUSY = 4
+    INVALID_MODEL = 5
+    MALFORMED = 6
+    UNKNOWN_TYPE = 7
+    VERSION_MISMATCH = 8
+    BAD_STATE = 9
+    INTERNAL = 10
+
+
+def nack_code(name: str) -> Nack:
+    """The NACK code for an engine's ``UpdateRejected.code`` string ('out_of_range', ...)."""
+    try:
+        return Nack[name.upper()]
+    except KeyError:
+        return Nack.INTERNAL
+
+
+class WireError(ValueError):
+    """A frame or payload could not be decoded; the message says what and where."""
+
+
+class CobsError(WireError):
+    pass
+
+
+class CrcError(WireError):
+    pass
+
+
+# ---- COBS (Cheshire & Baker 1999) --------------------------------------------------
+def cobs_encode(data: bytes) -> bytes:
+    """Consistent Overhead Byte Stuffing: the output contains no 0x00 byte."""
+    out = bytearray()
+    for block in bytes(data).split(b"\x00"):
+        while len(block) >= 254:
+            out.append(255)
+            out += block[:254]
+            block = block[254:]
+        out.append(len(block) + 1)
+        out += block
+    return bytes(out)
+
+
+def cobs_decode(enc: bytes) -> bytes:
+    """Inverse of :func:`cobs_encode`; raises CobsError on a zero byte or a short block."""
+    out = bytearray()
+    i, n = 0, len(enc)
+    while i < n:
+        code = enc[i]
+        if code == 0:
+            raise CobsError(f"COBS: zero byte at offset {i}")
+        end = i + code
+        if end > n:
+            raise CobsError(f"COBS: block at offset {i} needs {code - 1} bytes, {n - i - 1} left")
+        block = enc[i + 1:end]
+        if 0 in block:
+            raise CobsError(f"COBS: zero byte inside block at offset {i}")
+        out += block
+        i = end
+        if code < 255 and i < n:
+            out.append(0)
+    return bytes(out)
+
+
+# ---- signing (MAVLink 2 style, HMAC-SHA256) ------------------------------------------
+def make_tag(key: bytes, nonce: bytes, header: bytes, payload: bytes, counter: int) -> bytes:
+    return hmac.new(key, nonce + header + payload + COUNTER.pack(counter),
+                    hashlib.sha256).digest()[:TAG_LEN]
+
+
+class Signer:
+    """Signs host frames for one session: counter = max(now in µs, last + 1)."""
+
+    def __init__(self, key: bytes, nonce: bytes):
+        self.key, self.nonce, self.last = bytes(key), bytes(nonce), 0
+
+    def next_counter(self) -> int:
+        self.last = max(time.time_ns() // 1000, self.last + 1)
+        return self.last
+
+
+class ReplayGuard:
+    """Firmware side: accepts a signed frame only if its tag verifies and its counter is
+    above every counter accepted before in this session (so replays are refused)."""
+
+    def __init__(self, key: bytes, nonce: bytes):
+        self.key, self.nonce, self.last = bytes(key), bytes(nonce), 0
+
+    def check(self, frame: "Frame") -> str | None:
+        """None if the frame is authentic and fresh, else the reason it is not."""
+        if frame.tag is None:
+            return "unsigned"
+        want = make_tag(self.key, self.nonce, frame.header, frame.payload, frame.counter)
+        if not hmac.compare_digest(want, frame.tag):
+            return "bad_tag"
+        if frame.counter <= self.last:
+            return "replay"
+        self.last = frame.counter
+        return None
+
+
+# ---- frames ------------------------------------------------------------------------
+@dataclass(frozen=True, slots=True)
+class Frame:
+    version: int
+    type: int
+    flags: int
+    seq: int
+    payload: bytes
+    counter: int | None = None
+    tag: bytes | None = None
+
+    @property
+    def header(self) -> bytes:
+        return HEADER.pack(self.version, self.type, self.flags, self.seq)
+
+
+def encode_body(mtype: int, seq: int, payload: bytes = b"", *, version: int = PROTOCOL_VERSION,
+                signer: Signer | None = None) -> bytes:
+    """The un-stuffed frame body (header, payload, optional signature, CRC-32)."""
+    if len(payload) > MAX_PAYLOAD:
+        raise WireError(f"payload of {len(payload)} bytes exceeds MAX_PAYLOAD={MAX_PAYLOAD}")
+    flags = FLAG_SIGNED if signer is not None else 0
+    header = HEADER.pack(version, int(mtype), flags, seq & 0xFFFF)
+    body = header + payload
+    if signer is not None:
+        counter = signer.next_counter()
+        body += COUNTER.pack(counter) + make_tag(signer.key, signer.nonce, header, payload, counter)
+    return body + CRC.pack(zlib.crc32(body))
+
+
+def encode_frame(mtype: int, seq: int, payload: bytes = b"", **kw) -> bytes:
+    """A complete wire frame: COBS-stuffed body plus the 0x00 delimiter."""
+    return cobs_encode(encode_body(mtype, seq, payload, **kw)) + b"\x00"
+
+
+def decode_body(body: bytes) -> Frame:
+    if len(body) < HEADER.size + CRC.size:
+        raise WireError(f"frame of {len(body)} bytes is shorter than header + CRC")
+    (crc,) = CRC.unpack_from(body, len(body) - CRC.size)
+    if zlib.crc32(body[:-CRC.size]) != crc:
+        raise CrcError("CRC-32 mismatch")
+    version, mtype, flags, seq = HEADER.unpack_from(body)
+    payload = body[HEADER.size:-CRC.size]
+    counter = tag = None
+    if flags & FLAG_SIGNED:
+        if len(payload) < SIG_LEN:
+            raise WireError("SIGNED flag set but the frame is too short for a signature")
+        (counter,) = COUNTER.unpack_from(payload, len(payload) - SIG_LEN)
+        tag = payload[-TAG_LEN:]
+        payload = payload[:-SIG_LEN]
+    if len(payload) > MAX_PAYLOAD:
+        raise WireError(f"payload of {len(payload)} bytes exceeds MAX_PAYLOAD={MAX_PAYLOAD}")
+    return Frame(version, mtype, flags, seq, payload, counter, tag)
+
+
+def decode_frame(enc: bytes) -> Frame:
+    """Decode one stuffed frame (without its delimiter)."""
+    return decode_body(cobs_decode(enc))
+
+
+class FrameReader:
+    """Splits a byte stream at 0x00 delimiters and decodes frames; a bad frame is dropped
+    and counted, and decoding resumes at the next delimiter (resynchronisation)."""
+
+    def __init__(self):
+        self.buf = bytearray()
+        self.skipping = False
+        self.counts = dict(frames=0, bytes=0, crc_errors=0, cobs_errors=0,
+                           malformed=0, oversize=0)
+
+    def feed(self, data: bytes) -> list[Frame]:
+        self.counts["bytes"] += len(data)
+        self.buf += data
+        out = []
+        while True:
+            end = self.buf.find(0)
+            if end < 0:
+                break
+            chunk = bytes(self.buf[:end])
+            del self.buf[:end + 1]
+            if self.skipping:
+                self.skipping = False
+                continue
+            if chunk:
+                frame = self._decode(chunk)
+                if frame is not None:
+                    out.append(frame)
+        if len(self.buf) > MAX_ENCODED:          # no delimiter in sight: drop, resync later
+            self.counts["oversize"] += 1
+            self.buf.clear()
+            self.skipping = True
+        return out
+
+    def _decode(self, chunk: bytes) -> Frame | None:
+        if len(chunk) > MAX_ENCODED:
+            self.counts["oversize"] += 1
+            return None
+        try:
+            frame = decode_frame(chunk)
+        except CobsError:
+            self.counts["cobs_errors"] += 1
+            return None
+        except CrcError:
+            self.counts["crc_errors"] += 1
+            return None
+        except WireError:
+            self.counts["malformed"] += 1
+            return None
+        self.counts["frames"] += 1
+        return frame
+
+
+class SeqTracker:
+    """Counts frames lost in one direction from gaps in the 16-bit sequence numbers."""
+
+    def __init__(self):
+        self.last: int | None = None
+        self.lost = 0
+        self.duplicates = 0
+
+    def update(self, seq: int) -> int:
+        """Returns the number of frames missing before ``seq`` (0 if in order)."""
+        if self.last is None:
+            self.last = seq
+            return 0
+        gap = (seq - self.last - 1) & 0xFFFF
+        if gap == 0xFFFF:            # same seq again
+            self.duplicates += 1
+            return 0
+        self.last = seq
+        if gap >= 0x8000:            # far behind: a stale or reordered frame, not a loss
+            return 0
+        self.lost += gap
+        return gap
+
+
+# ---- payload codecs ----------------------------------------------------------------
+class _Cursor:
+    """Bounds-checked reader over a payload; every error names the message and field."""
+
+    def __init__(self, data: bytes, what: str):
+        self.data, self.pos, self.what = data, 0, what
+
+    def take(self, n: int, field: str) -> bytes:
+        if self.pos + n > len(self.data):
+            raise WireError(f"{self.what}: truncated at {field} (need {n} bytes at offset "
+                            f"{self.pos}, payload is {len(self.data)})")
+        b = self.data[self.pos:self.pos + n]
+        self.pos += n
+        return b
+
+    def unpack(self, fmt: str, field: str):
+        s = struct.Struct("<" + fmt)
+        return s.unpack(self.take(s.size, field))
+
+    def u8(self, field):
+        return self.take(1, field)[0]
+
+    def text(self, field, lenfmt="B") -> str:
+        (n,) = self.unpack(lenfmt, field + " length")
+        try:
+            return self.take(n, field).decode("utf-8")
+        except UnicodeDecodeError:
+            raise WireError(f"{self.what}: {field} is not valid UTF-8") from None
+
+    def rest(self) -> bytes:
+        b = self.data[self.pos:]
+        self.pos = len(self.data)
+        return b
+
+    def done(self):
+        if self.pos != len(self.data):
+            raise WireError(f"{self.what}: {len(self.data) - self.pos} unexpected trailing bytes")
+
+
+def _text(s: str, lenfmt: str = "B") -> bytes:
+    b = s.encode("utf-8")
+    limit = 255 if lenfmt == "B" else 65535
+    if len(b) > limit:
+        raise WireError(f"string of {len(b)} bytes too long for a {lenfmt} length: {s[:40]!r}...")
+    return struct.pack("<" + lenfmt, len(b)) + b
+
+
+# typed values: tag byte then value (i: int64, f: float64, s: u8-length UTF-8, b: bool u8)
+def encode_value(v) -> bytes:
+    if isinstance(v, (bool, np.bool_)):
+        return b"b" + bytes([1 if v else 0])
+    if isinstance(v, (int, np.integer)):
+        if not -2**63 <= int(v) < 2**63:
+            raise WireError(f"integer {v} does not fit int64")
+        return b"i" + struct.pack("<q", int(v))
+    if isinstance(v, (float, np.floating)):
+        return b"f" + struct.pack("<d", float(v))
+    if isinstance(v, str):
+        return b"s" + _text(v)
+    raise WireError(f"cannot encode a {type(v).__name__} value {v!r}")
+
+
+def _read_value(c: _Cursor, field: str):
+    tag = c.take(1, field + " type")
+    if tag == b"b":
+        b = c.u8(field)
+        if b > 1:
+            raise WireError(f"{c.what}: {field}: bool byte must be 0 or 1, got {b}")
+        return bool(b)
+    if tag == b"i":
+        return c.unpack("q", field)[0]
+    if tag == b"f":
+        return c.unpack("d", field)[0]
+    if tag == b"s":
+        return c.text(field)
+    raise WireError(f"{c.what}: {field}: unknown value type {tag!r}")
+
+
+def encode_kv(items: dict) -> bytes:
+    """u8 count, then (u8-length name, typed value) pairs."""
+    if len(items) > 255:
+        raise WireError(f"{len(items)} entries exceed 255 per message")
+    return bytes([len(items)]) + b"".join(_text(str(k)) + encode_value(v) for k, v in items.items())
+
+
+def decode_kv(payload: bytes, what: str = "key/value list") -> dict:
+    c = _Cursor(payload, what)
+    n = c.u8("count")
+    out = {}
+    for i in range(n):
+        name = c.text(f"entry {i} name")
+        out[name] = _read_value(c, f"entry {i} ({name!r}) value")
+    c.done()
+    return out
+
+
+def split_kv(items: dict, budget: int = MAX_PAYLOAD - 8) -> list[dict]:
+    """Split a dict into pieces whose :func:`encode_kv` fits ``budget`` bytes."""
+    parts, cur, size = [], {}, 1
+    for k, v in items.items():
+        n = len(_text(str(k))) + len(encode_value(v))
+        if cur and (size + n > budget or len(cur) == 255):
+            parts.append(cur)
+            cur, size = {}, 1
+        cur[k] = v
+        size += n
+    parts.append(cur)
+    return parts
+
+
+# HELLO: u16 protocol version, u8-length UTF-8 host name
+def encode_hello(name: str = "hostctl", version: int = PROTOCOL_VERSION) -> bytes:
+    return struct.pack("<H", version) + _text(name)
+
+
+def decode_hello(payload: bytes) -> tuple[int, str]:
+    c = _Cursor(payload, "HELLO")
+    (version,) = c.unpack("H", "version")
+    name = c.text("host name")
+    c.done()
+    return version, name
+
+
+# ACK: u16 acked seq, u8 acked type, u32 value (model generation, or 0)
+ACK = struct.Struct("<HBI")
+
+
+def encode_ack(seq: int, mtype: int, value: int = 0) -> bytes:
+    return ACK.pack(seq & 0xFFFF, int(mtype), int(value) & 0xFFFFFFFF)
+
+
+def decode_ack(payload: bytes) -> tuple[int, int, int]:
+    if len(payload) != ACK.size:
+        raise WireError(f"ACK: payload is {len(payload)} bytes, expected {ACK.size}")
+    return ACK.unpack(payload)
+
+
+# NACK (frozen across versions): u16 seq, u8 type, u8 code, u16-length UTF-8 reason
+def encode_nack(seq: int, mtype: int, code: int, reason: str) -> bytes:
+    r = reason.encode("utf-8")[:MAX_PAYLOAD - 8].decode("utf-8", "ignore")
+    return struct.pack("<HBB", seq & 0xFFFF, int(mtype) & 0xFF, int(code)) + _text(r, "H")
+
+
+def decode_nack(payload: bytes) -> tuple[int, int, int, str]:
+    c = _Cursor(payload, "NACK")
+    seq, mtype, code = c.unpack("HBB", "header")
+    reason = c.text("reason", "H")
+    c.done()
+    return seq, mtype, code, reason
+
+
+# VERSION_MISMATCH NACKs carry their reason as "firmware=N host=M: text"
+def version_reason(firmware: int, host: int) -> str:
+    return (f"firmware=v{firmware} host=v{host}: protocol version mismatch "
+            f"(firmware speaks v{firmware}, host sent v{host})")
+
+
+# INFO: u16 protocol version, 8-byte session nonce, u8 flags (bit0 auth required,
+# bit1 running), u32 generation, u16-length UTF-8 JSON of the engine's info() dict
+def encode_info(info: dict, nonce: bytes, auth_required: bool,
+                version: int = PROTOCOL_VERSION) -> bytes:
+    flags = (1 if auth_required else 0) | (2 if info.get("running") else 0)
+    js = json.dumps(info, separators=(",", ":"), sort_keys=True, default=_json_default)
+    return (struct.pack("<H", version) + bytes(nonce).ljust(NONCE_LEN, b"\0")[:NONCE_LEN]
+            + struct.pack("<BI", flags, int(info.get("generation", 0)) & 0xFFFFFFFF)
+            + _text(js, "H"))
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, bytes):
+        return o.hex()
+    return str(o)
+
+
+def decode_info(payload: bytes) -> dict:
+    c = _Cursor(payload, "INFO")
+    (version,) = c.unpack("H", "version")
+    nonce = c.take(NONCE_LEN, "nonce")
+    flags, generation = c.unpack("BI", "flags")
+    try:
+        info = json.loads(c.text("info JSON", "H"))
+    except json.JSONDecodeError as e:
+        raise WireError(f"INFO: info JSON is invalid: {e}") from None
+    c.done()
+    if not isinstance(info, dict):
+        raise WireError("INFO: info JSON is not an object")
+    info.update(protocol_version=version, nonce=nonce, auth_required=bool(flags & 1),
+                running=bool(flags & 2), generation=generation)
+    return info
+
+
+# MODEL_BEGIN: u32 total length, u32 CRC-32 of the whole text; MODEL_CHUNK: u32 offset,
+# bytes; MODEL_COMMIT: u32 total length, u32 CRC-32 (checked again before applying)
+MODEL_HDR = struct.Struct("<II")
+
+
+def encode_model_begin(text: bytes) -> bytes:
+    return MODEL_HDR.pack(len(text), zlib.crc32(text))
+
+
+def decode_model_begin(payload: bytes) -> tuple[int, int]:
+    if len(payload) != MODEL_HDR.size:
+        raise WireError(f"MODEL_BEGIN/COMMIT: payload is {len(payload)} bytes, expected 8")
+    return MODEL_HDR.unpack(payload)
+
+
+def encode_model_chunk(offset: int, data: bytes) -> bytes:
+    return struct.pack("<I", offset) + data
+
+
+def decode_model_chunk(payload: bytes) -> tuple[int, bytes]:
+    if len(payload) < 4:
+        raise WireError("MODEL_CHUNK: payload shorter than its 4-byte offset")
+    return struct.unpack_from("<I", payload)[0], payload[4:]
+
+
+# PARAM_SET: u8-length name + typed value.  PARAM_GET: u8 count + u8-length names.
+def encode_param_set(name: str, value) -> bytes:
+    return _text(name) + encode_value(value)
+
+
+def decode_param_set(payload: bytes) -> tuple[str, object]:
+    c = _Cursor(payload, "PARAM_SET")
+    name = c.text("name")
+    value = _read_value(c, f"value of {name!r}")
+    c.done()
+    return name, value
+
+
+def encode_param_get(names) -> bytes:
+    names = list(names)
+    if len(names) > 255:
+        raise WireError("PARAM_GET: at most 255 names per request")
+    return bytes([len(names)]) + b"".join(_text(n) for n in names)
+
+
+def decode_param_get(payload: bytes) -> list[str]:
+    c = _Cursor(payload, "PARAM_GET")
+    names = [c.text(f"name {i}") for i in range(c.u8("count"))]
+    c.done()
+    return names
+
+
+# PARAM_VALUE / STATS replies: u16 request seq, u8 part, u8 parts, key/value list
+REPLY_HDR = struct.Struct("<HBB")
+
+
+def encode_reply_part(seq: int, part: int, parts: int, items: dict) -> bytes:
+    return REPLY_HDR.pack(seq & 0xFFFF, part, parts) + encode_kv(items)
+
+
+def decode_reply_part(payload: bytes, what: str) -> tuple[int, int, int, dict]:
+    if len(payload) < REPLY_HDR.size:
+        raise WireError(f"{what}: payload shorter than its 4-byte header")
+    seq, part, parts = REPLY_HDR.unpack_from(payload)
+    return seq, part, parts, decode_kv(payload[REPLY_HDR.size:], what)
+
+
+# HEARTBEAT (firmware): u64 uptime µs, u32 rx frames, u32 rx errors, u32 rx lost,
+# u32 tx frames, u32 tx dropped.  (host): empty.
+HEARTBEAT = struct.Struct("<QIIIII")
+HEARTBEAT_FIELDS = ("uptime_us", "rx_frames", "rx_errors", "rx_lost", "tx_frames", "tx_dropped")
+
+
+def encode_heartbeat(**v) -> bytes:
+    return HEARTBEAT.pack(*(int(v.get(k, 0)) & (2**64 - 1 if i == 0 else 0xFFFFFFFF)
+                            for i, k in enumerate(HEARTBEAT_FIELDS)))
+
+
+def decode_heartbeat(payload: bytes) -> dict:
+    if len(payload) != HEARTBEAT.size:
+        raise WireError(f"HEARTBEAT: payload is {len(payload)} bytes, expected {HEARTBEAT.size}")
+    return dict(zip(HEARTBEAT_FIELDS, HEARTBEAT.unpack(payload)))
+
+
+# LOG / ERROR: u8 level or code, u16-length UTF-8 text
+def encode_log(level: int, text: str) -> bytes:
+    return bytes([level & 0xFF]) + _text(text[:MAX_PAYLOAD - 8], "H")
+
+
+def decode_log(payload: bytes) -> tuple[int, str]:
+    c = _Cursor(payload, "LOG")
+    level = c.u8("level")
+    text = c.text("text", "H")
+    c.done()
+    return level, text
+
+
+# ---- TELEMETRY ------------------------------------------------------------------------
+# Header: u64 t_us, u16 generation (low 16 bits), f32 mean energy, u8 tracker count;
+# then 8 bytes per tracker (see docs/protocol.md):
+#   x, y  u16  position in 1/16 px (0 .. 2047.9375, clamped); x bit 15 = active,
+#              y bit 15 = sensitive
+#   sx, sy u8  standard deviation sqrt(sxx), sqrt(syy) in 1/4 px (0 .. 63.75, saturated)
+#   rho   i8   correlation sxy / (sx sy) * 127
+#   act   u8   activity, log-scaled: round(16 log2(1 + A)), A = 2^(code/16) - 1
+TELE_HDR = struct.Struct("<QHfB")
+TELE_TRACKER = np.dtype([("x", "<u2"), ("y", "<u2"), ("sx", "u1"), ("sy", "u1"),
+                         ("rho", "i1"), ("act", "u1")])
+TRACK_DTYPE = np.dtype([("x", "<f8"), ("y", "<f8"), ("sxx", "<f8"), ("sxy", "<f8"),
+                        ("syy", "<f8"), ("activity", "<f8"), ("active", "?"),
+                        ("sensitive", "?")])
+POS_SCALE = 16.0
+POS_MAX = 0x7FFF / POS_SCALE
+SIGMA_SCALE = 4.0
+ACT_SCALE = 16.0
+
+
+def encode_telemetry(t_us: int, generation: int, mean_energy: float, trackers) -> bytes:
+    """Pack one snapshot; ``trackers`` has fields x, y, sxx, sxy, syy, activity, active,
+    sensitive (any numeric dtypes).  NaNs encode as 0."""
+    tr = np.asarray(trackers)
+    n = len(tr)
+    if n > 255 or TELE_HDR.size + n * TELE_TRACKER.itemsize > MAX_PAYLOAD:
+        raise WireError(f"TELEMETRY: {n} trackers do not fit one frame")
+    with np.errstate(invalid="ignore"):
+        x = np.nan_to_num(np.clip(tr["x"], 0.0, POS_MAX))
+        y = np.nan_to_num(np.clip(tr["y"], 0.0, POS_MAX))
+        sx = np.sqrt(np.maximum(np.nan_to_num(tr["sxx"].astype(float)), 0.0))
+        sy = np.sqrt(np.maximum(np.nan_to_num(tr["syy"].astype(float)), 0.0))
+        den = sx * sy
+        rho = np.where(den > 0, np.nan_to_num(tr["sxy"].astype(float)) / np.where(den > 0, den, 1), 0.0)
+        act = np.maximum(np.nan_to_num(tr["activity"].astype(float)), 0.0)
+    rec = np.empty(n, TELE_TRACKER)
+    rec["x"] = np.rint(x * POS_SCALE).astype(np.uint16) | (np.asarray(tr["active"], bool).astype(np.uint16) << 15)
+    rec["y"] = np.rint(y * POS_SCALE).astype(np.uint16) | (np.asarray(tr["sensitive"], bool).astype(np.uint16) << 15)
+    rec["sx"] = np.minimum(np.rint(sx * SIGMA_SCALE), 255)
+    rec["sy"] = np.minimum(np.rint(sy * SIGMA_SCALE), 255)
+    rec["rho"] = np.rint(np.clip(rho, -1.0, 1.0) * 127)
+    rec["act"] = np.minimum(np.rint(ACT_SCALE * np.log2(1.0 + act)), 255)
+    me = float(mean_energy)
+    if not math.isfinite(me):
+        me = float("nan")
+    return TELE_HDR.pack(int(t_us) & (2**64 - 1), int(generation) & 0xFFFF, me, n) + rec.tobytes()
+
+
+def decode_telemetry(payload: bytes) -> tuple[int, int, float, np.ndarray]:
+    """-> (t_us, generation & 0xFFFF, mean_energy, array of TRACK_DTYPE)."""
+    if len(payload) < TELE_HDR.size:
+        raise WireError(f"TELEMETRY: payload of {len(payload)} bytes is shorter than its header")
+    t_us, gen, me, n = TELE_HDR.unpack_from(payload)
+    want = TELE_HDR.size + n * TELE_TRACKER.itemsize
+    if len(payload) != want:
+        raise WireError(f"TELEMETRY: {n} trackers need {want} bytes, payload has {len(payload)}")
+    rec = np.frombuffer(payload, TELE_TRACKER, n, TELE_HDR.size)
+    out = np.empty(n, TRACK_DTYPE)
+    out["x"] = (rec["x"] & 0x7FFF) / POS_SCALE
+    out["y"] = (rec["y"] & 0x7FFF) / POS_SCALE
+    out["active"] = rec["x"] >> 15
+    out["sensitive"] = rec["y"] >> 15
+    sx = rec["sx"] / SIGMA_SCALE
+    sy = rec["sy"] / SIGMA_SCALE
+    out["sxx"] = sx * sx
+    out["syy"] = sy * sy
+    out["sxy"] = rec["rho"] / 127.0 * sx * sy
+    out["activity"] = np.exp2(rec["act"] / ACT_SCALE) - 1.0
+    return t_us, gen, me, out
+
+
+def framed_size(payload_len: int, signed: bool = False) -> int:
+    """Bytes on the wire for a payload of ``payload_len`` bytes, delimiter included, worst case."""
+    body = HEADER.size + payload_len + (SIG_LEN if signed else 0) + CRC.size
+    return body + body // 254 + 1 + 1
