@@ -21,6 +21,9 @@ def extensions():
     for pyx in sorted(glob.glob("springtrack/**/*.pyx", recursive=True)
                       + glob.glob("firmware_sim/**/*.pyx", recursive=True)):
         module = os.path.splitext(pyx)[0].replace(os.sep, ".")
+        only = os.environ.get("SPRINGTRACK_ONLY")      # developer convenience: build a subset
+        if only and not any(module.startswith(o) for o in only.split(",")):
+            continue
         exts.append(Extension(
             module, [pyx],
             include_dirs=[np.get_include(), os.path.dirname(pyx)],

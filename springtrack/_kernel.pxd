@@ -1,0 +1,80 @@
+# C-level interface of the float64 tracker kernel (springtrack/_kernel.pyx).
+#
+# Other Cython modules (firmware_sim's fused decode+track loop) cimport this:
+#
+#     from springtrack._kernel cimport Kernel, KState, kstep, ksnapshot
+#     cdef KState* s = &kernel.st          # kernel: a springtrack._kernel.Kernel
+#     with nogil:
+#         r = kstep(s, t, x, y)            # one event; r >= 0: winning tracker
+#
+# kstep() is the exact translation of springtrack.reference.ReferenceTracker.step().
+from libc.stdint cimport int64_t, uint64_t, int32_t, uint8_t
+
+cdef enum:
+    MAX_TRACKERS = 64
+    MAX_CONNECTIONS = 128
+    CELL_SHIFT = 4             # spatial index cells of 16 x 16 px
+
+cdef enum:
+    K_NO_TRACKER = -1
+    K_BACK_IN_TIME = -2
+    K_OUT_OF_SENSOR = -3
+
+ctypedef struct KState:
+    # geometry and model size
+    int n, nc, width, height
+    # parameters (derived constants precomputed by set_params)
+    double a1, a2, keep, cov_gain, gate, tau, act_thr, energy_scale, energy_gain
+    double smin2, smax2
+    int period, ekind, need_torsion
+    # tracker state, structure of arrays
+    double mx[MAX_TRACKERS]
+    double my[MAX_TRACKERS]
+    double sxx[MAX_TRACKERS]
+    double sxy[MAX_TRACKERS]
+    double syy[MAX_TRACKERS]
+    double ia[MAX_TRACKERS]          # inverse covariance [ia ib; ib ic]
+    double ib2[MAX_TRACKERS]         # 2 * ib
+    double ic[MAX_TRACKERS]
+    double act[MAX_TRACKERS]
+    int64_t tlast[MAX_TRACKERS]
+    double mass[MAX_TRACKERS]
+    double gdx0[MAX_TRACKERS]
+    double gdy0[MAX_TRACKERS]
+    int degree[MAX_TRACKERS]
+    uint64_t sensitive_mask          # bit i set: tracker i may take events (eq. 21)
+    # connections
+    int ca[MAX_CONNECTIONS]
+    int cb[MAX_CONNECTIONS]
+    int kinds[MAX_CONNECTIONS]       # bit 1 euclidean, 2 torsional, 4 cartesian
+    double stiff[MAX_CONNECTIONS]
+    double l0[MAX_CONNECTIONS]
+    double th0[MAX_CONNECTIONS]
+    double dx0[MAX_CONNECTIONS]
+    double dy0[MAX_CONNECTIONS]
+    double energy[3][MAX_CONNECTIONS]
+    double mean_energy
+    # spatial index: cells[cy * gw + cx] has bit i set if tracker i's gate box may cover
+    # the cell; box_* is the (margin-enlarged) box each tracker is indexed with.
+    uint64_t* cells
+    int gw, gh
+    int box_x0[MAX_TRACKERS]
+    int box_x1[MAX_TRACKERS]
+    int box_y0[MAX_TRACKERS]
+    int box_y1[MAX_TRACKERS]
+    double bx_lo[MAX_TRACKERS]
+    double bx_hi[MAX_TRACKERS]
+    double by_lo[MAX_TRACKERS]
+    double by_hi[MAX_TRACKERS]
+    # counters
+    int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates, n_reindex
+    int since_spring
+
+cdef int kstep(KState* s, int64_t t, int x, int y) noexcept nogil
+cdef void ksprings(KState* s) noexcept nogil
+cdef double kactivity(const KState* s, int i, int64_t t) noexcept nogil
+
+cdef class Kernel:
+    cdef KState st
+    cdef object model
+    cdef object params

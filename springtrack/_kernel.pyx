@@ -1,0 +1,541 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+"""Float64 tracker kernel: a line-by-line translation of springtrack/reference.py.
+
+The per-event loop touches no Python object, allocates nothing and runs without the GIL.
+Equations cite Valeiras et al. 2015; comments marked [ref] point at the reference
+lines whose floating-point order they reproduce.
+
+Speed comes from two ideas that do not change any result:
+* argmin of the Mahalanobis distance d^2 (eq. 2 in the log domain, no exp per tracker);
+* a coarse spatial index: a bitmask of trackers per 16x16 px cell whose gate box
+  (|dx| <= sqrt(gate*sxx), |dy| <= sqrt(gate*syy), enlarged by a margin) covers the cell.
+  Trackers outside an event's cell cannot have d^2 < gate, so scanning only the cell's
+  candidates, in index order, finds exactly the full scan's winner.
+"""
+from libc.math cimport exp, sqrt, atan2, cos, sin, fmod, floor, M_PI
+from libc.stdlib cimport calloc, free
+from libc.string cimport memset
+from libc.stdint cimport int64_t, uint64_t, uint8_t
+
+import numpy as np
+cimport numpy as cnp
+
+from springtrack.events cimport Event
+from springtrack.events import EVENT_DTYPE
+from springtrack import limits as _limits
+from springtrack.reference import covariance_bias, RHO_MAX as _RHO_MAX
+
+cnp.import_array()
+
+assert _limits.MAX_TRACKERS == MAX_TRACKERS and _limits.MAX_CONNECTIONS == MAX_CONNECTIONS
+
+cdef double RHO_MAX = _RHO_MAX
+cdef double TWO_PI = 2.0 * M_PI
+cdef double INDEX_MARGIN = 3.0      # px added around a gate box when it is (re)indexed
+
+cdef extern from *:
+    """
+    static inline int st_ctz64(unsigned long long v) { return __builtin_ctzll(v); }
+    """
+    int st_ctz64(unsigned long long v) nogil
+
+
+# ---- spatial index ------------------------------------------------------------------
+cdef inline void index_set(KState* s, int i, int x0, int x1, int y0, int y1, bint on) noexcept nogil:
+    cdef int cx, cy
+    cdef uint64_t bit = (<uint64_t>1) << i
+    for cy in range(y0, y1 + 1):
+        for cx in range(x0, x1 + 1):
+            if on:
+                s.cells[cy * s.gw + cx] |= bit
+            else:
+                s.cells[cy * s.gw + cx] &= ~bit
+
+
+cdef inline int clampi(int v, int lo, int hi) noexcept nogil:
+    if v < lo:
+        return lo
+    if v > hi:
+        return hi
+    return v
+
+
+cdef inline int cell_of(const KState* s, double v, int gmax) noexcept nogil:
+    # floor division of a pixel coordinate by the cell size, clamped to the grid
+    cdef double c = floor(v / (1 << CELL_SHIFT))
+    if c < 0.0:
+        return 0
+    if c > gmax:
+        return gmax
+    return <int>c
+
+
+cdef void reindex(KState* s, int i) noexcept nogil:
+    """(Re)insert tracker i with its current gate box enlarged by INDEX_MARGIN."""
+    cdef double hx = sqrt(s.gate * s.sxx[i]) + INDEX_MARGIN
+    cdef double hy = sqrt(s.gate * s.syy[i]) + INDEX_MARGIN
+    s.bx_lo[i] = s.mx[i] - hx
+    s.bx_hi[i] = s.mx[i] + hx
+    s.by_lo[i] = s.my[i] - hy
+    s.by_hi[i] = s.my[i] + hy
+    index_set(s, i, s.box_x0[i], s.box_x1[i], s.box_y0[i], s.box_y1[i], False)
+    s.box_x0[i] = cell_of(s, s.bx_lo[i], s.gw - 1)
+    s.box_x1[i] = cell_of(s, s.bx_hi[i], s.gw - 1)
+    s.box_y0[i] = cell_of(s, s.by_lo[i], s.gh - 1)
+    s.box_y1[i] = cell_of(s, s.by_hi[i], s.gh - 1)
+    index_set(s, i, s.box_x0[i], s.box_x1[i], s.box_y0[i], s.box_y1[i], True)
+    s.n_reindex += 1
+
+
+cdef inline void check_index(KState* s, int i) noexcept nogil:
+    """Re-index tracker i if its exact gate box has left the box it is indexed with."""
+    cdef double hx = sqrt(s.gate * s.sxx[i])
+    cdef double hy = sqrt(s.gate * s.syy[i])
+    if (s.mx[i] - hx < s.bx_lo[i] or s.mx[i] + hx > s.bx_hi[i]
+            or s.my[i] - hy < s.by_lo[i] or s.my[i] + hy > s.by_hi[i]):
+        reindex(s, i)
+
+
+# ---- per tracker ----------------------------------------------------------------------
+cdef inline void clamp_and_invert(KState* s, int i) noexcept nogil:
+    # [ref] _clamp_and_invert
+    cdef double sxx = s.sxx[i], syy = s.syy[i], sxy = s.sxy[i], lim, det
+    if sxx < s.smin2:
+        sxx = s.smin2
+    if sxx > s.smax2:
+        sxx = s.smax2
+    if syy < s.smin2:
+        syy = s.smin2
+    if syy > s.smax2:
+        syy = s.smax2
+    lim = RHO_MAX * sqrt(sxx * syy)
+    if sxy < -lim:
+        sxy = -lim
+    if sxy > lim:
+        sxy = lim
+    s.sxx[i] = sxx
+    s.sxy[i] = sxy
+    s.syy[i] = syy
+    det = sxx * syy - sxy * sxy
+    s.ia[i] = syy / det
+    s.ib2[i] = 2.0 * (-sxy / det)
+    s.ic[i] = sxx / det
+
+
+cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double fy, double d2) noexcept nogil:
+    # [ref] _update
+    cdef double p = exp(-0.5 * d2)                                   # eq. (2), unnormalised
+    s.act[i] = s.act[i] * exp(-(<double>(t - s.tlast[i])) / s.tau) + p   # eq. (6)
+    s.tlast[i] = t
+    cdef double dx = fx - s.mx[i]                                    # eq. (5), pre-update mean
+    cdef double dy = fy - s.my[i]
+    s.mx[i] = s.mx[i] + s.a1 * dx                                    # eq. (3)
+    s.my[i] = s.my[i] + s.a1 * dy
+    s.sxx[i] = s.keep * s.sxx[i] + s.cov_gain * (dx * dx)           # eq. (4)
+    s.sxy[i] = s.keep * s.sxy[i] + s.cov_gain * (dx * dy)
+    s.syy[i] = s.keep * s.syy[i] + s.cov_gain * (dy * dy)
+    clamp_and_invert(s, i)
+    check_index(s, i)
+
+
+cdef int kstep(KState* s, int64_t t, int x, int y) noexcept nogil:
+    """One event (Algorithm 1). Returns the winning tracker, K_NO_TRACKER or a skip code."""
+    if t < s.last_t:
+        s.n_back += 1
+        return K_BACK_IN_TIME
+    s.last_t = t
+    if x >= s.width or y >= s.height or x < 0 or y < 0:
+        s.n_outside += 1
+        return K_OUT_OF_SENSOR
+    s.n_valid += 1
+    cdef double fx = x, fy = y, dx, dy, d2
+    cdef double best_d2 = s.gate
+    cdef int best = K_NO_TRACKER, i
+    # eq. (2): candidates are the sensitive trackers indexed in this event's cell, in
+    # increasing index order, so ties resolve exactly as in the reference's full scan.
+    cdef uint64_t m = s.cells[(y >> CELL_SHIFT) * s.gw + (x >> CELL_SHIFT)] & s.sensitive_mask
+    while m:
+        i = st_ctz64(m)
+        m &= m - 1
+        dx = fx - s.mx[i]
+        dy = fy - s.my[i]
+        d2 = s.ia[i] * dx * dx + s.ic[i] * dy * dy + s.ib2[i] * dx * dy
+        if d2 < best_d2:
+            best_d2 = d2
+            best = i
+    if best >= 0:
+        update_tracker(s, best, t, fx, fy, best_d2)
+        s.n_assigned += 1
+    s.since_spring += 1
+    if s.since_spring >= s.period:
+        s.since_spring = 0
+        ksprings(s)
+    return best
+
+
+# ---- springs and energy criteria ----------------------------------------------------
+cdef inline double wrap_angle(double a) noexcept nogil:
+    a = fmod(a + M_PI, TWO_PI)
+    if a < 0.0:
+        a += TWO_PI
+    return a - M_PI
+
+
+cdef void ksprings(KState* s) noexcept nogil:
+    # [ref] springs
+    cdef int n = s.n, nc = s.nc, k, i, j, kind
+    cdef double ddx[MAX_TRACKERS]
+    cdef double ddy[MAX_TRACKERS]
+    cdef double dth_raw[MAX_CONNECTIONS]
+    cdef double th_cur[MAX_CONNECTIONS]
+    cdef double mean_dth = 0.0, a, rx, ry, l, dl, ex, ey, cx, cy, fx, fy, dth, nth, th, ux, uy
+    s.n_spring_updates += 1
+    for i in range(n):
+        ddx[i] = 0.0
+        ddy[i] = 0.0
+    if s.need_torsion:
+        for k in range(nc):                                          # eq. (14)
+            i = s.ca[k]
+            j = s.cb[k]
+            th_cur[k] = atan2(s.my[j] - s.my[i], s.mx[j] - s.mx[i])
+            dth_raw[k] = wrap_angle(th_cur[k] - s.th0[k])
+            mean_dth += dth_raw[k]
+        mean_dth = mean_dth / nc
+    for k in range(nc):
+        i = s.ca[k]
+        j = s.cb[k]
+        a = s.stiff[k]
+        rx = s.mx[j] - s.mx[i]
+        ry = s.my[j] - s.my[i]
+        l = sqrt(rx * rx + ry * ry)
+        dl = l - s.l0[k]                                             # eq. (10)
+        s.energy[0][k] = 0.5 * a * (dl * dl)                         # eq. (12)
+        ex = rx - s.dx0[k]                                           # eq. (18)
+        ey = ry - s.dy0[k]
+        s.energy[2][k] = 0.5 * a * (ex * ex + ey * ey)               # eq. (20)
+        kind = s.kinds[k]
+        if kind & 1:                                                 # eq. (11)
+            if l > 0.0:
+                cx = rx / l
+                cy = ry / l
+            else:
+                cx = cos(s.th0[k])
+                cy = sin(s.th0[k])
+            fx = a * dl * cx
+            fy = a * dl * cy
+            ddx[i] += fx / s.mass[i]
+            ddy[i] += fy / s.mass[i]
+            ddx[j] -= fx / s.mass[j]
+            ddy[j] -= fy / s.mass[j]
+        if s.need_torsion:
+            dth = dth_raw[k] - mean_dth                              # eq. (15)
+            s.energy[1][k] = 0.5 * a * (dth * dth)                   # eq. (17)
+            if kind & 2:                                             # eq. (16)
+                th = th_cur[k]
+                nth = th + a * dth
+                ux = l * (cos(nth) - cos(th))
+                uy = l * (sin(nth) - sin(th))
+                ddx[i] += ux / s.mass[i]
+                ddy[i] += uy / s.mass[i]
+                ddx[j] -= ux / s.mass[j]
+                ddy[j] -= uy / s.mass[j]
+        else:
+            s.energy[1][k] = 0.0
+        if kind & 4:                                                 # eq. (19)
+            ddx[i] += a * ex / s.mass[i]
+            ddy[i] += a * ey / s.mass[i]
+            ddx[j] -= a * ex / s.mass[j]
+            ddy[j] -= a * ey / s.mass[j]
+    for i in range(n):
+        s.mx[i] = s.mx[i] + ddx[i]
+        s.my[i] = s.my[i] + ddy[i]
+    energy_criteria(s)
+    for i in range(n):
+        check_index(s, i)
+
+
+cdef void energy_criteria(KState* s) noexcept nogil:
+    # [ref] _energy_criteria
+    cdef int n = s.n, nc = s.nc, k, i
+    cdef int over[MAX_TRACKERS]
+    cdef double total = 0.0, thr, msum = 0.0, gx = 0.0, gy = 0.0
+    if nc == 0:
+        return
+    for k in range(nc):                                              # eq. (13)
+        total += s.energy[s.ekind][k]
+    s.mean_energy = total / nc
+    thr = s.energy_scale * s.mean_energy
+    for i in range(n):
+        over[i] = 0
+    for k in range(nc):
+        if s.energy[s.ekind][k] > thr:
+            over[s.ca[k]] += 1
+            over[s.cb[k]] += 1
+    for i in range(n):
+        msum += s.mass[i]
+        gx += s.mass[i] * s.mx[i]
+        gy += s.mass[i] * s.my[i]
+    gx = gx / msum
+    gy = gy / msum
+    s.sensitive_mask = 0
+    for i in range(n):
+        if over[i] > 0:                                              # eq. (22)
+            s.mx[i] = s.mx[i] + s.energy_gain * (gx + s.gdx0[i] - s.mx[i])
+            s.my[i] = s.my[i] + s.energy_gain * (gy + s.gdy0[i] - s.my[i])
+        if not (s.degree[i] > 0 and over[i] == s.degree[i]):         # eq. (21)
+            s.sensitive_mask |= (<uint64_t>1) << i
+
+
+cdef double kactivity(const KState* s, int i, int64_t t) noexcept nogil:
+    """eq. (6) evaluated lazily at time t."""
+    return s.act[i] * exp(-(<double>(t - s.tlast[i])) / s.tau)
+
+
+# ---- sampling -------------------------------------------------------------------------
+cdef struct SampleOut:
+    int64_t* t
+    double* x
+    double* y
+    double* sxx
+    double* sxy
+    double* syy
+    double* act
+    uint8_t* active
+    uint8_t* sensitive
+    double* energy            # (cap, 3): mean energy of each kind
+    Py_ssize_t cap, count
+
+
+cdef inline void ksnapshot(const KState* s, int64_t t, SampleOut* o) noexcept nogil:
+    cdef Py_ssize_t row = o.count, base = row * s.n
+    cdef int i, k, q
+    cdef double a, tot
+    o.t[row] = t
+    for i in range(s.n):
+        a = kactivity(s, i, t)
+        o.x[base + i] = s.mx[i]
+        o.y[base + i] = s.my[i]
+        o.sxx[base + i] = s.sxx[i]
+        o.sxy[base + i] = s.sxy[i]
+        o.syy[base + i] = s.syy[i]
+        o.act[base + i] = a
+        o.active[base + i] = a > s.act_thr
+        o.sensitive[base + i] = (s.sensitive_mask >> i) & 1
+    for q in range(3):
+        tot = 0.0
+        for k in range(s.nc):
+            tot += s.energy[q][k]
+        o.energy[row * 3 + q] = tot / s.nc if s.nc > 0 else 0.0
+    o.count = row + 1
+
+
+cdef Py_ssize_t run_events(KState* s, const Event* ev, Py_ssize_t n, int64_t sample_us,
+                           int64_t* next_t, SampleOut* o) noexcept nogil:
+    """Process events until done or the sample buffer is full; returns events consumed."""
+    cdef Py_ssize_t k
+    cdef int64_t t
+    for k in range(n):
+        t = ev[k].t
+        if sample_us > 0 and t >= next_t[0] and t >= s.last_t:
+            while t >= next_t[0]:
+                if o.count >= o.cap:
+                    return k
+                ksnapshot(s, next_t[0], o)
+                next_t[0] += sample_us
+        kstep(s, t, ev[k].x, ev[k].y)
+    return n
+
+
+# ---- Python wrapper -----------------------------------------------------------------
+cdef class Kernel:
+    """Owns one KState. ``Kernel(model, params)``; see springtrack.tracker.Tracker for the API."""
+
+    def __cinit__(self):
+        self.st.cells = NULL
+
+    def __init__(self, model, params):
+        cdef KState* s = &self.st
+        arr = model.arrays()
+        n = len(model.trackers)
+        nc = len(model.connections)
+        if n > MAX_TRACKERS or nc > MAX_CONNECTIONS:
+            raise ValueError(f"model exceeds kernel capacity ({MAX_TRACKERS} trackers, "
+                             f"{MAX_CONNECTIONS} connections)")
+        if s.cells != NULL:
+            free(s.cells)
+            s.cells = NULL
+        memset(s, 0, sizeof(KState))
+        self.model = model
+        s.n = n
+        s.nc = nc
+        s.width = model.width
+        s.height = model.height
+        s.gw = ((model.width - 1) >> CELL_SHIFT) + 1
+        s.gh = ((model.height - 1) >> CELL_SHIFT) + 1
+        s.cells = <uint64_t*>calloc(s.gw * s.gh, sizeof(uint64_t))
+        if s.cells == NULL:
+            raise MemoryError()
+        for i in range(n):
+            s.mx[i] = arr["x"][i]
+            s.my[i] = arr["y"][i]
+            s.sxx[i] = arr["sxx"][i]
+            s.sxy[i] = arr["sxy"][i]
+            s.syy[i] = arr["syy"][i]
+            s.mass[i] = arr["mass"][i]
+            s.gdx0[i] = arr["gdx0"][i]
+            s.gdy0[i] = arr["gdy0"][i]
+            s.tlast[i] = 0
+            s.act[i] = 0.0
+        for k in range(nc):
+            s.ca[k] = arr["ca"][k]
+            s.cb[k] = arr["cb"][k]
+            s.kinds[k] = arr["kinds"][k]
+            s.stiff[k] = arr["stiffness"][k]
+            s.l0[k] = arr["l0"][k]
+            s.th0[k] = arr["th0"][k]
+            s.dx0[k] = arr["dx0"][k]
+            s.dy0[k] = arr["dy0"][k]
+            s.degree[s.ca[k]] += 1
+            s.degree[s.cb[k]] += 1
+        s.sensitive_mask = 0
+        for i in range(n):
+            s.sensitive_mask |= (<uint64_t>1) << i
+        s.last_t = -(1 << 62)
+        self.set_params(params)
+        for i in range(n):
+            clamp_and_invert(s, i)
+            s.box_x0[i] = 0
+            s.box_x1[i] = -1
+            s.box_y0[i] = 0
+            s.box_y1[i] = -1
+            reindex(s, i)
+        s.n_reindex = 0
+
+    def __dealloc__(self):
+        if self.st.cells != NULL:
+            free(self.st.cells)
+            self.st.cells = NULL
+
+    def set_params(self, params):
+        """Apply validated springtrack.params.Params (between two events)."""
+        cdef KState* s = &self.st
+        self.params = params
+        s.a1 = params.alpha_position
+        s.a2 = params.alpha_covariance
+        s.keep = 1.0 - params.alpha_covariance
+        s.gate = params.gate_d2
+        s.tau = params.activity_tau_us
+        s.act_thr = params.activity_threshold
+        s.energy_scale = params.energy_scale
+        s.energy_gain = params.energy_gain
+        s.cov_gain = params.alpha_covariance / covariance_bias(params.alpha_position, params.gate_d2)
+        s.smin2 = params.sigma_min_px * params.sigma_min_px
+        s.smax2 = params.sigma_max_px * params.sigma_max_px
+        s.period = params.spring_period
+        s.ekind = params.energy_kind_index
+        s.need_torsion = 1 if s.ekind == 1 else 0
+        for k in range(s.nc):
+            if s.kinds[k] & 2:
+                s.need_torsion = 1
+        if s.cells != NULL:
+            for i in range(s.n):
+                clamp_and_invert(s, i)
+                reindex(s, i)
+
+    def run(self, events, long long sample_us, long long next_t, Py_ssize_t cap):
+        """Process ``events`` (EVENT_DTYPE, C-contiguous). Returns (consumed, next_t, samples)
+        where samples is a dict of arrays with at most ``cap`` rows (None if sample_us <= 0)."""
+        cdef cnp.ndarray ev = events
+        cdef Py_ssize_t n = ev.shape[0], consumed
+        cdef KState* s = &self.st
+        cdef SampleOut o
+        cdef int64_t nt = next_t
+        cdef int nt_ = s.n
+        if ev.dtype != EVENT_DTYPE or not ev.flags.c_contiguous:
+            raise TypeError("events must be a C-contiguous EVENT_DTYPE array")
+        if sample_us <= 0:
+            cap = 0
+        out = dict(t=np.empty(cap, np.int64), x=np.empty((cap, nt_)), y=np.empty((cap, nt_)),
+                   sxx=np.empty((cap, nt_)), sxy=np.empty((cap, nt_)), syy=np.empty((cap, nt_)),
+                   activity=np.empty((cap, nt_)), active=np.empty((cap, nt_), np.uint8),
+                   sensitive=np.empty((cap, nt_), np.uint8), energy=np.empty((cap, 3)))
+        cdef int64_t[::1] vt = out["t"]
+        cdef double[:, ::1] vx = out["x"], vy = out["y"], vsxx = out["sxx"], vsxy = out["sxy"]
+        cdef double[:, ::1] vsyy = out["syy"], vact = out["activity"], ven = out["energy"]
+        cdef uint8_t[:, ::1] vactive = out["active"], vsens = out["sensitive"]
+        o.cap = cap
+        o.count = 0
+        if cap > 0:
+            o.t = &vt[0]
+            o.x = &vx[0, 0]
+            o.y = &vy[0, 0]
+            o.sxx = &vsxx[0, 0]
+            o.sxy = &vsxy[0, 0]
+            o.syy = &vsyy[0, 0]
+            o.act = &vact[0, 0]
+            o.active = &vactive[0, 0]
+            o.sensitive = &vsens[0, 0]
+            o.energy = &ven[0, 0]
+        cdef const Event* p = <const Event*>cnp.PyArray_DATA(ev)
+        with nogil:
+            consumed = run_events(s, p, n, sample_us, &nt, &o)
+        if sample_us <= 0:
+            return consumed, nt, None
+        for key in out:
+            out[key] = out[key][:o.count]
+        return consumed, nt, out
+
+    def step(self, long long t, int x, int y):
+        return kstep(&self.st, t, x, y)
+
+    def springs(self):
+        ksprings(&self.st)
+
+    def snapshot(self, long long t):
+        """Dict of per-tracker arrays at event time t."""
+        cdef KState* s = &self.st
+        n = s.n
+        act = np.array([kactivity(s, i, t) for i in range(n)])
+        return dict(x=np.array([s.mx[i] for i in range(n)]),
+                    y=np.array([s.my[i] for i in range(n)]),
+                    sxx=np.array([s.sxx[i] for i in range(n)]),
+                    sxy=np.array([s.sxy[i] for i in range(n)]),
+                    syy=np.array([s.syy[i] for i in range(n)]),
+                    activity=act, active=act > s.act_thr,
+                    sensitive=np.array([bool((s.sensitive_mask >> i) & 1) for i in range(n)]))
+
+    def energies(self):
+        """(3, nc) array of the last spring update's energies: euclidean, torsional, cartesian."""
+        cdef KState* s = &self.st
+        return np.array([[s.energy[q][k] for k in range(s.nc)] for q in range(3)]).reshape(3, s.nc)
+
+    @property
+    def mean_energy(self):
+        return self.st.mean_energy
+
+    @property
+    def last_t(self):
+        return self.st.last_t
+
+    def counters(self):
+        cdef KState* s = &self.st
+        return dict(events_valid=s.n_valid, events_assigned=s.n_assigned,
+                    skipped_back_in_time=s.n_back, skipped_outside_sensor=s.n_outside,
+                    spring_updates=s.n_spring_updates, index_updates=s.n_reindex)
+
+    def check_index(self):
+        """Verify the spatial index invariant (tests): each tracker's exact gate box lies
+        inside its indexed box and its bit is set in every cell of that box."""
+        cdef KState* s = &self.st
+        cdef int i, cx, cy
+        for i in range(s.n):
+            hx = sqrt(s.gate * s.sxx[i])
+            hy = sqrt(s.gate * s.syy[i])
+            if (s.mx[i] - hx < s.bx_lo[i] or s.mx[i] + hx > s.bx_hi[i]
+                    or s.my[i] - hy < s.by_lo[i] or s.my[i] + hy > s.by_hi[i]):
+                return False
+            for cy in range(s.box_y0[i], s.box_y1[i] + 1):
+                for cx in range(s.box_x0[i], s.box_x1[i] + 1):
+                    if not (s.cells[cy * s.gw + cx] >> i) & 1:
+                        return False
+        return True

@@ -1,0 +1,320 @@
+"""The executable specification: Algorithm 1 of Valeiras et al. 2015, float64, one event at a time.
+
+Every line cites the equation it implements.  The Cython kernel (``_kernel.pyx``) is a
+line-by-line translation of this file and must agree with it to 1e-9 px; keep the two in
+step, including the order of floating-point operations (no ``**``, no ``math.hypot``:
+CPython's hypot is not libm's).
+
+Interpretation choices (docs/algorithm.md explains them):
+
+* eqs. (3)-(4): ``alpha_position`` / ``alpha_covariance`` weight the NEW event.
+* eq. (2): the threshold applies to the unnormalised kernel ``exp(-d^2/2)``, i.e. an
+  event may join tracker i only inside its gate ``d_i^2 < -2 ln(p_threshold)``; the
+  winner is the sensitive tracker with the smallest Mahalanobis distance d^2 (ties:
+  lowest index).  The activity increment of eq. (6) is that same kernel value.
+* eq. (5): the covariance sample is taken about the mean BEFORE the update of eq. (3)
+  and divided by the gate's truncation factor (see :func:`covariance_bias`), so a
+  tracker's ellipse converges to its blob's covariance instead of collapsing.
+* Springs run every ``spring_period`` valid events (paper: 55): all spring
+  displacements are computed from the same positions, then applied (Jacobi order);
+  energies are those of the positions before the displacement.
+* eqs. (21)-(22) use strict ``E > s * mean(E)`` so a model at rest (all E = 0) is
+  neither pulled nor insensitive; a tracker is pulled by eq. (22) at most once per
+  spring update, however many of its connections exceed the threshold.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .model import SPRING_BIT, ShapeModel
+from .params import ENERGY_KINDS, Params
+
+EUCLIDEAN, TORSIONAL, CARTESIAN = SPRING_BIT["euclidean"], SPRING_BIT["torsional"], SPRING_BIT["cartesian"]
+RHO_MAX = 0.99           # |correlation| bound that keeps a covariance positive definite
+TWO_PI = 2.0 * math.pi
+
+# Result codes of step(): >= 0 is the index of the tracker that took the event.
+NO_TRACKER = -1          # valid event, no sensitive tracker within its gate
+SKIPPED_BACK_IN_TIME = -2
+SKIPPED_OUT_OF_SENSOR = -3
+
+
+def truncation_factor(h: float) -> float:
+    """kappa(h) = E[x^2 | r^2 < h] for a standard 2-D normal: the per-axis variance kept
+    by a Mahalanobis gate of squared radius h (r^2 is chi-square with 2 dof)."""
+    e = math.exp(-0.5 * h)
+    return (2.0 - (h + 2.0) * e) / (2.0 * (1.0 - e))
+
+
+def covariance_bias(alpha_position: float, gate_d2: float) -> float:
+    """Expected ratio of the gated sample covariance of eq. (5) to the true blob covariance.
+
+    The event offset e = u - mu (pre-update mean) has covariance (1 + J) C, where
+    J = a1 / (2 - a1) is the stationary variance of the mean of eq. (3) (an exponential
+    moving average) in units of C.  The gate keeps |w|^2 < g with w whitened by C, so the
+    expected sample is C (1 + J) kappa(g / (1 + J)).  Dividing the sample by this factor
+    makes Sigma = C the fixed point of eq. (4)."""
+    j = alpha_position / (2.0 - alpha_position)
+    return (1.0 + j) * truncation_factor(gate_d2 / (1.0 + j))
+
+
+def wrap_angle(a: float) -> float:
+    """Map an angle to [-pi, pi)."""
+    a = math.fmod(a + math.pi, TWO_PI)
+    if a < 0.0:
+        a += TWO_PI
+    return a - math.pi
+
+
+class ReferenceTracker:
+    """Float64 reference tracker; state in plain Python lists, one event per call."""
+
+    def __init__(self, model: ShapeModel, params: Params | None = None):
+        self.model = model
+        arr = model.arrays()
+        self.n = len(model.trackers)
+        self.nc = len(model.connections)
+        self.width, self.height = model.width, model.height
+        # tracker state
+        self.mx = [float(v) for v in arr["x"]]
+        self.my = [float(v) for v in arr["y"]]
+        self.sxx = [float(v) for v in arr["sxx"]]
+        self.sxy = [float(v) for v in arr["sxy"]]
+        self.syy = [float(v) for v in arr["syy"]]
+        self.ia = [0.0] * self.n
+        self.ib = [0.0] * self.n
+        self.ic = [0.0] * self.n
+        self.act = [0.0] * self.n
+        self.tlast = [0] * self.n
+        self.sensitive = [True] * self.n
+        self.mass = [float(v) for v in arr["mass"]]
+        self.gdx0 = [float(v) for v in arr["gdx0"]]
+        self.gdy0 = [float(v) for v in arr["gdy0"]]
+        # connections
+        self.ca = [int(v) for v in arr["ca"]]
+        self.cb = [int(v) for v in arr["cb"]]
+        self.kinds = [int(v) for v in arr["kinds"]]
+        self.stiff = [float(v) for v in arr["stiffness"]]
+        self.l0 = [float(v) for v in arr["l0"]]
+        self.th0 = [float(v) for v in arr["th0"]]
+        self.dx0 = [float(v) for v in arr["dx0"]]
+        self.dy0 = [float(v) for v in arr["dy0"]]
+        self.energy = [[0.0] * self.nc for _ in ENERGY_KINDS]   # [kind][connection]
+        self.mean_energy = 0.0
+        self.degree = [0] * self.n
+        for k in range(self.nc):
+            self.degree[self.ca[k]] += 1
+            self.degree[self.cb[k]] += 1
+        # counters
+        self.last_t = -(1 << 62)
+        self.n_valid = self.n_assigned = self.n_back = self.n_outside = 0
+        self.since_spring = 0
+        self.n_spring_updates = 0
+        self.set_params(params if params is not None else Params())
+
+    def set_params(self, params: Params) -> None:
+        p = params
+        self.params = p
+        self.a1 = p.alpha_position
+        self.a2 = p.alpha_covariance
+        self.gate = p.gate_d2
+        self.tau = p.activity_tau_us
+        self.cov_gain = p.alpha_covariance / covariance_bias(p.alpha_position, p.gate_d2)
+        self.smin2 = p.sigma_min_px * p.sigma_min_px
+        self.smax2 = p.sigma_max_px * p.sigma_max_px
+        self.ekind = p.energy_kind_index
+        self.need_torsion = self.ekind == 1 or any(k & TORSIONAL for k in self.kinds)
+        for i in range(self.n):          # new sigma bounds apply at once
+            self._clamp_and_invert(i)
+
+    # ---- per event -----------------------------------------------------------
+    def step(self, t: int, x: int, y: int) -> int:
+        """Process one event; returns the winning tracker index or a NO_/SKIPPED_ code."""
+        if t < self.last_t:
+            self.n_back += 1
+            return SKIPPED_BACK_IN_TIME
+        self.last_t = t
+        if x >= self.width or y >= self.height:
+            self.n_outside += 1
+            return SKIPPED_OUT_OF_SENSOR
+        self.n_valid += 1
+        fx = float(x)
+        fy = float(y)
+        # eq. (2) in the log domain: smallest Mahalanobis d^2 among sensitive trackers,
+        # accepted only inside the gate exp(-d^2/2) > p_threshold.
+        best = NO_TRACKER
+        best_d2 = self.gate
+        for i in range(self.n):
+            if not self.sensitive[i]:
+                continue
+            dx = fx - self.mx[i]
+            dy = fy - self.my[i]
+            d2 = self.ia[i] * dx * dx + self.ic[i] * dy * dy + 2.0 * self.ib[i] * dx * dy
+            if d2 < best_d2:
+                best_d2 = d2
+                best = i
+        if best >= 0:
+            self._update(best, t, fx, fy, best_d2)
+            self.n_assigned += 1
+        self.since_spring += 1
+        if self.since_spring >= self.params.spring_period:
+            self.since_spring = 0
+            self.springs()
+        return best
+
+    def _update(self, i: int, t: int, fx: float, fy: float, d2: float) -> None:
+        p = math.exp(-0.5 * d2)                                     # eq. (2), unnormalised
+        # eq. (6): activity decays exponentially since this tracker's last event
+        self.act[i] = self.act[i] * math.exp(-(t - self.tlast[i]) / self.tau) + p
+        self.tlast[i] = t
+        dx = fx - self.mx[i]                                         # eq. (5): offset from the
+        dy = fy - self.my[i]                                         # pre-update mean
+        self.mx[i] = self.mx[i] + self.a1 * dx                       # eq. (3), a1 = weight of u
+        self.my[i] = self.my[i] + self.a1 * dy
+        keep = 1.0 - self.a2                                         # eq. (4), a2 = weight of dS,
+        g = self.cov_gain                                            # dS / covariance_bias
+        self.sxx[i] = keep * self.sxx[i] + g * (dx * dx)
+        self.sxy[i] = keep * self.sxy[i] + g * (dx * dy)
+        self.syy[i] = keep * self.syy[i] + g * (dy * dy)
+        self._clamp_and_invert(i)
+
+    def _clamp_and_invert(self, i: int) -> None:
+        """Bound sigma_x, sigma_y to [sigma_min, sigma_max] and |rho| to RHO_MAX, then keep
+        the inverse covariance used by eq. (2)."""
+        sxx = min(max(self.sxx[i], self.smin2), self.smax2)
+        syy = min(max(self.syy[i], self.smin2), self.smax2)
+        lim = RHO_MAX * math.sqrt(sxx * syy)
+        sxy = min(max(self.sxy[i], -lim), lim)
+        self.sxx[i], self.sxy[i], self.syy[i] = sxx, sxy, syy
+        det = sxx * syy - sxy * sxy
+        self.ia[i] = syy / det
+        self.ib[i] = -sxy / det
+        self.ic[i] = sxx / det
+
+    # ---- springs and energy criteria (every spring_period events) ------------
+    def springs(self) -> None:
+        n, nc = self.n, self.nc
+        self.n_spring_updates += 1
+        mx, my, mass = self.mx, self.my, self.mass
+        ddx = [0.0] * n
+        ddy = [0.0] * n
+        e_euc, e_tor, e_car = self.energy
+        dth_raw = [0.0] * nc
+        mean_dth = 0.0
+        if self.need_torsion:
+            for k in range(nc):                                      # eq. (14)
+                i, j = self.ca[k], self.cb[k]
+                th = math.atan2(my[j] - my[i], mx[j] - mx[i])
+                dth_raw[k] = wrap_angle(th - self.th0[k])
+                mean_dth += dth_raw[k]
+            mean_dth = mean_dth / nc
+        for k in range(nc):
+            i, j = self.ca[k], self.cb[k]
+            a = self.stiff[k]
+            rx = mx[j] - mx[i]
+            ry = my[j] - my[i]
+            l = math.sqrt(rx * rx + ry * ry)
+            dl = l - self.l0[k]                                      # eq. (10)
+            e_euc[k] = 0.5 * a * (dl * dl)                           # eq. (12)
+            ex = rx - self.dx0[k]                                    # eq. (18)
+            ey = ry - self.dy0[k]
+            e_car[k] = 0.5 * a * (ex * ex + ey * ey)                 # eq. (20)
+            kind = self.kinds[k]
+            if kind & EUCLIDEAN:                                     # eq. (11)
+                if l > 0.0:
+                    cx = rx / l
+                    cy = ry / l
+                else:
+                    cx = math.cos(self.th0[k])
+                    cy = math.sin(self.th0[k])
+                fx = a * dl * cx
+                fy = a * dl * cy
+                ddx[i] += fx / mass[i]
+                ddy[i] += fy / mass[i]
+                ddx[j] -= fx / mass[j]
+                ddy[j] -= fy / mass[j]
+            if self.need_torsion:
+                dth = dth_raw[k] - mean_dth                          # eq. (15)
+                e_tor[k] = 0.5 * a * (dth * dth)                     # eq. (17)
+                if kind & TORSIONAL:                                 # eq. (16)
+                    th = math.atan2(ry, rx)
+                    nth = th + a * dth
+                    ux = l * (math.cos(nth) - math.cos(th))
+                    uy = l * (math.sin(nth) - math.sin(th))
+                    ddx[i] += ux / mass[i]
+                    ddy[i] += uy / mass[i]
+                    ddx[j] -= ux / mass[j]
+                    ddy[j] -= uy / mass[j]
+            else:
+                e_tor[k] = 0.0
+            if kind & CARTESIAN:                                     # eq. (19)
+                ddx[i] += a * ex / mass[i]
+                ddy[i] += a * ey / mass[i]
+                ddx[j] -= a * ex / mass[j]
+                ddy[j] -= a * ey / mass[j]
+        for i in range(n):
+            mx[i] = mx[i] + ddx[i]
+            my[i] = my[i] + ddy[i]
+        self._energy_criteria()
+
+    def _energy_criteria(self) -> None:
+        n, nc = self.n, self.nc
+        if nc == 0:
+            return
+        e = self.energy[self.ekind]
+        total = 0.0
+        for k in range(nc):                                          # eq. (13)
+            total += e[k]
+        self.mean_energy = total / nc
+        thr = self.params.energy_scale * self.mean_energy
+        over_count = [0] * n
+        for k in range(nc):
+            if e[k] > thr:
+                over_count[self.ca[k]] += 1
+                over_count[self.cb[k]] += 1
+        # eq. (22): pull both ends of an over-threshold connection toward G + dG0
+        msum = 0.0
+        gx = 0.0
+        gy = 0.0
+        for i in range(n):
+            msum += self.mass[i]
+            gx += self.mass[i] * self.mx[i]
+            gy += self.mass[i] * self.my[i]
+        gx = gx / msum
+        gy = gy / msum
+        a_en = self.params.energy_gain
+        for i in range(n):
+            if over_count[i] > 0:
+                self.mx[i] = self.mx[i] + a_en * (gx + self.gdx0[i] - self.mx[i])
+                self.my[i] = self.my[i] + a_en * (gy + self.gdy0[i] - self.my[i])
+            # eq. (21): insensitive while every connection of the tracker is over
+            self.sensitive[i] = not (self.degree[i] > 0 and over_count[i] == self.degree[i])
+
+    # ---- observation -----------------------------------------------------------
+    def activity_at(self, i: int, t: int) -> float:
+        """eq. (6) evaluated lazily at time t (no event)."""
+        return self.act[i] * math.exp(-(t - self.tlast[i]) / self.tau)
+
+    def snapshot(self, t: int) -> tuple:
+        """(x, y, sxx, sxy, syy, activity, active, sensitive) lists at event time t."""
+        act = [self.activity_at(i, t) for i in range(self.n)]
+        thr = self.params.activity_threshold
+        return (list(self.mx), list(self.my), list(self.sxx), list(self.sxy), list(self.syy),
+                act, [a > thr for a in act], list(self.sensitive))
+
+    def run(self, events: np.ndarray, sample_us: int | None = None):
+        """Process an event array; with ``sample_us``, return [(t_us, snapshot), ...] taken at
+        every multiple of sample_us, each the state after all events with t < t_us."""
+        samples = []
+        next_t = None
+        for t, x, y in zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist()):
+            if sample_us:
+                if next_t is None:
+                    next_t = -(-t // sample_us) * sample_us
+                while t >= next_t and t >= self.last_t:
+                    samples.append((next_t, self.snapshot(next_t)))
+                    next_t += sample_us
+            self.step(t, x, y)
+        return samples

@@ -1,0 +1,118 @@
+"""A tracking result: tracker states sampled at regular event times, and its CSV form.
+
+CSV schema (``springtrack track``, ``firmware-sim --record``, ``hostctl record``)::
+
+    t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive
+
+one row per tracker per sample time; ``t_us`` is event time in microseconds, the row holds
+the state after all events with t < t_us; positions in px, covariances in px^2,
+``active``/``sensitive`` are 0/1.
+"""
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass, field
+
+import numpy as np
+
+CSV_HEADER = ("t_us", "tracker", "x", "y", "sxx", "sxy", "syy", "activity", "active", "sensitive")
+FLOAT_FIELDS = ("x", "y", "sxx", "sxy", "syy", "activity")
+BOOL_FIELDS = ("active", "sensitive")
+
+
+@dataclass
+class Track:
+    t_us: np.ndarray                      # (n,) int64
+    ids: list                             # K tracker ids
+    x: np.ndarray                         # (n, K) float64, px
+    y: np.ndarray
+    sxx: np.ndarray                       # px^2
+    sxy: np.ndarray
+    syy: np.ndarray
+    activity: np.ndarray
+    active: np.ndarray                    # (n, K) bool
+    sensitive: np.ndarray
+    energy: np.ndarray | None = None      # (n, 3) mean energy: euclidean, torsional, cartesian
+    meta: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.t_us)
+
+    @classmethod
+    def empty(cls, ids) -> "Track":
+        k = len(ids)
+        z = np.empty((0, k))
+        b = np.empty((0, k), bool)
+        return cls(np.empty(0, np.int64), list(ids), z, z.copy(), z.copy(), z.copy(), z.copy(),
+                   z.copy(), b, b.copy(), np.empty((0, 3)))
+
+    @classmethod
+    def concat(cls, parts, ids) -> "Track":
+        parts = [p for p in parts if len(p)]
+        if not parts:
+            return cls.empty(ids)
+        kw = {f: np.concatenate([getattr(p, f) for p in parts])
+              for f in ("t_us",) + FLOAT_FIELDS + BOOL_FIELDS}
+        en = None
+        if all(p.energy is not None for p in parts):
+            en = np.concatenate([p.energy for p in parts])
+        return cls(ids=list(ids), energy=en, **kw)
+
+    def tracker(self, tracker_id) -> dict:
+        k = self.ids.index(tracker_id)
+        return {f: getattr(self, f)[:, k] for f in FLOAT_FIELDS + BOOL_FIELDS} | {"t_us": self.t_us}
+
+    def to_csv(self, path_or_file) -> None:
+        own = isinstance(path_or_file, (str, bytes)) or hasattr(path_or_file, "__fspath__")
+        f = open(path_or_file, "w", newline="") if own else path_or_file
+        try:
+            f.write(",".join(CSV_HEADER) + "\n")
+            k = len(self.ids)
+            for s in range(0, len(self), 2000):            # format in blocks, not per row
+                e = min(s + 2000, len(self))
+                t = np.repeat(self.t_us[s:e], k)
+                ids = np.tile(np.array(self.ids, dtype=object), e - s)
+                cols = [getattr(self, c)[s:e].ravel() for c in FLOAT_FIELDS]
+                flags = [getattr(self, c)[s:e].ravel().astype(np.uint8) for c in BOOL_FIELDS]
+                f.writelines(
+                    f"{a},{b},{c:.6f},{d:.6f},{g:.6f},{h:.6f},{i:.6f},{j:.6g},{m},{n}\n"
+                    for a, b, c, d, g, h, i, j, m, n in zip(t.tolist(), ids, *(c.tolist() for c in cols),
+                                                           *(c.tolist() for c in flags)))
+        finally:
+            if own:
+                f.close()
+
+
+def read_csv(path) -> Track:
+    """Read a track CSV (any row order); raises ValueError naming the file on bad content."""
+    with open(path, newline="") as f:
+        reader = csv.reader(f)
+        header = next(reader, None)
+        if header is None or tuple(h.strip() for h in header) != CSV_HEADER:
+            raise ValueError(f"{path}: not a track CSV (expected header {','.join(CSV_HEADER)})")
+        rows = list(reader)
+    if not rows:
+        raise ValueError(f"{path}: track CSV has a header but no rows")
+    try:
+        t = np.array([int(r[0]) for r in rows], np.int64)
+        names = [r[1] for r in rows]
+        vals = np.array([[float(v) for v in r[2:8]] for r in rows])
+        flags = np.array([[int(v) for v in r[8:10]] for r in rows], bool)
+    except (ValueError, IndexError) as e:
+        raise ValueError(f"{path}: malformed track row: {e}") from None
+    ids = list(dict.fromkeys(names))
+    times = np.unique(t)
+    col = {n: i for i, n in enumerate(ids)}
+    ti = np.searchsorted(times, t)
+    ci = np.array([col[n] for n in names])
+    shape = (len(times), len(ids))
+    arrs = {}
+    for j, fname in enumerate(FLOAT_FIELDS):
+        a = np.full(shape, np.nan)
+        a[ti, ci] = vals[:, j]
+        arrs[fname] = a
+    for j, fname in enumerate(BOOL_FIELDS):
+        a = np.zeros(shape, bool)
+        a[ti, ci] = flags[:, j]
+        arrs[fname] = a
+    return Track(times, ids, **arrs)

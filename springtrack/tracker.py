@@ -1,0 +1,236 @@
+"""``springtrack.Tracker``: the Python API over the tracker backends.
+
+    >>> import springtrack
+    >>> tr = springtrack.Tracker("grid3x3")                   # preset or TOML path
+    >>> track = tr.run(events, sample_us=1000)               # doctest: +SKIP
+    >>> tr.state()                                           # doctest: +SKIP
+
+Backends (same results, different speed):
+
+* ``"cython"``    float64 kernel (``_kernel.pyx``), equal to the reference to 1e-9 px;
+* ``"reference"`` the pure-Python executable specification (``reference.py``), slow;
+* ``"fixed"``     the integer-only kernel, when built (see docs/fixed_point.md).
+
+Each backend object offers ``run(events, sample_us, next_t, cap)``, ``set_params``,
+``snapshot(t)``, ``energies()``, ``mean_energy``, ``last_t`` and ``counters()``.
+"""
+from __future__ import annotations
+
+import importlib
+from pathlib import Path
+
+import numpy as np
+
+from . import params as _params
+from .events import as_events
+from .model import ShapeModel, load_model
+from .params import Params
+from .reference import ReferenceTracker
+from .track import Track
+
+BACKENDS = ("cython", "reference", "fixed")
+STATE_FIELDS = ("x", "y", "sxx", "sxy", "syy", "activity", "active", "sensitive")
+SAMPLE_CAP = 4096          # sample rows per kernel call; bounds memory for huge time gaps
+
+
+class ReferenceBackend:
+    """Adapts ReferenceTracker to the backend interface (same sampling rule as the kernel)."""
+
+    def __init__(self, model: ShapeModel, params: Params):
+        self.ref = ReferenceTracker(model, params)
+
+    def set_params(self, params: Params) -> None:
+        self.ref.set_params(params)
+
+    def run(self, events, sample_us, next_t, cap):
+        ref = self.ref
+        rows = []
+        ts, xs, ys = events["t"].tolist(), events["x"].tolist(), events["y"].tolist()
+        for k in range(len(ts)):
+            t = ts[k]
+            if sample_us > 0 and t >= next_t and t >= ref.last_t:
+                while t >= next_t:
+                    if len(rows) >= cap:
+                        return k, next_t, self._pack(rows)
+                    rows.append((next_t, ref.snapshot(next_t), self._mean_energies()))
+                    next_t += sample_us
+            ref.step(t, xs[k], ys[k])
+        return len(ts), next_t, (self._pack(rows) if sample_us > 0 else None)
+
+    def _mean_energies(self):
+        nc = self.ref.nc
+        return [sum(e) / nc if nc else 0.0 for e in self.ref.energy]
+
+    def _pack(self, rows):
+        n = self.ref.n
+        out = {"t": np.array([r[0] for r in rows], np.int64)}
+        for j, f in enumerate(STATE_FIELDS):
+            dt = np.uint8 if f in ("active", "sensitive") else np.float64
+            out[f] = np.array([r[1][j] for r in rows], dt).reshape(len(rows), n)
+        out["energy"] = np.array([r[2] for r in rows], np.float64).reshape(len(rows), 3)
+        return out
+
+    def snapshot(self, t):
+        snap = self.ref.snapshot(t)
+        return {f: np.array(v, bool if f in ("active", "sensitive") else float)
+                for f, v in zip(STATE_FIELDS, snap)}
+
+    def energies(self):
+        return np.array(self.ref.energy, dtype=float).reshape(3, self.ref.nc)
+
+    @property
+    def mean_energy(self):
+        return self.ref.mean_energy
+
+    @property
+    def last_t(self):
+        return self.ref.last_t
+
+    def counters(self):
+        r = self.ref
+        return dict(events_valid=r.n_valid, events_assigned=r.n_assigned,
+                    skipped_back_in_time=r.n_back, skipped_outside_sensor=r.n_outside,
+                    spring_updates=r.n_spring_updates)
+
+
+def make_backend(name: str, model: ShapeModel, params: Params):
+    if name == "reference":
+        return ReferenceBackend(model, params)
+    if name == "cython":
+        from ._kernel import Kernel
+        return Kernel(model, params)
+    if name == "fixed":
+        try:
+            mod = importlib.import_module("springtrack._fixed")
+        except ImportError as e:
+            raise ValueError(f"backend 'fixed' is not available in this build: {e}") from None
+        return mod.FixedKernel(model, params)
+    raise ValueError(f"unknown backend {name!r}; choose from {', '.join(BACKENDS)}")
+
+
+def resolve_params(model: ShapeModel, params=None) -> Params:
+    """Defaults, then the model's [params], then ``params`` (Params, dict or TOML path)."""
+    base = _params.from_mapping(model.params, where=f"{model.source} [params]")
+    if params is None:
+        return base
+    if isinstance(params, Params):
+        return params
+    if isinstance(params, dict):
+        return _params.from_mapping(params, base)
+    if isinstance(params, (str, Path)):
+        import tomllib
+        with open(params, "rb") as f:
+            try:
+                data = tomllib.load(f)
+            except tomllib.TOMLDecodeError as e:
+                raise _params.ParamError(f"{params}: not valid TOML: {e}") from None
+        return _params.from_mapping(data.get("params", data), base, where=str(params))
+    raise TypeError(f"params must be Params, dict, a TOML path or None, not {type(params).__name__}")
+
+
+class Tracker:
+    """Part-based shape tracker. Feed events in time order, in as many chunks as you like.
+
+    ``model``: a ShapeModel, a preset name or a TOML path; ``params``: Params, a dict of
+    overrides, a TOML path, or None (defaults < model [params] < these).
+    Events that go back in time or fall outside the sensor are skipped and counted
+    (:attr:`counters`), never raised.
+    """
+
+    def __init__(self, model, params=None, backend: str = "cython"):
+        self.model = load_model(model)
+        self.params = resolve_params(self.model, params)
+        self.backend_name = backend
+        self._b = make_backend(backend, self.model, self.params)
+        self._sample_us = 0
+        self._next_t = None
+        self._recorded: list[Track] = []
+
+    @property
+    def ids(self) -> list[str]:
+        return self.model.ids
+
+    # ---- feeding -------------------------------------------------------------------
+    def record(self, sample_us: int) -> None:
+        """Keep a snapshot every ``sample_us`` µs of event time (state after events with
+        t < multiple); the kernel takes them inside its loop. Collect with :meth:`samples`."""
+        sample_us = int(sample_us)
+        if sample_us <= 0:
+            raise ValueError(f"sample_us must be a positive number of microseconds, got {sample_us}")
+        if self._sample_us and sample_us != self._sample_us:
+            raise ValueError("the sampling period cannot change once recording has started")
+        self._sample_us = sample_us
+
+    def process(self, events) -> None:
+        """Consume an event array (fields t µs, x, y, p), in time order."""
+        ev = as_events(events)
+        if len(ev) == 0:
+            return
+        if self._sample_us and self._next_t is None:
+            t0 = int(ev["t"][0])
+            self._next_t = -(-t0 // self._sample_us) * self._sample_us
+        pos = 0
+        while pos < len(ev):
+            consumed, self._next_t, out = self._b.run(
+                ev[pos:], self._sample_us, self._next_t or 0, SAMPLE_CAP)
+            pos += consumed
+            if out is not None and len(out["t"]):
+                self._recorded.append(self._to_track(out))
+
+    def run(self, events, sample_us: int = 1000) -> Track:
+        """Process events and return the samples taken during this call."""
+        self.record(sample_us)
+        before = len(self._recorded)
+        self.process(events)
+        new = self._recorded[before:]
+        return Track.concat(new, self.ids)
+
+    def samples(self, clear: bool = True) -> Track:
+        tr = Track.concat(self._recorded, self.ids)
+        if clear:
+            self._recorded = []
+        return tr
+
+    def _to_track(self, out: dict) -> Track:
+        return Track(out["t"], self.ids, out["x"], out["y"], out["sxx"], out["sxy"], out["syy"],
+                     out["activity"], out["active"].astype(bool), out["sensitive"].astype(bool),
+                     out["energy"])
+
+    # ---- control ---------------------------------------------------------------------
+    def set_params(self, params=None, **changes) -> Params:
+        """Change parameters between two events; returns the new Params."""
+        new = resolve_params(self.model, params) if params is not None else self.params
+        if changes:
+            new = _params.from_mapping(changes, new)
+        self.params = new
+        self._b.set_params(new)
+        return new
+
+    # ---- observation -----------------------------------------------------------------
+    @property
+    def last_t(self) -> int:
+        return int(self._b.last_t)
+
+    def state(self, t: int | None = None) -> np.ndarray:
+        """Per-tracker structured array (id, x, y, sxx, sxy, syy, activity, active,
+        sensitive) at event time ``t`` (default: the last event's time)."""
+        t = self.last_t if t is None else int(t)
+        snap = self._b.snapshot(max(t, 0) if t < -(1 << 60) else t)
+        dt = np.dtype([("id", f"U{max(len(i) for i in self.ids)}")]
+                      + [(f, "f8") for f in STATE_FIELDS[:6]] + [("active", "?"), ("sensitive", "?")])
+        out = np.empty(len(self.ids), dt)
+        out["id"] = self.ids
+        for f in STATE_FIELDS:
+            out[f] = snap[f]
+        return out
+
+    def energies(self) -> dict:
+        """Energies of the last spring update: per connection for each kind (eqs. 12, 17,
+        20) and ``mean``, the mean of the kind that feeds the criteria (eqs. 21-22)."""
+        e = self._b.energies()
+        return {"euclidean": e[0], "torsional": e[1], "cartesian": e[2],
+                "mean": float(self._b.mean_energy), "kind": self.params.energy_kind}
+
+    @property
+    def counters(self) -> dict:
+        return dict(self._b.counters())
