@@ -1,0 +1,1 @@
+"""Event I/O: streaming decoders, file readers and writers (docs/formats.md)."""

@@ -1,0 +1,47 @@
+# The streaming-decoder base class shared by every format module (see base.pyx).
+from libc.stdint cimport uint8_t, uint64_t, int64_t
+from springtrack.events cimport Event
+
+# Recoverable problems, counted per kind (names in base.ANOMALY_NAMES, same order).
+cdef enum Anomaly:
+    AN_UNKNOWN_TYPE       # word type / code the format does not define: word skipped
+    AN_OUT_OF_GEOMETRY    # event outside width x height: dropped
+    AN_TIME_BACKWARDS     # time base went back (not a wrap): rebased so time stays monotonic
+    AN_ORPHAN             # event or vector before the address/base word it needs: dropped
+    AN_TRUNCATED          # stream ended inside a word/event (finish() with bytes pending)
+    N_ANOMALY
+
+# Informational counters (legitimate content), names in base.INFO_NAMES.
+cdef enum Info:
+    IN_TIME_HIGH          # time-high words
+    IN_TIME_WRAPS         # legitimate wrap-arounds of the time-high counter
+    IN_TRIGGERS           # external-trigger words
+    IN_OTHERS             # OTHERS / CONTINUED words (not decoded)
+    IN_EXPOSURE           # exposure-measurement events (CCam, ES ATIS), kept apart
+    IN_OVERFLOW           # Event Stream overflow bytes
+    IN_RESET              # Event Stream reset bytes
+    IN_BEFORE_TIME_HIGH   # events decoded before the first time-high word
+    N_INFO
+
+cdef enum:
+    MAX_WORD = 8
+
+cdef class Decoder:
+    cdef readonly str format
+    cdef readonly int word_size        # bytes per word (1 for the Event Stream byte machine)
+    cdef int max_per_word              # most events one word can complete
+    cdef int bound_den                 # first output guess: bytes / bound_den events
+    cdef readonly int width, height    # 0 = unknown: no geometry check
+    cdef readonly bint keep_exposure
+    cdef uint8_t carry[MAX_WORD]
+    cdef int ncarry
+    cdef readonly uint64_t words, events_out
+    cdef uint64_t anomalies[5]
+    cdef uint64_t info[8]
+    cdef object _exposure_parts
+    cdef Py_ssize_t _run(self, const uint8_t* p, Py_ssize_t n, Event* out, Py_ssize_t cap,
+                         Py_ssize_t* nout, Event* side, Py_ssize_t* nside) noexcept nogil
+    cdef int _pending_state(self) noexcept
+    cdef void _reset_state(self) noexcept
+    cdef object _feed(self, const uint8_t* p, Py_ssize_t n, object out, Py_ssize_t* nout,
+                      object side, Py_ssize_t* nside)

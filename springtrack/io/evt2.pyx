@@ -1,0 +1,117 @@
+"""Prophesee RAW EVT 2.0: streaming decoder and encoder (docs/formats.md#evt-20).
+
+Little-endian 32-bit words, type in bits 31..28:
+0x0 CD_OFF / 0x1 CD_ON  -> t low 6 bits in 27..22, x in 21..11, y in 10..0
+0x8 EVT_TIME_HIGH       -> t >> 6 in 27..0 (28 bits; wraps every 2**34 us)
+0xA EXT_TRIGGER, 0xE OTHERS, 0xF CONTINUED -> counted, not decoded
+anything else           -> anomaly 'unknown_type', word skipped
+"""
+from libc.stdint cimport uint8_t, uint16_t, uint32_t, int64_t, uint64_t
+from libc.string cimport memcpy
+cimport numpy as cnp
+import numpy as np
+
+from springtrack.events cimport Event
+from springtrack.io.base cimport *
+from springtrack.events import EVENT_DTYPE, as_events
+
+cnp.import_array()
+
+cdef enum:
+    TH_BITS = 28
+
+
+cdef class Evt2Decoder(Decoder):
+    cdef int64_t th_last      # last raw 28-bit time-high value
+    cdef int64_t epoch        # added to raw time-high (wraps, backward-jump rebases)
+    cdef bint have_th
+
+    def __init__(self, int width=0, int height=0):
+        self._setup("evt2", 4, 1, 4, width, height, False)
+
+    cdef Py_ssize_t _run(self, const uint8_t* p, Py_ssize_t n, Event* out, Py_ssize_t cap,
+                         Py_ssize_t* nout, Event* side, Py_ssize_t* nside) noexcept nogil:
+        cdef Py_ssize_t i = 0, nw = n >> 2, k = nout[0]
+        cdef Py_ssize_t room = cap - k
+        cdef uint32_t v, typ, x, y
+        cdef uint32_t W = self.width if self.width else 0x10000
+        cdef uint32_t H = self.height if self.height else 0x10000
+        cdef int64_t th = (self.epoch + self.th_last) << 6, raw
+        if nw > room:
+            nw = room
+        while i < nw:
+            memcpy(&v, p + 4 * i, 4)   # little-endian host assumed (x86, ARM)
+            i += 1
+            typ = v >> 28
+            if typ <= 1:               # CD_OFF / CD_ON
+                x = (v >> 11) & 0x7FF
+                y = v & 0x7FF
+                if x >= W or y >= H:
+                    self.anomalies[<int>AN_OUT_OF_GEOMETRY] += 1
+                    continue
+                out[k].t = th | ((v >> 22) & 0x3F)
+                out[k].x = <uint16_t>x
+                out[k].y = <uint16_t>y
+                out[k].p = <uint8_t>typ
+                k += 1
+                if not self.have_th:
+                    self.info[<int>IN_BEFORE_TIME_HIGH] += 1
+            elif typ == 0x8:           # EVT_TIME_HIGH
+                raw = v & 0x0FFFFFFF
+                self.info[<int>IN_TIME_HIGH] += 1
+                if self.have_th and raw < self.th_last:
+                    if self.th_last - raw > (1 << (TH_BITS - 1)):   # counter wrapped
+                        self.epoch += 1 << TH_BITS
+                        self.info[<int>IN_TIME_WRAPS] += 1
+                    else:                                          # jumped back: rebase
+                        self.epoch += self.th_last - raw
+                        self.anomalies[<int>AN_TIME_BACKWARDS] += 1
+                self.th_last = raw
+                self.have_th = True
+                th = (self.epoch + raw) << 6
+            elif typ == 0xA:
+                self.info[<int>IN_TRIGGERS] += 1
+            elif typ == 0xE or typ == 0xF:
+                self.info[<int>IN_OTHERS] += 1
+            else:
+                self.anomalies[<int>AN_UNKNOWN_TYPE] += 1
+        self.words += i
+        nout[0] = k
+        return i * 4
+
+
+def encode(events) -> bytes:
+    """EVT 2.0 words (no header) for time-sorted events; exact inverse of the decoder.
+
+    Emits a TIME_HIGH word whenever t >> 6 changes.  Raises ValueError for negative or
+    decreasing timestamps or coordinates above 2047.
+    """
+    ev = as_events(events)
+    cdef Py_ssize_t n = ev.shape[0], i, j = 0
+    if n == 0:
+        return b""
+    t = ev["t"]
+    if t[0] < 0 or (n > 1 and np.any(np.diff(t) < 0)):
+        raise ValueError("evt2 encode: timestamps must be >= 0 and non-decreasing")
+    if ev["x"].max() > 2047 or ev["y"].max() > 2047:
+        raise ValueError("evt2 encode: x and y must be <= 2047 (11 bits)")
+    th = t >> 6
+    new_th = np.ones(n, dtype=bool)
+    new_th[1:] = th[1:] != th[:-1]
+    cdef Py_ssize_t total = n + int(new_th.sum())
+    words = np.empty(total, dtype="<u4")
+    cdef uint32_t[::1] w = words
+    cdef const uint8_t[::1] raw = ev.view(np.uint8)
+    cdef const Event* e = <const Event*>&raw[0]
+    cdef int64_t cur = -1, h
+    with nogil:
+        for i in range(n):
+            h = e[i].t >> 6
+            if h != cur:
+                w[j] = (<uint32_t>0x8 << 28) | <uint32_t>(h & 0x0FFFFFFF)
+                j += 1
+                cur = h
+            w[j] = ((<uint32_t>(e[i].p != 0)) << 28) | (<uint32_t>(e[i].t & 0x3F) << 22) \
+                | (<uint32_t>e[i].x << 11) | <uint32_t>e[i].y
+            j += 1
+    return words.tobytes()
