@@ -52,6 +52,7 @@ class MsgType(IntEnum):
     PARAM_SET = 0x20      # H->F  name + typed value
     PARAM_GET = 0x21      # H->F  names (none = all)
     PARAM_VALUE = 0x22    # F->H  names + typed values
+    APPLIED = 0x23        # F->H  generation + event time at which an update took effect
     START = 0x30
     STOP = 0x31
     RESET = 0x32
@@ -570,6 +571,20 @@ def decode_reply_part(payload: bytes, what: str) -> tuple[int, int, int, dict]:
         raise WireError(f"{what}: payload shorter than its 4-byte header")
     seq, part, parts = REPLY_HDR.unpack_from(payload)
     return seq, part, parts, decode_kv(payload[REPLY_HDR.size:], what)
+
+
+# APPLIED: u32 generation, i64 event time (µs) at which it took effect
+APPLIED = struct.Struct("<Iq")
+
+
+def encode_applied(generation: int, t_us: int) -> bytes:
+    return APPLIED.pack(int(generation) & 0xFFFFFFFF, int(t_us))
+
+
+def decode_applied(payload: bytes) -> tuple[int, int]:
+    if len(payload) != APPLIED.size:
+        raise WireError(f"APPLIED: payload is {len(payload)} bytes, expected {APPLIED.size}")
+    return APPLIED.unpack(payload)
 
 
 # HEARTBEAT (firmware): u64 uptime µs, u32 rx frames, u32 rx errors, u32 rx lost,

@@ -1,0 +1,335 @@
+"""``hostctl.Device``: the host end of the link (protocol: springtrack.wire, docs/protocol.md).
+
+    with Device("/dev/pts/5") as dev:          # or "socket://127.0.0.1:7000", "/dev/ttyACM0"
+        print(dev.info["model"])
+        dev.load_model("face26")
+        dev.set(alpha_position=0.05)
+        for snap in dev.telemetry(seconds=1.0):
+            print(snap.t_us, snap.trackers["x"])
+
+Single-threaded: frames are read whenever a method waits.  Commands are retried with the
+same sequence number after ``timeout`` seconds (the firmware answers a repeat from its
+reply cache without executing it twice); after ``retries`` retries :class:`NoAnswer`.
+"""
+from __future__ import annotations
+
+import time
+from collections import deque
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import serial
+
+from springtrack import wire
+from springtrack.wire import MsgType, Nack
+
+TELEMETRY_QUEUE = 20_000
+
+
+class HostctlError(Exception):
+    """A link failure the CLI reports with a non-zero exit code."""
+    exit_code = 1
+
+
+class NoSuchPort(HostctlError):
+    exit_code = 3
+
+
+class NoAnswer(HostctlError):
+    exit_code = 4
+
+
+class VersionMismatch(HostctlError):
+    exit_code = 5
+
+    def __init__(self, message: str, host: int, firmware: int):
+        super().__init__(message)
+        self.host, self.firmware = host, firmware
+
+
+class Nacked(HostctlError):
+    exit_code = 6
+
+    def __init__(self, command: str, code: int, reason: str):
+        name = Nack(code).name.lower() if code in Nack._value2member_map_ else f"code {code}"
+        super().__init__(f"{command} refused ({name}): {reason}")
+        self.command, self.code, self.reason = command, code, reason
+
+
+@dataclass
+class Snapshot:
+    """One telemetry frame: ``trackers`` is an array of :data:`springtrack.wire.TRACK_DTYPE`."""
+    t_us: int
+    generation: int
+    mean_energy: float
+    trackers: np.ndarray
+    seq: int
+    host_time: float
+
+
+class Device:
+    def __init__(self, port, timeout: float = 0.5, retries: int = 3, key: bytes | None = None,
+                 name: str = "hostctl", baudrate: int = 3_000_000,
+                 version: int = wire.PROTOCOL_VERSION):
+        self.timeout, self.retries, self.key, self.version = timeout, retries, key, version
+        self.url = port if isinstance(port, str) else getattr(port, "name", repr(port))
+        self.port = _open(port, baudrate) if isinstance(port, str) else port
+        self.reader = wire.FrameReader()
+        self.rx_seq = wire.SeqTracker()
+        self.tx_seq = int.from_bytes(np.random.default_rng().bytes(2), "little")
+        self.signer: wire.Signer | None = None
+        self.snapshots: deque = deque()
+        self.replies: dict = {}            # acked seq -> list of frames (ACK/NACK/parts)
+        self.info_reply: wire.Frame | None = None
+        self.applied: dict[int, int] = {}  # generation -> event time it took effect
+        self.firmware_link: dict = {}      # last HEARTBEAT counters of the firmware
+        self.logs: deque = deque(maxlen=200)
+        self.counts = dict(commands=0, retries=0, telemetry=0, telemetry_overflow=0,
+                           unexpected=0, foreign_version=0)
+        self.info: dict = {}
+        try:
+            self.port.write(b"\x00")       # terminate whatever the firmware holds
+            if hasattr(self.port, "reset_input_buffer"):
+                self.port.reset_input_buffer()
+            self.hello(name)
+        except BaseException:
+            self.close()
+            raise
+
+    # ---- context manager ----------------------------------------------------------
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self) -> None:
+        try:
+            self.port.close()
+        except Exception:                  # noqa: BLE001 - closing a dead port is fine
+            pass
+
+    # ---- verbs ------------------------------------------------------------------------
+    def hello(self, name: str = "hostctl") -> dict:
+        self.info_reply = None
+        self._request(MsgType.HELLO, wire.encode_hello(name, self.version), signed=False,
+                      done=lambda seq: self.info_reply is not None)
+        self.info = wire.decode_info(self.info_reply.payload)
+        if self.info["auth_required"] and not self.key:
+            raise HostctlError(f"{self.url}: the device requires a key (HMAC signing); "
+                               f"pass --key / key=")
+        self.signer = wire.Signer(self.key, self.info["nonce"]) if self.key else None
+        return self.info
+
+    def load_model(self, model) -> int:
+        """Upload a model (ShapeModel, preset name, TOML path or TOML text); returns the
+        generation it will carry.  The firmware validates on commit and swaps atomically."""
+        text = _model_text(model).encode("utf-8")
+        self._command(MsgType.MODEL_BEGIN, wire.encode_model_begin(text))
+        for off in range(0, len(text), wire.MODEL_CHUNK_SIZE):
+            self._command(MsgType.MODEL_CHUNK,
+                          wire.encode_model_chunk(off, text[off:off + wire.MODEL_CHUNK_SIZE]))
+        return self._command(MsgType.MODEL_COMMIT, wire.encode_model_begin(text))
+
+    def set(self, name: str | None = None, value=None, **params) -> int:
+        """Set one or more parameters; returns the generation of the last change."""
+        if name is not None:
+            params = {name: value, **params}
+        gen = 0
+        for k, v in params.items():
+            gen = self._command(MsgType.PARAM_SET, wire.encode_param_set(k, v))
+        return gen
+
+    def get(self, *names) -> dict:
+        return self._parts(MsgType.PARAM_GET, wire.encode_param_get(names), MsgType.PARAM_VALUE)
+
+    def stats(self) -> dict:
+        return self._parts(MsgType.STATS, b"", MsgType.STATS)
+
+    def start(self) -> None:
+        self._command(MsgType.START)
+
+    def stop(self) -> None:
+        self._command(MsgType.STOP)
+
+    def reset(self) -> None:
+        self._command(MsgType.RESET)
+
+    def ping(self) -> float:
+        """Round-trip time of a HEARTBEAT command, seconds."""
+        t = time.perf_counter()
+        self._command(MsgType.HEARTBEAT)
+        return time.perf_counter() - t
+
+    def link_counters(self) -> dict:
+        c = dict(self.counts)
+        c.update(self.reader.counts)
+        c["lost"] = self.rx_seq.lost
+        c.update({f"firmware.{k}": v for k, v in self.firmware_link.items()})
+        return c
+
+    # ---- telemetry ----------------------------------------------------------------------
+    def poll(self, timeout: float = 0.0) -> None:
+        """Read and dispatch whatever arrives within ``timeout`` seconds."""
+        end = time.monotonic() + timeout
+        while True:
+            self._read_once(max(0.0, end - time.monotonic()))
+            if time.monotonic() >= end:
+                return
+
+    def telemetry(self, seconds: float | None = None, count: int | None = None):
+        """Iterator of :class:`Snapshot` for ``seconds`` of wall time and/or ``count`` snapshots
+        (forever if both are None)."""
+        end = None if seconds is None else time.monotonic() + seconds
+        n = 0
+        while (end is None or time.monotonic() < end) and (count is None or n < count):
+            if not self.snapshots:
+                self._read_once(0.05 if end is None else max(0.0, min(0.05, end - time.monotonic())))
+            while self.snapshots and (count is None or n < count):
+                n += 1
+                yield self.snapshots.popleft()
+
+    # ---- request machinery --------------------------------------------------------------
+    def _command(self, mtype, payload: bytes = b"") -> int:
+        seq = self._request(mtype, payload, done=lambda s: s in self.replies)
+        frame = self.replies.pop(seq)[0]
+        return self._check_ack(mtype, frame)
+
+    def _check_ack(self, mtype, frame) -> int:
+        if frame.type == MsgType.NACK:
+            _, _, code, reason = wire.decode_nack(frame.payload)
+            self._raise_nack(mtype, code, reason)
+        return wire.decode_ack(frame.payload)[2]
+
+    def _raise_nack(self, mtype, code, reason):
+        if code == Nack.VERSION_MISMATCH:
+            fw = _firmware_version(reason)
+            raise VersionMismatch(f"{self.url}: {reason}", self.version, fw)
+        raise Nacked(MsgType(mtype).name, code, reason)
+
+    def _parts(self, mtype, payload: bytes, reply_type) -> dict:
+        def complete(seq):
+            got = self.replies.get(seq, [])
+            if got and got[0].type == MsgType.NACK:
+                return True
+            if not got:
+                return False
+            parts = {f.payload[2] for f in got if len(f.payload) >= 4}
+            return parts >= set(range(got[0].payload[3])) if len(got[0].payload) >= 4 else True
+        seq = self._request(mtype, payload, done=complete)
+        frames = self.replies.pop(seq)
+        if frames[0].type == MsgType.NACK:
+            self._check_ack(mtype, frames[0])
+        out = {}
+        for f in {f.payload[2]: f for f in frames}.values():
+            out.update(wire.decode_reply_part(f.payload, MsgType(reply_type).name)[3])
+        return out
+
+    def _request(self, mtype, payload: bytes, done, signed: bool = True) -> int:
+        seq = self.tx_seq
+        self.tx_seq = (self.tx_seq + 1) & 0xFFFF
+        self.replies.pop(seq, None)
+        self.counts["commands"] += 1
+        for attempt in range(self.retries + 1):
+            if attempt:
+                self.counts["retries"] += 1
+            signer = self.signer if signed else None     # a retry is re-signed (fresh counter)
+            self.port.write(wire.encode_frame(mtype, seq, payload, version=self.version,
+                                              signer=signer))
+            end = time.monotonic() + self.timeout
+            while time.monotonic() < end:
+                self._read_once(end - time.monotonic())
+                nack = self.replies.get(seq)
+                if done(seq) or (nack and nack[0].type == MsgType.NACK):
+                    if mtype == MsgType.HELLO and nack and nack[0].type == MsgType.NACK:
+                        _, _, code, reason = wire.decode_nack(nack[0].payload)
+                        self._raise_nack(mtype, code, reason)
+                    return seq
+        raise NoAnswer(f"{self.url}: no answer to {MsgType(mtype).name} after "
+                       f"{self.retries + 1} tries of {self.timeout:g} s each "
+                       f"({(self.retries + 1) * self.timeout:g} s)")
+
+    def _read_once(self, timeout: float) -> None:
+        self.port.timeout = max(0.0, min(timeout, 0.05))
+        try:
+            waiting = self.port.in_waiting
+        except (OSError, serial.SerialException):
+            waiting = 0
+        try:
+            data = self.port.read(max(1, min(waiting, 65536)))
+        except serial.SerialException as e:
+            raise HostctlError(f"{self.url}: link failed: {e}") from None
+        if data:
+            for frame in self.reader.feed(data):
+                self._dispatch(frame)
+
+    def _dispatch(self, f: wire.Frame) -> None:
+        self.rx_seq.update(f.seq)
+        if f.version != self.version:
+            self.counts["foreign_version"] += 1
+            if f.type == MsgType.NACK:          # frozen layout: readable across versions
+                self._store_reply(f)
+            return
+        try:
+            if f.type == MsgType.TELEMETRY:
+                t, gen, me, tr = wire.decode_telemetry(f.payload)
+                if len(self.snapshots) >= TELEMETRY_QUEUE:
+                    self.snapshots.popleft()
+                    self.counts["telemetry_overflow"] += 1
+                self.snapshots.append(Snapshot(t, gen, me, tr, f.seq, time.time()))
+                self.counts["telemetry"] += 1
+            elif f.type in (MsgType.ACK, MsgType.NACK, MsgType.PARAM_VALUE, MsgType.STATS):
+                self._store_reply(f)
+            elif f.type == MsgType.INFO:
+                self.info_reply = f
+            elif f.type == MsgType.APPLIED:
+                gen, t_us = wire.decode_applied(f.payload)
+                self.applied[gen] = t_us
+            elif f.type == MsgType.HEARTBEAT:
+                self.firmware_link = wire.decode_heartbeat(f.payload)
+            elif f.type in (MsgType.LOG, MsgType.ERROR):
+                self.logs.append(wire.decode_log(f.payload))
+            else:
+                self.counts["unexpected"] += 1
+        except wire.WireError:
+            self.reader.counts["malformed"] += 1
+
+    def _store_reply(self, f) -> None:
+        seq = struct_u16(f.payload)
+        if seq is not None:
+            self.replies.setdefault(seq, []).append(f)
+
+
+def struct_u16(payload: bytes) -> int | None:
+    return int.from_bytes(payload[:2], "little") if len(payload) >= 2 else None
+
+
+def _firmware_version(reason: str) -> int:
+    try:
+        return int(reason.split("firmware=v", 1)[1].split()[0])
+    except (IndexError, ValueError):
+        return -1
+
+
+def _open(url: str, baudrate: int):
+    try:
+        return serial.serial_for_url(url, baudrate=baudrate, timeout=0.05, write_timeout=2.0)
+    except (serial.SerialException, ValueError, OSError) as e:
+        raise NoSuchPort(f"{url}: cannot open port: {e}") from None
+
+
+def _model_text(model) -> str:
+    from springtrack.model import ShapeModel, load_model
+    if isinstance(model, ShapeModel):
+        return model.to_toml()
+    s = str(model)
+    if "\n" in s and "[" in s:            # TOML text: validated by the firmware on commit
+        return s
+    if Path(s).exists():
+        return Path(s).read_text()
+    return load_model(s).to_toml()
+
+
+__all__ = ["Device", "Snapshot", "HostctlError", "NoSuchPort", "NoAnswer", "VersionMismatch",
+           "Nacked"]

@@ -1,0 +1,235 @@
+"""A small, real, deterministic firmware engine for the link tests (the production engine is
+firmware_sim/loop.py): it runs the real ``springtrack.Tracker`` on the simulated
+``face_occlusion`` events in 1 ms chunks of event time, applies queued updates only at
+chunk boundaries (double buffering), and publishes one snapshot per chunk.  Event time is
+paced to wall time times ``speed`` by a background thread started with :meth:`run`.
+
+The tests at the bottom check the engine itself, so the link tests stand on it.
+"""
+import threading
+import time
+from collections import deque
+
+import numpy as np
+import pytest
+
+import springtrack
+from firmware_sim.engine import UpdateRejected
+from firmware_sim.sensor import simulate_all
+from springtrack import model as _model
+from springtrack import params as _params
+from springtrack.limits import MAX_CONNECTIONS, MAX_TRACKERS
+
+CHUNK_US = 1000
+_EVENTS = {}
+
+
+def scene_events(seconds: float = 2.0):
+    if seconds not in _EVENTS:
+        _EVENTS[seconds] = simulate_all("face_occlusion", seconds, seed=1)
+    return _EVENTS[seconds]
+
+
+def classify(name, value) -> str | None:
+    """The NACK code for a parameter update, or None if it is valid."""
+    spec = _params.SPECS.get(name)
+    if spec is None:
+        return "unknown_name"
+    if spec.kind is str:
+        return None if isinstance(value, str) and value in _params.ENERGY_KINDS else (
+            "wrong_type" if not isinstance(value, str) else "out_of_range")
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return "wrong_type"
+    if spec.kind is int and float(value) != int(value):
+        return "wrong_type"
+    try:
+        _params.check(name, value)
+    except _params.ParamError:
+        return "out_of_range"
+    return None
+
+
+class SimEngine:
+    def __init__(self, seconds: float = 2.0, speed: float = 1.0):
+        self.events, self.truth = scene_events(seconds)
+        self.speed = speed
+        self.lock = threading.Lock()
+        self.model = _model.face26()
+        self.tracker = springtrack.Tracker(self.model)
+        self.generation = 1
+        self.pending_params: dict = {}
+        self.pending_model = None
+        self.running = False
+        self.t_us = 0
+        self.pos = 0
+        self.telemetry: deque = deque(maxlen=4096)
+        self.applied: deque = deque()
+        self.counters = dict(events_tracked=0, snapshots=0, updates_applied=0, loops=0)
+        self._stop = threading.Event()
+        self._thread = None
+
+    # ---- Engine interface ------------------------------------------------------------
+    def info(self) -> dict:
+        with self.lock:
+            return dict(firmware="test-sim-engine 1", width=self.model.width,
+                        height=self.model.height, max_trackers=MAX_TRACKERS,
+                        max_connections=MAX_CONNECTIONS, model=self.model.name,
+                        model_hash=self.model.digest(), trackers=self.model.ids,
+                        running=self.running, generation=self.generation)
+
+    def load_model(self, toml_text: str) -> int:
+        try:
+            m = _model.loads(toml_text, "uploaded model")
+        except _model.ModelError as e:
+            raise UpdateRejected("invalid_model", str(e)) from None
+        with self.lock:
+            self.generation += 1
+            self.pending_model = (m, self.generation)
+            return self.generation
+
+    def set_param(self, name: str, value) -> int:
+        code = classify(name, value)
+        if code is not None:
+            try:
+                _params.check(name, value)
+                msg = f"{name}={value!r} rejected"
+            except _params.ParamError as e:
+                msg = str(e)
+            raise UpdateRejected(code, msg)
+        with self.lock:
+            merged = {**self.tracker.params.as_dict(), **self.pending_params, name: value}
+            try:
+                _params.from_mapping(merged)
+            except _params.ParamError as e:
+                raise UpdateRejected("out_of_range", str(e)) from None
+            self.generation += 1
+            self.pending_params[name] = (value, self.generation)
+            return self.generation
+
+    def get_params(self) -> dict:
+        with self.lock:
+            return self.tracker.params.as_dict()
+
+    def start(self) -> None:
+        with self.lock:
+            self.running = True
+
+    def stop(self) -> None:
+        with self.lock:
+            self.running = False
+
+    def reset(self) -> None:
+        with self.lock:
+            self.tracker = springtrack.Tracker(self.model)
+            self.pos, self.t_us = 0, 0
+
+    def stats(self) -> dict:
+        with self.lock:
+            return dict(self.counters, t_us=self.t_us, tracker=self.tracker.counters)
+
+    def poll_telemetry(self, max_items: int = 64) -> list:
+        out = []
+        while self.telemetry and len(out) < max_items:
+            out.append(self.telemetry.popleft())
+        return out
+
+    def poll_applied(self) -> list:
+        out = []
+        while self.applied:
+            out.append(self.applied.popleft())
+        return out
+
+    # ---- the loop ----------------------------------------------------------------------
+    def step(self) -> None:
+        """Apply queued updates at this chunk boundary, then track one chunk of events."""
+        with self.lock:
+            self._apply_pending()
+            t1 = self.t_us + CHUNK_US
+            end = int(np.searchsorted(self.events["t"], t1))
+            if end > self.pos:
+                self.tracker.process(self.events[self.pos:end])
+                self.counters["events_tracked"] += end - self.pos
+            self.pos, self.t_us = end, t1
+            st = self.tracker.state()
+            self.telemetry.append(dict(t_us=t1, generation=self.generation_live,
+                                       mean_energy=self.tracker.energies()["mean"], trackers=st))
+            self.counters["snapshots"] += 1
+
+    def _apply_pending(self) -> None:
+        gen = None
+        if self.pending_model is not None:
+            m, gen = self.pending_model
+            self.model, self.tracker, self.pending_model = m, springtrack.Tracker(m), None
+            self.pending_params = {k: v for k, v in self.pending_params.items() if v[1] > gen}
+        if self.pending_params:
+            self.tracker.set_params(**{k: v for k, (v, _) in self.pending_params.items()})
+            gen = max([g for _, g in self.pending_params.values()] + [gen or 0])
+            self.pending_params = {}
+        if gen is not None:
+            self.generation_live = gen
+            self.applied.append((gen, self.t_us))
+            self.counters["updates_applied"] += 1
+
+    generation_live = 1
+
+    def run(self) -> "SimEngine":
+        self._thread = threading.Thread(target=self._loop, daemon=True)
+        self._thread.start()
+        return self
+
+    def _loop(self) -> None:
+        t0 = time.monotonic()
+        while not self._stop.is_set():
+            self.counters["loops"] += 1
+            due = (time.monotonic() - t0) * 1e6 * self.speed
+            if self.running and self.t_us + CHUNK_US <= due and self.pos < len(self.events):
+                self.step()
+            else:
+                if not self.running:
+                    t0 = time.monotonic() - self.t_us / 1e6 / self.speed
+                time.sleep(0.0005)
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(2)
+
+
+# ---- the engine's own behaviour -----------------------------------------------------
+def test_engine_tracks_the_scene_like_the_offline_tracker():
+    eng = SimEngine()
+    eng.start()
+    for _ in range(300):
+        eng.step()
+    snaps = eng.poll_telemetry(1000)
+    assert [s["t_us"] for s in snaps] == list(range(1000, 301_000, 1000))
+    ev = eng.events[eng.events["t"] < 300_000]
+    offline = springtrack.Tracker("face26")
+    offline.process(ev)
+    assert np.array_equal(offline.state()["x"], snaps[-1]["trackers"]["x"])
+
+
+def test_engine_updates_take_effect_at_the_next_chunk_and_are_reported():
+    eng = SimEngine()
+    eng.step()
+    gen = eng.set_param("alpha_position", 0.05)
+    assert eng.get_params()["alpha_position"] == 0.2          # queued, not yet applied
+    eng.step()
+    assert eng.get_params()["alpha_position"] == 0.05
+    assert eng.poll_applied() == [(gen, 1000)]
+    snaps = eng.poll_telemetry()
+    assert [s["generation"] for s in snaps] == [1, gen]
+
+
+@pytest.mark.parametrize("name,value,code", [("nope", 1.0, "unknown_name"),
+                                             ("alpha_position", 2.0, "out_of_range"),
+                                             ("alpha_position", "x", "wrong_type"),
+                                             ("spring_period", 1.5, "wrong_type"),
+                                             ("energy_kind", "bogus", "out_of_range")])
+def test_engine_rejects_bad_updates_without_changing_state(name, value, code):
+    eng = SimEngine()
+    before = (eng.generation, eng.get_params())
+    with pytest.raises(UpdateRejected) as e:
+        eng.set_param(name, value)
+    assert e.value.code == code
+    assert (eng.generation, eng.get_params()) == before
