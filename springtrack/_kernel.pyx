@@ -437,6 +437,8 @@ cdef class Kernel:
         for k in range(s.nc):
             if s.kinds[k] & 2:
                 s.need_torsion = 1
+        if s.nc == 0:
+            s.need_torsion = 0
         if s.cells != NULL:
             for i in range(s.n):
                 clamp_and_invert(s, i)

@@ -180,7 +180,10 @@ def validate(m: ShapeModel) -> None:
         if pair in pairs:
             err(f"{where}: duplicate connection between {c.a!r} and {c.b!r}")
         pairs.add(pair)
-    _params.from_mapping(m.params, where=f"{src} [params]")
+    try:
+        _params.from_mapping(m.params, where=f"{src} [params]")
+    except _params.ParamError as e:
+        raise ModelError(str(e)) from None
 
 
 # ---- TOML I/O ---------------------------------------------------------------

@@ -125,7 +125,7 @@ class ReferenceTracker:
         self.smin2 = p.sigma_min_px * p.sigma_min_px
         self.smax2 = p.sigma_max_px * p.sigma_max_px
         self.ekind = p.energy_kind_index
-        self.need_torsion = self.ekind == 1 or any(k & TORSIONAL for k in self.kinds)
+        self.need_torsion = self.nc > 0 and (self.ekind == 1 or any(k & TORSIONAL for k in self.kinds))
         for i in range(self.n):          # new sigma bounds apply at once
             self._clamp_and_invert(i)
 
