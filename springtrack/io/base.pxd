@@ -21,6 +21,7 @@ cdef enum Info:
     IN_OVERFLOW           # Event Stream overflow bytes
     IN_RESET              # Event Stream reset bytes
     IN_BEFORE_TIME_HIGH   # events decoded before the first time-high word
+    IN_TIME_LOW_BACK      # EVT 3.0 TIME_LOW smaller than the previous one (sensor jitter)
     N_INFO
 
 cdef enum:
@@ -37,7 +38,7 @@ cdef class Decoder:
     cdef int ncarry
     cdef readonly uint64_t words, events_out
     cdef uint64_t anomalies[5]
-    cdef uint64_t info[8]
+    cdef uint64_t info[9]
     cdef object _exposure_parts
     cdef Py_ssize_t _run(self, const uint8_t* p, Py_ssize_t n, Event* out, Py_ssize_t cap,
                          Py_ssize_t* nout, Event* side, Py_ssize_t* nside) noexcept nogil

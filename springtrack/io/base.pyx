@@ -22,7 +22,7 @@ cnp.import_array()
 
 ANOMALY_NAMES = ("unknown_type", "out_of_geometry", "time_backwards", "orphan", "truncated")
 INFO_NAMES = ("time_high_words", "time_wraps", "triggers", "other_words", "exposure_events",
-              "overflow_bytes", "reset_bytes", "before_time_high")
+              "overflow_bytes", "reset_bytes", "before_time_high", "time_low_backwards")
 
 
 cdef inline Event* _ptr(object arr):

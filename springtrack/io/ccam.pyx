@@ -1,0 +1,115 @@
+"""CCam ATIS USB words: streaming decoder and encoder (layout in ccam.pxd, docs/formats.md).
+
+The per-word decoding lives in ``ccam.pxd`` as an inline nogil function so the firmware
+simulator can fuse it into its own loop; this module wraps it as a :class:`Decoder` and
+adds :func:`encode` (the simulated camera's output).
+"""
+from libc.stdint cimport uint8_t, uint16_t, uint32_t, int64_t, uint64_t
+cimport numpy as cnp
+import numpy as np
+
+from springtrack.events cimport Event
+from springtrack.io.base cimport *
+from springtrack.events import as_events
+
+cnp.import_array()
+
+WIDTH = CCAM_WIDTH
+HEIGHT = CCAM_HEIGHT
+TIME_HIGH_US = 0x800
+
+
+cdef class CCamDecoder(Decoder):
+    """Change-detection events are returned; exposure events are counted and, with
+    ``keep_exposure=True``, collected for :meth:`take_exposure`."""
+    cdef CCamState st
+
+    def __init__(self, bint keep_exposure=False, int width=CCAM_WIDTH, int height=CCAM_HEIGHT):
+        if (width, height) != (CCAM_WIDTH, CCAM_HEIGHT):
+            raise ValueError(f"ccam decoder: the CCam ATIS is {CCAM_WIDTH}x{CCAM_HEIGHT}, "
+                             f"got {width}x{height}")
+        self._setup("ccam", 4, 1, 4, CCAM_WIDTH, CCAM_HEIGHT, keep_exposure)
+        ccam_init(&self.st)
+
+    cdef Py_ssize_t _run(self, const uint8_t* p, Py_ssize_t n, Event* out, Py_ssize_t cap,
+                         Py_ssize_t* nout, Event* side, Py_ssize_t* nside) noexcept nogil:
+        cdef CCamState st = self.st          # local copy: stays in registers
+        cdef Py_ssize_t i, nw = n >> 2, k = nout[0], ks = nside[0]
+        cdef int kind
+        cdef Event e
+        if nw > cap - k:
+            nw = cap - k
+        for i in range(nw):
+            kind = ccam_decode_word(&st, p + 4 * i, &e.t, &e.x, &e.y, &e.p)
+            if kind == CCAM_CD:
+                out[k] = e
+                k += 1
+            elif kind == CCAM_EXPOSURE and side != NULL:
+                side[ks] = e
+                ks += 1
+        self.st = st
+        self.words = st.words
+        self.anomalies[<int>AN_UNKNOWN_TYPE] = st.unknown
+        self.anomalies[<int>AN_OUT_OF_GEOMETRY] = st.out_of_geometry
+        self.anomalies[<int>AN_TIME_BACKWARDS] = st.backwards
+        self.info[<int>IN_TIME_HIGH] = st.time_high
+        self.info[<int>IN_TIME_WRAPS] = st.wraps
+        self.info[<int>IN_EXPOSURE] = st.exposure
+        self.info[<int>IN_BEFORE_TIME_HIGH] = st.before_time_high
+        nout[0] = k
+        nside[0] = ks
+        return nw * 4
+
+
+def encode(events, exposure=None) -> bytes:
+    """CCam ATIS words for time-sorted events (exact inverse of the decoder).
+
+    A time-high word starts the stream and precedes every event whose t // 0x800
+    differs from the previous one.  ``exposure``: optional bool array marking
+    exposure-measurement events (flag bit 5).  Raises ValueError for negative or
+    decreasing t, gaps of 2**23 * 0x800 us or more, x >= 304 or y >= 240.
+    """
+    ev = as_events(events)
+    cdef Py_ssize_t n = ev.shape[0], i, j = 0
+    if n == 0:
+        return b""
+    t = ev["t"]
+    if t[0] < 0 or (n > 1 and np.any(np.diff(t) < 0)):
+        raise ValueError("ccam encode: timestamps must be >= 0 and non-decreasing")
+    if ev["x"].max() >= CCAM_WIDTH or ev["y"].max() >= CCAM_HEIGHT:
+        raise ValueError(f"ccam encode: x must be < {CCAM_WIDTH} and y < {CCAM_HEIGHT}")
+    th = t // TIME_HIGH_US
+    if n > 1 and np.any(np.diff(th) >= (1 << 23)):
+        raise ValueError("ccam encode: a time gap of 2**23 time-high periods or more "
+                         "cannot be represented (the decoder would see a wrap)")
+    if exposure is None:
+        flags = np.zeros(n, dtype=np.uint8)
+    else:
+        flags = np.ascontiguousarray(exposure, dtype=bool).view(np.uint8)
+        if flags.shape[0] != n:
+            raise ValueError(f"ccam encode: exposure has {flags.shape[0]} flags for {n} events")
+    new_th = np.ones(n, dtype=bool)
+    new_th[1:] = th[1:] != th[:-1]
+    words = np.empty((n + int(new_th.sum())) * 4, dtype=np.uint8)
+    cdef uint8_t[::1] w = words
+    cdef const uint8_t[::1] fl = flags
+    cdef const uint8_t[::1] raw = ev.view(np.uint8)
+    cdef const Event* e = <const Event*>&raw[0]
+    cdef int64_t cur = -1, h, lo
+    with nogil:
+        for i in range(n):
+            h = e[i].t >> 11
+            if h != cur:
+                w[j] = h & 0xFF
+                w[j + 1] = (h >> 8) & 0xFF
+                w[j + 2] = (h >> 16) & 0xFF
+                w[j + 3] = 0x80
+                j += 4
+                cur = h
+            lo = e[i].t & 0x7FF
+            w[j] = <uint8_t>(CCAM_HEIGHT - 1 - e[i].y)
+            w[j + 1] = e[i].x & 0xFF
+            w[j + 2] = <uint8_t>(((lo & 0x7F) << 1) | (e[i].x >> 8))
+            w[j + 3] = <uint8_t>((lo >> 7) | ((e[i].p != 0) << 4) | ((fl[i] != 0) << 5))
+            j += 4
+    return words.tobytes()
