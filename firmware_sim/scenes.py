@@ -1,0 +1,319 @@
+"""Scenes for the simulated ATIS sensor, with exact ground truth.
+
+A scene is a deterministic function of time (and of its seed) giving
+
+* ``frame(t_s)`` -> :class:`Frame`: what the sensor sees -- additive Gaussian blobs on a
+  flat background (rows ``x, y, sxx, sxy, syy, amplitude``; covariance in px^2) and
+  opaque soft-edged ellipses drawn on top of them (rows ``x, y, sxx, sxy, syy,
+  intensity, edge``), in linear intensity units;
+* ``truth(t_s)`` -> ``(K, 2)``: the true image position of each part's centre, in the
+  order of ``part_ids`` (the tracker ids of the matching preset of
+  :mod:`springtrack.model`);
+* ``initial_model()``: the preset model placed where the scene starts (the paper
+  initialises the trackers from the gray-level snapshot).
+
+Scenes of paper section IV (all start at rest pose, so the initial model is exact):
+
+``grid_rot_y``     IV-A first experiment (Figs. 9-11): 3x3 grid on a screen rotating about
+                   the vertical axis between -75 and +75 deg at 15 deg/s, plus vertical motion.
+``grid_pull``      IV-A second experiment (Figs. 12-14): rotation about x (+-30 deg, 15 deg/s)
+                   and y (+-45 deg, 10 deg/s), horizontal and vertical motion, random
+                   disturbances; one element (``PULLED``) is pulled ~60 px away and returned
+                   in every 10 s cycle.  Its truth is where it would be without the pull.
+``grid_inplane``   Fig. 16: in-plane rotation between +45 and -45 deg (15 deg/s) while
+                   translating.
+``face_occlusion`` IV-B (Figs. 17-21): the 26 parts of ``face26`` as bright blobs, the face
+                   moving, approaching (scale) and rolling; a hand (palm + 4 fingers, opaque)
+                   sweeps across the face 3 times in 20 s (every 6 s, 2.4 s per pass).
+
+``moving_blob``    a single blob translating horizontally (``speed`` px/s, ``amplitude``,
+                   ``sigma``), for the sensor's statistical tests.
+
+The grid lies on a screen viewed by a pinhole camera (focal length = screen distance
+``D``, so the rest pose is 1:1 in pixels); a blob's image covariance is
+``sigma^2 J J^T`` with ``J`` the Jacobian of the projection at its centre.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from springtrack.model import FACE_INTERNAL, ShapeModel, face26, face_layout, grid3x3
+
+WIDTH, HEIGHT = 304, 240
+CX, CY = 152.0, 120.0
+
+
+@dataclass
+class Frame:
+    blobs: np.ndarray        # (n, 6) x, y, sxx, sxy, syy, amplitude
+    occluders: np.ndarray    # (m, 7) x, y, sxx, sxy, syy, intensity, edge
+
+
+NO_OCCLUDERS = np.zeros((0, 7))
+
+
+def triangle(t, lo: float, hi: float, speed: float):
+    """Angle sweeping 0 -> hi -> lo -> hi ... at constant ``speed`` (units/s), starting at 0."""
+    span = hi - lo
+    s = (t * speed - lo) % (2.0 * span)      # phase: value 0 at t = 0, rising
+    return lo + (s if s <= span else 2.0 * span - s)
+
+
+def smooth_step(u):
+    """0 for u <= 0, 1 for u >= 1, C1 raised cosine in between."""
+    u = min(max(u, 0.0), 1.0)
+    return 0.5 - 0.5 * math.cos(math.pi * u)
+
+
+class Scene:
+    name = "scene"
+    preset = None              # name of the springtrack.model preset, or None
+    part_ids: list[str] = []
+    default_seconds = 10.0
+    background = 0.15
+
+    def __init__(self, seed: int = 0):
+        self.seed = int(seed)
+
+    def frame(self, t: float) -> Frame:
+        raise NotImplementedError
+
+    def truth(self, t: float) -> np.ndarray:
+        raise NotImplementedError
+
+    def initial_model(self) -> ShapeModel:
+        raise ValueError(f"scene {self.name!r} has no matching shape model")
+
+
+# ---- moving_blob: one blob, for the sensor tests -------------------------------------
+class MovingBlob(Scene):
+    name = "moving_blob"
+    part_ids = ["blob"]
+    default_seconds = 1.0
+
+    def __init__(self, seed=0, speed=40.0, amplitude=1.0, sigma=4.0, x0=60.0, y0=CY):
+        super().__init__(seed)
+        self.speed, self.amplitude, self.sigma = float(speed), float(amplitude), float(sigma)
+        self.x0, self.y0 = float(x0), float(y0)
+
+    def truth(self, t):
+        return np.array([[self.x0 + self.speed * t, self.y0]])
+
+    def frame(self, t):
+        (x, y), = self.truth(t)
+        s2 = self.sigma ** 2
+        return Frame(np.array([[x, y, s2, 0.0, s2, self.amplitude]]), NO_OCCLUDERS)
+
+
+# ---- grids on a screen ------------------------------------------------------------------
+def _rot(ax: float, ay: float, az: float) -> np.ndarray:
+    """R = Rz(az) Ry(ay) Rx(ax), angles in radians."""
+    cx, sx, cy, sy, cz, sz = (math.cos(ax), math.sin(ax), math.cos(ay), math.sin(ay),
+                              math.cos(az), math.sin(az))
+    rx = np.array([[1, 0, 0], [0, cx, -sx], [0, sx, cx]])
+    ry = np.array([[cy, 0, sy], [0, 1, 0], [-sy, 0, cy]])
+    rz = np.array([[cz, -sz, 0], [sz, cz, 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+class GridScene(Scene):
+    """3x3 grid of blobs (ids r{row}c{col}) on a screen: subclasses give the pose."""
+    preset = "grid3x3"
+    part_ids = [f"r{r}c{c}" for r in range(3) for c in range(3)]
+    default_seconds = 20.0
+    D = 400.0                    # screen distance = focal length, px
+
+    def __init__(self, seed=0, spacing=50.0, sigma=5.0, amplitude=1.0, cx=CX, cy=CY):
+        super().__init__(seed)
+        self.spacing, self.sigma, self.amplitude = float(spacing), float(sigma), float(amplitude)
+        self.cx, self.cy = float(cx), float(cy)
+        g = np.array([[(c - 1) * spacing, (r - 1) * spacing] for r in range(3) for c in range(3)])
+        self.screen = g          # (9, 2) screen coordinates about the grid centre
+
+    def pose(self, t):
+        """(angle_x, angle_y, angle_z) in radians and image offset (dx, dy) in px."""
+        raise NotImplementedError
+
+    def element_offset(self, t) -> np.ndarray:
+        """(9, 2) image-plane displacement of individual elements (not in the truth)."""
+        return np.zeros((9, 2))
+
+    def _project(self, t):
+        ax, ay, az, dx, dy = self.pose(t)
+        R = _rot(ax, ay, az)
+        P = self.screen @ R[:, :2].T              # (9, 3) camera coordinates minus (0,0,D)
+        Z = self.D + P[:, 2]
+        f = self.D
+        u = self.cx + dx + f * P[:, 0] / Z
+        v = self.cy + dy + f * P[:, 1] / Z
+        # Jacobian of (u, v) wrt screen (X, Y): d(fPx/Z)/dX = f (R00 Z - Px R20) / Z^2 ...
+        J = np.empty((9, 2, 2))
+        for i, (row_img, row) in enumerate(((P[:, 0], 0), (P[:, 1], 1))):
+            for j in range(2):
+                J[:, i, j] = f * (R[row, j] * Z - row_img * R[2, j]) / Z ** 2
+        return np.stack([u, v], axis=1), J
+
+    def truth(self, t):
+        return self._project(t)[0]
+
+    def frame(self, t):
+        uv, J = self._project(t)
+        uv = uv + self.element_offset(t)
+        C = self.sigma ** 2 * np.einsum("kij,klj->kil", J, J)
+        blobs = np.column_stack([uv, C[:, 0, 0], C[:, 0, 1], C[:, 1, 1],
+                                 np.full(9, self.amplitude)])
+        return Frame(blobs, NO_OCCLUDERS)
+
+    def initial_model(self):
+        return grid3x3(self.cx, self.cy, self.spacing, sigma_px=self.sigma)
+
+
+class GridRotY(GridScene):
+    name = "grid_rot_y"
+
+    def pose(self, t):
+        ay = math.radians((triangle(t, -75.0, 75.0, 15.0)))
+        return 0.0, ay, 0.0, 0.0, 25.0 * math.sin(2 * math.pi * t / 5.0)
+
+
+class GridPull(GridScene):
+    name = "grid_pull"
+    PULLED = "r0c2"
+    PULL_PX = 60.0
+    CYCLE_S = 10.0
+    # within each cycle: ramp out over [3, 4.5] s, hold, ramp back over [6.5, 8] s
+    PULL_TIMES = (3.0, 4.5, 6.5, 8.0)
+
+    def __init__(self, seed=0, **kw):
+        super().__init__(seed, **kw)
+        rng = np.random.default_rng([self.seed, 5])
+        # random disturbances: 3 sinusoids per axis, 0.5-2 Hz, 1.5 px each, zero at t=0
+        self.dist_f = rng.uniform(0.5, 2.0, size=(2, 3))
+        self.dist_a = np.full((2, 3), 1.5)
+        self.pull_dir = np.array([1.0, -1.0]) / math.sqrt(2.0)    # away from the grid centre
+        self.k_pulled = self.part_ids.index(self.PULLED)
+
+    def pose(self, t):
+        ax = math.radians((triangle(t, -30.0, 30.0, 15.0)))
+        ay = math.radians((triangle(t, -45.0, 45.0, 10.0)))
+        dist = (self.dist_a * np.sin(2 * math.pi * self.dist_f * t)).sum(axis=1)
+        dx = 20.0 * math.sin(2 * math.pi * t / 7.0) + dist[0]
+        dy = 15.0 * math.sin(2 * math.pi * t / 5.0) + dist[1]
+        return ax, ay, 0.0, dx, dy
+
+    def pull_amount(self, t) -> float:
+        a, b, c, d = self.PULL_TIMES
+        u = t % self.CYCLE_S
+        return smooth_step((u - a) / (b - a)) * (1.0 - smooth_step((u - c) / (d - c)))
+
+    def element_offset(self, t):
+        off = np.zeros((9, 2))
+        off[self.k_pulled] = self.PULL_PX * self.pull_amount(t) * self.pull_dir
+        return off
+
+
+class GridInplane(GridScene):
+    name = "grid_inplane"
+
+    def pose(self, t):
+        az = math.radians((triangle(t, -45.0, 45.0, 15.0)))
+        return (0.0, 0.0, az, 30.0 * math.sin(2 * math.pi * t / 8.0),
+                20.0 * math.sin(2 * math.pi * t / 6.0))
+
+
+# ---- face with a hand ------------------------------------------------------------------
+class FaceOcclusion(Scene):
+    """face26 parts as bright blobs; the face translates, scales 120 -> 144 px and rolls
+    +-12 deg; a hand sweeps across it in 2.4 s every ``hand_period`` s from t = 4 s."""
+    name = "face_occlusion"
+    preset = "face26"
+    part_ids = list(face_layout())
+    default_seconds = 20.0
+    internal = list(FACE_INTERNAL)
+
+    def __init__(self, seed=0, scale=120.0, cx=CX, cy=CY, amplitude=2.0, outline_amplitude=1.5,
+                 hand_period=6.0, hand_first=4.0, hand_duration=2.4, hand_intensity=0.55,
+                 motion=1.0):
+        super().__init__(seed)
+        self.scale0, self.cx0, self.cy0 = float(scale), float(cx), float(cy)
+        lay = face_layout()
+        self.layout = np.array([lay[k][:2] for k in self.part_ids])         # (26, 2)
+        self.sig = np.array([lay[k][2:] for k in self.part_ids])            # (26, 2)
+        amp = [amplitude if k in FACE_INTERNAL else outline_amplitude for k in self.part_ids]
+        self.amp = np.array(amp, dtype=float)
+        self.hand_period, self.hand_first = float(hand_period), float(hand_first)
+        self.hand_duration, self.hand_intensity = float(hand_duration), float(hand_intensity)
+        self.motion = float(motion)
+        rng = np.random.default_rng([self.seed, 7])
+        self.phase = rng.uniform(0, 2 * math.pi, size=4)
+
+    def pose(self, t):
+        """centre (x, y), face height (px), roll (rad); rest pose at t = 0."""
+        m, ph = self.motion, self.phase
+        x = self.cx0 + m * (25.0 * math.sin(2 * math.pi * t / 6.0)
+                            + 8.0 * (math.sin(2 * math.pi * t / 1.7 + ph[0]) - math.sin(ph[0])))
+        y = self.cy0 + m * (12.0 * math.sin(2 * math.pi * t / 5.0)
+                            + 5.0 * (math.sin(2 * math.pi * t / 1.3 + ph[1]) - math.sin(ph[1])))
+        scale = self.scale0 * (1.0 + m * 0.1 * (1.0 - math.cos(2 * math.pi * t / 16.0)))
+        roll = m * math.radians(12.0) * math.sin(2 * math.pi * t / 4.0)
+        return x, y, scale, roll
+
+    def truth(self, t):
+        x, y, s, roll = self.pose(t)
+        c, sn = math.cos(roll), math.sin(roll)
+        lx, ly = self.layout[:, 0] * s, self.layout[:, 1] * s
+        return np.column_stack([x + c * lx - sn * ly, y + sn * lx + c * ly])
+
+    def hand(self, t):
+        """Occluder rows of the hand, or an empty array when no pass is under way."""
+        if t < self.hand_first:
+            return NO_OCCLUDERS
+        k, u = divmod(t - self.hand_first, self.hand_period)
+        if u > self.hand_duration:
+            return NO_OCCLUDERS
+        x, y, s, _ = self.pose(t)
+        direction = 1.0 if int(k) % 2 == 0 else -1.0
+        span = WIDTH + 2 * 0.9 * s
+        hx = (-0.9 * s + span * u / self.hand_duration)
+        hx = hx if direction > 0 else WIDTH - hx
+        hy = y + 0.15 * s
+        pr = 0.32 * s                                   # palm radius
+        rows = [[hx, hy + 0.25 * s, pr ** 2, 0.0, (1.2 * pr) ** 2]]
+        for j, fx in enumerate((-0.6, -0.2, 0.2, 0.6)):      # four fingers above the palm
+            fl = (0.28 if j in (1, 2) else 0.22) * s
+            rows.append([hx + fx * pr, hy + 0.25 * s - 1.1 * pr - 0.6 * fl,
+                         (0.07 * s) ** 2, 0.0, fl ** 2])
+        occ = np.array(rows)
+        return np.column_stack([occ, np.full(len(occ), self.hand_intensity),
+                                np.full(len(occ), 24.0)])
+
+    def frame(self, t):
+        x, y, s, roll = self.pose(t)
+        xy = self.truth(t)
+        c, sn = math.cos(roll), math.sin(roll)
+        vx, vy = (s * self.sig[:, 0]) ** 2, (s * self.sig[:, 1]) ** 2
+        # R diag(vx, vy) R^T
+        sxx = c * c * vx + sn * sn * vy
+        syy = sn * sn * vx + c * c * vy
+        sxy = c * sn * (vx - vy)
+        blobs = np.column_stack([xy, sxx, sxy, syy, self.amp])
+        return Frame(blobs, self.hand(t))
+
+    def initial_model(self):
+        return face26(self.cx0, self.cy0, self.scale0)
+
+
+SCENES: dict[str, type[Scene]] = {cls.name: cls for cls in
+                                   (GridRotY, GridPull, GridInplane, FaceOcclusion, MovingBlob)}
+
+
+def make_scene(name: str, seed: int = 0, **params) -> Scene:
+    """Instantiate a scene of :data:`SCENES` by name; unknown names raise ValueError."""
+    if isinstance(name, Scene):
+        return name
+    if name not in SCENES:
+        raise ValueError(f"unknown scene {name!r}; known: {', '.join(SCENES)}")
+    return SCENES[name](seed=seed, **params)
