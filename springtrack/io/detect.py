@@ -1,0 +1,164 @@
+"""Format detection by content, and header parsing (docs/formats.md).
+
+RAW (EVT 2.0 / 3.0) and DAT files start with ``% `` text lines; Event Stream files with
+the ``Event Stream`` magic; ``.npy`` with the numpy magic; CSV with the line ``t,x,y,p``.
+Only headerless CCam word dumps need the extension (``.ccam``).
+"""
+from __future__ import annotations
+
+import builtins
+import os
+import re
+from dataclasses import dataclass, field
+
+from .errors import DecodeError
+
+ES_MAGIC = b"Event Stream"
+NPY_MAGIC = b"\x93NUMPY"
+ES_TYPES = {0: "generic", 1: "dvs", 2: "atis", 4: "color"}
+# Sensor geometry by Prophesee plugin name, used only when the header gives none.
+PLUGIN_GEOMETRY = {"gen3": (640, 480), "gen31": (640, 480), "gen41": (1280, 720),
+                   "imx636": (1280, 720), "imx646": (1280, 720), "imx8": (1280, 720)}
+BINARY_FORMATS = ("evt2", "evt3", "es", "dat", "ccam")
+FORMATS = BINARY_FORMATS + ("npy", "csv")
+EXTENSIONS = {".raw": "evt2", ".es": "es", ".dat": "dat", ".ccam": "ccam", ".npy": "npy",
+              ".csv": "csv"}
+MAX_HEADER = 1 << 20
+
+
+@dataclass
+class FileInfo:
+    """What detection found: format, payload start, geometry and header fields."""
+    format: str
+    offset: int = 0
+    width: int | None = None
+    height: int | None = None
+    header: dict = field(default_factory=dict)
+    event_type: str | None = None      # Event Stream: dvs | atis
+
+
+def _percent_header(head: bytes, path) -> tuple[dict, int]:
+    """Parse ``% key value`` lines; return (fields, offset of the first payload byte)."""
+    fields, pos = {}, 0
+    while pos < len(head) and head[pos:pos + 1] == b"%":
+        end = head.find(b"\n", pos)
+        if end < 0:
+            raise DecodeError(f"{path}: header line at byte {pos} has no end of line "
+                              f"(truncated, or header over {MAX_HEADER} bytes)")
+        line = head[pos + 1:end].decode("latin-1").strip()
+        pos = end + 1
+        if line == "end":
+            break
+        key, _, value = line.partition(" ")
+        if key:
+            fields[key] = value.strip()
+    return fields, pos
+
+
+def _int_field(value: str, what: str, path) -> int:
+    try:
+        v = int(value)
+    except ValueError:
+        raise DecodeError(f"{path}: header {what} {value!r} is not an integer") from None
+    if not 0 < v <= 65535:
+        raise DecodeError(f"{path}: header {what} {v} out of range 1..65535")
+    return v
+
+
+def _raw_geometry(fields: dict, path):
+    fmt = fields.get("format", "")
+    kv = dict(p.split("=", 1) for p in fmt.split(";")[1:] if "=" in p)
+    if "width" in kv and "height" in kv:
+        return (_int_field(kv["width"], "format width", path),
+                _int_field(kv["height"], "format height", path), "format")
+    if "geometry" in fields:
+        m = re.fullmatch(r"(\d+)\s*x\s*(\d+)", fields["geometry"])
+        if not m:
+            raise DecodeError(f"{path}: header geometry {fields['geometry']!r} is not WxH")
+        return (_int_field(m[1], "geometry width", path),
+                _int_field(m[2], "geometry height", path), "geometry")
+    if "Width" in fields and "Height" in fields:
+        return (_int_field(fields["Width"], "Width", path),
+                _int_field(fields["Height"], "Height", path), "Width/Height")
+    plugin = fields.get("plugin_name", "")
+    for key in sorted(PLUGIN_GEOMETRY, key=len, reverse=True):
+        if re.search(rf"(^|_){key}(_|$)", plugin):
+            w, h = PLUGIN_GEOMETRY[key]
+            return w, h, f"plugin_name ({key})"
+    return None, None, None
+
+
+def _raw_format(fields: dict, path, ext: str) -> str:
+    evt = fields.get("evt", "")
+    fmt = fields.get("format", "").split(";")[0].strip().upper()
+    if evt in ("2.0", "2") or fmt == "EVT2":
+        return "evt2"
+    if evt in ("3.0", "3") or fmt == "EVT3":
+        return "evt3"
+    if evt or fmt:
+        raise DecodeError(f"{path}: RAW encoding {evt or fmt!r} not supported "
+                          "(EVT 2.0 and EVT 3.0 are)")
+    if "Version" in fields or ext == ".dat":
+        return "dat"
+    raise DecodeError(f"{path}: '% ' header names no encoding (no '% evt' or '% format' "
+                      "line); pass format='evt2' or 'evt3'")
+
+
+def sniff(path, format: str | None = None) -> FileInfo:
+    """Detect the format of ``path`` from its first bytes (extension only for CCam)."""
+    ext = os.path.splitext(str(path))[1].lower()
+    with builtins.open(path, "rb") as f:
+        head = f.read(MAX_HEADER)
+    if not head:
+        raise DecodeError(f"{path}: empty file")
+    if format is not None and format not in FORMATS:
+        raise DecodeError(f"{path}: unknown format {format!r}; known: {', '.join(FORMATS)}")
+    if head.startswith(ES_MAGIC):
+        return _es_info(head, path)
+    if head.startswith(NPY_MAGIC):
+        return FileInfo("npy")
+    if head.startswith(b"%"):
+        fields, offset = _percent_header(head, path)
+        fmt = format or _raw_format(fields, path, ext)
+        w, h, src = _raw_geometry(fields, path)
+        if src:
+            fields["geometry_source"] = src
+        if fmt == "dat":
+            if len(head) < offset + 2:
+                raise DecodeError(f"{path}: DAT file ends before the event type/size bytes")
+            etype, esize = head[offset], head[offset + 1]
+            if esize != 8:
+                raise DecodeError(f"{path}: DAT event size {esize} not supported (8 is)")
+            fields["event_type"], fields["event_size"] = str(etype), str(esize)
+            offset += 2
+        return FileInfo(fmt, offset, w, h, fields)
+    first = head.split(b"\n", 1)[0].strip().replace(b" ", b"")
+    if first == b"t,x,y,p":
+        return FileInfo("csv")
+    if format in BINARY_FORMATS:
+        w, h = (304, 240) if format == "ccam" else (None, None)
+        return FileInfo(format, 0, w, h)
+    if ext == ".ccam":
+        return FileInfo("ccam", 0, 304, 240)
+    raise DecodeError(f"{path}: unknown format (no '% ' header, Event Stream magic, numpy "
+                      f"magic or 't,x,y,p' CSV header; first bytes {head[:16]!r})")
+
+
+def _es_info(head: bytes, path) -> FileInfo:
+    if len(head) < 16:
+        raise DecodeError(f"{path}: Event Stream header truncated ({len(head)} bytes)")
+    major, minor, patch, etype = head[12], head[13], head[14], head[15]
+    version = f"{major}.{minor}.{patch}"
+    if major != 2:
+        raise DecodeError(f"{path}: Event Stream version {version} not supported (2.x is)")
+    kind = ES_TYPES.get(etype)
+    if kind not in ("dvs", "atis"):
+        raise DecodeError(f"{path}: Event Stream type {kind or etype} not supported "
+                          "(dvs and atis are)")
+    if len(head) < 20:
+        raise DecodeError(f"{path}: Event Stream header truncated before the geometry")
+    w = int.from_bytes(head[16:18], "little")
+    h = int.from_bytes(head[18:20], "little")
+    if w == 0 or h == 0:
+        raise DecodeError(f"{path}: Event Stream geometry {w}x{h} is empty")
+    return FileInfo("es", 20, w, h, {"version": version, "type": kind}, event_type=kind)

@@ -1,0 +1,175 @@
+"""File readers: one interface over every format (decoded in chunks, or whole)."""
+from __future__ import annotations
+
+import builtins
+
+import numpy as np
+
+from ..events import EVENT_DTYPE, as_events
+from .detect import FileInfo, sniff
+from .errors import DecodeError
+from .stats import DecodeStats
+
+DEFAULT_CHUNK = 1 << 20
+
+
+def make_decoder(fmt: str, **opts):
+    """A fresh streaming decoder for ``fmt`` (ccam, evt2, evt3, es, dat)."""
+    if fmt == "evt2":
+        from .evt2 import Evt2Decoder as cls
+    elif fmt == "evt3":
+        from .evt3 import Evt3Decoder as cls
+    elif fmt == "ccam":
+        from .ccam import CCamDecoder as cls
+    elif fmt == "es":
+        from .es import EsDecoder as cls
+    elif fmt == "dat":
+        from .dat import DatDecoder as cls
+    else:
+        raise ValueError(f"unknown decoder format {fmt!r}; known: ccam, evt2, evt3, es, dat")
+    return cls(**opts)
+
+
+class Reader:
+    """An event file: ``.format``, ``.width``, ``.height`` (None if unknown), ``.header``.
+
+    ``for chunk in reader`` / ``reader.chunks(nbytes)`` yield event arrays as the file is
+    decoded; ``reader.read()`` returns all events.  ``reader.stats`` holds the counters of
+    the last pass; ``reader.exposure`` the exposure events kept (keep_exposure=True).
+    """
+
+    def __init__(self, path, info: FileInfo, keep_exposure: bool = False):
+        self.path = path
+        self.format = info.format
+        self.width = info.width
+        self.height = info.height
+        self.header = info.header
+        self.offset = info.offset
+        self.event_type = info.event_type
+        self.keep_exposure = keep_exposure
+        self.stats = DecodeStats(self.format)
+        self.exposure = np.empty(0, EVENT_DTYPE)
+
+    def __repr__(self):
+        return (f"<Reader {self.path} format={self.format} "
+                f"geometry={self.width}x{self.height}>")
+
+    def __iter__(self):
+        return self.chunks()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def decoder(self):
+        opts = {}
+        if self.format in ("evt2", "evt3", "dat", "es"):
+            opts = {"width": self.width or 0, "height": self.height or 0}
+        if self.format == "es":
+            opts["event_type"] = self.event_type
+        if self.format in ("es", "ccam"):
+            opts["keep_exposure"] = self.keep_exposure
+        return make_decoder(self.format, **opts)
+
+    def chunks(self, nbytes: int = DEFAULT_CHUNK):
+        """Yield non-empty event arrays, decoding ``nbytes`` of the file at a time."""
+        if nbytes < 1:
+            raise ValueError(f"chunk size must be >= 1 byte, got {nbytes}")
+        dec = self.decoder()
+        parts = []
+        with builtins.open(self.path, "rb") as f:
+            f.seek(self.offset)
+            while True:
+                data = f.read(nbytes)
+                if not data:
+                    break
+                ev = dec.decode(data)
+                self.stats = dec.stats
+                if self.keep_exposure:
+                    parts.append(dec.take_exposure())
+                if len(ev):
+                    yield ev
+        dec.finish()
+        self.stats = dec.stats
+        if self.keep_exposure:
+            parts.append(dec.take_exposure())
+            self.exposure = np.concatenate(parts)
+
+    def read(self) -> np.ndarray:
+        """All events of the file (one pass, whole file in memory)."""
+        with builtins.open(self.path, "rb") as f:
+            f.seek(self.offset)
+            data = f.read()
+        dec = self.decoder()
+        ev = dec.decode(data)
+        dec.finish()
+        self.stats = dec.stats
+        if self.keep_exposure:
+            self.exposure = dec.take_exposure()
+        return ev
+
+
+class ArrayReader(Reader):
+    """``.npy`` (structured t, x, y, p) and CSV (header ``t,x,y,p``) files."""
+
+    def __init__(self, path, info: FileInfo):
+        super().__init__(path, info)
+        self._events = None
+
+    def _load(self) -> np.ndarray:
+        if self._events is None:
+            self._events = _load_npy(self.path) if self.format == "npy" else _load_csv(self.path)
+            self.stats = DecodeStats(self.format, words=len(self._events),
+                                     events=len(self._events))
+        return self._events
+
+    def chunks(self, nbytes: int = DEFAULT_CHUNK):
+        """Yield arrays of ``nbytes // 16`` events (the in-memory record size)."""
+        ev = self._load()
+        step = max(1, nbytes // EVENT_DTYPE.itemsize)
+        for i in range(0, len(ev), step):
+            yield ev[i:i + step]
+
+    def read(self) -> np.ndarray:
+        return self._load()
+
+
+def _load_npy(path) -> np.ndarray:
+    try:
+        arr = np.load(path, allow_pickle=False)
+    except ValueError as e:
+        raise DecodeError(f"{path}: not a readable .npy event array: {e}") from None
+    try:
+        return as_events(arr)
+    except TypeError as e:
+        raise DecodeError(f"{path}: {e}") from None
+
+
+def _load_csv(path) -> np.ndarray:
+    try:
+        cols = np.loadtxt(path, delimiter=",", skiprows=1, dtype=np.int64, ndmin=2)
+    except ValueError as e:
+        raise DecodeError(f"{path}: CSV rows must be 4 integers t,x,y,p: {e}") from None
+    if cols.size == 0:
+        return np.empty(0, EVENT_DTYPE)
+    if cols.shape[1] != 4:
+        raise DecodeError(f"{path}: CSV rows have {cols.shape[1]} columns, expected 4 (t,x,y,p)")
+    for j, (name, hi) in enumerate((("x", 65535), ("y", 65535), ("p", 1)), start=1):
+        bad = np.nonzero((cols[:, j] < 0) | (cols[:, j] > hi))[0]
+        if len(bad):
+            raise DecodeError(f"{path}: line {bad[0] + 2}: {name}={cols[bad[0], j]} "
+                              f"out of range 0..{hi}")
+    ev = np.empty(len(cols), EVENT_DTYPE)
+    for j, name in enumerate(("t", "x", "y", "p")):
+        ev[name] = cols[:, j]
+    return ev
+
+
+def open_events(path, format: str | None = None, keep_exposure: bool = False) -> Reader:
+    """Open an event file of any supported format (detected by content)."""
+    info = sniff(path, format)
+    if info.format in ("npy", "csv"):
+        return ArrayReader(path, info)
+    return Reader(path, info, keep_exposure=keep_exposure)
