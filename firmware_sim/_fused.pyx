@@ -1,0 +1,276 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+"""Decode CCam ATIS USB words and track them in one nogil pass (issue 6, "the loop").
+
+Per 4-byte word: ``springtrack.io.ccam.ccam_decode_word`` (layout in ccam.pxd), then for a
+change-detection event the sampling rule of ``springtrack._kernel.run_events`` and
+``kstep`` (Algorithm 1).  No Python object, allocation or GIL per event; the only output
+is a preallocated snapshot buffer that the caller drains.
+
+Sampling (identical to ``springtrack track``): the first tracked event at t0 sets the
+first sample time to the smallest multiple of the period >= t0; before an event at t
+with t >= next sample and t >= the kernel's last time, one snapshot per sample time
+<= t is taken (state after all events with t < sample time).
+
+Gaps: after a dropped transfer or a reconnect (:meth:`Fused.gap`) and at stream start,
+events are discarded (counted, ``gap_skipped``) until the next time-high word, so no event
+gets a stale time base; the tracker then simply continues (the kernel needs no reset).
+Words split across transfers (odd lengths) are completed from a 3-byte carry.
+"""
+from libc.stdint cimport uint8_t, uint16_t, int64_t, uint64_t
+from libc.string cimport memcpy
+cimport numpy as cnp
+import numpy as np
+
+from springtrack._kernel cimport Kernel, KState, kstep, kactivity
+from springtrack.io.ccam cimport (CCamState, ccam_init, ccam_decode_word, CCAM_CD,
+                                  CCAM_EXPOSURE, CCAM_NONE)
+
+cnp.import_array()
+
+SNAP_FIELDS = ("x", "y", "sxx", "sxy", "syy", "activity", "active", "sensitive")
+
+
+cdef struct Snap:
+    int64_t* t
+    double* x
+    double* y
+    double* sxx
+    double* sxy
+    double* syy
+    double* act
+    uint8_t* active
+    uint8_t* sensitive
+    double* energy
+    Py_ssize_t cap, count
+
+
+cdef inline int64_t ceil_mul(int64_t t, int64_t p) noexcept nogil:
+    # smallest multiple of p >= t (C division truncates toward zero: handle t < 0)
+    cdef int64_t q = t / p
+    if q * p < t:
+        q += 1
+    return q * p
+
+
+cdef inline void snapshot(const KState* s, int64_t t, Snap* o) noexcept nogil:
+    # mirrors springtrack._kernel.ksnapshot field by field (eq. 6 for the activity)
+    cdef Py_ssize_t row = o.count, base = row * s.n
+    cdef int i, k, q
+    cdef double a, tot
+    o.t[row] = t
+    for i in range(s.n):
+        a = kactivity(s, i, t)
+        o.x[base + i] = s.mx[i]
+        o.y[base + i] = s.my[i]
+        o.sxx[base + i] = s.sxx[i]
+        o.sxy[base + i] = s.sxy[i]
+        o.syy[base + i] = s.syy[i]
+        o.act[base + i] = a
+        o.active[base + i] = a > s.act_thr
+        o.sensitive[base + i] = (s.sensitive_mask >> i) & 1
+    for q in range(3):
+        tot = 0.0
+        for k in range(s.nc):
+            tot += s.energy[q][k]
+        o.energy[row * 3 + q] = tot / s.nc if s.nc > 0 else 0.0
+    o.count = row + 1
+
+
+cdef class Fused:
+    """``Fused(kernel, period_us, cap)``: decoder + tracker state for one stream.
+
+    ``feed(buf, n)`` processes the first ``n`` bytes of a buffer (bytes, bytearray,
+    array('B'), numpy uint8) and returns the snapshots taken as a dict of arrays (rows
+    ``t``; ``x`` ... ``sensitive`` of shape (rows, trackers); ``energy`` (rows, 3)).
+    """
+    cdef Kernel kernel
+    cdef KState* ks
+    cdef CCamState cs
+    cdef uint8_t carry[4]
+    cdef int ncarry
+    cdef bint await_th
+    cdef int64_t period, next_t
+    cdef bint have_next
+    # an event whose snapshots did not fit the buffer: finished by the next call
+    cdef bint pend
+    cdef int64_t pend_t
+    cdef int pend_x, pend_y
+    cdef bint mark
+    cdef readonly int64_t first_t          # first event time after set_kernel(mark=True)
+    cdef readonly uint64_t tracked, gap_skipped, gaps, bytes_in
+    cdef Snap o
+    cdef object bufs
+
+    def __init__(self, Kernel kernel, long long period_us=1000, Py_ssize_t cap=1024):
+        if cap < 1:
+            raise ValueError(f"snapshot capacity must be >= 1, got {cap}")
+        ccam_init(&self.cs)
+        self.ncarry = 0
+        self.await_th = True
+        self.period = period_us if period_us > 0 else 0
+        self.have_next = False
+        self.pend = False
+        self.first_t = -1
+        self.o.cap = cap
+        self._bind(kernel, False)
+
+    cdef _bind(self, Kernel kernel, bint mark):
+        n = kernel.st.n
+        cap = self.o.cap
+        self.kernel = kernel
+        self.ks = &kernel.st
+        b = dict(t=np.empty(cap, np.int64), x=np.empty((cap, n)), y=np.empty((cap, n)),
+                 sxx=np.empty((cap, n)), sxy=np.empty((cap, n)), syy=np.empty((cap, n)),
+                 activity=np.empty((cap, n)), active=np.empty((cap, n), np.uint8),
+                 sensitive=np.empty((cap, n), np.uint8), energy=np.empty((cap, 3)))
+        self.bufs = b
+        self.o.t = <int64_t*>cnp.PyArray_DATA(b["t"])
+        self.o.x = <double*>cnp.PyArray_DATA(b["x"])
+        self.o.y = <double*>cnp.PyArray_DATA(b["y"])
+        self.o.sxx = <double*>cnp.PyArray_DATA(b["sxx"])
+        self.o.sxy = <double*>cnp.PyArray_DATA(b["sxy"])
+        self.o.syy = <double*>cnp.PyArray_DATA(b["syy"])
+        self.o.act = <double*>cnp.PyArray_DATA(b["activity"])
+        self.o.active = <uint8_t*>cnp.PyArray_DATA(b["active"])
+        self.o.sensitive = <uint8_t*>cnp.PyArray_DATA(b["sensitive"])
+        self.o.energy = <double*>cnp.PyArray_DATA(b["energy"])
+        self.o.count = 0
+        self.mark = mark
+        if mark:
+            self.first_t = -1
+
+    def set_kernel(self, Kernel kernel):
+        """Swap the tracked model (between two events; call only between feeds).  The
+        decoder state and the sampling clock carry over; :attr:`first_t` becomes the time
+        of the first event the new kernel processes."""
+        if self.o.count:
+            raise RuntimeError("drain the snapshots before swapping the kernel")
+        self._bind(kernel, True)
+
+    @property
+    def kernel_obj(self):
+        return self.kernel
+
+    def gap(self):
+        """Data was lost before the next buffer: wait for a fresh time base."""
+        self.ncarry = 0            # a split word's tail is gone with the dropped transfer
+        self.await_th = True
+        self.gaps += 1
+
+    # ---- the nogil core ------------------------------------------------------------------
+    cdef inline int _event(self, int64_t t, int x, int y) noexcept nogil:
+        """Sample then step one event; 1 if the snapshot buffer filled up (event pending)."""
+        cdef KState* s = self.ks
+        if self.period > 0:
+            if not self.have_next:
+                self.next_t = ceil_mul(t, self.period)
+                self.have_next = True
+            if t >= self.next_t and t >= s.last_t:
+                while t >= self.next_t:
+                    if self.o.count >= self.o.cap:
+                        self.pend = True
+                        self.pend_t = t
+                        self.pend_x = x
+                        self.pend_y = y
+                        return 1
+                    snapshot(s, self.next_t, &self.o)
+                    self.next_t += self.period
+        if self.mark:
+            self.mark = False
+            self.first_t = t
+        kstep(s, t, x, y)
+        self.tracked += 1
+        return 0
+
+    cdef inline int _word(self, const uint8_t* w) noexcept nogil:
+        cdef int64_t t
+        cdef uint16_t x, y
+        cdef uint8_t p
+        cdef uint64_t th_before = self.cs.time_high
+        cdef int kind = ccam_decode_word(&self.cs, w, &t, &x, &y, &p)
+        if kind != CCAM_CD:
+            if self.cs.time_high != th_before:
+                self.await_th = False
+            return 0
+        if self.await_th:
+            self.gap_skipped += 1
+            return 0
+        return self._event(t, x, y)
+
+    cdef Py_ssize_t _run(self, const uint8_t* p, Py_ssize_t pos, Py_ssize_t n) noexcept nogil:
+        """Process bytes [pos, n); return the position reached (< n if the buffer filled)."""
+        cdef Py_ssize_t k
+        if self.pend:
+            self.pend = False
+            if self._event(self.pend_t, self.pend_x, self.pend_y):
+                return pos
+        if self.ncarry:
+            k = 4 - self.ncarry
+            if k > n - pos:
+                k = n - pos
+            memcpy(&self.carry[self.ncarry], p + pos, k)
+            self.ncarry += k
+            pos += k
+            if self.ncarry < 4:
+                return pos
+            self.ncarry = 0
+            if self._word(self.carry):
+                return pos
+        while pos + 4 <= n:
+            pos += 4
+            if self._word(p + pos - 4):
+                return pos
+        if pos < n:                 # a word split across transfers: keep its head
+            memcpy(self.carry, p + pos, n - pos)
+            self.ncarry = <int>(n - pos)
+            pos = n
+        return pos
+
+    def feed(self, buf, Py_ssize_t n=-1):
+        cdef const uint8_t[::1] mv = memoryview(buf).cast("B")
+        cdef Py_ssize_t total = mv.shape[0] if n < 0 else n, pos = 0
+        if total > mv.shape[0]:
+            raise ValueError(f"feed: n={n} exceeds the buffer's {mv.shape[0]} bytes")
+        cdef const uint8_t* p = &mv[0] if mv.shape[0] else NULL
+        parts = []
+        self.bytes_in += total
+        while True:
+            with nogil:
+                pos = self._run(p, pos, total)
+            if self.o.count:
+                parts.append(self._take())
+            if pos >= total and not self.pend:
+                break
+        if not parts:
+            return None
+        if len(parts) == 1:
+            return parts[0]
+        return {k: np.concatenate([q[k] for q in parts]) for k in parts[0]}
+
+    cdef object _take(self):
+        c = self.o.count
+        out = {k: v[:c].copy() for k, v in self.bufs.items()}
+        self.o.count = 0
+        return out
+
+    def counters(self) -> dict:
+        cs = self.cs
+        ks = self.ks
+        return dict(words=cs.words, time_high_words=cs.time_high, events_decoded=cs.cd,
+                    exposure_events=cs.exposure, events_tracked=self.tracked,
+                    time_wraps=cs.wraps, gaps=self.gaps, bytes=self.bytes_in,
+                    pending_bytes=self.ncarry,
+                    anomalies=dict(unknown_type=cs.unknown, out_of_geometry=cs.out_of_geometry,
+                                   time_backwards=cs.backwards,
+                                   before_time_high=cs.before_time_high,
+                                   skipped_after_gap=self.gap_skipped,
+                                   tracker_back_in_time=ks.n_back,
+                                   tracker_outside_sensor=ks.n_outside))
+
+    @property
+    def last_t(self):
+        return self.ks.last_t
+
+    @property
+    def next_sample_t(self):
+        return self.next_t if self.have_next else None
