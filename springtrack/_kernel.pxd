@@ -39,6 +39,7 @@ ctypedef struct KState:
     double act[MAX_TRACKERS]
     int64_t tlast[MAX_TRACKERS]
     double mass[MAX_TRACKERS]
+    double inv_mass[MAX_TRACKERS]
     double gdx0[MAX_TRACKERS]
     double gdy0[MAX_TRACKERS]
     int degree[MAX_TRACKERS]

@@ -12,7 +12,7 @@ Speed comes from two ideas that do not change any result:
   Trackers outside an event's cell cannot have d^2 < gate, so scanning only the cell's
   candidates, in index order, finds exactly the full scan's winner.
 """
-from libc.math cimport exp, sqrt, atan2, cos, sin, fmod, floor, M_PI
+from libc.math cimport exp, sqrt, atan2, cos, sin, floor, M_PI
 from libc.stdlib cimport calloc, free
 from libc.string cimport memset
 from libc.stdint cimport int64_t, uint64_t, uint8_t
@@ -88,11 +88,13 @@ cdef void reindex(KState* s, int i) noexcept nogil:
 
 
 cdef inline void check_index(KState* s, int i) noexcept nogil:
-    """Re-index tracker i if its exact gate box has left the box it is indexed with."""
-    cdef double hx = sqrt(s.gate * s.sxx[i])
-    cdef double hy = sqrt(s.gate * s.syy[i])
-    if (s.mx[i] - hx < s.bx_lo[i] or s.mx[i] + hx > s.bx_hi[i]
-            or s.my[i] - hy < s.by_lo[i] or s.my[i] + hy > s.by_hi[i]):
+    """Re-index tracker i if its exact gate box (half-widths sqrt(gate*sxx), sqrt(gate*syy))
+    has left the box it is indexed with; compared in squares, no sqrt."""
+    cdef double rx = s.mx[i] - s.bx_lo[i], lx = s.bx_hi[i] - s.mx[i]
+    cdef double ry = s.my[i] - s.by_lo[i], ly = s.by_hi[i] - s.my[i]
+    cdef double gx = s.gate * s.sxx[i], gy = s.gate * s.syy[i]
+    if (rx < 0.0 or lx < 0.0 or ry < 0.0 or ly < 0.0 or gx >= rx * rx or gx >= lx * lx
+            or gy >= ry * ry or gy >= ly * ly):
         reindex(s, i)
 
 
@@ -175,10 +177,12 @@ cdef int kstep(KState* s, int64_t t, int x, int y) noexcept nogil:
 
 # ---- springs and energy criteria ----------------------------------------------------
 cdef inline double wrap_angle(double a) noexcept nogil:
-    a = fmod(a + M_PI, TWO_PI)
-    if a < 0.0:
-        a += TWO_PI
-    return a - M_PI
+    # [ref] wrap_angle: [-3 pi, 3 pi) -> [-pi, pi)
+    if a >= M_PI:
+        return a - TWO_PI
+    if a < -M_PI:
+        return a + TWO_PI
+    return a
 
 
 cdef void ksprings(KState* s) noexcept nogil:
@@ -187,8 +191,7 @@ cdef void ksprings(KState* s) noexcept nogil:
     cdef double ddx[MAX_TRACKERS]
     cdef double ddy[MAX_TRACKERS]
     cdef double dth_raw[MAX_CONNECTIONS]
-    cdef double th_cur[MAX_CONNECTIONS]
-    cdef double mean_dth = 0.0, a, rx, ry, l, dl, ex, ey, cx, cy, fx, fy, dth, nth, th, ux, uy
+    cdef double mean_dth = 0.0, a, rx, ry, l, dl, ex, ey, cx, cy, fx, fy, dth, eps, cm1, se, ux, uy, inv_l
     s.n_spring_updates += 1
     for i in range(n):
         ddx[i] = 0.0
@@ -197,8 +200,7 @@ cdef void ksprings(KState* s) noexcept nogil:
         for k in range(nc):                                          # eq. (14)
             i = s.ca[k]
             j = s.cb[k]
-            th_cur[k] = atan2(s.my[j] - s.my[i], s.mx[j] - s.mx[i])
-            dth_raw[k] = wrap_angle(th_cur[k] - s.th0[k])
+            dth_raw[k] = wrap_angle(atan2(s.my[j] - s.my[i], s.mx[j] - s.mx[i]) - s.th0[k])
             mean_dth += dth_raw[k]
         mean_dth = mean_dth / nc
     for k in range(nc):
@@ -216,36 +218,38 @@ cdef void ksprings(KState* s) noexcept nogil:
         kind = s.kinds[k]
         if kind & 1:                                                 # eq. (11)
             if l > 0.0:
-                cx = rx / l
-                cy = ry / l
+                inv_l = 1.0 / l
+                cx = rx * inv_l
+                cy = ry * inv_l
             else:
                 cx = cos(s.th0[k])
                 cy = sin(s.th0[k])
             fx = a * dl * cx
             fy = a * dl * cy
-            ddx[i] += fx / s.mass[i]
-            ddy[i] += fy / s.mass[i]
-            ddx[j] -= fx / s.mass[j]
-            ddy[j] -= fy / s.mass[j]
+            ddx[i] += fx * s.inv_mass[i]
+            ddy[i] += fy * s.inv_mass[i]
+            ddx[j] -= fx * s.inv_mass[j]
+            ddy[j] -= fy * s.inv_mass[j]
         if s.need_torsion:
             dth = dth_raw[k] - mean_dth                              # eq. (15)
             s.energy[1][k] = 0.5 * a * (dth * dth)                   # eq. (17)
-            if kind & 2:                                             # eq. (16)
-                th = th_cur[k]
-                nth = th + a * dth
-                ux = l * (cos(nth) - cos(th))
-                uy = l * (sin(nth) - sin(th))
-                ddx[i] += ux / s.mass[i]
-                ddy[i] += uy / s.mass[i]
-                ddx[j] -= ux / s.mass[j]
-                ddy[j] -= uy / s.mass[j]
+            if kind & 2:                                             # eq. (16) [ref]
+                eps = a * dth
+                cm1 = cos(eps) - 1.0
+                se = sin(eps)
+                ux = rx * cm1 - ry * se
+                uy = ry * cm1 + rx * se
+                ddx[i] += ux * s.inv_mass[i]
+                ddy[i] += uy * s.inv_mass[i]
+                ddx[j] -= ux * s.inv_mass[j]
+                ddy[j] -= uy * s.inv_mass[j]
         else:
             s.energy[1][k] = 0.0
         if kind & 4:                                                 # eq. (19)
-            ddx[i] += a * ex / s.mass[i]
-            ddy[i] += a * ey / s.mass[i]
-            ddx[j] -= a * ex / s.mass[j]
-            ddy[j] -= a * ey / s.mass[j]
+            ddx[i] += a * ex * s.inv_mass[i]
+            ddy[i] += a * ey * s.inv_mass[i]
+            ddx[j] -= a * ex * s.inv_mass[j]
+            ddy[j] -= a * ey * s.inv_mass[j]
     for i in range(n):
         s.mx[i] = s.mx[i] + ddx[i]
         s.my[i] = s.my[i] + ddy[i]
@@ -382,6 +386,7 @@ cdef class Kernel:
             s.sxy[i] = arr["sxy"][i]
             s.syy[i] = arr["syy"][i]
             s.mass[i] = arr["mass"][i]
+            s.inv_mass[i] = 1.0 / s.mass[i]
             s.gdx0[i] = arr["gdx0"][i]
             s.gdy0[i] = arr["gdy0"][i]
             s.tlast[i] = 0

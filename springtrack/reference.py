@@ -61,11 +61,12 @@ def covariance_bias(alpha_position: float, gate_d2: float) -> float:
 
 
 def wrap_angle(a: float) -> float:
-    """Map an angle to [-pi, pi)."""
-    a = math.fmod(a + math.pi, TWO_PI)
-    if a < 0.0:
-        a += TWO_PI
-    return a - math.pi
+    """Map an angle in [-3 pi, 3 pi) to [-pi, pi) (differences of two atan2 results)."""
+    if a >= math.pi:
+        return a - TWO_PI
+    if a < -math.pi:
+        return a + TWO_PI
+    return a
 
 
 class ReferenceTracker:
@@ -90,6 +91,7 @@ class ReferenceTracker:
         self.tlast = [0] * self.n
         self.sensitive = [True] * self.n
         self.mass = [float(v) for v in arr["mass"]]
+        self.inv_mass = [1.0 / float(v) for v in arr["mass"]]
         self.gdx0 = [float(v) for v in arr["gdx0"]]
         self.gdy0 = [float(v) for v in arr["gdy0"]]
         # connections
@@ -197,7 +199,7 @@ class ReferenceTracker:
     def springs(self) -> None:
         n, nc = self.n, self.nc
         self.n_spring_updates += 1
-        mx, my, mass = self.mx, self.my, self.mass
+        mx, my, im = self.mx, self.my, self.inv_mass
         ddx = [0.0] * n
         ddy = [0.0] * n
         e_euc, e_tor, e_car = self.energy
@@ -224,36 +226,38 @@ class ReferenceTracker:
             kind = self.kinds[k]
             if kind & EUCLIDEAN:                                     # eq. (11)
                 if l > 0.0:
-                    cx = rx / l
-                    cy = ry / l
+                    inv_l = 1.0 / l
+                    cx = rx * inv_l
+                    cy = ry * inv_l
                 else:
                     cx = math.cos(self.th0[k])
                     cy = math.sin(self.th0[k])
                 fx = a * dl * cx
                 fy = a * dl * cy
-                ddx[i] += fx / mass[i]
-                ddy[i] += fy / mass[i]
-                ddx[j] -= fx / mass[j]
-                ddy[j] -= fy / mass[j]
+                ddx[i] += fx * im[i]
+                ddy[i] += fy * im[i]
+                ddx[j] -= fx * im[j]
+                ddy[j] -= fy * im[j]
             if self.need_torsion:
                 dth = dth_raw[k] - mean_dth                          # eq. (15)
                 e_tor[k] = 0.5 * a * (dth * dth)                     # eq. (17)
-                if kind & TORSIONAL:                                 # eq. (16)
-                    th = math.atan2(ry, rx)
-                    nth = th + a * dth
-                    ux = l * (math.cos(nth) - math.cos(th))
-                    uy = l * (math.sin(nth) - math.sin(th))
-                    ddx[i] += ux / mass[i]
-                    ddy[i] += uy / mass[i]
-                    ddx[j] -= ux / mass[j]
-                    ddy[j] -= uy / mass[j]
+                if kind & TORSIONAL:                                 # eq. (16), with
+                    eps = a * dth                                    # l cos(th) = rx and
+                    cm1 = math.cos(eps) - 1.0                        # l sin(th) = ry:
+                    se = math.sin(eps)                               # l (cos(th+eps) - cos th)
+                    ux = rx * cm1 - ry * se                          # = rx (cos eps - 1) - ry sin eps
+                    uy = ry * cm1 + rx * se
+                    ddx[i] += ux * im[i]
+                    ddy[i] += uy * im[i]
+                    ddx[j] -= ux * im[j]
+                    ddy[j] -= uy * im[j]
             else:
                 e_tor[k] = 0.0
             if kind & CARTESIAN:                                     # eq. (19)
-                ddx[i] += a * ex / mass[i]
-                ddy[i] += a * ey / mass[i]
-                ddx[j] -= a * ex / mass[j]
-                ddy[j] -= a * ey / mass[j]
+                ddx[i] += a * ex * im[i]
+                ddy[i] += a * ey * im[i]
+                ddx[j] -= a * ex * im[j]
+                ddy[j] -= a * ey * im[j]
         for i in range(n):
             mx[i] = mx[i] + ddx[i]
             my[i] = my[i] + ddy[i]
