@@ -96,9 +96,11 @@ def encode(events) -> bytes:
     if ev["x"].max() > 2047 or ev["y"].max() > 2047:
         raise ValueError("evt2 encode: x and y must be <= 2047 (11 bits)")
     th = t >> 6
-    new_th = np.ones(n, dtype=bool)
-    new_th[1:] = th[1:] != th[:-1]
-    cdef Py_ssize_t total = n + int(new_th.sum())
+    # A TIME_HIGH word per change of t >> 6; gaps of half the 28-bit range or more get
+    # bridging TIME_HIGH words so the decoder never mistakes them for a wrap.
+    dth = np.diff(th, prepend=th[0] - 1)
+    cdef int64_t step = (1 << (TH_BITS - 1)) - 1
+    cdef Py_ssize_t total = n + int((dth > 0).sum()) + int(np.maximum(dth - 1, 0).__floordiv__(step).sum())
     words = np.empty(total, dtype="<u4")
     cdef uint32_t[::1] w = words
     cdef const uint8_t[::1] raw = ev.view(np.uint8)
@@ -108,10 +110,14 @@ def encode(events) -> bytes:
         for i in range(n):
             h = e[i].t >> 6
             if h != cur:
+                while cur >= 0 and h - cur > step:
+                    cur += step
+                    w[j] = (<uint32_t>0x8 << 28) | <uint32_t>(cur & 0x0FFFFFFF)
+                    j += 1
                 w[j] = (<uint32_t>0x8 << 28) | <uint32_t>(h & 0x0FFFFFFF)
                 j += 1
                 cur = h
             w[j] = ((<uint32_t>(e[i].p != 0)) << 28) | (<uint32_t>(e[i].t & 0x3F) << 22) \
                 | (<uint32_t>e[i].x << 11) | <uint32_t>e[i].y
             j += 1
-    return words.tobytes()
+    return words[:j].tobytes()

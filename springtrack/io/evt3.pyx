@@ -30,6 +30,7 @@ cdef extern from *:
 
 cdef class Evt3Decoder(Decoder):
     cdef int64_t th_last, epoch, tl
+    cdef int64_t t_low_last   # timestamp set by the last TIME_LOW word
     cdef bint have_th
     cdef int y            # current row, -1 before the first EVT_ADDR_Y
     cdef int base_x       # vector base column, -1 before the first VECT_BASE_X
@@ -102,8 +103,9 @@ cdef class Evt3Decoder(Decoder):
             elif typ == 0x6:           # TIME_LOW
                 self.tl = v & 0xFFF
                 raw = ((self.epoch + self.th_last) << 12) | self.tl
-                if raw < t:            # real sensors jitter by a few us: kept, counted
+                if raw < self.t_low_last:   # real sensors jitter by a few us: kept, counted
                     self.info[<int>IN_TIME_LOW_BACK] += 1
+                self.t_low_last = raw
                 t = raw
             elif typ == 0x8:           # TIME_HIGH
                 raw = v & 0xFFF
@@ -148,7 +150,12 @@ def encode(events) -> bytes:
         raise ValueError("evt3 encode: timestamps must be >= 0 and non-decreasing")
     if ev["x"].max() > 2047 or ev["y"].max() > 2047:
         raise ValueError("evt3 encode: x and y must be <= 2047 (11 bits)")
-    words = np.empty(4 * n, dtype="<u2")
+    # Gaps of half the 12-bit TIME_HIGH range or more get bridging TIME_HIGH words so the
+    # decoder never mistakes them for a wrap.
+    th_all = t >> 12
+    dth = np.diff(th_all, prepend=th_all[0])
+    cdef int64_t step = 2047
+    words = np.empty(4 * n + int(np.maximum(dth - 1, 0).__floordiv__(step).sum()) + 1, dtype="<u2")
     cdef uint16_t[::1] w = words
     cdef const uint8_t[::1] raw = ev.view(np.uint8)
     cdef const Event* e = <const Event*>&raw[0]
@@ -158,6 +165,10 @@ def encode(events) -> bytes:
             h = (e[i].t >> 12) & 0xFFF
             l = e[i].t & 0xFFF
             if (e[i].t >> 12) != th:
+                while th >= 0 and (e[i].t >> 12) - th > step:
+                    th += step
+                    w[j] = <uint16_t>((0x8 << 12) | (th & 0xFFF))
+                    j += 1
                 w[j] = <uint16_t>((0x8 << 12) | h)
                 j += 1
                 th = e[i].t >> 12

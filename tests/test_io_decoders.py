@@ -1,0 +1,200 @@
+"""Hand-computed decoder cases for every format: layouts, wraps, anomalies, carry."""
+from __future__ import annotations
+
+import struct
+
+import numpy as np
+import pytest
+
+import springtrack.io as sio
+from springtrack.events import make
+
+
+def u32(*words):
+    return struct.pack(f"<{len(words)}I", *words)
+
+
+def u16(*words):
+    return struct.pack(f"<{len(words)}H", *words)
+
+
+def rows(ev):
+    return [tuple(int(v) for v in e) for e in ev]
+
+
+# ---- EVT 2.0 ----------------------------------------------------------------------------
+
+def evt2_cd(p, tlow, x, y):
+    return (p << 28) | (tlow << 22) | (x << 11) | y
+
+
+def test_evt2_words():
+    dec = sio.decoder("evt2")
+    data = u32(0x8000_0010, evt2_cd(1, 5, 100, 200), evt2_cd(0, 63, 2047, 0),
+               0xA000_0001, 0xE000_0000, 0xF000_0000, 0x3000_0000)
+    ev = dec.decode(data)
+    assert rows(ev) == [(16 * 64 + 5, 100, 200, 1), (16 * 64 + 63, 2047, 0, 0)]
+    s = dec.stats
+    assert s.words == 7 and s.events == 2
+    assert s.info == {"time_high_words": 1, "triggers": 1, "other_words": 2}
+    assert s.anomalies["unknown_type"] == 1
+
+
+def test_evt2_wrap_and_backwards():
+    dec = sio.decoder("evt2")
+    top = (1 << 28) - 1
+    ev = dec.decode(u32(0x8000_0000 | top, evt2_cd(1, 1, 0, 0),
+                        0x8000_0002, evt2_cd(1, 2, 0, 0),          # wrap: +2**28
+                        0x8000_0001, evt2_cd(1, 3, 0, 0)))         # back by 1: rebased
+    assert list(ev["t"]) == [top * 64 + 1, ((1 << 28) + 2) * 64 + 2, ((1 << 28) + 2) * 64 + 3]
+    assert dec.stats.info["time_wraps"] == 1
+    assert dec.stats.anomalies["time_backwards"] == 1
+
+
+def test_evt2_geometry_and_carry():
+    dec = sio.decoder("evt2", width=100, height=50)
+    data = u32(0x8000_0001, evt2_cd(1, 0, 99, 49), evt2_cd(1, 0, 100, 0), evt2_cd(0, 0, 0, 50))
+    out = [dec.decode(data[i:i + 3]) for i in range(0, len(data), 3)]
+    assert rows(np.concatenate(out)) == [(64, 99, 49, 1)]
+    assert dec.stats.anomalies["out_of_geometry"] == 2
+    assert dec.decode(b"\x01\x02") .size == 0 and dec.pending_bytes == 2
+    assert dec.finish() == 2 and dec.stats.anomalies["truncated"] == 1
+    assert dec.pending_bytes == 0
+
+
+def test_evt2_before_time_high_counted():
+    dec = sio.decoder("evt2")
+    ev = dec.decode(u32(evt2_cd(1, 7, 1, 1)))
+    assert rows(ev) == [(7, 1, 1, 1)] and dec.stats.info["before_time_high"] == 1
+
+
+# ---- EVT 3.0 ----------------------------------------------------------------------------
+
+def test_evt3_vectors_and_addresses():
+    dec = sio.decoder("evt3")
+    data = u16(0x8001,                 # TIME_HIGH 1
+               0x6002,                 # TIME_LOW 2   -> t = 4098
+               0x0007,                 # ADDR_Y 7
+               0x2000 | 1 << 11 | 5,   # ADDR_X p=1 x=5
+               0x3000 | 1 << 11 | 10,  # VECT_BASE_X p=1 x=10
+               0x4000 | 0b1000_0000_0101,   # VECT_12: x 10, 12, 21
+               0x5000 | 0b1000_0001,        # VECT_8:  x 22, 29
+               0x2000 | 0 << 11 | 3,   # ADDR_X p=0 x=3
+               0xA000, 0xE000, 0xF000, 0x7000, 0x9000)
+    ev = dec.decode(data)
+    assert rows(ev) == [(4098, 5, 7, 1), (4098, 10, 7, 1), (4098, 12, 7, 1), (4098, 21, 7, 1),
+                        (4098, 22, 7, 1), (4098, 29, 7, 1), (4098, 3, 7, 0)]
+    assert dec.stats.info["triggers"] == 1 and dec.stats.info["other_words"] == 3
+    assert dec.stats.anomalies["unknown_type"] == 1
+
+
+def test_evt3_orphans_dropped_and_counted():
+    dec = sio.decoder("evt3")
+    ev = dec.decode(u16(0x2005, 0x0003, 0x4FFF, 0x2006))   # x before y; vector before base
+    assert rows(ev) == [(0, 6, 3, 0)]
+    assert dec.stats.anomalies["orphan"] == 2
+
+
+def test_evt3_wrap_vs_backwards():
+    dec = sio.decoder("evt3")
+    ev = dec.decode(u16(0x0001, 0x8FFF, 0x6010, 0x2000,      # t = 4095*4096 + 16
+                        0x8000, 0x6001, 0x2001,              # wrap: 2**24 + 1
+                        0x8000 | 3000, 0x2002,               # forward
+                        0x8000 | 1000, 0x6002, 0x2003))      # back by 2000: rebased
+    t = list(ev["t"])
+    assert t[0] == 4095 * 4096 + 16 and t[1] == (1 << 24) + 1
+    assert t[2] == (1 << 24) + 3000 * 4096 + 1
+    assert t[3] == (1 << 24) + 3000 * 4096 + 2                # time base kept at 3000
+    assert dec.stats.info["time_wraps"] == 1 and dec.stats.anomalies["time_backwards"] == 1
+
+
+def test_evt3_vector_split_across_calls():
+    data = u16(0x0002, 0x3000 | 100, 0x4FFF, 0x50FF)
+    whole = sio.decoder("evt3").decode(data)
+    dec = sio.decoder("evt3")
+    parts = [dec.decode(data[i:i + 1]) for i in range(len(data))]
+    np.testing.assert_array_equal(np.concatenate(parts), whole)
+    assert list(whole["x"]) == list(range(100, 120))
+
+
+# ---- CCam ATIS --------------------------------------------------------------------------
+
+def test_ccam_word_layout():
+    dec = sio.decoder("ccam", keep_exposure=True)
+    # time-high 1 -> offset 2048 us; event: b0=39 (y=200), b1=0x2C, b2=0x03 (x bit 8,
+    # t bit 0), b3=0x15 (t bits 10..7 = 5, p=1)  ->  x=300, t=2048 + (5<<7 | 1)
+    ev = dec.decode(bytes([1, 0, 0, 0x80, 39, 0x2C, 0x03, 0x15,
+                           0, 7, 0, 0x20]))                 # exposure event at y=239, x=7
+    assert rows(ev) == [(2048 + 641, 300, 200, 1)]
+    assert rows(dec.take_exposure()) == [(2048, 7, 239, 0)]
+    assert dec.stats.info == {"time_high_words": 1, "exposure_events": 1}
+
+
+def test_ccam_wrap_backwards_garbage():
+    dec = sio.decoder("ccam")
+    ev = dec.decode(bytes([0xFF, 0xFF, 0xFF, 0x80, 0, 0, 0, 0,     # th = 2**24 - 1
+                           1, 0, 0, 0x80, 0, 1, 0, 0,              # wrap -> 2**24 + 1
+                           0, 0, 0, 0x80, 0, 2, 0, 0,              # back by 1: rebased
+                           240, 0, 0, 0, 0, 0x30, 1, 0,            # y out, x = 304 out
+                           0, 0, 0, 0xC1]))                        # bits 7..6: unknown
+    assert list(ev["t"]) == [((1 << 24) - 1) * 2048, ((1 << 24) + 1) * 2048,
+                             ((1 << 24) + 1) * 2048]
+    a = dec.stats.anomalies
+    assert (a["time_backwards"], a["out_of_geometry"], a["unknown_type"]) == (1, 2, 1)
+    assert dec.stats.info["time_wraps"] == 1
+
+
+def test_ccam_geometry_is_fixed():
+    with pytest.raises(ValueError, match="304x240"):
+        sio.decoder("ccam", width=640, height=480)
+
+
+# ---- Event Stream -----------------------------------------------------------------------
+
+def test_es_dvs_bytes():
+    dec = sio.decoder("es", event_type="dvs", width=320, height=240)
+    ev = dec.decode(bytes([0xFF, 0x05, 3, 0, 4, 0,      # t = 127 + 2, p = 1
+                           0xFE,                          # reset byte
+                           0x00, 0x40, 1, 0xEF, 0]))      # x = 320: out of geometry
+    assert rows(ev) == [(129, 3, 4, 1)]
+    assert dec.stats.info == {"overflow_bytes": 1, "reset_bytes": 1}
+    assert dec.stats.anomalies["out_of_geometry"] == 1
+
+
+def test_es_atis_bytes():
+    dec = sio.decoder("es", event_type="atis", width=304, height=240, keep_exposure=True)
+    ev = dec.decode(bytes([0xFE,                          # overflow x2: t += 126
+                           (5 << 2) | 0b10, 1, 1, 2, 0,   # t = 131, p = 1: x 257, y 2
+                           0xFC,                          # reset
+                           (1 << 2) | 0b01, 0, 0, 0, 0])) # exposure at t = 132
+    assert rows(ev) == [(131, 257, 2, 1)]
+    assert rows(dec.take_exposure()) == [(132, 0, 0, 0)]
+    assert dec.stats.info == {"overflow_bytes": 1, "reset_bytes": 1, "exposure_events": 1}
+
+
+def test_es_partial_event_pending():
+    dec = sio.decoder("es", event_type="dvs")
+    assert dec.decode(bytes([0x01, 2, 0])).size == 0
+    assert dec.pending_bytes == 3
+    assert rows(dec.decode(bytes([3, 0]))) == [(0, 2, 3, 1)]
+    dec.decode(bytes([0x01]))
+    assert dec.finish() == 1 and dec.stats.anomalies["truncated"] == 1
+
+
+# ---- DAT --------------------------------------------------------------------------------
+
+def test_dat_records_and_wrap():
+    dec = sio.decoder("dat", width=640, height=480)
+    rec = lambda t, x, y, p: struct.pack("<II", t, x | y << 14 | p << 28)
+    ev = dec.decode(rec(0xFFFF_FFF0, 639, 479, 1) + rec(5, 1, 2, 0)      # wrap
+                    + rec(3, 1, 2, 0)                                     # back by 2
+                    + rec(6, 640, 0, 0) + rec(7, 0, 0, 3))                # x out; p=3
+    assert rows(ev) == [(0xFFFF_FFF0, 639, 479, 1), ((1 << 32) + 5, 1, 2, 0),
+                        ((1 << 32) + 3, 1, 2, 0)]
+    a = dec.stats.anomalies
+    assert (a["time_backwards"], a["out_of_geometry"], a["unknown_type"]) == (1, 1, 1)
+
+
+def test_unknown_decoder_name():
+    with pytest.raises(ValueError, match="known: ccam, evt2, evt3, es, dat"):
+        sio.decoder("evt4")
