@@ -14,6 +14,8 @@ import sys
 COMMANDS = {
     "track": ("springtrack.commands.track", "track a shape model through an event file"),
     "model": ("springtrack.commands.model", "show or export a preset shape model"),
+    "simulate": ("springtrack.commands.simulate", "simulate an ATIS sensor on a scene, with ground truth"),
+    "score": ("springtrack.commands.score", "the paper's tracking error of a track CSV against ground truth"),
 }
 
 
