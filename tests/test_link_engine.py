@@ -97,7 +97,8 @@ class SimEngine:
                 msg = str(e)
             raise UpdateRejected(code, msg)
         with self.lock:
-            merged = {**self.tracker.params.as_dict(), **self.pending_params, name: value}
+            queued = {k: v for k, (v, _) in self.pending_params.items()}
+            merged = {**self.tracker.params.as_dict(), **queued, name: value}
             try:
                 _params.from_mapping(merged)
             except _params.ParamError as e:
@@ -150,7 +151,7 @@ class SimEngine:
                 self.tracker.process(self.events[self.pos:end])
                 self.counters["events_tracked"] += end - self.pos
             self.pos, self.t_us = end, t1
-            st = self.tracker.state()
+            st = self.tracker.state(t1)           # activity decayed to the snapshot time
             self.telemetry.append(dict(t_us=t1, generation=self.generation_live,
                                        mean_energy=self.tracker.energies()["mean"], trackers=st))
             self.counters["snapshots"] += 1

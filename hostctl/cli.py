@@ -1,0 +1,207 @@
+"""The ``hostctl`` command: steer a springtrack firmware over serial, USB-CDC or TCP.
+
+    hostctl ports
+    hostctl --port /dev/pts/5 info
+    hostctl --port /dev/pts/5 load-model face26            # preset or FILE.toml
+    hostctl --port /dev/pts/5 set alpha_position=0.05 energy_scale=3
+    hostctl --port /dev/pts/5 get [NAME ...]
+    hostctl --port /dev/pts/5 start | stop | reset | stats | ping
+    hostctl --port /dev/pts/5 monitor [--seconds S] [--smooth]
+    hostctl --port /dev/pts/5 record OUT.csv|OUT.npz [--seconds S] [--smooth]
+
+``--port`` defaults to $HOSTCTL_PORT.  A signed link (non-loopback TCP) needs the shared
+key, as hex, in $HOSTCTL_KEY or in a file given with ``--key-file`` (never on the command
+line, where other users could read it).  Exit codes: 0 ok, 1 other error, 2 usage,
+3 no such port, 4 no answer, 5 protocol version mismatch, 6 command refused (NACK).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+from .device import Device, HostctlError
+
+VERBS = ("ports", "info", "load-model", "set", "get", "start", "stop", "reset", "stats",
+         "ping", "monitor", "record")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="hostctl", description=__doc__.split("\n\n")[0],
+                                formatter_class=argparse.RawDescriptionHelpFormatter,
+                                epilog="\n\n".join(__doc__.split("\n\n")[1:]))
+    p.add_argument("--port", default=os.environ.get("HOSTCTL_PORT"),
+                   help="pyserial URL: /dev/ttyACM0, /dev/pts/N, socket://HOST:PORT "
+                        "(default $HOSTCTL_PORT)")
+    p.add_argument("--timeout", type=float, default=0.5, help="seconds to wait per try (0.5)")
+    p.add_argument("--retries", type=int, default=3, help="retries per command (3)")
+    p.add_argument("--key-file", help="file holding the link key as hex (else $HOSTCTL_KEY)")
+    sub = p.add_subparsers(dest="verb", metavar="VERB", required=True)
+    sub.add_parser("ports", help="list serial ports")
+    sub.add_parser("info", help="firmware/protocol versions, geometry, model")
+    sp = sub.add_parser("load-model", help="upload a model (preset name or TOML file)")
+    sp.add_argument("model")
+    sp = sub.add_parser("set", help="set parameters NAME=VALUE ...")
+    sp.add_argument("assignments", nargs="+", metavar="NAME=VALUE")
+    sp = sub.add_parser("get", help="show parameters (all if none named)")
+    sp.add_argument("names", nargs="*")
+    for verb, text in (("start", "start tracking"), ("stop", "stop tracking"),
+                       ("reset", "reset the trackers to the model"),
+                       ("stats", "firmware and link counters")):
+        sub.add_parser(verb, help=text)
+    sp = sub.add_parser("ping", help="command round-trip times")
+    sp.add_argument("-n", type=int, default=10)
+    sp = sub.add_parser("monitor", help="live view of the trackers (10 Hz)")
+    sp.add_argument("--seconds", type=float, default=None, help="stop after S seconds")
+    sp.add_argument("--smooth", action="store_true", help="add Kalman-smoothed velocities")
+    sp.add_argument("--rate", type=float, default=10.0, help="redraws per second (10)")
+    sp = sub.add_parser("record", help="record telemetry to OUT.csv or OUT.npz")
+    sp.add_argument("out")
+    sp.add_argument("--seconds", type=float, default=10.0, help="duration (10)")
+    sp.add_argument("--smooth", action="store_true",
+                    help="add smoothed positions and velocities (npz arrays / .smooth.csv)")
+    return p
+
+
+def parse_value(text: str):
+    low = text.lower()
+    if low in ("true", "false"):
+        return low == "true"
+    for conv in (int, float):
+        try:
+            return conv(text)
+        except ValueError:
+            pass
+    return text
+
+
+def parse_assignments(items) -> dict:
+    out = {}
+    for a in items:
+        name, sep, value = a.partition("=")
+        if not sep or not name:
+            raise HostctlError(f"set: expected NAME=VALUE, got {a!r}")
+        out[name.strip()] = parse_value(value.strip())
+    return out
+
+
+def read_key(path: str | None) -> bytes | None:
+    text = open(path).read().strip() if path else os.environ.get("HOSTCTL_KEY", "")
+    if not text:
+        return None
+    try:
+        return bytes.fromhex(text)
+    except ValueError:
+        raise HostctlError(f"{path or '$HOSTCTL_KEY'}: the key must be hex digits") from None
+
+
+def main(argv=None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        if args.verb == "ports":
+            return cmd_ports()
+        if not args.port:
+            raise HostctlError("no port given: use --port URL or set HOSTCTL_PORT "
+                               "(see `hostctl ports`)")
+        with Device(args.port, timeout=args.timeout, retries=args.retries,
+                    key=read_key(args.key_file)) as dev:
+            return int(VERB_FUNCS[args.verb](dev, args) or 0)
+    except HostctlError as e:
+        print(f"hostctl {args.verb}: error: {e}", file=sys.stderr)
+        return e.exit_code
+    except (ValueError, OSError) as e:
+        print(f"hostctl {args.verb}: error: {e}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        return 130
+
+
+def cmd_ports() -> int:
+    from serial.tools import list_ports
+    ports = list(list_ports.comports())
+    for p in ports:
+        print(f"{p.device}\t{p.description}\t{p.hwid}")
+    if not ports:
+        print("no serial ports found (firmware-sim --pty prints its own path)", file=sys.stderr)
+    return 0
+
+
+def cmd_info(dev, args) -> int:
+    for k, v in sorted(dev.info.items()):
+        if k == "nonce":
+            continue
+        if k == "trackers" and isinstance(v, list):
+            v = f"{len(v)}: " + " ".join(v)
+        print(f"{k}: {v}")
+    return 0
+
+
+def cmd_load_model(dev, args) -> int:
+    t = time.perf_counter()
+    gen = dev.load_model(args.model)
+    print(f"model {args.model} committed as generation {gen} "
+          f"({(time.perf_counter() - t) * 1e3:.0f} ms)")
+    return 0
+
+
+def cmd_set(dev, args) -> int:
+    for name, value in parse_assignments(args.assignments).items():
+        print(f"{name}={value!r}: generation {dev.set(name, value)}")
+    return 0
+
+
+def cmd_get(dev, args) -> int:
+    for k, v in dev.get(*args.names).items():
+        print(f"{k}={v!r}")
+    return 0
+
+
+def _simple(method):
+    def run(dev, args):
+        getattr(dev, method)()
+        print(f"{method}: ok")
+        return 0
+    return run
+
+
+def cmd_stats(dev, args) -> int:
+    for k, v in sorted(dev.stats().items()):
+        print(f"{k}: {v}")
+    for k, v in sorted(dev.link_counters().items()):
+        print(f"host.{k}: {v}")
+    return 0
+
+
+def cmd_ping(dev, args) -> int:
+    rtt = sorted(dev.ping() * 1e3 for _ in range(args.n))
+    print(f"{args.n} pings: min {rtt[0]:.2f} ms, median {rtt[len(rtt) // 2]:.2f} ms, "
+          f"max {rtt[-1]:.2f} ms")
+    return 0
+
+
+def cmd_monitor(dev, args) -> int:
+    from .monitor import monitor
+    return monitor(dev, seconds=args.seconds, smooth=args.smooth, rate=args.rate)
+
+
+def cmd_record(dev, args) -> int:
+    from .record import save
+    from .smooth import Smoother  # noqa: F401 - fail early if filterpy is missing
+    snaps = list(dev.telemetry(seconds=args.seconds))
+    summary = save(args.out, snaps, dev.info, smooth={} if args.smooth else None)
+    lc = dev.link_counters()
+    print(f"recorded {summary['snapshots']} snapshots x {summary['trackers']} trackers "
+          f"to {', '.join(summary['files'])}; lost frames {lc['lost']}, "
+          f"CRC errors {lc['crc_errors']}, model-swap drops {summary['dropped']}")
+    return 0
+
+
+VERB_FUNCS = {"info": cmd_info, "load-model": cmd_load_model, "set": cmd_set, "get": cmd_get,
+              "start": _simple("start"), "stop": _simple("stop"), "reset": _simple("reset"),
+              "stats": cmd_stats, "ping": cmd_ping, "monitor": cmd_monitor,
+              "record": cmd_record}
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,83 @@
+"""``hostctl monitor``: a live terminal view redrawn ``rate`` times a second (plain ANSI:
+cursor home + clear) - per-tracker position, active/sensitive flags, activity, optional
+smoothed velocity; mean energy, event rate, telemetry rate, lost frames, link errors."""
+from __future__ import annotations
+
+import sys
+import time
+
+from .record import tracker_ids
+from .smooth import Smoother
+
+HOME_CLEAR = "\x1b[H\x1b[2J"
+
+
+def event_count(stats: dict) -> int | None:
+    """The firmware's tracked-event counter, whatever its exact name."""
+    for key in ("events_tracked", "tracker.events_valid", "events_decoded", "events"):
+        if isinstance(stats.get(key), (int, float)):
+            return int(stats[key])
+    return None
+
+
+def render(dev, snap, ids, smooth, rates: dict) -> str:
+    lc = dev.link_counters()
+    errors = lc["crc_errors"] + lc["cobs_errors"] + lc["malformed"] + lc["oversize"]
+    lines = [f"hostctl monitor  {dev.url}  model {dev.info.get('model', '?')}  "
+             f"generation {snap.generation}  t = {snap.t_us / 1e6:.3f} s",
+             f"mean energy {snap.mean_energy:.4g}   events {rates.get('events', 0):.0f}/s   "
+             f"telemetry {rates.get('telemetry', 0):.0f}/s   lost frames {lc['lost']}   "
+             f"link errors {errors}   retries {lc['retries']}   "
+             f"firmware tx dropped {lc.get('firmware.tx_dropped', 0)}",
+             ""]
+    head = f"{'tracker':<12}{'x':>9}{'y':>9}  act sens {'activity':>9}"
+    if smooth is not None:
+        head += f"{'vx':>9}{'vy':>9}"
+    lines.append(head)
+    st = smooth.state() if smooth is not None else None
+    for k, row in enumerate(snap.trackers):
+        line = (f"{ids[k]:<12}{row['x']:9.2f}{row['y']:9.2f}  "
+                f"{'*' if row['active'] else '.':>3} {'*' if row['sensitive'] else '.':>4} "
+                f"{row['activity']:9.1f}")
+        if st is not None:
+            line += f"{st['vx'][k]:9.1f}{st['vy'][k]:9.1f}"
+        lines.append(line)
+    return "\n".join(lines)
+
+
+def monitor(dev, seconds: float | None = None, smooth: bool = False, rate: float = 10.0,
+            out=None) -> int:
+    out = out or sys.stdout
+    period = 1.0 / max(rate, 1e-3)
+    end = None if seconds is None else time.monotonic() + seconds
+    last = None
+    ids = []
+    smoother = None
+    rates: dict = {}
+    n_tele, t_rate = 0, time.monotonic()
+    ev0 = event_count(dev.stats())
+    next_draw = time.monotonic()
+    while end is None or time.monotonic() < end:
+        for snap in dev.telemetry(seconds=min(period, 0.05)):
+            n_tele += 1
+            if last is None or len(snap.trackers) != len(last.trackers):
+                ids = tracker_ids(dev.info, len(snap.trackers))
+                smoother = Smoother(len(snap.trackers)) if smooth else None
+            if smoother is not None:
+                smoother.update(snap.t_us, snap.trackers["x"], snap.trackers["y"])
+            last = snap
+        now = time.monotonic()
+        if now - t_rate >= 0.5:
+            ev = event_count(dev.stats())
+            if ev is not None and ev0 is not None:
+                rates["events"] = (ev - ev0) / (now - t_rate)
+            rates["telemetry"] = n_tele / (now - t_rate)
+            ev0, n_tele, t_rate = ev, 0, now
+        if now >= next_draw:
+            next_draw = now + period
+            body = (render(dev, last, ids, smoother, rates) if last is not None
+                    else f"hostctl monitor  {dev.url}: waiting for telemetry "
+                         f"(is the device started? `hostctl start`)")
+            out.write(HOME_CLEAR + body + "\n")
+            out.flush()
+    return 0

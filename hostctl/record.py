@@ -1,0 +1,91 @@
+"""Recording telemetry to files.
+
+* ``OUT.csv`` - the track CSV schema of ``springtrack track`` (springtrack/track.py:
+  ``t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive``), so ``springtrack score``
+  reads recordings.  With smoothing, the smoothed states go to a sidecar
+  ``OUT.smooth.csv`` (``t_us,tracker,x_s,y_s,vx,vy``) so the main file keeps the schema.
+* ``OUT.npz`` - arrays ``t_us (T,)``, ``ids (K,)``, ``x, y, sxx, sxy, syy, activity,
+  active, sensitive (T, K)``, ``generation, mean_energy, seq, host_time (T,)`` and, with
+  smoothing, ``smooth_t_us (T',)``, ``x_s, y_s, vx, vy (T', K)``.
+
+Values are the telemetry's fixed-point quantities decoded (1/16 px positions etc.,
+docs/protocol.md), not the firmware's float state.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from springtrack.track import Track
+
+from .smooth import SMOOTH_FIELDS, smooth_track
+
+STATE = ("x", "y", "sxx", "sxy", "syy", "activity", "active", "sensitive")
+
+
+def tracker_ids(info: dict, n: int) -> list[str]:
+    ids = info.get("trackers")
+    if isinstance(ids, list) and len(ids) == n and all(isinstance(i, str) for i in ids):
+        return ids
+    return [f"t{k:02d}" for k in range(n)]
+
+
+def stack(snaps) -> dict:
+    """Snapshots -> arrays; snapshots with a different tracker count than the last one
+    (a model swap mid-recording) are dropped and counted in ``dropped``."""
+    snaps = list(snaps)
+    if not snaps:
+        raise ValueError("no telemetry received: is the device started (hostctl start)?")
+    n = len(snaps[-1].trackers)
+    keep = [s for s in snaps if len(s.trackers) == n]
+    tr = np.stack([s.trackers for s in keep])
+    out = {f: tr[f] for f in STATE}
+    out.update(t_us=np.array([s.t_us for s in keep], np.int64),
+               generation=np.array([s.generation for s in keep], np.int64),
+               mean_energy=np.array([s.mean_energy for s in keep], np.float64),
+               seq=np.array([s.seq for s in keep], np.int64),
+               host_time=np.array([s.host_time for s in keep], np.float64),
+               dropped=len(snaps) - len(keep))
+    return out
+
+
+def to_track(arrs: dict, ids) -> Track:
+    return Track(arrs["t_us"], list(ids), *(arrs[f] for f in STATE))
+
+
+def save(path, snaps, info: dict, smooth: dict | None = None) -> dict:
+    """Write a recording; ``smooth`` is None or the Smoother keyword arguments.
+    Returns a summary (rows, trackers, files)."""
+    path = Path(path)
+    arrs = stack(snaps)
+    ids = tracker_ids(info, arrs["x"].shape[1])
+    sm = smooth_track(arrs["t_us"], arrs["x"], arrs["y"], **smooth) if smooth is not None else None
+    files = [str(path)]
+    if path.suffix == ".npz":
+        extra = {}
+        if sm is not None:
+            extra = {"smooth_t_us": sm["t_us"], **{k: sm[k] for k in SMOOTH_FIELDS}}
+        np.savez_compressed(path, ids=np.array(ids), **{k: v for k, v in arrs.items()
+                                                        if k != "dropped"}, **extra)
+    elif path.suffix == ".csv":
+        to_track(arrs, ids).to_csv(path)
+        if sm is not None:
+            side = path.with_suffix(".smooth.csv")
+            _smooth_csv(side, sm, ids)
+            files.append(str(side))
+    else:
+        raise ValueError(f"{path}: unknown recording format {path.suffix!r}; use .csv or .npz")
+    return dict(snapshots=len(arrs["t_us"]), trackers=len(ids), dropped=arrs["dropped"],
+                files=files)
+
+
+def _smooth_csv(path, sm: dict, ids) -> None:
+    k = len(ids)
+    with open(path, "w") as f:
+        f.write("t_us,tracker,x_s,y_s,vx,vy\n")
+        t = np.repeat(sm["t_us"], k).tolist()
+        names = ids * len(sm["t_us"])
+        cols = [sm[c].ravel().tolist() for c in SMOOTH_FIELDS]
+        f.writelines(f"{a},{b},{c:.4f},{d:.4f},{e:.4f},{g:.4f}\n"
+                     for a, b, c, d, e, g in zip(t, names, *cols))
