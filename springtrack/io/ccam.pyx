@@ -79,6 +79,9 @@ def encode(events, exposure=None) -> bytes:
     if ev["x"].max() >= CCAM_WIDTH or ev["y"].max() >= CCAM_HEIGHT:
         raise ValueError(f"ccam encode: x must be < {CCAM_WIDTH} and y < {CCAM_HEIGHT}")
     th = t // TIME_HIGH_US
+    if th[0] >= (1 << 24):
+        raise ValueError("ccam encode: the first timestamp must be below 2**24 * 0x800 us "
+                         "(the decoder starts from time-high 0)")
     if n > 1 and np.any(np.diff(th) >= (1 << 23)):
         raise ValueError("ccam encode: a time gap of 2**23 time-high periods or more "
                          "cannot be represented (the decoder would see a wrap)")

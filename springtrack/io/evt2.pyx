@@ -98,19 +98,21 @@ def encode(events) -> bytes:
     th = t >> 6
     # A TIME_HIGH word per change of t >> 6; gaps of half the 28-bit range or more get
     # bridging TIME_HIGH words so the decoder never mistakes them for a wrap.
-    dth = np.diff(th, prepend=th[0] - 1)
+    dth = np.diff(th, prepend=0)
     cdef int64_t step = (1 << (TH_BITS - 1)) - 1
-    cdef Py_ssize_t total = n + int((dth > 0).sum()) + int(np.maximum(dth - 1, 0).__floordiv__(step).sum())
+    cdef Py_ssize_t total = n + 1 + int((dth > 0).sum()) + int(np.maximum(dth - 1, 0).__floordiv__(step).sum())
     words = np.empty(total, dtype="<u4")
     cdef uint32_t[::1] w = words
     cdef const uint8_t[::1] raw = ev.view(np.uint8)
     cdef const Event* e = <const Event*>&raw[0]
-    cdef int64_t cur = -1, h
+    cdef int64_t cur = 0, h       # the decoder starts from time-high 0
+    cdef bint first = True
     with nogil:
         for i in range(n):
             h = e[i].t >> 6
-            if h != cur:
-                while cur >= 0 and h - cur > step:
+            if h != cur or first:
+                first = False
+                while h - cur > step:
                     cur += step
                     w[j] = (<uint32_t>0x8 << 28) | <uint32_t>(cur & 0x0FFFFFFF)
                     j += 1

@@ -153,19 +153,21 @@ def encode(events) -> bytes:
     # Gaps of half the 12-bit TIME_HIGH range or more get bridging TIME_HIGH words so the
     # decoder never mistakes them for a wrap.
     th_all = t >> 12
-    dth = np.diff(th_all, prepend=th_all[0])
+    dth = np.diff(th_all, prepend=0)
     cdef int64_t step = 2047
     words = np.empty(4 * n + int(np.maximum(dth - 1, 0).__floordiv__(step).sum()) + 1, dtype="<u2")
     cdef uint16_t[::1] w = words
     cdef const uint8_t[::1] raw = ev.view(np.uint8)
     cdef const Event* e = <const Event*>&raw[0]
-    cdef int64_t th = -1, tl = -1, y = -1, h, l
+    cdef int64_t th = 0, tl = -1, y = -1, h, l     # the decoder starts from time-high 0
+    cdef bint first = True
     with nogil:
         for i in range(n):
             h = (e[i].t >> 12) & 0xFFF
             l = e[i].t & 0xFFF
-            if (e[i].t >> 12) != th:
-                while th >= 0 and (e[i].t >> 12) - th > step:
+            if (e[i].t >> 12) != th or first:
+                first = False
+                while (e[i].t >> 12) - th > step:
                     th += step
                     w[j] = <uint16_t>((0x8 << 12) | (th & 0xFFF))
                     j += 1
