@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import builtins
+import warnings
 
 import numpy as np
 
@@ -149,7 +150,9 @@ def _load_npy(path) -> np.ndarray:
 
 def _load_csv(path) -> np.ndarray:
     try:
-        cols = np.loadtxt(path, delimiter=",", skiprows=1, dtype=np.int64, ndmin=2)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)     # "no data": 0 events is fine
+            cols = np.loadtxt(path, delimiter=",", skiprows=1, dtype=np.int64, ndmin=2)
     except ValueError as e:
         raise DecodeError(f"{path}: CSV rows must be 4 integers t,x,y,p: {e}") from None
     if cols.size == 0:
