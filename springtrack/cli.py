@@ -14,6 +14,8 @@ import sys
 COMMANDS = {
     "track": ("springtrack.commands.track", "track a shape model through an event file"),
     "model": ("springtrack.commands.model", "show or export a preset shape model"),
+    "info": ("springtrack.commands.info", "describe an event file: format, geometry, counts, rates, anomalies"),
+    "render": ("springtrack.commands.render", "draw trackers over the events (GIF/MP4/PNG)"),
     "simulate": ("springtrack.commands.simulate", "simulate an ATIS sensor on a scene, with ground truth"),
     "score": ("springtrack.commands.score", "the paper's tracking error of a track CSV against ground truth"),
 }

@@ -1,0 +1,245 @@
+"""Overlay rendering and plots: events with the trackers drawn over them (paper Figs. 10,
+13, 18, 19) and curves of energy, error and compute load (Figs. 20-23).
+
+Rendering uses matplotlib (Agg) with one persistent figure whose artists are updated per
+frame; GIF/MP4 writing goes through imageio (MP4 needs the imageio-ffmpeg plugin).
+"""
+from __future__ import annotations
+
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from .model import ShapeModel
+from .track import Track
+
+ACTIVE = "#1a9850"        # green: active and sensitive
+INACTIVE = "#222222"      # black: sensitive but not active
+INSENSITIVE = "#f46d43"   # orange, dashed: insensitive (eq. 21)
+TRUTH = "#ffd92f"
+ON_RGB = np.array([0.85, 0.15, 0.15])
+OFF_RGB = np.array([0.15, 0.35, 0.9])
+BG = 0.96
+
+
+def _mpl():
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    return plt
+
+
+def event_image(ev: np.ndarray, width: int, height: int) -> np.ndarray:
+    """RGB image (height, width, 3): ON events red, OFF blue, on a light background."""
+    img = np.full((height, width, 3), BG)
+    ok = (ev["x"] < width) & (ev["y"] < height)
+    ev = ev[ok]
+    on = ev["p"] > 0
+    img[ev["y"][on], ev["x"][on]] = ON_RGB
+    img[ev["y"][~on], ev["x"][~on]] = OFF_RGB
+    return img
+
+
+def ellipse_xy(x, y, sxx, sxy, syy, nsig=2.0, n=40):
+    """Points of the nsig-sigma ellipse of a 2-D Gaussian."""
+    vals, vecs = np.linalg.eigh(np.array([[sxx, sxy], [sxy, syy]]))
+    a = np.linspace(0, 2 * math.pi, n)
+    circ = np.stack([np.cos(a), np.sin(a)]) * (nsig * np.sqrt(np.maximum(vals, 0)))[:, None]
+    pts = vecs @ circ
+    return x + pts[0], y + pts[1]
+
+
+class OverlayRenderer:
+    """One figure, updated per frame. ``frame(t_us, events, state_row)`` returns RGB uint8."""
+
+    def __init__(self, model: ShapeModel, scale: float = 2.0, title: str = ""):
+        plt = _mpl()
+        self.plt = plt
+        self.model = model
+        w, h = model.width, model.height
+        self.fig = plt.figure(figsize=(w * scale / 100, (h + 28) * scale / 100), dpi=100)
+        self.ax = self.fig.add_axes([0, 0, 1, h / (h + 28)])
+        self.ax.set_xlim(-0.5, w - 0.5)
+        self.ax.set_ylim(h - 0.5, -0.5)
+        self.ax.set_axis_off()
+        self.img = self.ax.imshow(np.full((h, w, 3), BG), interpolation="nearest")
+        idx = {t: i for i, t in enumerate(model.ids)}
+        self.links = [(idx[c.a], idx[c.b]) for c in model.connections]
+        self.link_lines = [self.ax.plot([], [], "-", color="#888888", lw=0.8)[0] for _ in self.links]
+        self.ell = [self.ax.plot([], [], "-", lw=1.4)[0] for _ in model.ids]
+        self.truth_pts = self.ax.plot([], [], "+", color=TRUTH, ms=7, mew=1.5)[0]
+        self.text = self.fig.text(0.01, 1 - 14 / (h + 28), "", fontsize=9 * scale / 2,
+                                  family="monospace", va="center")
+        from matplotlib.lines import Line2D
+        handles = [Line2D([], [], color=ACTIVE, lw=2, label="active"),
+                   Line2D([], [], color=INACTIVE, lw=2, label="inactive"),
+                   Line2D([], [], color=INSENSITIVE, lw=2, ls="--", label="insensitive"),
+                   Line2D([], [], color="#888888", lw=1, label="spring"),
+                   Line2D([], [], color=ON_RGB, marker="s", ls="", label="ON"),
+                   Line2D([], [], color=OFF_RGB, marker="s", ls="", label="OFF")]
+        self.fig.legend(handles=handles, loc="upper right", ncol=6, fontsize=6.5 * scale / 2,
+                        frameon=False, handlelength=1.2, columnspacing=0.8)
+        self.title = title
+
+    def frame(self, t_us: int, events: np.ndarray, st: dict, truth_xy=None, window_us=10_000):
+        m = self.model
+        self.img.set_data(event_image(events, m.width, m.height))
+        for k, (i, j) in enumerate(self.links):
+            self.link_lines[k].set_data([st["x"][i], st["x"][j]], [st["y"][i], st["y"][j]])
+        for i, line in enumerate(self.ell):
+            ex, ey = ellipse_xy(st["x"][i], st["y"][i], st["sxx"][i], st["sxy"][i], st["syy"][i])
+            line.set_data(ex, ey)
+            if not st["sensitive"][i]:
+                line.set_color(INSENSITIVE)
+                line.set_linestyle("--")
+            else:
+                line.set_color(ACTIVE if st["active"][i] else INACTIVE)
+                line.set_linestyle("-")
+        if truth_xy is not None:
+            self.truth_pts.set_data(truth_xy[:, 0], truth_xy[:, 1])
+        n_act = int(np.sum(st["active"]))
+        self.text.set_text(f"{self.title}  t = {t_us / 1e6:8.3f} s   events in last "
+                           f"{window_us / 1000:g} ms: {len(events):6d}   active {n_act}/{len(m.ids)}")
+        self.fig.canvas.draw()
+        buf = np.asarray(self.fig.canvas.buffer_rgba())
+        return buf[..., :3].copy()
+
+    def close(self):
+        self.plt.close(self.fig)
+
+
+def _state_at(track: Track, k: int) -> dict:
+    return {f: getattr(track, f)[k] for f in ("x", "y", "sxx", "sxy", "syy", "active", "sensitive")}
+
+
+def render(events: np.ndarray, model: ShapeModel, track: Track, out, window_us: int = 10_000,
+           every_us: int | None = None, truth=None, title: str = "", progress: bool = True,
+           max_frames: int = 2000, scale: float = 2.0) -> int:
+    """Render frames at track sample times spaced by ``every_us`` (default ``window_us``).
+    ``out``: .gif/.mp4 (video), .png (one frame: the middle one) or a directory (PNGs).
+    Returns the number of frames written."""
+    out = Path(out)
+    every_us = every_us or window_us
+    if len(track) == 0:
+        raise ValueError("render: the track has no samples (is the event file empty?)")
+    times = np.arange(track.t_us[0] + window_us, track.t_us[-1] + 1, every_us)
+    if len(times) == 0:
+        times = track.t_us[-1:]
+    if len(times) > max_frames:
+        raise ValueError(f"render: {len(times)} frames exceed --max-frames {max_frames}; "
+                         f"raise --every-us or --max-frames")
+    if out.suffix == ".png":
+        times = times[len(times) // 2: len(times) // 2 + 1]
+    rows = np.clip(np.searchsorted(track.t_us, times), 0, len(track) - 1)
+    r = OverlayRenderer(model, scale=scale, title=title)
+    t_ev = events["t"]
+    frames = []
+    writer = None
+    try:
+        if out.suffix in (".gif", ".mp4"):
+            import imageio.v2 as iio
+            fps = max(1, min(50, int(round(1e6 / every_us))))
+            writer = (iio.get_writer(out, mode="I", duration=every_us / 1000.0, loop=0)
+                      if out.suffix == ".gif" else iio.get_writer(out, fps=fps))
+        elif out.suffix != ".png":
+            out.mkdir(parents=True, exist_ok=True)
+        for n, (t, row) in enumerate(zip(times, rows)):
+            lo, hi = np.searchsorted(t_ev, [t - window_us, t])
+            txy = _truth_xy(truth, model, t) if truth is not None else None
+            img = r.frame(int(t), events[lo:hi], _state_at(track, row), txy, window_us)
+            if writer is not None:
+                writer.append_data(img)
+            elif out.suffix == ".png":
+                _save_png(out, img)
+            else:
+                _save_png(out / f"frame_{n:05d}.png", img)
+            frames.append(n)
+            if progress and sys.stderr.isatty():
+                sys.stderr.write(f"\rrender [{'#' * int(30 * (n + 1) / len(times)):<30}] "
+                                 f"{n + 1}/{len(times)} frames")
+                sys.stderr.flush()
+    finally:
+        if writer is not None:
+            writer.close()
+        r.close()
+        if progress and sys.stderr.isatty():
+            sys.stderr.write("\n")
+    return len(frames)
+
+
+def _save_png(path, img):
+    import imageio.v2 as iio
+    iio.imwrite(path, img)
+
+
+def _truth_xy(truth, model, t):
+    """Truth positions (K', 2) of the model's parts nearest in time to t."""
+    k = int(np.clip(np.searchsorted(truth.t_us, t), 0, len(truth.t_us) - 1))
+    cols = [truth.ids.index(i) for i in model.ids if i in truth.ids]
+    return truth.xy[k, cols]
+
+
+# ---- plots -------------------------------------------------------------------------
+def plot_energies(track: Track, out, title: str = "") -> None:
+    """Fig. 21 style: total energy of each kind over time as % of its maximum."""
+    plt = _mpl()
+    fig, ax = plt.subplots(figsize=(8, 3))
+    t = track.t_us / 1e6
+    for q, name in enumerate(("euclidean", "torsional", "cartesian")):
+        e = track.energy[:, q]
+        if np.nanmax(e) > 0:
+            ax.plot(t, 100 * e / np.nanmax(e), lw=1, label=name)
+    ax.set_xlabel("event time (s)")
+    ax.set_ylabel("mean energy (% of max)")
+    ax.set_title(title or "Elastic energy (Fig. 21)")
+    ax.legend(loc="upper right")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+
+
+def plot_error(t_us, pct, out, title: str = "") -> None:
+    """Fig. 20 style: tracking error over time as % of the object's length."""
+    plt = _mpl()
+    fig, ax = plt.subplots(figsize=(8, 3))
+    t = np.asarray(t_us) / 1e6
+    ax.plot(t, pct, lw=1, color="#3288bd")
+    m = float(np.nanmean(pct))
+    ax.axhline(m, color="#d53e4f", lw=1.2, label=f"temporal mean {m:.2f} %")
+    ax.set_xlabel("event time (s)")
+    ax.set_ylabel("error (% of length)")
+    ax.set_title(title or "Tracking error (Fig. 20)")
+    ax.legend(loc="upper right")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+
+
+def plot_load(bin_t_us, events_per_bin, proc_us_per_bin, out, bin_us: int = 10_000,
+              title: str = "") -> None:
+    """Figs. 22-23 style: compute time and events per bin, and their ratio (µs/event)."""
+    plt = _mpl()
+    fig, axes = plt.subplots(3, 1, figsize=(8, 6), sharex=True)
+    t = np.asarray(bin_t_us) / 1e6
+    ev = np.asarray(events_per_bin, float)
+    pu = np.asarray(proc_us_per_bin, float)
+    axes[0].plot(t, pu / 1000, lw=1)
+    axes[0].axhline(bin_us / 1000, color="#d53e4f", lw=1, label="real time")
+    axes[0].set_ylabel(f"compute per\n{bin_us / 1000:g} ms (ms)")
+    axes[0].legend(loc="upper right")
+    axes[1].plot(t, ev, lw=1, color="#5e4fa2")
+    axes[1].set_ylabel(f"events per\n{bin_us / 1000:g} ms")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = np.where(ev > 0, pu / ev, np.nan)
+    axes[2].plot(t, ratio, lw=1, color="#66c2a5")
+    axes[2].axhline(np.nanmean(ratio), color="#d53e4f", lw=1,
+                    label=f"mean {np.nanmean(ratio) * 1000:.1f} ns/event")
+    axes[2].set_ylabel("µs / event")
+    axes[2].set_xlabel("event time (s)")
+    axes[2].legend(loc="upper right")
+    axes[0].set_title(title or "Compute load (Figs. 22-23)")
+    fig.tight_layout()
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
