@@ -1,0 +1,79 @@
+"""``springtrack info FILE``: format, geometry, header, event count, time span, mean and
+peak event rate (per 10 ms bin) and decode anomalies of an event file."""
+from __future__ import annotations
+
+import json
+from collections import Counter
+
+import numpy as np
+
+BIN_US = 10_000
+
+
+def add_arguments(p):
+    p.add_argument("file", help="event file (.raw EVT 2.0/3.0, .es, .dat, .ccam, .npy, .csv)")
+    p.add_argument("--format", help="force the format (needed only for headerless files)")
+    p.add_argument("--chunk", type=int, default=1 << 20, help="bytes decoded per step")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def summarize(path, format=None, chunk=1 << 20) -> dict:
+    """Stream the file once; return the facts ``info`` prints."""
+    from .. import io
+    reader = io.open(path, format=format)
+    n, t_min, t_max, p_on = 0, None, None, 0
+    bins = Counter()
+    for ev in reader.chunks(chunk):
+        t = ev["t"]
+        n += len(ev)
+        p_on += int(np.count_nonzero(ev["p"]))
+        lo, hi = int(t.min()), int(t.max())
+        t_min = lo if t_min is None else min(t_min, lo)
+        t_max = hi if t_max is None else max(t_max, hi)
+        b, c = np.unique(t // BIN_US, return_counts=True)
+        bins.update(dict(zip(b.tolist(), c.tolist())))
+    span = (t_max - t_min) if n else 0
+    peak_bin, peak = max(bins.items(), key=lambda kv: kv[1]) if bins else (None, 0)
+    s = reader.stats
+    return {
+        "file": str(path), "format": reader.format,
+        "event_type": reader.event_type, "width": reader.width, "height": reader.height,
+        "header": reader.header, "events": n, "on_events": p_on,
+        "t_first_us": t_min, "t_last_us": t_max, "span_us": span,
+        "mean_rate_ev_s": (n / (span * 1e-6)) if span > 0 else None,
+        "peak_rate_ev_s": peak / (BIN_US * 1e-6),
+        "peak_bin_start_us": None if peak_bin is None else peak_bin * BIN_US,
+        "words": s.words, "pending_bytes": s.pending_bytes,
+        "anomalies": s.anomalies, "info": s.info,
+    }
+
+
+def run(args) -> int:
+    facts = summarize(args.file, args.format, args.chunk)
+    if args.json:
+        print(json.dumps(facts, indent=1))
+        return 0
+    geom = (f"{facts['width']}x{facts['height']}" if facts["width"] else "unknown")
+    src = facts["header"].get("geometry_source")
+    print(f"file      {facts['file']}")
+    print(f"format    {facts['format']}"
+          + (f" ({facts['event_type']})" if facts["event_type"] else ""))
+    print(f"geometry  {geom}" + (f" (from {src})" if src else ""))
+    for k, v in facts["header"].items():
+        if k != "geometry_source":
+            print(f"header    {k}: {v}")
+    print(f"events    {facts['events']:,} ({facts['on_events']:,} ON)")
+    if facts["events"]:
+        print(f"time      {facts['t_first_us']:,} .. {facts['t_last_us']:,} us "
+              f"(span {facts['span_us'] / 1e6:.6f} s)")
+        mean = facts["mean_rate_ev_s"]
+        print(f"rate      mean {mean / 1e6:.3f} Mev/s" if mean else "rate      mean n/a",
+              end="")
+        print(f", peak {facts['peak_rate_ev_s'] / 1e6:.3f} Mev/s "
+              f"(10 ms bin at {facts['peak_bin_start_us']:,} us)")
+    print(f"decoded   {facts['words']:,} words, {facts['pending_bytes']} bytes pending")
+    bad = {k: v for k, v in facts["anomalies"].items() if v}
+    print("anomalies " + (", ".join(f"{k} {v:,}" for k, v in bad.items()) or "none"))
+    if facts["info"]:
+        print("counts    " + ", ".join(f"{k} {v:,}" for k, v in facts["info"].items()))
+    return 0
