@@ -1,9 +1,9 @@
 # cython: language_level=3
 """Per-pixel kernels of the simulated ATIS sensor (see firmware_sim/sensor.py).
 
-``render``  draws a scene frame (additive Gaussian blobs on a flat background, then
-            opaque soft-edged ellipses composited on top) and takes its log, inside a
-            rectangle only: pixels outside it hold the background.
+``render``  draws a scene frame (additive Gaussian blobs or soft-edged disks on a flat
+            background, then opaque soft-edged ellipses composited on top) and takes
+            its log, inside a rectangle only: pixels outside it hold the background.
 ``emit``    the contrast-threshold event model of ESIM (Rebecq et al. 2018) and v2e
             (Hu et al. 2021): between two rendered frames the log intensity of a pixel is
             linear in time; each crossing of the pixel's reference level by its ON/OFF
@@ -44,12 +44,39 @@ cdef inline float _alpha(float u) noexcept nogil:
     return _LUT[k] + f * (_LUT[k + 1] - _LUT[k])
 
 
+DEF DISK_R = 1.4142135623730951    # disk radius in Mahalanobis units: the ring of edge
+                                   # events then has covariance sigma^2 per axis
+
+
+cdef void _disk(float[:, ::1] scratch, double cx, double cy, double a, double b, double c,
+                double sxx, double syy, double amp, double edge,
+                int x0, int y0, int x1, int y1) noexcept nogil:
+    """intensity += amp / (1 + exp(edge (d - sqrt 2))): a flat disk with a soft edge."""
+    cdef double rad = DISK_R + 6.0 / edge, inner = DISK_R - 6.0 / edge, dx, dy, d2
+    cdef double rx = rad * sqrtf(<float>sxx), ry = rad * sqrtf(<float>syy)
+    cdef int x, y
+    cdef int bx0 = _clip(<int>floor(cx - rx), x0, x1), bx1 = _clip(<int>floor(cx + rx) + 1, x0, x1)
+    cdef int by0 = _clip(<int>floor(cy - ry), y0, y1), by1 = _clip(<int>floor(cy + ry) + 1, y0, y1)
+    inner = inner * inner if inner > 0 else -1.0
+    for y in range(by0, by1):
+        dy = y - cy
+        for x in range(bx0, bx1):
+            dx = x - cx
+            d2 = a * dx * dx + 2.0 * b * dx * dy + c * dy * dy
+            if d2 < inner:
+                scratch[y, x] += <float>amp
+            elif d2 < rad * rad:
+                scratch[y, x] += <float>amp * _alpha(<float>(edge * (sqrtf(<float>d2) - DISK_R)))
+
+
 def render(float[:, ::1] logimg, double[:, ::1] blobs, double[:, ::1] occluders,
            double background, int x0, int y0, int x1, int y1, float[:, ::1] scratch):
     """Write log(intensity) into ``logimg[y0:y1, x0:x1]``.
 
-    blobs: (n, 6) rows x, y, sxx, sxy, syy, amplitude -- intensity += a exp(-d^2/2),
-    truncated at d = 3.5 (d: Mahalanobis distance).  occluders: (m, 7) rows x, y, sxx,
+    blobs: (n, 7) rows x, y, sxx, sxy, syy, amplitude, edge (d: Mahalanobis distance) --
+    edge = 0: Gaussian, intensity += a exp(-d^2/2), truncated at d = 3.5;
+    edge > 0: flat disk of radius d = sqrt(2) with a logistic edge (see _disk), absent
+    beyond d = sqrt(2) + 6/edge.  occluders: (m, 7) rows x, y, sxx,
     sxy, syy, intensity, edge -- an ellipse of 'radius' d = 1 with a logistic edge of
     width 1/edge (in d units), alpha-composited over what is below, in row order
     (opaque for d < 1 - 6/edge, absent for d > 1 + 6/edge).
@@ -68,10 +95,14 @@ def render(float[:, ::1] logimg, double[:, ::1] blobs, double[:, ::1] occluders,
         for k in range(nb):
             cx = blobs[k, 0]; cy = blobs[k, 1]
             sxx = blobs[k, 2]; sxy = blobs[k, 3]; syy = blobs[k, 4]; amp = blobs[k, 5]
+            edge = blobs[k, 6]
             det = sxx * syy - sxy * sxy
             if det <= 0:
                 continue
             a = syy / det; b = -sxy / det; c = sxx / det     # inverse covariance
+            if edge > 0:
+                _disk(scratch, cx, cy, a, b, c, sxx, syy, amp, edge, x0, y0, x1, y1)
+                continue
             rx = 3.5 * sqrtf(<float>sxx); ry = 3.5 * sqrtf(<float>syy)
             bx0 = _clip(<int>floor(cx - rx), x0, x1); bx1 = _clip(<int>floor(cx + rx) + 1, x0, x1)
             by0 = _clip(<int>floor(cy - ry), y0, y1); by1 = _clip(<int>floor(cy + ry) + 1, y0, y1)

@@ -2,10 +2,16 @@
 
 A scene is a deterministic function of time (and of its seed) giving
 
-* ``frame(t_s)`` -> :class:`Frame`: what the sensor sees -- additive Gaussian blobs on a
-  flat background (rows ``x, y, sxx, sxy, syy, amplitude``; covariance in px^2) and
-  opaque soft-edged ellipses drawn on top of them (rows ``x, y, sxx, sxy, syy,
-  intensity, edge``), in linear intensity units;
+* ``frame(t_s)`` -> :class:`Frame`: what the sensor sees -- additive bright blobs on a
+  flat background (rows ``x, y, sxx, sxy, syy, amplitude, edge``; covariance in px^2;
+  edge 0 = Gaussian, edge > 0 = flat disk of Mahalanobis radius sqrt(2) with a logistic
+  edge of that sharpness) and opaque soft-edged ellipses drawn on top of them (rows
+  ``x, y, sxx, sxy, syy, intensity, edge``), in linear intensity units;
+
+The parts of the paper scenes are disks: a moving disk fires events on its rim, a ring
+whose covariance is the part's covariance, so the event cloud matches the preset
+tracker's initial covariance (a Gaussian's log response would put most events in its
+far tails, ~2-3 sigma out, beyond the tracker's gate).
 * ``truth(t_s)`` -> ``(K, 2)``: the true image position of each part's centre, in the
   order of ``part_ids`` (the tracker ids of the matching preset of
   :mod:`springtrack.model`);
@@ -27,7 +33,8 @@ Scenes of paper section IV (all start at rest pose, so the initial model is exac
                    sweeps across the face 3 times in 20 s (every 6 s, 2.4 s per pass).
 
 ``moving_blob``    a single blob translating horizontally (``speed`` px/s, ``amplitude``,
-                   ``sigma``), for the sensor's statistical tests.
+                   ``sigma``, ``edge``: 0 Gaussian (default), > 0 disk), for the sensor's
+                   statistical tests.
 
 The grid lies on a screen viewed by a pinhole camera (focal length = screen distance
 ``D``, so the rest pose is 1:1 in pixels); a blob's image covariance is
@@ -48,7 +55,7 @@ CX, CY = 152.0, 120.0
 
 @dataclass
 class Frame:
-    blobs: np.ndarray        # (n, 6) x, y, sxx, sxy, syy, amplitude
+    blobs: np.ndarray        # (n, 7) x, y, sxx, sxy, syy, amplitude, edge (0: Gaussian)
     occluders: np.ndarray    # (m, 7) x, y, sxx, sxy, syy, intensity, edge
 
 
@@ -94,8 +101,9 @@ class MovingBlob(Scene):
     part_ids = ["blob"]
     default_seconds = 1.0
 
-    def __init__(self, seed=0, speed=40.0, amplitude=1.0, sigma=4.0, x0=60.0, y0=CY):
+    def __init__(self, seed=0, speed=40.0, amplitude=1.0, sigma=4.0, x0=60.0, y0=CY, edge=0.0):
         super().__init__(seed)
+        self.edge = float(edge)
         self.speed, self.amplitude, self.sigma = float(speed), float(amplitude), float(sigma)
         self.x0, self.y0 = float(x0), float(y0)
 
@@ -105,7 +113,7 @@ class MovingBlob(Scene):
     def frame(self, t):
         (x, y), = self.truth(t)
         s2 = self.sigma ** 2
-        return Frame(np.array([[x, y, s2, 0.0, s2, self.amplitude]]), NO_OCCLUDERS)
+        return Frame(np.array([[x, y, s2, 0.0, s2, self.amplitude, self.edge]]), NO_OCCLUDERS)
 
 
 # ---- grids on a screen ------------------------------------------------------------------
@@ -164,7 +172,7 @@ class GridScene(Scene):
         uv = uv + self.element_offset(t)
         C = self.sigma ** 2 * np.einsum("kij,klj->kil", J, J)
         blobs = np.column_stack([uv, C[:, 0, 0], C[:, 0, 1], C[:, 1, 1],
-                                 np.full(9, self.amplitude)])
+                                 np.full(9, self.amplitude), np.full(9, 3.0 * self.sigma)])
         return Frame(blobs, NO_OCCLUDERS)
 
     def initial_model(self):
@@ -244,6 +252,7 @@ class FaceOcclusion(Scene):
         self.sig = np.array([lay[k][2:] for k in self.part_ids])            # (26, 2)
         amp = [amplitude if k in FACE_INTERNAL else outline_amplitude for k in self.part_ids]
         self.amp = np.array(amp, dtype=float)
+        self.edge_k = 3.0 * self.sig.min(axis=1)      # x face height = disk edge sharpness
         self.hand_period, self.hand_first = float(hand_period), float(hand_first)
         self.hand_duration, self.hand_intensity = float(hand_duration), float(hand_intensity)
         self.motion = float(motion)
@@ -299,7 +308,7 @@ class FaceOcclusion(Scene):
         sxx = c * c * vx + sn * sn * vy
         syy = sn * sn * vx + c * c * vy
         sxy = c * sn * (vx - vy)
-        blobs = np.column_stack([xy, sxx, sxy, syy, self.amp])
+        blobs = np.column_stack([xy, sxx, sxy, syy, self.amp, s * self.edge_k])
         return Frame(blobs, self.hand(t))
 
     def initial_model(self):

@@ -39,6 +39,7 @@ TRUTH_PERIOD_US = 1000
 TRUTH_DTYPE = np.dtype([("t", "<i8"), ("part", "U16"), ("x", "<f8"), ("y", "<f8")])
 _NOISE_BATCH = 4096
 _FAR_PAST = -(1 << 62)
+DISK_R = math.sqrt(2.0)
 
 
 @dataclass(frozen=True)
@@ -112,7 +113,8 @@ def _bbox(frame, width, height):
     rects = []
     if len(frame.blobs):
         b = frame.blobs
-        rx, ry = 3.5 * np.sqrt(b[:, 2]), 3.5 * np.sqrt(b[:, 4])
+        rad = np.where(b[:, 6] > 0, DISK_R + 6.0 / np.where(b[:, 6] > 0, b[:, 6], 1.0), 3.5)
+        rx, ry = rad * np.sqrt(b[:, 2]), rad * np.sqrt(b[:, 4])     # as in _sensor.render
         rects.append((b[:, 0] - rx, b[:, 1] - ry, b[:, 0] + rx, b[:, 1] + ry))
     if len(frame.occluders):
         o = frame.occluders

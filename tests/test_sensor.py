@@ -73,6 +73,20 @@ def test_first_event_time_is_the_interpolated_threshold_crossing(clean_run):
         assert abs(e["t"][0] / 1e6 - t_exp) < 200e-6
 
 
+def test_disk_blob_fires_on_its_rim():
+    # a disk of Mahalanobis radius sqrt(2): rim at R = sqrt(2) sigma from the centre
+    ev = blob(1.0, sigma=5.0, edge=15.0)
+    R = math.sqrt(2) * 5.0
+    cx = 60.0 + 40.0 * ev["t"] / 1e6
+    row = (ev["y"] == 120) & (ev["t"] > 100_000)
+    on, off = row & (ev["p"] == 1), row & (ev["p"] == 0)
+    assert abs(np.median(ev["x"][on] - cx[on]) - R) < 1.0
+    assert abs(np.median(ev["x"][off] - cx[off]) + R) < 1.0
+    # on the centre row the rim is crossed once each way: ln(1 + 1/BG)/C events
+    e = ev[(ev["y"] == 120) & (ev["x"] == 80)]
+    assert (e["p"] == 1).sum() == (e["p"] == 0).sum() == math.floor(math.log(1 + 1 / BG) / C)
+
+
 def test_rate_scales_with_speed_and_contrast():
     base = len(blob(1.0, speed=40.0))
     fast = len(blob(1.0, speed=80.0))
