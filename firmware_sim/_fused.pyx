@@ -147,6 +147,12 @@ cdef class Fused:
             raise RuntimeError("drain the snapshots before swapping the kernel")
         self._bind(kernel, True)
 
+    def mark_next(self):
+        """Record the time of the next tracked event in :attr:`first_t` (the event time
+        at which a parameter change applied between two feeds took effect)."""
+        self.mark = True
+        self.first_t = -1
+
     @property
     def kernel_obj(self):
         return self.kernel

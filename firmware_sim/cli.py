@@ -1,0 +1,245 @@
+"""``firmware-sim``: the near-sensor loop as a program.
+
+    firmware-sim run --source sim:face_occlusion --max-speed --seconds 5 --preset face26 \\
+                     --record out.csv
+    firmware-sim run --source replay:rec.raw --realtime --pty
+    firmware-sim run --source usb --serial 2766 --model face.toml --listen 127.0.0.1:7700
+
+Without a host link it prints a statistics line every ``--stats-every`` s on stderr and a
+final one on stdout; ``--record`` writes every telemetry snapshot in the CSV schema of
+``springtrack track`` (``t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive``).
+Exit status: 0 done, 1 the stream had errors it could not recover from, 2 bad arguments.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import threading
+import time
+
+from . import faults as _faults
+from . import usb as camusb
+
+EPILOG = """\
+sources:  sim:SCENE (firmware_sim.scenes: face_occlusion, grid_pull, ...) through the
+          simulated USB camera; replay:FILE (any format springtrack.io reads, re-encoded
+          as CCam words, events outside 304x240 dropped and counted); usb (a real CCam ATIS
+          through pyusb/libusb, docs/hardware.md).
+faults:   """ + ", ".join(_faults.FAULT_NAMES) + """ (simulated camera only; docs/firmware.md)
+units:    event time in µs; --seconds is event time for sim/replay, wall time for usb.
+"""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="firmware-sim",
+                                description="Simulated near-sensor firmware: USB camera -> "
+                                            "fused decode+track loop -> host link.")
+    sub = p.add_subparsers(dest="command", metavar="COMMAND")
+    r = sub.add_parser("run", help="run the loop on a camera or a simulated camera",
+                       epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
+    r.add_argument("--source", required=True, help="sim:SCENE | replay:FILE | usb")
+    r.add_argument("--serial", type=int, help="usb: the camera's serial (default: the first)")
+    r.add_argument("--profile", default="ccam_atis", choices=list(camusb.PROFILES),
+                   help="usb: device profile (EVT profiles are read-only, docs/firmware.md)")
+    m = r.add_mutually_exclusive_group()
+    m.add_argument("--model", help="shape model TOML file")
+    m.add_argument("--preset", help="preset model name (face26, grid3x3)")
+    r.add_argument("--params", help="TOML file of parameter overrides")
+    sp = r.add_mutually_exclusive_group()
+    sp.add_argument("--realtime", action="store_true",
+                    help="simulated camera releases events at their timestamps (default)")
+    sp.add_argument("--max-speed", action="store_true",
+                    help="simulated camera serves data as fast as it is read")
+    r.add_argument("--faults", default="", help="comma-separated fault names to inject")
+    r.add_argument("--seconds", type=float, help="duration (default: the scene's / file's)")
+    r.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
+    r.add_argument("--telemetry-us", type=int, default=1000, metavar="US",
+                   help="telemetry / record period in µs of event time (default 1000)")
+    r.add_argument("--record", metavar="OUT.csv", help="write every snapshot as a track CSV")
+    r.add_argument("--bias", action="append", default=[], metavar="NAME=VALUE",
+                   help="usb/sim: set a CCam bias (0..255), repeatable")
+    r.add_argument("--stats-every", type=float, default=1.0, metavar="S",
+                   help="print statistics every S wall seconds on stderr (0: never)")
+    r.add_argument("--buffers", type=int, default=16, help="transfer buffers in the pool")
+    link = r.add_mutually_exclusive_group()
+    link.add_argument("--pty", action="store_true",
+                      help="serve the host link on a new pty (prints 'pty: /dev/pts/N')")
+    link.add_argument("--port", metavar="URL", help="serve the host link on a pyserial URL")
+    link.add_argument("--listen", metavar="HOST:PORT",
+                      help="serve the host link on TCP (prints 'listen: socket://HOST:PORT')")
+    r.add_argument("--key-file", help="HMAC key file for the host link (docs/protocol.md)")
+    return p
+
+
+def parse_biases(items) -> dict:
+    out = {}
+    for it in items:
+        name, sep, val = it.partition("=")
+        if not sep:
+            raise ValueError(f"--bias {it!r}: expected NAME=VALUE")
+        try:
+            out[name.strip()] = int(val, 0)
+        except ValueError:
+            raise ValueError(f"--bias {it!r}: value must be an integer") from None
+    camusb.check_biases(out)
+    return out
+
+
+def make_source(args):
+    """-> (open_camera callable, SimCamera or None, default model)."""
+    biases = parse_biases(args.bias)
+    faults = _faults.Faults(_faults.parse(args.faults), seed=args.seed)
+    kind, _, arg = args.source.partition(":")
+    if kind == "usb":
+        if args.faults:
+            raise ValueError("--faults needs a simulated source (sim:SCENE or replay:FILE)")
+        prof = camusb.PROFILES[args.profile]
+        if prof.fmt != "ccam":
+            raise ValueError(f"profile {prof.name}: the fused loop decodes CCam words only; "
+                             f"EVT streams are read with firmware_sim.usb + springtrack.io")
+        return (lambda: camusb.Camera.open(prof, args.serial, biases=biases)), None, None
+    from . import simusb
+    if kind == "sim":
+        from .scenes import make_scene
+        scene = make_scene(arg, seed=args.seed)
+        source = simusb.scene_source(arg, args.seconds, seed=args.seed)
+        default_model = scene.initial_model()
+    elif kind == "replay":
+        source = simusb.file_source(arg)
+        if args.seconds is not None:
+            source = _limit_seconds(source, args.seconds)
+        default_model = None
+    else:
+        raise ValueError(f"--source {args.source!r}: use sim:SCENE, replay:FILE or usb")
+    cam = simusb.SimCamera(source, realtime=not args.max_speed, faults=faults)
+    backend = simusb.SimBackend(cam)
+    return (lambda: camusb.Camera.open("ccam_atis", args.serial, backend=backend,
+                                       biases=biases)), cam, default_model
+
+
+def _limit_seconds(source, seconds):
+    t0 = None
+    for ev in source:
+        if len(ev) == 0:
+            continue
+        t0 = int(ev["t"][0]) if t0 is None else t0
+        end = t0 + int(seconds * 1e6)
+        keep = ev[ev["t"] < end]
+        if len(keep):
+            yield keep
+        if len(keep) < len(ev):
+            return
+
+
+def read_key(path):
+    if not path:
+        return None
+    with open(path, "rb") as f:
+        key = f.read().strip()
+    if not key:
+        raise ValueError(f"{path}: empty key file")
+    return key
+
+
+def start_link(args, engine, stop):
+    """Start the host link thread if asked; returns (thread, port) or (None, None)."""
+    if not (args.pty or args.port or args.listen):
+        return None, None
+    from . import link, transport
+    key = read_key(args.key_file)
+    if args.pty:
+        port = transport.PtyPort()
+        transport.announce_pty(port)
+    elif args.port:
+        port = transport.open_port(args.port)
+    else:
+        host, _, p = args.listen.rpartition(":")
+        server = transport.TcpServer(host or "127.0.0.1", int(p), key=key)
+        print(f"listen: {server.url}", flush=True)
+
+        def accept_loop():
+            while not stop.is_set():
+                conn = server.accept(0.2)
+                if conn is not None:
+                    link.serve(conn, engine, key=key, stop_event=stop)
+                    conn.close()
+            server.close()
+        t = threading.Thread(target=accept_loop, name="host-link", daemon=True)
+        t.start()
+        return t, None
+    t = threading.Thread(target=lambda: link.serve(port, engine, key=key, stop_event=stop),
+                         name="host-link", daemon=True)
+    t.start()
+    return t, port
+
+
+def run(args) -> int:
+    from .loop import FirmwareLoop
+    open_camera, cam, default_model = make_source(args)
+    model = args.model or args.preset or default_model or "face26"
+    engine = FirmwareLoop(open_camera, model=model, params=args.params,
+                          telemetry_period_us=args.telemetry_us, nbuf=args.buffers,
+                          record=bool(args.record))
+    stop = threading.Event()
+    link_thread, port = start_link(args, engine, stop)
+    engine.start()
+    t0 = time.monotonic()
+    next_stats = t0 + args.stats_every if args.stats_every > 0 else float("inf")
+    quiet = 0
+    try:
+        while True:
+            time.sleep(0.02)
+            now = time.monotonic()
+            if now >= next_stats and link_thread is None:
+                print(engine.stats_line(), file=sys.stderr, flush=True)
+                next_stats = now + args.stats_every
+            if cam is not None:
+                if cam.finished and _caught_up(engine):
+                    quiet += 1
+                    if quiet >= 3:
+                        break
+                else:
+                    quiet = 0
+            elif args.seconds is not None and now - t0 >= args.seconds:
+                break
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+    finally:
+        stop.set()
+        engine.stop()
+        if link_thread is not None:
+            link_thread.join(3)
+        if port is not None:
+            port.close()
+    if args.record:
+        rows = engine.write_record(args.record)
+        print(f"record: {rows} rows -> {args.record}", file=sys.stderr)
+    s = engine.stats()
+    print("stats: " + engine.stats_line(), flush=True)
+    if s["state"] not in ("stopped", "streaming"):
+        return 1
+    return 0
+
+
+def _caught_up(engine) -> bool:
+    rc = engine.reader.counts
+    return (engine.reader.queue_depth() == 0
+            and engine.fused.bytes_in == rc["bytes"] - rc["bytes_dropped"])
+
+
+def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 2
+    try:
+        return run(args)
+    except (ValueError, OSError, camusb.CameraError) as e:
+        print(f"firmware-sim {args.command}: error: {e}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

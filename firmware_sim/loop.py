@@ -1,0 +1,347 @@
+"""The firmware's tracking loop: USB reader thread + fused decode/track thread.
+
+:class:`FirmwareLoop` implements ``firmware_sim.engine.Engine`` (docs/firmware.md):
+
+* the reader thread (``firmware_sim.reader``) owns the camera and fills a buffer pool;
+* the processing thread feeds each transfer, in pieces of ``piece_bytes``, to the nogil
+  fused loop (``firmware_sim._fused``), which decodes CCam words and steps the kernel;
+* updates (model, parameters, reset) are validated in the caller's thread, built
+  completely (a new Kernel for a model), queued, and applied by the processing thread
+  between two pieces, i.e. between two events; the event time of the first event
+  processed under each generation is reported by :meth:`poll_applied`;
+* telemetry snapshots every ``telemetry_period_us`` of event time; kept in a bounded
+  queue (oldest dropped and counted) for :meth:`poll_telemetry`, and optionally all kept
+  for ``--record``.
+"""
+from __future__ import annotations
+
+import threading
+import time
+from collections import deque
+
+import numpy as np
+
+from springtrack import model as _model
+from springtrack import params as _params
+from springtrack._kernel import Kernel
+from springtrack.limits import MAX_CONNECTIONS, MAX_TRACKERS
+from springtrack.track import CSV_HEADER, Track
+from springtrack.tracker import resolve_params
+
+from ._fused import SNAP_FIELDS, Fused
+from .engine import UpdateRejected
+from .reader import Reader
+
+FIRMWARE = "firmware-sim 0.1 (fused CCam loop)"
+TRACKER_DTYPE = np.dtype([("x", "f8"), ("y", "f8"), ("sxx", "f8"), ("sxy", "f8"), ("syy", "f8"),
+                          ("activity", "f8"), ("active", "?"), ("sensitive", "?")])
+WINDOW_US = 10_000        # processing time is reported per 10 ms of events (paper Figs. 22-23)
+
+
+def param_error_code(e: Exception) -> str:
+    msg = str(e)
+    if "unknown parameter" in msg:
+        return "unknown_name"
+    if "must be a number" in msg or "must be one of" in msg or "whole number" in msg:
+        return "wrong_type"
+    return "out_of_range"
+
+
+class FirmwareLoop:
+    def __init__(self, open_camera, model="face26", params=None, telemetry_period_us: int = 1000,
+                 nbuf: int = 16, piece_bytes: int = 16384, telemetry_queue: int = 4096,
+                 record: bool = False, width: int = 304, height: int = 240):
+        if telemetry_period_us <= 0:
+            raise ValueError(f"telemetry_period_us must be positive, got {telemetry_period_us}")
+        self.model = _model.load_model(model)
+        self.params = resolve_params(self.model, params)
+        self.kernel = Kernel(self.model, self.params)
+        self.fused = Fused(self.kernel, telemetry_period_us, 512)
+        self.period = int(telemetry_period_us)
+        self.reader = Reader(open_camera, nbuf=nbuf)
+        self.piece = int(piece_bytes)
+        self.width, self.height = width, height
+        self.lock = threading.Lock()
+        self.generation = 1                 # generation in effect
+        self.gen_next = 1                   # last generation handed out
+        self.pending_model = None           # (model, params, kernel, generation)
+        self.pending_params: dict = {}      # name -> (value, generation)
+        self.tele: deque = deque()          # (generation, energy kind, block, first row)
+        self.tele_rows = 0
+        self.tele_cap = int(telemetry_queue)
+        self.applied: deque = deque()
+        self._await_first = []              # generations waiting for their first event
+        self.record = record
+        self.recorded: list = []            # (ids, block)
+        self.stop_event = threading.Event()
+        self.thread = None
+        self.t_start = None
+        self.c = dict(pieces=0, snapshots=0, telemetry_dropped=0, updates_applied=0,
+                      updates_rejected=0, proc_ns=0, kernel_swaps=0)
+        self.windows: deque = deque(maxlen=4096)   # processing us per 10 ms of events
+        self._win_t0 = None
+        self._win_ns = 0
+        self._rate = deque(maxlen=64)               # (wall, events tracked)
+        self.snap_wall: deque | None = None         # (t_us, wall) when a benchmark asks
+
+    # ---- Engine: lifecycle ---------------------------------------------------------------
+    def start(self) -> None:
+        if self.running:
+            return
+        self.stop_event.clear()
+        self.t_start = time.monotonic()
+        self.reader.start()
+        self.thread = threading.Thread(target=self._run, name="fused-loop", daemon=True)
+        self.thread.start()
+
+    def stop(self, timeout: float = 5.0) -> None:
+        self.stop_event.set()
+        if self.thread is not None:
+            self.thread.join(timeout)
+            if self.thread.is_alive():
+                raise RuntimeError(f"processing thread did not stop within {timeout} s")
+            self.thread = None
+        self.reader.stop(timeout)
+
+    @property
+    def running(self) -> bool:
+        return self.thread is not None and self.thread.is_alive()
+
+    def drained(self) -> bool:
+        return self.reader.queue_depth() == 0
+
+    def reset(self) -> None:
+        """Restart the tracker from the current model (queued like a model swap)."""
+        with self.lock:
+            m = self.pending_model[0] if self.pending_model else self.model
+            p = self.pending_model[1] if self.pending_model else self.params
+            self.gen_next += 1
+            self.pending_model = (m, p, Kernel(m, p), self.gen_next)
+        self._apply_if_idle()
+
+    # ---- Engine: updates -------------------------------------------------------------------
+    def load_model(self, toml_text: str) -> int:
+        try:
+            m = _model.loads(toml_text, "uploaded model")
+            p = resolve_params(m)
+            k = Kernel(m, p)
+        except (ValueError, TypeError) as e:       # ModelError, ParamError are ValueErrors
+            self.c["updates_rejected"] += 1
+            raise UpdateRejected("invalid_model", str(e)) from None
+        with self.lock:
+            self.gen_next += 1
+            self.pending_model = (m, p, k, self.gen_next)
+            self.pending_params = {}
+            gen = self.gen_next
+        self._apply_if_idle()
+        return gen
+
+    def set_param(self, name: str, value) -> int:
+        with self.lock:
+            base = self.pending_model[1] if self.pending_model else self.params
+            merged = {k: v for k, (v, _) in self.pending_params.items()}
+            merged[name] = value
+            try:
+                _params.from_mapping(merged, base)
+            except _params.ParamError as e:
+                self.c["updates_rejected"] += 1
+                raise UpdateRejected(param_error_code(e), str(e)) from None
+            self.gen_next += 1
+            self.pending_params[name] = (_params.check(name, value), self.gen_next)
+            gen = self.gen_next
+        self._apply_if_idle()
+        return gen
+
+    def get_params(self) -> dict:
+        with self.lock:
+            return self.params.as_dict()
+
+    def _apply_if_idle(self) -> None:
+        if not self.running:
+            self._apply_pending()
+
+    def _apply_pending(self) -> None:
+        """Processing thread (or idle caller), between two feeds: swap in what is queued."""
+        with self.lock:
+            pm, self.pending_model = self.pending_model, None
+            pp, self.pending_params = self.pending_params, {}
+        gen = None
+        if pm is not None:
+            m, p, k, gen = pm
+            self.fused.set_kernel(k)
+            self.model, self.params, self.kernel = m, p, k
+            self.c["kernel_swaps"] += 1
+        if pp:
+            new = _params.from_mapping({n: v for n, (v, _) in pp.items()}, self.params)
+            self.kernel.set_params(new)
+            self.params = new
+            gen = max([g for _, g in pp.values()] + [gen or 0])
+            if pm is None:
+                self.fused.mark_next()
+        if gen is not None:
+            self.generation = gen
+            self.c["updates_applied"] += 1
+            self._await_first.append(gen)
+
+    # ---- processing thread ---------------------------------------------------------------
+    def _run(self) -> None:
+        r = self.reader
+        while not self.stop_event.is_set():
+            if self.pending_model is not None or self.pending_params:
+                self._apply_pending()
+            item = r.get(0.02)
+            if item is None:
+                continue
+            idx, n, gap = item
+            try:
+                if gap:
+                    self.fused.gap()
+                self._feed(memoryview(r.pool[idx])[:n])
+            finally:
+                r.release(idx)
+        if self.pending_model is not None or self.pending_params:
+            self._apply_pending()
+
+    def _feed(self, mv) -> None:
+        n = len(mv)
+        pos = 0
+        f = self.fused
+        while pos < n:
+            k = min(self.piece, n - pos)
+            t0 = time.perf_counter_ns()
+            out = f.feed(mv[pos:pos + k])
+            dt = time.perf_counter_ns() - t0
+            pos += k
+            self.c["pieces"] += 1
+            self.c["proc_ns"] += dt
+            self._account(dt)
+            if self._await_first and f.first_t >= 0:
+                for g in self._await_first:
+                    self.applied.append((g, int(f.first_t)))
+                self._await_first = []
+            if out is not None:
+                self._emit(out)
+            if self.pending_model is not None or self.pending_params:
+                self._apply_pending()
+
+    def _account(self, dt_ns: int) -> None:
+        t = self.fused.last_t
+        if t < -(1 << 60):
+            return
+        if self._win_t0 is None:
+            self._win_t0 = t
+        self._win_ns += dt_ns
+        if t - self._win_t0 >= WINDOW_US:
+            span = t - self._win_t0
+            self.windows.append(self._win_ns / 1e3 * WINDOW_US / span)
+            self._win_t0 = t
+            self._win_ns = 0
+        self._rate.append((time.monotonic(), self.fused.tracked))
+
+    def _emit(self, out: dict) -> None:
+        rows = len(out["t"])
+        self.c["snapshots"] += rows
+        if self.snap_wall is not None:
+            now = time.monotonic()
+            self.snap_wall.extend((int(t), now) for t in out["t"])
+        if self.record:
+            self.recorded.append((list(self.model.ids), out))
+        with self.lock:
+            self.tele.append([self.generation, self.params.energy_kind_index, out, 0])
+            self.tele_rows += rows
+            while self.tele_rows > self.tele_cap and self.tele:
+                g, ek, blk, first = self.tele[0]
+                drop = len(blk["t"]) - first
+                self.tele.popleft()
+                self.tele_rows -= drop
+                self.c["telemetry_dropped"] += drop
+
+    # ---- Engine: observation ---------------------------------------------------------------
+    def poll_telemetry(self, max_items: int = 64) -> list:
+        res = []
+        with self.lock:
+            while self.tele and len(res) < max_items:
+                item = self.tele[0]
+                g, ek, blk, first = item
+                take = min(len(blk["t"]) - first, max_items - len(res))
+                for r in range(first, first + take):
+                    tr = np.empty(blk["x"].shape[1], TRACKER_DTYPE)
+                    for f in SNAP_FIELDS:
+                        tr[f] = blk[f][r]
+                    res.append(dict(t_us=int(blk["t"][r]), generation=g,
+                                     mean_energy=float(blk["energy"][r, ek]), trackers=tr))
+                item[3] = first + take
+                self.tele_rows -= take
+                if item[3] >= len(blk["t"]):
+                    self.tele.popleft()
+        return res
+
+    def poll_applied(self) -> list:
+        out = []
+        while self.applied:
+            out.append(self.applied.popleft())
+        return out
+
+    def info(self) -> dict:
+        with self.lock:
+            return dict(firmware=FIRMWARE, width=self.width, height=self.height,
+                        max_trackers=MAX_TRACKERS, max_connections=MAX_CONNECTIONS,
+                        model=self.model.name, model_hash=self.model.digest(),
+                        trackers=list(self.model.ids), running=self.running,
+                        generation=self.generation, telemetry_period_us=self.period)
+
+    def event_rate(self) -> float:
+        if len(self._rate) < 2:
+            return 0.0
+        (w0, e0), (w1, e1) = self._rate[0], self._rate[-1]
+        return (e1 - e0) / (w1 - w0) if w1 > w0 else 0.0
+
+    def stats(self) -> dict:
+        fc = self.fused.counters()
+        rc = dict(self.reader.counts)
+        win = np.array(self.windows) if self.windows else np.zeros(1)
+        return dict(
+            state=self.reader.state, last_error=self.reader.last_error,
+            transfers=rc["transfers"], bytes=rc["bytes"],
+            transfers_dropped=rc["transfers_dropped"], bytes_dropped=rc["bytes_dropped"],
+            events_decoded=fc["events_decoded"], events_tracked=fc["events_tracked"],
+            queue_depth=self.reader.queue_depth(), queue_hwm=rc["queue_hwm"],
+            event_rate=self.event_rate(),
+            proc_us_per_10ms=dict(last=float(win[-1]), mean=float(win.mean()),
+                                  p99=float(np.percentile(win, 99)), max=float(win.max())),
+            usb=dict(timeouts=rc["timeouts"], stalls=rc["stalls"], disconnects=rc["disconnects"],
+                     reconnects=rc["reconnects"], open_failures=rc["open_failures"],
+                     short_transfers=rc["short_transfers"], odd_transfers=rc["odd_transfers"],
+                     commands=rc["commands"], command_errors=rc["command_errors"]),
+            decode=dict(words=fc["words"], time_high_words=fc["time_high_words"],
+                        time_wraps=fc["time_wraps"], exposure_events=fc["exposure_events"],
+                        gaps=fc["gaps"], pending_bytes=fc["pending_bytes"]),
+            anomalies=fc["anomalies"],
+            loop=dict(self.c, generation=self.generation, last_t_us=int(self.fused.last_t)))
+
+    def stats_line(self) -> str:
+        s = self.stats()
+        an = {k: v for k, v in s["anomalies"].items() if v}
+        usb = {k: v for k, v in s["usb"].items() if v}
+        return (f"transfers={s['transfers']} bytes={s['bytes']} dropped={s['transfers_dropped']} "
+                f"decoded={s['events_decoded']} tracked={s['events_tracked']} "
+                f"queue_hwm={s['queue_hwm']} rate={s['event_rate']:.3g}/s "
+                f"proc_us_per_10ms(mean={s['proc_us_per_10ms']['mean']:.0f} "
+                f"max={s['proc_us_per_10ms']['max']:.0f}) state={s['state']} "
+                f"usb={usb or 'ok'} anomalies={an or 'none'}")
+
+    # ---- record ----------------------------------------------------------------------------
+    def write_record(self, path) -> int:
+        """Write every snapshot as a springtrack track CSV; returns the number of rows."""
+        import io as _io
+        rows = 0
+        with open(path, "w", newline="") as f:
+            f.write(",".join(CSV_HEADER) + "\n")
+            for ids, b in self.recorded:
+                tr = Track(b["t"], ids, b["x"], b["y"], b["sxx"], b["sxy"], b["syy"],
+                           b["activity"], b["active"].astype(bool), b["sensitive"].astype(bool))
+                buf = _io.StringIO()
+                tr.to_csv(buf)
+                f.write(buf.getvalue().split("\n", 1)[1])
+                rows += len(tr) * len(ids)
+        return rows

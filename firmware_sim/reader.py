@@ -1,0 +1,221 @@
+"""The USB reader thread: owns the device, reads bulk transfers into a buffer pool.
+
+* ``nbuf`` buffers of ``transfer_bytes`` (a multiple of wMaxPacketSize) are allocated once;
+  each bulk read goes straight into a free buffer (``array('B')``, no copy) and the filled
+  buffer is queued for the processing thread, which hands it back with :meth:`release`.
+* Load shedding: if no buffer is free, the oldest queued transfer is dropped whole and
+  counted (like a sensor's event-rate controller); the reader never waits for the consumer.
+  The consumer is told a gap happened (``get`` returns ``gap=True``) so the decoder waits
+  for a fresh time base instead of stamping events with a stale one.
+* One thread owns the device: control requests from other threads are queued with
+  :meth:`call` and run between two bulk reads (pyusb is not safe for a control transfer
+  while another thread sits in a bulk read).
+* Every read has a finite timeout.  Stall (EPIPE): clear_halt and go on.  Disconnect
+  (ENODEV): close, report, and reopen with exponential backoff until stopped.
+"""
+from __future__ import annotations
+
+import array
+import threading
+import time
+from collections import deque
+
+import usb.core
+
+from . import usb as camusb
+
+BACKOFF_S = (0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
+
+
+class Reader:
+    def __init__(self, open_camera, nbuf: int = 16, transfer_bytes: int = camusb.TRANSFER_BYTES,
+                 timeout_ms: int = camusb.READ_TIMEOUT_MS):
+        """``open_camera()`` returns a started :class:`firmware_sim.usb.Camera` (called again
+        after a disconnect)."""
+        if nbuf < 3:
+            raise ValueError(f"the buffer pool needs at least 3 buffers, got {nbuf}")
+        self.open_camera = open_camera
+        self.timeout_ms = int(timeout_ms)
+        self.pool = [array.array("B", bytes(transfer_bytes)) for _ in range(nbuf)]
+        self.free: deque[int] = deque(range(nbuf))
+        self.filled: deque[tuple[int, int, bool]] = deque()
+        self.cond = threading.Condition()
+        self.cmds: deque = deque()
+        self.cam = None
+        self.gap = False                         # data lost before the next transfer
+        self.state = "idle"
+        self.last_error = ""
+        self.stop_event = threading.Event()
+        self.thread = None
+        self.counts = dict(transfers=0, bytes=0, transfers_dropped=0, bytes_dropped=0,
+                           timeouts=0, stalls=0, disconnects=0, reconnects=0, open_failures=0,
+                           short_transfers=0, odd_transfers=0, queue_hwm=0, commands=0,
+                           command_errors=0)
+
+    # ---- lifecycle ---------------------------------------------------------------------
+    def start(self) -> None:
+        if self.thread is not None and self.thread.is_alive():
+            return
+        self.stop_event.clear()
+        self.thread = threading.Thread(target=self._run, name="usb-reader", daemon=True)
+        self.thread.start()
+
+    def stop(self, timeout: float = 5.0) -> None:
+        self.stop_event.set()
+        with self.cond:
+            self.cond.notify_all()
+        if self.thread is not None:
+            self.thread.join(timeout)
+            if self.thread.is_alive():
+                raise RuntimeError("USB reader thread did not stop within "
+                                   f"{timeout} s (a read without timeout?)")
+            self.thread = None
+
+    @property
+    def running(self) -> bool:
+        return self.thread is not None and self.thread.is_alive()
+
+    # ---- consumer side -------------------------------------------------------------------
+    def get(self, timeout: float = 0.05):
+        """-> (buffer index, byte count, gap before it) or None after ``timeout`` s."""
+        with self.cond:
+            if not self.filled:
+                self.cond.wait(timeout)
+            if not self.filled:
+                return None
+            return self.filled.popleft()
+
+    def release(self, idx: int) -> None:
+        with self.cond:
+            self.free.append(idx)
+
+    def queue_depth(self) -> int:
+        return len(self.filled)
+
+    def call(self, fn, timeout: float = 2.0):
+        """Run ``fn(camera)`` in the reader thread between two reads; returns its result or
+        raises its exception (or TimeoutError / RuntimeError if no camera is open)."""
+        if not self.running:
+            if self.cam is None:
+                raise RuntimeError("no camera open")
+            return fn(self.cam)
+        done = threading.Event()
+        box = {}
+        self.cmds.append((fn, box, done))
+        if not done.wait(timeout):
+            raise TimeoutError(f"camera command not executed within {timeout} s")
+        if "error" in box:
+            raise box["error"]
+        return box.get("result")
+
+    # ---- the reader thread ---------------------------------------------------------------
+    def _take_buffer(self) -> int:
+        with self.cond:
+            if self.free:
+                return self.free.popleft()
+            idx, n, _ = self.filled.popleft()    # shed load: drop the oldest transfer
+            self.counts["transfers_dropped"] += 1
+            self.counts["bytes_dropped"] += n
+            if self.filled:                      # the gap is before the new oldest
+                i2, n2, _ = self.filled[0]
+                self.filled[0] = (i2, n2, True)
+            else:
+                self.gap = True
+            return idx
+
+    def _run_commands(self) -> None:
+        while self.cmds:
+            fn, box, done = self.cmds.popleft()
+            self.counts["commands"] += 1
+            try:
+                box["result"] = fn(self.cam)
+            except Exception as e:               # reported to the caller, never fatal here
+                self.counts["command_errors"] += 1
+                box["error"] = e
+            done.set()
+
+    def _connect(self) -> bool:
+        for k in range(10 ** 9):
+            if self.stop_event.is_set():
+                return False
+            try:
+                self.cam = self.open_camera()
+                self.state = "streaming"
+                return True
+            except (camusb.CameraError, usb.core.USBError) as e:
+                self.counts["open_failures"] += 1
+                self.last_error = f"open failed: {e}"
+                self.state = "reconnecting"
+                self.stop_event.wait(BACKOFF_S[min(k, len(BACKOFF_S) - 1)])
+        return False
+
+    def _lost(self, e: Exception) -> None:
+        self.counts["disconnects"] += 1
+        self.last_error = f"device disconnected: {e}"
+        self.state = "disconnected"
+        try:
+            self.cam.close()
+        except Exception:
+            pass
+        self.cam = None
+        with self.cond:
+            self.gap = True
+
+    def _run(self) -> None:
+        first = self.cam is None
+        try:
+            while not self.stop_event.is_set():
+                if self.cam is None:
+                    if not self._connect():
+                        break
+                    if not first:
+                        self.counts["reconnects"] += 1
+                    first = False
+                if self.cmds:
+                    self._run_commands()
+                idx = self._take_buffer()
+                buf = self.pool[idx]
+                try:
+                    n = self.cam.read_into(buf, self.timeout_ms)
+                except usb.core.USBError as e:
+                    self.release(idx)
+                    if camusb.is_disconnect(e):
+                        self._lost(e)
+                    elif camusb.is_stall(e):
+                        self.counts["stalls"] += 1
+                        self.last_error = f"stall: {e}"
+                        try:
+                            self.cam.clear_halt()
+                        except usb.core.USBError as e2:
+                            if camusb.is_disconnect(e2):
+                                self._lost(e2)
+                    else:
+                        self.last_error = f"bulk read: {e}"
+                        self._lost(e)
+                    continue
+                if n == 0:
+                    self.counts["timeouts"] += 1
+                    self.release(idx)
+                    continue
+                c = self.counts
+                c["transfers"] += 1
+                c["bytes"] += n
+                if n % 4:
+                    c["odd_transfers"] += 1
+                elif n < len(buf) and n % 512:
+                    c["short_transfers"] += 1
+                with self.cond:
+                    self.filled.append((idx, n, self.gap))
+                    self.gap = False
+                    if len(self.filled) > c["queue_hwm"]:
+                        c["queue_hwm"] = len(self.filled)
+                    self.cond.notify()
+        finally:
+            self._run_commands()
+            if self.cam is not None:
+                try:
+                    self.cam.close()
+                except Exception:
+                    pass
+                self.cam = None
+            self.state = "stopped"
