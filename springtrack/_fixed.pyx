@@ -1,0 +1,391 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+# distutils: depends = springtrack/csrc/fixed_step.c springtrack/csrc/fixed_step.h
+"""Fixed-point tracker backend (``Tracker(..., backend="fixed")``).
+
+The per-event step and the springs are the integer-only C unit
+``springtrack/csrc/fixed_step.c`` (compiled into this module by ``#include`` so that it
+inlines); this wrapper converts the model and parameters to their Q formats
+(:mod:`springtrack.fixed_q`) once, runs the event loop without the GIL, and converts the
+integer state to float64 only when a sample is taken.  Same interface as
+``springtrack._kernel.Kernel``; docs/fixed_point.md has the formats and error bounds.
+"""
+from libc.stdlib cimport calloc, free
+from libc.string cimport memset
+from libc.stdint cimport int64_t, uint64_t, int32_t, uint32_t, uint8_t
+
+import numpy as np
+cimport numpy as cnp
+
+from springtrack.events cimport Event
+from springtrack.events import EVENT_DTYPE
+from springtrack import fixed_q as _q
+from springtrack import limits as _limits
+
+cnp.import_array()
+
+cdef extern from "csrc/fixed_step.h" nogil:
+    enum:
+        FX_MAX_TRACKERS
+        FX_MAX_CONNECTIONS
+        FX_CELL_SHIFT
+        FX_EXP2_N
+        FX_CORDIC_N
+        FX_ATAN_BITS
+    ctypedef struct fx_state:
+        int32_t n, nc, width, height
+        uint32_t a1, a2, cov_gain, energy_gain
+        int64_t gate
+        uint32_t gate_q24
+        int64_t k_tau, dt_max, act_thr
+        uint32_t escale
+        int32_t escale_never
+        int64_t smin2, smax2
+        int32_t period, ekind, need_torsion
+        int32_t mx[FX_MAX_TRACKERS]
+        int32_t my[FX_MAX_TRACKERS]
+        int64_t sxx[FX_MAX_TRACKERS]
+        int64_t sxy[FX_MAX_TRACKERS]
+        int64_t syy[FX_MAX_TRACKERS]
+        int64_t act[FX_MAX_TRACKERS]
+        int64_t tlast[FX_MAX_TRACKERS]
+        uint32_t mq[FX_MAX_TRACKERS]
+        uint32_t invm[FX_MAX_TRACKERS]
+        int32_t gdx0[FX_MAX_TRACKERS]
+        int32_t gdy0[FX_MAX_TRACKERS]
+        int32_t degree[FX_MAX_TRACKERS]
+        uint64_t sensitive_mask
+        int32_t ca[FX_MAX_CONNECTIONS]
+        int32_t cb[FX_MAX_CONNECTIONS]
+        int32_t kinds[FX_MAX_CONNECTIONS]
+        uint32_t stiff[FX_MAX_CONNECTIONS]
+        uint32_t kia[FX_MAX_CONNECTIONS]
+        uint32_t kib[FX_MAX_CONNECTIONS]
+        int32_t l0[FX_MAX_CONNECTIONS]
+        int32_t dx0[FX_MAX_CONNECTIONS]
+        int32_t dy0[FX_MAX_CONNECTIONS]
+        uint32_t th0[FX_MAX_CONNECTIONS]
+        int32_t c0x[FX_MAX_CONNECTIONS]
+        int32_t c0y[FX_MAX_CONNECTIONS]
+        int64_t energy[3][FX_MAX_CONNECTIONS]
+        int64_t mean_energy
+        uint64_t* cells
+        int32_t gw, gh
+        int32_t box_x0[FX_MAX_TRACKERS]
+        int32_t box_x1[FX_MAX_TRACKERS]
+        int32_t box_y0[FX_MAX_TRACKERS]
+        int32_t box_y1[FX_MAX_TRACKERS]
+        uint32_t exp2_lut[FX_EXP2_N + 1]
+        uint32_t atan_lut[FX_CORDIC_N]
+        uint32_t atan_tab[(1 << FX_ATAN_BITS) + 2]
+        int64_t cordic_x0
+        int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates, n_reindex
+        int64_t sat_position, sat_activity, sat_energy, sat_inverse
+        int32_t since_spring
+    int fx_step(fx_state* s, int64_t t, int32_t x, int32_t y)
+    void fx_springs(fx_state* s)
+    void fx_refresh(fx_state* s, int i)
+    void fx_reindex(fx_state* s, int i)
+    void fx_clamp_positions(fx_state* s)
+    int64_t fx_activity(const fx_state* s, int i, int64_t t)
+    int fx_check_index(const fx_state* s)
+    int64_t fx_mulsh(int64_t v, uint32_t g, int sh)
+    uint64_t fx_isqrt64(uint64_t v)
+    uint32_t fx_exp2neg(const fx_state* s, int64_t w)
+    uint32_t fx_atan2(const fx_state* s, int64_t y, int64_t x)
+    void fx_cossin(const fx_state* s, int64_t angle, int64_t* c, int64_t* sn)
+
+cdef extern from "csrc/fixed_step.c":
+    pass
+
+assert _limits.MAX_TRACKERS == FX_MAX_TRACKERS and _limits.MAX_CONNECTIONS == FX_MAX_CONNECTIONS
+
+# float64 views of the Q formats (output only)
+cdef double POS_UNIT = 1.0 / 65536.0          # Q15.16 px
+cdef double Q32_UNIT = 1.0 / 4294967296.0     # Q.32 (covariance px^2, activity, energy)
+
+
+cdef struct SampleOut:
+    int64_t* t
+    double* x
+    double* y
+    double* sxx
+    double* sxy
+    double* syy
+    double* act
+    uint8_t* active
+    uint8_t* sensitive
+    double* energy            # (cap, 3): mean energy of each kind
+    Py_ssize_t cap, count
+
+
+cdef inline void snapshot_row(const fx_state* s, int64_t t, SampleOut* o) noexcept nogil:
+    cdef Py_ssize_t row = o.count, base = row * s.n
+    cdef int i, k, q
+    cdef int64_t a, tot
+    o.t[row] = t
+    for i in range(s.n):
+        a = fx_activity(s, i, t)
+        o.x[base + i] = s.mx[i] * POS_UNIT
+        o.y[base + i] = s.my[i] * POS_UNIT
+        o.sxx[base + i] = s.sxx[i] * Q32_UNIT
+        o.sxy[base + i] = s.sxy[i] * Q32_UNIT
+        o.syy[base + i] = s.syy[i] * Q32_UNIT
+        o.act[base + i] = a * Q32_UNIT
+        o.active[base + i] = a > s.act_thr
+        o.sensitive[base + i] = (s.sensitive_mask >> i) & 1
+    for q in range(3):
+        tot = 0
+        for k in range(s.nc):
+            tot += s.energy[q][k]
+        o.energy[row * 3 + q] = (<double>tot) * Q32_UNIT / s.nc if s.nc > 0 else 0.0
+    o.count = row + 1
+
+
+cdef Py_ssize_t run_events(fx_state* s, const Event* ev, Py_ssize_t n, int64_t sample_us,
+                           int64_t* next_t, SampleOut* o) noexcept nogil:
+    """Process events until done or the sample buffer is full; returns events consumed.
+    Same sampling rule as _kernel.run_events."""
+    cdef Py_ssize_t k
+    cdef int64_t t
+    for k in range(n):
+        t = ev[k].t
+        if sample_us > 0 and t >= next_t[0] and t >= s.last_t:
+            while t >= next_t[0]:
+                if o.count >= o.cap:
+                    return k
+                snapshot_row(s, next_t[0], o)
+                next_t[0] += sample_us
+        fx_step(s, t, ev[k].x, ev[k].y)
+    return n
+
+
+cdef class FixedKernel:
+    """Owns one fx_state. ``FixedKernel(model, params)``; see springtrack.tracker.Tracker."""
+    cdef fx_state st
+    cdef object model
+    cdef object params
+
+    def __cinit__(self):
+        self.st.cells = NULL
+
+    def __init__(self, model, params):
+        cdef fx_state* s = &self.st
+        cdef int i, k
+        arr = model.arrays()
+        n = len(model.trackers)
+        nc = len(model.connections)
+        if n > FX_MAX_TRACKERS or nc > FX_MAX_CONNECTIONS:
+            raise ValueError(f"model exceeds kernel capacity ({FX_MAX_TRACKERS} trackers, "
+                             f"{FX_MAX_CONNECTIONS} connections)")
+        mq = _q.model_q(arr, model.width, model.height)
+        if s.cells != NULL:
+            free(s.cells)
+            s.cells = NULL
+        memset(s, 0, sizeof(fx_state))
+        self.model = model
+        s.n = n
+        s.nc = nc
+        s.width = model.width
+        s.height = model.height
+        s.gw = ((model.width - 1) >> FX_CELL_SHIFT) + 1
+        s.gh = ((model.height - 1) >> FX_CELL_SHIFT) + 1
+        s.cells = <uint64_t*>calloc(s.gw * s.gh, sizeof(uint64_t))
+        if s.cells == NULL:
+            raise MemoryError()
+        for k, v in enumerate(_q.exp2_table()):
+            s.exp2_lut[k] = v
+        for k, v in enumerate(_q.atan_table()):
+            s.atan_lut[k] = v
+        for k, v in enumerate(_q.atan_unit_table()):
+            s.atan_tab[k] = v
+        s.cordic_x0 = _q.cordic_x0()
+        for i in range(n):
+            s.mx[i] = mq["mx"][i]
+            s.my[i] = mq["my"][i]
+            s.sxx[i] = mq["sxx"][i]
+            s.sxy[i] = mq["sxy"][i]
+            s.syy[i] = mq["syy"][i]
+            s.mq[i] = mq["mq"][i]
+            s.invm[i] = mq["invm"][i]
+            s.gdx0[i] = mq["gdx0"][i]
+            s.gdy0[i] = mq["gdy0"][i]
+        for k in range(nc):
+            s.ca[k] = arr["ca"][k]
+            s.cb[k] = arr["cb"][k]
+            s.kinds[k] = arr["kinds"][k]
+            s.stiff[k] = mq["stiff"][k]
+            s.kia[k] = mq["kia"][k]
+            s.kib[k] = mq["kib"][k]
+            s.l0[k] = mq["l0"][k]
+            s.dx0[k] = mq["dx0"][k]
+            s.dy0[k] = mq["dy0"][k]
+            s.th0[k] = mq["th0"][k]
+            s.c0x[k] = mq["c0x"][k]
+            s.c0y[k] = mq["c0y"][k]
+            s.degree[s.ca[k]] += 1
+            s.degree[s.cb[k]] += 1
+        fx_clamp_positions(s)
+        s.sensitive_mask = 0
+        for i in range(n):
+            s.sensitive_mask |= (<uint64_t>1) << i
+        s.last_t = -(1 << 62)
+        for i in range(n):
+            s.box_x0[i] = 0
+            s.box_x1[i] = -1
+            s.box_y0[i] = 0
+            s.box_y1[i] = -1
+        self.set_params(params)
+        s.n_reindex = 0
+
+    def __dealloc__(self):
+        if self.st.cells != NULL:
+            free(self.st.cells)
+            self.st.cells = NULL
+
+    def set_params(self, params):
+        """Apply validated springtrack.params.Params (between two events)."""
+        cdef fx_state* s = &self.st
+        cdef int i
+        pq = _q.params_q(params, s.nc)
+        self.params = params
+        s.a1 = pq["a1"]
+        s.a2 = pq["a2"]
+        s.cov_gain = pq["cov_gain"]
+        s.energy_gain = pq["energy_gain"]
+        s.gate = pq["gate"]
+        s.gate_q24 = pq["gate_q24"]
+        s.k_tau = pq["k_tau"]
+        s.dt_max = pq["dt_max"]
+        s.act_thr = pq["act_thr"]
+        s.escale = pq["escale"]
+        s.escale_never = pq["escale_never"]
+        s.smin2 = pq["smin2"]
+        s.smax2 = pq["smax2"]
+        s.period = pq["period"]
+        s.ekind = pq["ekind"]
+        s.need_torsion = 1 if s.ekind == 1 else 0
+        for k in range(s.nc):
+            if s.kinds[k] & 2:
+                s.need_torsion = 1
+        for i in range(s.n):
+            fx_refresh(s, i)
+            fx_reindex(s, i)
+
+    def run(self, events, long long sample_us, long long next_t, Py_ssize_t cap):
+        """Process ``events`` (EVENT_DTYPE, C-contiguous). Returns (consumed, next_t, samples)
+        where samples is a dict of arrays with at most ``cap`` rows (None if sample_us <= 0)."""
+        cdef cnp.ndarray ev = events
+        cdef Py_ssize_t n = ev.shape[0], consumed
+        cdef fx_state* s = &self.st
+        cdef SampleOut o
+        cdef int64_t nt = next_t
+        cdef int nt_ = s.n
+        if ev.dtype != EVENT_DTYPE or not ev.flags.c_contiguous:
+            raise TypeError("events must be a C-contiguous EVENT_DTYPE array")
+        if sample_us <= 0:
+            cap = 0
+        out = dict(t=np.empty(cap, np.int64), x=np.empty((cap, nt_)), y=np.empty((cap, nt_)),
+                   sxx=np.empty((cap, nt_)), sxy=np.empty((cap, nt_)), syy=np.empty((cap, nt_)),
+                   activity=np.empty((cap, nt_)), active=np.empty((cap, nt_), np.uint8),
+                   sensitive=np.empty((cap, nt_), np.uint8), energy=np.empty((cap, 3)))
+        cdef int64_t[::1] vt = out["t"]
+        cdef double[:, ::1] vx = out["x"], vy = out["y"], vsxx = out["sxx"], vsxy = out["sxy"]
+        cdef double[:, ::1] vsyy = out["syy"], vact = out["activity"], ven = out["energy"]
+        cdef uint8_t[:, ::1] vactive = out["active"], vsens = out["sensitive"]
+        o.cap = cap
+        o.count = 0
+        if cap > 0:
+            o.t = &vt[0]
+            o.x = &vx[0, 0]
+            o.y = &vy[0, 0]
+            o.sxx = &vsxx[0, 0]
+            o.sxy = &vsxy[0, 0]
+            o.syy = &vsyy[0, 0]
+            o.act = &vact[0, 0]
+            o.active = &vactive[0, 0]
+            o.sensitive = &vsens[0, 0]
+            o.energy = &ven[0, 0]
+        cdef const Event* p = <const Event*>cnp.PyArray_DATA(ev)
+        with nogil:
+            consumed = run_events(s, p, n, sample_us, &nt, &o)
+        if sample_us <= 0:
+            return consumed, nt, None
+        for key in out:
+            out[key] = out[key][:o.count]
+        return consumed, nt, out
+
+    def step(self, long long t, int x, int y):
+        return fx_step(&self.st, t, x, y)
+
+    def springs(self):
+        fx_springs(&self.st)
+
+    def snapshot(self, long long t):
+        """Dict of per-tracker float64 arrays at event time t."""
+        cdef fx_state* s = &self.st
+        n = s.n
+        act = np.array([fx_activity(s, i, t) * Q32_UNIT for i in range(n)])
+        return dict(x=np.array([s.mx[i] * POS_UNIT for i in range(n)]),
+                    y=np.array([s.my[i] * POS_UNIT for i in range(n)]),
+                    sxx=np.array([s.sxx[i] * Q32_UNIT for i in range(n)]),
+                    sxy=np.array([s.sxy[i] * Q32_UNIT for i in range(n)]),
+                    syy=np.array([s.syy[i] * Q32_UNIT for i in range(n)]),
+                    activity=act,
+                    active=np.array([fx_activity(s, i, t) > s.act_thr for i in range(n)]),
+                    sensitive=np.array([bool((s.sensitive_mask >> i) & 1) for i in range(n)]))
+
+    def raw_state(self):
+        """The integer state itself (Q formats of docs/fixed_point.md): x, y Q15.16 int32;
+        sxx, sxy, syy Q.32 int64; activity Q.32 (at the tracker's last event)."""
+        cdef fx_state* s = &self.st
+        n = s.n
+        return dict(x=np.array([s.mx[i] for i in range(n)], np.int32),
+                    y=np.array([s.my[i] for i in range(n)], np.int32),
+                    sxx=np.array([s.sxx[i] for i in range(n)], np.int64),
+                    sxy=np.array([s.sxy[i] for i in range(n)], np.int64),
+                    syy=np.array([s.syy[i] for i in range(n)], np.int64),
+                    activity=np.array([s.act[i] for i in range(n)], np.int64))
+
+    def energies(self):
+        """(3, nc) array of the last spring update's energies: euclidean, torsional, cartesian."""
+        cdef fx_state* s = &self.st
+        return (np.array([[s.energy[q][k] * Q32_UNIT for k in range(s.nc)] for q in range(3)])
+                .reshape(3, s.nc))
+
+    @property
+    def mean_energy(self):
+        return self.st.mean_energy * Q32_UNIT
+
+    @property
+    def last_t(self):
+        return self.st.last_t
+
+    def counters(self):
+        cdef fx_state* s = &self.st
+        return dict(events_valid=s.n_valid, events_assigned=s.n_assigned,
+                    skipped_back_in_time=s.n_back, skipped_outside_sensor=s.n_outside,
+                    spring_updates=s.n_spring_updates, index_updates=s.n_reindex,
+                    saturated_position=s.sat_position, saturated_activity=s.sat_activity,
+                    saturated_energy=s.sat_energy, saturated_inverse=s.sat_inverse)
+
+    def check_index(self):
+        """Verify the spatial index invariant (tests)."""
+        return bool(fx_check_index(&self.st))
+
+    # ---- integer building blocks, for tests ----
+    def mulsh(self, long long v, unsigned int g, int sh):
+        return fx_mulsh(v, g, sh)
+
+    def isqrt(self, unsigned long long v):
+        return fx_isqrt64(v)
+
+    def exp2neg(self, long long w):
+        return fx_exp2neg(&self.st, w)
+
+    def atan2(self, long long y, long long x):
+        return fx_atan2(&self.st, y, x)
+
+    def cossin(self, long long angle):
+        cdef int64_t c, sn
+        fx_cossin(&self.st, angle, &c, &sn)
+        return c, sn

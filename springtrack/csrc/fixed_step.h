@@ -1,0 +1,110 @@
+/* Integer-only tracker step of springtrack (Valeiras et al. 2015, Algorithm 1).
+ *
+ * This unit is the fixed-point twin of springtrack/_kernel.pyx: the same algorithm and
+ * interpretation choices (see springtrack/reference.py), on integers only.  It must
+ * compile with `gcc -mgeneral-regs-only` (no floating-point register may be used);
+ * tests/test_fixed_integer_only.py checks that.  Q formats (docs/fixed_point.md):
+ *
+ *   positions mx, my, gdx0, l0, dx0 ...   int32  Q15.16 px, clamped to +-FX_POS_LIM
+ *   covariances sxx, sxy, syy            int64  Q.32 px^2 (<= 4096 px^2)
+ *   inverse covariance ia, ib2, ic        int64  Q.32 px^-2
+ *   Mahalanobis d^2, gate                 int64  Q.40
+ *   activity                              int64  Q.32
+ *   energies                              int64  Q.32 (px^2, or rad^2 for torsion)
+ *   gains a1, a2, cov_gain, energy_gain,
+ *         stiffness                       uint32 Q2.30 (<= 1.0)
+ *   stiffness/mass, 1/mass                uint32 Q7.24
+ *   angles                                uint32 binary angle, 2^32 = 2 pi
+ *   exp2 / atan / CORDIC tables           uint32 Q.30 / binary angle
+ *
+ * Arithmetic right shifts of negative values are floor divisions (GCC and Clang define
+ * them so); no signed overflow can happen (bounds in docs/fixed_point.md), and the
+ * places where a value could leave its range saturate and count.
+ */
+#ifndef SPRINGTRACK_FIXED_STEP_H
+#define SPRINGTRACK_FIXED_STEP_H
+
+#include <stdint.h>
+
+#define FX_MAX_TRACKERS 64
+#define FX_MAX_CONNECTIONS 128
+#define FX_CELL_SHIFT 4                     /* spatial index cells of 16 x 16 px */
+#define FX_POS_FRAC 16                      /* positions Q15.16 */
+#define FX_POS_LIM ((int64_t)8192 << 16)    /* |position| < 8192 px */
+#define FX_EXP2_BITS 8                      /* exp2 table: 256 intervals + 1 */
+#define FX_EXP2_N (1 << FX_EXP2_BITS)
+#define FX_CORDIC_N 30                      /* CORDIC iterations */
+#define FX_ATAN_BITS 10                     /* atan table: 1024 intervals + 2 */
+#define FX_INDEX_MARGIN ((int64_t)3 << 16)  /* px added around an indexed gate box */
+
+enum { FX_NO_TRACKER = -1, FX_BACK_IN_TIME = -2, FX_OUT_OF_SENSOR = -3 };
+
+typedef struct {
+    /* geometry and model size */
+    int32_t n, nc, width, height;
+    /* parameters, converted by springtrack/fixed_q.py */
+    uint32_t a1, a2, cov_gain, energy_gain;   /* Q2.30 */
+    int64_t gate;                             /* d^2 gate, Q.40 */
+    uint32_t gate_q24;                        /* the same gate, Q8.24 */
+    int64_t k_tau;                            /* log2(e) / tau per us, Q.40 */
+    int64_t dt_max;                           /* us after which the decay is taken as 0 */
+    int64_t act_thr;                          /* Q.32 */
+    uint32_t escale;                          /* energy_scale, Q17.14 */
+    int32_t escale_never;                     /* 1: energy_scale >= nc, nothing is ever over */
+    int64_t smin2, smax2;                     /* Q.32 px^2 */
+    int32_t period, ekind, need_torsion;
+    /* tracker state, structure of arrays */
+    int32_t mx[FX_MAX_TRACKERS], my[FX_MAX_TRACKERS];
+    int64_t sxx[FX_MAX_TRACKERS], sxy[FX_MAX_TRACKERS], syy[FX_MAX_TRACKERS];
+    int64_t ia[FX_MAX_TRACKERS], ib2[FX_MAX_TRACKERS], ic[FX_MAX_TRACKERS];
+    int64_t gsxx[FX_MAX_TRACKERS], gsyy[FX_MAX_TRACKERS];    /* gate * sxx, gate * syy, Q.32 */
+    int64_t act[FX_MAX_TRACKERS];
+    int64_t tlast[FX_MAX_TRACKERS];
+    uint32_t mq[FX_MAX_TRACKERS];             /* mass / max mass, Q.24 (centre of mass) */
+    uint32_t invm[FX_MAX_TRACKERS];           /* 1 / mass, Q7.24 */
+    int32_t gdx0[FX_MAX_TRACKERS], gdy0[FX_MAX_TRACKERS];
+    int32_t degree[FX_MAX_TRACKERS];
+    uint64_t sensitive_mask;
+    /* connections */
+    int32_t ca[FX_MAX_CONNECTIONS], cb[FX_MAX_CONNECTIONS], kinds[FX_MAX_CONNECTIONS];
+    uint32_t stiff[FX_MAX_CONNECTIONS];       /* Q2.30 */
+    uint32_t kia[FX_MAX_CONNECTIONS], kib[FX_MAX_CONNECTIONS];   /* stiffness / mass, Q7.24 */
+    int32_t l0[FX_MAX_CONNECTIONS], dx0[FX_MAX_CONNECTIONS], dy0[FX_MAX_CONNECTIONS];
+    uint32_t th0[FX_MAX_CONNECTIONS];         /* binary angle */
+    int32_t c0x[FX_MAX_CONNECTIONS], c0y[FX_MAX_CONNECTIONS];    /* cos, sin th0, Q.30 */
+    int64_t energy[3][FX_MAX_CONNECTIONS];
+    int64_t mean_energy;
+    /* spatial index (see _kernel.pyx): bit i of cells[cy * gw + cx] set if tracker i's
+       indexed box covers the cell; bx_* is that box, Q.16 px */
+    uint64_t *cells;
+    int32_t gw, gh;
+    int32_t box_x0[FX_MAX_TRACKERS], box_x1[FX_MAX_TRACKERS];
+    int32_t box_y0[FX_MAX_TRACKERS], box_y1[FX_MAX_TRACKERS];
+    int64_t bx_lo[FX_MAX_TRACKERS], bx_hi[FX_MAX_TRACKERS];
+    int64_t by_lo[FX_MAX_TRACKERS], by_hi[FX_MAX_TRACKERS];
+    /* tables, filled by springtrack/fixed_q.py */
+    uint32_t exp2_lut[FX_EXP2_N + 1];         /* 2^(-k / FX_EXP2_N), Q.30 */
+    uint32_t atan_lut[FX_CORDIC_N];           /* atan(2^-i), binary angle (CORDIC) */
+    uint32_t atan_tab[(1 << FX_ATAN_BITS) + 2];   /* atan(k / 1024), binary angle */
+    int64_t cordic_x0;                        /* 1 / CORDIC gain, Q.60 */
+    /* counters */
+    int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates, n_reindex;
+    int64_t sat_position, sat_activity, sat_energy, sat_inverse;
+    int32_t since_spring;
+} fx_state;
+
+int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y);
+void fx_springs(fx_state *s);
+void fx_refresh(fx_state *s, int i);
+void fx_reindex(fx_state *s, int i);
+void fx_clamp_positions(fx_state *s);
+int64_t fx_activity(const fx_state *s, int i, int64_t t);
+int fx_check_index(const fx_state *s);
+/* building blocks, exported for tests */
+int64_t fx_mulsh(int64_t v, uint32_t g, int sh);
+uint64_t fx_isqrt64(uint64_t v);
+uint32_t fx_exp2neg(const fx_state *s, int64_t w);
+uint32_t fx_atan2(const fx_state *s, int64_t y, int64_t x);
+void fx_cossin(const fx_state *s, int64_t angle, int64_t *c, int64_t *sn);
+
+#endif

@@ -1,0 +1,140 @@
+"""Q formats of the fixed-point kernel: conversions from float parameters/models and the
+lookup tables, computed once at load time and handed to the integer-only C step
+(springtrack/csrc/fixed_step.c).  docs/fixed_point.md gives the ranges and error bounds.
+
+Every conversion rounds to nearest and raises ``ValueError`` naming the quantity when
+the value does not fit its format, instead of wrapping silently.
+"""
+from __future__ import annotations
+
+import math
+
+POS_FRAC = 16                 # positions Q15.16 px
+POS_LIM_PX = 8192.0           # |position| < 8192 px (state saturates there)
+COV_FRAC = 32                 # covariances Q.32 px^2
+D2_FRAC = 40                  # Mahalanobis d^2, Q.40
+GAIN_FRAC = 30                # gains Q2.30, <= 1
+MASS_FRAC = 24                # stiffness / mass and 1 / mass, Q7.24
+ACT_FRAC = 32                 # activity Q.32
+ENERGY_FRAC = 32              # energies Q.32
+ESCALE_FRAC = 14              # energy_scale Q17.14
+EXP2_BITS = 8                 # exp2 table of 2^8 + 1 entries
+CORDIC_N = 30
+ATAN_BITS = 10                # atan table of 2^10 + 2 entries
+SIGMA_MAX_PX = 64.0           # covariance range of the fixed kernel: sigma <= 64 px
+MAX_SENSOR = 8192
+LOG2E = 1.0 / math.log(2.0)
+
+
+def q(value: float, frac: int, name: str, lo: float | None = None, hi: float | None = None) -> int:
+    """round(value * 2^frac), checked against [lo, hi] (in real units)."""
+    if not math.isfinite(value):
+        raise ValueError(f"fixed kernel: {name} must be finite, got {value!r}")
+    if (lo is not None and value < lo) or (hi is not None and value > hi):
+        raise ValueError(f"fixed kernel: {name}={value!r} is outside the range [{lo}, {hi}] "
+                         f"of its Q format (docs/fixed_point.md)")
+    return int(round(value * (1 << frac)))
+
+
+def gain(value: float, name: str) -> int:
+    """A gain in [0, 1] as Q2.30."""
+    return q(value, GAIN_FRAC, name, 0.0, 1.0)
+
+
+def exp2_table() -> list[int]:
+    """2^(-k / 256) for k = 0..256, Q.30."""
+    n = 1 << EXP2_BITS
+    return [int(round(2.0 ** (-k / n) * (1 << 30))) for k in range(n + 1)]
+
+
+def atan_table() -> list[int]:
+    """atan(2^-i) as binary angles (2^32 = 2 pi), i = 0..CORDIC_N-1."""
+    return [int(round(math.atan(2.0 ** -i) / (2 * math.pi) * 2 ** 32)) for i in range(CORDIC_N)]
+
+
+def atan_unit_table() -> list[int]:
+    """atan(k / 1024) as binary angles, k = 0..1025 (the last entry pads interpolation at 1)."""
+    n = 1 << ATAN_BITS
+    return [int(round(math.atan(min(k, n) / n) / (2 * math.pi) * 2 ** 32)) for k in range(n + 2)]
+
+
+def cordic_x0() -> int:
+    """1 / prod(sqrt(1 + 2^-2i)), Q.60: the start vector that makes CORDIC's gain 1."""
+    k = 1.0
+    for i in range(CORDIC_N):
+        k *= math.sqrt(1.0 + 2.0 ** (-2 * i))
+    return int(round((1.0 / k) * 2 ** 60))
+
+
+def angle(rad: float) -> int:
+    """Radians as a binary angle in [0, 2^32)."""
+    return int(round(rad / (2 * math.pi) * 2 ** 32)) % (1 << 32)
+
+
+def params_q(p, nc: int) -> dict:
+    """The kernel's integer parameters for validated springtrack.params.Params ``p``."""
+    if p.sigma_max_px > SIGMA_MAX_PX:
+        raise ValueError(f"fixed kernel: sigma_max_px={p.sigma_max_px} exceeds {SIGMA_MAX_PX} px, "
+                         f"the covariance range of its Q.32 format (docs/fixed_point.md)")
+    from .reference import covariance_bias
+    gate = p.gate_d2
+    tau = p.activity_tau_us
+    k_tau = int(round(LOG2E / tau * 2 ** D2_FRAC))
+    return dict(
+        a1=gain(p.alpha_position, "alpha_position"),
+        a2=gain(p.alpha_covariance, "alpha_covariance"),
+        cov_gain=gain(p.alpha_covariance / covariance_bias(p.alpha_position, gate), "cov_gain"),
+        energy_gain=gain(p.energy_gain, "energy_gain"),
+        gate=q(gate, D2_FRAC, "gate_d2", 0.0, 31.0),
+        gate_q24=q(gate, 24, "gate_d2", 0.0, 31.0),
+        k_tau=k_tau,
+        dt_max=-(-(32 << D2_FRAC) // k_tau),       # 2^-32 and beyond: decay = 0 in Q.30
+        act_thr=q(min(p.activity_threshold, 2.0 ** 29), ACT_FRAC, "activity_threshold"),
+        escale_never=1 if p.energy_scale >= max(nc, 1) else 0,
+        escale=q(min(p.energy_scale, max(nc, 1)), ESCALE_FRAC, "energy_scale"),
+        smin2=q(p.sigma_min_px ** 2, COV_FRAC, "sigma_min_px^2"),
+        smax2=q(p.sigma_max_px ** 2, COV_FRAC, "sigma_max_px^2"),
+        period=p.spring_period,
+        ekind=p.energy_kind_index,
+    )
+
+
+def model_q(arr: dict, width: int, height: int) -> dict:
+    """The kernel's integer model (positions, springs, masses) from ShapeModel.arrays()."""
+    if width > MAX_SENSOR or height > MAX_SENSOR:
+        raise ValueError(f"fixed kernel: sensor {width}x{height} exceeds {MAX_SENSOR} px per side")
+    lim = POS_LIM_PX
+    pos = lambda v, name: q(float(v), POS_FRAC, name, -lim, lim - 1.0)  # noqa: E731
+    mass = [float(m) for m in arr["mass"]]
+    mmax = max(mass)
+    for i, m in enumerate(mass):
+        if 1.0 / m >= 127.0 or m / mmax < 2.0 ** -20:
+            raise ValueError(f"fixed kernel: trackers[{i}] mass {m} is outside the supported "
+                             f"range (mass > 1/127 and >= 2^-20 of the largest mass)")
+    out = dict(
+        mx=[pos(v, f"trackers[{i}].x") for i, v in enumerate(arr["x"])],
+        my=[pos(v, f"trackers[{i}].y") for i, v in enumerate(arr["y"])],
+        sxx=[q(float(v), COV_FRAC, f"trackers[{i}].sxx") for i, v in enumerate(arr["sxx"])],
+        sxy=[q(float(v), COV_FRAC, f"trackers[{i}].sxy") for i, v in enumerate(arr["sxy"])],
+        syy=[q(float(v), COV_FRAC, f"trackers[{i}].syy") for i, v in enumerate(arr["syy"])],
+        mq=[max(1, int(round(m / mmax * (1 << 24)))) for m in mass],
+        invm=[q(1.0 / m, MASS_FRAC, f"trackers[{i}] 1/mass") for i, m in enumerate(mass)],
+        gdx0=[pos(v, f"trackers[{i}] x - G") for i, v in enumerate(arr["gdx0"])],
+        gdy0=[pos(v, f"trackers[{i}] y - G") for i, v in enumerate(arr["gdy0"])],
+        stiff=[], kia=[], kib=[], l0=[], dx0=[], dy0=[], th0=[], c0x=[], c0y=[],
+    )
+    for k in range(len(arr["ca"])):
+        a = float(arr["stiffness"][k])
+        i, j = int(arr["ca"][k]), int(arr["cb"][k])
+        where = f"connections[{k}]"
+        out["stiff"].append(gain(a, f"{where}.stiffness"))
+        out["kia"].append(q(a / mass[i], MASS_FRAC, f"{where} stiffness/mass", 0.0, 127.0))
+        out["kib"].append(q(a / mass[j], MASS_FRAC, f"{where} stiffness/mass", 0.0, 127.0))
+        out["l0"].append(q(float(arr["l0"][k]), POS_FRAC, f"{where} rest length", 0.0, 2 * 1.5 * lim))
+        out["dx0"].append(q(float(arr["dx0"][k]), POS_FRAC, f"{where} rest dx", -2 * lim, 2 * lim))
+        out["dy0"].append(q(float(arr["dy0"][k]), POS_FRAC, f"{where} rest dy", -2 * lim, 2 * lim))
+        th = float(arr["th0"][k])
+        out["th0"].append(angle(th))
+        out["c0x"].append(int(round(math.cos(th) * (1 << 30))))
+        out["c0y"].append(int(round(math.sin(th) * (1 << 30))))
+    return out
