@@ -38,6 +38,8 @@ from .engine import UpdateRejected
 MAX_MODEL_BYTES = 256 * 1024
 REPLY_CACHE = 16
 TX_TELEMETRY_LIMIT = 32 * 1024      # bytes queued before telemetry frames are dropped
+TX_REPLY_LIMIT = 1024 * 1024        # bytes queued before even replies are dropped (a host
+                                    # that sends but never reads must not exhaust memory)
 FIRMWARE_NAME = "firmware-sim"
 
 
@@ -102,7 +104,7 @@ class LinkServer:
     # ---- sending ----------------------------------------------------------------
     def send(self, mtype: int, payload: bytes = b"", droppable: bool = False,
              version: int = wire.PROTOCOL_VERSION) -> bytes | None:
-        if droppable and len(self.txq) > TX_TELEMETRY_LIMIT:
+        if len(self.txq) > (TX_TELEMETRY_LIMIT if droppable else TX_REPLY_LIMIT):
             self.counts["tx_dropped"] += 1
             self.tx_seq = (self.tx_seq + 1) & 0xFFFF     # the host sees the gap
             return None
@@ -170,6 +172,10 @@ class LinkServer:
             if why is not None:                      # dropped, counted, no answer (no oracle)
                 self.counts["auth_" + why] += 1
                 return
+        if self.guard is None and frame.flags & wire.FLAG_SIGNED:
+            self._nack(frame, Nack.BAD_STATE, "signed frame on a link without a key: "
+                                              "the tag cannot be checked, refused")
+            return
         key = (frame.seq, frame.type, zlib.crc32(frame.payload))
         if key in self.replies:                      # a retry: answer again, do nothing
             self.counts["rx_retries"] += 1
@@ -201,7 +207,8 @@ class LinkServer:
 
     def _reply(self, mtype, payload=b"") -> None:
         raw = self.send(mtype, payload)
-        self._sent.append(raw)
+        if raw is not None:
+            self._sent.append(raw)
 
     def _ack(self, frame, value: int = 0) -> None:
         self.counts["acks"] += 1
@@ -209,7 +216,9 @@ class LinkServer:
 
     def _nack(self, frame, code: int, reason: str) -> None:
         self.counts["nacks"] += 1
-        self._sent.append(self.send(MsgType.NACK, wire.encode_nack(frame.seq, frame.type, code, reason)))
+        raw = self.send(MsgType.NACK, wire.encode_nack(frame.seq, frame.type, code, reason))
+        if raw is not None:
+            self._sent.append(raw)
 
     def _dispatch(self, f: wire.Frame) -> None:
         handler = HANDLERS.get(f.type)

@@ -119,7 +119,8 @@ class Device:
         if self.info["auth_required"] and not self.key:
             raise HostctlError(f"{self.url}: the device requires a key (HMAC signing); "
                                f"pass --key / key=")
-        self.signer = wire.Signer(self.key, self.info["nonce"]) if self.key else None
+        self.signer = (wire.Signer(self.key, self.info["nonce"])
+                       if self.key and self.info["auth_required"] else None)
         return self.info
 
     def load_model(self, model) -> int:

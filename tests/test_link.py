@@ -208,6 +208,22 @@ def test_hostile_frames_get_nacks_and_change_nothing(served):
         assert dev.ping() < 0.5
 
 
+def test_signed_frame_on_a_keyless_link_is_refused(served):
+    eng = served.engine
+    host = raw_host(served.path)
+    try:
+        host.write(wire.encode_frame(MsgType.HELLO, 1, wire.encode_hello()))
+        nonce = wire.decode_info(read_frames(host, 1)[0].payload)["nonce"]
+        host.write(wire.encode_frame(MsgType.PARAM_SET, 2, wire.encode_param_set("alpha_position", 0.3),
+                                     signer=wire.Signer(b"k", nonce)))
+        reply = read_frames(host, 1)[0]
+        assert reply.type == MsgType.NACK
+        assert wire.decode_nack(reply.payload)[2] == wire.Nack.BAD_STATE
+        assert eng.generation == 1
+    finally:
+        host.close()
+
+
 def test_corrupted_bytes_are_dropped_counted_and_resynced(served):
     host = raw_host(served.path)
     try:

@@ -6,6 +6,7 @@ paced to wall time times ``speed`` by a background thread started with :meth:`ru
 
 The tests at the bottom check the engine itself, so the link tests stand on it.
 """
+import math
 import threading
 import time
 from collections import deque
@@ -40,6 +41,8 @@ def classify(name, value) -> str | None:
             "wrong_type" if not isinstance(value, str) else "out_of_range")
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return "wrong_type"
+    if not math.isfinite(value):
+        return "out_of_range"
     if spec.kind is int and float(value) != int(value):
         return "wrong_type"
     try:
@@ -93,8 +96,8 @@ class SimEngine:
             try:
                 _params.check(name, value)
                 msg = f"{name}={value!r} rejected"
-            except _params.ParamError as e:
-                msg = str(e)
+            except (_params.ParamError, ValueError, OverflowError) as e:
+                msg = f"{name}={value!r}: {e}"      # params.check overflows on inf/nan ints
             raise UpdateRejected(code, msg)
         with self.lock:
             queued = {k: v for k, (v, _) in self.pending_params.items()}
@@ -183,7 +186,7 @@ class SimEngine:
         while not self._stop.is_set():
             self.counters["loops"] += 1
             due = (time.monotonic() - t0) * 1e6 * self.speed
-            if self.running and self.t_us + CHUNK_US <= due and self.pos < len(self.events):
+            if self.running and self.t_us + CHUNK_US <= due:   # past the scene: no events
                 self.step()
             else:
                 if not self.running:
@@ -226,6 +229,8 @@ def test_engine_updates_take_effect_at_the_next_chunk_and_are_reported():
                                              ("alpha_position", 2.0, "out_of_range"),
                                              ("alpha_position", "x", "wrong_type"),
                                              ("spring_period", 1.5, "wrong_type"),
+                                             ("spring_period", float("inf"), "out_of_range"),
+                                             ("alpha_position", float("nan"), "out_of_range"),
                                              ("energy_kind", "bogus", "out_of_range")])
 def test_engine_rejects_bad_updates_without_changing_state(name, value, code):
     eng = SimEngine()
