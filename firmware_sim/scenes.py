@@ -29,7 +29,8 @@ Scenes of paper section IV (all start at rest pose, so the initial model is exac
 ``grid_inplane``   Fig. 16: in-plane rotation between +45 and -45 deg (15 deg/s) while
                    translating.
 ``face_occlusion`` IV-B (Figs. 17-21): the 26 parts of ``face26`` as bright blobs, the face
-                   moving, approaching (scale) and rolling; a hand (palm + 4 fingers, opaque)
+                   moving, approaching (scale) and rolling; a hand (palm + 4 fingers, opaque,
+                   covering the lower or middle part of the face: a partial occlusion)
                    sweeps across the face 3 times in 20 s (every 6 s, 2.4 s per pass).
 
 ``moving_blob``    a single blob translating horizontally (``speed`` px/s, ``amplitude``,
@@ -243,8 +244,8 @@ class FaceOcclusion(Scene):
     internal = list(FACE_INTERNAL)
 
     def __init__(self, seed=0, scale=120.0, cx=CX, cy=CY, amplitude=2.0, outline_amplitude=1.5,
-                 hand_period=6.0, hand_first=4.0, hand_duration=2.4, hand_intensity=0.55,
-                 motion=1.0):
+                 hand_period=6.0, hand_first=4.0, hand_duration=2.4, hand_intensity=0.3,
+                 hand_size=0.16, hand_rows=(0.35, 0.2, 0.35), motion=1.0):
         super().__init__(seed)
         self.scale0, self.cx0, self.cy0 = float(scale), float(cx), float(cy)
         lay = face_layout()
@@ -255,6 +256,7 @@ class FaceOcclusion(Scene):
         self.edge_k = 3.0 * self.sig.min(axis=1)      # x face height = disk edge sharpness
         self.hand_period, self.hand_first = float(hand_period), float(hand_first)
         self.hand_duration, self.hand_intensity = float(hand_duration), float(hand_intensity)
+        self.hand_size, self.hand_rows = float(hand_size), tuple(hand_rows)
         self.motion = float(motion)
         rng = np.random.default_rng([self.seed, 7])
         self.phase = rng.uniform(0, 2 * math.pi, size=4)
@@ -288,13 +290,12 @@ class FaceOcclusion(Scene):
         span = WIDTH + 2 * 0.9 * s
         hx = (-0.9 * s + span * u / self.hand_duration)
         hx = hx if direction > 0 else WIDTH - hx
-        hy = y + 0.15 * s
-        pr = 0.32 * s                                   # palm radius
-        rows = [[hx, hy + 0.25 * s, pr ** 2, 0.0, (1.2 * pr) ** 2]]
+        pr = self.hand_size * s                             # palm radius
+        hy = y + self.hand_rows[int(k) % len(self.hand_rows)] * s   # palm centre
+        rows = [[hx, hy, pr ** 2, 0.0, (1.2 * pr) ** 2]]
         for j, fx in enumerate((-0.6, -0.2, 0.2, 0.6)):      # four fingers above the palm
-            fl = (0.28 if j in (1, 2) else 0.22) * s
-            rows.append([hx + fx * pr, hy + 0.25 * s - 1.1 * pr - 0.6 * fl,
-                         (0.07 * s) ** 2, 0.0, fl ** 2])
+            fl = (0.85 if j in (1, 2) else 0.7) * pr
+            rows.append([hx + fx * pr, hy - 1.1 * pr - 0.6 * fl, (0.22 * pr) ** 2, 0.0, fl ** 2])
         occ = np.array(rows)
         return np.column_stack([occ, np.full(len(occ), self.hand_intensity),
                                 np.full(len(occ), 24.0)])
