@@ -139,12 +139,13 @@ class LinkServer:
                 time.sleep(0.001)
 
     def pump_telemetry(self) -> None:
+        """Forward APPLIED reports and snapshots once a host has said HELLO; before that they
+        wait in the engine's bounded queue (which drops the oldest and counts them)."""
+        if not self.session:
+            return
         for gen, t_us in self.engine.poll_applied():
-            if self.session:
-                self.send(MsgType.APPLIED, wire.encode_applied(gen, t_us))
+            self.send(MsgType.APPLIED, wire.encode_applied(gen, t_us))
         for snap in self.engine.poll_telemetry(64):
-            if not self.session:
-                continue
             payload = wire.encode_telemetry(snap["t_us"], snap["generation"],
                                             snap["mean_energy"], snap["trackers"])
             if self.send(MsgType.TELEMETRY, payload, droppable=True) is not None:

@@ -10,8 +10,8 @@
     hostctl --port /dev/pts/5 record OUT.csv|OUT.npz [--seconds S] [--smooth]
 
 ``--port`` defaults to $HOSTCTL_PORT.  A signed link (non-loopback TCP) needs the shared
-key, as hex, in $HOSTCTL_KEY or in a file given with ``--key-file`` (never on the command
-line, where other users could read it).  Exit codes: 0 ok, 1 other error, 2 usage,
+key: the contents of ``--key-file`` (as for ``firmware-sim run --key-file``) or
+$HOSTCTL_KEY - never on the command line, where other users could read it.  Exit codes: 0 ok, 1 other error, 2 usage,
 3 no such port, 4 no answer, 5 protocol version mismatch, 6 command refused (NACK).
 """
 from __future__ import annotations
@@ -36,7 +36,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(default $HOSTCTL_PORT)")
     p.add_argument("--timeout", type=float, default=0.5, help="seconds to wait per try (0.5)")
     p.add_argument("--retries", type=int, default=3, help="retries per command (3)")
-    p.add_argument("--key-file", help="file holding the link key as hex (else $HOSTCTL_KEY)")
+    p.add_argument("--key-file", help="file holding the shared link key (else $HOSTCTL_KEY)")
     sub = p.add_subparsers(dest="verb", metavar="VERB", required=True)
     sub.add_parser("ports", help="list serial ports")
     sub.add_parser("info", help="firmware/protocol versions, geometry, model")
@@ -87,13 +87,15 @@ def parse_assignments(items) -> dict:
 
 
 def read_key(path: str | None) -> bytes | None:
-    text = open(path).read().strip() if path else os.environ.get("HOSTCTL_KEY", "")
-    if not text:
-        return None
-    try:
-        return bytes.fromhex(text)
-    except ValueError:
-        raise HostctlError(f"{path or '$HOSTCTL_KEY'}: the key must be hex digits") from None
+    """The shared key: the key file's bytes without surrounding whitespace (the same rule as
+    ``firmware-sim run --key-file``), else $HOSTCTL_KEY as UTF-8, else None."""
+    if path:
+        with open(path, "rb") as f:
+            key = f.read().strip()
+        if not key:
+            raise HostctlError(f"{path}: empty key file")
+        return key
+    return os.environ.get("HOSTCTL_KEY", "").strip().encode() or None
 
 
 def main(argv=None) -> int:
@@ -188,12 +190,20 @@ def cmd_monitor(dev, args) -> int:
 def cmd_record(dev, args) -> int:
     from .record import save
     from .smooth import Smoother  # noqa: F401 - fail early if filterpy is missing
-    snaps = list(dev.telemetry(seconds=args.seconds))
+    snaps, failure = [], None
+    try:
+        for s in dev.telemetry(seconds=args.seconds):
+            snaps.append(s)
+    except HostctlError as e:          # the device went away: keep what arrived
+        failure = e
     summary = save(args.out, snaps, dev.info, smooth={} if args.smooth else None)
     lc = dev.link_counters()
     print(f"recorded {summary['snapshots']} snapshots x {summary['trackers']} trackers "
           f"to {', '.join(summary['files'])}; lost frames {lc['lost']}, "
           f"CRC errors {lc['crc_errors']}, model-swap drops {summary['dropped']}")
+    if failure is not None:
+        print(f"hostctl record: error: {failure} (recording ended early)", file=sys.stderr)
+        return failure.exit_code
     return 0
 
 
