@@ -346,6 +346,20 @@ cdef class FixedKernel:
                     syy=np.array([s.syy[i] for i in range(n)], np.int64),
                     activity=np.array([s.act[i] for i in range(n)], np.int64))
 
+    def set_raw(self, int i, x=None, y=None, act=None):
+        """Overwrite tracker i's raw integer state (tests: drive it to a range limit).
+        x, y Q15.16 (int32), act Q.32; the spatial index is refreshed."""
+        cdef fx_state* s = &self.st
+        if not 0 <= i < s.n:
+            raise IndexError(f"tracker index {i} out of range 0..{s.n - 1}")
+        if x is not None:
+            s.mx[i] = x
+        if y is not None:
+            s.my[i] = y
+        if act is not None:
+            s.act[i] = act
+        fx_reindex(s, i)
+
     def energies(self):
         """(3, nc) array of the last spring update's energies: euclidean, torsional, cartesian."""
         cdef fx_state* s = &self.st

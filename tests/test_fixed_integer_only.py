@@ -1,0 +1,48 @@
+"""Issue 4, deliverable 2: the fixed-point step is integer-only by construction.
+
+springtrack/csrc/fixed_step.c (the per-event step, the springs and every arithmetic
+helper they use) must compile with ``gcc -mgeneral-regs-only``, which on x86-64 rejects
+any floating-point or SIMD operation.  A control case shows the check does fail when a
+float slips in.
+"""
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+CSRC = Path(__file__).resolve().parents[1] / "springtrack" / "csrc"
+UNIT = CSRC / "fixed_step.c"
+FLAGS = ["-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", "-mgeneral-regs-only", "-c"]
+
+gcc = shutil.which("gcc")
+needs_gcc = pytest.mark.skipif(gcc is None, reason="gcc is not installed")
+
+
+def compile_c(src: Path, out: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([gcc, *FLAGS, f"-I{CSRC}", str(src), "-o", str(out)],
+                          capture_output=True, text=True)
+
+
+@needs_gcc
+def test_fixed_step_compiles_with_general_regs_only(tmp_path):
+    r = compile_c(UNIT, tmp_path / "fixed_step.o")
+    assert r.returncode == 0, f"{UNIT} does not compile integer-only:\n{r.stderr}"
+
+
+@needs_gcc
+def test_the_check_rejects_a_float(tmp_path):
+    """Control: the same unit plus one line of double arithmetic must fail to compile."""
+    src = tmp_path / "with_float.c"
+    src.write_text(UNIT.read_text() + "\ndouble fx_leak(double v) { return v * 0.5; }\n")
+    r = compile_c(src, tmp_path / "with_float.o")
+    assert r.returncode != 0, "gcc -mgeneral-regs-only accepted floating-point code"
+    assert "general" in r.stderr or "SSE" in r.stderr or "float" in r.stderr
+
+
+def test_no_float_type_in_the_fixed_unit():
+    """A reader's check: no float/double/long double token in the C unit or its header."""
+    for f in (UNIT, CSRC / "fixed_step.h"):
+        code = re.sub(r"/\*.*?\*/", "", f.read_text(), flags=re.S)   # comments may say "float"
+        assert not re.search(r"\b(float|double)\b", code), f"{f} mentions a floating-point type"

@@ -1,0 +1,253 @@
+"""The fixed-point kernel (springtrack/_fixed.pyx + csrc/fixed_step.c): arithmetic
+building blocks against exact Python integers, hand-computed steps, saturation, the
+backend interface and the telemetry view."""
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings, strategies as st
+
+import springtrack
+from springtrack import events as E
+from springtrack import wire
+from springtrack.model import Connection, ShapeModel, TrackerSpec
+from springtrack.params import Params
+from springtrack.tracker import Tracker, resolve_params
+
+fixed = pytest.importorskip("springtrack._fixed")
+FixedKernel = fixed.FixedKernel
+Q16 = 1 << 16
+Q32 = 1 << 32
+
+
+def kernel(preset="grid3x3", **changes):
+    m = springtrack.load_model(preset)
+    p = resolve_params(m)
+    return FixedKernel(m, p.replace(**changes) if changes else p)
+
+
+K = kernel()
+
+
+# ---- building blocks -------------------------------------------------------------------
+@settings(max_examples=400, deadline=None)
+@given(st.integers(-(2 ** 62) + 1, 2 ** 62 - 1), st.integers(0, 2 ** 31 - 1), st.integers(1, 62))
+def test_mulsh_is_exact_round_half_up(v, g, sh):
+    want = (v * g + (1 << (sh - 1))) >> sh            # Python ints: exact floor
+    if not -(2 ** 63) <= want < 2 ** 63:
+        return                                        # outside the documented domain
+    assert K.mulsh(v, g, sh) == want
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 2 ** 64 - 1))
+def test_isqrt_is_floor_sqrt(v):
+    assert K.isqrt(v) == math.isqrt(v)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.integers(0, 33 << 40))
+def test_exp2neg_relative_error(w):
+    got = K.exp2neg(w) / (1 << 30)
+    want = 2.0 ** (-w / 2 ** 40)
+    # table interpolation < 1e-6 relative, plus half a unit of Q.30 after the shift
+    assert abs(got - want) <= 1.5e-6 * want + 2 ** -30
+
+
+def test_exp2neg_edges():
+    assert K.exp2neg(0) == 1 << 30
+    assert K.exp2neg(-5) == 1 << 30
+    assert K.exp2neg(32 << 40) == 0
+    assert K.exp2neg(1 << 40) == 1 << 29
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.integers(-(2 ** 31), 2 ** 31), st.integers(-(2 ** 31), 2 ** 31))
+def test_atan2_matches_math(y, x):
+    got = K.atan2(y, x)
+    if x == 0 and y == 0:
+        assert got == 0
+        return
+    want = math.atan2(y, x) / (2 * math.pi) * 2 ** 32
+    diff = (got - round(want)) % (1 << 32)
+    diff = min(diff, (1 << 32) - diff)                 # angular distance, binary units
+    assert diff * 2 * math.pi / 2 ** 32 < 2e-7         # rad
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.one_of(st.integers(-(2 ** 31), 2 ** 31 - 1),          # any angle (CORDIC)
+                 st.integers(-42722829, 42722829)))            # |a| < 2^-4 rad (series)
+def test_cossin_matches_math(a):
+    c, s = K.cossin(a)
+    rad = a * 2 * math.pi / 2 ** 32
+    assert abs(c / 2 ** 30 - math.cos(rad)) < 1e-8
+    assert abs(s / 2 ** 30 - math.sin(rad)) < 1e-8
+
+
+# ---- hand-computed steps ---------------------------------------------------------------
+def one_tracker(**params):
+    m = ShapeModel("one", 64, 64, [TrackerSpec("a", 20.0, 30.0, (4.0, 0.0, 9.0))], [])
+    p = Params(**{"alpha_position": 0.25, "alpha_covariance": 0.01, **params})
+    return m, p
+
+
+def test_first_event_by_hand():
+    """Tracker at (20, 30), Sigma = diag(4, 9); event at (22, 27): d^2 = 4/4 + 9/9 = 2,
+    p = exp(-1), mean moves by a1 (2, -3), Sigma <- (1 - a2) Sigma + g e e^T."""
+    m, p = one_tracker()
+    k = FixedKernel(m, p)
+    assert k.step(5, 22, 27) == 0
+    s = k.snapshot(5)
+    assert abs(s["x"][0] - 20.5) <= 2 ** -16 and abs(s["y"][0] - 29.25) <= 2 ** -16
+    from springtrack.reference import covariance_bias
+    g = 0.01 / covariance_bias(0.25, p.gate_d2)
+    for f, want in (("sxx", 0.99 * 4 + g * 4), ("sxy", g * -6), ("syy", 0.99 * 9 + g * 9)):
+        assert abs(s[f][0] - want) < 1e-7, f
+    assert abs(s["activity"][0] - math.exp(-1.0)) < 2e-6
+    # the activity decays as exp(-dt / tau) (eq. 6)
+    later = k.snapshot(5 + 10_000)["activity"][0]
+    assert abs(later - math.exp(-1.0) * math.exp(-1.0)) < 2e-6
+
+
+def test_gate_and_skips_by_hand():
+    m, p = one_tracker(p_threshold=0.1)               # gate d^2 < 2 ln 10 = 4.605
+    k2 = FixedKernel(m, p)
+    assert k2.step(1, 24, 30) == 0
+    assert k2.step(2, 20, 37) == -1                    # d^2 = 49/9 > gate: no tracker
+    assert k2.step(1, 20, 30) == -2                    # back in time
+    assert k2.step(3, 64, 0) == -3                     # outside the sensor
+    c = k2.counters()
+    assert (c["events_valid"], c["events_assigned"], c["skipped_back_in_time"],
+            c["skipped_outside_sensor"]) == (2, 1, 1, 1)
+
+
+def test_sigma_bounds_and_correlation_clamp():
+    """Events on the diagonal drive rho to its 0.99 bound, then (the tracker shrinking onto
+    one pixel) sigma to its minimum; the fixed kernel follows the float one throughout."""
+    from springtrack._kernel import Kernel
+    m, p = one_tracker(sigma_min_px=0.5, alpha_covariance=0.2)
+    kf, kd = FixedKernel(m, p), Kernel(m, p)
+    rng = np.random.default_rng(3)
+    rho_max = 0.0
+    for n in range(3000):
+        u = int(round(rng.normal(0, 1.0)))
+        t = 10 * (n + 1)
+        assert kf.step(t, 20 + u, 30 + u) == kd.step(t, 20 + u, 30 + u)
+        s, r = kf.snapshot(t), kd.snapshot(t)
+        for f in ("x", "y", "sxx", "sxy", "syy"):
+            assert abs(s[f][0] - r[f][0]) < 1e-4, (n, f)
+        rho_max = max(rho_max, s["sxy"][0] / math.sqrt(s["sxx"][0] * s["syy"][0]))
+    assert 0.99 - 1e-6 <= rho_max <= 0.99 + 1e-6
+    assert s["sxx"][0] == pytest.approx(0.25, abs=1e-9) and s["syy"][0] == pytest.approx(0.25, abs=1e-9)
+    assert kf.check_index()
+    assert kf.counters()["saturated_inverse"] == 0
+
+
+# ---- saturation: values at a range limit clamp and are counted ----------------------------
+def test_position_saturates_and_counts():
+    """All grid columns stacked at the +8192 px limit: the Cartesian springs (rest offset
+    +50 px between columns) push the right column beyond it; it stays at the limit and
+    the saturations are counted."""
+    k = kernel("grid3x3")
+    lim = 8192 * Q16 - 1
+    for i in range(9):
+        k.set_raw(i, x=lim)
+    k.springs()
+    assert k.counters()["saturated_position"] == 3    # r0c2, r1c2, r2c2
+    x = k.raw_state()["x"]
+    assert list(x[[2, 5, 8]]) == [lim] * 3 and np.all(x[[0, 3, 6]] < lim)
+    assert np.all(np.abs(k.raw_state()["x"]) <= 8192 * Q16)
+
+
+def test_energy_offset_saturates_and_counts():
+    k = kernel("grid3x3")
+    k.set_raw(0, x=8191 * Q16)
+    k.set_raw(1, x=-8191 * Q16)                       # 0->1 offset -16382 px, rest +50
+    k.springs()
+    assert k.counters()["saturated_energy"] > 0
+    e = k.energies()
+    assert np.all(np.isfinite(e)) and e[2][0] == pytest.approx(0.5 * 0.001 * (2 ** 14) ** 2 * 1.0, rel=0.02)
+
+
+def test_activity_saturates_and_counts():
+    m, p = one_tracker()
+    k = FixedKernel(m, p)
+    k.step(1, 20, 30)
+    k.set_raw(0, act=(1 << 61) - 1)
+    k.step(1, 20, 30)                                  # dt = 0: no decay, + p > limit
+    assert k.counters()["saturated_activity"] == 1
+    assert k.raw_state()["activity"][0] == 1 << 61
+
+
+# ---- backend interface ---------------------------------------------------------------------
+def test_rejects_what_its_formats_cannot_hold():
+    m = springtrack.load_model("grid3x3")
+    with pytest.raises(ValueError, match="sigma_max_px"):
+        FixedKernel(m, Params(sigma_max_px=100.0))
+    big = ShapeModel("big", 10000, 10, [TrackerSpec("a", 1.0, 1.0, (1.0, 0.0, 1.0))], [])
+    with pytest.raises(ValueError, match="sensor"):
+        FixedKernel(big, Params())
+    stiff = ShapeModel("stiff", 64, 64, [TrackerSpec("a", 1.0, 1.0, (1.0, 0.0, 1.0)),
+                                         TrackerSpec("b", 9.0, 1.0, (1.0, 0.0, 1.0))],
+                       [Connection("a", "b", ("euclidean",), 2.0)])
+    with pytest.raises(ValueError, match="stiffness"):
+        FixedKernel(stiff, Params())
+
+
+def stream(preset, n, seed=2):
+    from springtrack.fixed_accuracy import scene_stream
+    return scene_stream(preset, n, seed)[1]
+
+
+def test_chunked_equals_whole_and_set_params():
+    ev = stream("face26", 30_000)
+    whole = Tracker("face26", backend="fixed").run(ev, sample_us=500)
+    tr = Tracker("face26", backend="fixed")
+    tr.record(500)
+    for part in np.array_split(ev, 7):
+        tr.process(part)
+    chunked = tr.samples()
+    for f in ("t_us", "x", "y", "sxx", "sxy", "syy", "activity", "active", "sensitive", "energy"):
+        assert np.array_equal(getattr(whole, f), getattr(chunked, f)), f
+    # a parameter change between events applies to both backends alike
+    a = Tracker("face26", backend="cython")
+    b = Tracker("face26", backend="fixed")
+    for t in (a, b):
+        t.run(ev[:15_000], sample_us=1000)
+        t.set_params(alpha_position=0.1, p_threshold=0.05)
+    ta, tb = a.run(ev[15_000:], sample_us=1000), b.run(ev[15_000:], sample_us=1000)
+    d = np.hypot(ta.x - tb.x, ta.y - tb.y)
+    assert float(np.sqrt(np.mean(d ** 2))) < 0.05 and float(d.max()) < 0.25   # issue 4 bound
+    assert set(b.counters) >= {"saturated_position", "saturated_activity", "saturated_energy",
+                               "saturated_inverse", "events_valid", "events_assigned"}
+    assert b.state()["x"].shape == (26,)
+    assert b.energies()["euclidean"].shape == (40,)
+
+
+def test_extreme_parameters_stay_in_range():
+    """Smallest sigma, widest gate, longest memory: no saturation of the inverse, the
+    spatial index holds, and the result still follows the float kernel."""
+    ev = stream("grid3x3", 20_000)
+    changes = dict(sigma_min_px=0.05, p_threshold=1e-6, activity_tau_us=1e9,
+                   alpha_covariance=0.05)
+    a = Tracker("grid3x3", params=changes, backend="cython").run(ev, sample_us=1000)
+    trb = Tracker("grid3x3", params=changes, backend="fixed")
+    b = trb.run(ev, sample_us=1000)
+    assert trb._b.check_index()
+    assert trb.counters["saturated_inverse"] == 0
+    d = np.hypot(a.x - b.x, a.y - b.y)
+    assert float(np.sqrt(np.mean(d ** 2))) < 0.05 and float(d.max()) < 0.25
+
+
+# ---- telemetry: the wire's integer fields are shifts of the state ----------------------------
+def test_telemetry_position_is_a_shift_of_the_state():
+    tr = Tracker("face26", backend="fixed")
+    tr.process(stream("face26", 5_000))
+    raw = tr._b.raw_state()
+    payload = wire.encode_telemetry(tr.last_t, 1, 0.0, tr.state())
+    _, _, _, dec = wire.decode_telemetry(payload)
+    x16 = (raw["x"].astype(np.int64) + (1 << 11)) >> 12      # Q15.16 -> 1/16 px, rounded
+    y16 = (raw["y"].astype(np.int64) + (1 << 11)) >> 12
+    ties = ((raw["x"] & 0xFFF) == 0x800) | ((raw["y"] & 0xFFF) == 0x800)
+    assert np.array_equal((dec["x"] * 16).astype(np.int64)[~ties], x16[~ties])
+    assert np.array_equal((dec["y"] * 16).astype(np.int64)[~ties], y16[~ties])
