@@ -92,7 +92,7 @@ class Scene:
     def truth(self, t: float) -> np.ndarray:
         raise NotImplementedError
 
-    def initial_model(self) -> ShapeModel:
+    def initial_model(self, **kw) -> ShapeModel:
         raise ValueError(f"scene {self.name!r} has no matching shape model")
 
 
@@ -176,8 +176,9 @@ class GridScene(Scene):
                                  np.full(9, self.amplitude), np.full(9, 3.0 * self.sigma)])
         return Frame(blobs, NO_OCCLUDERS)
 
-    def initial_model(self):
-        return grid3x3(self.cx, self.cy, self.spacing, sigma_px=self.sigma)
+    def initial_model(self, **kw):
+        """grid3x3 at the rest pose; ``kw`` (stiffness, springs) go to the preset."""
+        return grid3x3(self.cx, self.cy, self.spacing, sigma_px=self.sigma, **kw)
 
 
 class GridRotY(GridScene):
@@ -312,8 +313,9 @@ class FaceOcclusion(Scene):
         blobs = np.column_stack([xy, sxx, sxy, syy, self.amp, s * self.edge_k])
         return Frame(blobs, self.hand(t))
 
-    def initial_model(self):
-        return face26(self.cx0, self.cy0, self.scale0)
+    def initial_model(self, **kw):
+        """face26 at the rest pose; ``kw`` (stiffness) go to the preset."""
+        return face26(self.cx0, self.cy0, self.scale0, **kw)
 
 
 SCENES: dict[str, type[Scene]] = {cls.name: cls for cls in
