@@ -44,5 +44,17 @@ cdef class Decoder:
                          Py_ssize_t* nout, Event* side, Py_ssize_t* nside) noexcept nogil
     cdef int _pending_state(self) noexcept
     cdef void _reset_state(self) noexcept
+    cdef object _decode(self, buffer, object out, Py_ssize_t* nout_p)
     cdef object _feed(self, const uint8_t* p, Py_ssize_t n, object out, Py_ssize_t* nout,
                       object side, Py_ssize_t* nside)
+
+from libc.string cimport memcpy as _memcpy
+
+cdef inline void put_event(Event* o, int64_t t, uint64_t x, uint64_t y, uint64_t p) noexcept nogil:
+    """Store one event as two 8-byte writes (t, then x|y|p with zeroed padding).
+
+    memcpy keeps it aliasing-safe; compilers emit a single 8-byte store for it.
+    """
+    cdef uint64_t rest = x | (y << 16) | (p << 32)
+    o.t = t
+    _memcpy((<char*>o) + 8, &rest, 8)

@@ -74,20 +74,16 @@ cdef class Decoder:
                 out = bigger
         return out
 
-    def decode(self, buffer):
-        """Decode ``buffer`` (bytes-like); return the events completed so far.
-
-        State (time base, partial word, last address) carries over to the next call, so
-        feeding a stream in pieces cut anywhere gives the same events as one call.
-        """
+    cdef object _decode(self, buffer, object out, Py_ssize_t* nout_p):
+        """Decode ``buffer`` appending to ``out`` from ``nout_p[0]``; return ``out`` (grown
+        if a format produced more events than the room it had)."""
         data = np.frombuffer(buffer, dtype=np.uint8)
         cdef Py_ssize_t n = data.shape[0]
         if n == 0:
-            return np.empty(0, EVENT_DTYPE)
+            return out
         cdef const uint8_t[::1] mv = data
         cdef const uint8_t* p = &mv[0]
-        cdef Py_ssize_t ws = self.word_size, pos = 0, k, whole, nout = 0, nside = 0
-        out = np.empty((n + self.ncarry) // self.bound_den + self.max_per_word + 1, EVENT_DTYPE)
+        cdef Py_ssize_t ws = self.word_size, pos = 0, k, whole, nout = nout_p[0], nside = 0
         side = np.empty((n + self.ncarry) // ws + 2, EVENT_DTYPE) if self.keep_exposure else None
         if self.ncarry:   # complete the word split by the previous call
             k = min(ws - self.ncarry, n)
@@ -104,12 +100,41 @@ cdef class Decoder:
         if pos < n:       # keep the tail of a split word for the next call
             memcpy(&self.carry[self.ncarry], p + pos, n - pos)
             self.ncarry += n - pos
-        self.events_out += nout
+        self.events_out += nout - nout_p[0]
+        nout_p[0] = nout
         if side is not None and nside:
             self._exposure_parts.append(side[:nside].copy())
+        return out
+
+    def decode(self, buffer):
+        """Decode ``buffer`` (bytes-like); return the events completed so far.
+
+        State (time base, partial word, last address) carries over to the next call, so
+        feeding a stream in pieces cut anywhere gives the same events as one call.
+        """
+        cdef Py_ssize_t n = len(memoryview(buffer).cast("B")), nout = 0
+        out = np.empty((n + self.ncarry) // self.bound_den + self.max_per_word + 1, EVENT_DTYPE)
+        out = self._decode(buffer, out, &nout)
         if nout * 2 < out.shape[0]:
             return out[:nout].copy()
         return out[:nout]
+
+    def decode_into(self, buffer, out, Py_ssize_t start=0):
+        """Decode ``buffer`` into the preallocated EVENT_DTYPE array ``out`` from index
+        ``start``; return the number of events written (no allocation: for streaming
+        loops that reuse one buffer).  ``out`` must have room for the worst case:
+        (len(buffer) + 7) // word_size * max_per_word events (EVT 3.0: 12 per word)."""
+        cdef Py_ssize_t n = len(memoryview(buffer).cast("B")), nout = start
+        cdef Py_ssize_t need = (n + self.ncarry) // self.word_size * self.max_per_word
+        if not (isinstance(out, np.ndarray) and out.dtype == EVENT_DTYPE
+                and out.flags.c_contiguous and out.ndim == 1):
+            raise TypeError("decode_into: out must be a 1-D C-contiguous EVENT_DTYPE array")
+        if start < 0 or out.shape[0] - start < need:
+            raise ValueError(f"decode_into: out has room for {out.shape[0] - start} events "
+                             f"from index {start}; this buffer may produce {need}")
+        res = self._decode(buffer, out, &nout)
+        assert res is out
+        return nout - start
 
     def finish(self):
         """End of stream: count a partial trailing word as 'truncated'; return its byte count."""

@@ -92,7 +92,7 @@ def encode(events, exposure=None) -> bytes:
         if flags.shape[0] != n:
             raise ValueError(f"ccam encode: exposure has {flags.shape[0]} flags for {n} events")
     new_th = np.ones(n, dtype=bool)
-    new_th[1:] = th[1:] != th[:-1]
+    new_th[1:] = th[1:] != th[:n - 1]
     words = np.empty((n + int(new_th.sum())) * 4, dtype=np.uint8)
     cdef uint8_t[::1] w = words
     cdef const uint8_t[::1] fl = flags

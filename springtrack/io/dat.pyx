@@ -53,10 +53,7 @@ cdef class DatDecoder(Decoder):
             if x >= W or y >= H:
                 self.anomalies[<int>AN_OUT_OF_GEOMETRY] += 1
                 continue
-            out[k].t = self.epoch + ts
-            out[k].x = <uint16_t>x
-            out[k].y = <uint16_t>y
-            out[k].p = <uint8_t>pol
+            put_event(&out[k], self.epoch + ts, x, y, pol)
             k += 1
         self.words += nw
         nout[0] = k

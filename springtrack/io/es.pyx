@@ -110,10 +110,7 @@ cdef class EsDecoder(Decoder):
                         side[ks].p = pol
                         ks += 1
                 else:
-                    out[k].t = t
-                    out[k].x = <uint16_t>x
-                    out[k].y = <uint16_t>y
-                    out[k].p = pol
+                    put_event(&out[k], t, x, y, pol)
                     k += 1
         self.st = st
         self.t = t

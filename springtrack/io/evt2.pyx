@@ -37,6 +37,8 @@ cdef class Evt2Decoder(Decoder):
         cdef uint32_t W = self.width if self.width else 0x10000
         cdef uint32_t H = self.height if self.height else 0x10000
         cdef int64_t th = (self.epoch + self.th_last) << 6, raw
+        cdef bint have_th = self.have_th
+        cdef uint64_t before = 0       # events before the first TIME_HIGH
         if nw > room:
             nw = room
         while i < nw:
@@ -49,17 +51,13 @@ cdef class Evt2Decoder(Decoder):
                 if x >= W or y >= H:
                     self.anomalies[<int>AN_OUT_OF_GEOMETRY] += 1
                     continue
-                out[k].t = th | ((v >> 22) & 0x3F)
-                out[k].x = <uint16_t>x
-                out[k].y = <uint16_t>y
-                out[k].p = <uint8_t>typ
+                put_event(&out[k], th | ((v >> 22) & 0x3F), x, y, typ)
                 k += 1
-                if not self.have_th:
-                    self.info[<int>IN_BEFORE_TIME_HIGH] += 1
+                before += not have_th
             elif typ == 0x8:           # EVT_TIME_HIGH
                 raw = v & 0x0FFFFFFF
                 self.info[<int>IN_TIME_HIGH] += 1
-                if self.have_th and raw < self.th_last:
+                if have_th and raw < self.th_last:
                     if self.th_last - raw > (1 << (TH_BITS - 1)):   # counter wrapped
                         self.epoch += 1 << TH_BITS
                         self.info[<int>IN_TIME_WRAPS] += 1
@@ -67,7 +65,7 @@ cdef class Evt2Decoder(Decoder):
                         self.epoch += self.th_last - raw
                         self.anomalies[<int>AN_TIME_BACKWARDS] += 1
                 self.th_last = raw
-                self.have_th = True
+                have_th = True
                 th = (self.epoch + raw) << 6
             elif typ == 0xA:
                 self.info[<int>IN_TRIGGERS] += 1
@@ -75,6 +73,8 @@ cdef class Evt2Decoder(Decoder):
                 self.info[<int>IN_OTHERS] += 1
             else:
                 self.anomalies[<int>AN_UNKNOWN_TYPE] += 1
+        self.have_th = have_th
+        self.info[<int>IN_BEFORE_TIME_HIGH] += before
         self.words += i
         nout[0] = k
         return i * 4

@@ -55,6 +55,8 @@ cdef class Evt3Decoder(Decoder):
         cdef int64_t raw, t = ((self.epoch + self.th_last) << 12) | self.tl
         cdef int y = self.y, base = self.base_x
         cdef uint8_t vp = self.vec_p
+        cdef bint have_th = self.have_th
+        cdef uint64_t before = 0       # events before the first TIME_HIGH
         while i < nw and k <= stop:
             memcpy(&v, p + 2 * i, 2)   # little-endian host assumed
             i += 1
@@ -66,13 +68,9 @@ cdef class Evt3Decoder(Decoder):
                 elif x >= W or <uint32_t>y >= H:
                     self.anomalies[<int>AN_OUT_OF_GEOMETRY] += 1
                 else:
-                    out[k].t = t
-                    out[k].x = <uint16_t>x
-                    out[k].y = <uint16_t>y
-                    out[k].p = (v >> 11) & 1
+                    put_event(&out[k], t, x, y, (v >> 11) & 1)
                     k += 1
-                    if not self.have_th:
-                        self.info[<int>IN_BEFORE_TIME_HIGH] += 1
+                    before += not have_th
             elif typ == 0x0:           # EVT_ADDR_Y
                 y = v & 0x7FF
             elif typ == 0x4 or typ == 0x5:   # VECT_12 / VECT_8
@@ -87,13 +85,9 @@ cdef class Evt3Decoder(Decoder):
                     if x >= W or <uint32_t>y >= H:
                         self.anomalies[<int>AN_OUT_OF_GEOMETRY] += 1
                         continue
-                    out[k].t = t
-                    out[k].x = <uint16_t>x
-                    out[k].y = <uint16_t>y
-                    out[k].p = vp
+                    put_event(&out[k], t, x, y, vp)
                     k += 1
-                    if not self.have_th:
-                        self.info[<int>IN_BEFORE_TIME_HIGH] += 1
+                    before += not have_th
                 base += 12 if typ == 0x4 else 8
                 if base > 0xFFFF:
                     base = 0xFFFF
@@ -110,7 +104,7 @@ cdef class Evt3Decoder(Decoder):
             elif typ == 0x8:           # TIME_HIGH
                 raw = v & 0xFFF
                 self.info[<int>IN_TIME_HIGH] += 1
-                if self.have_th and raw < self.th_last:
+                if have_th and raw < self.th_last:
                     if self.th_last - raw > 2048:    # 12-bit counter wrapped
                         self.epoch += 4096
                         self.info[<int>IN_TIME_WRAPS] += 1
@@ -118,7 +112,7 @@ cdef class Evt3Decoder(Decoder):
                         self.epoch += self.th_last - raw
                         self.anomalies[<int>AN_TIME_BACKWARDS] += 1
                 self.th_last = raw
-                self.have_th = True
+                have_th = True
                 t = ((self.epoch + raw) << 12) | self.tl
             elif typ == 0xA:
                 self.info[<int>IN_TRIGGERS] += 1
@@ -126,6 +120,8 @@ cdef class Evt3Decoder(Decoder):
                 self.info[<int>IN_OTHERS] += 1
             else:
                 self.anomalies[<int>AN_UNKNOWN_TYPE] += 1
+        self.have_th = have_th
+        self.info[<int>IN_BEFORE_TIME_HIGH] += before
         self.y = y
         self.base_x = base
         self.vec_p = vp
