@@ -159,3 +159,15 @@ def test_backwards_time_in_a_file_is_counted(tmp_path):
     ev = r.read()
     assert list(ev["t"]) == [0x100 * 64, 0x100 * 64]
     assert r.stats.anomalies["time_backwards"] == 1
+
+
+def test_long_header_and_empty_payload(tmp_path, events):
+    data = sio.encode_file(events, 304, 240, "evt2")
+    long = b"% comment " + b"x" * 100_000 + b"\n" + data
+    (tmp_path / "long.raw").write_bytes(long)
+    r = sio.open(tmp_path / "long.raw")
+    assert (r.width, r.height) == (304, 240) and "comment" in r.header
+    np.testing.assert_array_equal(r.read(), events)
+    (tmp_path / "hdr.raw").write_bytes(b"% evt 3.0\n% end\n")
+    r = sio.open(tmp_path / "hdr.raw")
+    assert r.format == "evt3" and len(r.read()) == 0 and list(r.chunks()) == []

@@ -37,6 +37,19 @@ class FileInfo:
     event_type: str | None = None      # Event Stream: dvs | atis
 
 
+def _header_ends(head: bytes) -> bool:
+    """True if the ``%`` header lines end inside ``head``."""
+    pos = 0
+    while head[pos:pos + 1] == b"%":
+        end = head.find(b"\n", pos)
+        if end < 0:
+            return False
+        if head[pos:end].strip() == b"% end":
+            return True
+        pos = end + 1
+    return pos < len(head)
+
+
 def _percent_header(head: bytes, path) -> tuple[dict, int]:
     """Parse ``% key value`` lines; return (fields, offset of the first payload byte)."""
     fields, pos = {}, 0
@@ -108,7 +121,9 @@ def sniff(path, format: str | None = None) -> FileInfo:
     """Detect the format of ``path`` from its first bytes (extension only for CCam)."""
     ext = os.path.splitext(str(path))[1].lower()
     with builtins.open(path, "rb") as f:
-        head = f.read(MAX_HEADER)
+        head = f.read(1 << 16)
+        if head.startswith(b"%") and not _header_ends(head):
+            head += f.read(MAX_HEADER - len(head))     # a long text header
     if not head:
         raise DecodeError(f"{path}: empty file")
     if format is not None and format not in FORMATS:

@@ -2,6 +2,8 @@
 from __future__ import annotations
 
 import builtins
+import mmap
+import os
 import warnings
 
 import numpy as np
@@ -100,11 +102,18 @@ class Reader:
 
     def read(self) -> np.ndarray:
         """All events of the file (one pass, whole file in memory)."""
-        with builtins.open(self.path, "rb") as f:
-            f.seek(self.offset)
-            data = f.read()
         dec = self.decoder()
-        ev = dec.decode(data)
+        with builtins.open(self.path, "rb") as f:
+            size = os.fstat(f.fileno()).st_size
+            if size > self.offset:     # map the file: no copy of the payload
+                with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as m:
+                    view = memoryview(m)[self.offset:]
+                    try:
+                        ev = dec.decode(view)
+                    finally:
+                        view.release()
+            else:
+                ev = dec.decode(b"")
         dec.finish()
         self.stats = dec.stats
         if self.keep_exposure:
