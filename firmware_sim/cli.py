@@ -60,7 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="usb/sim: set a CCam bias (0..255), repeatable")
     r.add_argument("--stats-every", type=float, default=1.0, metavar="S",
                    help="print statistics every S wall seconds on stderr (0: never)")
-    r.add_argument("--buffers", type=int, default=16, help="transfer buffers in the pool")
+    r.add_argument("--buffers", type=int, default=64,
+                   help="transfer buffers of 128 KiB in the pool (default 64)")
     link = r.add_mutually_exclusive_group()
     link.add_argument("--pty", action="store_true",
                       help="serve the host link on a new pty (prints 'pty: /dev/pts/N')")

@@ -49,7 +49,8 @@ def param_error_code(e: Exception) -> str:
 
 class FirmwareLoop:
     def __init__(self, open_camera, model="face26", params=None, telemetry_period_us: int = 1000,
-                 nbuf: int = 16, piece_bytes: int = 16384, telemetry_queue: int = 4096,
+                 nbuf: int = 64, piece_bytes: int = 16384, telemetry_queue: int = 4096,
+                 transfer_bytes: int | None = None,
                  record: bool = False, width: int = 304, height: int = 240):
         if telemetry_period_us <= 0:
             raise ValueError(f"telemetry_period_us must be positive, got {telemetry_period_us}")
@@ -58,7 +59,8 @@ class FirmwareLoop:
         self.kernel = Kernel(self.model, self.params)
         self.fused = Fused(self.kernel, telemetry_period_us, 512)
         self.period = int(telemetry_period_us)
-        self.reader = Reader(open_camera, nbuf=nbuf)
+        self.reader = Reader(open_camera, nbuf=nbuf,
+                             **({"transfer_bytes": transfer_bytes} if transfer_bytes else {}))
         self.piece = int(piece_bytes)
         self.width, self.height = width, height
         self.lock = threading.Lock()
@@ -71,6 +73,7 @@ class FirmwareLoop:
         self.tele_cap = int(telemetry_queue)
         self.applied: deque = deque()
         self._await_first = []              # generations waiting for their first event
+        self.swaps: deque = deque(maxlen=1024)  # (generation, events tracked before it)
         self.record = record
         self.recorded: list = []            # (ids, block)
         self.stop_event = threading.Event()
@@ -182,6 +185,7 @@ class FirmwareLoop:
             self.generation = gen
             self.c["updates_applied"] += 1
             self._await_first.append(gen)
+            self.swaps.append((gen, int(self.fused.tracked)))
 
     # ---- processing thread ---------------------------------------------------------------
     def _run(self) -> None:

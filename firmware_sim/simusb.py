@@ -132,10 +132,12 @@ class SimCamera:
     """Device-side state of one simulated CCam ATIS."""
 
     def __init__(self, source, serial: int = SIM_SERIAL, realtime: bool = False,
-                 faults: Faults | None = None, bus: int = 1, address: int = 4):
+                 faults: Faults | None = None, bus: int = 1, address: int = 4,
+                 commit_us: int = 250):
         self.source = iter(source)
         self.serial = serial
         self.realtime = realtime
+        self.commit_us = int(commit_us)    # realtime: longest wait before a short transfer
         self.faults = faults or Faults()
         self.bus, self.address = bus, address
         self.lock = threading.RLock()
@@ -304,10 +306,31 @@ class SimCamera:
                 raise _usb_error(errno.ETIMEDOUT, "Operation timed out")
             time.sleep(min(0.0002 if self.realtime else 0.001, deadline - now))
 
+    def _commit_due(self, now_t: int, n_max: int) -> bool:
+        """Realtime: like the camera's USB controller, end a transfer early (short packet)
+        only once the oldest pending word has waited ``commit_us``; else wait for a full
+        buffer."""
+        if not self.fifo:
+            return False
+        c = self.fifo[0]
+        k = int(np.searchsorted(c.marks_off, c.pos, side="right"))
+        if k >= len(c.marks_t):
+            return True
+        if now_t >= c.marks_t[k] + self.commit_us:
+            return True
+        avail = self._releasable(c, now_t) - c.pos
+        for c2 in list(self.fifo)[1:]:
+            if avail >= n_max:
+                break
+            avail += self._releasable(c2, now_t)
+        return avail >= n_max
+
     def _copy(self, out, n_max: int) -> int:
         self._fill(n_max)
         self._check_disconnect()
         now_t = self.device_time() if self.realtime else None
+        if now_t is not None and not self._commit_due(now_t, n_max):
+            return 0
         n = 0
         while self.fifo and n < n_max:
             c = self.fifo[0]

@@ -1,0 +1,194 @@
+"""FirmwareLoop (the Engine): USB path == springtrack track, atomic updates, the CLI."""
+from __future__ import annotations
+
+import subprocess
+import sys
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from springtrack import model as _model
+from springtrack.track import read_csv
+from springtrack.tracker import Tracker
+from firmware_sim import usb as camusb
+from firmware_sim.engine import UpdateRejected
+from firmware_sim.faults import Faults
+from firmware_sim.loop import FirmwareLoop
+from firmware_sim.sensor import simulate_all
+from firmware_sim.simusb import SimBackend, SimCamera, events_source
+
+SAMPLE = 1000
+
+
+@pytest.fixture(scope="module")
+def face():
+    ev, _ = simulate_all("face_occlusion", 0.6, seed=5)
+    return ev
+
+
+def make_engine(ev, realtime=False, faults=None, model="face26", nbuf=256, **kw):
+    # many small buffers: a shared CI machine may starve the processing thread for a while
+    cam = SimCamera(events_source(ev, 2048), realtime=realtime, faults=faults)
+    be = SimBackend(cam)
+    eng = FirmwareLoop(lambda: camusb.Camera.open("ccam_atis", backend=be), model,
+                       telemetry_period_us=SAMPLE, nbuf=nbuf, transfer_bytes=16384, **kw)
+    return cam, eng
+
+
+def run_to_end(cam, eng, timeout=30.0):
+    eng.start()
+    t0 = time.monotonic()
+    quiet = 0
+    while quiet < 3:
+        assert time.monotonic() - t0 < timeout, f"stream did not end: {eng.stats_line()}"
+        time.sleep(0.02)
+        rc = eng.reader.counts
+        done = (cam.finished and eng.reader.queue_depth() == 0
+                and eng.fused.bytes_in == rc["bytes"] - rc["bytes_dropped"])
+        quiet = quiet + 1 if done else 0
+    eng.stop()
+    assert not any(t.name in ("usb-reader", "fused-loop") for t in threading.enumerate())
+    return eng.stats()
+
+
+def recorded(eng):
+    parts = [b for _, b in eng.recorded]
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+
+
+def test_tracking_through_the_usb_path_equals_the_offline_tracker(face, tmp_path):
+    cam, eng = make_engine(face, record=True)
+    s = run_to_end(cam, eng)
+    assert s["events_tracked"] == len(face) and s["transfers_dropped"] == 0
+    ref = Tracker("face26").run(face, SAMPLE)
+    got = recorded(eng)
+    assert np.array_equal(got["t"], ref.t_us)
+    for k in ("x", "y", "sxx", "sxy", "syy", "activity"):
+        assert np.array_equal(got[k], getattr(ref, k)), k
+    out = tmp_path / "fw.csv"
+    ref_csv = tmp_path / "ref.csv"
+    eng.write_record(out)
+    ref.to_csv(ref_csv)
+    assert out.read_text() == ref_csv.read_text()
+
+
+def test_model_swap_under_a_stream_is_atomic(face):
+    """Every snapshot belongs to exactly one model: before the swap it equals model A's
+    offline track, after it model B's offline track over the events from the swap on."""
+    cam, eng = make_engine(face, realtime=True)
+    grid = _model.grid3x3()
+    eng.start()
+    while eng.fused.tracked < len(face) // 3:
+        time.sleep(0.002)
+    gen = eng.load_model(grid.to_toml())
+    snaps = []
+    t0 = time.monotonic()
+    while not (cam.finished and eng.drained()) and time.monotonic() - t0 < 10:
+        snaps += eng.poll_telemetry(1000)
+        time.sleep(0.01)
+    time.sleep(0.1)
+    eng.stop()
+    snaps += eng.poll_telemetry(100000)
+    (g, n_before), = [x for x in eng.swaps if x[0] == gen]
+    applied = dict(eng.poll_applied())
+    assert 0 < n_before < len(face)
+    assert applied[gen] == face["t"][n_before]          # the first event under the new model
+    a = [s for s in snaps if s["generation"] == 1]
+    b = [s for s in snaps if s["generation"] == gen]
+    assert a and b and len(a) + len(b) == len(snaps)
+    assert all(len(s["trackers"]) == 26 for s in a) and all(len(s["trackers"]) == 9 for s in b)
+    ref_a = Tracker("face26").run(face[:n_before], SAMPLE)
+    for s in a:
+        k = np.searchsorted(ref_a.t_us, s["t_us"])
+        if k < len(ref_a) and ref_a.t_us[k] == s["t_us"]:
+            assert np.array_equal(s["trackers"]["x"], ref_a.x[k])
+    ref_b = Tracker(grid).run(face[n_before:], SAMPLE)
+    common = 0
+    for s in b:
+        k = np.searchsorted(ref_b.t_us, s["t_us"])
+        if k < len(ref_b) and ref_b.t_us[k] == s["t_us"]:
+            assert np.array_equal(s["trackers"]["x"], ref_b.x[k])
+            assert np.array_equal(s["trackers"]["sxx"], ref_b.sxx[k])
+            common += 1
+    assert common > 10
+
+
+@pytest.mark.parametrize("name,value,code", [
+    ("nope", 1.0, "unknown_name"),
+    ("alpha_position", "fast", "wrong_type"),
+    ("alpha_position", 2.0, "out_of_range"),
+    ("spring_period", 1.5, "wrong_type"),
+])
+def test_invalid_parameter_updates_are_rejected_and_change_nothing(face, name, value, code):
+    cam, eng = make_engine(face[:1000])
+    before = eng.get_params()
+    with pytest.raises(UpdateRejected) as e:
+        eng.set_param(name, value)
+    assert e.value.code == code and str(e.value)
+    assert eng.get_params() == before and eng.generation == 1
+
+
+def test_invalid_model_is_rejected_and_the_running_model_kept(face):
+    cam, eng = make_engine(face[:1000])
+    for text in ("name = ", _model.grid3x3().to_toml().replace("stiffness = 0.001", "stiffness = -1")):
+        with pytest.raises(UpdateRejected) as e:
+            eng.load_model(text)
+        assert e.value.code == "invalid_model"
+    assert eng.info()["model"] == "face26" and eng.generation == 1
+
+
+def test_parameter_change_applies_between_events_and_reports_its_time(face):
+    cam, eng = make_engine(face, realtime=True)
+    eng.start()
+    while eng.fused.tracked < len(face) // 2:
+        time.sleep(0.002)
+    gen = eng.set_param("alpha_position", 0.1)
+    t0 = time.monotonic()
+    while eng.generation != gen and time.monotonic() - t0 < 5:
+        time.sleep(0.005)
+    time.sleep(0.05)
+    eng.stop()
+    applied = dict(eng.poll_applied())
+    (g, n_before), = [x for x in eng.swaps if x[0] == gen]
+    assert eng.get_params()["alpha_position"] == 0.1
+    assert eng.stats()["transfers_dropped"] == 0, eng.stats_line()
+    assert applied[gen] == face["t"][n_before]
+
+
+def test_stats_expose_the_issue_counters(face):
+    cam, eng = make_engine(face)
+    s = run_to_end(cam, eng)
+    for key in ("transfers", "bytes", "events_decoded", "events_tracked", "transfers_dropped",
+                "anomalies", "queue_hwm", "event_rate", "proc_us_per_10ms"):
+        assert key in s
+    assert s["bytes"] == eng.fused.bytes_in and s["transfers"] >= 1
+    assert s["proc_us_per_10ms"]["mean"] > 0
+
+
+def test_cli_record_equals_springtrack_track(tmp_path):
+    """The README demo path: sim scene -> simulated USB -> loop -> --record CSV."""
+    ev, _ = simulate_all("face_occlusion", 0.3, seed=0)
+    np.save(tmp_path / "ev.npy", ev)
+    out = tmp_path / "fw.csv"
+    r = subprocess.run([sys.executable, "-m", "firmware_sim.cli", "run", "--source",
+                        "sim:face_occlusion", "--max-speed", "--seconds", "0.3", "--preset",
+                        "face26", "--record", str(out), "--stats-every", "0"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "dropped=0" in r.stdout and f"tracked={len(ev)}" in r.stdout
+    ref = tmp_path / "ref.csv"
+    Tracker("face26").run(ev, SAMPLE).to_csv(ref)
+    assert out.read_text() == ref.read_text()
+    assert len(read_csv(out)) == 299
+
+
+def test_cli_rejects_bad_arguments_with_a_clear_error():
+    r = subprocess.run([sys.executable, "-m", "firmware_sim.cli", "run", "--source", "sim:nope",
+                        "--max-speed"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "unknown scene 'nope'" in r.stderr
+    r = subprocess.run([sys.executable, "-m", "firmware_sim.cli", "run", "--source",
+                        "sim:face_occlusion", "--faults", "meteor"],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "unknown fault(s) meteor" in r.stderr
