@@ -1,0 +1,205 @@
+"""Fuzz the streaming decoders and the file-format detection.
+
+For every decoder (ccam, evt2, evt3, es dvs/atis, dat) run --inputs random and mutated
+inputs (default 1,000,000 each): random byte strings, and windows of valid streams (the
+real recordings where available, else our encoders' output) with bytes flipped,
+replaced, inserted, deleted or truncated.  Each input is decoded with a fresh decoder,
+split at 0-3 random points; every 50th input is also decoded whole and compared.  Checks:
+no exception, no crash (a segfault kills the run: faulthandler prints where), events
+inside the geometry, counters consistent (words, events, pending bytes).
+Then --header-inputs mutated file headers go through springtrack.io.open(): only
+DecodeError (or success) is allowed.
+
+    .venv/bin/python benchmarks/fuzz_decoders.py [--inputs 1000000] [--write-docs]
+"""
+from __future__ import annotations
+
+import argparse
+import faulthandler
+import os
+import re
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+import springtrack.io as sio
+from springtrack.events import make
+from springtrack.io import ccam, dat, es, evt2, evt3
+
+REPO = Path(__file__).resolve().parents[1]
+DATA = Path(os.environ.get("SPRINGTRACK_DATA", REPO.parent / "shared" / "data"))
+DOC = REPO / "docs" / "formats.md"
+
+DECODERS = {
+    "ccam": {"keep_exposure": True},
+    "evt2": {"width": 640, "height": 480},
+    "evt3": {"width": 1280, "height": 720},
+    "es-dvs": {"event_type": "dvs", "width": 320, "height": 240},
+    "es-atis": {"event_type": "atis", "width": 304, "height": 240, "keep_exposure": True},
+    "dat": {"width": 640, "height": 480},
+}
+
+
+def seeds(rng) -> dict:
+    """A valid byte stream per decoder to mutate."""
+    n = 20_000
+    ev = make(np.sort(rng.integers(0, 50_000_000, n)), rng.integers(0, 304, n),
+              rng.integers(0, 240, n), rng.integers(0, 2, n))
+    flags = rng.random(n) < 0.2
+    out = {"ccam": ccam.encode(ev, flags), "evt2": evt2.encode(ev), "evt3": evt3.encode(ev),
+           "es-dvs": es.encode(ev, "dvs"), "es-atis": es.encode(ev, "atis", flags),
+           "dat": dat.encode(ev)}
+    for key, name in (("evt2", "evt2_sample.raw"), ("evt3", "evt3_sample.raw"),
+                      ("es-dvs", "dvs.es")):
+        path = DATA / name
+        if path.is_file():
+            info = sio.sniff(path)
+            out[key] = path.read_bytes()[info.offset:]
+    return out
+
+
+def mutate(rng, base: bytes) -> bytes:
+    n = int(rng.integers(1, 600))
+    start = int(rng.integers(0, max(1, len(base) - n)))
+    buf = bytearray(base[start:start + n])
+    for _ in range(int(rng.integers(1, 6))):
+        op = int(rng.integers(0, 5))
+        if not buf:
+            break
+        i = int(rng.integers(0, len(buf)))
+        if op == 0:
+            buf[i] ^= 1 << int(rng.integers(0, 8))
+        elif op == 1:
+            buf[i] = int(rng.integers(0, 256))
+        elif op == 2:
+            buf[i:i] = bytes(rng.integers(0, 256, int(rng.integers(1, 8)), dtype=np.uint8))
+        elif op == 3:
+            del buf[i:i + int(rng.integers(1, 8))]
+        else:
+            del buf[i:]
+    return bytes(buf)
+
+
+def check(name, opts, data, cuts, compare):
+    fmt = "es" if name.startswith("es") else name
+    dec = sio.decoder(fmt, **opts)
+    parts, prev = [], 0
+    for c in cuts:
+        parts.append(dec.decode(data[prev:c]))
+        prev = c
+    parts.append(dec.decode(data[prev:]))
+    pending = dec.finish()
+    ev = np.concatenate(parts)
+    s = dec.stats
+    w = opts.get("width") or (304 if fmt == "ccam" else 0)
+    if w and len(ev) and (ev["x"].max() >= w or ev["y"].max() >= (opts.get("height") or 240)):
+        raise AssertionError("event outside the geometry")
+    if s.events != len(ev) or s.words != len(data) // dec.word_size:
+        raise AssertionError(f"counters: {s}")
+    if (pending > 0) != (s.anomalies["truncated"] > 0):
+        raise AssertionError("pending bytes not counted as truncated")
+    if compare:
+        ref = sio.decoder(fmt, **opts).decode(data)
+        if not np.array_equal(ref, ev):
+            raise AssertionError("split decode differs from whole decode")
+
+
+def fuzz_decoder(name, opts, base, n, rng):
+    t0 = time.perf_counter()
+    pool = rng.integers(0, 256, 1 << 22, dtype=np.uint8).tobytes()
+    failures = 0
+    first = None
+    for i in range(n):
+        if i & 1:
+            data = mutate(rng, base)
+        else:
+            size = int(rng.integers(0, 400))
+            off = int(rng.integers(0, len(pool) - size))
+            data = pool[off:off + size]
+        k = int(rng.integers(0, 4))
+        cuts = sorted(rng.integers(0, len(data) + 1, k).tolist()) if k else []
+        try:
+            check(name, opts, data, cuts, i % 50 == 0)
+        except Exception as e:      # noqa: BLE001 - every failure is recorded
+            failures += 1
+            if first is None:
+                first = f"{type(e).__name__}: {e} (input {data[:40]!r}..., cuts {cuts})"
+    return failures, first, time.perf_counter() - t0
+
+
+HEADERS = [b"% evt 2.0\n% format EVT2;height=480;width=640\n% end\n",
+           b"% evt 3.0\n% geometry 1280x720\n",
+           b"Event Stream\x02\x00\x00\x01\x40\x01\xf0\x00",
+           b"Event Stream\x02\x00\x00\x02\x30\x01\xf0\x00",
+           b"% Version 2\n% Width 640\n% Height 480\n\x0c\x08",
+           b"t,x,y,p\n1,2,3,1\n"]
+
+
+def fuzz_headers(n, rng):
+    failures, first = 0, None
+    with tempfile.TemporaryDirectory(dir="/dev/shm" if os.path.isdir("/dev/shm") else None) as d:
+        path = Path(d) / "f.bin"
+        for i in range(n):
+            base = HEADERS[i % len(HEADERS)] + bytes(rng.integers(0, 256, 64, dtype=np.uint8))
+            path.write_bytes(mutate(rng, base) if i % 4 else base[:int(rng.integers(0, 40))])
+            try:
+                r = sio.open(path)
+                r.read()
+            except sio.DecodeError:
+                pass
+            except Exception as e:  # noqa: BLE001
+                failures += 1
+                if first is None:
+                    first = f"{type(e).__name__}: {e} (file {path.read_bytes()[:60]!r})"
+    return failures, first
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--inputs", type=int, default=1_000_000, help="inputs per decoder")
+    ap.add_argument("--header-inputs", type=int, default=20_000)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--only", help="comma-separated decoder names")
+    ap.add_argument("--write-docs", action="store_true",
+                    help="record the result in docs/formats.md (section 'Fuzzing')")
+    args = ap.parse_args(argv)
+    faulthandler.enable()
+    rng = np.random.default_rng(args.seed)
+    base = seeds(rng)
+    names = args.only.split(",") if args.only else list(DECODERS)
+    lines, total_fail = [], 0
+    for name in names:
+        f, first, secs = fuzz_decoder(name, DECODERS[name], base[name], args.inputs, rng)
+        total_fail += f
+        line = (f"| {name} | {args.inputs:,} | {f} | {secs:.0f} s |"
+                + (f" {first}" if first else ""))
+        print(line, flush=True)
+        lines.append(line)
+    hf, hfirst = fuzz_headers(args.header_inputs, rng)
+    total_fail += hf
+    hline = f"| open() on mutated headers | {args.header_inputs:,} | {hf} | |" + (
+        f" {hfirst}" if hfirst else "")
+    print(hline)
+    lines.append(hline)
+    if args.write_docs:
+        body = ("## Fuzzing\n\n"
+                f"`.venv/bin/python benchmarks/fuzz_decoders.py --inputs {args.inputs} "
+                f"--seed {args.seed} --write-docs` (half random byte strings, half "
+                "mutated windows of valid streams; 0-3 split points each; every 50th also "
+                "compared with a whole decode):\n\n"
+                "| decoder | inputs | failures | time |\n|---|---|---|---|\n"
+                + "\n".join(lines) + "\n\nNo crash: the run finished (a segfault would "
+                "have aborted it).\n")
+        text = DOC.read_text() if DOC.exists() else "# Event file formats\n"
+        pat = re.compile(r"^## Fuzzing\n.*?(?=^## |\Z)", re.S | re.M)
+        text = pat.sub(body + "\n", text) if pat.search(text) else text.rstrip() + "\n\n" + body
+        DOC.write_text(text.rstrip() + "\n")
+    print(f"total failures: {total_fail}")
+    return 1 if total_fail else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
