@@ -166,7 +166,6 @@ def main(argv=None) -> int:
     ap.add_argument("--write-docs", action="store_true",
                     help="record the result in docs/formats.md (section 'Fuzzing')")
     args = ap.parse_args(argv)
-    faulthandler.enable()
     rng = np.random.default_rng(args.seed)
     base = seeds(rng)
     names = args.only.split(",") if args.only else list(DECODERS)
@@ -202,4 +201,5 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
+    faulthandler.enable()      # a segfault prints where it happened
     sys.exit(main())
