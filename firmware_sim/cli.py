@@ -49,7 +49,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--realtime", action="store_true",
                     help="simulated camera releases events at their timestamps (default)")
     sp.add_argument("--max-speed", action="store_true",
-                    help="simulated camera serves data as fast as it is read")
+                    help="simulated camera serves data as fast as the loop takes it "
+                         "(lossless: the reader waits for a free buffer instead of dropping)")
     r.add_argument("--faults", default="", help="comma-separated fault names to inject")
     r.add_argument("--seconds", type=float, help="duration (default: the scene's / file's)")
     r.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
@@ -180,7 +181,7 @@ def run(args) -> int:
     model = args.model or args.preset or default_model or "face26"
     engine = FirmwareLoop(open_camera, model=model, params=args.params,
                           telemetry_period_us=args.telemetry_us, nbuf=args.buffers,
-                          record=bool(args.record))
+                          record=bool(args.record), lossless=cam is not None and args.max_speed)
     stop = threading.Event()
     link_thread, port = start_link(args, engine, stop)
     engine.start()

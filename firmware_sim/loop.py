@@ -50,7 +50,7 @@ def param_error_code(e: Exception) -> str:
 class FirmwareLoop:
     def __init__(self, open_camera, model="face26", params=None, telemetry_period_us: int = 1000,
                  nbuf: int = 64, piece_bytes: int = 16384, telemetry_queue: int = 4096,
-                 transfer_bytes: int | None = None,
+                 transfer_bytes: int | None = None, lossless: bool = False,
                  record: bool = False, width: int = 304, height: int = 240):
         if telemetry_period_us <= 0:
             raise ValueError(f"telemetry_period_us must be positive, got {telemetry_period_us}")
@@ -59,7 +59,7 @@ class FirmwareLoop:
         self.kernel = Kernel(self.model, self.params)
         self.fused = Fused(self.kernel, telemetry_period_us, 512)
         self.period = int(telemetry_period_us)
-        self.reader = Reader(open_camera, nbuf=nbuf,
+        self.reader = Reader(open_camera, nbuf=nbuf, shed=not lossless,
                              **({"transfer_bytes": transfer_bytes} if transfer_bytes else {}))
         self.piece = int(piece_bytes)
         self.width, self.height = width, height

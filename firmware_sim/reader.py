@@ -4,7 +4,8 @@
   each bulk read goes straight into a free buffer (``array('B')``, no copy) and the filled
   buffer is queued for the processing thread, which hands it back with :meth:`release`.
 * Load shedding: if no buffer is free, the oldest queued transfer is dropped whole and
-  counted (like a sensor's event-rate controller); the reader never waits for the consumer.
+  counted (like a sensor's event-rate controller); the reader never waits for the consumer
+  (except in the lossless mode used to replay a simulated camera at maximum speed).
   The consumer is told a gap happened (``get`` returns ``gap=True``) so the decoder waits
   for a fresh time base instead of stamping events with a stale one.
 * One thread owns the device: control requests from other threads are queued with
@@ -29,9 +30,11 @@ BACKOFF_S = (0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
 
 class Reader:
     def __init__(self, open_camera, nbuf: int = 16, transfer_bytes: int = camusb.TRANSFER_BYTES,
-                 timeout_ms: int = camusb.READ_TIMEOUT_MS):
+                 timeout_ms: int = camusb.READ_TIMEOUT_MS, shed: bool = True):
         """``open_camera()`` returns a started :class:`firmware_sim.usb.Camera` (called again
-        after a disconnect)."""
+        after a disconnect).  ``shed=False`` (a simulated camera at max speed only: a real
+        camera cannot be paused) waits for a free buffer instead of dropping."""
+        self.shed = shed
         if nbuf < 3:
             raise ValueError(f"the buffer pool needs at least 3 buffers, got {nbuf}")
         self.open_camera = open_camera
@@ -88,6 +91,8 @@ class Reader:
     def release(self, idx: int) -> None:
         with self.cond:
             self.free.append(idx)
+            if not self.shed:
+                self.cond.notify_all()
 
     def queue_depth(self) -> int:
         return len(self.filled)
@@ -109,8 +114,12 @@ class Reader:
         return box.get("result")
 
     # ---- the reader thread ---------------------------------------------------------------
-    def _take_buffer(self) -> int:
+    def _take_buffer(self) -> int | None:
         with self.cond:
+            if not self.shed:                    # lossless (max-speed replay): wait
+                while not self.free and not self.stop_event.is_set():
+                    self.cond.wait(0.05)
+                return self.free.popleft() if self.free else None
             if self.free:
                 return self.free.popleft()
             idx, n, _ = self.filled.popleft()    # shed load: drop the oldest transfer
@@ -174,6 +183,8 @@ class Reader:
                 if self.cmds:
                     self._run_commands()
                 idx = self._take_buffer()
+                if idx is None:
+                    continue
                 buf = self.pool[idx]
                 try:
                     n = self.cam.read_into(buf, self.timeout_ms)

@@ -32,6 +32,7 @@ def make_engine(ev, realtime=False, faults=None, model="face26", nbuf=256, **kw)
     # many small buffers: a shared CI machine may starve the processing thread for a while
     cam = SimCamera(events_source(ev, 2048), realtime=realtime, faults=faults)
     be = SimBackend(cam)
+    kw.setdefault("lossless", not realtime)
     eng = FirmwareLoop(lambda: camusb.Camera.open("ccam_atis", backend=be), model,
                        telemetry_period_us=SAMPLE, nbuf=nbuf, transfer_bytes=16384, **kw)
     return cam, eng
