@@ -87,9 +87,9 @@ def parse_biases(items) -> dict:
     return out
 
 
-def make_source(args):
-    """-> (open_camera callable, SimCamera or None, default model)."""
-    biases = parse_biases(args.bias)
+def make_source(args, biases: dict):
+    """-> (open_camera callable, SimCamera or None, default model).  ``biases`` is read at
+    every (re)connection, so the engine's updates survive a reconnect."""
     faults = _faults.Faults(_faults.parse(args.faults), seed=args.seed)
     kind, _, arg = args.source.partition(":")
     if kind == "usb":
@@ -177,11 +177,16 @@ def start_link(args, engine, stop):
 
 def run(args) -> int:
     from .loop import FirmwareLoop
-    open_camera, cam, default_model = make_source(args)
+    # three Python threads (reader, processing, link) share the GIL: hand it over every
+    # 0.5 ms instead of 5 ms so the processing thread is never starved for long
+    sys.setswitchinterval(0.0005)
+    biases = parse_biases(args.bias)
+    open_camera, cam, default_model = make_source(args, biases)
     model = args.model or args.preset or default_model or "face26"
     engine = FirmwareLoop(open_camera, model=model, params=args.params,
                           telemetry_period_us=args.telemetry_us, nbuf=args.buffers,
-                          record=bool(args.record), lossless=cam is not None and args.max_speed)
+                          record=bool(args.record), lossless=cam is not None and args.max_speed,
+                          biases=biases)
     stop = threading.Event()
     link_thread, port = start_link(args, engine, stop)
     engine.start()
@@ -204,6 +209,8 @@ def run(args) -> int:
                     quiet = 0
             elif args.seconds is not None and now - t0 >= args.seconds:
                 break
+        if link_thread is not None:
+            _wait_telemetry_sent(engine, link_thread)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
     finally:
@@ -221,6 +228,17 @@ def run(args) -> int:
     if s["state"] not in ("stopped", "streaming"):
         return 1
     return 0
+
+
+def _wait_telemetry_sent(engine, link_thread, timeout: float = 30.0) -> None:
+    """End of stream with a host link: let the link forward what the engine still holds
+    (it holds snapshots until a host says HELLO) before shutting down."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end and link_thread.is_alive():
+        if engine.tele_rows == 0 and not engine.applied:
+            time.sleep(0.2)                    # the link's last writes
+            return
+        time.sleep(0.02)
 
 
 def _caught_up(engine) -> bool:

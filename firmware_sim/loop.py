@@ -29,12 +29,14 @@ from springtrack.track import CSV_HEADER, Track
 from springtrack.tracker import resolve_params
 
 from ._fused import SNAP_FIELDS, Fused
+from . import usb as camusb
 from .engine import UpdateRejected
 from .reader import Reader
 
 FIRMWARE = "firmware-sim 0.1 (fused CCam loop)"
 TRACKER_DTYPE = np.dtype([("x", "f8"), ("y", "f8"), ("sxx", "f8"), ("sxy", "f8"), ("syy", "f8"),
                           ("activity", "f8"), ("active", "?"), ("sensitive", "?")])
+BIAS_PREFIX = "bias."     # camera biases are parameters "bias.<name>" on the host link
 WINDOW_US = 10_000        # processing time is reported per 10 ms of events (paper Figs. 22-23)
 
 
@@ -51,6 +53,7 @@ class FirmwareLoop:
     def __init__(self, open_camera, model="face26", params=None, telemetry_period_us: int = 1000,
                  nbuf: int = 64, piece_bytes: int = 16384, telemetry_queue: int = 4096,
                  transfer_bytes: int | None = None, lossless: bool = False,
+                 biases: dict | None = None,
                  record: bool = False, width: int = 304, height: int = 240):
         if telemetry_period_us <= 0:
             raise ValueError(f"telemetry_period_us must be positive, got {telemetry_period_us}")
@@ -63,6 +66,10 @@ class FirmwareLoop:
                              **({"transfer_bytes": transfer_bytes} if transfer_bytes else {}))
         self.piece = int(piece_bytes)
         self.width, self.height = width, height
+        # shared with open_camera (the CLI passes the same dict) so a reconnect reloads the
+        # biases the host set last
+        self.biases = biases if biases is not None else {}
+        self.biases.update(camusb.check_biases(self.biases))
         self.lock = threading.Lock()
         self.generation = 1                 # generation in effect
         self.gen_next = 1                   # last generation handed out
@@ -140,6 +147,8 @@ class FirmwareLoop:
         return gen
 
     def set_param(self, name: str, value) -> int:
+        if name.startswith(BIAS_PREFIX):
+            return self._set_bias(name[len(BIAS_PREFIX):], value)
         with self.lock:
             base = self.pending_model[1] if self.pending_model else self.params
             merged = {k: v for k, (v, _) in self.pending_params.items()}
@@ -157,7 +166,35 @@ class FirmwareLoop:
 
     def get_params(self) -> dict:
         with self.lock:
-            return self.params.as_dict()
+            out = self.params.as_dict()
+        out.update({BIAS_PREFIX + k: v for k, v in self.biases.items()})
+        return out
+
+    def _set_bias(self, name: str, value) -> int:
+        """A camera bias: validated here, sent by the reader thread (which owns the device)
+        between two bulk reads; effective from the next event read."""
+        if name not in camusb.BIASES:
+            self.c["updates_rejected"] += 1
+            raise UpdateRejected("unknown_name", f"unknown bias {name!r}; known: "
+                                                 f"{', '.join(camusb.BIASES)}")
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        if isinstance(value, bool) or not isinstance(value, int):
+            self.c["updates_rejected"] += 1
+            raise UpdateRejected("wrong_type", f"bias {name} must be an integer 0..255, got {value!r}")
+        if not 0 <= value <= 255:
+            self.c["updates_rejected"] += 1
+            raise UpdateRejected("out_of_range", f"bias {name}={value} out of range [0, 255]")
+        try:
+            self.reader.call(lambda cam: cam.load_biases({name: value}))
+        except (TimeoutError, RuntimeError, OSError) as e:
+            raise UpdateRejected("busy", f"bias {name}: camera not reachable: {e}") from None
+        with self.lock:
+            self.biases[name] = value
+            self.gen_next += 1
+            gen = self.gen_next
+        self.applied.append((gen, int(max(self.fused.last_t, 0))))
+        return gen
 
     def _apply_if_idle(self) -> None:
         if not self.running:

@@ -193,3 +193,31 @@ def test_cli_rejects_bad_arguments_with_a_clear_error():
                         "sim:face_occlusion", "--faults", "meteor"],
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "unknown fault(s) meteor" in r.stderr
+
+
+def test_camera_biases_are_host_parameters_sent_by_the_reader_thread(face):
+    ev = face[:20000]
+    biases = {}
+    cam = SimCamera(events_source(ev, 2048), realtime=True)
+    be = SimBackend(cam)
+    eng = FirmwareLoop(lambda: camusb.Camera.open("ccam_atis", backend=be, biases=biases),
+                       "face26", biases=biases)
+    assert eng.get_params()["bias.on_event_threshold"] == 51          # the driver default
+    eng.start()
+    try:
+        while eng.reader.cam is None:
+            time.sleep(0.005)
+        gen = eng.set_param("bias.on_event_threshold", 70)
+        assert cam.biases[0x61][0x07] == cam.biases[0x62][0x07] == (70, 0x7900)
+        assert cam.registers[0x00A] == 0x40                              # flushed again
+        assert eng.get_params()["bias.on_event_threshold"] == 70 and gen == 2
+        assert eng.reader.counts["commands"] == 1
+        for name, value, code in (("bias.nope", 1, "unknown_name"),
+                                  ("bias.follower", 300, "out_of_range"),
+                                  ("bias.follower", "x", "wrong_type")):
+            with pytest.raises(UpdateRejected) as e:
+                eng.set_param(name, value)
+            assert e.value.code == code
+        assert eng.get_params()["bias.follower"] == 239
+    finally:
+        eng.stop()
