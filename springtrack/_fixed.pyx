@@ -31,6 +31,7 @@ cdef extern from "csrc/fixed_step.h" nogil:
         FX_EXP2_N
         FX_CORDIC_N
         FX_ATAN_BITS
+        FX_SQRT_N
     ctypedef struct fx_state:
         int32_t n, nc, width, height
         uint32_t a1, a2, cov_gain, energy_gain
@@ -77,6 +78,7 @@ cdef extern from "csrc/fixed_step.h" nogil:
         uint32_t exp2_lut[FX_EXP2_N + 1]
         uint32_t atan_lut[FX_CORDIC_N]
         uint32_t atan_tab[(1 << FX_ATAN_BITS) + 2]
+        uint32_t sqrt_tab[FX_SQRT_N]
         int64_t cordic_x0
         int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates, n_reindex
         int64_t sat_position, sat_activity, sat_energy, sat_inverse
@@ -89,7 +91,7 @@ cdef extern from "csrc/fixed_step.h" nogil:
     int64_t fx_activity(const fx_state* s, int i, int64_t t)
     int fx_check_index(const fx_state* s)
     int64_t fx_mulsh(int64_t v, uint32_t g, int sh)
-    uint64_t fx_isqrt64(uint64_t v)
+    uint64_t fx_isqrt64(const fx_state* s, uint64_t v)
     uint32_t fx_exp2neg(const fx_state* s, int64_t w)
     uint32_t fx_atan2(const fx_state* s, int64_t y, int64_t x)
     void fx_cossin(const fx_state* s, int64_t angle, int64_t* c, int64_t* sn)
@@ -198,6 +200,8 @@ cdef class FixedKernel:
             s.atan_lut[k] = v
         for k, v in enumerate(_q.atan_unit_table()):
             s.atan_tab[k] = v
+        for k, v in enumerate(_q.sqrt_table()):
+            s.sqrt_tab[k] = v
         s.cordic_x0 = _q.cordic_x0()
         for i in range(n):
             s.mx[i] = mq["mx"][i]
@@ -391,7 +395,7 @@ cdef class FixedKernel:
         return fx_mulsh(v, g, sh)
 
     def isqrt(self, unsigned long long v):
-        return fx_isqrt64(v)
+        return fx_isqrt64(&self.st, v)
 
     def exp2neg(self, long long w):
         return fx_exp2neg(&self.st, w)

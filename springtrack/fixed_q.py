@@ -58,6 +58,13 @@ def atan_unit_table() -> list[int]:
     return [int(round(math.atan(min(k, n) / n) / (2 * math.pi) * 2 ** 32)) for k in range(n + 2)]
 
 
+def sqrt_table() -> list[int]:
+    """floor(sqrt(j 2^54) / 2) for j = 256..1024: the integer sqrt's seed (Q.-1 so that the
+    last entry, 2^31, fits uint32)."""
+    import math as _m
+    return [_m.isqrt(j << 54) // 2 for j in range(256, 1025)]
+
+
 def cordic_x0() -> int:
     """1 / prod(sqrt(1 + 2^-2i)), Q.60: the start vector that makes CORDIC's gain 1."""
     k = 1.0

@@ -43,6 +43,12 @@ static inline int64_t rshr(int64_t v, int sh)
     return (v + ((int64_t)1 << (sh - 1))) >> sh;
 }
 
+/* mulsh for |v| < 2^32 (the product v g < 2^63 needs no split) */
+static inline int64_t mul32sh(int64_t v, uint32_t g, int sh)
+{
+    return rshr(v * (int64_t)g, sh);
+}
+
 /* n / d rounded half away from zero; d > 0 */
 static inline int64_t div_round(int64_t n, int64_t d)
 {
@@ -54,23 +60,36 @@ static inline int bitlen64(uint64_t v)
     return v ? 64 - __builtin_clzll(v) : 0;
 }
 
-/* floor(sqrt(v)), bit by bit (rare paths only: reindex, covariance clamp, springs) */
-uint64_t fx_isqrt64(uint64_t v)
+/* floor(sqrt(v)): normalise v to m = v 4^k in [2^62, 2^64), seed from the table of
+   sqrt(j 2^54) / 2 with linear interpolation (relative error < 5e-7), one Newton step
+   (error < 2^-40 relative), then an exact +-1 fix.  One division. */
+static inline uint64_t isqrt64(const fx_state *s, uint64_t v)
 {
-    uint64_t r = 0, bit;
-    if (v == 0)
-        return 0;
-    bit = (uint64_t)1 << ((bitlen64(v) - 1) & ~1);      /* highest power of 4 <= v */
-    while (bit) {
-        if (v >= r + bit) {
-            v -= r + bit;
-            r = (r >> 1) + bit;
-        } else {
-            r >>= 1;
-        }
-        bit >>= 2;
-    }
+    uint64_t m, x, r, j, f, t0, t1;
+    int k;
+    if (v < 2)
+        return v;
+    k = (64 - bitlen64(v)) >> 1;                          /* v << 2k keeps v < 2^64 */
+    m = v << (2 * k);
+    j = (m >> FX_SQRT_SHIFT) - FX_SQRT_J0;                /* [0, 768) */
+    f = (m >> (FX_SQRT_SHIFT - 24)) & 0xffffffu;          /* 24 bits of the fraction */
+    t0 = s->sqrt_tab[j];
+    t1 = s->sqrt_tab[j + 1];
+    x = 2 * (t0 + (((t1 - t0) * f) >> 24)) + 1;           /* ~ sqrt(m), in [2^31, 2^32] */
+    x = (x + m / x) >> 1;                                 /* m / x < 2^33 */
+    r = x >> k;
+    if (r > 0xffffffffu)
+        r = 0xffffffffu;
+    while (r * r > v)
+        r--;
+    while (r < 0xffffffffu && (r + 1) * (r + 1) <= v)
+        r++;
     return r;
+}
+
+uint64_t fx_isqrt64(const fx_state *s, uint64_t v)
+{
+    return isqrt64(s, v);
 }
 
 static inline int32_t sat_pos(fx_state *s, int64_t v)
@@ -137,7 +156,7 @@ static inline int64_t atan_unit(const fx_state *s, int64_t t)
 
 /* atan2(y, x) as a binary angle (2^32 = 2 pi), |x|, |y| < 2^32: octant reduction, one
    division, table.  atan2(0, 0) = 0 as in C. */
-uint32_t fx_atan2(const fx_state *s, int64_t y, int64_t x)
+static inline uint32_t atan2_bam(const fx_state *s, int64_t y, int64_t x)
 {
     int64_t ax = x < 0 ? -x : x, ay = y < 0 ? -y : y, a;
     if (ax == 0 && ay == 0)
@@ -154,7 +173,7 @@ uint32_t fx_atan2(const fx_state *s, int64_t y, int64_t x)
 }
 
 /* cos and sin of a binary angle, Q.30, CORDIC in rotation mode (Q.60 inside) */
-void fx_cossin(const fx_state *s, int64_t angle, int64_t *c, int64_t *sn)
+static inline void cossin(const fx_state *s, int64_t angle, int64_t *c, int64_t *sn)
 {
     uint32_t u = (uint32_t)((uint64_t)angle & 0xffffffffu);
     int64_t z = u >= 0x80000000u ? (int64_t)u - ((int64_t)1 << 32) : (int64_t)u;  /* [-pi, pi) */
@@ -197,6 +216,16 @@ void fx_cossin(const fx_state *s, int64_t angle, int64_t *c, int64_t *sn)
     *sn = neg ? -y : y;
 }
 
+uint32_t fx_atan2(const fx_state *s, int64_t y, int64_t x)
+{
+    return atan2_bam(s, y, x);
+}
+
+void fx_cossin(const fx_state *s, int64_t angle, int64_t *c, int64_t *sn)
+{
+    cossin(s, angle, c, sn);
+}
+
 /* ---- spatial index ------------------------------------------------------------------- */
 static void index_set(fx_state *s, int i, int on)
 {
@@ -221,8 +250,8 @@ static inline int32_t cell_of(int64_t v, int32_t gmax)
    FX_INDEX_MARGIN. */
 void fx_reindex(fx_state *s, int i)
 {
-    int64_t hx = (int64_t)fx_isqrt64((uint64_t)s->gsxx[i]) + 1 + FX_INDEX_MARGIN;  /* Q.16 */
-    int64_t hy = (int64_t)fx_isqrt64((uint64_t)s->gsyy[i]) + 1 + FX_INDEX_MARGIN;
+    int64_t hx = (int64_t)isqrt64(s, (uint64_t)s->gsxx[i]) + 1 + FX_INDEX_MARGIN;  /* Q.16 */
+    int64_t hy = (int64_t)isqrt64(s, (uint64_t)s->gsyy[i]) + 1 + FX_INDEX_MARGIN;
     s->bx_lo[i] = s->mx[i] - hx;
     s->bx_hi[i] = s->mx[i] + hx;
     s->by_lo[i] = s->my[i] - hy;
@@ -308,8 +337,8 @@ void fx_refresh(fx_state *s, int i)
     b = sxy >> sh;
     p = a * c;
     if (b * b > mulsh(p, RHO2_Q30, 30)) {              /* |rho| > 0.99: clamp */
-        int64_t sx = (int64_t)fx_isqrt64((uint64_t)sxx);  /* Q.16 px */
-        int64_t sy = (int64_t)fx_isqrt64((uint64_t)syy);
+        int64_t sx = (int64_t)isqrt64(s, (uint64_t)sxx);  /* Q.16 px */
+        int64_t sy = (int64_t)isqrt64(s, (uint64_t)syy);
         int64_t lim = mulsh(sx * sy, RHO_Q30, 30);     /* 0.99 sqrt(sxx syy), Q.32 */
         sxy = sxy < 0 ? -lim : lim;
         b = sxy >> sh;
@@ -445,7 +474,7 @@ void fx_springs(fx_state *s)
             uint32_t th;
             i = s->ca[k];
             j = s->cb[k];
-            th = fx_atan2(s, (int64_t)s->my[j] - s->my[i], (int64_t)s->mx[j] - s->mx[i]);
+            th = atan2_bam(s, (int64_t)s->my[j] - s->my[i], (int64_t)s->mx[j] - s->mx[i]);
             th -= s->th0[k];                              /* mod 2^32 = mod 2 pi */
             dth_raw[k] = th >= 0x80000000u ? (int64_t)th - ((int64_t)1 << 32) : (int64_t)th;
             mean_dth += dth_raw[k];
@@ -459,7 +488,7 @@ void fx_springs(fx_state *s)
         j = s->cb[k];
         rx = (int64_t)s->mx[j] - s->mx[i];                /* Q.16, |.| < 2^30 */
         ry = (int64_t)s->my[j] - s->my[i];
-        l = (int64_t)fx_isqrt64((uint64_t)(rx * rx + ry * ry));   /* Q.16 */
+        l = (int64_t)isqrt64(s, (uint64_t)(rx * rx + ry * ry));   /* Q.16 */
         dl = l - s->l0[k];                                /* eq. (10) */
         s->energy[0][k] = mulsh(dl * dl, s->stiff[k], 31);     /* eq. (12): a dl^2 / 2 */
         ex = clamp_offset(s, rx - s->dx0[k]);             /* eq. (18) */
@@ -467,41 +496,42 @@ void fx_springs(fx_state *s)
         s->energy[2][k] = mulsh(ex * ex + ey * ey, s->stiff[k], 31);   /* eq. (20) */
         if (kind & 1) {                                   /* eq. (11): a dl (r / l) / m */
             int64_t qx, qy;
-            if (l > 0) {
-                qx = div_round(dl * rx, l);
-                qy = div_round(dl * ry, l);
+            if (l > 0) {                                  /* r / l in Q.30, one division */
+                int64_t inv = ((int64_t)1 << 60) / l;     /* 2^60 / l, >= 2^29 */
+                qx = rshr(dl * rshr(rx * inv, 30), 30);   /* rx inv <= 2^60 (|rx| <= l) */
+                qy = rshr(dl * rshr(ry * inv, 30), 30);
             } else {
                 qx = rshr(dl * s->c0x[k], 30);
                 qy = rshr(dl * s->c0y[k], 30);
             }
-            ddx[i] += mulsh(qx, s->kia[k], 24);
-            ddy[i] += mulsh(qy, s->kia[k], 24);
-            ddx[j] -= mulsh(qx, s->kib[k], 24);
-            ddy[j] -= mulsh(qy, s->kib[k], 24);
+            ddx[i] += mul32sh(qx, s->kia[k], 24);
+            ddy[i] += mul32sh(qy, s->kia[k], 24);
+            ddx[j] -= mul32sh(qx, s->kib[k], 24);
+            ddy[j] -= mul32sh(qy, s->kib[k], 24);
         }
         if (s->need_torsion) {
             int64_t dth = dth_raw[k] - mean_dth;          /* eq. (15), binary angle */
-            int64_t dq = mulsh(dth, PI_Q28, 31);       /* radians, Q.28 */
+            int64_t dq = mul32sh(dth, PI_Q28, 31);       /* radians, Q.28 */
             s->energy[1][k] = mulsh(dq * dq, s->stiff[k], 55);  /* eq. (17) */
             if (kind & 2) {                               /* eq. (16): rotate r by a dth */
                 int64_t c, sn, ux, uy;
-                fx_cossin(s, mulsh(dth, s->stiff[k], 30), &c, &sn);
+                cossin(s, mul32sh(dth, s->stiff[k], 30), &c, &sn);
                 c -= ONE_Q30;
                 ux = rshr(rx * c - ry * sn, 30);          /* l (cos(th + a dth) - cos th) */
                 uy = rshr(rx * sn + ry * c, 30);
-                ddx[i] += mulsh(ux, s->invm[i], 24);
-                ddy[i] += mulsh(uy, s->invm[i], 24);
-                ddx[j] -= mulsh(ux, s->invm[j], 24);
-                ddy[j] -= mulsh(uy, s->invm[j], 24);
+                ddx[i] += mul32sh(ux, s->invm[i], 24);
+                ddy[i] += mul32sh(uy, s->invm[i], 24);
+                ddx[j] -= mul32sh(ux, s->invm[j], 24);
+                ddy[j] -= mul32sh(uy, s->invm[j], 24);
             }
         } else {
             s->energy[1][k] = 0;
         }
         if (kind & 4) {                                   /* eq. (19) */
-            ddx[i] += mulsh(ex, s->kia[k], 24);
-            ddy[i] += mulsh(ey, s->kia[k], 24);
-            ddx[j] -= mulsh(ex, s->kib[k], 24);
-            ddy[j] -= mulsh(ey, s->kib[k], 24);
+            ddx[i] += mul32sh(ex, s->kia[k], 24);
+            ddy[i] += mul32sh(ey, s->kia[k], 24);
+            ddx[j] -= mul32sh(ex, s->kib[k], 24);
+            ddy[j] -= mul32sh(ey, s->kib[k], 24);
         }
     }
     for (i = 0; i < n; i++) {

@@ -35,6 +35,9 @@
 #define FX_EXP2_N (1 << FX_EXP2_BITS)
 #define FX_CORDIC_N 30                      /* CORDIC iterations */
 #define FX_ATAN_BITS 10                     /* atan table: 1024 intervals + 2 */
+#define FX_SQRT_SHIFT 54                    /* sqrt table: sqrt(j 2^54) / 2, j = 256..1024 */
+#define FX_SQRT_J0 256
+#define FX_SQRT_N 769
 #define FX_INDEX_MARGIN ((int64_t)3 << 16)  /* px added around an indexed gate box */
 
 enum { FX_NO_TRACKER = -1, FX_BACK_IN_TIME = -2, FX_OUT_OF_SENSOR = -3 };
@@ -86,6 +89,7 @@ typedef struct {
     uint32_t exp2_lut[FX_EXP2_N + 1];         /* 2^(-k / FX_EXP2_N), Q.30 */
     uint32_t atan_lut[FX_CORDIC_N];           /* atan(2^-i), binary angle (CORDIC) */
     uint32_t atan_tab[(1 << FX_ATAN_BITS) + 2];   /* atan(k / 1024), binary angle */
+    uint32_t sqrt_tab[FX_SQRT_N];             /* floor(sqrt((j + 256) 2^54) / 2) */
     int64_t cordic_x0;                        /* 1 / CORDIC gain, Q.60 */
     /* counters */
     int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates, n_reindex;
@@ -102,7 +106,7 @@ int64_t fx_activity(const fx_state *s, int i, int64_t t);
 int fx_check_index(const fx_state *s);
 /* building blocks, exported for tests */
 int64_t fx_mulsh(int64_t v, uint32_t g, int sh);
-uint64_t fx_isqrt64(uint64_t v);
+uint64_t fx_isqrt64(const fx_state *s, uint64_t v);
 uint32_t fx_exp2neg(const fx_state *s, int64_t w);
 uint32_t fx_atan2(const fx_state *s, int64_t y, int64_t x);
 void fx_cossin(const fx_state *s, int64_t angle, int64_t *c, int64_t *sn);
