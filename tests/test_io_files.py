@@ -171,3 +171,11 @@ def test_long_header_and_empty_payload(tmp_path, events):
     (tmp_path / "hdr.raw").write_bytes(b"% evt 3.0\n% end\n")
     r = sio.open(tmp_path / "hdr.raw")
     assert r.format == "evt3" and len(r.read()) == 0 and list(r.chunks()) == []
+
+
+def test_size_hint(tmp_path, events):
+    sio.write(tmp_path / "a.raw", events, 304, 240)
+    hint = sio.open(tmp_path / "a.raw").size_hint
+    assert len(events) <= hint <= 2 * len(events)       # one TIME_HIGH word per ~64 us
+    sio.write(tmp_path / "a.npy", events)
+    assert sio.open(tmp_path / "a.npy").size_hint == len(events)

@@ -60,6 +60,15 @@ class Reader:
     def __iter__(self):
         return self.chunks()
 
+    # typical payload bytes per event, for a progress estimate (EVT 3.0: the Gen4.1 sample)
+    BYTES_PER_EVENT = {"evt2": 4.0, "evt3": 2.8, "es": 5.0, "dat": 8.0, "ccam": 4.0}
+
+    @property
+    def size_hint(self) -> int:
+        """Estimated number of events (exact for npy and CSV), for progress display."""
+        payload = max(0, os.path.getsize(self.path) - self.offset)
+        return int(payload / self.BYTES_PER_EVENT[self.format])
+
     def __enter__(self):
         return self
 
@@ -144,6 +153,10 @@ class ArrayReader(Reader):
 
     def read(self) -> np.ndarray:
         return self._load()
+
+    @property
+    def size_hint(self) -> int:
+        return len(self._load())
 
 
 def _load_npy(path) -> np.ndarray:
