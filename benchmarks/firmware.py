@@ -1,0 +1,175 @@
+"""Firmware loop benchmarks (issue 6, item 7); writes the "Firmware loop" section of
+docs/benchmarks.md.
+
+Run: .venv/bin/python benchmarks/firmware.py [--seconds S] [--realtime-seconds S] [--no-write]
+
+1. fused decode+track from in-memory 128 KiB USB buffers (CCam words) for face26 on the
+   face_occlusion scene, telemetry every 1 ms, best of 3; beside it the kernel alone
+   (``Tracker.run`` on decoded events) and the decoder alone, to show where time goes;
+2. the simulated camera in real time (face_occlusion) through pyusb -> reader -> fused loop:
+   dropped transfers, and the event-time-to-telemetry latency of every snapshot (wall time
+   the snapshot left the fused loop minus the wall time its sample time occurred at the
+   device clock);
+3. overload: a noise burst at ~10x the measured fused rate for 0.2 s of event time in a
+   real-time run: memory stays bounded by the buffer pool, drops are counted, tracking
+   recovers after the burst.
+"""
+from __future__ import annotations
+
+import argparse
+import resource
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from springtrack._kernel import Kernel  # noqa: E402
+from springtrack.io.ccam import CCamDecoder, encode  # noqa: E402
+from springtrack.tracker import Tracker  # noqa: E402
+from firmware_sim import usb as camusb  # noqa: E402
+from firmware_sim._fused import Fused  # noqa: E402
+from firmware_sim.faults import Faults  # noqa: E402
+from firmware_sim.loop import FirmwareLoop  # noqa: E402
+from firmware_sim.sensor import simulate_all  # noqa: E402
+from firmware_sim.simusb import SimBackend, SimCamera, events_source  # noqa: E402
+
+from _report import machine, write_section  # noqa: E402
+
+TRANSFER = camusb.TRANSFER_BYTES
+
+
+def bench_fused(ev, repeats=3):
+    words = encode(ev)
+    bufs = [words[i:i + TRANSFER] for i in range(0, len(words), TRANSFER)]
+    tr = Tracker("face26")
+    best_fused = best_kernel = best_dec = float("inf")
+    for _ in range(repeats):
+        f = Fused(Kernel(tr.model, tr.params), 1000, 4096)
+        t0 = time.perf_counter()
+        for b in bufs:
+            f.feed(b)
+        best_fused = min(best_fused, time.perf_counter() - t0)
+        assert f.tracked == len(ev)
+        t0 = time.perf_counter()
+        Tracker("face26").run(ev, 1000)
+        best_kernel = min(best_kernel, time.perf_counter() - t0)
+        d = CCamDecoder()
+        t0 = time.perf_counter()
+        for b in bufs:
+            d.decode(b)
+        best_dec = min(best_dec, time.perf_counter() - t0)
+    n = len(ev)
+    return n / best_fused, n / best_kernel, n / best_dec, len(bufs)
+
+
+def wait_end(cam, eng, timeout):
+    t0 = time.monotonic()
+    quiet = 0
+    while quiet < 3 and time.monotonic() - t0 < timeout:
+        time.sleep(0.02)
+        rc = eng.reader.counts
+        done = (cam.finished and eng.reader.queue_depth() == 0
+                and eng.fused.bytes_in == rc["bytes"] - rc["bytes_dropped"])
+        quiet = quiet + 1 if done else 0
+    eng.stop()
+
+
+def bench_realtime(seconds):
+    # the scene is simulated beforehand: the simulator itself is not real-time on a small
+    # machine, and a late device would be charged to the loop's latency
+    sys.setswitchinterval(0.0005)
+    ev, _ = simulate_all("face_occlusion", seconds, seed=0)
+    cam = SimCamera(events_source(ev, 512), realtime=True)
+    be = SimBackend(cam)
+    eng = FirmwareLoop(lambda: camusb.Camera.open("ccam_atis", backend=be), "face26")
+    eng.snap_wall = __import__("collections").deque()
+    eng.start()
+    wait_end(cam, eng, seconds + 30)
+    s = eng.stats()
+    lat = np.array([w - cam.wall_of(t) for t, w in eng.snap_wall]) * 1e3
+    lat = lat[len(lat) // 20:]             # skip the first 5 %: the device clock's start-up
+    return s, lat, s["events_tracked"] / seconds
+
+
+def bench_overload(ev, fused_rate):
+    sys.setswitchinterval(0.0005)
+    rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    rate = 10 * fused_rate
+    faults = Faults(["burst"], burst_at_us=500_000, burst_us=200_000, burst_rate=rate)
+    cam = SimCamera(events_source(ev, 2048), realtime=True, faults=faults)
+    be = SimBackend(cam)
+    eng = FirmwareLoop(lambda: camusb.Camera.open("ccam_atis", backend=be), "face26",
+                       record=True)
+    eng.start()
+    wait_end(cam, eng, 120)
+    s = eng.stats()
+    rss1 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    ts = np.concatenate([b["t"] for _, b in eng.recorded])
+    after = ts[ts >= 700_000]
+    t_end = int(ev["t"][-1])
+    return s, faults.injected, rate, (rss1 - rss0) / 1024, after, t_end, len(eng.reader.pool)
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seconds", type=float, default=5.0, help="scene seconds for (1) and (3)")
+    ap.add_argument("--realtime-seconds", type=float, default=10.0)
+    ap.add_argument("--no-write", action="store_true")
+    args = ap.parse_args()
+    ev, _ = simulate_all("face_occlusion", args.seconds, seed=0)
+    fused, kernel, dec, nbuf = bench_fused(ev)
+    print(f"fused {fused / 1e6:.2f} M ev/s, kernel alone {kernel / 1e6:.2f}, decode alone "
+          f"{dec / 1e6:.1f} ({len(ev)} events, {nbuf} buffers)")
+    s, lat, rt_rate = bench_realtime(args.realtime_seconds)
+    print(f"realtime: {s['events_tracked']} events ({rt_rate / 1e3:.0f} k ev/s), dropped "
+          f"{s['transfers_dropped']}, latency ms p50 {np.median(lat):.3f} p99 "
+          f"{np.percentile(lat, 99):.3f} max {lat.max():.3f}; {s['transfers']} transfers")
+    ov, inj, rate, drss, after, t_end, pool = bench_overload(ev[ev["t"] < 1_500_000], fused)
+    print(f"overload: burst {inj['burst_events']} events at {rate / 1e6:.0f} M ev/s, dropped "
+          f"{ov['transfers_dropped']} transfers ({ov['bytes_dropped'] / 1e6:.1f} MB), queue hwm "
+          f"{ov['queue_hwm']}/{pool}, max RSS +{drss:.1f} MB, snapshots after the burst "
+          f"{len(after)}, last {after[-1] if len(after) else None}")
+    if args.no_write:
+        return
+    body = f"""
+Machine: {machine()}.  Command: `.venv/bin/python benchmarks/firmware.py --seconds {args.seconds:g} --realtime-seconds {args.realtime_seconds:g}`.
+
+**Fused decode + track** from in-memory 128 KiB USB buffers (CCam words), face26 on
+face_occlusion ({len(ev):,} events, {nbuf} buffers), telemetry every 1 ms, best of 3:
+
+| path | M events/s |
+|---|---|
+| fused CCam decode + kernel (`firmware_sim._fused`) | {fused / 1e6:.2f} |
+| kernel alone on decoded events (`Tracker.run`) | {kernel / 1e6:.2f} |
+| CCam decoder alone (`springtrack.io.ccam`) | {dec / 1e6:.1f} |
+
+Target was >= 25 M events/s; the fused loop runs at the kernel's own speed (decoding
+costs little), so the gap to the target is the kernel's per-event cost on this machine,
+not the USB path.  USB 2.0 high speed carries about 13 M words/s.
+
+**Real time**, simulated camera on face_occlusion (simulated beforehand, served at the
+event timestamps) for {args.realtime_seconds:g} s of scene
+({rt_rate / 1e3:.0f} k events/s) through pyusb -> reader thread -> fused loop:
+{s['events_tracked']:,} events tracked, **{s['transfers_dropped']} dropped transfers**
+({s['transfers']:,} transfers; the simulated controller ends a transfer 250 us after its
+oldest word), queue high-water mark {s['queue_hwm']}.  Event-time-to-telemetry latency
+(wall time a snapshot left the fused loop minus the wall time its sample time occurred on
+the device clock; first 5 % skipped): p50 {np.median(lat):.3f} ms, p99
+{np.percentile(lat, 99):.3f} ms, max {lat.max():.3f} ms.  The latency includes the
+simulated controller's 0.25 ms short-packet delay.
+
+**Overload**: a noise burst of {inj['burst_events']:,} events at {rate / 1e6:.0f} M
+events/s (10x the fused rate above) for 0.2 s of event time, in a real-time run: dropped
+{ov['transfers_dropped']} transfers ({ov['bytes_dropped'] / 1e6:.1f} MB) counted, queue
+high-water mark {ov['queue_hwm']} of a fixed pool of {pool} x 128 KiB buffers, peak RSS
+grew by {drss:.1f} MB over the run, tracking resumed after the burst ({len(after)}
+snapshots after t = 0.7 s, the last at {after[-1] if len(after) else 'none'} us of a
+stream ending at {t_end} us).
+"""
+    write_section("Firmware loop", body)
+
+
+if __name__ == "__main__":
+    main()
