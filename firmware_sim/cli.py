@@ -107,7 +107,7 @@ def make_source(args, biases: dict):
         source = simusb.scene_source(arg, args.seconds, seed=args.seed)
         default_model = scene.initial_model()
     elif kind == "replay":
-        source = simusb.file_source(arg)
+        source = simusb.file_source(arg, stats=args.replay_stats)
         if args.seconds is not None:
             source = _limit_seconds(source, args.seconds)
         default_model = None
@@ -181,6 +181,7 @@ def run(args) -> int:
     # 0.5 ms instead of 5 ms so the processing thread is never starved for long
     sys.setswitchinterval(0.0005)
     biases = parse_biases(args.bias)
+    args.replay_stats = {}
     open_camera, cam, default_model = make_source(args, biases)
     model = args.model or args.preset or default_model or "face26"
     engine = FirmwareLoop(open_camera, model=model, params=args.params,
@@ -224,6 +225,9 @@ def run(args) -> int:
         rows = engine.write_record(args.record)
         print(f"record: {rows} rows -> {args.record}", file=sys.stderr)
     s = engine.stats()
+    if args.replay_stats.get("outside"):
+        print(f"replay: {args.replay_stats['outside']} events outside the 304x240 sensor "
+              f"dropped before encoding", file=sys.stderr)
     print("stats: " + engine.stats_line(), flush=True)
     if s["state"] not in ("stopped", "streaming"):
         return 1

@@ -36,6 +36,7 @@ from . import usb as camusb
 from .faults import Faults
 
 MAX_PACKET = 512
+LOOKAHEAD_US = 20_000        # realtime: scene data generated this far ahead of the clock
 SIM_SERIAL = 0x0ACE
 
 
@@ -245,9 +246,10 @@ class SimCamera:
         is passed (realtime)."""
         queued = sum(len(c.data) - c.pos for c in self.fifo)
         while not self.exhausted:
-            if self.realtime:
+            if self.realtime:          # generate LOOKAHEAD_US ahead: events are never late
                 now_t = self.device_time()
-                if self.fifo and now_t is not None and self.fifo[-1].marks_t[-1] > now_t:
+                if (self.fifo and now_t is not None
+                        and self.fifo[-1].marks_t[-1] > now_t + LOOKAHEAD_US):
                     return
             elif queued >= want:
                 return

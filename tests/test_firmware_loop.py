@@ -221,3 +221,24 @@ def test_camera_biases_are_host_parameters_sent_by_the_reader_thread(face):
         assert eng.get_params()["bias.follower"] == 239
     finally:
         eng.stop()
+
+
+def test_cli_replays_a_real_recording_through_the_usb_path(tmp_path, data_file):
+    """replay:FILE re-encodes a real DVS recording (320 x 240) as CCam words; events outside
+    304 x 240 are dropped and counted; the track equals the offline tracker's on the rest."""
+    from springtrack import io as stio
+    path = data_file("dvs.es")
+    ev = np.concatenate([np.asarray(c) for c in stio.open(path)])
+    ev = ev[ev["t"] < ev["t"][0] + 300_000]
+    keep = ev[(ev["x"] < 304) & (ev["y"] < 240)]
+    out = tmp_path / "fw.csv"
+    r = subprocess.run([sys.executable, "-m", "firmware_sim.cli", "run", "--source",
+                        f"replay:{path}", "--max-speed", "--seconds", "0.3", "--preset",
+                        "face26", "--record", str(out), "--stats-every", "0"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert f"tracked={len(keep)}" in r.stdout
+    assert f"replay: {len(ev) - len(keep)} events outside" in r.stderr
+    ref = tmp_path / "ref.csv"
+    Tracker("face26").run(keep, SAMPLE).to_csv(ref)
+    assert out.read_text() == ref.read_text()
