@@ -81,6 +81,19 @@ def encode_chunk(events) -> Chunk | None:
     return Chunk(data, ev["t"].copy(), off, len(ev))
 
 
+def encode_stream_chunk(events, fmt: str) -> Chunk | None:
+    """A Prophesee EVT 2.0 / 3.0 stream as one chunk, released when its last event is due
+    (the springtrack.io encoders start every call from time-high 0, so a stream is encoded
+    in one piece)."""
+    import importlib
+    ev = as_events(events)
+    if len(ev) == 0:
+        return None
+    enc = importlib.import_module(f"springtrack.io.{fmt}").encode
+    data = bytearray(enc(ev))
+    return Chunk(data, ev["t"][-1:].copy(), np.array([len(data)], np.int64), len(ev))
+
+
 def scene_source(scene: str, seconds: float | None = None, seed: int = 0,
                  chunk_us: int = 2000, **scene_params):
     """Events of a firmware_sim scene, chunk by chunk (generated lazily)."""
@@ -134,7 +147,13 @@ class SimCamera:
 
     def __init__(self, source, serial: int = SIM_SERIAL, realtime: bool = False,
                  faults: Faults | None = None, bus: int = 1, address: int = 4,
-                 commit_us: int = 250):
+                 commit_us: int = 250, fmt: str = "ccam"):
+        """``fmt``: ``ccam`` (the CCam ATIS: set-up requests, start command) or ``evt2`` /
+        ``evt3`` (a Prophesee board already streaming: the source must be one array, served
+        as a single chunk; control requests other than the CCam ones are refused)."""
+        if fmt not in ("ccam", "evt2", "evt3"):
+            raise ValueError(f"simulated camera format must be ccam, evt2 or evt3, got {fmt!r}")
+        self.fmt = fmt
         self.source = iter(source)
         self.serial = serial
         self.realtime = realtime
@@ -166,6 +185,8 @@ class SimCamera:
 
     @property
     def started(self) -> bool:
+        if self.fmt != "ccam":           # EVT boards: streaming started by vendor tools
+            return True
         return self.registers.get(0x000) == 0xC81 and self.registers.get(0x400) == 0xC81
 
     @property
@@ -228,7 +249,7 @@ class SimCamera:
                 self.t_origin = int(ev["t"][0])
                 if self.realtime and self.t0_wall is None:
                     self.t0_wall = time.monotonic()
-            c = encode_chunk(ev)
+            c = encode_chunk(ev) if self.fmt == "ccam" else encode_stream_chunk(ev, self.fmt)
             self.counts["events_generated"] += c.n_events
             f.corrupt(c.data, self.words_out)
             self.words_out += len(c.data) // 4

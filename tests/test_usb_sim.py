@@ -167,3 +167,22 @@ def test_evt_profiles_are_read_only_and_use_springtrack_io_decoders():
     assert d.format == "evt2"
     with pytest.raises(camusb.CameraError, match="fused loop"):
         camusb.make_decoder(camusb.PROFILES["ccam_atis"])
+
+
+@pytest.mark.parametrize("fmt", ["evt2", "evt3"])
+def test_evt_profile_reads_a_prophesee_stream_through_the_same_pyusb_path(fmt):
+    prof = camusb.PROFILES[fmt]
+    rng = np.random.default_rng(1)
+    n = 5000
+    ev = make(np.sort(rng.integers(0, 300_000, n)), rng.integers(0, prof.width, n),
+              rng.integers(0, prof.height, n), rng.integers(0, 2, n))
+    cam = SimCamera([ev], fmt=fmt)
+    be = SimBackend(cam, pid=prof.pid)
+    c = camusb.Camera.open(prof, backend=be)
+    assert cam.counts["control_out"] == 0               # no CCam register control
+    dec = camusb.make_decoder(prof)
+    buf = array.array("B", bytes(camusb.TRANSFER_BYTES))
+    parts = []
+    while not cam.finished:
+        parts.append(dec.decode(buf[:c.read_into(buf, 5)].tobytes()))
+    assert np.array_equal(np.concatenate(parts), ev)
