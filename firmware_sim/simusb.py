@@ -191,9 +191,9 @@ class SimCamera:
 
     @property
     def finished(self) -> bool:
-        """The source is exhausted and every byte was read."""
-        with self.lock:
-            return self.exhausted and not self.fifo
+        """The source is exhausted and every byte was read (lock-free: the reader may hold
+        the device lock while it simulates the next chunk)."""
+        return self.exhausted and not self.fifo
 
     def present(self) -> bool:
         with self.lock:

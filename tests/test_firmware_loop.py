@@ -242,3 +242,29 @@ def test_cli_replays_a_real_recording_through_the_usb_path(tmp_path, data_file):
     ref = tmp_path / "ref.csv"
     Tracker("face26").run(keep, SAMPLE).to_csv(ref)
     assert out.read_text() == ref.read_text()
+
+
+def test_cli_serves_the_host_link_on_tcp():
+    from hostctl import Device
+    p = subprocess.Popen([sys.executable, "-m", "firmware_sim.cli", "run", "--source",
+                          "sim:face_occlusion", "--seconds", "4", "--listen", "127.0.0.1:0",
+                          "--stats-every", "0", "--telemetry-us", "10000"],
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         text=True)
+    try:
+        line = p.stdout.readline()
+        assert line.startswith("listen: socket://127.0.0.1:"), (line, p.stderr.read())
+        with Device(line.split()[1]) as dev:
+            assert dev.info["model"] == "face26"
+            gen = dev.set(**{"bias.on_event_threshold": 58})
+            assert gen >= 2 and dev.get("bias.on_event_threshold") == {"bias.on_event_threshold": 58}
+            snaps = list(dev.telemetry(seconds=0.5))
+            assert len(snaps) >= 5 and all(len(s.trackers) == 26 for s in snaps)
+            assert all(s.t_us % 10000 == 0 for s in snaps)
+            st = dev.stats()
+            assert st["events_tracked"] > 0 and st["transfers_dropped"] >= 0
+    finally:
+        p.terminate()
+        p.wait(10)
+        p.stdout.close()
+        p.stderr.close()
