@@ -44,18 +44,19 @@ def test_tiny_plan_end_to_end_with_dask(tmp_path):
     distributed = pytest.importorskip("dask.distributed")
     plan = ex.Plan(grid_seconds=1.0, face_seconds=1.0, rot_alphas=(0.004,), s_values=(4.5, 1e6),
                    alphas=(0.001,), table_s=(4.5, 1e6), face_s=(2.5,), spring_periods=(55,),
-                   face_seeds=(0,))
+                   face_seeds=(0,), hand_sizes=(0.12,))
     with distributed.Client(processes=False, n_workers=1, threads_per_worker=2,
                             dashboard_address=None) as client:
         results = ex.run_all(plan, client)
-    assert len(results) == len(ex.cases(plan))
+    assert len(results) == len(ex.cases(plan)) + 2 * len(ex.hand_cases(plan))
     for r in results:
         assert math.isfinite(r["mean_pct"]) and r["wall_s"] > 0
     g = [r for r in results if r["exp"] == "fig14"]
     assert all(r["mean_pct"] < 5.0 for r in g)             # 1 s of grid_pull, before the pull
     out = ex.write_report(results, plan, tmp_path, quick=True, elapsed=1.0, where="test")
     text = out.read_text()
-    for title in ("Fig. 11b", "Fig. 14", "Table I", "Fig. 16", "Figs. 20-21", "Fig. 24"):
+    for title in ("Fig. 11b", "Fig. 14", "Table I", "Fig. 16", "Figs. 20-21", "Fig. 24",
+                  "size of the hand"):
         assert title in text
     for png in ("fig11b_max_angle", "fig14_error_vs_s", "fig15_min_error", "fig16_inplane",
                 "fig20_face_error", "fig21_face_energy", "fig24_spring_period"):
