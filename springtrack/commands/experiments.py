@@ -46,7 +46,7 @@ class Plan:
     face_seeds: tuple = (0, 1, 2)     # face runs are averaged over these scene seeds (+ seed)
     hand_sizes: tuple = (0.08, 0.12, 0.16, 0.2)   # palm radius, face heights (default 0.16)
     seed: int = 0
-    scenes: dict = field(default_factory=dict)
+    scenes: dict = field(default_factory=dict)   # (scene, seed) -> (s, events, wall s), filled in
 
     @classmethod
     def quick(cls, seed=0):
@@ -170,6 +170,7 @@ def simulate_scenes(plan: Plan, keys) -> dict:
         print(f"simulated {name} (seed {seed}): {secs:g} s, {len(ev)} events "
               f"({len(ev) / secs:.0f} ev/s) in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
         data[name, seed] = (ev, truth_from_array(tr))
+        plan.scenes[name, seed] = (secs, len(ev), time.perf_counter() - t0)
     return data
 
 
@@ -214,6 +215,18 @@ def min_over_s(results, exp, kind, alpha):
     return best, (off[0] if off else None)
 
 
+def _machine() -> str:
+    import os
+    import platform
+    model = platform.processor() or "unknown CPU"
+    try:
+        with open("/proc/cpuinfo") as f:
+            model = next(l.split(":", 1)[1].strip() for l in f if l.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return f"{model}, {os.cpu_count()} cores, Python {platform.python_version()}"
+
+
 def write_report(results, plan: Plan, docs: Path, quick: bool, elapsed: float, where: str) -> Path:
     import matplotlib
     matplotlib.use("Agg")
@@ -230,7 +243,18 @@ def write_report(results, plan: Plan, docs: Path, quick: bool, elapsed: float, w
           "Error = mean distance tracker-part as % of the object length, averaged over "
           "time (springtrack/metrics.py; grid: grid side, face: vertical length of the "
           "26-part mask, 7 internal parts scored). `s = off` is s = 10^6: the energy criteria "
-          "never act.", ""]
+          "never act.", "", f"Machine: {_machine()}.", "",
+          "To reproduce one run by hand:", "", "```",
+          "springtrack simulate grid_pull --out gp.npy --truth gp.csv --model-out gp.toml",
+          "springtrack track gp.npy --model gp.toml --out gp_track.csv",
+          "springtrack score gp.csv gp_track.csv      # last line: mean_error_pct=...",
+          "```", ""]
+    if plan.scenes:
+        L += ["Simulated sensor (firmware_sim.sensor, one core, in the driver process):", "",
+              "| scene | seed | seconds | events | events/s | x real time |", "|---|---|---|---|---|---|"]
+        L += [f"| {n} | {sd} | {secs:g} | {ne} | {ne / secs:.0f} | {secs / wall:.1f} |"
+              for (n, sd), (secs, ne, wall) in sorted(plan.scenes.items())]
+        L += [""]
 
     # Fig. 11b
     rs = sorted(_sel(results, exp="fig11b"), key=lambda r: r["alpha"])
