@@ -18,7 +18,7 @@ MASS_FRAC = 24                # stiffness / mass and 1 / mass, Q7.24
 ACT_FRAC = 32                 # activity Q.32
 ENERGY_FRAC = 32              # energies Q.32
 ESCALE_FRAC = 14              # energy_scale Q17.14
-EXP2_BITS = 8                 # exp2 table of 2^8 + 1 entries
+EXP2_BITS = 10                # exp2 table of 2^10 + 1 entries
 CORDIC_N = 30
 ATAN_BITS = 10                # atan table of 2^10 + 2 entries
 SIGMA_MAX_PX = 64.0           # covariance range of the fixed kernel: sigma <= 64 px
@@ -42,7 +42,7 @@ def gain(value: float, name: str) -> int:
 
 
 def exp2_table() -> list[int]:
-    """2^(-k / 256) for k = 0..256, Q.30."""
+    """2^(-k / 1024) for k = 0..1024, Q.30."""
     n = 1 << EXP2_BITS
     return [int(round(2.0 ** (-k / n) * (1 << 30))) for k in range(n + 1)]
 

@@ -50,8 +50,8 @@ def test_isqrt_is_floor_sqrt(v):
 def test_exp2neg_relative_error(w):
     got = K.exp2neg(w) / (1 << 30)
     want = 2.0 ** (-w / 2 ** 40)
-    # table interpolation < 1e-6 relative, plus half a unit of Q.30 after the shift
-    assert abs(got - want) <= 1.5e-6 * want + 2 ** -30
+    # table interpolation < 6e-8 relative, plus a unit of Q.30 after the shift
+    assert abs(got - want) <= 1e-7 * want + 2 ** -30
 
 
 def test_exp2neg_edges():

@@ -115,8 +115,8 @@ static inline int64_t sat_add(fx_state *s, int64_t a, int64_t b, int64_t lim)
     return v;
 }
 
-/* 2^(-w) for w >= 0 in Q.40, result Q.30: table of 2^(-k/256) and linear interpolation
-   (relative error < 1e-6, docs/fixed_point.md). */
+/* 2^(-w) for w >= 0 in Q.40, result Q.30: table of 2^(-k/1024) and linear interpolation
+   (relative error < 6e-8 + 2^-30, docs/fixed_point.md). */
 uint32_t fx_exp2neg(const fx_state *s, int64_t w)
 {
     int64_t ip = w >> 40;

@@ -31,7 +31,7 @@
 #define FX_CELL_SHIFT 4                     /* spatial index cells of 16 x 16 px */
 #define FX_POS_FRAC 16                      /* positions Q15.16 */
 #define FX_POS_LIM ((int64_t)8192 << 16)    /* |position| < 8192 px */
-#define FX_EXP2_BITS 8                      /* exp2 table: 256 intervals + 1 */
+#define FX_EXP2_BITS 10                     /* exp2 table: 1024 intervals + 1 */
 #define FX_EXP2_N (1 << FX_EXP2_BITS)
 #define FX_CORDIC_N 30                      /* CORDIC iterations */
 #define FX_ATAN_BITS 10                     /* atan table: 1024 intervals + 2 */
