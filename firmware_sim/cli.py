@@ -198,6 +198,8 @@ def run(args) -> int:
         while True:
             time.sleep(0.02)
             now = time.monotonic()
+            while engine.reader.log:              # disconnects, reconnects, stalls
+                print(f"usb: {engine.reader.log.popleft()}", file=sys.stderr, flush=True)
             if now >= next_stats and link_thread is None:
                 print(engine.stats_line(), file=sys.stderr, flush=True)
                 next_stats = now + args.stats_every

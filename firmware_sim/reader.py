@@ -48,6 +48,7 @@ class Reader:
         self.gap = False                         # data lost before the next transfer
         self.state = "idle"
         self.last_error = ""
+        self.log: deque[str] = deque(maxlen=256)  # state changes and errors, for reports
         self.stop_event = threading.Event()
         self.thread = None
         self.counts = dict(transfers=0, bytes=0, transfers_dropped=0, bytes_dropped=0,
@@ -162,6 +163,7 @@ class Reader:
         self.counts["disconnects"] += 1
         self.last_error = f"device disconnected: {e}"
         self.state = "disconnected"
+        self.log.append(f"disconnected: {e}; reconnecting with backoff")
         try:
             self.cam.close()
         except Exception:
@@ -179,6 +181,8 @@ class Reader:
                         break
                     if not first:
                         self.counts["reconnects"] += 1
+                        self.log.append(f"reconnected after {self.counts['open_failures']} "
+                                        f"failed attempt(s) in total")
                     first = False
                 if self.cmds:
                     self._run_commands()
@@ -195,6 +199,7 @@ class Reader:
                     elif camusb.is_stall(e):
                         self.counts["stalls"] += 1
                         self.last_error = f"stall: {e}"
+                        self.log.append(f"endpoint stalled ({e}); halt cleared")
                         try:
                             self.cam.clear_halt()
                         except usb.core.USBError as e2:

@@ -193,7 +193,7 @@ class SimCamera:
     def finished(self) -> bool:
         """The source is exhausted and every byte was read (lock-free: the reader may hold
         the device lock while it simulates the next chunk)."""
-        return self.exhausted and not self.fifo
+        return self.exhausted and not self.fifo and self.connected
 
     def present(self) -> bool:
         with self.lock:
@@ -293,7 +293,8 @@ class SimCamera:
             self.reconnect_at = time.monotonic() + f.plan.disconnect_s
             lost_until = f.plan.disconnect_at_us + int(f.plan.disconnect_s * 1e6)
             self.skip_before = lost_until if self.skip_before is None else max(self.skip_before, lost_until)
-            self.fifo.clear()
+            # what the device held for the lost interval is gone; later data stays queued
+            self.fifo = deque(c for c in self.fifo if c.marks_t[0] >= lost_until)
             raise _usb_error(errno.ENODEV, "No such device (it may have been disconnected)")
 
     def bulk_read(self, buff, timeout_ms: int) -> int:

@@ -123,3 +123,21 @@ def test_burst_is_shed_with_bounded_memory_and_tracking_recovers(face):
     # everything after the burst (plus the 2 ms until a fresh time base) is tracked
     assert s["events_tracked"] >= int((t >= 190_000 + 4096).sum())
     assert eng.fused.last_t == t[-1]
+
+
+def test_cli_reports_faults_and_survives_them_together():
+    """Every fault but the burst (its own test above; at max speed it is not shed but
+    tracked, which takes long) in one run of the program."""
+    import subprocess
+    import sys
+    names = [n for n in FAULT_NAMES if n != "burst"]
+    r = subprocess.run([sys.executable, "-m", "firmware_sim.cli", "run", "--source",
+                        "sim:face_occlusion", "--max-speed", "--seconds", "1.4", "--faults",
+                        ",".join(names), "--stats-every", "0"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "usb: disconnected: [Errno 19]" in r.stderr and "usb: reconnected" in r.stderr
+    assert "usb: endpoint stalled ([Errno 32]" in r.stderr
+    line = r.stdout.strip().splitlines()[-1]
+    assert line.startswith("stats: ") and "'disconnects': 1" in line and "'stalls': 1" in line
+    assert "unknown_type" in line and "out_of_geometry" in line
