@@ -134,6 +134,17 @@ def bench_latency(dev: Device, n: int = 1000, names=("ping", "param_set", "param
     return out
 
 
+def bench_monitor(dev: Device, seconds: float = 3.0) -> dict:
+    """Redraw rate of ``hostctl monitor --smooth`` (output to a buffer) during streaming."""
+    import io
+    from hostctl.monitor import monitor
+    buf = io.StringIO()
+    t = time.monotonic()
+    monitor(dev, seconds=seconds, smooth=True, rate=10.0, out=buf)
+    frames = buf.getvalue().count("\x1b[H\x1b[2J")
+    return dict(redraw_hz=frames / (time.monotonic() - t))
+
+
 def write_section(text: str, section: str = SECTION) -> None:
     """Replace (or append) this script's own ``## ...`` section of docs/benchmarks.md."""
     path = ROOT / "docs" / "benchmarks.md"
@@ -158,6 +169,7 @@ def main(argv=None) -> int:
         with Device(fw.path) as dev:
             tele = bench_telemetry(dev, args.seconds)
             busy = bench_latency(dev, 300, names=("ping",))["ping"]
+            mon = bench_monitor(dev)
             dev.stop()
             up = bench_upload(dev)
             lat = bench_latency(dev)
@@ -179,6 +191,8 @@ def main(argv=None) -> int:
           f"p99 {v['p99_ms']:.2f} ms |" for k, v in lat.items()),
         f"| command latency ping (300x) during 1 kHz telemetry | p50 {busy['p50_ms']:.2f} ms, "
         f"p99 {busy['p99_ms']:.2f} ms |",
+        f"| `monitor --smooth` redraw rate during 1 kHz telemetry (asked: 10 Hz) | "
+        f"{mon['redraw_hz']:.1f} Hz |",
         ""])
     print(text)
     if not args.no_write:

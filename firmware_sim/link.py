@@ -15,8 +15,11 @@ Robustness rules (docs/protocol.md, "Reliability"): a frame with a bad CRC/COBS 
 dropped and counted; a malformed, unknown or refused command gets a NACK and changes
 nothing; a repeated command (same seq, type and payload) is answered from a cache and
 not executed twice; an exception inside a handler is NACKed (INTERNAL) and counted,
-never propagated.  Telemetry is dropped (and counted) rather than blocking when the
-host does not read; replies are never dropped.
+never propagated.  The link never blocks: writes are non-blocking; while more than
+``TX_TELEMETRY_LIMIT`` bytes wait to be written no snapshot is taken from the engine
+(they wait in its bounded queue, which drops the oldest and counts them); other frames
+are dropped (``tx_dropped``, and the host sees the sequence gap) only beyond
+``TX_REPLY_LIMIT`` queued bytes (a host that sends but never reads).
 """
 from __future__ import annotations
 
@@ -77,10 +80,23 @@ class LinkServer:
             self._send_raw(b"\x00")                 # end any garbage the host holds
             while not stop_event.is_set():
                 self.step()
-            self.flush(1.0)
+            self.drain_telemetry(2.0)            # what the engine produced before the stop
         except (OSError, serial.SerialException) as e:   # peer gone: end this session
             self.closed_reason = str(e)
         return self.stats()
+
+    def drain_telemetry(self, timeout: float) -> None:
+        """Forward the engine's queued snapshots and flush, within ``timeout`` seconds."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            before = self.counts["tx_frames"] + self.counts["tx_dropped"]
+            self.pump_telemetry()
+            self._drain()
+            if self.counts["tx_frames"] + self.counts["tx_dropped"] == before and not self.txq:
+                break
+            if len(self.txq) > TX_TELEMETRY_LIMIT // 2 and self.fd is not None:
+                select.select([], [self.fd], [], 0.01)
+        self.flush(max(0.0, end - time.monotonic()))
 
     def step(self) -> None:
         """One iteration: read, handle, stream telemetry, heartbeat, write."""
@@ -93,7 +109,7 @@ class LinkServer:
         now = time.monotonic()
         if self.session and now >= self.next_beat:
             self.next_beat = now + self.heartbeat_s
-            self.send(MsgType.HEARTBEAT, wire.encode_heartbeat(**self._beat()), droppable=True)
+            self.send(MsgType.HEARTBEAT, wire.encode_heartbeat(**self._beat()))
         self._drain()
 
     def stats(self) -> dict:
@@ -108,7 +124,9 @@ class LinkServer:
             self.counts["tx_dropped"] += 1
             self.tx_seq = (self.tx_seq + 1) & 0xFFFF     # the host sees the gap
             return None
-        raw = wire.encode_frame(mtype, self.tx_seq, payload, version=version)
+        # a leading delimiter too: a host attaching mid-stream skips to the first 0x00
+        # (hunting) and still gets the next whole frame
+        raw = b"\x00" + wire.encode_frame(mtype, self.tx_seq, payload, version=version)
         self.tx_seq = (self.tx_seq + 1) & 0xFFFF
         self.counts["tx_frames"] += 1
         self._send_raw(raw)
@@ -145,7 +163,10 @@ class LinkServer:
             return
         for gen, t_us in self.engine.poll_applied():
             self.send(MsgType.APPLIED, wire.encode_applied(gen, t_us))
-        for snap in self.engine.poll_telemetry(64):
+        room = (TX_TELEMETRY_LIMIT - len(self.txq)) // 256     # backpressure: snapshots
+        if room <= 0:                                          # wait in the engine's queue
+            return
+        for snap in self.engine.poll_telemetry(min(64, room)):
             payload = wire.encode_telemetry(snap["t_us"], snap["generation"],
                                             snap["mean_energy"], snap["trackers"])
             if self.send(MsgType.TELEMETRY, payload, droppable=True) is not None:

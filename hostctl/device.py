@@ -75,7 +75,7 @@ class Device:
         self.timeout, self.retries, self.key, self.version = timeout, retries, key, version
         self.url = port if isinstance(port, str) else getattr(port, "name", repr(port))
         self.port = _open(port, baudrate) if isinstance(port, str) else port
-        self.reader = wire.FrameReader()
+        self.reader = wire.FrameReader(hunting=True)
         self.rx_seq = wire.SeqTracker()
         self.tx_seq = int.from_bytes(np.random.default_rng().bytes(2), "little")
         self.signer: wire.Signer | None = None
@@ -259,7 +259,7 @@ class Device:
             waiting = 0
         try:
             data = self.port.read(max(1, min(waiting, 65536)))
-        except serial.SerialException as e:
+        except (serial.SerialException, OSError) as e:
             raise HostctlError(f"{self.url}: link failed: {e}") from None
         if data:
             for frame in self.reader.feed(data):

@@ -59,6 +59,9 @@ def monitor(dev, seconds: float | None = None, smooth: bool = False, rate: float
     next_draw = time.monotonic()
     while end is None or time.monotonic() < end:
         for snap in dev.telemetry(seconds=min(period, 0.05)):
+            if time.monotonic() >= next_draw and last is not None:
+                dev.snapshots.appendleft(snap)          # handle it after this redraw
+                break
             n_tele += 1
             if last is None or len(snap.trackers) != len(last.trackers):
                 ids = tracker_ids(dev.info, len(snap.trackers))

@@ -239,9 +239,11 @@ class FrameReader:
     """Splits a byte stream at 0x00 delimiters and decodes frames; a bad frame is dropped
     and counted, and decoding resumes at the next delimiter (resynchronisation)."""
 
-    def __init__(self):
+    def __init__(self, hunting: bool = False):
+        """``hunting``: the reader attached to a running stream; bytes before the first
+        delimiter are the tail of a frame sent before, skipped without counting an error."""
         self.buf = bytearray()
-        self.skipping = False
+        self.skipping = hunting
         self.counts = dict(frames=0, bytes=0, crc_errors=0, cobs_errors=0,
                            malformed=0, oversize=0)
 

@@ -67,7 +67,8 @@ class SimEngine:
         self.pos = 0
         self.telemetry: deque = deque(maxlen=4096)
         self.applied: deque = deque()
-        self.counters = dict(events_tracked=0, snapshots=0, updates_applied=0, loops=0)
+        self.counters = dict(events_tracked=0, snapshots=0, updates_applied=0, loops=0,
+                             telemetry_dropped=0)
         self._stop = threading.Event()
         self._thread = None
 
@@ -155,6 +156,8 @@ class SimEngine:
                 self.counters["events_tracked"] += end - self.pos
             self.pos, self.t_us = end, t1
             st = self.tracker.state(t1)           # activity decayed to the snapshot time
+            if len(self.telemetry) == self.telemetry.maxlen:
+                self.counters["telemetry_dropped"] += 1         # the oldest goes
             self.telemetry.append(dict(t_us=t1, generation=self.generation_live,
                                        mean_energy=self.tracker.energies()["mean"], trackers=st))
             self.counters["snapshots"] += 1

@@ -24,6 +24,7 @@ def test_cobs_hand_computed_cases():
 
 
 @given(st.binary(max_size=2000))
+@settings(deadline=None)
 def test_cobs_roundtrip_and_no_zero(data):
     enc = wire.cobs_encode(data)
     assert 0 not in enc
@@ -32,6 +33,7 @@ def test_cobs_roundtrip_and_no_zero(data):
 
 
 @given(st.binary(max_size=300))
+@settings(deadline=None)
 def test_cobs_decode_never_crashes(data):
     try:
         wire.cobs_decode(data)
@@ -54,7 +56,7 @@ def test_frame_layout_byte_by_byte():
 
 
 @given(st.sampled_from(list(MsgType)), st.integers(0, 0xFFFF), st.binary(max_size=wire.MAX_PAYLOAD))
-@settings(max_examples=200)
+@settings(max_examples=200, deadline=None)
 def test_frame_roundtrip(mtype, seq, payload):
     f = wire.FrameReader().feed(wire.encode_frame(mtype, seq, payload))
     assert len(f) == 1
@@ -68,7 +70,7 @@ def test_oversized_payload_refused():
 
 
 @given(st.lists(st.binary(max_size=60), min_size=1, max_size=8), st.data())
-@settings(max_examples=200)
+@settings(max_examples=200, deadline=None)
 def test_reader_resyncs_after_any_corruption(payloads, data):
     """Flip one byte inside frame k: frame k is dropped and counted, all others survive."""
     frames = [wire.encode_frame(MsgType.LOG, i, p) for i, p in enumerate(payloads)]
@@ -116,8 +118,18 @@ def test_reader_drops_runaway_garbage_and_resyncs():
     assert [f.seq for f in r.feed(wire.encode_frame(MsgType.STOP, 9))] == [9]
 
 
+def test_hunting_reader_skips_the_tail_it_attached_to_without_an_error():
+    tail = wire.encode_frame(MsgType.LOG, 1, b"abcdef")[4:]
+    r = wire.FrameReader(hunting=True)
+    assert [f.seq for f in r.feed(tail + wire.encode_frame(MsgType.LOG, 2))] == [2]
+    assert r.counts["crc_errors"] + r.counts["cobs_errors"] + r.counts["malformed"] == 0
+    r = wire.FrameReader()
+    assert [f.seq for f in r.feed(tail + wire.encode_frame(MsgType.LOG, 2))] == [2]
+    assert r.counts["crc_errors"] + r.counts["cobs_errors"] + r.counts["malformed"] == 1
+
+
 @given(st.binary(max_size=400))
-@settings(max_examples=300)
+@settings(max_examples=300, deadline=None)
 def test_reader_never_crashes_on_random_bytes(data):
     r = wire.FrameReader()
     for f in r.feed(data):
@@ -136,6 +148,7 @@ values = st.one_of(st.booleans(), st.integers(-2**63, 2**63 - 1),
 
 
 @given(st.dictionaries(st.text(min_size=1, max_size=30), values, max_size=20))
+@settings(deadline=None)
 def test_kv_roundtrip(d):
     assert wire.decode_kv(wire.encode_kv(d)) == d
     parts = wire.split_kv(d, budget=200)
@@ -147,6 +160,7 @@ def test_kv_roundtrip(d):
 
 
 @given(st.text(max_size=30), values)
+@settings(deadline=None)
 def test_param_set_roundtrip(name, v):
     n, got = wire.decode_param_set(wire.encode_param_set(name, v))
     assert n == name and got == v and type(got) is type(v)
@@ -177,7 +191,7 @@ def test_codecs_roundtrip_by_hand():
                                      wire.decode_model_chunk, wire.decode_heartbeat,
                                      wire.decode_log, wire.decode_telemetry])
 @given(payload=st.binary(max_size=80))
-@settings(max_examples=100)
+@settings(max_examples=100, deadline=None)
 def test_decoders_raise_only_wire_errors(decoder, payload):
     try:
         decoder(payload)

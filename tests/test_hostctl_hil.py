@@ -1,0 +1,246 @@
+"""Hardware-in-the-loop: ``firmware-sim run ... --pty`` as a separate process on the simulated
+camera, driven by hostctl (API and CLI) - model upload, parameter change seen in telemetry
+at the reported event time, recording compared with ``springtrack track`` on the same
+scene, and a byte-mangling pty proxy showing frames dropped, counted and resynchronised."""
+import os
+import random
+import select
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import serial
+
+from firmware_sim import transport
+from firmware_sim.sensor import simulate_all
+from hostctl import Device, HostctlError
+from hostctl.record import save
+from springtrack import cli as st_cli
+from springtrack.track import read_csv
+
+ROOT = Path(__file__).resolve().parents[1]
+BIN = Path(sys.executable).parent
+
+
+def firmware_cmd(*args):
+    exe = BIN / "firmware-sim"
+    base = [str(exe)] if exe.exists() else [sys.executable, "-m", "firmware_sim.cli"]
+    return base + ["run", "--stats-every", "0", *args]
+
+
+class Firmware:
+    def __init__(self, *args, announce=True):
+        self.proc = subprocess.Popen(firmware_cmd(*args), stdout=subprocess.PIPE,
+                                     stderr=subprocess.PIPE, text=True, cwd=ROOT)
+        if not announce:
+            return
+        r, _, _ = select.select([self.proc.stdout], [], [], 60)
+        line = self.proc.stdout.readline() if r else ""
+        if not line.startswith("pty: "):
+            self.close()
+            raise AssertionError(f"firmware-sim did not print 'pty: ...' first: {line!r} "
+                                 f"{self.proc.stderr.read()[-2000:]}")
+        self.path = line.split()[1]
+
+    def close(self):
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self.out = self.proc.stdout.read()
+        self.err = self.proc.stderr.read()
+        self.proc.stdout.close()
+        self.proc.stderr.close()
+
+
+@pytest.fixture
+def realtime_fw():
+    fw = Firmware("--source", "sim:face_occlusion", "--seconds", "6", "--pty")
+    yield fw
+    fw.close()
+
+
+def collect_until(dev, cond, timeout=5.0):
+    snaps = []
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        snaps += list(dev.telemetry(seconds=0.05))
+        if cond(snaps):
+            return snaps
+    raise AssertionError("condition not reached within the timeout")
+
+
+def test_hil_model_upload_and_param_change_seen_at_reported_time(realtime_fw):
+    with Device(realtime_fw.path) as dev:
+        assert dev.info["model"] == "face26" and dev.info["protocol_version"] == 1
+        g_model = dev.load_model("grid3x3")
+        snaps = collect_until(dev, lambda s: g_model in dev.applied and any(
+            x.t_us > dev.applied[g_model] + 2000 for x in s))
+        ta = dev.applied[g_model]
+        after = [s for s in snaps if s.t_us > ta]
+        assert after and all(s.generation == g_model and len(s.trackers) == 9 for s in after)
+        assert all(s.t_us <= ta for s in snaps if s.generation < g_model)
+        assert dev.hello()["model"] == "grid3x3"
+
+        dev.load_model("face26")
+        g = dev.set(energy_scale=3.25)
+        snaps = collect_until(dev, lambda s: g in dev.applied and any(
+            x.t_us > dev.applied[g] + 2000 for x in s))
+        tg = dev.applied[g]
+        assert all(s.generation == g for s in snaps if s.t_us > tg)
+        assert all(s.t_us <= tg for s in snaps if s.generation < g)
+        assert dev.get("energy_scale") == {"energy_scale": 3.25}
+        assert dev.link_counters()["crc_errors"] == 0
+
+
+def test_hil_record_matches_springtrack_track(tmp_path):
+    """``--port URL``: the test opens the pty and connects first; the firmware then streams
+    1.5 s of the scene --max-speed and exits; the host records every snapshot and compares
+    the recording with ``springtrack track`` on the same simulated events."""
+    pty = transport.PtyPort()
+    try:
+        fw = Firmware("--source", "sim:face_occlusion", "--max-speed", "--seconds", "1.5",
+                      "--port", pty.path, announce=False)
+        try:
+            snaps = []
+            # pyserial flushes the port when the firmware opens it: knock every 50 ms (the
+            # firmware needs ~1 s to simulate and track the 1.5 s scene, and holds its
+            # snapshots until HELLO)
+            with Device(pty, timeout=0.05, retries=400) as dev:
+                dev.timeout = 0.5
+                info = dev.info
+                while True:
+                    got = list(dev.telemetry(seconds=0.3))
+                    snaps += got
+                    if fw.proc.poll() is not None and not got:
+                        break
+                lost = dev.link_counters()["lost"]
+        finally:
+            fw.close()
+    finally:
+        pty.close()
+    assert fw.proc.returncode == 0
+    rec_path = tmp_path / "rec.csv"
+    save(rec_path, snaps, info)
+    ev, _ = simulate_all("face_occlusion", 1.5, seed=0)
+    np.save(tmp_path / "ev.npy", ev)
+    ref_path = tmp_path / "ref.csv"
+    assert st_cli.main(["track", str(tmp_path / "ev.npy"), "--model", "face26", "--out",
+                        str(ref_path), "--no-progress"]) == 0
+    rec, ref = read_csv(rec_path), read_csv(ref_path)
+    assert rec.ids == ref.ids
+    assert len(rec) == 1499 and lost == 0           # every snapshot of the 1.5 s scene
+    idx = np.searchsorted(ref.t_us, rec.t_us)
+    assert np.all(idx < len(ref)) and np.array_equal(ref.t_us[idx], rec.t_us)
+    assert np.max(np.abs(ref.x[idx] - rec.x)) <= 1 / 32 + 1e-6
+    assert np.max(np.abs(ref.y[idx] - rec.y)) <= 1 / 32 + 1e-6
+    assert np.array_equal(ref.active[idx], rec.active)
+    assert np.array_equal(ref.sensitive[idx], rec.sensitive)
+    act = np.abs(np.log2((1 + rec.activity) / (1 + ref.activity[idx])))
+    assert np.max(act) <= 1 / 32 + 1e-3
+
+
+class ManglingProxy:
+    """Forwards bytes between the firmware's pty and a new pty for the host, flipping one
+    bit every ``down_every`` bytes firmware->host and every ``up_every`` bytes host->firmware."""
+
+    def __init__(self, fw_path, down_every=4001, up_every=53, seed=5):
+        self.fw = serial.serial_for_url(fw_path, timeout=0)
+        self.host = transport.PtyPort()
+        self.path = self.host.path
+        self.rng = random.Random(seed)
+        self.every = {"down": down_every, "up": up_every}
+        self.count = {"down": 0, "up": 0}
+        self.flipped = {"down": 0, "up": 0}
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self.run, daemon=True)
+        self.thread.start()
+
+    def mangle(self, data: bytes, way: str) -> bytes:
+        b = bytearray(data)
+        n, every = self.count[way], self.every[way]
+        for i in range(len(b)):
+            if (n + i) % every == every - 1:
+                b[i] ^= 1 << self.rng.randrange(8)
+                self.flipped[way] += 1
+        self.count[way] = n + len(b)
+        return bytes(b)
+
+    def run(self):
+        fw_fd, host_fd = self.fw.fileno(), self.host.fileno()
+        while not self.stop.is_set():
+            r, _, _ = select.select([fw_fd, host_fd], [], [], 0.05)
+            if fw_fd in r:
+                try:
+                    data = os.read(fw_fd, 65536)
+                except OSError:
+                    return
+                _write_all(host_fd, self.mangle(data, "down"))
+            if host_fd in r:
+                try:
+                    data = os.read(host_fd, 65536)
+                except (OSError, BlockingIOError):
+                    continue
+                _write_all(fw_fd, self.mangle(data, "up"))
+
+    def close(self):
+        self.stop.set()
+        self.thread.join(2)
+        self.fw.close()
+        self.host.close()
+
+
+def _write_all(fd, data):
+    while data:
+        try:
+            n = os.write(fd, data)
+        except BlockingIOError:
+            select.select([], [fd], [], 0.05)
+            continue
+        data = data[n:]
+
+
+def test_hil_corrupted_link_drops_counts_and_resyncs(realtime_fw):
+    proxy = ManglingProxy(realtime_fw.path)
+    try:
+        with Device(proxy.path, timeout=0.25, retries=10) as dev:
+            g = dev.set(energy_gain=0.07)                # survives corruption by retrying
+            assert dev.get("energy_gain") == {"energy_gain": 0.07} or g > 1
+            snaps = list(dev.telemetry(seconds=1.5))
+            lc = dev.link_counters()
+            fw = dev.stats()
+    finally:
+        proxy.close()
+    assert proxy.flipped["down"] > 10 and proxy.flipped["up"] > 0
+    errors = lc["crc_errors"] + lc["cobs_errors"] + lc["malformed"]
+    assert errors > 0 and lc["lost"] > 0                 # dropped and counted on the host
+    assert len(snaps) > 500                              # ... and the stream resynchronised
+    t = np.array([s.t_us for s in snaps])
+    assert np.all(np.diff(t) > 0)
+    assert all(s.trackers.shape == (26,) and np.all(s.trackers["x"] < 304) for s in snaps)
+    fw_errors = fw["link.rx_crc_errors"] + fw["link.rx_cobs_errors"] + fw["link.rx_malformed"]
+    assert fw_errors > 0 or lc["retries"] > 0            # counted on the firmware side too
+    assert fw["link.handler_errors"] == 0
+
+
+def test_hil_monitor_cli(realtime_fw):
+    with Device(realtime_fw.path) as dev:           # the firmware is streaming (slow start
+        collect_until(dev, lambda s: len(s) > 0, timeout=30)    # on a loaded machine)
+    exe = BIN / "hostctl"
+    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "hostctl.cli"]
+    out = subprocess.run(cmd + ["--port", realtime_fw.path, "monitor", "--seconds", "1.2",
+                                "--smooth"], capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    frames = out.stdout.split("\x1b[H\x1b[2J")[1:]
+    assert len(frames) >= 2                          # redraw rate: benchmarks/link.py
+    last = frames[-1]
+    assert "model face26" in last and "mouth" in last and "outline18" in last
+    head = last.splitlines()[1]
+    assert "lost frames " in head and "link errors 0" in head and "events " in head, head
