@@ -290,10 +290,14 @@ class FirmwareLoop:
         with self.lock:
             self.tele.append([self.generation, self.params.energy_kind_index, out, 0])
             self.tele_rows += rows
-            while self.tele_rows > self.tele_cap and self.tele:
-                g, ek, blk, first = self.tele[0]
-                drop = len(blk["t"]) - first
-                self.tele.popleft()
+            while self.tele_rows > self.tele_cap and self.tele:   # drop the oldest rows
+                item = self.tele[0]
+                avail = len(item[2]["t"]) - item[3]
+                drop = min(avail, self.tele_rows - self.tele_cap)
+                if drop == avail:
+                    self.tele.popleft()
+                else:
+                    item[3] += drop
                 self.tele_rows -= drop
                 self.c["telemetry_dropped"] += drop
 

@@ -268,3 +268,25 @@ def test_cli_serves_the_host_link_on_tcp():
         p.wait(10)
         p.stdout.close()
         p.stderr.close()
+
+
+def test_telemetry_queue_is_bounded_and_counts_what_it_drops(face):
+    cam, eng = make_engine(face, telemetry_queue=100)
+    s = run_to_end(cam, eng)
+    n_snap = s["loop"]["snapshots"]
+    assert n_snap == 599
+    assert s["loop"]["telemetry_dropped"] == n_snap - 100
+    got = eng.poll_telemetry(1000)
+    assert [g["t_us"] for g in got] == list(range((n_snap - 99) * SAMPLE, (n_snap + 1) * SAMPLE, SAMPLE))
+    assert eng.poll_telemetry() == []
+
+
+def test_reset_restarts_the_trackers_from_the_model(face):
+    cam, eng = make_engine(face)
+    run_to_end(cam, eng)
+    moved = eng.kernel.snapshot(0)["x"].copy()
+    eng.reset()                                   # idle engine: applied at once
+    assert eng.generation == 2 and eng.kernel.counters()["events_valid"] == 0
+    fresh = Tracker("face26").state()["x"]
+    assert np.array_equal(eng.kernel.snapshot(0)["x"], fresh)
+    assert not np.array_equal(moved, fresh)
