@@ -174,6 +174,9 @@ class Reader:
 
     def _run(self) -> None:
         first = self.cam is None
+        if self.counts["bytes"]:
+            with self.cond:                      # a restart: the set-up drains a read
+                self.gap = True
         try:
             while not self.stop_event.is_set():
                 if self.cam is None:

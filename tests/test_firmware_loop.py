@@ -290,3 +290,18 @@ def test_reset_restarts_the_trackers_from_the_model(face):
     fresh = Tracker("face26").state()["x"]
     assert np.array_equal(eng.kernel.snapshot(0)["x"], fresh)
     assert not np.array_equal(moved, fresh)
+
+
+def test_stop_and_start_again_resumes_the_stream(face):
+    cam, eng = make_engine(face, realtime=True)
+    eng.start()
+    while eng.fused.tracked < len(face) // 4:
+        time.sleep(0.002)
+    eng.stop()
+    assert not eng.running and eng.reader.state == "stopped"
+    n_stop = eng.fused.tracked
+    setup = cam.counts["control_out"]
+    s = run_to_end(cam, eng)                      # start() again, to the end
+    assert cam.counts["control_out"] == 2 * setup     # the set-up sequence ran again
+    assert s["events_tracked"] > n_stop and eng.fused.last_t == face["t"][-1]
+    assert s["anomalies"]["tracker_back_in_time"] == 0
