@@ -78,6 +78,8 @@ cdef extern from "csrc/fixed_step.h" nogil:
         uint32_t exp2_lut[FX_EXP2_N + 1]
         uint32_t atan_lut[FX_CORDIC_N]
         uint32_t atan_tab[(1 << FX_ATAN_BITS) + 2]
+        uint32_t hyp_tab[(1 << FX_ATAN_BITS) + 2]
+        uint32_t ihyp_tab[(1 << FX_ATAN_BITS) + 2]
         uint32_t sqrt_tab[FX_SQRT_N]
         int64_t cordic_x0
         int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates, n_reindex
@@ -95,6 +97,8 @@ cdef extern from "csrc/fixed_step.h" nogil:
     uint32_t fx_exp2neg(const fx_state* s, int64_t w)
     uint32_t fx_atan2(const fx_state* s, int64_t y, int64_t x)
     void fx_cossin(const fx_state* s, int64_t angle, int64_t* c, int64_t* sn)
+    void fx_polar(const fx_state* s, int64_t x, int64_t y, uint32_t* ang, int64_t* len,
+                  int64_t* cx, int64_t* cy)
 
 cdef extern from "csrc/fixed_step.c":
     pass
@@ -200,6 +204,10 @@ cdef class FixedKernel:
             s.atan_lut[k] = v
         for k, v in enumerate(_q.atan_unit_table()):
             s.atan_tab[k] = v
+        hyp, ihyp = _q.hyp_tables()
+        for k in range(len(hyp)):
+            s.hyp_tab[k] = hyp[k]
+            s.ihyp_tab[k] = ihyp[k]
         for k, v in enumerate(_q.sqrt_table()):
             s.sqrt_tab[k] = v
         s.cordic_x0 = _q.cordic_x0()
@@ -402,6 +410,13 @@ cdef class FixedKernel:
 
     def atan2(self, long long y, long long x):
         return fx_atan2(&self.st, y, x)
+
+    def polar(self, long long x, long long y):
+        """(binary angle, length, cos Q.30, sin Q.30) of the vector (x, y) (tests)."""
+        cdef uint32_t a
+        cdef int64_t l, cx, cy
+        fx_polar(&self.st, x, y, &a, &l, &cx, &cy)
+        return a, l, cx, cy
 
     def cossin(self, long long angle):
         cdef int64_t c, sn

@@ -58,6 +58,14 @@ def atan_unit_table() -> list[int]:
     return [int(round(math.atan(min(k, n) / n) / (2 * math.pi) * 2 ** 32)) for k in range(n + 2)]
 
 
+def hyp_tables() -> tuple[list[int], list[int]]:
+    """sqrt(1 + t^2) and 1 / sqrt(1 + t^2) at t = k / 1024, k = 0..1025, Q.30 (polar form)."""
+    n = 1 << ATAN_BITS
+    ts = [min(k, n) / n for k in range(n + 2)]
+    return ([int(round(math.sqrt(1 + t * t) * (1 << 30))) for t in ts],
+            [int(round((1 << 30) / math.sqrt(1 + t * t))) for t in ts])
+
+
 def sqrt_table() -> list[int]:
     """floor(sqrt(j 2^54) / 2) for j = 256..1024: the integer sqrt's seed (Q.-1 so that the
     last entry, 2^31, fits uint32)."""

@@ -75,6 +75,22 @@ def test_atan2_matches_math(y, x):
 
 
 @settings(max_examples=400, deadline=None)
+@given(st.integers(-(2 ** 30), 2 ** 30), st.integers(-(2 ** 30), 2 ** 30))
+def test_polar_matches_math(x, y):
+    """Angle, length and direction of a spring vector (springs of eqs. 11, 14, 16)."""
+    a, l, cx, cy = K.polar(x, y)
+    if x == 0 and y == 0:
+        assert (a, l, cx, cy) == (0, 0, 0, 0)
+        return
+    h = math.hypot(x, y)
+    want = math.atan2(y, x) / (2 * math.pi) * 2 ** 32
+    diff = (a - round(want)) % (1 << 32)
+    assert min(diff, (1 << 32) - diff) * 2 * math.pi / 2 ** 32 < 2e-7
+    assert abs(l - h) <= 2e-7 * h + 1
+    assert abs(cx / 2 ** 30 - x / h) < 3e-7 and abs(cy / 2 ** 30 - y / h) < 3e-7
+
+
+@settings(max_examples=400, deadline=None)
 @given(st.one_of(st.integers(-(2 ** 31), 2 ** 31 - 1),          # any angle (CORDIC)
                  st.integers(-42722829, 42722829)))            # |a| < 2^-4 rad (series)
 def test_cossin_matches_math(a):

@@ -117,7 +117,7 @@ static inline int64_t sat_add(fx_state *s, int64_t a, int64_t b, int64_t lim)
 
 /* 2^(-w) for w >= 0 in Q.40, result Q.30: table of 2^(-k/1024) and linear interpolation
    (relative error < 6e-8 + 2^-30, docs/fixed_point.md). */
-uint32_t fx_exp2neg(const fx_state *s, int64_t w)
+static inline uint32_t exp2neg(const fx_state *s, int64_t w)
 {
     int64_t ip = w >> 40;
     uint64_t frac = (uint64_t)w & (((uint64_t)1 << 40) - 1);
@@ -135,6 +135,11 @@ uint32_t fx_exp2neg(const fx_state *s, int64_t w)
     return (uint32_t)v;
 }
 
+uint32_t fx_exp2neg(const fx_state *s, int64_t w)
+{
+    return exp2neg(s, w);
+}
+
 /* exp(-dt / tau), Q.30, for dt in us (eq. 6) */
 static inline uint32_t decay(const fx_state *s, int64_t dt)
 {
@@ -142,7 +147,7 @@ static inline uint32_t decay(const fx_state *s, int64_t dt)
         return (uint32_t)ONE_Q30;
     if (dt >= s->dt_max)
         return 0;
-    return fx_exp2neg(s, dt * s->k_tau);                  /* < 41 * 2^40 */
+    return exp2neg(s, dt * s->k_tau);                  /* < 41 * 2^40 */
 }
 
 /* atan(t) for t in [0, 1] Q.30, as a binary angle: table of atan(k / 1024) and linear
@@ -181,13 +186,12 @@ static inline void cossin(const fx_state *s, int64_t angle, int64_t *c, int64_t 
     int neg = 0, i;
     if (z < SMALL_ANGLE && z > -SMALL_ANGLE) {            /* |z| < 2^-4 rad: Taylor series */
         int64_t r = mulsh(z, PI_Q29, 30);                 /* radians, Q.30 */
-        int64_t r2 = rshr(r * r, 30);                     /* error of the 7th / 8th order */
-        /* sin r = r (1 - r2/6 (1 - r2/20 (1 - r2/42)));  cos r = 1 - r2/2 (1 - r2/12 (1 - r2/30)) */
-        int64_t ts = ONE_Q30 - rshr(r2 * (ONE_Q30 - r2 / 42), 30) / 20;
-        int64_t tc = ONE_Q30 - rshr(r2 * (ONE_Q30 - r2 / 30), 30) / 12;
-        ts = ONE_Q30 - rshr(r2 * ts, 30) / 6;
-        *sn = rshr(r * ts, 30);
-        *c = ONE_Q30 - rshr(r2 * tc, 30) / 2;
+        int64_t r2 = rshr(r * r, 30);
+        int64_t r4 = rshr(r2 * r2, 30);
+        /* sin r = r (1 - r2/6 + r4/120), cos r = 1 - r2/2 + r4/24 - r2 r4/720: truncation
+           < r^7/5040 < 1e-12 for |r| < 2^-4; constants 2^32/6, 2^32/120, 2^32/24, 2^32/720 */
+        *sn = rshr(r * (ONE_Q30 - rshr(r2 * 715827883, 32) + rshr(r4 * 35791394, 32)), 30);
+        *c = ONE_Q30 - r2 / 2 + rshr(r4 * 178956971, 32) - rshr(rshr(r2 * r4, 30) * 5965232, 32);
         return;
     }
     if (z > ((int64_t)1 << 30)) {                          /* |z| > pi/2: use z -+ pi */
@@ -220,6 +224,61 @@ uint32_t fx_atan2(const fx_state *s, int64_t y, int64_t x)
 {
     return atan2_bam(s, y, x);
 }
+
+/* table look-up with linear interpolation at t in [0, 1] (Q.30), tables of 1024 intervals */
+static inline int64_t unit_interp(const uint32_t *tab, int64_t t)
+{
+    int64_t idx = t >> (30 - FX_ATAN_BITS), rem = t & ((1 << (30 - FX_ATAN_BITS)) - 1);
+    int64_t v0 = tab[idx], v1 = tab[idx + 1];
+    return v0 + (((v1 - v0) * rem + (1 << (29 - FX_ATAN_BITS))) >> (30 - FX_ATAN_BITS));
+}
+
+/* Polar form of r = (x, y), |x|, |y| < 2^31: its angle (binary), its length (unit of x,
+   rounded; relative error < 2e-7) and its direction r / |r| (Q.30).  One division, the
+   octant ratio t = min / max, then tables of atan(t), sqrt(1 + t^2), 1 / sqrt(1 + t^2). */
+static inline void polar(const fx_state *s, int64_t x, int64_t y, uint32_t *ang, int64_t *len,
+                         int64_t *cx, int64_t *cy)
+{
+    int64_t ax = x < 0 ? -x : x, ay = y < 0 ? -y : y, big, small, t, a, h, cbig, csmall;
+    int swap = ay > ax;
+    if (ax == 0 && ay == 0) {
+        *ang = 0;
+        *len = *cx = *cy = 0;
+        return;
+    }
+    big = swap ? ay : ax;
+    small = swap ? ax : ay;
+    t = (small << 30) / big;                              /* [0, 2^30] */
+    a = unit_interp(s->atan_tab, t);
+    *len = rshr(big * unit_interp(s->hyp_tab, t), 30);    /* big sqrt(1 + t^2) */
+    h = unit_interp(s->ihyp_tab, t);                      /* cos of the octant angle */
+    cbig = h;
+    csmall = rshr(t * h, 30);
+    if (swap) {
+        a = ((int64_t)1 << 30) - a;
+        *cx = csmall;
+        *cy = cbig;
+    } else {
+        *cx = cbig;
+        *cy = csmall;
+    }
+    if (x < 0) {
+        a = ((int64_t)1 << 31) - a;
+        *cx = -*cx;
+    }
+    if (y < 0) {
+        a = -a;
+        *cy = -*cy;
+    }
+    *ang = (uint32_t)((uint64_t)a & 0xffffffffu);
+}
+
+void fx_polar(const fx_state *s, int64_t x, int64_t y, uint32_t *ang, int64_t *len, int64_t *cx,
+              int64_t *cy)
+{
+    polar(s, x, y, ang, len, cx, cy);
+}
+
 
 void fx_cossin(const fx_state *s, int64_t angle, int64_t *c, int64_t *sn)
 {
@@ -316,7 +375,7 @@ static inline int64_t scale2(fx_state *s, int64_t v, int k)
 
 /* [ref] _clamp_and_invert: sigma_x, sigma_y in [sigma_min, sigma_max], |rho| <= 0.99,
    then the inverse covariance of eq. (2) and the gate box.  One division. */
-void fx_refresh(fx_state *s, int i)
+static inline void refresh(fx_state *s, int i)
 {
     int64_t sxx = s->sxx[i], syy = s->syy[i], sxy = s->sxy[i];
     int64_t a, b, c, p, det, m, r, big;
@@ -362,11 +421,16 @@ void fx_refresh(fx_state *s, int i)
     s->gsyy[i] = mulsh(syy, s->gate_q24, 24);
 }
 
+void fx_refresh(fx_state *s, int i)
+{
+    refresh(s, i);
+}
+
 /* [ref] _update: eqs. (2)-(6) for the winning tracker i; dx, dy Q.16 from the pre-update
    mean, d2 Q.40. */
 static inline void update_tracker(fx_state *s, int i, int64_t t, int64_t dx, int64_t dy, int64_t d2)
 {
-    int64_t p = (int64_t)fx_exp2neg(s, mulsh(d2, HALF_LOG2E_Q30, 30));   /* eq. (2), Q.30 */
+    int64_t p = (int64_t)exp2neg(s, mulsh(d2, HALF_LOG2E_Q30, 30));   /* eq. (2), Q.30 */
     int64_t act = mulsh(s->act[i], decay(s, t - s->tlast[i]), 30) + p * 4;  /* eq. (6) */
     if (act > ACT_MAX) {
         act = ACT_MAX;
@@ -381,7 +445,7 @@ static inline void update_tracker(fx_state *s, int i, int64_t t, int64_t dx, int
     s->sxx[i] += mulsh(dx * dx, s->cov_gain, 30) - mulsh(s->sxx[i], s->a2, 30);
     s->sxy[i] += mulsh(dx * dy, s->cov_gain, 30) - mulsh(s->sxy[i], s->a2, 30);
     s->syy[i] += mulsh(dy * dy, s->cov_gain, 30) - mulsh(s->syy[i], s->a2, 30);
-    fx_refresh(s, i);
+    refresh(s, i);
     check_index(s, i);
 }
 
@@ -464,7 +528,8 @@ void fx_springs(fx_state *s)
 {
     int n = s->n, nc = s->nc, k, i, j;
     int64_t ddx[FX_MAX_TRACKERS], ddy[FX_MAX_TRACKERS];
-    int64_t dth_raw[FX_MAX_CONNECTIONS];
+    int64_t dth_raw[FX_MAX_CONNECTIONS], pl[FX_MAX_CONNECTIONS];
+    int64_t pcx[FX_MAX_CONNECTIONS], pcy[FX_MAX_CONNECTIONS];
     int64_t mean_dth = 0;
     s->n_spring_updates++;
     for (i = 0; i < n; i++)
@@ -474,7 +539,8 @@ void fx_springs(fx_state *s)
             uint32_t th;
             i = s->ca[k];
             j = s->cb[k];
-            th = atan2_bam(s, (int64_t)s->my[j] - s->my[i], (int64_t)s->mx[j] - s->mx[i]);
+            polar(s, (int64_t)s->mx[j] - s->mx[i], (int64_t)s->my[j] - s->my[i], &th,
+                  &pl[k], &pcx[k], &pcy[k]);
             th -= s->th0[k];                              /* mod 2^32 = mod 2 pi */
             dth_raw[k] = th >= 0x80000000u ? (int64_t)th - ((int64_t)1 << 32) : (int64_t)th;
             mean_dth += dth_raw[k];
@@ -482,13 +548,24 @@ void fx_springs(fx_state *s)
         mean_dth = div_round(mean_dth, nc);
     }
     for (k = 0; k < nc; k++) {
-        int64_t rx, ry, l, dl, ex, ey;
+        int64_t rx, ry, l, dl, ex, ey, cx = 0, cy = 0;
         int kind = s->kinds[k];
         i = s->ca[k];
         j = s->cb[k];
         rx = (int64_t)s->mx[j] - s->mx[i];                /* Q.16, |.| < 2^30 */
         ry = (int64_t)s->my[j] - s->my[i];
-        l = (int64_t)isqrt64(s, (uint64_t)(rx * rx + ry * ry));   /* Q.16 */
+        if (s->need_torsion) {                            /* polar form computed above */
+            l = pl[k];
+            cx = pcx[k];
+            cy = pcy[k];
+        } else {
+            l = (int64_t)isqrt64(s, (uint64_t)(rx * rx + ry * ry));   /* Q.16 */
+            if ((kind & 1) && l > 0) {                    /* r / l in Q.30, one division */
+                int64_t inv = ((int64_t)1 << 60) / l;     /* 2^60 / l, >= 2^29 */
+                cx = rshr(rx * inv, 30);                  /* rx inv <= 2^60 (|rx| <= l) */
+                cy = rshr(ry * inv, 30);
+            }
+        }
         dl = l - s->l0[k];                                /* eq. (10) */
         s->energy[0][k] = mulsh(dl * dl, s->stiff[k], 31);     /* eq. (12): a dl^2 / 2 */
         ex = clamp_offset(s, rx - s->dx0[k]);             /* eq. (18) */
@@ -496,10 +573,9 @@ void fx_springs(fx_state *s)
         s->energy[2][k] = mulsh(ex * ex + ey * ey, s->stiff[k], 31);   /* eq. (20) */
         if (kind & 1) {                                   /* eq. (11): a dl (r / l) / m */
             int64_t qx, qy;
-            if (l > 0) {                                  /* r / l in Q.30, one division */
-                int64_t inv = ((int64_t)1 << 60) / l;     /* 2^60 / l, >= 2^29 */
-                qx = rshr(dl * rshr(rx * inv, 30), 30);   /* rx inv <= 2^60 (|rx| <= l) */
-                qy = rshr(dl * rshr(ry * inv, 30), 30);
+            if (l > 0) {
+                qx = rshr(dl * cx, 30);
+                qy = rshr(dl * cy, 30);
             } else {
                 qx = rshr(dl * s->c0x[k], 30);
                 qy = rshr(dl * s->c0y[k], 30);

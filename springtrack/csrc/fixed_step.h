@@ -89,6 +89,8 @@ typedef struct {
     uint32_t exp2_lut[FX_EXP2_N + 1];         /* 2^(-k / FX_EXP2_N), Q.30 */
     uint32_t atan_lut[FX_CORDIC_N];           /* atan(2^-i), binary angle (CORDIC) */
     uint32_t atan_tab[(1 << FX_ATAN_BITS) + 2];   /* atan(k / 1024), binary angle */
+    uint32_t hyp_tab[(1 << FX_ATAN_BITS) + 2];    /* sqrt(1 + (k / 1024)^2), Q.30 */
+    uint32_t ihyp_tab[(1 << FX_ATAN_BITS) + 2];   /* 1 / sqrt(1 + (k / 1024)^2), Q.30 */
     uint32_t sqrt_tab[FX_SQRT_N];             /* floor(sqrt((j + 256) 2^54) / 2) */
     int64_t cordic_x0;                        /* 1 / CORDIC gain, Q.60 */
     /* counters */
@@ -110,5 +112,7 @@ uint64_t fx_isqrt64(const fx_state *s, uint64_t v);
 uint32_t fx_exp2neg(const fx_state *s, int64_t w);
 uint32_t fx_atan2(const fx_state *s, int64_t y, int64_t x);
 void fx_cossin(const fx_state *s, int64_t angle, int64_t *c, int64_t *sn);
+void fx_polar(const fx_state *s, int64_t x, int64_t y, uint32_t *ang, int64_t *len, int64_t *cx,
+              int64_t *cy);
 
 #endif
