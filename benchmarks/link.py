@@ -39,10 +39,12 @@ link.serve(port, eng, stop_event=threading.Event())
 """
 
 
-def firmware_cmd(target: str, scene_s: float = 2.0) -> list[str]:
+def firmware_cmd(target: str, source=("--source", "sim:face_occlusion"), seconds: float = 80.0,
+                 scene_s: float = 2.0) -> list[str]:
     if target == "firmware-sim":
         exe = ROOT / ".venv" / "bin" / "firmware-sim"
-        return [str(exe), "run", "--source", "sim:face_occlusion", "--pty"]
+        return [str(exe), "run", "--stats-every", "0", *source, "--seconds", f"{seconds:g}",
+                "--pty"]
     return [sys.executable, "-c", TEST_ENGINE.format(tests=str(ROOT / "tests"), scene_s=scene_s)]
 
 
@@ -76,6 +78,13 @@ class Firmware:
             except subprocess.TimeoutExpired:
                 self.proc.kill()
                 self.proc.wait()
+
+
+def load_average() -> str:
+    try:
+        return " ".join(open("/proc/loadavg").read().split()[:3])
+    except OSError:
+        return "?"
 
 
 def machine() -> str:
@@ -164,7 +173,8 @@ def main(argv=None) -> int:
     ap.add_argument("--target", choices=("firmware-sim", "test-engine"), default=default_target())
     ap.add_argument("--no-write", action="store_true", help="do not update docs/benchmarks.md")
     args = ap.parse_args(argv)
-    fw = Firmware(args.target)
+    fw = Firmware(args.target, seconds=args.seconds + 20)
+    load0 = load_average()
     try:
         with Device(fw.path) as dev:
             tele = bench_telemetry(dev, args.seconds)
@@ -179,7 +189,9 @@ def main(argv=None) -> int:
     text = "\n".join([
         SECTION, "",
         f"Machine: {machine()}.  Command: `{cmd}` ({time.strftime('%Y-%m-%d')}); firmware = "
-        f"`{args.target}` in its own process, host = `hostctl.Device`, both ends over one pty.", "",
+        f"`{args.target}` in its own process (sim:face_occlusion, realtime), host = "
+        f"`hostctl.Device`, both ends over one pty.  Load average (1/5/15 min) at start "
+        f"{load0}, at end {load_average()} (the machine is shared).", "",
         "| measure | result |", "|---|---|",
         f"| face26 telemetry, {tele['seconds']:.1f} s wall | {tele['snapshots']} snapshots = "
         f"{tele['rate_hz']:.1f} Hz, lost frames {tele['lost_frames']}, event-time gaps "

@@ -75,7 +75,6 @@ class LinkServer:
     # ---- main loop ------------------------------------------------------------
     def serve(self, stop_event: threading.Event | None = None) -> dict:
         stop_event = stop_event or threading.Event()
-        self.port.timeout = 0.002
         try:
             self._send_raw(b"\x00")                 # end any garbage the host holds
             while not stop_event.is_set():
@@ -100,8 +99,11 @@ class LinkServer:
 
     def step(self) -> None:
         """One iteration: read, handle, stream telemetry, heartbeat, write."""
-        n = max(1, min(4096, self.port.in_waiting or 1))
-        data = self.port.read(n)
+        self.port.timeout = 0.002                # wait briefly for a byte, then take all
+        data = self.port.read(1)                 # that is there (in_waiting is not a byte
+        if data:                                 # count on every pyserial port)
+            self.port.timeout = 0
+            data += self.port.read(65536)
         if data:
             for frame in self.reader.feed(data):
                 self.handle(frame)

@@ -252,13 +252,14 @@ class Device:
                        f"({(self.retries + 1) * self.timeout:g} s)")
 
     def _read_once(self, timeout: float) -> None:
-        self.port.timeout = max(0.0, min(timeout, 0.05))
+        """Wait up to ``timeout`` (at most 50 ms) for a byte, then take everything available
+        (``in_waiting`` is not a byte count on every pyserial port, e.g. socket://)."""
         try:
-            waiting = self.port.in_waiting
-        except (OSError, serial.SerialException):
-            waiting = 0
-        try:
-            data = self.port.read(max(1, min(waiting, 65536)))
+            self.port.timeout = max(0.0, min(timeout, 0.05))
+            data = self.port.read(1)
+            if data:
+                self.port.timeout = 0
+                data += self.port.read(65536)
         except (serial.SerialException, OSError) as e:
             raise HostctlError(f"{self.url}: link failed: {e}") from None
         if data:
@@ -297,13 +298,9 @@ class Device:
             self.reader.counts["malformed"] += 1
 
     def _store_reply(self, f) -> None:
-        seq = struct_u16(f.payload)
-        if seq is not None:
-            self.replies.setdefault(seq, []).append(f)
-
-
-def struct_u16(payload: bytes) -> int | None:
-    return int.from_bytes(payload[:2], "little") if len(payload) >= 2 else None
+        """ACK, NACK, PARAM_VALUE and STATS payloads all start with the request's u16 seq."""
+        if len(f.payload) >= 2:
+            self.replies.setdefault(int.from_bytes(f.payload[:2], "little"), []).append(f)
 
 
 def _firmware_version(reason: str) -> int:

@@ -20,6 +20,7 @@ from firmware_sim.sensor import simulate_all
 from hostctl import Device, HostctlError
 from hostctl.record import save
 from springtrack import cli as st_cli
+from springtrack import wire
 from springtrack.track import read_csv
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -244,3 +245,33 @@ def test_hil_monitor_cli(realtime_fw):
     assert "model face26" in last and "mouth" in last and "outline18" in last
     head = last.splitlines()[1]
     assert "lost frames " in head and "link errors 0" in head and "events " in head, head
+
+
+def test_hil_tcp_listener_with_key(tmp_path):
+    """firmware-sim --listen with a key: hostctl with the key works, without it is refused,
+    and unsigned frames are dropped and counted by the firmware."""
+    key = tmp_path / "link.key"
+    key.write_text("0123456789abcdef0123456789abcdef\n")
+    proc = subprocess.Popen(firmware_cmd("--source", "sim:face_occlusion", "--seconds", "6",
+                                         "--listen", "127.0.0.1:0", "--key-file", str(key)),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+    try:
+        r, _, _ = select.select([proc.stdout], [], [], 60)
+        line = proc.stdout.readline() if r else ""
+        assert line.startswith("listen: socket://127.0.0.1:"), line
+        url = line.split()[1]
+        with pytest.raises(HostctlError, match="requires a key"):
+            Device(url)
+        with Device(url, key=key.read_bytes().strip()) as dev:
+            assert dev.info["auth_required"]
+            g = dev.set(energy_gain=0.06)
+            collect_until(dev, lambda s: g in dev.applied, timeout=30)
+            dev.port.write(wire.encode_frame(wire.MsgType.PARAM_SET, 999,
+                                             wire.encode_param_set("energy_gain", 0.5)))
+            assert dev.get("energy_gain") == {"energy_gain": 0.06}
+            assert dev.stats()["link.auth_unsigned"] == 1
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        proc.stdout.close()
+        proc.stderr.close()
