@@ -87,7 +87,8 @@ class FirmwareLoop:
         self.thread = None
         self.t_start = None
         self.c = dict(pieces=0, snapshots=0, telemetry_dropped=0, updates_applied=0,
-                      updates_rejected=0, proc_ns=0, kernel_swaps=0)
+                      updates_rejected=0, proc_ns=0, kernel_swaps=0, processing_errors=0)
+        self.last_error = ""
         self.windows: deque = deque(maxlen=4096)   # processing us per 10 ms of events
         self._win_t0 = None
         self._win_ns = 0
@@ -238,6 +239,10 @@ class FirmwareLoop:
                 if gap:
                     self.fused.gap()
                 self._feed(memoryview(r.pool[idx])[:n])
+            except Exception as e:          # never let one transfer kill the loop
+                self.c["processing_errors"] += 1
+                self.last_error = f"processing: {type(e).__name__}: {e}"
+                self.fused.gap()
             finally:
                 r.release(idx)
         if self.pending_model is not None or self.pending_params:
@@ -344,9 +349,9 @@ class FirmwareLoop:
     def stats(self) -> dict:
         fc = self.fused.counters()
         rc = dict(self.reader.counts)
-        win = np.array(self.windows) if self.windows else np.zeros(1)
+        win = np.array(list(self.windows) or [0.0])     # list(): atomic copy under the GIL
         return dict(
-            state=self.reader.state, last_error=self.reader.last_error,
+            state=self.reader.state, last_error=self.reader.last_error or self.last_error,
             transfers=rc["transfers"], bytes=rc["bytes"],
             transfers_dropped=rc["transfers_dropped"], bytes_dropped=rc["bytes_dropped"],
             events_decoded=fc["events_decoded"], events_tracked=fc["events_tracked"],
