@@ -328,7 +328,21 @@ class SimCamera:
             if now >= deadline:
                 self.counts["timeouts"] += 1
                 raise _usb_error(errno.ETIMEDOUT, "Operation timed out")
-            time.sleep(min(0.0002 if self.realtime else 0.001, deadline - now))
+            wake = self._ready_wall() if self.realtime else None
+            pause = 0.001 if wake is None else max(wake - now, 0.00005)
+            time.sleep(min(pause, deadline - now))
+
+    def _ready_wall(self) -> float | None:
+        """Realtime: wall time at which the next transfer will be due (the oldest pending
+        event's time + commit_us), so the read sleeps once instead of polling."""
+        with self.lock:
+            if not self.fifo or self.t0_wall is None:
+                return None
+            c = self.fifo[0]
+            k = int(np.searchsorted(c.marks_off, c.pos, side="right"))
+            if k >= len(c.marks_t):
+                return None
+            return self.wall_of(int(c.marks_t[k]) + self.commit_us)
 
     def _commit_due(self, now_t: int, n_max: int) -> bool:
         """Realtime: like the camera's USB controller, end a transfer early (short packet)
