@@ -70,6 +70,9 @@ def build_parser() -> argparse.ArgumentParser:
     link.add_argument("--listen", metavar="HOST:PORT",
                       help="serve the host link on TCP (prints 'listen: socket://HOST:PORT')")
     r.add_argument("--key-file", help="HMAC key file for the host link (docs/protocol.md)")
+    r.add_argument("--wait-start", action="store_true",
+                   help="with a host link: open the camera only when the host sends START "
+                        "(e.g. after uploading a model), instead of at once")
     return p
 
 
@@ -99,7 +102,10 @@ def make_source(args, biases: dict):
         if prof.fmt != "ccam":
             raise ValueError(f"profile {prof.name}: the fused loop decodes CCam words only; "
                              f"EVT streams are read with firmware_sim.usb + springtrack.io")
-        return (lambda: camusb.Camera.open(prof, args.serial, biases=biases)), None, None
+        def open_usb():
+            return camusb.Camera.open(prof, args.serial, biases=biases)
+        open_usb().close()                     # fail now, clearly, if there is no camera
+        return open_usb, None, None
     from . import simusb
     if kind == "sim":
         from .scenes import make_scene
@@ -190,7 +196,10 @@ def run(args) -> int:
                           biases=biases)
     stop = threading.Event()
     link_thread, port = start_link(args, engine, stop)
-    engine.start()
+    if args.wait_start and link_thread is None:
+        raise ValueError("--wait-start needs a host link (--pty, --port or --listen)")
+    if not args.wait_start:
+        engine.start()
     t0 = time.monotonic()
     next_stats = t0 + args.stats_every if args.stats_every > 0 else float("inf")
     quiet = 0

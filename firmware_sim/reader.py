@@ -152,10 +152,12 @@ class Reader:
                 self.cam = self.open_camera()
                 self.state = "streaming"
                 return True
-            except (camusb.CameraError, usb.core.USBError) as e:
+            except Exception as e:               # never let the reader thread die
                 self.counts["open_failures"] += 1
                 self.last_error = f"open failed: {e}"
                 self.state = "reconnecting"
+                if k == 0 or k % 20 == 0:
+                    self.log.append(f"open failed ({k + 1}x): {e}")
                 self.stop_event.wait(BACKOFF_S[min(k, len(BACKOFF_S) - 1)])
         return False
 

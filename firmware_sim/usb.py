@@ -182,8 +182,12 @@ def find(profile: DeviceProfile = PROFILES["ccam_atis"], serial: int | None = No
 
     With ``serial``, every device with the profile's IDs is opened and asked for its serial
     (CCam only) until one matches; the others are released again."""
-    devs = list(usb.core.find(find_all=True, idVendor=profile.vid, idProduct=profile.pid,
-                              backend=backend))
+    try:
+        devs = list(usb.core.find(find_all=True, idVendor=profile.vid, idProduct=profile.pid,
+                                  backend=backend))
+    except usb.core.NoBackendError:
+        raise CameraError("no libusb backend for pyusb: install libusb-1.0 "
+                          "(apt install libusb-1.0-0; docs/hardware.md)") from None
     if not devs:
         raise CameraError(f"no {profile.name} device (VID 0x{profile.vid:04X} PID "
                           f"0x{profile.pid:04X}) connected")

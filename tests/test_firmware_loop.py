@@ -305,3 +305,13 @@ def test_stop_and_start_again_resumes_the_stream(face):
     assert cam.counts["control_out"] == 2 * setup     # the set-up sequence ran again
     assert s["events_tracked"] > n_stop and eng.fused.last_t == face["t"][-1]
     assert s["anomalies"]["tracker_back_in_time"] == 0
+
+
+def test_cli_usb_source_without_a_camera_fails_clearly():
+    """No CCam ATIS is attached to the test machines: the real-hardware path must say so
+    (no libusb, or no device) instead of spinning or dying in a thread."""
+    r = subprocess.run([sys.executable, "-m", "firmware_sim.cli", "run", "--source", "usb",
+                        "--seconds", "1"], capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2
+    assert ("no libusb backend" in r.stderr or "no ccam_atis device" in r.stderr), r.stderr
+    assert "Traceback" not in r.stderr
