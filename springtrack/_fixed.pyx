@@ -35,6 +35,7 @@ cdef extern from "csrc/fixed_step.h" nogil:
     ctypedef struct fx_state:
         int32_t n, nc, width, height
         uint32_t a1, a2, cov_gain, energy_gain
+        int32_t a1_sh, a2_sh, cg_sh, eg_sh
         int64_t gate
         uint32_t gate_q24
         int64_t k_tau, dt_max, act_thr
@@ -42,8 +43,8 @@ cdef extern from "csrc/fixed_step.h" nogil:
         int32_t escale_never
         int64_t smin2, smax2
         int32_t period, ekind, need_torsion
-        int32_t mx[FX_MAX_TRACKERS]
-        int32_t my[FX_MAX_TRACKERS]
+        int64_t mx[FX_MAX_TRACKERS]
+        int64_t my[FX_MAX_TRACKERS]
         int64_t sxx[FX_MAX_TRACKERS]
         int64_t sxy[FX_MAX_TRACKERS]
         int64_t syy[FX_MAX_TRACKERS]
@@ -51,8 +52,8 @@ cdef extern from "csrc/fixed_step.h" nogil:
         int64_t tlast[FX_MAX_TRACKERS]
         uint32_t mq[FX_MAX_TRACKERS]
         uint32_t invm[FX_MAX_TRACKERS]
-        int32_t gdx0[FX_MAX_TRACKERS]
-        int32_t gdy0[FX_MAX_TRACKERS]
+        int64_t gdx0[FX_MAX_TRACKERS]
+        int64_t gdy0[FX_MAX_TRACKERS]
         int32_t degree[FX_MAX_TRACKERS]
         uint64_t sensitive_mask
         int32_t ca[FX_MAX_CONNECTIONS]
@@ -106,8 +107,9 @@ cdef extern from "csrc/fixed_step.c":
 assert _limits.MAX_TRACKERS == FX_MAX_TRACKERS and _limits.MAX_CONNECTIONS == FX_MAX_CONNECTIONS
 
 # float64 views of the Q formats (output only)
-cdef double POS_UNIT = 1.0 / 65536.0          # Q15.16 px
-cdef double Q32_UNIT = 1.0 / 4294967296.0     # Q.32 (covariance px^2, activity, energy)
+cdef double POS_UNIT = 1.0 / 4294967296.0     # Q.32 px
+cdef double COV_UNIT = 1.0 / 1099511627776.0  # Q.40 px^2
+cdef double Q32_UNIT = 1.0 / 4294967296.0     # Q.32 (activity, energy)
 
 
 cdef struct SampleOut:
@@ -133,9 +135,9 @@ cdef inline void snapshot_row(const fx_state* s, int64_t t, SampleOut* o) noexce
         a = fx_activity(s, i, t)
         o.x[base + i] = s.mx[i] * POS_UNIT
         o.y[base + i] = s.my[i] * POS_UNIT
-        o.sxx[base + i] = s.sxx[i] * Q32_UNIT
-        o.sxy[base + i] = s.sxy[i] * Q32_UNIT
-        o.syy[base + i] = s.syy[i] * Q32_UNIT
+        o.sxx[base + i] = s.sxx[i] * COV_UNIT
+        o.sxy[base + i] = s.sxy[i] * COV_UNIT
+        o.syy[base + i] = s.syy[i] * COV_UNIT
         o.act[base + i] = a * Q32_UNIT
         o.active[base + i] = a > s.act_thr
         o.sensitive[base + i] = (s.sensitive_mask >> i) & 1
@@ -261,9 +263,13 @@ cdef class FixedKernel:
         pq = _q.params_q(params, s.nc)
         self.params = params
         s.a1 = pq["a1"]
+        s.a1_sh = pq["a1_sh"]
         s.a2 = pq["a2"]
+        s.a2_sh = pq["a2_sh"]
         s.cov_gain = pq["cov_gain"]
+        s.cg_sh = pq["cg_sh"]
         s.energy_gain = pq["energy_gain"]
+        s.eg_sh = pq["eg_sh"]
         s.gate = pq["gate"]
         s.gate_q24 = pq["gate_q24"]
         s.k_tau = pq["k_tau"]
@@ -339,20 +345,20 @@ cdef class FixedKernel:
         act = np.array([fx_activity(s, i, t) * Q32_UNIT for i in range(n)])
         return dict(x=np.array([s.mx[i] * POS_UNIT for i in range(n)]),
                     y=np.array([s.my[i] * POS_UNIT for i in range(n)]),
-                    sxx=np.array([s.sxx[i] * Q32_UNIT for i in range(n)]),
-                    sxy=np.array([s.sxy[i] * Q32_UNIT for i in range(n)]),
-                    syy=np.array([s.syy[i] * Q32_UNIT for i in range(n)]),
+                    sxx=np.array([s.sxx[i] * COV_UNIT for i in range(n)]),
+                    sxy=np.array([s.sxy[i] * COV_UNIT for i in range(n)]),
+                    syy=np.array([s.syy[i] * COV_UNIT for i in range(n)]),
                     activity=act,
                     active=np.array([fx_activity(s, i, t) > s.act_thr for i in range(n)]),
                     sensitive=np.array([bool((s.sensitive_mask >> i) & 1) for i in range(n)]))
 
     def raw_state(self):
-        """The integer state itself (Q formats of docs/fixed_point.md): x, y Q15.16 int32;
-        sxx, sxy, syy Q.32 int64; activity Q.32 (at the tracker's last event)."""
+        """The integer state itself (Q formats of docs/fixed_point.md): x, y Q.32 int64;
+        sxx, sxy, syy Q.40 int64; activity Q.32 (at the tracker's last event)."""
         cdef fx_state* s = &self.st
         n = s.n
-        return dict(x=np.array([s.mx[i] for i in range(n)], np.int32),
-                    y=np.array([s.my[i] for i in range(n)], np.int32),
+        return dict(x=np.array([s.mx[i] for i in range(n)], np.int64),
+                    y=np.array([s.my[i] for i in range(n)], np.int64),
                     sxx=np.array([s.sxx[i] for i in range(n)], np.int64),
                     sxy=np.array([s.sxy[i] for i in range(n)], np.int64),
                     syy=np.array([s.syy[i] for i in range(n)], np.int64),
@@ -360,7 +366,7 @@ cdef class FixedKernel:
 
     def set_raw(self, int i, x=None, y=None, act=None):
         """Overwrite tracker i's raw integer state (tests: drive it to a range limit).
-        x, y Q15.16 (int32), act Q.32; the spatial index is refreshed."""
+        x, y Q.32 (int64), act Q.32; the spatial index is refreshed."""
         cdef fx_state* s = &self.st
         if not 0 <= i < s.n:
             raise IndexError(f"tracker index {i} out of range 0..{s.n - 1}")

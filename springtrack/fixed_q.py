@@ -9,11 +9,12 @@ from __future__ import annotations
 
 import math
 
-POS_FRAC = 16                 # positions Q15.16 px
+POS_FRAC = 32                 # positions Q.32 px (int64)
+GEOM_FRAC = 16                # spring geometry (rest lengths and offsets) Q.16 px
 POS_LIM_PX = 8192.0           # |position| < 8192 px (state saturates there)
-COV_FRAC = 32                 # covariances Q.32 px^2
+COV_FRAC = 40                 # covariances Q.40 px^2
 D2_FRAC = 40                  # Mahalanobis d^2, Q.40
-GAIN_FRAC = 30                # gains Q2.30, <= 1
+GAIN_FRAC = 30                # stiffness Q2.30, <= 1
 MASS_FRAC = 24                # stiffness / mass and 1 / mass, Q7.24
 ACT_FRAC = 32                 # activity Q.32
 ENERGY_FRAC = 32              # energies Q.32
@@ -37,8 +38,25 @@ def q(value: float, frac: int, name: str, lo: float | None = None, hi: float | N
 
 
 def gain(value: float, name: str) -> int:
-    """A gain in [0, 1] as Q2.30."""
+    """A gain in [0, 1] as Q2.30 (stiffness)."""
     return q(value, GAIN_FRAC, name, 0.0, 1.0)
+
+
+def norm_gain(value: float, name: str) -> tuple[int, int]:
+    """A gain in [0, 1] as (mantissa, shift), gain = mantissa / 2^shift with the mantissa in
+    [2^30, 2^31) (31 significant bits whatever the gain's size; shift <= 62)."""
+    q(value, 0, name, 0.0, 1.0)                       # range check
+    if value == 0.0:
+        return 0, 30
+    sh = 30 - math.floor(math.log2(value))
+    m = int(round(value * 2.0 ** sh))
+    if m >= 1 << 31:
+        sh -= 1
+        m = int(round(value * 2.0 ** sh))
+    if sh > 62:
+        sh = 62
+        m = int(round(value * 2.0 ** sh))
+    return m, sh
 
 
 def exp2_table() -> list[int]:
@@ -95,11 +113,13 @@ def params_q(p, nc: int) -> dict:
     gate = p.gate_d2
     tau = p.activity_tau_us
     k_tau = int(round(LOG2E / tau * 2 ** D2_FRAC))
+    a1 = norm_gain(p.alpha_position, "alpha_position")
+    a2 = norm_gain(p.alpha_covariance, "alpha_covariance")
+    cg = norm_gain(p.alpha_covariance / covariance_bias(p.alpha_position, gate), "cov_gain")
+    eg = norm_gain(p.energy_gain, "energy_gain")
     return dict(
-        a1=gain(p.alpha_position, "alpha_position"),
-        a2=gain(p.alpha_covariance, "alpha_covariance"),
-        cov_gain=gain(p.alpha_covariance / covariance_bias(p.alpha_position, gate), "cov_gain"),
-        energy_gain=gain(p.energy_gain, "energy_gain"),
+        a1=a1[0], a1_sh=a1[1], a2=a2[0], a2_sh=a2[1], cov_gain=cg[0], cg_sh=cg[1],
+        energy_gain=eg[0], eg_sh=eg[1],
         gate=q(gate, D2_FRAC, "gate_d2", 0.0, 31.0),
         gate_q24=q(gate, 24, "gate_d2", 0.0, 31.0),
         k_tau=k_tau,
@@ -145,9 +165,9 @@ def model_q(arr: dict, width: int, height: int) -> dict:
         out["stiff"].append(gain(a, f"{where}.stiffness"))
         out["kia"].append(q(a / mass[i], MASS_FRAC, f"{where} stiffness/mass", 0.0, 127.0))
         out["kib"].append(q(a / mass[j], MASS_FRAC, f"{where} stiffness/mass", 0.0, 127.0))
-        out["l0"].append(q(float(arr["l0"][k]), POS_FRAC, f"{where} rest length", 0.0, 2 * 1.5 * lim))
-        out["dx0"].append(q(float(arr["dx0"][k]), POS_FRAC, f"{where} rest dx", -2 * lim, 2 * lim))
-        out["dy0"].append(q(float(arr["dy0"][k]), POS_FRAC, f"{where} rest dy", -2 * lim, 2 * lim))
+        out["l0"].append(q(float(arr["l0"][k]), GEOM_FRAC, f"{where} rest length", 0.0, 2 * 1.5 * lim))
+        out["dx0"].append(q(float(arr["dx0"][k]), GEOM_FRAC, f"{where} rest dx", -2 * lim, 2 * lim))
+        out["dy0"].append(q(float(arr["dy0"][k]), GEOM_FRAC, f"{where} rest dy", -2 * lim, 2 * lim))
         th = float(arr["th0"][k])
         out["th0"].append(angle(th))
         out["c0x"].append(int(round(math.cos(th) * (1 << 30))))

@@ -92,17 +92,37 @@ uint64_t fx_isqrt64(const fx_state *s, uint64_t v)
     return isqrt64(s, v);
 }
 
-static inline int32_t sat_pos(fx_state *s, int64_t v)
+static inline int64_t sat_pos(fx_state *s, int64_t v)
 {
     if (v >= FX_POS_LIM) {
         s->sat_position++;
-        return (int32_t)(FX_POS_LIM - 1);
+        return FX_POS_LIM - 1;
     }
     if (v < -FX_POS_LIM) {
         s->sat_position++;
-        return (int32_t)(-FX_POS_LIM);
+        return -FX_POS_LIM;
     }
-    return (int32_t)v;
+    return v;
+}
+
+/* a position (Q.32) in Q.16, floor */
+static inline int64_t pos16(int64_t v)
+{
+    return v >> 16;
+}
+
+/* |v| / 2^16 truncated toward zero, with v's sign: a Q.32 offset in Q.16 whose square
+   never exceeds the exact one (so the gate-box test stays a necessary condition) */
+static inline int64_t trunc16(int64_t v)
+{
+    return v >= 0 ? v >> 16 : -((-v) >> 16);
+}
+
+/* sum over a term of the quadratic form, Q.40: (a u v) with a Q.32 px^-2 and u, v Q.32 px;
+   64 x 64 -> 128-bit products (integer registers only) */
+static inline int64_t qterm(int64_t a, int64_t u, int64_t v)
+{
+    return (int64_t)(((((__int128)a * u) >> 32) * v) >> 24);
 }
 
 static inline int64_t sat_add(fx_state *s, int64_t a, int64_t b, int64_t lim)
@@ -301,7 +321,7 @@ static void index_set(fx_state *s, int i, int on)
 
 static inline int32_t cell_of(int64_t v, int32_t gmax)
 {
-    int64_t c = v >> (FX_POS_FRAC + FX_CELL_SHIFT);       /* floor */
+    int64_t c = v >> (16 + FX_CELL_SHIFT);                /* v Q.16 px; floor */
     return c < 0 ? 0 : (c > gmax ? gmax : (int32_t)c);
 }
 
@@ -311,10 +331,10 @@ void fx_reindex(fx_state *s, int i)
 {
     int64_t hx = (int64_t)isqrt64(s, (uint64_t)s->gsxx[i]) + 1 + FX_INDEX_MARGIN;  /* Q.16 */
     int64_t hy = (int64_t)isqrt64(s, (uint64_t)s->gsyy[i]) + 1 + FX_INDEX_MARGIN;
-    s->bx_lo[i] = s->mx[i] - hx;
-    s->bx_hi[i] = s->mx[i] + hx;
-    s->by_lo[i] = s->my[i] - hy;
-    s->by_hi[i] = s->my[i] + hy;
+    s->bx_lo[i] = pos16(s->mx[i]) - hx;
+    s->bx_hi[i] = pos16(s->mx[i]) + hx;
+    s->by_lo[i] = pos16(s->my[i]) - hy;
+    s->by_hi[i] = pos16(s->my[i]) + hy;
     index_set(s, i, 0);
     s->box_x0[i] = cell_of(s->bx_lo[i], s->gw - 1);
     s->box_x1[i] = cell_of(s->bx_hi[i], s->gw - 1);
@@ -332,8 +352,10 @@ static inline int inside(int64_t d, int64_t g2)
 
 static inline int box_ok(const fx_state *s, int i)
 {
-    return inside(s->mx[i] - s->bx_lo[i], s->gsxx[i]) && inside(s->bx_hi[i] - s->mx[i], s->gsxx[i])
-        && inside(s->my[i] - s->by_lo[i], s->gsyy[i]) && inside(s->by_hi[i] - s->my[i], s->gsyy[i]);
+    /* positions to Q.16 (floor): an error < 2^-16 px, far inside the 3 px index margin */
+    int64_t x = pos16(s->mx[i]), y = pos16(s->my[i]);
+    return inside(x - s->bx_lo[i], s->gsxx[i]) && inside(s->bx_hi[i] - x, s->gsxx[i])
+        && inside(y - s->by_lo[i], s->gsyy[i]) && inside(s->by_hi[i] - y, s->gsyy[i]);
 }
 
 /* Re-index tracker i if its exact gate box has left the box it is indexed with. */
@@ -396,9 +418,8 @@ static inline void refresh(fx_state *s, int i)
     b = sxy >> sh;
     p = a * c;
     if (b * b > mulsh(p, RHO2_Q30, 30)) {              /* |rho| > 0.99: clamp */
-        int64_t sx = (int64_t)isqrt64(s, (uint64_t)sxx);  /* Q.16 px */
-        int64_t sy = (int64_t)isqrt64(s, (uint64_t)syy);
-        int64_t lim = mulsh(sx * sy, RHO_Q30, 30);     /* 0.99 sqrt(sxx syy), Q.32 */
+        /* 0.99 sqrt(sxx syy) = 0.99 sqrt(a c) 2^sh, Q.40, 31 significant bits */
+        int64_t lim = mulsh((int64_t)isqrt64(s, (uint64_t)p) * ((int64_t)1 << sh), RHO_Q30, 30);
         sxy = sxy < 0 ? -lim : lim;
         b = sxy >> sh;
     }
@@ -412,13 +433,14 @@ static inline void refresh(fx_state *s, int i)
     e = bitlen64((uint64_t)det) - 31;
     m = e >= 0 ? det >> e : det * ((int64_t)1 << -e);
     r = ((int64_t)1 << 61) / m;
-    /* ia = syy / det in Q.32 = c r 2^(3 - sh - e) (docs/fixed_point.md) */
-    k = 3 - sh - e;
+    /* ia = syy / det in Q.32 = c r 2^(11 - sh - e) for covariances in Q.40
+       (docs/fixed_point.md) */
+    k = 11 - sh - e;
     s->ia[i] = scale2(s, c * r, k);
     s->ic[i] = scale2(s, a * r, k);
     s->ib2[i] = 2 * scale2(s, -b * r, k);
-    s->gsxx[i] = mulsh(sxx, s->gate_q24, 24);          /* gate * sxx, Q.32 px^2 */
-    s->gsyy[i] = mulsh(syy, s->gate_q24, 24);
+    s->gsxx[i] = mulsh(sxx, s->gate_q24, 32);          /* gate * sxx, Q.32 px^2 */
+    s->gsyy[i] = mulsh(syy, s->gate_q24, 32);
 }
 
 void fx_refresh(fx_state *s, int i)
@@ -426,8 +448,8 @@ void fx_refresh(fx_state *s, int i)
     refresh(s, i);
 }
 
-/* [ref] _update: eqs. (2)-(6) for the winning tracker i; dx, dy Q.16 from the pre-update
-   mean, d2 Q.40. */
+/* [ref] _update: eqs. (2)-(6) for the winning tracker i; dx, dy Q.32 from the pre-update
+   mean (|.| < 2^41 inside the gate), d2 Q.40. */
 static inline void update_tracker(fx_state *s, int i, int64_t t, int64_t dx, int64_t dy, int64_t d2)
 {
     int64_t p = (int64_t)exp2neg(s, mulsh(d2, HALF_LOG2E_Q30, 30));   /* eq. (2), Q.30 */
@@ -438,13 +460,14 @@ static inline void update_tracker(fx_state *s, int i, int64_t t, int64_t dx, int
     }
     s->act[i] = act;
     s->tlast[i] = t;
-    /* eq. (3): |dx| < 2^25 inside the gate, a1 <= 2^30: the product fits */
-    s->mx[i] = sat_pos(s, s->mx[i] + rshr((int64_t)s->a1 * dx, 30));
-    s->my[i] = sat_pos(s, s->my[i] + rshr((int64_t)s->a1 * dy, 30));
-    /* eq. (4)-(5): S <- (1 - a2) S + g e e^T, e = (dx, dy); dx dx is Q.32 px^2 */
-    s->sxx[i] += mulsh(dx * dx, s->cov_gain, 30) - mulsh(s->sxx[i], s->a2, 30);
-    s->sxy[i] += mulsh(dx * dy, s->cov_gain, 30) - mulsh(s->sxy[i], s->a2, 30);
-    s->syy[i] += mulsh(dy * dy, s->cov_gain, 30) - mulsh(s->syy[i], s->a2, 30);
+    int64_t ex = rshr(dx, 12), ey = rshr(dy, 12);         /* Q.20 px, < 2^29 */
+    /* eq. (3) */
+    s->mx[i] = sat_pos(s, s->mx[i] + mulsh(dx, s->a1, s->a1_sh));
+    s->my[i] = sat_pos(s, s->my[i] + mulsh(dy, s->a1, s->a1_sh));
+    /* eq. (4)-(5): S <- (1 - a2) S + g e e^T, e = (dx, dy); ex ex is Q.40 px^2 */
+    s->sxx[i] += mulsh(ex * ex, s->cov_gain, s->cg_sh) - mulsh(s->sxx[i], s->a2, s->a2_sh);
+    s->sxy[i] += mulsh(ex * ey, s->cov_gain, s->cg_sh) - mulsh(s->sxy[i], s->a2, s->a2_sh);
+    s->syy[i] += mulsh(ey * ey, s->cov_gain, s->cg_sh) - mulsh(s->syy[i], s->a2, s->a2_sh);
     refresh(s, i);
     check_index(s, i);
 }
@@ -473,18 +496,17 @@ int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y)
     m = s->cells[(y >> FX_CELL_SHIFT) * s->gw + (x >> FX_CELL_SHIFT)] & s->sensitive_mask;
     while (m) {
         int i = __builtin_ctzll(m);
-        int64_t dx, dy, dx2, dy2, d2;
+        int64_t dx, dy, hx, hy, d2;
         m &= m - 1;
-        dx = fx - s->mx[i];                               /* |.| < 2^30 */
+        dx = fx - s->mx[i];                               /* Q.32, |.| < 2^46 */
         dy = fy - s->my[i];
-        dx2 = dx * dx;                                    /* Q.32 px^2 */
-        dy2 = dy * dy;
+        hx = trunc16(dx);                                 /* Q.16, |.| < 2^30 */
+        hy = trunc16(dy);
         /* d2 < gate implies dx^2 < gate sxx and dy^2 < gate syy; this test also bounds
-           ia |dx| etc. so the products below fit int64 (docs/fixed_point.md) */
-        if (dx2 >= s->gsxx[i] || dy2 >= s->gsyy[i])
+           ia |dx| etc. so the terms below fit (docs/fixed_point.md) */
+        if (hx * hx >= s->gsxx[i] || hy * hy >= s->gsyy[i])
             continue;
-        d2 = ((s->ia[i] * dx) >> 24) * dx + ((s->ic[i] * dy) >> 24) * dy
-           + ((s->ib2[i] * dx) >> 24) * dy;               /* Q.40 */
+        d2 = qterm(s->ia[i], dx, dx) + qterm(s->ic[i], dy, dy) + qterm(s->ib2[i], dx, dy);  /* Q.40 */
         if (d2 < best_d2) {
             best_d2 = d2;
             best = i;
@@ -539,7 +561,7 @@ void fx_springs(fx_state *s)
             uint32_t th;
             i = s->ca[k];
             j = s->cb[k];
-            polar(s, (int64_t)s->mx[j] - s->mx[i], (int64_t)s->my[j] - s->my[i], &th,
+            polar(s, rshr(s->mx[j] - s->mx[i], 16), rshr(s->my[j] - s->my[i], 16), &th,
                   &pl[k], &pcx[k], &pcy[k]);
             th -= s->th0[k];                              /* mod 2^32 = mod 2 pi */
             dth_raw[k] = th >= 0x80000000u ? (int64_t)th - ((int64_t)1 << 32) : (int64_t)th;
@@ -552,8 +574,8 @@ void fx_springs(fx_state *s)
         int kind = s->kinds[k];
         i = s->ca[k];
         j = s->cb[k];
-        rx = (int64_t)s->mx[j] - s->mx[i];                /* Q.16, |.| < 2^30 */
-        ry = (int64_t)s->my[j] - s->my[i];
+        rx = rshr(s->mx[j] - s->mx[i], 16);               /* Q.16, |.| < 2^30 */
+        ry = rshr(s->my[j] - s->my[i], 16);
         if (s->need_torsion) {                            /* polar form computed above */
             l = pl[k];
             cx = pcx[k];
@@ -573,17 +595,17 @@ void fx_springs(fx_state *s)
         s->energy[2][k] = mulsh(ex * ex + ey * ey, s->stiff[k], 31);   /* eq. (20) */
         if (kind & 1) {                                   /* eq. (11): a dl (r / l) / m */
             int64_t qx, qy;
-            if (l > 0) {
-                qx = rshr(dl * cx, 30);
-                qy = rshr(dl * cy, 30);
+            if (l > 0) {                                  /* dl r / l, Q.32 */
+                qx = rshr(dl * cx, 14);
+                qy = rshr(dl * cy, 14);
             } else {
-                qx = rshr(dl * s->c0x[k], 30);
-                qy = rshr(dl * s->c0y[k], 30);
+                qx = rshr(dl * s->c0x[k], 14);
+                qy = rshr(dl * s->c0y[k], 14);
             }
-            ddx[i] += mul32sh(qx, s->kia[k], 24);
-            ddy[i] += mul32sh(qy, s->kia[k], 24);
-            ddx[j] -= mul32sh(qx, s->kib[k], 24);
-            ddy[j] -= mul32sh(qy, s->kib[k], 24);
+            ddx[i] += mulsh(qx, s->kia[k], 24);
+            ddy[i] += mulsh(qy, s->kia[k], 24);
+            ddx[j] -= mulsh(qx, s->kib[k], 24);
+            ddy[j] -= mulsh(qy, s->kib[k], 24);
         }
         if (s->need_torsion) {
             int64_t dth = dth_raw[k] - mean_dth;          /* eq. (15), binary angle */
@@ -593,21 +615,21 @@ void fx_springs(fx_state *s)
                 int64_t c, sn, ux, uy;
                 cossin(s, mul32sh(dth, s->stiff[k], 30), &c, &sn);
                 c -= ONE_Q30;
-                ux = rshr(rx * c - ry * sn, 30);          /* l (cos(th + a dth) - cos th) */
-                uy = rshr(rx * sn + ry * c, 30);
-                ddx[i] += mul32sh(ux, s->invm[i], 24);
-                ddy[i] += mul32sh(uy, s->invm[i], 24);
-                ddx[j] -= mul32sh(ux, s->invm[j], 24);
-                ddy[j] -= mul32sh(uy, s->invm[j], 24);
+                ux = rshr(rx * c - ry * sn, 14);          /* l (cos(th + a dth) - cos th), Q.32 */
+                uy = rshr(rx * sn + ry * c, 14);
+                ddx[i] += mulsh(ux, s->invm[i], 24);
+                ddy[i] += mulsh(uy, s->invm[i], 24);
+                ddx[j] -= mulsh(ux, s->invm[j], 24);
+                ddy[j] -= mulsh(uy, s->invm[j], 24);
             }
         } else {
             s->energy[1][k] = 0;
         }
         if (kind & 4) {                                   /* eq. (19) */
-            ddx[i] += mul32sh(ex, s->kia[k], 24);
-            ddy[i] += mul32sh(ey, s->kia[k], 24);
-            ddx[j] -= mul32sh(ex, s->kib[k], 24);
-            ddy[j] -= mul32sh(ey, s->kib[k], 24);
+            ddx[i] += mul32sh(ex, s->kia[k], 8);          /* Q.16 x Q.24 -> Q.32 */
+            ddy[i] += mul32sh(ey, s->kia[k], 8);
+            ddx[j] -= mul32sh(ex, s->kib[k], 8);
+            ddy[j] -= mul32sh(ey, s->kib[k], 8);
         }
     }
     for (i = 0; i < n; i++) {
@@ -619,12 +641,32 @@ void fx_springs(fx_state *s)
         check_index(s, i);
 }
 
+/* x0 + sum m_i (x_i - x0) / sum m_i for Q.32 positions: the offsets are split into a
+   Q.16 high part and 16 low bits so that no sum exceeds 2^61, then recombined exactly. */
+static int64_t centre(const fx_state *s, const int64_t *x, int64_t msum)
+{
+    int64_t hi = 0, lo = 0, q, r;
+    int i;
+    for (i = 0; i < s->n; i++) {
+        int64_t d = x[i] - x[0];                          /* |.| < 2^46 */
+        hi += (int64_t)s->mq[i] * (d >> 16);              /* < 2^54 each */
+        lo += (int64_t)s->mq[i] * (d & 0xffff);           /* < 2^40 each */
+    }
+    q = hi / msum;                                        /* floor division */
+    r = hi % msum;
+    if (r < 0) {
+        q -= 1;
+        r += msum;
+    }
+    return x[0] + q * 65536 + div_round(r * 65536 + lo, msum);
+}
+
 /* [ref] _energy_criteria: eqs. (13), (21), (22) */
 static void energy_criteria(fx_state *s)
 {
     int n = s->n, nc = s->nc, k, i;
     int over[FX_MAX_TRACKERS];
-    int64_t total = 0, thr, gx = 0, gy = 0, msum = 0;
+    int64_t total = 0, thr, gx, gy, msum = 0;
     int64_t *e;
     if (nc == 0)
         return;
@@ -653,18 +695,15 @@ static void energy_criteria(fx_state *s)
                 over[s->cb[k]]++;
             }
     /* centre of mass G = x0 + sum m_i (x_i - x0) / sum m_i */
-    for (i = 0; i < n; i++) {
+    for (i = 0; i < n; i++)
         msum += s->mq[i];
-        gx += (int64_t)s->mq[i] * ((int64_t)s->mx[i] - s->mx[0]);   /* < 2^54 each */
-        gy += (int64_t)s->mq[i] * ((int64_t)s->my[i] - s->my[0]);
-    }
-    gx = s->mx[0] + div_round(gx, msum);
-    gy = s->my[0] + div_round(gy, msum);
+    gx = centre(s, s->mx, msum);
+    gy = centre(s, s->my, msum);
     s->sensitive_mask = 0;
     for (i = 0; i < n; i++) {
         if (over[i] > 0) {                                /* eq. (22) */
-            s->mx[i] = sat_pos(s, s->mx[i] + mulsh(gx + s->gdx0[i] - s->mx[i], s->energy_gain, 30));
-            s->my[i] = sat_pos(s, s->my[i] + mulsh(gy + s->gdy0[i] - s->my[i], s->energy_gain, 30));
+            s->mx[i] = sat_pos(s, s->mx[i] + mulsh(gx + s->gdx0[i] - s->mx[i], s->energy_gain, s->eg_sh));
+            s->my[i] = sat_pos(s, s->my[i] + mulsh(gy + s->gdy0[i] - s->my[i], s->energy_gain, s->eg_sh));
         }
         if (!(s->degree[i] > 0 && over[i] == s->degree[i]))   /* eq. (21) */
             s->sensitive_mask |= (uint64_t)1 << i;

@@ -5,14 +5,15 @@
  * compile with `gcc -mgeneral-regs-only` (no floating-point register may be used);
  * tests/test_fixed_integer_only.py checks that.  Q formats (docs/fixed_point.md):
  *
- *   positions mx, my, gdx0, l0, dx0 ...   int32  Q15.16 px, clamped to +-FX_POS_LIM
- *   covariances sxx, sxy, syy            int64  Q.32 px^2 (<= 4096 px^2)
+ *   positions mx, my, gdx0                int64  Q.32 px, clamped to +-FX_POS_LIM
+ *   spring geometry l0, dx0, r, l ...     int32/int64  Q.16 px
+ *   covariances sxx, sxy, syy            int64  Q.40 px^2 (<= 4096 px^2)
  *   inverse covariance ia, ib2, ic        int64  Q.32 px^-2
  *   Mahalanobis d^2, gate                 int64  Q.40
  *   activity                              int64  Q.32
  *   energies                              int64  Q.32 (px^2, or rad^2 for torsion)
- *   gains a1, a2, cov_gain, energy_gain,
- *         stiffness                       uint32 Q2.30 (<= 1.0)
+ *   gains a1, a2, cov_gain, energy_gain   uint32 mantissa in [2^30, 2^31) and a shift
+ *   stiffness                             uint32 Q2.30 (<= 1.0)
  *   stiffness/mass, 1/mass                uint32 Q7.24
  *   angles                                uint32 binary angle, 2^32 = 2 pi
  *   exp2 / atan / CORDIC tables           uint32 Q.30 / binary angle
@@ -29,8 +30,8 @@
 #define FX_MAX_TRACKERS 64
 #define FX_MAX_CONNECTIONS 128
 #define FX_CELL_SHIFT 4                     /* spatial index cells of 16 x 16 px */
-#define FX_POS_FRAC 16                      /* positions Q15.16 */
-#define FX_POS_LIM ((int64_t)8192 << 16)    /* |position| < 8192 px */
+#define FX_POS_FRAC 32                      /* positions Q.32 */
+#define FX_POS_LIM ((int64_t)8192 << 32)    /* |position| < 8192 px */
 #define FX_EXP2_BITS 10                     /* exp2 table: 1024 intervals + 1 */
 #define FX_EXP2_N (1 << FX_EXP2_BITS)
 #define FX_CORDIC_N 30                      /* CORDIC iterations */
@@ -46,7 +47,8 @@ typedef struct {
     /* geometry and model size */
     int32_t n, nc, width, height;
     /* parameters, converted by springtrack/fixed_q.py */
-    uint32_t a1, a2, cov_gain, energy_gain;   /* Q2.30 */
+    uint32_t a1, a2, cov_gain, energy_gain;   /* gain = mantissa / 2^shift */
+    int32_t a1_sh, a2_sh, cg_sh, eg_sh;
     int64_t gate;                             /* d^2 gate, Q.40 */
     uint32_t gate_q24;                        /* the same gate, Q8.24 */
     int64_t k_tau;                            /* log2(e) / tau per us, Q.40 */
@@ -54,10 +56,10 @@ typedef struct {
     int64_t act_thr;                          /* Q.32 */
     uint32_t escale;                          /* energy_scale, Q17.14 */
     int32_t escale_never;                     /* 1: energy_scale >= nc, nothing is ever over */
-    int64_t smin2, smax2;                     /* Q.32 px^2 */
+    int64_t smin2, smax2;                     /* Q.40 px^2 */
     int32_t period, ekind, need_torsion;
     /* tracker state, structure of arrays */
-    int32_t mx[FX_MAX_TRACKERS], my[FX_MAX_TRACKERS];
+    int64_t mx[FX_MAX_TRACKERS], my[FX_MAX_TRACKERS];
     int64_t sxx[FX_MAX_TRACKERS], sxy[FX_MAX_TRACKERS], syy[FX_MAX_TRACKERS];
     int64_t ia[FX_MAX_TRACKERS], ib2[FX_MAX_TRACKERS], ic[FX_MAX_TRACKERS];
     int64_t gsxx[FX_MAX_TRACKERS], gsyy[FX_MAX_TRACKERS];    /* gate * sxx, gate * syy, Q.32 */
@@ -65,7 +67,7 @@ typedef struct {
     int64_t tlast[FX_MAX_TRACKERS];
     uint32_t mq[FX_MAX_TRACKERS];             /* mass / max mass, Q.24 (centre of mass) */
     uint32_t invm[FX_MAX_TRACKERS];           /* 1 / mass, Q7.24 */
-    int32_t gdx0[FX_MAX_TRACKERS], gdy0[FX_MAX_TRACKERS];
+    int64_t gdx0[FX_MAX_TRACKERS], gdy0[FX_MAX_TRACKERS];
     int32_t degree[FX_MAX_TRACKERS];
     uint64_t sensitive_mask;
     /* connections */
