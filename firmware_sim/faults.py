@@ -23,8 +23,7 @@ reads (the unit the host sees) or in event time (what the scene sees):
 """
 from __future__ import annotations
 
-import errno
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, fields
 
 import numpy as np
 
@@ -127,7 +126,3 @@ class Faults:
                 data[4 * k] = 0xFF               # row 239 - 255 < 0: outside the sensor
                 self.injected["corrupt_geometry"] += 1
             self.injected["corrupt"] += 1
-
-
-def disconnect_errno() -> int:
-    return errno.ENODEV

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import array
 import threading
-import time
 from collections import deque
 
 import usb.core

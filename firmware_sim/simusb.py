@@ -30,7 +30,7 @@ import numpy as np
 import usb.backend
 import usb.core
 
-from springtrack.events import EVENT_DTYPE, as_events
+from springtrack.events import as_events
 
 from . import usb as camusb
 from .faults import Faults

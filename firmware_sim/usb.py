@@ -24,7 +24,7 @@ from __future__ import annotations
 import array
 import errno
 import struct
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import usb.core
 import usb.util

@@ -14,7 +14,6 @@ from springtrack.track import read_csv
 from springtrack.tracker import Tracker
 from firmware_sim import usb as camusb
 from firmware_sim.engine import UpdateRejected
-from firmware_sim.faults import Faults
 from firmware_sim.loop import FirmwareLoop
 from firmware_sim.sensor import simulate_all
 from firmware_sim.simusb import SimBackend, SimCamera, events_source
