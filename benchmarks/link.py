@@ -149,7 +149,7 @@ def bench_monitor(dev: Device, seconds: float = 3.0) -> dict:
     from hostctl.monitor import monitor
     buf = io.StringIO()
     t = time.monotonic()
-    monitor(dev, seconds=seconds, smooth=True, rate=10.0, out=buf)
+    monitor(dev, seconds=seconds, smooth=True, out=buf)          # the CLI's default rate
     frames = buf.getvalue().count("\x1b[H\x1b[2J")
     return dict(redraw_hz=frames / (time.monotonic() - t))
 
@@ -179,6 +179,7 @@ def main(argv=None) -> int:
         with Device(fw.path) as dev:
             tele = bench_telemetry(dev, args.seconds)
             busy = bench_latency(dev, 300, names=("ping",))["ping"]
+            up_busy = bench_upload(dev, 10)
             mon = bench_monitor(dev)
             dev.stop()
             up = bench_upload(dev)
@@ -197,13 +198,17 @@ def main(argv=None) -> int:
         f"{tele['rate_hz']:.1f} Hz, lost frames {tele['lost_frames']}, event-time gaps "
         f"{tele['event_time_gaps']}, CRC errors {tele['crc_errors']}, firmware tx dropped "
         f"{tele['firmware_tx_dropped']} |",
-        f"| model upload round trip (face26/grid3x3 alternately, {up['n']}x; BEGIN + chunks + COMMIT) "
-        f"| p50 {up['p50_ms']:.1f} ms, p99 {up['p99_ms']:.1f} ms, max {up['max_ms']:.1f} ms |",
+        f"| model upload round trip (face26/grid3x3 alternately, {up['n']}x; BEGIN + pipelined "
+        f"chunks + COMMIT), tracker stopped | p50 {up['p50_ms']:.1f} ms, p99 {up['p99_ms']:.1f} ms, "
+        f"max {up['max_ms']:.1f} ms |",
+        f"| the same while tracking and streaming 1 kHz telemetry ({up_busy['n']}x) | "
+        f"p50 {up_busy['p50_ms']:.1f} ms, p99 {up_busy['p99_ms']:.1f} ms, "
+        f"max {up_busy['max_ms']:.1f} ms |",
         *(f"| command latency {k} (1000x, tracker stopped) | p50 {v['p50_ms']:.2f} ms, "
           f"p99 {v['p99_ms']:.2f} ms |" for k, v in lat.items()),
         f"| command latency ping (300x) during 1 kHz telemetry | p50 {busy['p50_ms']:.2f} ms, "
         f"p99 {busy['p99_ms']:.2f} ms |",
-        f"| `monitor --smooth` redraw rate during 1 kHz telemetry (asked: 10 Hz) | "
+        f"| `monitor --smooth` redraw rate during 1 kHz telemetry (default 12/s, spec >= 10 Hz) | "
         f"{mon['redraw_hz']:.1f} Hz |",
         ""])
     print(text)

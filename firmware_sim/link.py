@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import os
 import select
+import sys
 import threading
 import time
 import zlib
@@ -70,7 +71,7 @@ class LinkServer:
         self.counts = dict(rx_frames=0, rx_lost=0, rx_retries=0, auth_unsigned=0,
                            auth_bad_tag=0, auth_replay=0, version_refused=0, acks=0, nacks=0,
                            handler_errors=0, tx_frames=0, tx_bytes=0, tx_dropped=0,
-                           telemetry_sent=0)
+                           telemetry_sent=0, telemetry_stale=0, tx_stale_bytes=0)
 
     # ---- main loop ------------------------------------------------------------
     def serve(self, stop_event: threading.Event | None = None) -> dict:
@@ -258,10 +259,26 @@ class LinkServer:
             self.counts["version_refused"] += 1
             self._nack(f, Nack.VERSION_MISMATCH, wire.version_reason(wire.PROTOCOL_VERSION, version))
             return
-        self.session = True
+        self._new_session()
         info = dict(self.engine.info())
         info.setdefault("firmware", FIRMWARE_NAME)
         self._reply(MsgType.INFO, wire.encode_info(info, self.nonce, self.guard is not None))
+
+    def _new_session(self) -> None:
+        """A host said HELLO: snapshots queued for nobody (produced before this session, or
+        unread by a host that left) are discarded and counted, so that the host's stream
+        starts now; unwritten frames of the previous session are dropped likewise."""
+        self.session = True
+        stale = 0
+        for _ in range(64):
+            got = self.engine.poll_telemetry(256)
+            if not got:
+                break
+            stale += len(got)
+        self.engine.poll_applied()
+        self.counts["telemetry_stale"] += stale
+        self.counts["tx_stale_bytes"] += len(self.txq)
+        self.txq.clear()                 # frames start with 0x00, so a cut one is harmless
 
     def on_model_begin(self, f) -> None:
         total, crc = wire.decode_model_begin(f.payload)
@@ -380,6 +397,13 @@ def _port_fd(port):
 
 
 def serve(port, engine, key: bytes | None = None, stop_event: threading.Event | None = None,
-          **kw) -> dict:
-    """Serve one host link until ``stop_event`` is set; returns the link counters."""
+          switch_interval: float | None = 0.0005, **kw) -> dict:
+    """Serve one host link until ``stop_event`` is set; returns the link counters.
+
+    The link thread needs the GIL for every read, reply and telemetry frame; with Python's
+    default 5 ms switch interval a busy simulation thread delays each of those steps by up
+    to 5 ms, so ``serve`` lowers the process's interval to ``switch_interval`` seconds
+    (None: leave it alone)."""
+    if switch_interval is not None:
+        sys.setswitchinterval(min(sys.getswitchinterval(), switch_interval))
     return LinkServer(port, engine, key=key, **kw).serve(stop_event)

@@ -128,9 +128,10 @@ class Device:
         generation it will carry.  The firmware validates on commit and swaps atomically."""
         text = _model_text(model).encode("utf-8")
         self._command(MsgType.MODEL_BEGIN, wire.encode_model_begin(text))
-        for off in range(0, len(text), wire.MODEL_CHUNK_SIZE):
-            self._command(MsgType.MODEL_CHUNK,
-                          wire.encode_model_chunk(off, text[off:off + wire.MODEL_CHUNK_SIZE]))
+        step = wire.MODEL_CHUNK_SIZE            # chunks are pipelined: sent together, ACKed
+        self._pipelined(MsgType.MODEL_CHUNK,    # together, missing ACKs retried one by one
+                        [wire.encode_model_chunk(off, text[off:off + step])
+                         for off in range(0, len(text), step)])
         return self._command(MsgType.MODEL_COMMIT, wire.encode_model_begin(text))
 
     def set(self, name: str | None = None, value=None, **params) -> int:
@@ -197,6 +198,27 @@ class Device:
         frame = self.replies.pop(seq)[0]
         return self._check_ack(mtype, frame)
 
+    def _pipelined(self, mtype, payloads, window: int = 8) -> None:
+        """Send up to ``window`` commands before waiting for their ACKs (the firmware's
+        reply cache holds 16, so a retried one is still answered from it)."""
+        for k in range(0, len(payloads), window):
+            seqs = []
+            for p in payloads[k:k + window]:
+                seq = self.tx_seq
+                self.tx_seq = (self.tx_seq + 1) & 0xFFFF
+                self.replies.pop(seq, None)
+                self.counts["commands"] += 1
+                self.port.write(wire.encode_frame(mtype, seq, p, version=self.version,
+                                                  signer=self.signer))
+                seqs.append((seq, p))
+            end = time.monotonic() + self.timeout
+            while time.monotonic() < end and not all(q in self.replies for q, _ in seqs):
+                self._read_once(end - time.monotonic())
+            for seq, p in seqs:
+                if seq not in self.replies:       # lost: retry this one with its own seq
+                    self._request(mtype, p, done=lambda s: s in self.replies, seq=seq)
+                self._check_ack(mtype, self.replies.pop(seq)[0])
+
     def _check_ack(self, mtype, frame) -> int:
         if frame.type == MsgType.NACK:
             _, _, code, reason = wire.decode_nack(frame.payload)
@@ -227,12 +249,17 @@ class Device:
             out.update(wire.decode_reply_part(f.payload, MsgType(reply_type).name)[3])
         return out
 
-    def _request(self, mtype, payload: bytes, done, signed: bool = True) -> int:
-        seq = self.tx_seq
-        self.tx_seq = (self.tx_seq + 1) & 0xFFFF
-        self.replies.pop(seq, None)
-        self.counts["commands"] += 1
-        for attempt in range(self.retries + 1):
+    def _request(self, mtype, payload: bytes, done, signed: bool = True,
+                 seq: int | None = None) -> int:
+        first = 0
+        if seq is None:
+            seq = self.tx_seq
+            self.tx_seq = (self.tx_seq + 1) & 0xFFFF
+            self.replies.pop(seq, None)
+            self.counts["commands"] += 1
+        else:                                   # already sent once (pipelined): a retry
+            first = 1
+        for attempt in range(first, self.retries + 1):
             if attempt:
                 self.counts["retries"] += 1
             signer = self.signer if signed else None     # a retry is re-signed (fresh counter)

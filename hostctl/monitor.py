@@ -45,7 +45,7 @@ def render(dev, snap, ids, smooth, rates: dict) -> str:
     return "\n".join(lines)
 
 
-def monitor(dev, seconds: float | None = None, smooth: bool = False, rate: float = 10.0,
+def monitor(dev, seconds: float | None = None, smooth: bool = False, rate: float = 12.0,
             out=None) -> int:
     out = out or sys.stdout
     period = 1.0 / max(rate, 1e-3)
@@ -77,7 +77,7 @@ def monitor(dev, seconds: float | None = None, smooth: bool = False, rate: float
             rates["telemetry"] = n_tele / (now - t_rate)
             ev0, n_tele, t_rate = ev, 0, now
         if now >= next_draw:
-            next_draw = now + period
+            next_draw = max(next_draw + period, now)     # fixed schedule: no drift
             body = (render(dev, last, ids, smoother, rates) if last is not None
                     else f"hostctl monitor  {dev.url}: waiting for telemetry "
                          f"(is the device started? `hostctl start`)")

@@ -281,6 +281,18 @@ def test_telemetry_stream_and_applied_generation(served):
     assert ref.shape == (26,)
 
 
+def test_hello_discards_snapshots_queued_for_nobody(served):
+    eng = served.engine
+    for _ in range(100):                                # produced before any host
+        eng.step()
+    with Device(served.path) as dev:
+        for _ in range(5):
+            eng.step()
+        snaps = list(dev.telemetry(seconds=10, count=5))
+        assert [s.t_us for s in snaps] == [101_000, 102_000, 103_000, 104_000, 105_000]
+        assert dev.stats()["link.telemetry_stale"] == 100
+
+
 def test_telemetry_is_dropped_not_blocking_when_host_is_away():
     """6000 snapshots (1.4 MB) while the host reads nothing: the pty fills, the link keeps
     serving commands, snapshots back up into the engine's bounded queue, which drops the
