@@ -5,7 +5,8 @@ recordings ($SPRINGTRACK_DATA).  expelliarmus only reads files, so the recording
 to /dev/shm (RAM) and both libraries read that same in-memory file; our decoder is also
 timed on the bytes object directly (decode() of the whole payload, a fresh output array
 each call) and fed in 256 KiB transfers into one reused output array (decode_into).  CCam ATIS, Event Stream and
-DAT use synthetic streams from our encoders.  Figures are medians of --repeat runs after a
+DAT use synthetic streams from our encoders.  Figures are the best of --repeat interleaved
+rounds (all contenders in each round) after a
 warm-up; events/s = events decoded / time.
 
     .venv/bin/python benchmarks/decoders.py [--repeat 40] [--no-write]
@@ -36,13 +37,24 @@ TRANSFER = 256 * 1024   # bytes per simulated USB transfer
 
 
 def timeit(fn, repeat):
-    fn()
-    ts = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
+    return timeit_many([fn], repeat)[0]
+
+
+def timeit_many(fns, repeat):
+    """Best (minimum) time of each function over ``repeat`` interleaved rounds.
+
+    Interleaving gives every contender the same background load; the minimum is the run
+    least disturbed by the other jobs sharing the machine.
+    """
+    for fn in fns:
         fn()
-        ts.append(time.perf_counter() - t0)
-    return statistics.median(ts)
+    best = [float("inf")] * len(fns)
+    for _ in range(repeat):
+        for i, fn in enumerate(fns):
+            t0 = time.perf_counter()
+            fn()
+            best[i] = min(best[i], time.perf_counter() - t0)
+    return best
 
 
 def streamed_into(fmt, data, size, **opts):
@@ -73,17 +85,22 @@ def bench_raw(fmt, name, repeat, rows):
         info = sio.sniff(copy)
         data = copy.read_bytes()[info.offset:]
         n = len(sio.decoder(fmt).decode(data))
-        ours = timeit(lambda: sio.decoder(fmt).decode(data), repeat)
-        into = timeit(lambda: streamed_into(fmt, data, TRANSFER), repeat)
-        reader = timeit(lambda: sio.open(copy).read(), repeat)
+        fns = [lambda: sio.decoder(fmt).decode(data),
+               lambda: streamed_into(fmt, data, TRANSFER),
+               lambda: sio.open(copy).read()]
         try:
             from expelliarmus import Wizard
             wiz = Wizard(encoding=fmt)
             ne = len(wiz.read(copy))
-            theirs = timeit(lambda: wiz.read(copy), repeat)
+            fns.append(lambda: wiz.read(copy))
+        except ImportError:
+            wiz = None
+        ours, into, reader, *rest = timeit_many(fns, repeat)
+        if wiz is not None:
+            theirs = rest[0]
             exp = rate(ne, theirs)
             ratio = f"{theirs / ours * n / ne:.1f}x / {theirs / reader * n / ne:.1f}x"
-        except ImportError:
+        else:
             exp, ratio = "not installed", ""
         rows.append((fmt, f"{name}, {n:,} ev", rate(n, ours), rate(n, into), rate(n, reader),
                      exp, ratio))
@@ -105,8 +122,8 @@ def bench_synthetic(repeat, rows):
     for fmt, data, opts in cases:
         n = len(sio.decoder(fmt, **opts).decode(data))
         assert n == len(ev)
-        whole = timeit(lambda: sio.decoder(fmt, **opts).decode(data), repeat)
-        into = timeit(lambda: streamed_into(fmt, data, TRANSFER, **opts), repeat)
+        whole, into = timeit_many([lambda: sio.decoder(fmt, **opts).decode(data),
+                                   lambda: streamed_into(fmt, data, TRANSFER, **opts)], repeat)
         rows.append((fmt, f"synthetic, {n:,} ev at 10 Mev/s", rate(n, whole), rate(n, into),
                      "", "", ""))
 
@@ -131,8 +148,8 @@ def main(argv=None):
     table = "\n".join("| " + " | ".join(r) + " |" for r in rows)
     body = (f"Machine: {machine()}.  expelliarmus {expv}.\n"
             f"Command: `.venv/bin/python benchmarks/decoders.py --repeat {args.repeat}` "
-            f"(median of runs; other jobs may share the 2 cores).  Millions of events per "
-            f"second.\n\n{head}\n{table}\n\n"
+            f"(best of {args.repeat} interleaved rounds; other jobs shared the 2 cores: load "
+            f"average {os.getloadavg()[0]:.1f} at the end).  Millions of events per second.\n\n{head}\n{table}\n\n"
             "decode() whole: `decoder(fmt).decode(payload)` on a bytes object, a fresh output "
             "array per call (for the 64 MB synthetic outputs page faults of the new array "
             "dominate).  decode_into: the payload fed in 256 KiB transfers into one reused "

@@ -136,6 +136,18 @@ cdef class Decoder:
         assert res is out
         return nout - start
 
+    def decode_append(self, buffer, out, Py_ssize_t start):
+        """Decode ``buffer`` into ``out`` from index ``start``, growing it (a new array)
+        if needed; return ``(out, total events in out)``.  For readers that fill one
+        array from many file reads."""
+        if not (isinstance(out, np.ndarray) and out.dtype == EVENT_DTYPE
+                and out.flags.c_contiguous and out.ndim == 1) or not 0 <= start <= out.shape[0]:
+            raise ValueError("decode_append: out must be a 1-D C-contiguous EVENT_DTYPE "
+                             "array and 0 <= start <= len(out)")
+        cdef Py_ssize_t nout = start
+        out = self._decode(buffer, out, &nout)
+        return out, nout
+
     def finish(self):
         """End of stream: count a partial trailing word as 'truncated'; return its byte count."""
         pending = self.pending_bytes
