@@ -15,7 +15,7 @@ POS_LIM_PX = 8192.0           # |position| < 8192 px (state saturates there)
 COV_FRAC = 40                 # covariances Q.40 px^2
 D2_FRAC = 40                  # Mahalanobis d^2, Q.40
 GAIN_FRAC = 30                # stiffness Q2.30, <= 1
-MASS_FRAC = 24                # stiffness / mass and 1 / mass, Q7.24
+MASS_FRAC = 24                # 1 / mass, Q7.24
 ACT_FRAC = 32                 # activity Q.32
 ENERGY_FRAC = 32              # energies Q.32
 ESCALE_FRAC = 14              # energy_scale Q17.14
@@ -156,15 +156,12 @@ def model_q(arr: dict, width: int, height: int) -> dict:
         invm=[q(1.0 / m, MASS_FRAC, f"trackers[{i}] 1/mass") for i, m in enumerate(mass)],
         gdx0=[pos(v, f"trackers[{i}] x - G") for i, v in enumerate(arr["gdx0"])],
         gdy0=[pos(v, f"trackers[{i}] y - G") for i, v in enumerate(arr["gdy0"])],
-        stiff=[], kia=[], kib=[], l0=[], dx0=[], dy0=[], th0=[], c0x=[], c0y=[],
+        stiff=[], l0=[], dx0=[], dy0=[], th0=[], c0x=[], c0y=[],
     )
     for k in range(len(arr["ca"])):
         a = float(arr["stiffness"][k])
-        i, j = int(arr["ca"][k]), int(arr["cb"][k])
         where = f"connections[{k}]"
         out["stiff"].append(gain(a, f"{where}.stiffness"))
-        out["kia"].append(q(a / mass[i], MASS_FRAC, f"{where} stiffness/mass", 0.0, 127.0))
-        out["kib"].append(q(a / mass[j], MASS_FRAC, f"{where} stiffness/mass", 0.0, 127.0))
         out["l0"].append(q(float(arr["l0"][k]), GEOM_FRAC, f"{where} rest length", 0.0, 2 * 1.5 * lim))
         out["dx0"].append(q(float(arr["dx0"][k]), GEOM_FRAC, f"{where} rest dx", -2 * lim, 2 * lim))
         out["dy0"].append(q(float(arr["dy0"][k]), GEOM_FRAC, f"{where} rest dy", -2 * lim, 2 * lim))

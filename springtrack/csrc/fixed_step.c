@@ -20,16 +20,12 @@
 /* ---- arithmetic building blocks ----------------------------------------------------- */
 
 /* round(v * g / 2^sh), half up, exact for |v| < 2^62, g < 2^31, 1 <= sh <= 62, provided
-   the result fits int64 (callers' bounds).  Splits v so that no product exceeds 2^63. */
+   the result fits int64 (callers' bounds). */
 static inline int64_t mulsh(int64_t v, uint32_t g, int sh)
 {
-    int64_t hi = v >> 32;                                 /* floor */
-    uint64_t lo = (uint64_t)v & 0xffffffffu;
-    int64_t ph = hi * (int64_t)g;                         /* |.| < 2^61 */
-    uint64_t b = lo * (uint64_t)g + ((uint64_t)1 << (sh - 1));   /* < 2^64 */
-    if (sh <= 32)
-        return ph * ((int64_t)1 << (32 - sh)) + (int64_t)(b >> sh);
-    return (ph + (int64_t)(b >> 32)) >> (sh - 32);
+    /* one 64 x 64 -> 128-bit product (integer registers); a core without it would split v
+       in two 32-bit halves (hi g 2^32 + lo g), which gives the same exact result */
+    return (int64_t)(((__int128)v * g + ((__int128)1 << (sh - 1))) >> sh);
 }
 
 int64_t fx_mulsh(int64_t v, uint32_t g, int sh)
@@ -545,7 +541,9 @@ static inline int64_t clamp_offset(fx_state *s, int64_t v)
 
 static void energy_criteria(fx_state *s);
 
-/* [ref] springs: displacements from the same positions, applied together (Jacobi). */
+/* [ref] springs: displacements from the same positions, applied together (Jacobi).  The
+   forces of eqs. (11), (16), (19) are summed per tracker (Q.32 px, |sum| < 2^55) and
+   divided by the mass once: the same sums as the reference's per-connection f / m_i. */
 void fx_springs(fx_state *s)
 {
     int n = s->n, nc = s->nc, k, i, j;
@@ -602,10 +600,12 @@ void fx_springs(fx_state *s)
                 qx = rshr(dl * s->c0x[k], 14);
                 qy = rshr(dl * s->c0y[k], 14);
             }
-            ddx[i] += mulsh(qx, s->kia[k], 24);
-            ddy[i] += mulsh(qy, s->kia[k], 24);
-            ddx[j] -= mulsh(qx, s->kib[k], 24);
-            ddy[j] -= mulsh(qy, s->kib[k], 24);
+            qx = mulsh(qx, s->stiff[k], 30);              /* a dl r / l */
+            qy = mulsh(qy, s->stiff[k], 30);
+            ddx[i] += qx;
+            ddy[i] += qy;
+            ddx[j] -= qx;
+            ddy[j] -= qy;
         }
         if (s->need_torsion) {
             int64_t dth = dth_raw[k] - mean_dth;          /* eq. (15), binary angle */
@@ -617,24 +617,26 @@ void fx_springs(fx_state *s)
                 c -= ONE_Q30;
                 ux = rshr(rx * c - ry * sn, 14);          /* l (cos(th + a dth) - cos th), Q.32 */
                 uy = rshr(rx * sn + ry * c, 14);
-                ddx[i] += mulsh(ux, s->invm[i], 24);
-                ddy[i] += mulsh(uy, s->invm[i], 24);
-                ddx[j] -= mulsh(ux, s->invm[j], 24);
-                ddy[j] -= mulsh(uy, s->invm[j], 24);
+                ddx[i] += ux;
+                ddy[i] += uy;
+                ddx[j] -= ux;
+                ddy[j] -= uy;
             }
         } else {
             s->energy[1][k] = 0;
         }
         if (kind & 4) {                                   /* eq. (19) */
-            ddx[i] += mul32sh(ex, s->kia[k], 8);          /* Q.16 x Q.24 -> Q.32 */
-            ddy[i] += mul32sh(ey, s->kia[k], 8);
-            ddx[j] -= mul32sh(ex, s->kib[k], 8);
-            ddy[j] -= mul32sh(ey, s->kib[k], 8);
+            int64_t fx = mul32sh(ex, s->stiff[k], 14);    /* a e: Q.16 x Q.30 -> Q.32 */
+            int64_t fy = mul32sh(ey, s->stiff[k], 14);
+            ddx[i] += fx;
+            ddy[i] += fy;
+            ddx[j] -= fx;
+            ddy[j] -= fy;
         }
     }
-    for (i = 0; i < n; i++) {
-        s->mx[i] = sat_pos(s, s->mx[i] + ddx[i]);
-        s->my[i] = sat_pos(s, s->my[i] + ddy[i]);
+    for (i = 0; i < n; i++) {                             /* the sums of forces / m_i */
+        s->mx[i] = sat_pos(s, s->mx[i] + mulsh(ddx[i], s->invm[i], 24));
+        s->my[i] = sat_pos(s, s->my[i] + mulsh(ddy[i], s->invm[i], 24));
     }
     energy_criteria(s);
     for (i = 0; i < n; i++)

@@ -14,7 +14,7 @@
  *   energies                              int64  Q.32 (px^2, or rad^2 for torsion)
  *   gains a1, a2, cov_gain, energy_gain   uint32 mantissa in [2^30, 2^31) and a shift
  *   stiffness                             uint32 Q2.30 (<= 1.0)
- *   stiffness/mass, 1/mass                uint32 Q7.24
+ *   1/mass                                uint32 Q7.24
  *   angles                                uint32 binary angle, 2^32 = 2 pi
  *   exp2 / atan / CORDIC tables           uint32 Q.30 / binary angle
  *
@@ -73,7 +73,6 @@ typedef struct {
     /* connections */
     int32_t ca[FX_MAX_CONNECTIONS], cb[FX_MAX_CONNECTIONS], kinds[FX_MAX_CONNECTIONS];
     uint32_t stiff[FX_MAX_CONNECTIONS];       /* Q2.30 */
-    uint32_t kia[FX_MAX_CONNECTIONS], kib[FX_MAX_CONNECTIONS];   /* stiffness / mass, Q7.24 */
     int32_t l0[FX_MAX_CONNECTIONS], dx0[FX_MAX_CONNECTIONS], dy0[FX_MAX_CONNECTIONS];
     uint32_t th0[FX_MAX_CONNECTIONS];         /* binary angle */
     int32_t c0x[FX_MAX_CONNECTIONS], c0y[FX_MAX_CONNECTIONS];    /* cos, sin th0, Q.30 */
