@@ -150,3 +150,16 @@ def test_tracker_follows_a_short_grid_pull_run():
     off = springtrack.Tracker(sc.initial_model(), params={"energy_scale": 1e6}).run(ev, 1000)
     es_off = tracking_error(truth, off.t_us, off.ids, off.x, off.y)
     assert es_off.mean_pct > es.mean_pct + 1.0
+
+
+@pytest.mark.parametrize("suffix", [".raw", ".es"])
+def test_cli_simulate_writes_camera_formats_that_read_back_identically(tmp_path, suffix):
+    from springtrack.events import as_events
+    from springtrack.io import open as open_events
+    ref, out = tmp_path / "e.npy", tmp_path / f"e{suffix}"
+    for path in (ref, out):
+        assert main(["simulate", "grid_inplane", "--out", str(path), "--truth",
+                     str(tmp_path / "t.csv"), "--seconds", "0.2", "--seed", "5"]) == 0
+    a = np.load(ref)
+    b = np.concatenate([as_events(c) for c in open_events(str(out))])
+    assert len(a) > 1000 and np.array_equal(a, b)

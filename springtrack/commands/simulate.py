@@ -12,10 +12,25 @@ import numpy as np
 EVENT_SUFFIXES = (".npy", ".raw", ".es")
 
 
+EPILOG = """\
+scenes (firmware_sim/scenes.py; paper section IV):
+  grid_rot_y      3x3 grid rotating about the vertical axis, +-75 deg at 15 deg/s (Figs. 9-11)
+  grid_pull       rotations about x and y, motion, disturbances, one element pulled away
+                  and returned every 10 s; its truth is the unpulled position (Figs. 12-14)
+  grid_inplane    in-plane rotation +-45 deg while translating (Fig. 16)
+  face_occlusion  face26 parts moving, scaling, rolling; a hand passes 3 times (Figs. 17-21)
+  moving_blob     one blob moving right (sensor tests)
+truth CSV: t_us,part,x,y every 1 ms; part = the tracker ids of the matching preset
+(grid3x3 / face26); --model-out writes that preset placed at the scene's start.
+"""
+
+
 def add_arguments(p):
     from firmware_sim.scenes import SCENES
+    p.epilog = EPILOG
     p.add_argument("scene", choices=sorted(SCENES), help="scene name")
-    p.add_argument("--out", required=True, help="event file: .npy, .raw (EVT 2/3) or .es")
+    p.add_argument("--out", required=True,
+                   help="event file: .npy, .raw (EVT 2.0) or .es (Event Stream)")
     p.add_argument("--truth", required=True, help="ground-truth CSV (t_us,part,x,y every 1 ms)")
     p.add_argument("--model-out", help="write the initial shape model (TOML) here")
     p.add_argument("--seconds", type=float, help="duration (default: the scene's, e.g. 20 s)")
