@@ -26,7 +26,7 @@ events in memory; events are sorted by ``t`` within and across chunks; ``truth``
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -64,6 +64,10 @@ class SensorConfig:
         if self.c_on <= 0 or self.c_off <= 0:
             raise ValueError(f"sensor config: thresholds must be positive, got c_on={self.c_on}, "
                              f"c_off={self.c_off}")
+        if self.c_sigma < 0 or self.refractory_us < 0 or self.max_disp_px <= 0:
+            raise ValueError(f"sensor config: c_sigma and refractory_us must not be negative "
+                             f"and max_disp_px must be positive, got {self.c_sigma}, "
+                             f"{self.refractory_us}, {self.max_disp_px}")
         if self.noise_rate_hz < 0 or self.hot_rate_hz < 0 or self.hot_pixels < 0:
             raise ValueError("sensor config: noise rates and hot_pixels must not be negative")
         if self.min_step_us > self.step_us:
@@ -242,7 +246,8 @@ class Sensor:
         order, then noise, then hot pixels for equal timestamps)."""
         n = 0
         while self.t_us < t_end_us:
-            n = self._block(n, self.cfg.step_us - self.t_us % self.cfg.step_us)
+            to_grid = self.cfg.step_us - self.t_us % self.cfg.step_us   # blocks on a fixed grid
+            n = self._block(n, min(to_grid, t_end_us - self.t_us))
         signal = self.buf[:n]
         noise = self.noise.take(self.t_us)
         hot = self.hot.take(self.t_us)
