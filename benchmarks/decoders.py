@@ -136,7 +136,7 @@ def main(argv=None):
     rows = []
     bench_raw("evt2", "evt2_sample.raw", args.repeat, rows)
     bench_raw("evt3", "evt3_sample.raw", args.repeat, rows)
-    bench_synthetic(max(5, args.repeat // 4), rows)
+    bench_synthetic(max(5, args.repeat // 2), rows)
     try:
         import expelliarmus
         expv = expelliarmus.__version__ if hasattr(expelliarmus, "__version__") else "installed"
