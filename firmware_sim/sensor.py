@@ -279,8 +279,10 @@ def simulate(scene, seconds: float | None = None, seed: int = 0, chunk_us: int =
     """Generator of ``(events, truth)`` chunks covering ``[0, seconds)``.
 
     ``scene`` is a name in :data:`firmware_sim.scenes.SCENES` (``scene_params`` go to its
-    constructor) or a Scene instance.  ``chunk_us`` is rounded up to a multiple of the
-    rendering step.  If ``stats`` is a dict it receives the sensor's counters at the end.
+    constructor) or a Scene instance; ``seconds=None`` is the scene's default duration,
+    ``math.inf`` streams without end (for a simulated camera).  ``chunk_us`` is rounded up
+    to a multiple of the rendering step.  If ``stats`` is a dict it is updated with the
+    sensor's counters after every chunk.
     """
     scene = make_scene(scene, seed=seed, **scene_params)
     cfg = config or SensorConfig()
@@ -290,7 +292,7 @@ def simulate(scene, seconds: float | None = None, seed: int = 0, chunk_us: int =
     if chunk_us < 1:
         raise ValueError(f"simulate: chunk_us must be >= 1, got {chunk_us}")
     chunk_us = -(-int(chunk_us) // cfg.step_us) * cfg.step_us
-    end_us = int(round(seconds * 1e6))
+    end_us = math.inf if math.isinf(seconds) else int(round(seconds * 1e6))
     sensor = Sensor(scene, seed, cfg)
     t = 0
     while t < end_us:
@@ -304,7 +306,9 @@ def simulate(scene, seconds: float | None = None, seed: int = 0, chunk_us: int =
 
 
 def simulate_all(scene, seconds: float | None = None, seed: int = 0, **kw):
-    """The whole simulation at once: ``(events, truth)`` arrays."""
+    """The whole simulation at once: ``(events, truth)`` arrays (finite ``seconds``)."""
+    if seconds is not None and math.isinf(seconds):
+        raise ValueError("simulate_all: seconds must be finite")
     ev, tr = zip(*simulate(scene, seconds, seed, **kw))
     return np.concatenate(ev), np.concatenate(tr)
 

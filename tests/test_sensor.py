@@ -120,6 +120,15 @@ def test_chunks_are_sorted_across_boundaries_and_cover_the_duration():
     assert last < 300_000
 
 
+def test_endless_stream_matches_a_finite_run():
+    gen = simulate("moving_blob", math.inf, seed=2, chunk_us=20_000)
+    chunks = [next(gen) for _ in range(10)]
+    gen.close()
+    ev = np.concatenate([c[0] for c in chunks])
+    assert np.array_equal(ev, simulate_all("moving_blob", 0.2, seed=2)[0])
+    assert chunks[-1][1]["t"].max() == 199_000
+
+
 def test_background_noise_rate_and_hot_pixels():
     cfg = SensorConfig(noise_rate_hz=0.5, hot_pixels=5, hot_rate_hz=300.0)
     st_ = {}
