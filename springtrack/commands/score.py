@@ -31,8 +31,11 @@ def run(args) -> int:
         raise ValueError(f"{args.track}: no track sample within {args.max_gap_us} us of a truth "
                          f"time in {args.truth}")
     L = np.nanmean(es.length)
+    what = ("grid side" if es.kind == "grid" else
+            f"vertical extent of the {'26-part mask' if args.face_length == 'mask' else '7 internal parts'}")
     print(f"{es.kind}: {len(es.t_us)} samples scored, {es.t_us[0] / 1e6:.3f}-{es.t_us[-1] / 1e6:.3f} s, "
-          f"mean length {L:.1f} px, unmatched samples {es.unmatched}, missing positions {es.missing}")
+          f"length = {what}, mean {L:.1f} px; unmatched samples {es.unmatched}, "
+          f"missing positions {es.missing}")
     print(f"{'part':<12}{'mean px':>10}{'max px':>10}{'mean %':>10}")
     for k, p in enumerate(es.parts):
         e = es.err_px[:, k]
