@@ -41,7 +41,7 @@ from .engine import UpdateRejected
 
 MAX_MODEL_BYTES = 256 * 1024
 REPLY_CACHE = 16
-TX_TELEMETRY_LIMIT = 32 * 1024      # bytes queued before telemetry frames are dropped
+TX_TELEMETRY_LIMIT = 32 * 1024      # unwritten bytes above which no snapshot is taken
 TX_REPLY_LIMIT = 1024 * 1024        # bytes queued before even replies are dropped (a host
                                     # that sends but never reads must not exhaust memory)
 FIRMWARE_NAME = "firmware-sim"
@@ -50,8 +50,7 @@ FIRMWARE_NAME = "firmware-sim"
 class LinkServer:
     """One host session over one port (see the module docstring)."""
 
-    def __init__(self, port, engine, key: bytes | None = None, heartbeat_s: float = 1.0,
-                 stats_s: float = 0.0):
+    def __init__(self, port, engine, key: bytes | None = None, heartbeat_s: float = 1.0):
         self.port, self.engine = port, engine
         self.nonce = os.urandom(wire.NONCE_LEN)
         self.guard = wire.ReplayGuard(key, self.nonce) if key else None
@@ -62,7 +61,7 @@ class LinkServer:
         self.replies: OrderedDict = OrderedDict()
         self.upload = None
         self.session = False
-        self.heartbeat_s, self.stats_s = heartbeat_s, stats_s
+        self.heartbeat_s = heartbeat_s
         self.t0 = time.monotonic()
         self.next_beat = self.t0 + heartbeat_s
         self.fd = _port_fd(port)
@@ -100,10 +99,12 @@ class LinkServer:
 
     def step(self) -> None:
         """One iteration: read, handle, stream telemetry, heartbeat, write."""
-        self.port.timeout = 0.002                # wait briefly for a byte, then take all
-        data = self.port.read(1)                 # that is there (in_waiting is not a byte
-        if data:                                 # count on every pyserial port)
-            self.port.timeout = 0
+        # wait briefly for a byte, then take all that is there (in_waiting is not a byte
+        # count on every pyserial port)
+        wire.set_read_timeout(self.port, 0.002)
+        data = self.port.read(1)
+        if data:
+            wire.set_read_timeout(self.port, 0)
             data += self.port.read(65536)
         if data:
             for frame in self.reader.feed(data):

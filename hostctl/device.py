@@ -282,10 +282,10 @@ class Device:
         """Wait up to ``timeout`` (at most 50 ms) for a byte, then take everything available
         (``in_waiting`` is not a byte count on every pyserial port, e.g. socket://)."""
         try:
-            self.port.timeout = max(0.0, min(timeout, 0.05))
+            wire.set_read_timeout(self.port, round(max(0.0, min(timeout, 0.05)), 3))
             data = self.port.read(1)
             if data:
-                self.port.timeout = 0
+                wire.set_read_timeout(self.port, 0)
                 data += self.port.read(65536)
         except (serial.SerialException, OSError) as e:
             raise HostctlError(f"{self.url}: link failed: {e}") from None

@@ -690,6 +690,13 @@ def decode_telemetry(payload: bytes) -> tuple[int, int, float, np.ndarray]:
     return t_us, gen, me, out
 
 
+def set_read_timeout(port, seconds: float) -> None:
+    """Set a pyserial port's read timeout only when it changes: pyserial's setter
+    reconfigures the port (termios calls) every time, and both ends set it twice a read."""
+    if port.timeout != seconds:
+        port.timeout = seconds
+
+
 def framed_size(payload_len: int, signed: bool = False) -> int:
     """Bytes on the wire for a payload of ``payload_len`` bytes, delimiter included, worst case."""
     body = HEADER.size + payload_len + (SIG_LEN if signed else 0) + CRC.size
