@@ -179,3 +179,9 @@ def test_size_hint(tmp_path, events):
     assert len(events) <= hint <= 2 * len(events)       # one TIME_HIGH word per ~64 us
     sio.write(tmp_path / "a.npy", events)
     assert sio.open(tmp_path / "a.npy").size_hint == len(events)
+
+
+def test_es_writer_refuses_absurd_time_offsets(tmp_path):
+    ev = make([10**12], [1], [1], [1])          # an absolute epoch time in us
+    with pytest.raises(ValueError, match="subtract the first timestamp"):
+        sio.write(tmp_path / "a.es", ev, 304, 240)

@@ -23,6 +23,7 @@ from springtrack.events import as_events
 cnp.import_array()
 
 TYPES = {"generic": 0, "dvs": 1, "atis": 2, "color": 4}
+MAX_BYTES = 1 << 31      # refuse to write absurd streams (e.g. absolute epoch timestamps)
 
 
 cdef class EsDecoder(Decoder):
@@ -165,6 +166,10 @@ def encode(events, event_type="dvs", exposure=None) -> bytes:
     else:
         extra = dt // 127
     size = 5 * n + int(extra.sum())
+    if size > MAX_BYTES:
+        raise ValueError(f"es encode: the stream would take {size:,} bytes, mostly overflow "
+                         f"bytes for the time from 0 to {int(t[0]):,} us and the gaps; "
+                         "Event Stream time counts from 0: subtract the first timestamp")
     buf = np.empty(size, dtype=np.uint8)
     cdef uint8_t[::1] w = buf
     cdef const uint8_t[::1] fl = flags
