@@ -40,7 +40,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--source", required=True, help="sim:SCENE | replay:FILE | usb")
     r.add_argument("--serial", type=int, help="usb: the camera's serial (default: the first)")
     r.add_argument("--profile", default="ccam_atis", choices=list(camusb.PROFILES),
-                   help="usb: device profile (EVT profiles are read-only, docs/firmware.md)")
+                   help="usb: device profile; ccam_atis is decoded in the fused loop, the EVT "
+                        "profiles only read a running stream (docs/firmware.md)")
     m = r.add_mutually_exclusive_group()
     m.add_argument("--model", help="shape model TOML file")
     m.add_argument("--preset", help="preset model name (face26, grid3x3)")
@@ -99,9 +100,6 @@ def make_source(args, biases: dict):
         if args.faults:
             raise ValueError("--faults needs a simulated source (sim:SCENE or replay:FILE)")
         prof = camusb.PROFILES[args.profile]
-        if prof.fmt != "ccam":
-            raise ValueError(f"profile {prof.name}: the fused loop decodes CCam words only; "
-                             f"EVT streams are read with firmware_sim.usb + springtrack.io")
         def open_usb():
             return camusb.Camera.open(prof, args.serial, biases=biases)
         open_usb().close()                     # fail now, clearly, if there is no camera
@@ -122,7 +120,7 @@ def make_source(args, biases: dict):
     cam = simusb.SimCamera(source, realtime=not args.max_speed, faults=faults)
     backend = simusb.SimBackend(cam)
     return (lambda: camusb.Camera.open("ccam_atis", args.serial, backend=backend,
-                                       biases=biases)), cam, default_model
+                                       biases=biases, profile=args.profile if cam is None else "ccam_atis")), cam, default_model
 
 
 def _limit_seconds(source, seconds):
@@ -193,7 +191,7 @@ def run(args) -> int:
     engine = FirmwareLoop(open_camera, model=model, params=args.params,
                           telemetry_period_us=args.telemetry_us, nbuf=args.buffers,
                           record=bool(args.record), lossless=cam is not None and args.max_speed,
-                          biases=biases)
+                          biases=biases, profile=args.profile if cam is None else "ccam_atis")
     stop = threading.Event()
     link_thread, port = start_link(args, engine, stop)
     if args.wait_start and link_thread is None:

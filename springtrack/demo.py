@@ -52,7 +52,7 @@ def tool(name: str) -> list[str]:
 def start_firmware(seconds: float, seed: int, model: Path, out: Path):
     cmd = tool("firmware-sim") + ["run", "--source", f"sim:{SCENE}", "--seed", str(seed),
                                   "--seconds", str(seconds), "--model", str(model),
-                                  "--realtime", "--pty"]
+                                  "--realtime", "--pty", "--wait-start"]
     log = open(out / "firmware.log", "w")
     fw = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=log, text=True, bufsize=1)
     line = fw.stdout.readline().strip()
@@ -88,11 +88,12 @@ def main(argv=None) -> int:
     fw_t0 = time.perf_counter()
     print(f"      firmware host link on {pty}", flush=True)
     try:
-        step(3, total, "hostctl: info, load the face26 model, record telemetry")
+        step(3, total, "hostctl: info, load the face26 model, start, record telemetry")
         hc = tool("hostctl") + ["--port", pty, "--timeout", "1.0"]
         info = run(hc + ["info"])
         print("      " + info.stdout.strip().replace("\n", "\n      "), flush=True)
         run(hc + ["load-model", str(out / "face26.toml")])
+        run(hc + ["start"])                    # the camera streams from here on
         # record until the scene (streamed in real time) ends and the firmware exits
         rec = subprocess.run(hc + ["record", str(out / "track.csv"), "--seconds",
                                    str(args.seconds + 10)], capture_output=True, text=True)
