@@ -266,3 +266,26 @@ def test_telemetry_position_is_a_shift_of_the_state():
     ties = ((raw["x"] & 0xFFFFFFF) == 1 << 27) | ((raw["y"] & 0xFFFFFFF) == 1 << 27)
     assert np.array_equal((dec["x"] * 16).astype(np.int64)[~ties], x16[~ties])
     assert np.array_equal((dec["y"] * 16).astype(np.int64)[~ties], y16[~ties])
+
+
+# ---- command line ----------------------------------------------------------------------
+def test_cli_track_backend_fixed(tmp_path):
+    """`springtrack track --backend fixed` writes the same track as the float kernel (to
+    well inside the issue's bound) on a short stream."""
+    import csv
+    from springtrack.cli import main
+    src = tmp_path / "ev.npy"
+    np.save(src, stream("face26", 20_000))
+    rows = {}
+    for b in ("cython", "fixed"):
+        out = tmp_path / f"{b}.csv"
+        assert main(["track", str(src), "--model", "face26", "--backend", b, "--out", str(out),
+                     "--no-progress"]) == 0
+        with open(out) as f:
+            rows[b] = list(csv.DictReader(f))
+    assert len(rows["fixed"]) == len(rows["cython"]) > 26
+    d = max(math.hypot(float(a["x"]) - float(b["x"]), float(a["y"]) - float(b["y"]))
+            for a, b in zip(rows["cython"], rows["fixed"]))
+    assert d < 1e-3
+    assert all(a["active"] == b["active"] and a["sensitive"] == b["sensitive"]
+               for a, b in zip(rows["cython"], rows["fixed"]))
