@@ -55,9 +55,9 @@ def test_tiny_plan_end_to_end_with_dask(tmp_path):
     assert all(r["mean_pct"] < 5.0 for r in g)             # 1 s of grid_pull, before the pull
     out = ex.write_report(results, plan, tmp_path, quick=True, elapsed=1.0, where="test")
     text = out.read_text()
-    for title in ("Fig. 11b", "Fig. 14", "Table I", "Fig. 16", "Figs. 20-21", "Fig. 24",
-                  "size of the hand"):
+    for title in ("Fig. 11b", "Fig. 13", "Fig. 14", "Table I", "Fig. 16", "Figs. 20-21",
+                  "Fig. 24", "size of the hand"):
         assert title in text
-    for png in ("fig11b_max_angle", "fig14_error_vs_s", "fig15_min_error", "fig16_inplane",
+    for png in ("fig11b_max_angle", "fig13_pulled_element", "fig14_error_vs_s", "fig15_min_error", "fig16_inplane",
                 "fig20_face_error", "fig21_face_energy", "fig24_spring_period"):
         assert (tmp_path / "img" / f"{png}.png").stat().st_size > 1000

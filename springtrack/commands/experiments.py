@@ -88,6 +88,10 @@ def run_case(events, truth, case: dict) -> dict:
                duration_s=(int(events["t"][-1]) - int(events["t"][0])) / 1e6 if len(events) else 0.0)
     if case.get("series"):
         out.update(t_us=es.t_us, pct=es.pct, energy=track.energy)
+    if case.get("trace"):                   # Fig. 13: the pulled element's tracker
+        k = track.ids.index(scene.PULLED)
+        out["trace"] = dict(t_us=track.t_us, x=track.x[:, k], y=track.y[:, k],
+                            sensitive=track.sensitive[:, k], active=track.active[:, k])
     if case.get("angle"):
         out["max_angle_deg"] = max_tracking_angle(scene, truth, es)
     return out
@@ -130,6 +134,10 @@ def cases(plan: Plan) -> list[dict]:
     for a in plan.rot_alphas:                                           # Fig. 11b
         out.append(dict(base, exp="fig11b", scene="grid_rot_y", alpha=a, angle=True,
                         model=dict(stiffness=a, springs=KINDS["cartesian"])))
+    for s in (PAPER["grid_pull_best_s"], 1e6):                          # Fig. 13
+        out.append(dict(base, exp="fig13", scene="grid_pull", alpha=0.001, s=s, trace=True,
+                        model=dict(stiffness=0.001, springs=KINDS["cartesian"]),
+                        params=dict(energy_scale=s)))
     for s in plan.s_values:                                             # Fig. 14
         out.append(dict(base, exp="fig14", scene="grid_pull", alpha=0.001, s=s,
                         model=dict(stiffness=0.001, springs=KINDS["cartesian"]),
@@ -316,6 +324,53 @@ def write_report(results, plan: Plan, docs: Path, quick: bool, elapsed: float, w
     if plateau:
         L += [f"The error equals the criteria-off value from s = {plateau[0]['s']:g} on: the "
               "threshold is then never exceeded (paper: stable for s >= 12).", ""]
+
+    # Fig. 13
+    rs = sorted(_sel(results, exp="fig13"), key=lambda r: r["s"])
+    if rs:
+        from firmware_sim.scenes import make_scene
+        sc = make_scene("grid_pull", seed=plan.seed)
+        k = sc.part_ids.index(sc.PULLED)
+        tr = rs[0]["trace"]
+        t = tr["t_us"][::10] / 1e6
+        blob = np.array([sc.frame(ti).blobs[k, 0] for ti in t])
+        want = np.array([sc.truth(ti)[k, 0] for ti in t])
+        fig, ax = plt.subplots(figsize=(7, 3.2))
+        ax.plot(t, blob, "k-", lw=1.0, label="blob (real position)")
+        ax.plot(t, want, "g--", lw=1.0, label="desired (unpulled)")
+        for r in rs:
+            x = r["trace"]["x"][::10]
+            ax.plot(t, x, lw=0.8, label=f"tracker, s = {_s_label(r['s'])}")
+        ins = ~rs[0]["trace"]["sensitive"][::10]
+        if ins.any():
+            ax.plot(t[ins], np.asarray(rs[0]["trace"]["x"][::10])[ins], "r.", ms=2,
+                    label=f"insensitive (s = {_s_label(rs[0]['s'])})")
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel(f"x of {sc.PULLED} (px)")
+        ax.set_title("Fig. 13a: grid_pull, the pulled element, alpha = 0.001")
+        ax.legend(fontsize=7)
+        ax.grid(True, alpha=0.3)
+        fig.tight_layout()
+        fig.savefig(img / "fig13_pulled_element.png", dpi=100)
+        plt.close(fig)
+        pulled = np.array([sc.pull_amount(ti) > 0.5 for ti in t])
+        L += ["## Fig. 13: the pulled element (grid_pull, Cartesian, alpha = 0.001)", "",
+              f"x of element {sc.PULLED}: where the blob is, where it should be without the "
+              "pull (the truth), and its tracker. Red dots: samples where the tracker is "
+              "insensitive (energy criterion, eq. 21). 'While pulled' = pull more than half "
+              "out; samples every 10 ms.", "",
+              "| s | tracker error while pulled (px, mean) | insensitive while pulled | inactive while pulled |",
+              "|---|---|---|---|"]
+        for r in rs:
+            x = np.asarray(r["trace"]["x"][::10])
+            y = np.asarray(r["trace"]["y"][::10])
+            wy = np.array([sc.truth(ti)[k, 1] for ti in t])
+            e = np.hypot(x - want, y - wy)[pulled]
+            ins_p = (~np.asarray(r["trace"]["sensitive"][::10]))[pulled]
+            ina_p = (~np.asarray(r["trace"]["active"][::10]))[pulled]
+            L.append(f"| {_s_label(r['s'])} | {e.mean():.1f} | {100 * ins_p.mean():.0f} % "
+                     f"| {100 * ina_p.mean():.0f} % |")
+        L += ["", "![Fig. 13](img/fig13_pulled_element.png)", ""]
 
     # Table I / Fig. 15 and Fig. 16
     for exp, title, fname, paper_note in (
