@@ -37,7 +37,7 @@ SPECS: dict[str, ParamSpec] = {s.name: s for s in [
               "A_up: a tracker is active while its activity exceeds this"),
     ParamSpec("energy_scale", float, 2.5, 0.0, 1e12, "",
               "s, eqs. (21)-(22): energy threshold as a multiple of the mean energy"),
-    ParamSpec("energy_gain", float, 0.05, 0.0, 1.0, "",
+    ParamSpec("energy_gain", float, 0.5, 0.0, 1.0, "",
               "alpha_en, eq. (22): pull toward the equilibrium position about G"),
     ParamSpec("spring_period", int, 55, 1, 1_000_000, "events",
               "springs and energy criteria are applied every this many events"),
