@@ -107,18 +107,15 @@ static inline int64_t pos16(int64_t v)
     return v >> 16;
 }
 
-/* |v| / 2^16 truncated toward zero, with v's sign: a Q.32 offset in Q.16 whose square
-   never exceeds the exact one (so the gate-box test stays a necessary condition) */
-static inline int64_t trunc16(int64_t v)
+/* Mahalanobis d^2 = ia dx^2 + ib2 dx dy + ic dy^2 (eq. 2), Q.40, from the inverse
+   covariance (Q.32 px^-2, < 2^47) and the exact offsets (Q.32 px, < 2^46).  64 x 64 ->
+   128-bit products (integer registers only); every term is < 2^106, so the sum needs no
+   bound on the offsets and is compared with the gate before it is narrowed. */
+static inline __int128 qform(int64_t ia, int64_t ib2, int64_t ic, int64_t dx, int64_t dy)
 {
-    return v >= 0 ? v >> 16 : -((-v) >> 16);
-}
-
-/* sum over a term of the quadratic form, Q.40: (a u v) with a Q.32 px^-2 and u, v Q.32 px;
-   64 x 64 -> 128-bit products (integer registers only) */
-static inline int64_t qterm(int64_t a, int64_t u, int64_t v)
-{
-    return (int64_t)(((((__int128)a * u) >> 32) * v) >> 24);
+    __int128 tx = ((__int128)ia * dx) >> 32, ty = ((__int128)ic * dy) >> 32;
+    __int128 txy = ((__int128)ib2 * dx) >> 32;
+    return (tx * dx + ty * dy + txy * dy) >> 24;
 }
 
 static inline int64_t sat_add(fx_state *s, int64_t a, int64_t b, int64_t lim)
@@ -492,19 +489,14 @@ int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y)
     m = s->cells[(y >> FX_CELL_SHIFT) * s->gw + (x >> FX_CELL_SHIFT)] & s->sensitive_mask;
     while (m) {
         int i = __builtin_ctzll(m);
-        int64_t dx, dy, hx, hy, d2;
+        int64_t dx, dy;
+        __int128 d2;
         m &= m - 1;
         dx = fx - s->mx[i];                               /* Q.32, |.| < 2^46 */
         dy = fy - s->my[i];
-        hx = trunc16(dx);                                 /* Q.16, |.| < 2^30 */
-        hy = trunc16(dy);
-        /* d2 < gate implies dx^2 < gate sxx and dy^2 < gate syy; this test also bounds
-           ia |dx| etc. so the terms below fit (docs/fixed_point.md) */
-        if (hx * hx >= s->gsxx[i] || hy * hy >= s->gsyy[i])
-            continue;
-        d2 = qterm(s->ia[i], dx, dx) + qterm(s->ic[i], dy, dy) + qterm(s->ib2[i], dx, dy);  /* Q.40 */
+        d2 = qform(s->ia[i], s->ib2[i], s->ic[i], dx, dy);
         if (d2 < best_d2) {
-            best_d2 = d2;
+            best_d2 = (int64_t)d2;
             best = i;
             bdx = dx;
             bdy = dy;
