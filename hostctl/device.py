@@ -118,7 +118,7 @@ class Device:
         self.info = wire.decode_info(self.info_reply.payload)
         if self.info["auth_required"] and not self.key:
             raise HostctlError(f"{self.url}: the device requires a key (HMAC signing); "
-                               f"pass --key / key=")
+                               f"give --key-file or $HOSTCTL_KEY (API: key=)")
         self.signer = (wire.Signer(self.key, self.info["nonce"])
                        if self.key and self.info["auth_required"] else None)
         return self.info
@@ -294,6 +294,8 @@ class Device:
                 self._dispatch(frame)
 
     def _dispatch(self, f: wire.Frame) -> None:
+        if f.type == MsgType.INFO:         # a new session: the firmware discarded what it
+            self.rx_seq.last = None        # had not written yet, that is not a loss
         self.rx_seq.update(f.seq)
         if f.version != self.version:
             self.counts["foreign_version"] += 1

@@ -49,6 +49,15 @@ def test_cli_info_set_get_stats(served, capsys):
     assert rc == 0 and "3 pings" in out
 
 
+def test_cli_ports_lists_serial_ports(capsys):
+    from serial.tools import list_ports
+    rc, out, err = run(capsys, "ports")
+    devices = [p.device for p in list_ports.comports()]
+    assert rc == 0
+    assert [line.split("\t")[0] for line in out.splitlines()] == devices
+    assert devices or "no serial ports found" in err
+
+
 def test_cli_errors_exit_nonzero_with_reason(served, capsys):
     rc, _, err = run(capsys, "--port", served.path, "set", "alpha_position=7")
     assert rc == 6 and "PARAM_SET refused (out_of_range)" in err and "alpha_position=7" in err
