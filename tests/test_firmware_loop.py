@@ -314,3 +314,20 @@ def test_cli_usb_source_without_a_camera_fails_clearly():
     assert r.returncode == 2
     assert ("no libusb backend" in r.stderr or "no ccam_atis device" in r.stderr), r.stderr
     assert "Traceback" not in r.stderr
+
+
+@pytest.mark.parametrize("fmt", ["evt2", "evt3"])
+def test_evt_profiles_run_through_the_engine_like_the_offline_tracker(face, fmt):
+    """EVT 2.0 / 3.0 boards: same reader and engine, the springtrack.io decoder instead of
+    the fused CCam loop; the track equals the offline tracker's."""
+    prof = camusb.PROFILES[fmt]
+    cam = SimCamera([face], fmt=fmt)
+    be = SimBackend(cam, pid=prof.pid)
+    eng = FirmwareLoop(lambda: camusb.Camera.open(prof, backend=be), "face26",
+                       telemetry_period_us=SAMPLE, profile=fmt, lossless=True, record=True,
+                       transfer_bytes=16384)
+    s = run_to_end(cam, eng)
+    assert s["events_decoded"] == s["events_tracked"] == len(face)
+    got = recorded(eng)
+    ref = Tracker("face26").run(face, SAMPLE)
+    assert np.array_equal(got["t"], ref.t_us) and np.array_equal(got["x"], ref.x)
