@@ -361,7 +361,7 @@ def write_report(results, plan: Plan, docs: Path, quick: bool, elapsed: float, w
               "out; samples every 10 ms.", "",
               "| s | tracker error while pulled (px, mean) | insensitive while pulled | inactive while pulled |",
               "|---|---|---|---|"]
-        for r in rs:
+        for r in rs if pulled.any() else []:
             x = np.asarray(r["trace"]["x"][::10])
             y = np.asarray(r["trace"]["y"][::10])
             wy = np.array([sc.truth(ti)[k, 1] for ti in t])
@@ -370,6 +370,8 @@ def write_report(results, plan: Plan, docs: Path, quick: bool, elapsed: float, w
             ina_p = (~np.asarray(r["trace"]["active"][::10]))[pulled]
             L.append(f"| {_s_label(r['s'])} | {e.mean():.1f} | {100 * ins_p.mean():.0f} % "
                      f"| {100 * ina_p.mean():.0f} % |")
+        if not pulled.any():
+            L.append("| (the run ends before the first pull) | | | |")
         L += ["", "![Fig. 13](img/fig13_pulled_element.png)", ""]
 
     # Table I / Fig. 15 and Fig. 16
