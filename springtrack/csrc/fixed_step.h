@@ -9,18 +9,19 @@
  *   spring geometry l0, dx0, r, l ...     int32/int64  Q.16 px
  *   covariances sxx, sxy, syy            int64  Q.40 px^2 (<= 4096 px^2)
  *   inverse covariance ia, ib2, ic        int64  Q.32 px^-2
- *   Mahalanobis d^2, gate                 int64  Q.40
+ *   Mahalanobis d^2, gate                 int128 sums, narrowed to int64, Q.40
  *   activity                              int64  Q.32
  *   energies                              int64  Q.32 (px^2, or rad^2 for torsion)
  *   gains a1, a2, cov_gain, energy_gain   uint32 mantissa in [2^30, 2^31) and a shift
  *   stiffness                             uint32 Q2.30 (<= 1.0)
  *   1/mass                                uint32 Q7.24
  *   angles                                uint32 binary angle, 2^32 = 2 pi
- *   exp2 / atan / CORDIC tables           uint32 Q.30 / binary angle
+ *   exp2 / atan / hypot / sqrt / CORDIC   uint32 tables, Q.30 / binary angle
  *
  * Arithmetic right shifts of negative values are floor divisions (GCC and Clang define
  * them so); no signed overflow can happen (bounds in docs/fixed_point.md), and the
- * places where a value could leave its range saturate and count.
+ * places where a value could leave its range saturate and count.  64 x 64 -> 128-bit
+ * products use GCC/Clang `__int128` (integer registers only).
  */
 #ifndef SPRINGTRACK_FIXED_STEP_H
 #define SPRINGTRACK_FIXED_STEP_H
