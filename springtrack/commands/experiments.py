@@ -223,6 +223,35 @@ def min_over_s(results, exp, kind, alpha):
     return best, (off[0] if off else None)
 
 
+def _summary(results) -> list[str]:
+    """The paper's two headline numbers beside ours, and the energy criteria's effect."""
+    out = ["## Summary against the paper", "", "| measure | paper | ours |", "|---|---|---|"]
+    f14 = _sel(results, exp="fig14")
+    if f14:
+        best = min(f14, key=lambda r: (round(r["mean_pct"], 6), r["s"]))
+        off = [r for r in f14 if r["s"] >= 1e5]
+        out.append(f"| grid_pull best error (Cartesian, alpha 0.001) | 2.74 % (s = 4.5) | "
+                   f"{best['mean_pct']:.2f} % (s = {best['s']:g}) "
+                   f"{'beats' if best['mean_pct'] < 2.74 else 'misses'} |")
+        if off:
+            out.append(f"| grid_pull, energy criteria off (s = 10^6) | stable above s = 12 | "
+                       f"{off[0]['mean_pct']:.2f} % |")
+    face = _sel(results, exp="face", s=PAPER["face_s"])
+    if face:
+        m = float(np.mean([r["mean_pct"] for r in face]))
+        out.append(f"| face error, s = 2.5, default hand (palm 0.16 face heights), "
+                   f"{len(face)} seed(s) | 5.42 % | {m:.2f} % "
+                   f"{'beats' if m < 5.42 else 'misses'} |")
+    for h in sorted({r["hand"] for r in _sel(results, exp="hand")}):
+        for sv, label in ((PAPER["face_s"], "s = 2.5"), (1e6, "criteria off")):
+            rs = _sel(results, exp="hand", hand=h, s=sv)
+            if rs:
+                m = float(np.mean([r["mean_pct"] for r in rs]))
+                out.append(f"| face error, palm {h:g}, {label}, {len(rs)} seed(s) | "
+                           f"{'5.42 %' if sv < 1e5 else ''} | {m:.2f} % |")
+    return out + [""]
+
+
 def _machine() -> str:
     import os
     import platform
@@ -257,6 +286,7 @@ def write_report(results, plan: Plan, docs: Path, quick: bool, elapsed: float, w
           "springtrack track gp.npy --model gp.toml --out gp_track.csv",
           "springtrack score gp.csv gp_track.csv      # last line: mean_error_pct=...",
           "```", ""]
+    L += _summary(results)
     if plan.scenes:
         L += ["Simulated sensor (firmware_sim.sensor, one core, in the driver process; the "
               "machine is shared, see docs/benchmarks.md for a quieter measurement):", "",
