@@ -165,17 +165,21 @@ cdef Py_ssize_t run_events(fx_state* s, const Event* ev, Py_ssize_t n, int64_t s
     return n
 
 
+cdef int fixed_step(void* state, int64_t t, int x, int y) noexcept nogil:
+    """One event on a FixedKernel's state (declared in _fixed.pxd for other modules)."""
+    return fx_step(<fx_state*>state, t, x, y)
+
+
 cdef class FixedKernel:
     """Owns one fx_state. ``FixedKernel(model, params)``; see springtrack.tracker.Tracker."""
-    cdef fx_state st
-    cdef object model
-    cdef object params
 
     def __cinit__(self):
-        self.st.cells = NULL
+        self.state = calloc(1, sizeof(fx_state))
+        if self.state == NULL:
+            raise MemoryError()
 
     def __init__(self, model, params):
-        cdef fx_state* s = &self.st
+        cdef fx_state* s = <fx_state*>self.state
         cdef int i, k
         arr = model.arrays()
         n = len(model.trackers)
@@ -248,13 +252,16 @@ cdef class FixedKernel:
         s.n_reindex = 0
 
     def __dealloc__(self):
-        if self.st.cells != NULL:
-            free(self.st.cells)
-            self.st.cells = NULL
+        cdef fx_state* s = <fx_state*>self.state
+        if s != NULL:
+            if s.cells != NULL:
+                free(s.cells)
+            free(s)
+            self.state = NULL
 
     def set_params(self, params):
         """Apply validated springtrack.params.Params (between two events)."""
-        cdef fx_state* s = &self.st
+        cdef fx_state* s = <fx_state*>self.state
         cdef int i
         pq = _q.params_q(params, s.nc)
         self.params = params
@@ -290,7 +297,7 @@ cdef class FixedKernel:
         where samples is a dict of arrays with at most ``cap`` rows (None if sample_us <= 0)."""
         cdef cnp.ndarray ev = events
         cdef Py_ssize_t n = ev.shape[0], consumed
-        cdef fx_state* s = &self.st
+        cdef fx_state* s = <fx_state*>self.state
         cdef SampleOut o
         cdef int64_t nt = next_t
         cdef int nt_ = s.n
@@ -329,14 +336,14 @@ cdef class FixedKernel:
         return consumed, nt, out
 
     def step(self, long long t, int x, int y):
-        return fx_step(&self.st, t, x, y)
+        return fx_step(<fx_state*>self.state, t, x, y)
 
     def springs(self):
-        fx_springs(&self.st)
+        fx_springs(<fx_state*>self.state)
 
     def snapshot(self, long long t):
         """Dict of per-tracker float64 arrays at event time t."""
-        cdef fx_state* s = &self.st
+        cdef fx_state* s = <fx_state*>self.state
         n = s.n
         act = np.array([fx_activity(s, i, t) * Q32_UNIT for i in range(n)])
         return dict(x=np.array([s.mx[i] * POS_UNIT for i in range(n)]),
@@ -351,7 +358,7 @@ cdef class FixedKernel:
     def raw_state(self):
         """The integer state itself (Q formats of docs/fixed_point.md): x, y Q.32 int64;
         sxx, sxy, syy Q.40 int64; activity Q.32 (at the tracker's last event)."""
-        cdef fx_state* s = &self.st
+        cdef fx_state* s = <fx_state*>self.state
         n = s.n
         return dict(x=np.array([s.mx[i] for i in range(n)], np.int64),
                     y=np.array([s.my[i] for i in range(n)], np.int64),
@@ -363,7 +370,7 @@ cdef class FixedKernel:
     def set_raw(self, int i, x=None, y=None, act=None):
         """Overwrite tracker i's raw integer state (tests: drive it to a range limit).
         x, y Q.32 (int64), act Q.32; the spatial index is refreshed."""
-        cdef fx_state* s = &self.st
+        cdef fx_state* s = <fx_state*>self.state
         if not 0 <= i < s.n:
             raise IndexError(f"tracker index {i} out of range 0..{s.n - 1}")
         if x is not None:
@@ -376,20 +383,20 @@ cdef class FixedKernel:
 
     def energies(self):
         """(3, nc) array of the last spring update's energies: euclidean, torsional, cartesian."""
-        cdef fx_state* s = &self.st
+        cdef fx_state* s = <fx_state*>self.state
         return (np.array([[s.energy[q][k] * Q32_UNIT for k in range(s.nc)] for q in range(3)])
                 .reshape(3, s.nc))
 
     @property
     def mean_energy(self):
-        return self.st.mean_energy * Q32_UNIT
+        return (<fx_state*>self.state).mean_energy * Q32_UNIT
 
     @property
     def last_t(self):
-        return self.st.last_t
+        return (<fx_state*>self.state).last_t
 
     def counters(self):
-        cdef fx_state* s = &self.st
+        cdef fx_state* s = <fx_state*>self.state
         return dict(events_valid=s.n_valid, events_assigned=s.n_assigned,
                     skipped_back_in_time=s.n_back, skipped_outside_sensor=s.n_outside,
                     spring_updates=s.n_spring_updates, index_updates=s.n_reindex,
@@ -398,29 +405,29 @@ cdef class FixedKernel:
 
     def check_index(self):
         """Verify the spatial index invariant (tests)."""
-        return bool(fx_check_index(&self.st))
+        return bool(fx_check_index(<fx_state*>self.state))
 
     # ---- integer building blocks, for tests ----
     def mulsh(self, long long v, unsigned int g, int sh):
         return fx_mulsh(v, g, sh)
 
     def isqrt(self, unsigned long long v):
-        return fx_isqrt64(&self.st, v)
+        return fx_isqrt64(<fx_state*>self.state, v)
 
     def exp2neg(self, long long w):
-        return fx_exp2neg(&self.st, w)
+        return fx_exp2neg(<fx_state*>self.state, w)
 
     def atan2(self, long long y, long long x):
-        return fx_atan2(&self.st, y, x)
+        return fx_atan2(<fx_state*>self.state, y, x)
 
     def polar(self, long long x, long long y):
         """(binary angle, length, cos Q.30, sin Q.30) of the vector (x, y) (tests)."""
         cdef uint32_t a
         cdef int64_t l, cx, cy
-        fx_polar(&self.st, x, y, &a, &l, &cx, &cy)
+        fx_polar(<fx_state*>self.state, x, y, &a, &l, &cx, &cy)
         return a, l, cx, cy
 
     def cossin(self, long long angle):
         cdef int64_t c, sn
-        fx_cossin(&self.st, angle, &c, &sn)
+        fx_cossin(<fx_state*>self.state, angle, &c, &sn)
         return c, sn
