@@ -120,7 +120,7 @@ def make_source(args, biases: dict):
     cam = simusb.SimCamera(source, realtime=not args.max_speed, faults=faults)
     backend = simusb.SimBackend(cam)
     return (lambda: camusb.Camera.open("ccam_atis", args.serial, backend=backend,
-                                       biases=biases, profile=args.profile if cam is None else "ccam_atis")), cam, default_model
+                                       biases=biases)), cam, default_model
 
 
 def _limit_seconds(source, seconds):
