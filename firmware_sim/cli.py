@@ -8,7 +8,7 @@
 Without a host link it prints a statistics line every ``--stats-every`` s on stderr and a
 final one on stdout; ``--record`` writes every telemetry snapshot in the CSV schema of
 ``springtrack track`` (``t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive``).
-Exit status: 0 done, 1 the stream had errors it could not recover from, 2 bad arguments.
+Exit status: 0 done, 1 the camera never opened (10 s), 2 bad arguments / no camera found.
 """
 from __future__ import annotations
 
@@ -19,6 +19,8 @@ import time
 
 from . import faults as _faults
 from . import usb as camusb
+
+NEVER_OPENED_S = 10.0      # give up if the camera never delivered a transfer this long
 
 EPILOG = """\
 sources:  sim:SCENE (firmware_sim.scenes: face_occlusion, grid_pull, ...) through the
@@ -201,6 +203,7 @@ def run(args) -> int:
     t0 = time.monotonic()
     next_stats = t0 + args.stats_every if args.stats_every > 0 else float("inf")
     quiet = 0
+    failed = None
     try:
         while True:
             time.sleep(0.02)
@@ -210,6 +213,10 @@ def run(args) -> int:
             if now >= next_stats and link_thread is None:
                 print(engine.stats_line(), file=sys.stderr, flush=True)
                 next_stats = now + args.stats_every
+            if engine.reader.counts["transfers"] == 0 and now - t0 > NEVER_OPENED_S \
+                    and engine.reader.state == "reconnecting":
+                failed = f"the camera never opened in {NEVER_OPENED_S:g} s: {engine.reader.last_error}"
+                break
             if cam is not None:
                 if cam.finished and _caught_up(engine):
                     quiet += 1
@@ -238,7 +245,8 @@ def run(args) -> int:
         print(f"replay: {args.replay_stats['outside']} events outside the 304x240 sensor "
               f"dropped before encoding", file=sys.stderr)
     print("stats: " + engine.stats_line(), flush=True)
-    if s["state"] not in ("stopped", "streaming"):
+    if failed:
+        print(f"firmware-sim run: error: {failed}", file=sys.stderr)
         return 1
     return 0
 
