@@ -7,7 +7,8 @@
 #     with nogil:
 #         r = kstep(s, t, x, y)            # one event; r >= 0: winning tracker
 #
-# kstep() is the exact translation of springtrack.reference.ReferenceTracker.step().
+# kstep() translates springtrack.reference.ReferenceTracker.step(); it agrees with it to
+# 1e-9 px (libm calls on the hot paths are replaced by csrc/fastmath.h, ~1 ulp).
 from libc.stdint cimport int64_t, uint64_t, int32_t, uint8_t
 
 cdef enum:
@@ -53,6 +54,20 @@ ctypedef struct KState:
     double th0[MAX_CONNECTIONS]
     double dx0[MAX_CONNECTIONS]
     double dy0[MAX_CONNECTIONS]
+    # per-connection coefficients precomputed from stiff/kinds/th0 (branch-free springs):
+    # half_a = a / 2; a_euc, a_tor, a_car = a where the spring has that kind, else 0;
+    # c0, s0 = cos, sin of th0 (direction of eq. 11 when both ends coincide)
+    double half_a[MAX_CONNECTIONS]
+    double a_euc[MAX_CONNECTIONS]
+    double a_tor[MAX_CONNECTIONS]
+    double a_car[MAX_CONNECTIONS]
+    double c0[MAX_CONNECTIONS]
+    double s0[MAX_CONNECTIONS]
+    # eq. (14) measured from the rest direction: (rdx, rdy) = (dx0, dy0), or (c0, s0)
+    # if that is 0; dth_zero = wrap(-th0), the reference's value when both ends coincide
+    double rdx[MAX_CONNECTIONS]
+    double rdy[MAX_CONNECTIONS]
+    double dth_zero[MAX_CONNECTIONS]
     double energy[3][MAX_CONNECTIONS]
     double mean_energy
     # spatial index: cells[cy * gw + cx] has bit i set if tracker i's gate box may cover

@@ -33,6 +33,18 @@ def assert_same(model, params, events, sample_us=1000):
     return a
 
 
+# The kernel's exp/atan2/sin/cos are ~1-ulp polynomials (springtrack/csrc/fastmath.h), not
+# libm's, so kernel and reference differ by rounding.  That stays far below 1e-9 px on
+# well-posed models, but two kinds of random model amplify rounding without bound, and no
+# tolerance can compare them: (1) unstable springs, where one spring update overshoots
+# (stiffness x (1/m_a + 1/m_b) summed over a tracker's springs above ~1) and positions grow
+# geometrically to inf/NaN; (2) connections whose ends coincide (rest length 0), whose
+# direction (eq. 11) and angle (eq. 14) are then defined by rounding noise alone.  The
+# strategy below draws only models outside both: connected ends at least 1 px apart, and
+# stiffness scaled so that every tracker's spring load sum(kinds x a / m) is at most 0.5.
+MAX_SPRING_LOAD = 0.5
+
+
 @st.composite
 def models(draw):
     w, h = draw(st.integers(40, 400)), draw(st.integers(40, 300))
@@ -44,12 +56,18 @@ def models(draw):
         rho = draw(st.floats(-0.8, 0.8))
         trackers.append(TrackerSpec(f"t{i}", draw(st.floats(0, w - 1)), draw(st.floats(0, h - 1)),
                                     (sx * sx, rho * sx * sy, sy * sy), draw(st.floats(0.2, 5.0))))
-    pairs = [(i, j) for i in range(n) for j in range(i + 1, n)]
+    pairs = [(i, j) for i in range(n) for j in range(i + 1, n)
+             if np.hypot(trackers[i].x - trackers[j].x, trackers[i].y - trackers[j].y) >= 1.0]
     chosen = draw(st.lists(st.sampled_from(pairs), unique=True, max_size=20)) if pairs else []
-    conns = [Connection(f"t{i}", f"t{j}",
-                        tuple(draw(st.lists(st.sampled_from(SPRING_KINDS), min_size=1, max_size=3,
-                                            unique=True))),
-                        draw(st.floats(0.0, 0.3))) for i, j in chosen]
+    drawn = [(i, j, tuple(draw(st.lists(st.sampled_from(SPRING_KINDS), min_size=1, max_size=3,
+                                        unique=True))),
+              draw(st.floats(0.0, 0.3))) for i, j in chosen]
+    load = np.zeros(n)
+    for i, j, kinds, a in drawn:
+        load[i] += len(kinds) * a / trackers[i].mass
+        load[j] += len(kinds) * a / trackers[j].mass
+    scale = min(1.0, MAX_SPRING_LOAD / load.max()) if drawn and load.max() > 0 else 1.0
+    conns = [Connection(f"t{i}", f"t{j}", kinds, a * scale) for i, j, kinds, a in drawn]
     return ShapeModel("rand", w, h, trackers, conns)
 
 
