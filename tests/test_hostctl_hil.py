@@ -153,7 +153,7 @@ class ManglingProxy:
     """Forwards bytes between the firmware's pty and a new pty for the host, flipping one
     bit every ``down_every`` bytes firmware->host and every ``up_every`` bytes host->firmware."""
 
-    def __init__(self, fw_path, down_every=4001, up_every=701, seed=5):
+    def __init__(self, fw_path, down_every=4001, up_every=1999, seed=5):
         self.fw = serial.serial_for_url(fw_path, timeout=0)
         self.host = transport.PtyPort()
         self.path = self.host.path
