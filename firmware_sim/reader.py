@@ -3,6 +3,9 @@
 * ``nbuf`` buffers of ``transfer_bytes`` (a multiple of wMaxPacketSize) are allocated once;
   each bulk read goes straight into a free buffer (``array('B')``, no copy) and the filled
   buffer is queued for the processing thread, which hands it back with :meth:`release`.
+* Small transfers (real time: the controller ends a transfer with a short packet after a
+  fraction of a millisecond) are copied into the tail buffer of the queue if it has room,
+  so the queue is bounded in bytes rather than in transfers (the only copy, <= 16 KiB).
 * Load shedding: if no buffer is free, the oldest queued transfer is dropped whole and
   counted (like a sensor's event-rate controller); the reader never waits for the consumer
   (except in the lossless mode used to replay a simulated camera at maximum speed).
@@ -25,6 +28,7 @@ import usb.core
 from . import usb as camusb
 
 BACKOFF_S = (0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
+COALESCE_MAX = 16 * 1024      # transfers up to this size may be copied into the queued tail
 
 
 class Reader:
@@ -40,7 +44,8 @@ class Reader:
         self.timeout_ms = int(timeout_ms)
         self.pool = [array.array("B", bytes(transfer_bytes)) for _ in range(nbuf)]
         self.free: deque[int] = deque(range(nbuf))
-        self.filled: deque[tuple[int, int, bool]] = deque()
+        # queued transfers: [buffer index, bytes, gap before it, transfers coalesced in it]
+        self.filled: deque[list] = deque()
         self.cond = threading.Condition()
         self.cmds: deque = deque()
         self.cam = None
@@ -53,7 +58,7 @@ class Reader:
         self.counts = dict(transfers=0, bytes=0, transfers_dropped=0, bytes_dropped=0,
                            timeouts=0, stalls=0, disconnects=0, reconnects=0, open_failures=0,
                            short_transfers=0, odd_transfers=0, queue_hwm=0, commands=0,
-                           command_errors=0)
+                           command_errors=0, coalesced=0)
 
     # ---- lifecycle ---------------------------------------------------------------------
     def start(self) -> None:
@@ -86,7 +91,8 @@ class Reader:
                 self.cond.wait(timeout)
             if not self.filled:
                 return None
-            return self.filled.popleft()
+            idx, n, gap, _ = self.filled.popleft()
+            return idx, n, gap
 
     def release(self, idx: int) -> None:
         with self.cond:
@@ -122,12 +128,11 @@ class Reader:
                 return self.free.popleft() if self.free else None
             if self.free:
                 return self.free.popleft()
-            idx, n, _ = self.filled.popleft()    # shed load: drop the oldest transfer
-            self.counts["transfers_dropped"] += 1
+            idx, n, _, k = self.filled.popleft()  # shed load: drop the oldest transfer(s)
+            self.counts["transfers_dropped"] += k
             self.counts["bytes_dropped"] += n
             if self.filled:                      # the gap is before the new oldest
-                i2, n2, _ = self.filled[0]
-                self.filled[0] = (i2, n2, True)
+                self.filled[0][2] = True
             else:
                 self.gap = True
             return idx
@@ -225,8 +230,20 @@ class Reader:
                 elif n < len(buf) and n % 512:
                     c["short_transfers"] += 1
                 with self.cond:
-                    self.filled.append((idx, n, self.gap))
-                    self.gap = False
+                    tail = self.filled[-1] if self.filled else None
+                    if (tail is not None and not self.gap and n <= COALESCE_MAX
+                            and tail[1] + n <= len(self.pool[tail[0]])):
+                        # a small transfer (real time: short packets) joins the queued tail
+                        # buffer: the queue is bounded in bytes, not in transfers
+                        memoryview(self.pool[tail[0]])[tail[1]:tail[1] + n] = \
+                            memoryview(buf)[:n]
+                        tail[1] += n
+                        tail[3] += 1
+                        c["coalesced"] += 1
+                        self.free.append(idx)
+                    else:
+                        self.filled.append([idx, n, self.gap, 1])
+                        self.gap = False
                     if len(self.filled) > c["queue_hwm"]:
                         c["queue_hwm"] = len(self.filled)
                     self.cond.notify()
