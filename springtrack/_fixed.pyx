@@ -34,8 +34,7 @@ cdef extern from "csrc/fixed_step.h" nogil:
         FX_SQRT_N
     ctypedef struct fx_state:
         int32_t n, nc, width, height
-        uint32_t a1, a2, cov_gain, energy_gain
-        int32_t a1_sh, a2_sh, cg_sh, eg_sh
+        int64_t a1, a2, cov_gain, energy_gain
         int64_t gate
         uint32_t gate_q24
         int64_t k_tau, dt_max, act_thr
@@ -266,13 +265,9 @@ cdef class FixedKernel:
         pq = _q.params_q(params, s.nc)
         self.params = params
         s.a1 = pq["a1"]
-        s.a1_sh = pq["a1_sh"]
         s.a2 = pq["a2"]
-        s.a2_sh = pq["a2_sh"]
         s.cov_gain = pq["cov_gain"]
-        s.cg_sh = pq["cg_sh"]
         s.energy_gain = pq["energy_gain"]
-        s.eg_sh = pq["eg_sh"]
         s.gate = pq["gate"]
         s.gate_q24 = pq["gate_q24"]
         s.k_tau = pq["k_tau"]

@@ -42,21 +42,11 @@ def gain(value: float, name: str) -> int:
     return q(value, GAIN_FRAC, name, 0.0, 1.0)
 
 
-def norm_gain(value: float, name: str) -> tuple[int, int]:
-    """A gain in [0, 1] as (mantissa, shift), gain = mantissa / 2^shift with the mantissa in
-    [2^30, 2^31) (31 significant bits whatever the gain's size; shift <= 62)."""
+def gain62(value: float, name: str) -> int:
+    """A gain in [0, 1] as Q.62 (int64): absolute resolution 2.2e-19, so even a2 = 5e-5
+    keeps 47 significant bits."""
     q(value, 0, name, 0.0, 1.0)                       # range check
-    if value == 0.0:
-        return 0, 30
-    sh = 30 - math.floor(math.log2(value))
-    m = int(round(value * 2.0 ** sh))
-    if m >= 1 << 31:
-        sh -= 1
-        m = int(round(value * 2.0 ** sh))
-    if sh > 62:
-        sh = 62
-        m = int(round(value * 2.0 ** sh))
-    return m, sh
+    return int(round(value * 2.0 ** 62))
 
 
 def exp2_table() -> list[int]:
@@ -113,13 +103,11 @@ def params_q(p, nc: int) -> dict:
     gate = p.gate_d2
     tau = p.activity_tau_us
     k_tau = int(round(LOG2E / tau * 2 ** D2_FRAC))
-    a1 = norm_gain(p.alpha_position, "alpha_position")
-    a2 = norm_gain(p.alpha_covariance, "alpha_covariance")
-    cg = norm_gain(p.alpha_covariance / covariance_bias(p.alpha_position, gate), "cov_gain")
-    eg = norm_gain(p.energy_gain, "energy_gain")
     return dict(
-        a1=a1[0], a1_sh=a1[1], a2=a2[0], a2_sh=a2[1], cov_gain=cg[0], cg_sh=cg[1],
-        energy_gain=eg[0], eg_sh=eg[1],
+        a1=gain62(p.alpha_position, "alpha_position"),
+        a2=gain62(p.alpha_covariance, "alpha_covariance"),
+        cov_gain=gain62(p.alpha_covariance / covariance_bias(p.alpha_position, gate), "cov_gain"),
+        energy_gain=gain62(p.energy_gain, "energy_gain"),
         gate=q(gate, D2_FRAC, "gate_d2", 0.0, 31.0),
         gate_q24=q(gate, 24, "gate_d2", 0.0, 31.0),
         k_tau=k_tau,

@@ -28,6 +28,12 @@ static inline int64_t mulsh(int64_t v, uint32_t g, int sh)
     return (int64_t)(((__int128)v * g + ((__int128)1 << (sh - 1))) >> sh);
 }
 
+/* round(v g / 2^62) for a gain g in [0, 2^62] (Q.62, i.e. [0, 1]); |v| < 2^63 */
+static inline int64_t mul62(int64_t v, int64_t g)
+{
+    return (int64_t)(((__int128)v * g + ((__int128)1 << 61)) >> 62);
+}
+
 int64_t fx_mulsh(int64_t v, uint32_t g, int sh)
 {
     return mulsh(v, g, sh);
@@ -109,13 +115,15 @@ static inline int64_t pos16(int64_t v)
 
 /* Mahalanobis d^2 = ia dx^2 + ib2 dx dy + ic dy^2 (eq. 2), Q.40, from the inverse
    covariance (Q.32 px^-2, < 2^47) and the exact offsets (Q.32 px, < 2^46).  64 x 64 ->
-   128-bit products (integer registers only); every term is < 2^106, so the sum needs no
-   bound on the offsets and is compared with the gate before it is narrowed. */
+   128-bit products (integer registers only): (ia dx) >> 32 < 2^61 and every term is
+   < 2^107, so the sum needs no bound on the offsets and is compared with the gate before
+   it is narrowed. */
 static inline __int128 qform(int64_t ia, int64_t ib2, int64_t ic, int64_t dx, int64_t dy)
 {
-    __int128 tx = ((__int128)ia * dx) >> 32, ty = ((__int128)ic * dy) >> 32;
-    __int128 txy = ((__int128)ib2 * dx) >> 32;
-    return (tx * dx + ty * dy + txy * dy) >> 24;
+    int64_t tx = (int64_t)(((__int128)ia * dx) >> 32);     /* < 2^61: fits int64 */
+    int64_t ty = (int64_t)(((__int128)ic * dy) >> 32);
+    int64_t txy = (int64_t)(((__int128)ib2 * dx) >> 32);
+    return ((__int128)tx * dx + (__int128)ty * dy + (__int128)txy * dy) >> 24;
 }
 
 static inline int64_t sat_add(fx_state *s, int64_t a, int64_t b, int64_t lim)
@@ -455,12 +463,12 @@ static inline void update_tracker(fx_state *s, int i, int64_t t, int64_t dx, int
     s->tlast[i] = t;
     int64_t ex = rshr(dx, 12), ey = rshr(dy, 12);         /* Q.20 px, < 2^29 */
     /* eq. (3) */
-    s->mx[i] = sat_pos(s, s->mx[i] + mulsh(dx, s->a1, s->a1_sh));
-    s->my[i] = sat_pos(s, s->my[i] + mulsh(dy, s->a1, s->a1_sh));
+    s->mx[i] = sat_pos(s, s->mx[i] + mul62(dx, s->a1));
+    s->my[i] = sat_pos(s, s->my[i] + mul62(dy, s->a1));
     /* eq. (4)-(5): S <- (1 - a2) S + g e e^T, e = (dx, dy); ex ex is Q.40 px^2 */
-    s->sxx[i] += mulsh(ex * ex, s->cov_gain, s->cg_sh) - mulsh(s->sxx[i], s->a2, s->a2_sh);
-    s->sxy[i] += mulsh(ex * ey, s->cov_gain, s->cg_sh) - mulsh(s->sxy[i], s->a2, s->a2_sh);
-    s->syy[i] += mulsh(ey * ey, s->cov_gain, s->cg_sh) - mulsh(s->syy[i], s->a2, s->a2_sh);
+    s->sxx[i] += mul62(ex * ex, s->cov_gain) - mul62(s->sxx[i], s->a2);
+    s->sxy[i] += mul62(ex * ey, s->cov_gain) - mul62(s->sxy[i], s->a2);
+    s->syy[i] += mul62(ey * ey, s->cov_gain) - mul62(s->syy[i], s->a2);
     refresh(s, i);
     check_index(s, i);
 }
@@ -696,8 +704,8 @@ static void energy_criteria(fx_state *s)
     s->sensitive_mask = 0;
     for (i = 0; i < n; i++) {
         if (over[i] > 0) {                                /* eq. (22) */
-            s->mx[i] = sat_pos(s, s->mx[i] + mulsh(gx + s->gdx0[i] - s->mx[i], s->energy_gain, s->eg_sh));
-            s->my[i] = sat_pos(s, s->my[i] + mulsh(gy + s->gdy0[i] - s->my[i], s->energy_gain, s->eg_sh));
+            s->mx[i] = sat_pos(s, s->mx[i] + mul62(gx + s->gdx0[i] - s->mx[i], s->energy_gain));
+            s->my[i] = sat_pos(s, s->my[i] + mul62(gy + s->gdy0[i] - s->my[i], s->energy_gain));
         }
         if (!(s->degree[i] > 0 && over[i] == s->degree[i]))   /* eq. (21) */
             s->sensitive_mask |= (uint64_t)1 << i;

@@ -12,7 +12,7 @@
  *   Mahalanobis d^2, gate                 int128 sums, narrowed to int64, Q.40
  *   activity                              int64  Q.32
  *   energies                              int64  Q.32 (px^2, or rad^2 for torsion)
- *   gains a1, a2, cov_gain, energy_gain   uint32 mantissa in [2^30, 2^31) and a shift
+ *   gains a1, a2, cov_gain, energy_gain   int64  Q.62 (<= 1.0)
  *   stiffness                             uint32 Q2.30 (<= 1.0)
  *   1/mass                                uint32 Q7.24
  *   angles                                uint32 binary angle, 2^32 = 2 pi
@@ -48,8 +48,7 @@ typedef struct {
     /* geometry and model size */
     int32_t n, nc, width, height;
     /* parameters, converted by springtrack/fixed_q.py */
-    uint32_t a1, a2, cov_gain, energy_gain;   /* gain = mantissa / 2^shift */
-    int32_t a1_sh, a2_sh, cg_sh, eg_sh;
+    int64_t a1, a2, cov_gain, energy_gain;    /* Q.62, <= 2^62 = 1.0 */
     int64_t gate;                             /* d^2 gate, Q.40 */
     uint32_t gate_q24;                        /* the same gate, Q8.24 */
     int64_t k_tau;                            /* log2(e) / tau per us, Q.40 */
