@@ -589,3 +589,39 @@ cdef class Kernel:
                     if not (s.cells[cy * s.gw + cx] >> i) & 1:
                         return False
         return True
+
+
+# ---- csrc/fastmath.h, exposed for tests/test_fastmath.py -------------------------------
+def fastmath_atan2(y, x):
+    """st_atan2_batch over two float64 arrays (the kernel's eq. 14 atan2)."""
+    cdef double[::1] vy = np.ascontiguousarray(y, np.float64)
+    cdef double[::1] vx = np.ascontiguousarray(x, np.float64)
+    if vy.shape[0] != vx.shape[0]:
+        raise ValueError("y and x must have the same length")
+    out = np.empty(vy.shape[0])
+    cdef double[::1] vo = out
+    if vy.shape[0]:
+        st_atan2_batch(&vy[0], &vx[0], &vo[0], <int>vy.shape[0])
+    return out
+
+
+def fastmath_sincos(e):
+    """st_sincos_batch: (sin e, cos e - 1) over a float64 array (the kernel's eq. 16)."""
+    cdef double[::1] ve = np.ascontiguousarray(e, np.float64)
+    sn = np.empty(ve.shape[0])
+    cm1 = np.empty(ve.shape[0])
+    cdef double[::1] vs = sn, vc = cm1
+    if ve.shape[0]:
+        st_sincos_batch(&ve[0], &vs[0], &vc[0], <int>ve.shape[0])
+    return sn, cm1
+
+
+def fastmath_exp(x):
+    """st_exp elementwise over a float64 array (the kernel's eqs. 2 and 6)."""
+    cdef double[::1] vx = np.ascontiguousarray(x, np.float64)
+    out = np.empty(vx.shape[0])
+    cdef double[::1] vo = out
+    cdef Py_ssize_t k
+    for k in range(vx.shape[0]):
+        vo[k] = st_exp(vx[k])
+    return out
