@@ -135,11 +135,16 @@ class DecodedFeed:
 
 
 class FirmwareLoop:
+    """The Engine: ``FirmwareLoop(open_camera, model, params, ...)``; ``open_camera()``
+    returns a started ``firmware_sim.usb.Camera`` (called again after a disconnect).
+    ``lossless=True`` (simulated camera at max speed only) makes the reader wait instead of
+    shedding; ``record=True`` keeps every snapshot for :meth:`write_record`."""
+
     def __init__(self, open_camera, model="face26", params=None, telemetry_period_us: int = 1000,
                  nbuf: int = 64, piece_bytes: int = 16384, telemetry_queue: int = 4096,
                  transfer_bytes: int | None = None, lossless: bool = False,
                  biases: dict | None = None, profile="ccam_atis",
-                 record: bool = False, width: int = 304, height: int = 240):
+                 record: bool = False, width: int | None = None, height: int | None = None):
         if telemetry_period_us <= 0:
             raise ValueError(f"telemetry_period_us must be positive, got {telemetry_period_us}")
         self.model = _model.load_model(model)
@@ -154,7 +159,8 @@ class FirmwareLoop:
         self.reader = Reader(open_camera, nbuf=nbuf, shed=not lossless,
                              **({"transfer_bytes": transfer_bytes} if transfer_bytes else {}))
         self.piece = int(piece_bytes)
-        self.width, self.height = width, height
+        self.width = width or self.profile.width          # the sensor, for INFO
+        self.height = height or self.profile.height
         # shared with open_camera (the CLI passes the same dict) so a reconnect reloads the
         # biases the host set last
         self.biases = biases if biases is not None else {}
