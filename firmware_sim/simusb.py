@@ -167,8 +167,8 @@ class SimCamera:
         self.fifo: deque[Chunk] = deque()
         self.exhausted = False
         self.words_out = 0               # word grid position (corruption schedule)
-        self.t0_wall = None              # device clock origin (wall, at the first start)
-        self.t_origin = None             # event time at t0_wall
+        self.t0_wall = None              # device clock origin: wall time when the first
+        self.t_origin = None             # chunk was made, and its first event's time
         self.skip_before = None          # events before this time are lost (disconnect)
         self._burst = None
         self.counts = dict(bulk_reads=0, bytes_sent=0, events_generated=0, control_in=0,
@@ -423,8 +423,6 @@ class SimCamera:
 
     def _on_start(self):
         self.counts["starts"] += 1
-        if self.realtime and self.t0_wall is None and self.t_origin is None:
-            self.t0_wall = time.monotonic()
         now_t = self.device_time() if self.realtime and self.counts["starts"] > 1 else None
         if now_t is not None:
             # after a reconnect the clock ran on: what happened meanwhile is lost
