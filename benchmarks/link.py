@@ -116,7 +116,9 @@ def bench_telemetry(dev: Device, seconds: float) -> dict:
     return dict(seconds=wall, snapshots=n, rate_hz=n / wall, lost_frames=dev.rx_seq.lost - lost0,
                 event_time_gaps=gaps, event_time_s=(t_last - t_first) / 1e6 if n else 0,
                 crc_errors=dev.reader.counts["crc_errors"],
-                firmware_tx_dropped=fw.get("link.tx_dropped", -1))
+                firmware_tx_dropped=fw.get("link.tx_dropped", -1),
+                engine_telemetry_dropped=fw.get("loop.telemetry_dropped", -1),
+                transfers_dropped=fw.get("transfers_dropped", -1))
 
 
 def bench_upload(dev: Device, n: int = 20) -> dict:
@@ -196,8 +198,10 @@ def main(argv=None) -> int:
         "| measure | result |", "|---|---|",
         f"| face26 telemetry, {tele['seconds']:.1f} s wall | {tele['snapshots']} snapshots = "
         f"{tele['rate_hz']:.1f} Hz, lost frames {tele['lost_frames']}, event-time gaps "
-        f"{tele['event_time_gaps']}, CRC errors {tele['crc_errors']}, firmware tx dropped "
-        f"{tele['firmware_tx_dropped']} |",
+        f"{tele['event_time_gaps']} ({tele['event_time_s']:.1f} s of event time), CRC errors "
+        f"{tele['crc_errors']}, link tx dropped {tele['firmware_tx_dropped']}, snapshots dropped "
+        f"by the firmware's queue {tele['engine_telemetry_dropped']}, USB transfers dropped "
+        f"{tele['transfers_dropped']} |",
         f"| model upload round trip (face26/grid3x3 alternately, {up['n']}x; BEGIN + pipelined "
         f"chunks + COMMIT), tracker stopped | p50 {up['p50_ms']:.1f} ms, p99 {up['p99_ms']:.1f} ms, "
         f"max {up['max_ms']:.1f} ms |",
