@@ -50,7 +50,8 @@ FIRMWARE_NAME = "firmware-sim"
 class LinkServer:
     """One host session over one port (see the module docstring)."""
 
-    def __init__(self, port, engine, key: bytes | None = None, heartbeat_s: float = 1.0):
+    def __init__(self, port, engine, key: bytes | None = None, heartbeat_s: float = 1.0,
+                 energy_period_us: int = 100_000):
         self.port, self.engine = port, engine
         self.nonce = os.urandom(wire.NONCE_LEN)
         self.guard = wire.ReplayGuard(key, self.nonce) if key else None
@@ -62,6 +63,7 @@ class LinkServer:
         self.upload = None
         self.session = False
         self.heartbeat_s = heartbeat_s
+        self.energy_period_us, self.next_energy_t = energy_period_us, None
         self.t0 = time.monotonic()
         self.next_beat = self.t0 + heartbeat_s
         self.fd = _port_fd(port)
@@ -70,7 +72,8 @@ class LinkServer:
         self.counts = dict(rx_frames=0, rx_lost=0, rx_retries=0, auth_unsigned=0,
                            auth_bad_tag=0, auth_replay=0, version_refused=0, acks=0, nacks=0,
                            handler_errors=0, tx_frames=0, tx_bytes=0, tx_dropped=0,
-                           telemetry_sent=0, telemetry_stale=0, tx_stale_bytes=0)
+                           telemetry_sent=0, telemetry_stale=0, tx_stale_bytes=0,
+                           energies_sent=0)
 
     # ---- main loop ------------------------------------------------------------
     def serve(self, stop_event: threading.Event | None = None) -> dict:
@@ -175,6 +178,20 @@ class LinkServer:
                                             snap["mean_energy"], snap["trackers"])
             if self.send(MsgType.TELEMETRY, payload, droppable=True) is not None:
                 self.counts["telemetry_sent"] += 1
+            if "energies" in snap:
+                self._energies(snap)
+
+    def _energies(self, snap) -> None:
+        """ENERGIES every ``energy_period_us`` of event time, for engines whose snapshots
+        carry ``energies = (kind index, per-connection array)``."""
+        t = int(snap["t_us"])
+        if self.next_energy_t is not None and t < self.next_energy_t:
+            return
+        self.next_energy_t = t + self.energy_period_us
+        kind, values = snap["energies"]
+        if self.send(MsgType.ENERGIES, wire.encode_energies(t, kind, values),
+                     droppable=True) is not None:
+            self.counts["energies_sent"] += 1
 
     def _beat(self) -> dict:
         c = self.counts

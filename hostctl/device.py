@@ -86,7 +86,8 @@ class Device:
         self.firmware_link: dict = {}      # last HEARTBEAT counters of the firmware
         self.logs: deque = deque(maxlen=200)
         self.counts = dict(commands=0, retries=0, telemetry=0, telemetry_overflow=0,
-                           unexpected=0, foreign_version=0)
+                           unexpected=0, foreign_version=0, energies=0)
+        self.energies: tuple | None = None   # last ENERGIES: (t_us, kind, per-connection array)
         self.info: dict = {}
         try:
             self.port.write(b"\x00")       # terminate whatever the firmware holds
@@ -314,6 +315,9 @@ class Device:
                 self._store_reply(f)
             elif f.type == MsgType.INFO:
                 self.info_reply = f
+            elif f.type == MsgType.ENERGIES:
+                self.energies = wire.decode_energies(f.payload)
+                self.counts["energies"] += 1
             elif f.type == MsgType.APPLIED:
                 gen, t_us = wire.decode_applied(f.payload)
                 self.applied[gen] = t_us

@@ -58,7 +58,7 @@ class MsgType(IntEnum):
     RESET = 0x32
     STATS = 0x33          # H->F request (empty) / F->H counters
     TELEMETRY = 0x40      # F->H  one compact tracker snapshot
-    ENERGIES = 0x41       # F->H  reserved: per-connection energies at a lower rate
+    ENERGIES = 0x41       # F->H  per-connection energies, at a lower rate than TELEMETRY
     HEARTBEAT = 0x50      # both: liveness; the firmware's carries its link counters
     LOG = 0x60            # F->H  level + text
     ERROR = 0x61          # F->H  unsolicited error: code + text
@@ -695,6 +695,29 @@ def set_read_timeout(port, seconds: float) -> None:
     reconfigures the port (termios calls) every time, and both ends set it twice a read."""
     if port.timeout != seconds:
         port.timeout = seconds
+
+
+# ---- ENERGIES (lower rate) --------------------------------------------------------------
+# u64 t_us, u8 energy kind (0 euclidean, 1 torsional, 2 cartesian: eqs. 12, 17, 20),
+# u16 connection count n, n x float32 energy of each connection
+ENERGY_HDR = struct.Struct("<QBH")
+
+
+def encode_energies(t_us: int, kind: int, energies) -> bytes:
+    e = np.asarray(energies, dtype="<f4")
+    if ENERGY_HDR.size + 4 * len(e) > MAX_PAYLOAD:
+        raise WireError(f"ENERGIES: {len(e)} connections do not fit one frame")
+    return ENERGY_HDR.pack(int(t_us) & (2**64 - 1), int(kind), len(e)) + e.tobytes()
+
+
+def decode_energies(payload: bytes) -> tuple[int, int, np.ndarray]:
+    if len(payload) < ENERGY_HDR.size:
+        raise WireError(f"ENERGIES: payload of {len(payload)} bytes is shorter than its header")
+    t_us, kind, n = ENERGY_HDR.unpack_from(payload)
+    if len(payload) != ENERGY_HDR.size + 4 * n:
+        raise WireError(f"ENERGIES: {n} connections need {ENERGY_HDR.size + 4 * n} bytes, "
+                        f"payload has {len(payload)}")
+    return t_us, kind, np.frombuffer(payload, "<f4", n, ENERGY_HDR.size).astype(np.float64)
 
 
 def framed_size(payload_len: int, signed: bool = False) -> int:

@@ -158,8 +158,11 @@ class SimEngine:
             st = self.tracker.state(t1)           # activity decayed to the snapshot time
             if len(self.telemetry) == self.telemetry.maxlen:
                 self.counters["telemetry_dropped"] += 1         # the oldest goes
+            en = self.tracker.energies()
             self.telemetry.append(dict(t_us=t1, generation=self.generation_live,
-                                       mean_energy=self.tracker.energies()["mean"], trackers=st))
+                                       mean_energy=en["mean"], trackers=st,
+                                       energies=(self.tracker.params.energy_kind_index,
+                                                 en[en["kind"]].copy())))
             self.counters["snapshots"] += 1
 
     def _apply_pending(self) -> None:

@@ -189,7 +189,8 @@ def test_codecs_roundtrip_by_hand():
                                      wire.decode_param_set, wire.decode_param_get, wire.decode_kv,
                                      wire.decode_info, wire.decode_model_begin,
                                      wire.decode_model_chunk, wire.decode_heartbeat,
-                                     wire.decode_log, wire.decode_telemetry])
+                                     wire.decode_log, wire.decode_telemetry,
+                                     wire.decode_energies, wire.decode_applied])
 @given(payload=st.binary(max_size=80))
 @settings(max_examples=100, deadline=None)
 def test_decoders_raise_only_wire_errors(decoder, payload):
@@ -253,6 +254,13 @@ def test_telemetry_clamps_and_saturates():
     assert out["sxx"][0] == (255 / 4) ** 2 and out["sxy"][2] == 0
     assert out["activity"][0] == 0.0 and out["activity"][2] == 1.0
     assert out["activity"][1] == 2 ** (255 / 16) - 1
+
+
+def test_energies_roundtrip_float32():
+    e = np.array([0.0, 1.5, 1e-3, 123456.789])
+    t, kind, got = wire.decode_energies(wire.encode_energies(77, 1, e))
+    assert (t, kind) == (77, 1) and np.allclose(got, e, rtol=1e-7)
+    assert wire.decode_applied(wire.encode_applied(5, -3)) == (5, -3)
 
 
 # ---- signing ----------------------------------------------------------------------------
