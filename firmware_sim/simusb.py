@@ -37,6 +37,7 @@ from .faults import Faults
 
 MAX_PACKET = 512
 LOOKAHEAD_US = 20_000        # realtime: scene data generated this far ahead of the clock
+DEVICE_FIFO_BYTES = 16 << 20  # the simulated camera's own buffer; beyond it, it drops
 SIM_SERIAL = 0x0ACE
 
 
@@ -173,7 +174,8 @@ class SimCamera:
         self._burst = None
         self.counts = dict(bulk_reads=0, bytes_sent=0, events_generated=0, control_in=0,
                            control_out=0, rejected=0, overflow=0, timeouts=0, starts=0,
-                           disconnects=0, reconnects=0)
+                           disconnects=0, reconnects=0, device_overflow_bytes=0,
+                           device_overflow_events=0)
         self._reset_state()
 
     def _reset_state(self):
@@ -279,6 +281,14 @@ class SimCamera:
                 return
             self.fifo.append(c)
             queued += len(c.data)
+            while queued > DEVICE_FIFO_BYTES and len(self.fifo) > 2:
+                # the host does not keep up: the camera's own FIFO overflows and loses the
+                # oldest unread data (never the chunk being read)
+                lost = self.fifo[1]
+                del self.fifo[1]
+                queued -= len(lost.data)
+                self.counts["device_overflow_bytes"] += len(lost.data)
+                self.counts["device_overflow_events"] += lost.n_events
 
     def _check_disconnect(self):
         f = self.faults
