@@ -13,6 +13,7 @@ Exit status: 0 done, 1 the camera never opened (10 s), 2 bad arguments / no came
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 import threading
 import time
@@ -186,6 +187,8 @@ def run(args) -> int:
     # three Python threads (reader, processing, link) share the GIL: hand it over every
     # 0.5 ms instead of 5 ms so the processing thread is never starved for long
     sys.setswitchinterval(0.0005)
+    # SIGTERM ends the run like Ctrl-C: threads stopped, --record written, stats printed
+    signal.signal(signal.SIGTERM, _terminate)
     biases = parse_biases(args.bias)
     args.replay_stats = {}
     open_camera, cam, default_model = make_source(args, biases)
@@ -260,6 +263,10 @@ def _wait_telemetry_sent(engine, link_thread, timeout: float = 30.0) -> None:
             time.sleep(0.2)                    # the link's last writes
             return
         time.sleep(0.02)
+
+
+def _terminate(signum, frame):
+    raise KeyboardInterrupt
 
 
 def _caught_up(engine) -> bool:

@@ -331,3 +331,19 @@ def test_evt_profiles_run_through_the_engine_like_the_offline_tracker(face, fmt)
     got = recorded(eng)
     ref = Tracker("face26").run(face, SAMPLE)
     assert np.array_equal(got["t"], ref.t_us) and np.array_equal(got["x"], ref.x)
+
+
+def test_cli_sigterm_stops_cleanly_and_writes_the_record(tmp_path):
+    import signal
+    out = tmp_path / "fw.csv"
+    p = subprocess.Popen([sys.executable, "-m", "firmware_sim.cli", "run", "--source",
+                          "sim:face_occlusion", "--seconds", "20", "--record", str(out),
+                          "--stats-every", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                         text=True)
+    time.sleep(2.0)
+    p.send_signal(signal.SIGTERM)
+    stdout, stderr = p.communicate(timeout=30)
+    assert p.returncode == 0, stderr
+    assert "interrupted" in stderr and stdout.startswith("stats: ")
+    tr = read_csv(out)
+    assert len(tr) > 10 and tr.ids[0] == "brow_l"
