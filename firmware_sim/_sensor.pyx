@@ -82,7 +82,7 @@ def render(float[:, ::1] logimg, double[:, ::1] blobs, double[:, ::1] occluders,
     (opaque for d < 1 - 6/edge, absent for d > 1 + 6/edge).
     ``scratch`` is a float32 image of the sensor size used as the linear buffer.
     """
-    cdef Py_ssize_t i, k
+    cdef Py_ssize_t k
     cdef int x, y, bx0, bx1, by0, by1
     cdef double sxx, sxy, syy, det, a, b, c, cx, cy, amp, rx, ry, dx, dy, d2, rad, edge
     cdef double inten, g, r, q, inner2
@@ -166,7 +166,7 @@ def emit(float[:, ::1] lprev, float[:, ::1] lnew, float[:, ::1] lref,
     ``lprev`` is updated to ``lnew`` for every processed pixel.
     """
     cdef Event* out = <Event*> out_addr
-    cdef Py_ssize_t w = x1 - x0, n = w * (y1 - y0), i, pos = out_pos, resume = -1
+    cdef Py_ssize_t w = x1 - x0, pos = out_pos, resume = -1
     cdef Py_ssize_t suppressed = 0, bound
     cdef int x, y
     cdef float l0, l1, ref, con, coff, dl
