@@ -280,7 +280,12 @@ class LinkServer:
         self._new_session()
         info = dict(self.engine.info())
         info.setdefault("firmware", FIRMWARE_NAME)
-        self._reply(MsgType.INFO, wire.encode_info(info, self.nonce, self.guard is not None))
+        payload = wire.encode_info(info, self.nonce, self.guard is not None)
+        if len(payload) > wire.MAX_PAYLOAD and isinstance(info.get("trackers"), list):
+            # a big model's tracker ids do not fit one frame: say how many were left out
+            info["trackers_omitted"] = len(info.pop("trackers"))
+            payload = wire.encode_info(info, self.nonce, self.guard is not None)
+        self._reply(MsgType.INFO, payload)
 
     def _new_session(self) -> None:
         """A host said HELLO: snapshots queued for nobody (produced before this session, or

@@ -112,6 +112,19 @@ def test_model_upload_validated_and_atomic(served):
         assert eng.model.digest() == grid.digest() and eng.generation == gen
 
 
+def test_info_of_a_64_tracker_model_omits_ids_that_do_not_fit(served):
+    eng = served.engine
+    trackers = [_model.TrackerSpec(f"a_rather_long_tracker_name_{k:02d}", 10.0 + 4 * k, 100.0,
+                                   (4.0, 0.0, 4.0)) for k in range(64)]
+    big = _model.ShapeModel("big", 304, 240, trackers, [])
+    with Device(served.path) as dev:
+        dev.load_model(big)
+        eng.step()
+        info = dev.hello()
+        assert info["model"] == "big" and info["trackers_omitted"] == 64
+        assert "trackers" not in info
+
+
 def test_model_commit_checks_length_crc_and_order(served):
     eng = served.engine
     with Device(served.path) as dev:
