@@ -14,7 +14,9 @@ with t >= next sample and t >= the kernel's last time, one snapshot per sample t
 Gaps: after a dropped transfer or a reconnect (:meth:`Fused.gap`) and at stream start,
 events are discarded (counted, ``gap_skipped``) until the next time-high word, so no event
 gets a stale time base; the tracker then simply continues (the kernel needs no reset).
-Words split across transfers (odd lengths) are completed from a 3-byte carry.
+Words split across transfers (odd lengths) are completed from a 3-byte carry.  A time
+base that goes back (a camera counter restarted after a reconnect) is rebased by the word
+decoder and moved one time-high period further here, so timestamps never go back.
 """
 from libc.stdint cimport uint8_t, uint16_t, int64_t, uint64_t
 from libc.string cimport memcpy
@@ -192,11 +194,17 @@ cdef class Fused:
         cdef int64_t t
         cdef uint16_t x, y
         cdef uint8_t p
-        cdef uint64_t th_before = self.cs.time_high
+        cdef uint64_t th_before = self.cs.time_high, back_before = self.cs.backwards
         cdef int kind = ccam_decode_word(&self.cs, w, &t, &x, &y, &p)
         if kind != CCAM_CD:
             if self.cs.time_high != th_before:
                 self.await_th = False
+                if self.cs.backwards != back_before:
+                    # the counter went back (a camera restarted after a reconnect): the
+                    # decoder rebased it onto the last time base; start one period later so
+                    # the low bits cannot go back either and no event is skipped
+                    self.cs.epoch += 1
+                    self.cs.t_offset = (self.cs.epoch + self.cs.last_th) * 0x800
             return 0
         if self.await_th:
             self.gap_skipped += 1

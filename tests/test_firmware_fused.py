@@ -135,3 +135,16 @@ def test_model_swap_marks_the_first_event_of_the_new_kernel(face):
     f.feed(words[half:])
     assert f.first_t >= t_before
     assert f.kernel_obj.counters()["events_valid"] + f.kernel_obj.counters()["skipped_outside_sensor"] > 0
+
+
+def test_a_camera_counter_restart_is_rebased_so_time_never_goes_back():
+    """A reconnected camera may restart its time counter: the time base is rebased (counted
+    as time_backwards) and tracking continues with monotonic timestamps."""
+    f = fused(period=0)
+    f.feed(word_th(100) + word_ev(50, 150, 120))
+    f.gap()                                     # reconnect
+    f.feed(word_th(3) + word_ev(10, 150, 120) + word_ev(20, 151, 120))
+    c = f.counters()
+    assert c["anomalies"]["time_backwards"] == 1
+    assert c["events_tracked"] == 3 and c["anomalies"]["tracker_back_in_time"] == 0
+    assert f.last_t == 101 * 2048 + 20
