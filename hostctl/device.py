@@ -86,7 +86,7 @@ class Device:
         self.firmware_link: dict = {}      # last HEARTBEAT counters of the firmware
         self.logs: deque = deque(maxlen=200)
         self.counts = dict(commands=0, retries=0, telemetry=0, telemetry_overflow=0,
-                           unexpected=0, foreign_version=0, energies=0)
+                           unexpected=0, foreign_version=0, energies=0, stale_snapshots=0)
         self.energies: tuple | None = None   # last ENERGIES: (t_us, kind, per-connection array)
         self.info: dict = {}
         try:
@@ -296,7 +296,9 @@ class Device:
 
     def _dispatch(self, f: wire.Frame) -> None:
         if f.type == MsgType.INFO:         # a new session: the firmware discarded what it
-            self.rx_seq.last = None        # had not written yet, that is not a loss
+            self.rx_seq.last = None        # had not written yet, that is not a loss, and
+            self.counts["stale_snapshots"] += len(self.snapshots)     # what arrived before
+            self.snapshots.clear()         # INFO belongs to an earlier session
         self.rx_seq.update(f.seq)
         if f.version != self.version:
             self.counts["foreign_version"] += 1
