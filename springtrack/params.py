@@ -103,14 +103,18 @@ def check(name: str, value, where: str = "") -> object:
         return value
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ParamError(f"{ctx}{name} must be a number, got {type(value).__name__} {value!r}")
+    try:
+        finite = math.isfinite(value)
+    except OverflowError:                      # an int too large for a float
+        finite = False
+    if not finite:
+        raise ParamError(f"{ctx}{name} must be finite and in range, got {value!r}")
     if spec.kind is int:
         if float(value) != int(value):
             raise ParamError(f"{ctx}{name} must be a whole number, got {value!r}")
         value = int(value)
     else:
         value = float(value)
-        if not math.isfinite(value):
-            raise ParamError(f"{ctx}{name} must be finite, got {value!r}")
     if (spec.lo is not None and value < spec.lo) or (spec.hi is not None and value > spec.hi):
         raise ParamError(f"{ctx}{name}={value!r} out of range [{spec.lo}, {spec.hi}] {spec.unit}".rstrip())
     return value

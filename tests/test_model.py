@@ -132,3 +132,9 @@ def test_param_defaults_are_the_face_experiment():
     p = Params()
     assert (p.alpha_position, p.alpha_covariance, p.p_threshold, p.energy_scale,
             p.spring_period, p.energy_kind) == (0.2, 2e-4, 0.1, 2.5, 55, "euclidean")
+
+
+@pytest.mark.parametrize("value", [math.inf, -math.inf, math.nan, 10 ** 400])
+def test_non_finite_integer_param_is_a_param_error(value):
+    with pytest.raises(ParamError):
+        from_mapping({"spring_period": value})
