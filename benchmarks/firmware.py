@@ -155,7 +155,7 @@ def main():
         return
     body = f"""
 Machine: {machine()}; load average {load[0]:.1f} / {load[1]:.1f} (1 / 5 min) when the run
-started — other engineers' jobs shared the 2 cores, so real-time figures are pessimistic.
+started (a shared machine: under load, real-time latency p99 grows to several ms).
 Command: `.venv/bin/python benchmarks/firmware.py --seconds {args.seconds:g} --realtime-seconds {args.realtime_seconds:g}`.
 
 **Fused decode + track** from in-memory 128 KiB USB buffers (CCam words), face26 on
