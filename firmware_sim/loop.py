@@ -268,7 +268,8 @@ class FirmwareLoop:
 
     def _set_bias(self, name: str, value) -> int:
         """A camera bias: validated here, sent by the reader thread (which owns the device)
-        between two bulk reads; effective from the next event read."""
+        between two bulk reads; effective from the next event read.  Without an open camera
+        (not started yet, reconnecting) it is kept and loaded when the camera opens."""
         if name not in camusb.BIASES:
             self.c["updates_rejected"] += 1
             raise UpdateRejected("unknown_name", f"unknown bias {name!r}; known: "
@@ -281,12 +282,19 @@ class FirmwareLoop:
         if not 0 <= value <= 255:
             self.c["updates_rejected"] += 1
             raise UpdateRejected("out_of_range", f"bias {name}={value} out of range [0, 255]")
-        try:
-            self.reader.call(lambda cam: cam.load_biases({name: value}))
-        except (TimeoutError, RuntimeError, OSError) as e:
-            raise UpdateRejected("busy", f"bias {name}: camera not reachable: {e}") from None
         with self.lock:
-            self.biases[name] = value
+            old = self.biases[name]
+            self.biases[name] = value     # (re)opening the camera loads this dict
+        if self.reader.cam is not None:   # open now: the reader thread sends it
+            try:
+                self.reader.call(lambda cam: cam.load_biases({name: value}))
+            except (TimeoutError, OSError, camusb.CameraError) as e:
+                with self.lock:
+                    self.biases[name] = old
+                raise UpdateRejected("busy", f"bias {name}: camera did not take it: {e}") from None
+            except RuntimeError:          # closed meanwhile: loaded at the next open
+                pass
+        with self.lock:
             self.gen_next += 1
             gen = self.gen_next
         self.applied.append((gen, int(max(self.fused.last_t, 0))))

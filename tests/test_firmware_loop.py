@@ -347,3 +347,15 @@ def test_cli_sigterm_stops_cleanly_and_writes_the_record(tmp_path):
     assert "interrupted" in stderr and stdout.startswith("stats: ")
     tr = read_csv(out)
     assert len(tr) > 10 and tr.ids[0] == "brow_l"
+
+
+def test_a_bias_set_before_the_camera_opens_is_loaded_when_it_opens(face):
+    biases = {}
+    cam = SimCamera(events_source(face[:5000], 2048), realtime=False)
+    be = SimBackend(cam)
+    eng = FirmwareLoop(lambda: camusb.Camera.open("ccam_atis", backend=be, biases=biases),
+                       "face26", biases=biases, lossless=True)
+    gen = eng.set_param("bias.refractory_period", 100)          # nothing open yet
+    assert gen == 2 and eng.get_params()["bias.refractory_period"] == 100
+    run_to_end(cam, eng)
+    assert cam.biases[0x61][0x04] == (100, 0x5900)
