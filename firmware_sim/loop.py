@@ -27,6 +27,7 @@ from springtrack._kernel import Kernel
 from springtrack.limits import MAX_CONNECTIONS, MAX_TRACKERS
 from springtrack.track import CSV_HEADER, Track
 from springtrack.tracker import resolve_params
+from springtrack.wire import TRACK_DTYPE
 
 from ._fused import SNAP_FIELDS, Fused
 from . import usb as camusb
@@ -34,8 +35,7 @@ from .engine import UpdateRejected
 from .reader import Reader
 
 FIRMWARE = "firmware-sim 0.1 (fused CCam loop)"
-TRACKER_DTYPE = np.dtype([("x", "f8"), ("y", "f8"), ("sxx", "f8"), ("sxy", "f8"), ("syy", "f8"),
-                          ("activity", "f8"), ("active", "?"), ("sensitive", "?")])
+TRACKER_DTYPE = TRACK_DTYPE      # per-tracker telemetry record, defined once in springtrack.wire
 BIAS_PREFIX = "bias."     # camera biases are parameters "bias.<name>" on the host link
 WINDOW_US = 10_000        # processing time is reported per 10 ms of events (paper Figs. 22-23)
 
