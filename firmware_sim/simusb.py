@@ -128,17 +128,23 @@ def events_source(events, chunk_events: int = 4096):
 
 
 def burst_chunks(t0: int, t1: int, rate: float, seed: int = 0, width=304, height=240):
-    """Noise events at ``rate``/s over [t0, t1), one chunk per time-high period (2048 us)."""
+    """Noise events at ``rate``/s over [t0, t1), one chunk per time-high period (2048 us).
+
+    One period of noise is encoded once (``springtrack.io.ccam.encode``); each period reuses
+    its event words after its own time-high word, so a burst far above the processing rate
+    costs the simulated camera almost nothing."""
+    from springtrack.events import make
+    from springtrack.io.ccam import encode
     rng = np.random.default_rng(seed)
     per = max(1, int(rate * 2048e-6))
-    lo = np.sort(rng.integers(0, 2048, per))
-    x = rng.integers(0, width, per).astype(np.uint32)
-    yraw = (height - 1 - rng.integers(0, height, per)).astype(np.uint32)
-    p = rng.integers(0, 2, per).astype(np.uint32)
-    body = (yraw | (x & 0xFF) << 8 | ((lo & 0x7F) << 1 | x >> 8) << 16
-            | ((lo >> 7) | p << 4) << 24).astype("<u4").tobytes()
+    one = make(np.sort(rng.integers(0, 2048, per)), rng.integers(0, width, per),
+               rng.integers(0, height, per), rng.integers(0, 2, per))
+    words = encode(one)                        # time-high 0, then the events of one period
+    if len(words) != 4 * (per + 1):
+        raise RuntimeError("ccam encode: expected one time-high word per 2048 us period")
+    body = words[4:]
     for th in range(t0 >> 11, ((t1 - 1) >> 11) + 1):
-        head = np.array([0x80000000 | (th & 0xFFFFFF)], "<u4").tobytes()
+        head = encode(make([th << 11], [0], [0], [0]))[:4]     # that period's time-high word
         data = bytearray(head + body)
         yield Chunk(data, np.array([th << 11], np.int64), np.array([len(data)], np.int64), per)
 
