@@ -50,6 +50,11 @@ cdef extern from "csrc/fastmath.h" nogil:
     void st_sincos_small(double e, double* sn, double* cm1)
     void st_atan2_batch(const double* y, const double* x, double* out, int n)
     void st_sincos_batch(const double* e, double* sn, double* cm1, int n)
+    void st_spring_terms_batch(int n, const double* rx, const double* ry, const double* sn,
+                               const double* cm1, const double* l0, const double* half_a,
+                               const double* dx0, const double* dy0, const double* c0,
+                               const double* s0, const double* a_euc, const double* a_car,
+                               double* e_euc, double* e_car, double* ux, double* uy)
 
 
 # ---- spatial index ------------------------------------------------------------------
@@ -201,9 +206,9 @@ cdef void ksprings(KState* s) noexcept nogil:
     # [ref] springs, in structure-of-arrays passes over the connections:
     #   1. gather rx, ry (scalar);  2. eq. (14) angles, vectorised atan2;  3. eq. (15)
     #   mean-angle correction, summed in the reference's order;  4. eq. (16) rotation,
-    #   vectorised sincos;  5. eqs. (10)-(12), (17)-(20) branch-free (a_euc/a_tor/a_car are
-    #   0 for kinds a connection does not have), vectorised;  6. scatter the displacement
-    #   of each connection onto its two ends, weighted by 1/mass (scalar).
+    #   vectorised sincos;  5. eqs. (10)-(12), (16), (18)-(20) branch-free (a_euc/a_tor/a_car
+    #   are 0 for kinds a connection lacks), vectorised in csrc/fastmath.h;  6. scatter the
+    #   displacement of each connection onto its two ends, weighted by 1/mass (scalar).
     # The three kinds' displacements are summed per connection before the scatter (the
     # reference adds them to the ends one by one): a rounding-level difference only.
     cdef int n = s.n, nc = s.nc, k, i, j
@@ -217,7 +222,7 @@ cdef void ksprings(KState* s) noexcept nogil:
     cdef double cm1[MAX_CONNECTIONS]
     cdef double ux[MAX_CONNECTIONS]
     cdef double uy[MAX_CONNECTIONS]
-    cdef double mean_dth = 0.0, d, l, dl, ex, ey, inv_l, cx, cy, g, p, q
+    cdef double mean_dth = 0.0, d
     s.n_spring_updates += 1
     for k in range(nc):                                              # 1. gather
         i = s.ca[k]
@@ -251,25 +256,8 @@ cdef void ksprings(KState* s) noexcept nogil:
             s.energy[1][k] = 0.0
             sn[k] = 0.0
             cm1[k] = 0.0
-    for k in range(nc):                                              # 5.
-        l = sqrt(rx[k] * rx[k] + ry[k] * ry[k])
-        dl = l - s.l0[k]                                             # eq. (10)
-        s.energy[0][k] = s.half_a[k] * (dl * dl)                     # eq. (12)
-        ex = rx[k] - s.dx0[k]                                        # eq. (18)
-        ey = ry[k] - s.dy0[k]
-        s.energy[2][k] = s.half_a[k] * (ex * ex + ey * ey)           # eq. (20)
-        # eq. (11) direction r / l, or th0's when both ends coincide (l = 0): selected
-        # arithmetically (p = 1 or 0, exact) so that the loop has no branch
-        p = l > 0.0
-        q = 1.0 - p
-        inv_l = 1.0 / (l + q)
-        cx = p * (rx[k] * inv_l) + q * s.c0[k]
-        cy = p * (ry[k] * inv_l) + q * s.s0[k]
-        g = s.a_euc[k] * dl                                          # eq. (11)
-        # eq. (16) with l cos(th) = rx, l sin(th) = ry: l (cos(th + eps) - cos th) =
-        # rx (cos eps - 1) - ry sin eps, and likewise for y;  eq. (19): a (r - r0)
-        ux[k] = (g * cx + (rx[k] * cm1[k] - ry[k] * sn[k])) + s.a_car[k] * ex
-        uy[k] = (g * cy + (ry[k] * cm1[k] + rx[k] * sn[k])) + s.a_car[k] * ey
+    st_spring_terms_batch(nc, rx, ry, sn, cm1, s.l0, s.half_a, s.dx0, s.dy0, s.c0, s.s0,  # 5.
+                          s.a_euc, s.a_car, s.energy[0], s.energy[2], ux, uy)
     for i in range(n):
         ddx[i] = 0.0
         ddy[i] = 0.0
