@@ -1,9 +1,12 @@
 """The executable specification: Algorithm 1 of Valeiras et al. 2015, float64, one event at a time.
 
-Every line cites the equation it implements.  The Cython kernel (``_kernel.pyx``) is a
-line-by-line translation of this file and must agree with it to 1e-9 px; keep the two in
-step, including the order of floating-point operations (no ``**``, no ``math.hypot``:
-CPython's hypot is not libm's).
+Every line cites the equation it implements.  The Cython kernel (``_kernel.pyx``) translates
+this file and must agree with it to 1e-9 px (tests/test_equivalence.py); keep the two in
+step.  The kernel keeps this file's order of floating-point operations in the per-event
+step (so ties resolve alike) but evaluates exp (eqs. 2, 6) and the springs' atan2, sin and
+cos with its own ~1-ulp code (springtrack/csrc/fastmath.h), and sums the three spring kinds
+per connection first, so the two differ by rounding.  No ``**``, no ``math.hypot`` here
+(CPython's hypot is not libm's).
 
 Interpretation choices (docs/algorithm.md explains them):
 
