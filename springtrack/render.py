@@ -73,7 +73,7 @@ class OverlayRenderer:
         self.text = self.fig.text(0.01, 1 - 14 / (h + 28), "", fontsize=9 * scale / 2,
                                   family="monospace", va="center")
         from matplotlib.lines import Line2D
-        handles = [Line2D([], [], color=ACTIVE, lw=2, label="active"),
+        handles = [Line2D([], [], color=ACTIVE, lw=2, label="active (2σ)"),
                    Line2D([], [], color=INACTIVE, lw=2, label="inactive"),
                    Line2D([], [], color=INSENSITIVE, lw=2, ls="--", label="insensitive"),
                    Line2D([], [], color="#888888", lw=1, label="spring"),
@@ -100,8 +100,8 @@ class OverlayRenderer:
         if truth_xy is not None:
             self.truth_pts.set_data(truth_xy[:, 0], truth_xy[:, 1])
         n_act = int(np.sum(st["active"]))
-        self.text.set_text(f"{self.title}  t = {t_us / 1e6:8.3f} s   events in last "
-                           f"{window_us / 1000:g} ms: {len(events):6d}   active {n_act}/{len(m.ids)}")
+        self.text.set_text(f"{self.title}   t = {t_us / 1e6:.3f} s   events in last "
+                           f"{window_us / 1000:g} ms: {len(events)}   active {n_act}/{len(m.ids)}")
         self.fig.canvas.draw()
         buf = np.asarray(self.fig.canvas.buffer_rgba())
         return buf[..., :3].copy()
