@@ -20,7 +20,7 @@ BIN = Path(sys.executable).parent
 
 def tour_commands():
     text = (ROOT / "README.md").read_text()
-    blocks = re.findall(r"```\n(.*?)```", text, re.S)
+    blocks = re.findall(r"```[a-z]*\n(.*?)```", text, re.S)
     cmds = []
     for b in blocks:
         for line in b.splitlines():
@@ -54,4 +54,65 @@ def test_readme_tour_commands_run(tmp_path, data_file):
                            env={**os.environ, "MPLBACKEND": "Agg"})
         assert r.returncode == 0, f"{line}\n{r.stderr}"
     assert (tmp_path / "gp.gif").stat().st_size > 0
+    # the README's Python example, on the files the tour made
+    code = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S)
+    assert code
+    r = subprocess.run([sys.executable, "-c", code[0]], cwd=tmp_path, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
     assert (tmp_path / "face.toml").read_text().startswith('name = "face26"')
+
+
+def block_lines(path: Path, prefixes) -> list[str]:
+    text = path.read_text()
+    out = []
+    for b in re.findall(r"```[a-z]*\n(.*?)```", text, re.S):
+        for line in b.splitlines():
+            line = line.split("#")[0].strip()
+            if line.split(" ")[0].split("/")[-1] in prefixes:
+                out.append(line)
+    return out
+
+
+def _run_line(line, cwd, subst=()):
+    argv = shlex.split(line)
+    argv[0] = str(BIN / Path(argv[0]).name)
+    for a, b in subst:
+        argv = [x.replace(a, b) for x in argv]
+    return subprocess.run(argv, cwd=cwd, capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "MPLBACKEND": "Agg"})
+
+
+def test_experiments_page_commands_run(tmp_path):
+    lines = block_lines(ROOT / "docs" / "experiments.md", {"springtrack"})
+    assert len(lines) == 3
+    for line in lines:
+        if " simulate " in line:
+            line += " --seconds 4"                    # the page's run, shortened
+        r = _run_line(line, tmp_path)
+        assert r.returncode == 0, f"{line}\n{r.stderr}"
+    assert "mean_error_pct=" in r.stdout.splitlines()[-1]
+
+
+def test_readme_device_commands_run_against_firmware(tmp_path):
+    """The README's firmware-sim / hostctl lines, against a real firmware-sim process."""
+    lines = block_lines(ROOT / "README.md", {"firmware-sim", "hostctl"})
+    fw_line = [l for l in lines if l.split()[0].endswith("firmware-sim")][0]
+    argv = shlex.split(fw_line)
+    argv[0] = str(BIN / "firmware-sim")
+    fw = subprocess.Popen(argv + ["--seconds", "30"], cwd=tmp_path, stdout=subprocess.PIPE,
+                          stderr=subprocess.DEVNULL, text=True)
+    try:
+        first = fw.stdout.readline().strip()
+        assert first.startswith("pty: "), first
+        pty = first.split(" ", 1)[1]
+        for line in lines:
+            if line.split()[0].endswith("hostctl"):
+                r = _run_line(line, tmp_path, [("/dev/pts/N", pty)])
+                assert r.returncode == 0, f"{line}\n{r.stdout}\n{r.stderr}"
+        assert (tmp_path / "face.csv").read_text().startswith("t_us,tracker,")
+    finally:
+        fw.terminate()
+        try:
+            fw.wait(10)
+        except subprocess.TimeoutExpired:
+            fw.kill()
