@@ -39,3 +39,17 @@ def test_track_cli_bad_model_is_a_clear_error(tmp_path):
                         str(tmp_path / "missing.toml"), "--out", str(tmp_path / "o.csv")],
                        capture_output=True, text=True)
     assert r.returncode == 2 and "no such model file" in r.stderr
+
+
+def test_track_profile_bins_count_every_event(tmp_path):
+    ev, _ = blob_stream(grid3x3(), 30_000, rate_hz=100_000, seed=2)
+    src = tmp_path / "g.npy"
+    np.save(src, ev)
+    prof = tmp_path / "prof.csv"
+    r = subprocess.run([sys.executable, "-m", "springtrack.cli", "track", str(src), "--model", "grid3x3",
+                        "--out", str(tmp_path / "t.csv"), "--profile", str(prof)],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    rows = np.loadtxt(prof, delimiter=",", skiprows=1)
+    assert rows[:, 1].sum() == len(ev)
+    assert np.all(np.diff(rows[:, 0]) == 10_000) and np.all(rows[:, 2] >= 0)

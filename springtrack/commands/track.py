@@ -8,6 +8,7 @@ import numpy as np
 
 from ..events import as_events
 from ..track import CSV_HEADER
+from ..tracker import profile
 
 EPILOG = """\
 units: event times are microseconds; positions px; covariances px^2.
@@ -32,6 +33,9 @@ def add_arguments(p):
                    help="state sampling period in µs of event time (default 1000)")
     p.add_argument("--out", required=True, help="output track CSV")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    p.add_argument("--profile", metavar="OUT.csv|OUT.png",
+                   help="time the kernel per 10 ms bin of events (paper Figs. 22-23): a CSV "
+                        "t_us,events,proc_us or a plot")
 
 
 def read_events(path):
@@ -88,10 +92,14 @@ def run(args) -> int:
     t_first = t_last = None
     with open(args.out, "w", newline="") as out:
         out.write(",".join(CSV_HEADER) + "\n")
+        bins = []
         for chunk, total in read_events(args.input):
             if len(chunk) == 0:
                 continue
-            tr.process(chunk)
+            if args.profile:
+                bins.append(profile(tr, chunk, PROFILE_BIN_US))
+            else:
+                tr.process(chunk)
             t_first = int(chunk["t"][0]) if t_first is None else t_first
             t_last = int(chunk["t"][-1])
             n += len(chunk)
@@ -101,6 +109,8 @@ def run(args) -> int:
             prog.update(n, total, t_last)
     prog.close()
     wall = time.perf_counter() - start
+    if args.profile:
+        write_profile(args.profile, bins)
     span = (t_last - t_first) / 1e6 if n else 0.0
     c = tr.counters
     rate = n / wall if wall > 0 else float("inf")
@@ -110,6 +120,26 @@ def run(args) -> int:
           f"(back_in_time={c['skipped_back_in_time']} outside={c['skipped_outside_sensor']}) "
           f"wall_s={wall:.3f} events_per_s={rate:.3g} realtime_factor={rtf:.1f} out={args.out}")
     return 0
+
+
+PROFILE_BIN_US = 10_000
+
+
+def write_profile(path, bins) -> None:
+    """Merge per-chunk bins (a bin cut by a chunk boundary is summed) and write CSV or PNG."""
+    t = np.concatenate([b["t_us"] for b in bins]) if bins else np.empty(0, np.int64)
+    ev = np.concatenate([b["events"] for b in bins]) if bins else np.empty(0, np.int64)
+    pu = np.concatenate([b["proc_us"] for b in bins]) if bins else np.empty(0)
+    keys, inv = np.unique(t, return_inverse=True)
+    ev = np.bincount(inv, ev, len(keys)).astype(np.int64)
+    pu = np.bincount(inv, pu, len(keys))
+    if str(path).endswith(".png"):
+        from ..render import plot_load
+        plot_load(keys, ev, pu, path, PROFILE_BIN_US)
+        return
+    with open(path, "w") as f:
+        f.write("t_us,events,proc_us\n")
+        f.writelines(f"{a},{b},{c:.3f}\n" for a, b, c in zip(keys.tolist(), ev.tolist(), pu.tolist()))
 
 
 def _write_rows(samples, f):
