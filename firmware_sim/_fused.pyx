@@ -23,7 +23,8 @@ from libc.string cimport memcpy
 cimport numpy as cnp
 import numpy as np
 
-from springtrack._kernel cimport Kernel, KState, kstep, kactivity
+from springtrack._kernel cimport Kernel, KState, kstep, ksnapshot
+from springtrack._samples cimport SampleOut, sample_buffers
 from springtrack.io.ccam cimport (CCamState, ccam_init, ccam_decode_word, CCAM_CD,
                                   CCAM_EXPOSURE, CCAM_NONE)
 
@@ -32,50 +33,12 @@ cnp.import_array()
 SNAP_FIELDS = ("x", "y", "sxx", "sxy", "syy", "activity", "active", "sensitive")
 
 
-cdef struct Snap:
-    int64_t* t
-    double* x
-    double* y
-    double* sxx
-    double* sxy
-    double* syy
-    double* act
-    uint8_t* active
-    uint8_t* sensitive
-    double* energy
-    Py_ssize_t cap, count
-
-
 cdef inline int64_t ceil_mul(int64_t t, int64_t p) noexcept nogil:
     # smallest multiple of p >= t (C division truncates toward zero: handle t < 0)
     cdef int64_t q = t / p
     if q * p < t:
         q += 1
     return q * p
-
-
-cdef inline void snapshot(const KState* s, int64_t t, Snap* o) noexcept nogil:
-    # mirrors springtrack._kernel.ksnapshot field by field (eq. 6 for the activity)
-    cdef Py_ssize_t row = o.count, base = row * s.n
-    cdef int i, k, q
-    cdef double a, tot
-    o.t[row] = t
-    for i in range(s.n):
-        a = kactivity(s, i, t)
-        o.x[base + i] = s.mx[i]
-        o.y[base + i] = s.my[i]
-        o.sxx[base + i] = s.sxx[i]
-        o.sxy[base + i] = s.sxy[i]
-        o.syy[base + i] = s.syy[i]
-        o.act[base + i] = a
-        o.active[base + i] = a > s.act_thr
-        o.sensitive[base + i] = (s.sensitive_mask >> i) & 1
-    for q in range(3):
-        tot = 0.0
-        for k in range(s.nc):
-            tot += s.energy[q][k]
-        o.energy[row * 3 + q] = tot / s.nc if s.nc > 0 else 0.0
-    o.count = row + 1
 
 
 cdef class Fused:
@@ -100,7 +63,7 @@ cdef class Fused:
     cdef bint mark
     cdef readonly int64_t first_t          # first event time after set_kernel(mark=True)
     cdef readonly uint64_t tracked, gap_skipped, gaps, bytes_in
-    cdef Snap o
+    cdef SampleOut o
     cdef object bufs
 
     def __init__(self, Kernel kernel, long long period_us=1000, Py_ssize_t cap=1024):
@@ -121,22 +84,7 @@ cdef class Fused:
         cap = self.o.cap
         self.kernel = kernel
         self.ks = &kernel.st
-        b = dict(t=np.empty(cap, np.int64), x=np.empty((cap, n)), y=np.empty((cap, n)),
-                 sxx=np.empty((cap, n)), sxy=np.empty((cap, n)), syy=np.empty((cap, n)),
-                 activity=np.empty((cap, n)), active=np.empty((cap, n), np.uint8),
-                 sensitive=np.empty((cap, n), np.uint8), energy=np.empty((cap, 3)))
-        self.bufs = b
-        self.o.t = <int64_t*>cnp.PyArray_DATA(b["t"])
-        self.o.x = <double*>cnp.PyArray_DATA(b["x"])
-        self.o.y = <double*>cnp.PyArray_DATA(b["y"])
-        self.o.sxx = <double*>cnp.PyArray_DATA(b["sxx"])
-        self.o.sxy = <double*>cnp.PyArray_DATA(b["sxy"])
-        self.o.syy = <double*>cnp.PyArray_DATA(b["syy"])
-        self.o.act = <double*>cnp.PyArray_DATA(b["activity"])
-        self.o.active = <uint8_t*>cnp.PyArray_DATA(b["active"])
-        self.o.sensitive = <uint8_t*>cnp.PyArray_DATA(b["sensitive"])
-        self.o.energy = <double*>cnp.PyArray_DATA(b["energy"])
-        self.o.count = 0
+        self.bufs = sample_buffers(cap, n, &self.o)
         self.mark = mark
         if mark:
             self.first_t = -1
@@ -181,7 +129,7 @@ cdef class Fused:
                         self.pend_x = x
                         self.pend_y = y
                         return 1
-                    snapshot(s, self.next_t, &self.o)
+                    ksnapshot(s, self.next_t, &self.o)
                     self.next_t += self.period
         if self.mark:
             self.mark = False

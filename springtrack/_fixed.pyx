@@ -21,6 +21,8 @@ from springtrack.events import EVENT_DTYPE
 from springtrack import fixed_q as _q
 from springtrack import limits as _limits
 
+from springtrack._samples cimport SampleOut, sample_buffers
+
 cnp.import_array()
 
 cdef extern from "csrc/fixed_step.h" nogil:
@@ -107,20 +109,6 @@ assert _limits.MAX_TRACKERS == FX_MAX_TRACKERS and _limits.MAX_CONNECTIONS == FX
 cdef double POS_UNIT = 1.0 / 4294967296.0     # Q.32 px
 cdef double COV_UNIT = 1.0 / 1099511627776.0  # Q.40 px^2
 cdef double Q32_UNIT = 1.0 / 4294967296.0     # Q.32 (activity, energy)
-
-
-cdef struct SampleOut:
-    int64_t* t
-    double* x
-    double* y
-    double* sxx
-    double* sxy
-    double* syy
-    double* act
-    uint8_t* active
-    uint8_t* sensitive
-    double* energy            # (cap, 3): mean energy of each kind
-    Py_ssize_t cap, count
 
 
 cdef inline void snapshot_row(const fx_state* s, int64_t t, SampleOut* o) noexcept nogil:
@@ -300,27 +288,7 @@ cdef class FixedKernel:
             raise TypeError("events must be a C-contiguous EVENT_DTYPE array")
         if sample_us <= 0:
             cap = 0
-        out = dict(t=np.empty(cap, np.int64), x=np.empty((cap, nt_)), y=np.empty((cap, nt_)),
-                   sxx=np.empty((cap, nt_)), sxy=np.empty((cap, nt_)), syy=np.empty((cap, nt_)),
-                   activity=np.empty((cap, nt_)), active=np.empty((cap, nt_), np.uint8),
-                   sensitive=np.empty((cap, nt_), np.uint8), energy=np.empty((cap, 3)))
-        cdef int64_t[::1] vt = out["t"]
-        cdef double[:, ::1] vx = out["x"], vy = out["y"], vsxx = out["sxx"], vsxy = out["sxy"]
-        cdef double[:, ::1] vsyy = out["syy"], vact = out["activity"], ven = out["energy"]
-        cdef uint8_t[:, ::1] vactive = out["active"], vsens = out["sensitive"]
-        o.cap = cap
-        o.count = 0
-        if cap > 0:
-            o.t = &vt[0]
-            o.x = &vx[0, 0]
-            o.y = &vy[0, 0]
-            o.sxx = &vsxx[0, 0]
-            o.sxy = &vsxy[0, 0]
-            o.syy = &vsyy[0, 0]
-            o.act = &vact[0, 0]
-            o.active = &vactive[0, 0]
-            o.sensitive = &vsens[0, 0]
-            o.energy = &ven[0, 0]
+        out = sample_buffers(cap, nt_, &o)
         cdef const Event* p = <const Event*>cnp.PyArray_DATA(ev)
         with nogil:
             consumed = run_events(s, p, n, sample_us, &nt, &o)

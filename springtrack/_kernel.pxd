@@ -9,6 +9,7 @@
 #
 # kstep() translates springtrack.reference.ReferenceTracker.step(); it agrees with it to
 # 1e-9 px (libm calls on the hot paths are replaced by csrc/fastmath.h, ~1 ulp).
+from springtrack._samples cimport SampleOut
 from libc.stdint cimport int64_t, uint64_t, int32_t, uint8_t
 
 cdef enum:
@@ -89,6 +90,7 @@ ctypedef struct KState:
 cdef int kstep(KState* s, int64_t t, int x, int y) noexcept nogil
 cdef void ksprings(KState* s) noexcept nogil
 cdef double kactivity(const KState* s, int i, int64_t t) noexcept nogil
+cdef void ksnapshot(const KState* s, int64_t t, SampleOut* o) noexcept nogil
 
 cdef class Kernel:
     cdef KState st

@@ -33,6 +33,8 @@ from springtrack.events import EVENT_DTYPE
 from springtrack import limits as _limits
 from springtrack.reference import covariance_bias, RHO_MAX as _RHO_MAX
 
+from springtrack._samples cimport SampleOut, sample_buffers
+
 cnp.import_array()
 
 assert _limits.MAX_TRACKERS == MAX_TRACKERS and _limits.MAX_CONNECTIONS == MAX_CONNECTIONS
@@ -325,21 +327,7 @@ cdef double kactivity(const KState* s, int i, int64_t t) noexcept nogil:
 
 
 # ---- sampling -------------------------------------------------------------------------
-cdef struct SampleOut:
-    int64_t* t
-    double* x
-    double* y
-    double* sxx
-    double* sxy
-    double* syy
-    double* act
-    uint8_t* active
-    uint8_t* sensitive
-    double* energy            # (cap, 3): mean energy of each kind
-    Py_ssize_t cap, count
-
-
-cdef inline void ksnapshot(const KState* s, int64_t t, SampleOut* o) noexcept nogil:
+cdef void ksnapshot(const KState* s, int64_t t, SampleOut* o) noexcept nogil:
     cdef Py_ssize_t row = o.count, base = row * s.n
     cdef int i, k, q
     cdef double a, tot
@@ -504,27 +492,7 @@ cdef class Kernel:
             raise TypeError("events must be a C-contiguous EVENT_DTYPE array")
         if sample_us <= 0:
             cap = 0
-        out = dict(t=np.empty(cap, np.int64), x=np.empty((cap, nt_)), y=np.empty((cap, nt_)),
-                   sxx=np.empty((cap, nt_)), sxy=np.empty((cap, nt_)), syy=np.empty((cap, nt_)),
-                   activity=np.empty((cap, nt_)), active=np.empty((cap, nt_), np.uint8),
-                   sensitive=np.empty((cap, nt_), np.uint8), energy=np.empty((cap, 3)))
-        cdef int64_t[::1] vt = out["t"]
-        cdef double[:, ::1] vx = out["x"], vy = out["y"], vsxx = out["sxx"], vsxy = out["sxy"]
-        cdef double[:, ::1] vsyy = out["syy"], vact = out["activity"], ven = out["energy"]
-        cdef uint8_t[:, ::1] vactive = out["active"], vsens = out["sensitive"]
-        o.cap = cap
-        o.count = 0
-        if cap > 0:
-            o.t = &vt[0]
-            o.x = &vx[0, 0]
-            o.y = &vy[0, 0]
-            o.sxx = &vsxx[0, 0]
-            o.sxy = &vsxy[0, 0]
-            o.syy = &vsyy[0, 0]
-            o.act = &vact[0, 0]
-            o.active = &vactive[0, 0]
-            o.sensitive = &vsens[0, 0]
-            o.energy = &ven[0, 0]
+        out = sample_buffers(cap, nt_, &o)
         cdef const Event* p = <const Event*>cnp.PyArray_DATA(ev)
         with nogil:
             consumed = run_events(s, p, n, sample_us, &nt, &o)

@@ -1,0 +1,19 @@
+# Snapshot rows written by the C-level tracker loops (_kernel, _fixed, firmware_sim._fused):
+# one struct of raw pointers into numpy arrays made by sample_buffers(), so a nogil loop
+# can append rows without touching a Python object.
+from libc.stdint cimport int64_t, uint8_t
+
+cdef struct SampleOut:
+    int64_t* t                # (cap,) sample time, µs
+    double* x                 # (cap, n) per tracker ...
+    double* y
+    double* sxx
+    double* sxy
+    double* syy
+    double* act
+    uint8_t* active
+    uint8_t* sensitive
+    double* energy            # (cap, 3): mean energy of each kind
+    Py_ssize_t cap, count
+
+cdef dict sample_buffers(Py_ssize_t cap, int n, SampleOut* o)

@@ -1,0 +1,29 @@
+# cython: language_level=3
+"""Snapshot buffers shared by the tracker kernels and the firmware's fused loop."""
+import numpy as np
+cimport numpy as cnp
+from libc.stdint cimport int64_t, uint8_t
+
+cnp.import_array()
+
+
+cdef dict sample_buffers(Py_ssize_t cap, int n, SampleOut* o):
+    """Arrays for ``cap`` snapshot rows of ``n`` trackers (keys as the Track fields, plus
+    ``t`` and ``energy``), bound to ``o`` with ``o.count = 0``."""
+    b = dict(t=np.empty(cap, np.int64), x=np.empty((cap, n)), y=np.empty((cap, n)),
+             sxx=np.empty((cap, n)), sxy=np.empty((cap, n)), syy=np.empty((cap, n)),
+             activity=np.empty((cap, n)), active=np.empty((cap, n), np.uint8),
+             sensitive=np.empty((cap, n), np.uint8), energy=np.empty((cap, 3)))
+    o.cap = cap
+    o.count = 0
+    o.t = <int64_t*>cnp.PyArray_DATA(b["t"])
+    o.x = <double*>cnp.PyArray_DATA(b["x"])
+    o.y = <double*>cnp.PyArray_DATA(b["y"])
+    o.sxx = <double*>cnp.PyArray_DATA(b["sxx"])
+    o.sxy = <double*>cnp.PyArray_DATA(b["sxy"])
+    o.syy = <double*>cnp.PyArray_DATA(b["syy"])
+    o.act = <double*>cnp.PyArray_DATA(b["activity"])
+    o.active = <uint8_t*>cnp.PyArray_DATA(b["active"])
+    o.sensitive = <uint8_t*>cnp.PyArray_DATA(b["sensitive"])
+    o.energy = <double*>cnp.PyArray_DATA(b["energy"])
+    return b
