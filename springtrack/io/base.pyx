@@ -175,3 +175,18 @@ cdef class Decoder:
             pending_bytes=self.pending_bytes,
             anomalies={ANOMALY_NAMES[i]: int(self.anomalies[i]) for i in range(<int>N_ANOMALY)},
             info={INFO_NAMES[i]: int(self.info[i]) for i in range(<int>N_INFO) if self.info[i]})
+
+
+def encoder_input(events, str fmt, int width, int height):
+    """Events for an encoder: EVENT_DTYPE, t >= 0 and non-decreasing, x < width, y < height;
+    raises ValueError naming the format otherwise."""
+    from springtrack.events import as_events
+    ev = as_events(events)
+    if len(ev) == 0:
+        return ev
+    t = ev["t"]
+    if t[0] < 0 or (len(t) > 1 and np.any(np.diff(t) < 0)):
+        raise ValueError(f"{fmt} encode: timestamps must be >= 0 and non-decreasing")
+    if ev["x"].max() >= width or ev["y"].max() >= height:
+        raise ValueError(f"{fmt} encode: x must be < {width} and y < {height}")
+    return ev

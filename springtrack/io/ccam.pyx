@@ -10,7 +10,7 @@ import numpy as np
 
 from springtrack.events cimport Event
 from springtrack.io.base cimport *
-from springtrack.events import as_events
+from springtrack.io.base import encoder_input
 
 cnp.import_array()
 
@@ -69,15 +69,11 @@ def encode(events, exposure=None) -> bytes:
     exposure-measurement events (flag bit 5).  Raises ValueError for negative or
     decreasing t, gaps of 2**23 * 0x800 us or more, x >= 304 or y >= 240.
     """
-    ev = as_events(events)
+    ev = encoder_input(events, "ccam", CCAM_WIDTH, CCAM_HEIGHT)
     cdef Py_ssize_t n = ev.shape[0], i, j = 0
     if n == 0:
         return b""
     t = ev["t"]
-    if t[0] < 0 or (n > 1 and np.any(np.diff(t) < 0)):
-        raise ValueError("ccam encode: timestamps must be >= 0 and non-decreasing")
-    if ev["x"].max() >= CCAM_WIDTH or ev["y"].max() >= CCAM_HEIGHT:
-        raise ValueError(f"ccam encode: x must be < {CCAM_WIDTH} and y < {CCAM_HEIGHT}")
     th = t // TIME_HIGH_US
     if th[0] >= (1 << 24):
         raise ValueError("ccam encode: the first timestamp must be below 2**24 * 0x800 us "

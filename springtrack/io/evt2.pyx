@@ -13,7 +13,8 @@ import numpy as np
 
 from springtrack.events cimport Event
 from springtrack.io.base cimport *
-from springtrack.events import EVENT_DTYPE, as_events
+from springtrack.io.base import encoder_input
+from springtrack.events import EVENT_DTYPE
 
 cnp.import_array()
 
@@ -86,15 +87,11 @@ def encode(events) -> bytes:
     Emits a TIME_HIGH word whenever t >> 6 changes.  Raises ValueError for negative or
     decreasing timestamps or coordinates above 2047.
     """
-    ev = as_events(events)
+    ev = encoder_input(events, "evt2", 2048, 2048)
     cdef Py_ssize_t n = ev.shape[0], i, j = 0
     if n == 0:
         return b""
     t = ev["t"]
-    if t[0] < 0 or (n > 1 and np.any(np.diff(t) < 0)):
-        raise ValueError("evt2 encode: timestamps must be >= 0 and non-decreasing")
-    if ev["x"].max() > 2047 or ev["y"].max() > 2047:
-        raise ValueError("evt2 encode: x and y must be <= 2047 (11 bits)")
     th = t >> 6
     # A TIME_HIGH word per change of t >> 6; gaps of half the 28-bit range or more get
     # bridging TIME_HIGH words so the decoder never mistakes them for a wrap.

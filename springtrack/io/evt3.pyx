@@ -20,7 +20,8 @@ import numpy as np
 
 from springtrack.events cimport Event
 from springtrack.io.base cimport *
-from springtrack.events import EVENT_DTYPE, as_events
+from springtrack.io.base import encoder_input
+from springtrack.events import EVENT_DTYPE
 
 cnp.import_array()
 
@@ -137,15 +138,11 @@ def encode(events) -> bytes:
     >= 0 and non-decreasing; x, y <= 2047.  (No vectors: the decoder's vector path is
     tested with hand-built words and the real recording.)
     """
-    ev = as_events(events)
+    ev = encoder_input(events, "evt3", 2048, 2048)
     cdef Py_ssize_t n = ev.shape[0], i, j = 0
     if n == 0:
         return b""
     t = ev["t"]
-    if t[0] < 0 or (n > 1 and np.any(np.diff(t) < 0)):
-        raise ValueError("evt3 encode: timestamps must be >= 0 and non-decreasing")
-    if ev["x"].max() > 2047 or ev["y"].max() > 2047:
-        raise ValueError("evt3 encode: x and y must be <= 2047 (11 bits)")
     # Gaps of half the 12-bit TIME_HIGH range or more get bridging TIME_HIGH words so the
     # decoder never mistakes them for a wrap.
     th_all = t >> 12
