@@ -69,9 +69,7 @@ def wait_end(cam, eng, timeout):
     quiet = 0
     while quiet < 3 and time.monotonic() - t0 < timeout:
         time.sleep(0.02)
-        rc = eng.reader.counts
-        done = (cam.finished and eng.reader.queue_depth() == 0
-                and eng.fused.bytes_in == rc["bytes"] - rc["bytes_dropped"])
+        done = cam.finished and eng.caught_up()
         quiet = quiet + 1 if done else 0
     eng.stop()
 

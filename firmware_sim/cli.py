@@ -221,7 +221,7 @@ def run(args) -> int:
                 failed = f"the camera never opened in {NEVER_OPENED_S:g} s: {engine.reader.last_error}"
                 break
             if cam is not None:
-                if cam.finished and _caught_up(engine):
+                if cam.finished and engine.caught_up():
                     quiet += 1
                     if quiet >= 3:
                         break
@@ -267,12 +267,6 @@ def _wait_telemetry_sent(engine, link_thread, timeout: float = 30.0) -> None:
 
 def _terminate(signum, frame):
     raise KeyboardInterrupt
-
-
-def _caught_up(engine) -> bool:
-    rc = engine.reader.counts
-    return (engine.reader.queue_depth() == 0
-            and engine.fused.bytes_in == rc["bytes"] - rc["bytes_dropped"])
 
 
 def main(argv=None) -> int:

@@ -216,6 +216,12 @@ class FirmwareLoop:
     def drained(self) -> bool:
         return self.reader.queue_depth() == 0
 
+    def caught_up(self) -> bool:
+        """Every byte read so far has been processed: nothing queued, and the fused loop
+        has consumed all read bytes but the dropped ones."""
+        rc = self.reader.counts
+        return self.drained() and self.fused.bytes_in == rc["bytes"] - rc["bytes_dropped"]
+
     def reset(self) -> None:
         """Restart the tracker from the current model (queued like a model swap)."""
         with self.lock:

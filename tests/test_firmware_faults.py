@@ -41,9 +41,7 @@ def run(ev, names, realtime=False, nbuf=64, transfer_bytes=16384, timeout=30.0, 
     while quiet < 3:
         assert time.monotonic() - t0 < timeout, eng.stats_line()
         time.sleep(0.02)
-        rc = eng.reader.counts
-        done = (cam.finished and eng.reader.queue_depth() == 0
-                and eng.fused.bytes_in == rc["bytes"] - rc["bytes_dropped"])
+        done = cam.finished and eng.caught_up()
         quiet = quiet + 1 if done else 0
     eng.stop()
     assert not any(t.name in ("usb-reader", "fused-loop") for t in threading.enumerate())
