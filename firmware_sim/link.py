@@ -290,7 +290,8 @@ class LinkServer:
     def _new_session(self) -> None:
         """A host said HELLO: snapshots queued for nobody (produced before this session, or
         unread by a host that left) are discarded and counted, so that the host's stream
-        starts now; unwritten frames of the previous session are dropped likewise."""
+        starts now; unwritten frames of the previous session are dropped likewise, except the
+        remainder of a frame already partly written."""
         self.session = True
         stale = 0
         for _ in range(64):
@@ -300,8 +301,11 @@ class LinkServer:
             stale += len(got)
         self.engine.poll_applied()
         self.counts["telemetry_stale"] += stale
-        self.counts["tx_stale_bytes"] += len(self.txq)
-        self.txq.clear()                 # frames start with 0x00, so a cut one is harmless
+        # the frame being written is finished (up to its closing delimiter, the first 0x00
+        # still queued), never cut: a cut frame would reach the new host as one CRC error
+        keep = self.txq.find(0) + 1
+        self.counts["tx_stale_bytes"] += len(self.txq) - keep
+        del self.txq[keep:]
 
     def on_model_begin(self, f) -> None:
         total, crc = wire.decode_model_begin(f.payload)

@@ -310,6 +310,36 @@ def test_hello_discards_snapshots_queued_for_nobody(served):
         assert dev.stats()["link.telemetry_stale"] == 100
 
 
+def test_hello_finishes_the_frame_being_written_instead_of_cutting_it():
+    """A host that attaches while a frame is half written must not see a CRC error: on HELLO
+    the firmware drops its unwritten frames but completes the one already started
+    (a cut frame made the HIL monitor test report 'link errors 1')."""
+    eng = SimEngine()
+    port = transport.PtyPort()
+    server = link.LinkServer(port, eng)
+    host = raw_host(port.path)
+    try:
+        server.session = True
+        beat = b"\x00" + wire.encode_frame(MsgType.HEARTBEAT, 7, wire.encode_heartbeat(
+            uptime_us=1, rx_frames=2, rx_errors=0, rx_lost=0, tx_frames=3, tx_dropped=0))
+        cut = len(beat) // 2
+        port.write(beat[:cut])                 # on the wire: the first half of a frame,
+        server.txq += beat[cut:] + beat        # queued: its second half and one more frame
+        reader = wire.FrameReader(hunting=True)
+        host.write(wire.encode_frame(MsgType.HELLO, 1, wire.encode_hello()))
+        got, end = [], time.monotonic() + 5
+        while time.monotonic() < end and MsgType.INFO not in [f.type for f in got]:
+            server.step()
+            got += reader.feed(host.read(max(1, host.in_waiting)))
+        assert [f.type for f in got] == [MsgType.HEARTBEAT, MsgType.INFO]
+        assert reader.counts["crc_errors"] + reader.counts["cobs_errors"] == 0
+        assert server.counts["tx_stale_bytes"] == len(beat)      # the whole frame behind it
+    finally:
+        host.close()
+        port.close()
+        eng.close()
+
+
 def test_telemetry_is_dropped_not_blocking_when_host_is_away():
     """6000 snapshots (1.4 MB) while the host reads nothing: the pty fills, the link keeps
     serving commands, snapshots back up into the engine's bounded queue, which drops the
