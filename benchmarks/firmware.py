@@ -25,9 +25,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from springtrack._kernel import Kernel  # noqa: E402
 from springtrack.io.ccam import CCamDecoder, encode  # noqa: E402
-from springtrack.tracker import Tracker  # noqa: E402
+from springtrack.tracker import Tracker, make_backend  # noqa: E402
 from firmware_sim import usb as camusb  # noqa: E402
 from firmware_sim._fused import Fused  # noqa: E402
 from firmware_sim.faults import Faults  # noqa: E402
@@ -40,20 +39,21 @@ from _report import machine, write_section  # noqa: E402
 TRANSFER = camusb.TRANSFER_BYTES
 
 
-def bench_fused(ev, repeats=5):
+def bench_fused(ev, backend="cython", repeats=5):
+    """-> events/s of the fused loop, of the kernel alone and of the decoder alone."""
     words = encode(ev)
     bufs = [words[i:i + TRANSFER] for i in range(0, len(words), TRANSFER)]
     tr = Tracker("face26")
     best_fused = best_kernel = best_dec = float("inf")
     for _ in range(repeats):
-        f = Fused(Kernel(tr.model, tr.params), 1000, 4096)
+        f = Fused(make_backend(backend, tr.model, tr.params), 1000, 4096)
         t0 = time.perf_counter()
         for b in bufs:
             f.feed(b)
         best_fused = min(best_fused, time.perf_counter() - t0)
         assert f.tracked == len(ev)
         t0 = time.perf_counter()
-        Tracker("face26").run(ev, 1000)
+        Tracker("face26", backend=backend).run(ev, 1000)
         best_kernel = min(best_kernel, time.perf_counter() - t0)
         d = CCamDecoder()
         t0 = time.perf_counter()
@@ -139,6 +139,9 @@ def main():
     fused, kernel, dec, nbuf = bench_fused(ev)
     print(f"fused {fused / 1e6:.2f} M ev/s, kernel alone {kernel / 1e6:.2f}, decode alone "
           f"{dec / 1e6:.1f} ({len(ev)} events, {nbuf} buffers)")
+    fx_fused, fx_kernel, _, _ = bench_fused(ev, "fixed")
+    print(f"fixed-point backend: fused {fx_fused / 1e6:.2f} M ev/s, kernel alone "
+          f"{fx_kernel / 1e6:.2f}")
     s, lat, rt_rate = bench_realtime(args.realtime_seconds)
     print(f"realtime: {s['events_tracked']} events ({rt_rate / 1e3:.0f} k ev/s), dropped "
           f"{s['transfers_dropped']}, latency ms p50 {np.median(lat):.3f} p99 "
@@ -164,6 +167,8 @@ face_occlusion ({len(ev):,} events, {nbuf} buffers), telemetry every 1 ms, best 
 | fused CCam decode + kernel (`firmware_sim._fused`) | {fused / 1e6:.2f} |
 | kernel alone on decoded events (`Tracker.run`) | {kernel / 1e6:.2f} |
 | CCam decoder alone (`springtrack.io.ccam`) | {dec / 1e6:.1f} |
+| fused, fixed-point kernel (`firmware-sim run --backend fixed`) | {fx_fused / 1e6:.2f} |
+| fixed-point kernel alone (`Tracker(backend="fixed").run`) | {fx_kernel / 1e6:.2f} |
 
 Target >= 25 M events/s: **{'met' if fused >= 25e6 else 'not met'}** ({fused / 25e6:.0%} of it).
 The fused loop runs at the kernel's own speed (decoding costs little), so any gap is the

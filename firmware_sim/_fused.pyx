@@ -2,8 +2,10 @@
 """Decode CCam ATIS USB words and track them in one nogil pass (issue 6, "the loop").
 
 Per 4-byte word: ``springtrack.io.ccam.ccam_decode_word`` (layout in ccam.pxd), then for a
-change-detection event the sampling rule of ``springtrack._kernel.run_events`` and
-``kstep`` (Algorithm 1).  No Python object, allocation or GIL per event; the only output
+change-detection event the sampling rule of ``springtrack._kernel.run_events`` and one step
+of Algorithm 1 by the tracker backend's :c:type:`Stepper` (springtrack/_stepper.pxd): the
+float64 kernel (``springtrack._kernel.Kernel``) or the integer-only fixed-point kernel
+(``springtrack._fixed.FixedKernel``).  No Python object, allocation or GIL per event; the only output
 is a preallocated snapshot buffer that the caller drains.
 
 Sampling (identical to ``springtrack track``): the first tracked event at t0 sets the
@@ -23,8 +25,10 @@ from libc.string cimport memcpy
 cimport numpy as cnp
 import numpy as np
 
-from springtrack._kernel cimport Kernel, KState, kstep, ksnapshot
+from springtrack._kernel cimport Kernel
+from springtrack._fixed cimport FixedKernel
 from springtrack._samples cimport SampleOut, sample_buffers
+from springtrack._stepper cimport Stepper
 from springtrack.io.ccam cimport (CCamState, ccam_init, ccam_decode_word, CCAM_CD,
                                   CCAM_EXPOSURE, CCAM_NONE)
 
@@ -41,15 +45,25 @@ cdef inline int64_t ceil_mul(int64_t t, int64_t p) noexcept nogil:
     return q * p
 
 
+cdef Stepper stepper_of(kernel) except *:
+    if isinstance(kernel, Kernel):
+        return (<Kernel>kernel).stepper()
+    if isinstance(kernel, FixedKernel):
+        return (<FixedKernel>kernel).stepper()
+    raise TypeError(f"the fused loop runs springtrack._kernel.Kernel or "
+                    f"springtrack._fixed.FixedKernel, not {type(kernel).__name__}")
+
+
 cdef class Fused:
-    """``Fused(kernel, period_us, cap)``: decoder + tracker state for one stream.
+    """``Fused(kernel, period_us, cap)``: decoder + tracker state for one stream;
+    ``kernel`` is a ``springtrack._kernel.Kernel`` or ``springtrack._fixed.FixedKernel``.
 
     ``feed(buf, n)`` processes the first ``n`` bytes of a buffer (bytes, bytearray,
     array('B'), numpy uint8) and returns the snapshots taken as a dict of arrays (rows
     ``t``; ``x`` ... ``sensitive`` of shape (rows, trackers); ``energy`` (rows, 3)).
     """
-    cdef Kernel kernel
-    cdef KState* ks
+    cdef object kernel                      # owns the state sp points into
+    cdef Stepper sp
     cdef CCamState cs
     cdef uint8_t carry[4]
     cdef int ncarry
@@ -66,7 +80,7 @@ cdef class Fused:
     cdef SampleOut o
     cdef object bufs
 
-    def __init__(self, Kernel kernel, long long period_us=1000, Py_ssize_t cap=1024):
+    def __init__(self, kernel, long long period_us=1000, Py_ssize_t cap=1024):
         if cap < 1:
             raise ValueError(f"snapshot capacity must be >= 1, got {cap}")
         ccam_init(&self.cs)
@@ -79,17 +93,15 @@ cdef class Fused:
         self.o.cap = cap
         self._bind(kernel, False)
 
-    cdef _bind(self, Kernel kernel, bint mark):
-        n = kernel.st.n
-        cap = self.o.cap
+    cdef _bind(self, kernel, bint mark):
+        self.sp = stepper_of(kernel)
         self.kernel = kernel
-        self.ks = &kernel.st
-        self.bufs = sample_buffers(cap, n, &self.o)
+        self.bufs = sample_buffers(self.o.cap, self.sp.n, &self.o)
         self.mark = mark
         if mark:
             self.first_t = -1
 
-    def set_kernel(self, Kernel kernel):
+    def set_kernel(self, kernel):
         """Swap the tracked model (between two events; call only between feeds).  The
         decoder state and the sampling clock carry over; :attr:`first_t` becomes the time
         of the first event the new kernel processes."""
@@ -116,12 +128,11 @@ cdef class Fused:
     # ---- the nogil core ------------------------------------------------------------------
     cdef inline int _event(self, int64_t t, int x, int y) noexcept nogil:
         """Sample then step one event; 1 if the snapshot buffer filled up (event pending)."""
-        cdef KState* s = self.ks
         if self.period > 0:
             if not self.have_next:
                 self.next_t = ceil_mul(t, self.period)
                 self.have_next = True
-            if t >= self.next_t and t >= s.last_t:
+            if t >= self.next_t and t >= self.sp.last_t[0]:
                 while t >= self.next_t:
                     if self.o.count >= self.o.cap:
                         self.pend = True
@@ -129,12 +140,12 @@ cdef class Fused:
                         self.pend_x = x
                         self.pend_y = y
                         return 1
-                    ksnapshot(s, self.next_t, &self.o)
+                    self.sp.snapshot(self.sp.state, self.next_t, &self.o)
                     self.next_t += self.period
         if self.mark:
             self.mark = False
             self.first_t = t
-        kstep(s, t, x, y)
+        self.sp.step(self.sp.state, t, x, y)
         self.tracked += 1
         return 0
 
@@ -217,7 +228,6 @@ cdef class Fused:
 
     def counters(self) -> dict:
         cs = self.cs
-        ks = self.ks
         return dict(words=cs.words, time_high_words=cs.time_high, events_decoded=cs.cd,
                     exposure_events=cs.exposure, events_tracked=self.tracked,
                     time_wraps=cs.wraps, gaps=self.gaps, bytes=self.bytes_in,
@@ -226,12 +236,12 @@ cdef class Fused:
                                    time_backwards=cs.backwards,
                                    before_time_high=cs.before_time_high,
                                    skipped_after_gap=self.gap_skipped,
-                                   tracker_back_in_time=ks.n_back,
-                                   tracker_outside_sensor=ks.n_outside))
+                                   tracker_back_in_time=self.sp.n_back[0],
+                                   tracker_outside_sensor=self.sp.n_outside[0]))
 
     @property
     def last_t(self):
-        return self.ks.last_t
+        return self.sp.last_t[0]
 
     @property
     def next_sample_t(self):

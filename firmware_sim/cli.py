@@ -49,6 +49,9 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--model", help="shape model TOML file")
     m.add_argument("--preset", help="preset model name (face26, grid3x3)")
     r.add_argument("--params", help="TOML file of parameter overrides")
+    r.add_argument("--backend", default="cython", choices=["cython", "fixed"],
+                   help="tracker kernel: float64 'cython' (default) or the integer-only "
+                        "'fixed' kernel of docs/fixed_point.md (positions Q.32 px)")
     sp = r.add_mutually_exclusive_group()
     sp.add_argument("--realtime", action="store_true",
                     help="simulated camera releases events at their timestamps (default)")
@@ -196,7 +199,8 @@ def run(args) -> int:
     engine = FirmwareLoop(open_camera, model=model, params=args.params,
                           telemetry_period_us=args.telemetry_us, nbuf=args.buffers,
                           record=bool(args.record), lossless=cam is not None and args.max_speed,
-                          biases=biases, profile=args.profile if cam is None else "ccam_atis")
+                          biases=biases, profile=args.profile if cam is None else "ccam_atis",
+                          backend=args.backend)
     stop = threading.Event()
     link_thread, port = start_link(args, engine, stop)
     if args.wait_start and link_thread is None:

@@ -23,10 +23,9 @@ import numpy as np
 
 from springtrack import model as _model
 from springtrack import params as _params
-from springtrack._kernel import Kernel
 from springtrack.limits import MAX_CONNECTIONS, MAX_TRACKERS
 from springtrack.track import CSV_HEADER, Track
-from springtrack.tracker import resolve_params
+from springtrack.tracker import make_backend, resolve_params
 from springtrack.wire import TRACK_DTYPE
 
 from ._fused import SNAP_FIELDS, Fused
@@ -35,6 +34,7 @@ from .engine import UpdateRejected
 from .reader import Reader
 
 FIRMWARE = "firmware-sim 0.1 (fused CCam loop)"
+BACKENDS = ("cython", "fixed")     # the tracker kernels a firmware can run (springtrack.tracker)
 TRACKER_DTYPE = TRACK_DTYPE      # per-tracker telemetry record, defined once in springtrack.wire
 BIAS_PREFIX = "bias."     # camera biases are parameters "bias.<name>" on the host link
 WINDOW_US = 10_000        # processing time is reported per 10 ms of events (paper Figs. 22-23)
@@ -144,12 +144,16 @@ class FirmwareLoop:
                  nbuf: int = 64, piece_bytes: int = 16384, telemetry_queue: int = 4096,
                  transfer_bytes: int | None = None, lossless: bool = False,
                  biases: dict | None = None, profile="ccam_atis",
-                 record: bool = False, width: int | None = None, height: int | None = None):
+                 record: bool = False, width: int | None = None, height: int | None = None,
+                 backend: str = "cython"):
         if telemetry_period_us <= 0:
             raise ValueError(f"telemetry_period_us must be positive, got {telemetry_period_us}")
+        if backend not in BACKENDS:
+            raise ValueError(f"backend {backend!r}: the firmware runs one of {', '.join(BACKENDS)}")
+        self.backend = backend
         self.model = _model.load_model(model)
         self.params = resolve_params(self.model, params)
-        self.kernel = Kernel(self.model, self.params)
+        self.kernel = self._new_kernel(self.model, self.params)
         self.profile = camusb.PROFILES[profile] if isinstance(profile, str) else profile
         if self.profile.fmt == "ccam":
             self.fused = Fused(self.kernel, telemetry_period_us, 512)
@@ -184,11 +188,17 @@ class FirmwareLoop:
         self.c = dict(pieces=0, snapshots=0, telemetry_dropped=0, updates_applied=0,
                       updates_rejected=0, proc_ns=0, kernel_swaps=0, processing_errors=0)
         self.last_error = ""
+        self.retired: dict = {}             # counters of the kernels swapped out
         self.windows: deque = deque(maxlen=4096)   # processing us per 10 ms of events
         self._win_t0 = None
         self._win_ns = 0
         self._rate = deque(maxlen=64)               # (wall, events tracked)
         self.snap_wall: deque | None = None         # (t_us, wall) when a benchmark asks
+
+    def _new_kernel(self, model, params):
+        """A tracker state for ``model`` on this firmware's backend: float64 ("cython") or
+        integer-only ("fixed", docs/fixed_point.md)."""
+        return make_backend(self.backend, model, params)
 
     # ---- Engine: lifecycle ---------------------------------------------------------------
     def start(self) -> None:
@@ -228,7 +238,7 @@ class FirmwareLoop:
             m = self.pending_model[0] if self.pending_model else self.model
             p = self.pending_model[1] if self.pending_model else self.params
             self.gen_next += 1
-            self.pending_model = (m, p, Kernel(m, p), self.gen_next)
+            self.pending_model = (m, p, self._new_kernel(m, p), self.gen_next)
         self._apply_if_idle()
 
     # ---- Engine: updates -------------------------------------------------------------------
@@ -236,7 +246,7 @@ class FirmwareLoop:
         try:
             m = _model.loads(toml_text, "uploaded model")
             p = resolve_params(m)
-            k = Kernel(m, p)
+            k = self._new_kernel(m, p)
         except (ValueError, TypeError) as e:       # ModelError, ParamError are ValueErrors
             self.c["updates_rejected"] += 1
             raise UpdateRejected("invalid_model", str(e)) from None
@@ -318,6 +328,7 @@ class FirmwareLoop:
         gen = None
         if pm is not None:
             m, p, k, gen = pm
+            self._retire_kernel()
             self.fused.set_kernel(k)
             self.model, self.params, self.kernel = m, p, k
             self.c["kernel_swaps"] += 1
@@ -443,7 +454,8 @@ class FirmwareLoop:
 
     def info(self) -> dict:
         with self.lock:
-            return dict(firmware=FIRMWARE, width=self.width, height=self.height,
+            return dict(firmware=FIRMWARE, backend=self.backend, width=self.width,
+                        height=self.height,
                         max_trackers=MAX_TRACKERS, max_connections=MAX_CONNECTIONS,
                         model=self.model.name, model_hash=self.model.digest(),
                         trackers=list(self.model.ids), running=self.running,
@@ -477,7 +489,21 @@ class FirmwareLoop:
                         time_wraps=fc["time_wraps"], exposure_events=fc["exposure_events"],
                         gaps=fc["gaps"], pending_bytes=fc["pending_bytes"]),
             anomalies=fc["anomalies"],
-            loop=dict(self.c, generation=self.generation, last_t_us=int(self.fused.last_t)))
+            loop=dict(self.c, generation=self.generation, last_t_us=int(self.fused.last_t)),
+            kernel=self.kernel_counters())
+
+    def kernel_counters(self) -> dict:
+        """The tracker kernel's counters summed over every kernel this run (a model load or
+        RESET starts a new one): events it skipped and, for the fixed backend, the values
+        it saturated (docs/fixed_point.md)."""
+        out = dict(self.retired)
+        for k, v in self.kernel.counters().items():
+            out[k] = out.get(k, 0) + int(v)
+        return dict(out, backend=self.backend)
+
+    def _retire_kernel(self) -> None:
+        for k, v in self.kernel.counters().items():
+            self.retired[k] = self.retired.get(k, 0) + int(v)
 
     def stats_line(self) -> str:
         s = self.stats()
@@ -488,7 +514,9 @@ class FirmwareLoop:
                 f"queue_hwm={s['queue_hwm']} rate={s['event_rate']:.3g}/s "
                 f"proc_us_per_10ms(mean={s['proc_us_per_10ms']['mean']:.0f} "
                 f"max={s['proc_us_per_10ms']['max']:.0f}) state={s['state']} "
-                f"usb={usb or 'ok'} anomalies={an or 'none'}")
+                f"usb={usb or 'ok'} anomalies={an or 'none'} kernel={s['kernel']['backend']}"
+                + (f" saturated={sat}" if (sat := {k[10:]: v for k, v in s["kernel"].items()
+                                                    if k.startswith("saturated_") and v}) else ""))
 
     # ---- record ----------------------------------------------------------------------------
     def write_record(self, path) -> int:

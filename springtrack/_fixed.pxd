@@ -10,6 +10,7 @@
 #
 # fixed_step() is springtrack/csrc/fixed_step.c's fx_step(): integer-only.
 from libc.stdint cimport int64_t
+from springtrack._stepper cimport Stepper
 
 cdef int fixed_step(void* state, int64_t t, int x, int y) noexcept nogil
 
@@ -17,3 +18,4 @@ cdef class FixedKernel:
     cdef void* state          # fx_state* (csrc/fixed_step.h), owned
     cdef object model
     cdef object params
+    cdef Stepper stepper(self)

@@ -22,6 +22,7 @@ from springtrack import fixed_q as _q
 from springtrack import limits as _limits
 
 from springtrack._samples cimport SampleOut, sample_buffers
+from springtrack._stepper cimport Stepper
 
 cnp.import_array()
 
@@ -157,6 +158,10 @@ cdef int fixed_step(void* state, int64_t t, int x, int y) noexcept nogil:
     return fx_step(<fx_state*>state, t, x, y)
 
 
+cdef void snapshot_opaque(const void* state, int64_t t, SampleOut* o) noexcept nogil:
+    snapshot_row(<const fx_state*>state, t, o)
+
+
 cdef class FixedKernel:
     """Owns one fx_state. ``FixedKernel(model, params)``; see springtrack.tracker.Tracker."""
 
@@ -164,6 +169,18 @@ cdef class FixedKernel:
         self.state = calloc(1, sizeof(fx_state))
         if self.state == NULL:
             raise MemoryError()
+
+    cdef Stepper stepper(self):
+        cdef fx_state* s = <fx_state*>self.state
+        cdef Stepper sp
+        sp.state = self.state
+        sp.step = fixed_step
+        sp.snapshot = snapshot_opaque
+        sp.n = s.n
+        sp.last_t = &s.last_t
+        sp.n_back = &s.n_back
+        sp.n_outside = &s.n_outside
+        return sp
 
     def __init__(self, model, params):
         cdef fx_state* s = <fx_state*>self.state

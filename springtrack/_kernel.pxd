@@ -1,15 +1,19 @@
 # C-level interface of the float64 tracker kernel (springtrack/_kernel.pyx).
 #
-# Other Cython modules (firmware_sim's fused decode+track loop) cimport this:
+# Other Cython modules cimport this, either directly:
 #
 #     from springtrack._kernel cimport Kernel, KState, kstep, ksnapshot
 #     cdef KState* s = &kernel.st          # kernel: a springtrack._kernel.Kernel
 #     with nogil:
 #         r = kstep(s, t, x, y)            # one event; r >= 0: winning tracker
 #
+# or, like firmware_sim's fused loop, through kernel.stepper() (springtrack/_stepper.pxd),
+# which the fixed-point kernel offers too.
+#
 # kstep() translates springtrack.reference.ReferenceTracker.step(); it agrees with it to
 # 1e-9 px (libm calls on the hot paths are replaced by csrc/fastmath.h, ~1 ulp).
 from springtrack._samples cimport SampleOut
+from springtrack._stepper cimport Stepper
 from libc.stdint cimport int64_t, uint64_t, int32_t, uint8_t
 
 cdef enum:
@@ -96,3 +100,4 @@ cdef class Kernel:
     cdef KState st
     cdef object model
     cdef object params
+    cdef Stepper stepper(self)

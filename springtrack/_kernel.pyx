@@ -34,6 +34,7 @@ from springtrack import limits as _limits
 from springtrack.reference import covariance_bias, RHO_MAX as _RHO_MAX
 
 from springtrack._samples cimport SampleOut, sample_buffers
+from springtrack._stepper cimport Stepper
 
 cnp.import_array()
 
@@ -367,12 +368,32 @@ cdef Py_ssize_t run_events(KState* s, const Event* ev, Py_ssize_t n, int64_t sam
     return n
 
 
+# the Stepper calls (springtrack/_stepper.pxd): kstep and ksnapshot on an opaque state
+cdef int step_opaque(void* s, int64_t t, int x, int y) noexcept nogil:
+    return kstep(<KState*>s, t, x, y)
+
+
+cdef void snapshot_opaque(const void* s, int64_t t, SampleOut* o) noexcept nogil:
+    ksnapshot(<const KState*>s, t, o)
+
+
 # ---- Python wrapper -----------------------------------------------------------------
 cdef class Kernel:
     """Owns one KState. ``Kernel(model, params)``; see springtrack.tracker.Tracker for the API."""
 
     def __cinit__(self):
         self.st.cells = NULL
+
+    cdef Stepper stepper(self):
+        cdef Stepper sp
+        sp.state = &self.st
+        sp.step = step_opaque
+        sp.snapshot = snapshot_opaque
+        sp.n = self.st.n
+        sp.last_t = &self.st.last_t
+        sp.n_back = &self.st.n_back
+        sp.n_outside = &self.st.n_outside
+        return sp
 
     def __init__(self, model, params):
         cdef KState* s = &self.st

@@ -56,11 +56,18 @@ def recorded(eng):
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
-def test_tracking_through_the_usb_path_equals_the_offline_tracker(face, tmp_path):
-    cam, eng = make_engine(face, record=True)
+@pytest.mark.parametrize("backend", ["cython", "fixed"])
+def test_tracking_through_the_usb_path_equals_the_offline_tracker(face, tmp_path, backend):
+    """Either kernel in the fused loop gives, bit for bit, the offline Tracker's samples."""
+    cam, eng = make_engine(face, record=True, backend=backend)
     s = run_to_end(cam, eng)
     assert s["events_tracked"] == len(face) and s["transfers_dropped"] == 0
-    ref = Tracker("face26").run(face, SAMPLE)
+    assert s["kernel"]["backend"] == backend and eng.info()["backend"] == backend
+    assert s["kernel"]["events_valid"] == len(face)
+    if backend == "fixed":            # saturations are counted, and none happen on this scene
+        assert {k: v for k, v in s["kernel"].items() if k.startswith("saturated_")} == dict(
+            saturated_position=0, saturated_activity=0, saturated_energy=0, saturated_inverse=0)
+    ref = Tracker("face26", backend=backend).run(face, SAMPLE)
     got = recorded(eng)
     assert np.array_equal(got["t"], ref.t_us)
     for k in ("x", "y", "sxx", "sxy", "syy", "activity"):
@@ -72,10 +79,11 @@ def test_tracking_through_the_usb_path_equals_the_offline_tracker(face, tmp_path
     assert out.read_text() == ref_csv.read_text()
 
 
-def test_model_swap_under_a_stream_is_atomic(face):
+@pytest.mark.parametrize("backend", ["cython", "fixed"])
+def test_model_swap_under_a_stream_is_atomic(face, backend):
     """Every snapshot belongs to exactly one model: before the swap it equals model A's
     offline track, after it model B's offline track over the events from the swap on."""
-    cam, eng = make_engine(face, realtime=True)
+    cam, eng = make_engine(face, realtime=True, backend=backend)
     grid = _model.grid3x3()
     eng.start()
     while eng.fused.tracked < len(face) // 3:
@@ -97,12 +105,12 @@ def test_model_swap_under_a_stream_is_atomic(face):
     b = [s for s in snaps if s["generation"] == gen]
     assert a and b and len(a) + len(b) == len(snaps)
     assert all(len(s["trackers"]) == 26 for s in a) and all(len(s["trackers"]) == 9 for s in b)
-    ref_a = Tracker("face26").run(face[:n_before], SAMPLE)
+    ref_a = Tracker("face26", backend=backend).run(face[:n_before], SAMPLE)
     for s in a:
         k = np.searchsorted(ref_a.t_us, s["t_us"])
         if k < len(ref_a) and ref_a.t_us[k] == s["t_us"]:
             assert np.array_equal(s["trackers"]["x"], ref_a.x[k])
-    ref_b = Tracker(grid).run(face[n_before:], SAMPLE)
+    ref_b = Tracker(grid, backend=backend).run(face[n_before:], SAMPLE)
     common = 0
     for s in b:
         k = np.searchsorted(ref_b.t_us, s["t_us"])

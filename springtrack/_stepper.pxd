@@ -1,0 +1,24 @@
+# One tracker backend as seen by a C-level event loop (firmware_sim._fused): its state and
+# the two calls such a loop makes, so the loop runs the float64 kernel (_kernel.Kernel)
+# and the fixed-point kernel (_fixed.FixedKernel) alike without knowing their state.
+#
+#     cdef Stepper sp = (<Kernel>k).stepper()       # or (<FixedKernel>k).stepper()
+#     with nogil:
+#         sp.step(sp.state, t, x, y)                # Algorithm 1 for one event
+#         sp.snapshot(sp.state, t, &out)            # one SampleOut row at time t
+#
+# The pointers stay valid while the kernel object is alive: hold a reference to it.
+from libc.stdint cimport int64_t
+from springtrack._samples cimport SampleOut
+
+ctypedef int (*step_fn)(void* state, int64_t t, int x, int y) noexcept nogil
+ctypedef void (*snapshot_fn)(const void* state, int64_t t, SampleOut* o) noexcept nogil
+
+cdef struct Stepper:
+    void* state
+    step_fn step
+    snapshot_fn snapshot
+    int n                         # trackers (columns of a SampleOut row)
+    const int64_t* last_t         # time of the last event processed, µs
+    const int64_t* n_back         # events skipped: earlier than last_t
+    const int64_t* n_outside      # events skipped: outside the sensor
