@@ -115,7 +115,12 @@ def make_source(args, biases: dict):
         from .scenes import make_scene
         scene = make_scene(arg, seed=args.seed)
         source = simusb.scene_source(arg, args.seconds, seed=args.seed)
-        default_model = scene.initial_model()
+        default_model = None
+        if not (args.model or args.preset):    # a scene's own model only when none is given
+            try:
+                default_model = scene.initial_model()
+            except ValueError as e:
+                raise ValueError(f"{e}; give --model or --preset") from None
     elif kind == "replay":
         source = simusb.file_source(arg, stats=args.replay_stats)
         if args.seconds is not None:

@@ -198,6 +198,19 @@ def test_cli_rejects_bad_arguments_with_a_clear_error():
                         "sim:face_occlusion", "--faults", "meteor"],
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "unknown fault(s) meteor" in r.stderr
+    r = subprocess.run([sys.executable, "-m", "firmware_sim.cli", "run", "--source",
+                        "sim:moving_blob", "--max-speed"], capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 2 and "no matching shape model; give --model or --preset" in r.stderr
+
+
+def test_cli_runs_a_scene_without_a_model_of_its_own_on_a_preset():
+    r = subprocess.run([sys.executable, "-m", "firmware_sim.cli", "run", "--source",
+                        "sim:moving_blob", "--max-speed", "--seconds", "0.2", "--preset",
+                        "grid3x3", "--backend", "fixed", "--stats-every", "0"],
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 0, r.stderr
+    assert "dropped=0" in r.stdout and "kernel=fixed" in r.stdout
 
 
 def test_camera_biases_are_host_parameters_sent_by_the_reader_thread(face):
