@@ -145,7 +145,7 @@ class FirmwareLoop:
                  transfer_bytes: int | None = None, lossless: bool = False,
                  biases: dict | None = None, profile="ccam_atis",
                  record: bool = False, width: int | None = None, height: int | None = None,
-                 backend: str = "cython"):
+                 backend: str = "cython", energy_period_us: int = 100_000):
         if telemetry_period_us <= 0:
             raise ValueError(f"telemetry_period_us must be positive, got {telemetry_period_us}")
         if backend not in BACKENDS:
@@ -174,7 +174,7 @@ class FirmwareLoop:
         self.gen_next = 1                   # last generation handed out
         self.pending_model = None           # (model, params, kernel, generation)
         self.pending_params: dict = {}      # name -> (value, generation)
-        self.tele: deque = deque()          # (generation, energy kind, block, first row)
+        self.tele: deque = deque()          # [generation, energy kind, block, first row, energies]
         self.tele_rows = 0
         self.tele_cap = int(telemetry_queue)
         self.applied: deque = deque()
@@ -189,6 +189,7 @@ class FirmwareLoop:
                       updates_rejected=0, proc_ns=0, kernel_swaps=0, processing_errors=0)
         self.last_error = ""
         self.retired: dict = {}             # counters of the kernels swapped out
+        self.energy_period_us, self.next_energy_t = int(energy_period_us), None
         self.windows: deque = deque(maxlen=4096)   # processing us per 10 ms of events
         self._win_t0 = None
         self._win_ns = 0
@@ -412,8 +413,9 @@ class FirmwareLoop:
             self.snap_wall.extend((int(t), now) for t in out["t"])
         if self.record:
             self.recorded.append((list(self.model.ids), out))
+        energies = self._energies_due(int(out["t"][-1]))
         with self.lock:
-            self.tele.append([self.generation, self.params.energy_kind_index, out, 0])
+            self.tele.append([self.generation, self.params.energy_kind_index, out, 0, energies])
             self.tele_rows += rows
             while self.tele_rows > self.tele_cap and self.tele:   # drop the oldest rows
                 item = self.tele[0]
@@ -426,13 +428,23 @@ class FirmwareLoop:
                 self.tele_rows -= drop
                 self.c["telemetry_dropped"] += drop
 
+    def _energies_due(self, t_us: int):
+        """Per-connection energies of the criterion's kind (eqs. 12, 17, 20) from the last
+        spring update, at most once per ``energy_period_us`` of event time, else None.
+        They ride on the block's last snapshot, which lies within one telemetry period of
+        that update (the link sends them as ENERGIES)."""
+        if self.next_energy_t is not None and t_us < self.next_energy_t:
+            return None
+        self.next_energy_t = t_us + self.energy_period_us
+        return self.kernel.energies()[self.params.energy_kind_index].copy()
+
     # ---- Engine: observation ---------------------------------------------------------------
     def poll_telemetry(self, max_items: int = 64) -> list:
         res = []
         with self.lock:
             while self.tele and len(res) < max_items:
                 item = self.tele[0]
-                g, ek, blk, first = item
+                g, ek, blk, first, energies = item
                 take = min(len(blk["t"]) - first, max_items - len(res))
                 for r in range(first, first + take):
                     tr = np.empty(blk["x"].shape[1], TRACKER_DTYPE)
@@ -440,6 +452,8 @@ class FirmwareLoop:
                         tr[f] = blk[f][r]
                     res.append(dict(t_us=int(blk["t"][r]), generation=g,
                                      mean_energy=float(blk["energy"][r, ek]), trackers=tr))
+                    if energies is not None and r == len(blk["t"]) - 1:
+                        res[-1]["energies"] = (ek, energies)
                 item[3] = first + take
                 self.tele_rows -= take
                 if item[3] >= len(blk["t"]):

@@ -288,6 +288,24 @@ def test_cli_serves_the_host_link_on_tcp():
         p.stderr.close()
 
 
+def test_per_connection_energies_ride_on_snapshots_every_100ms(face):
+    """The loop attaches the criterion's per-connection energies (the link's ENERGIES) to a
+    snapshot at most once per 100 ms of event time, from the running model."""
+    cam, eng = make_engine(face)
+    run_to_end(cam, eng)
+    snaps = eng.poll_telemetry(100000)
+    with_e = [s for s in snaps if "energies" in s]
+    nc = len(_model.load_model("face26").connections)
+    t = np.array([s["t_us"] for s in with_e])
+    span = snaps[-1]["t_us"] - snaps[0]["t_us"]
+    assert len(with_e) == pytest.approx(span / 100_000, abs=1.5) and np.all(np.diff(t) >= 100_000)
+    for s in with_e:
+        kind, values = s["energies"]
+        assert kind == eng.params.energy_kind_index and values.shape == (nc,)
+        assert np.all(values >= 0) and np.all(np.isfinite(values))
+    assert max(float(s["energies"][1].max()) for s in with_e) > 0
+
+
 def test_telemetry_queue_is_bounded_and_counts_what_it_drops(face):
     cam, eng = make_engine(face, telemetry_queue=100)
     s = run_to_end(cam, eng)
