@@ -60,7 +60,9 @@ cdef class Fused:
 
     ``feed(buf, n)`` processes the first ``n`` bytes of a buffer (bytes, bytearray,
     array('B'), numpy uint8) and returns the snapshots taken as a dict of arrays (rows
-    ``t``; ``x`` ... ``sensitive`` of shape (rows, trackers); ``energy`` (rows, 3)).
+    ``t``; ``x`` ... ``sensitive`` of shape (rows, trackers); ``energy`` (rows, 3); with the
+    fixed-point kernel also ``wire`` (rows, trackers * 8), the TELEMETRY tracker records it
+    packs from its integer state).
     """
     cdef object kernel                      # owns the state sp points into
     cdef Stepper sp
@@ -96,7 +98,7 @@ cdef class Fused:
     cdef _bind(self, kernel, bint mark):
         self.sp = stepper_of(kernel)
         self.kernel = kernel
-        self.bufs = sample_buffers(self.o.cap, self.sp.n, &self.o)
+        self.bufs = sample_buffers(self.o.cap, self.sp.n, &self.o, self.sp.wire_records)
         self.mark = mark
         if mark:
             self.first_t = -1

@@ -174,8 +174,12 @@ class LinkServer:
         if room <= 0:                                          # wait in the engine's queue
             return
         for snap in self.engine.poll_telemetry(min(64, room)):
-            payload = wire.encode_telemetry(snap["t_us"], snap["generation"],
-                                            snap["mean_energy"], snap["trackers"])
+            if "records" in snap:    # already in the wire layout (the fixed-point kernel)
+                payload = wire.encode_telemetry_records(snap["t_us"], snap["generation"],
+                                                        snap["mean_energy"], snap["records"])
+            else:
+                payload = wire.encode_telemetry(snap["t_us"], snap["generation"],
+                                                snap["mean_energy"], snap["trackers"])
             if self.send(MsgType.TELEMETRY, payload, droppable=True) is not None:
                 self.counts["telemetry_sent"] += 1
             if "energies" in snap:

@@ -452,6 +452,8 @@ class FirmwareLoop:
                         tr[f] = blk[f][r]
                     res.append(dict(t_us=int(blk["t"][r]), generation=g,
                                      mean_energy=float(blk["energy"][r, ek]), trackers=tr))
+                    if "wire" in blk:        # fixed kernel: records packed from its integer state
+                        res[-1]["records"] = blk["wire"][r].tobytes()
                     if energies is not None and r == len(blk["t"]) - 1:
                         res[-1]["energies"] = (ek, energies)
                 item[3] = first + take

@@ -1,5 +1,5 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
-# distutils: depends = springtrack/csrc/fixed_step.c springtrack/csrc/fixed_step.h
+# distutils: depends = springtrack/csrc/fixed_step.c springtrack/csrc/fixed_step.h springtrack/csrc/fixed_telemetry.c springtrack/csrc/fixed_telemetry.h
 """Fixed-point tracker backend (``Tracker(..., backend="fixed")``).
 
 The per-event step and the springs are the integer-only C unit
@@ -20,6 +20,7 @@ from springtrack.events cimport Event
 from springtrack.events import EVENT_DTYPE
 from springtrack import fixed_q as _q
 from springtrack import limits as _limits
+from springtrack import wire as _wire
 
 from springtrack._samples cimport SampleOut, sample_buffers
 from springtrack._stepper cimport Stepper
@@ -104,7 +105,25 @@ cdef extern from "csrc/fixed_step.h" nogil:
 cdef extern from "csrc/fixed_step.c":
     pass
 
+cdef extern from "csrc/fixed_telemetry.h" nogil:
+    enum:
+        FX_TELE_RECORD
+        FX_TELE_POS_SHIFT
+        FX_TELE_SIGMA_SHIFT
+        FX_TELE_RHO_SCALE
+        FX_TELE_ACT_STEPS
+    void fx_tele_records(const fx_state* s, int64_t t, uint8_t* out)
+
+cdef extern from "csrc/fixed_telemetry.c":
+    pass
+
 assert _limits.MAX_TRACKERS == FX_MAX_TRACKERS and _limits.MAX_CONNECTIONS == FX_MAX_CONNECTIONS
+# the C telemetry packer writes springtrack.wire's layout: the scales must be the same
+assert (_wire.TELE_TRACKER.itemsize == FX_TELE_RECORD
+        and _wire.POS_SCALE == 2.0 ** (32 - FX_TELE_POS_SHIFT)
+        and _wire.SIGMA_SCALE == 2.0 ** (20 - FX_TELE_SIGMA_SHIFT)
+        and _wire.RHO_SCALE == FX_TELE_RHO_SCALE
+        and _wire.ACT_SCALE == FX_TELE_ACT_STEPS), "fixed_telemetry.h disagrees with wire.py"
 
 # float64 views of the Q formats (output only)
 cdef double POS_UNIT = 1.0 / 4294967296.0     # Q.32 px
@@ -132,6 +151,8 @@ cdef inline void snapshot_row(const fx_state* s, int64_t t, SampleOut* o) noexce
         for k in range(s.nc):
             tot += s.energy[q][k]
         o.energy[row * 3 + q] = (<double>tot) * Q32_UNIT / s.nc if s.nc > 0 else 0.0
+    if o.wire != NULL:
+        fx_tele_records(s, t, o.wire + base * FX_TELE_RECORD)
     o.count = row + 1
 
 
@@ -180,6 +201,7 @@ cdef class FixedKernel:
         sp.last_t = &s.last_t
         sp.n_back = &s.n_back
         sp.n_outside = &s.n_outside
+        sp.wire_records = True
         return sp
 
     def __init__(self, model, params):
@@ -320,6 +342,16 @@ cdef class FixedKernel:
 
     def springs(self):
         fx_springs(<fx_state*>self.state)
+
+    def telemetry_records(self, long long t):
+        """The TELEMETRY tracker records (``springtrack.wire.TELE_TRACKER`` layout) at event
+        time t, packed from the integer state (csrc/fixed_telemetry.c)."""
+        cdef fx_state* s = <fx_state*>self.state
+        out = bytearray(s.n * FX_TELE_RECORD)
+        cdef uint8_t[::1] mv = out
+        if s.n:
+            fx_tele_records(s, t, &mv[0])
+        return bytes(out)
 
     def snapshot(self, long long t):
         """Dict of per-tracker float64 arrays at event time t."""

@@ -393,6 +393,7 @@ cdef class Kernel:
         sp.last_t = &self.st.last_t
         sp.n_back = &self.st.n_back
         sp.n_outside = &self.st.n_outside
+        sp.wire_records = False
         return sp
 
     def __init__(self, model, params):

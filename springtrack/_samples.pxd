@@ -14,6 +14,8 @@ cdef struct SampleOut:
     uint8_t* active
     uint8_t* sensitive
     double* energy            # (cap, 3): mean energy of each kind
+    uint8_t* wire             # (cap, n * 8) TELEMETRY tracker records (wire.TELE_TRACKER)
+                              # written by kernels that pack them natively, or NULL
     Py_ssize_t cap, count
 
-cdef dict sample_buffers(Py_ssize_t cap, int n, SampleOut* o)
+cdef dict sample_buffers(Py_ssize_t cap, int n, SampleOut* o, bint wire=*)

@@ -2,14 +2,18 @@
 """Snapshot buffers shared by the tracker kernels and the firmware's fused loop."""
 import numpy as np
 cimport numpy as cnp
+from springtrack.wire import TELE_TRACKER
 from libc.stdint cimport int64_t, uint8_t
 
 cnp.import_array()
 
+TELE_RECORD = TELE_TRACKER.itemsize      # bytes per tracker record
 
-cdef dict sample_buffers(Py_ssize_t cap, int n, SampleOut* o):
+
+cdef dict sample_buffers(Py_ssize_t cap, int n, SampleOut* o, bint wire=False):
     """Arrays for ``cap`` snapshot rows of ``n`` trackers (keys as the Track fields, plus
-    ``t`` and ``energy``), bound to ``o`` with ``o.count = 0``."""
+    ``t`` and ``energy``; with ``wire``, ``wire`` for the packed TELEMETRY records), bound
+    to ``o`` with ``o.count = 0``."""
     b = dict(t=np.empty(cap, np.int64), x=np.empty((cap, n)), y=np.empty((cap, n)),
              sxx=np.empty((cap, n)), sxy=np.empty((cap, n)), syy=np.empty((cap, n)),
              activity=np.empty((cap, n)), active=np.empty((cap, n), np.uint8),
@@ -26,4 +30,8 @@ cdef dict sample_buffers(Py_ssize_t cap, int n, SampleOut* o):
     o.active = <uint8_t*>cnp.PyArray_DATA(b["active"])
     o.sensitive = <uint8_t*>cnp.PyArray_DATA(b["sensitive"])
     o.energy = <double*>cnp.PyArray_DATA(b["energy"])
+    o.wire = NULL
+    if wire:
+        b["wire"] = np.empty((cap, n * TELE_RECORD), np.uint8)
+        o.wire = <uint8_t*>cnp.PyArray_DATA(b["wire"])
     return b

@@ -22,3 +22,4 @@ cdef struct Stepper:
     const int64_t* last_t         # time of the last event processed, µs
     const int64_t* n_back         # events skipped: earlier than last_t
     const int64_t* n_outside      # events skipped: outside the sensor
+    bint wire_records             # snapshot() also packs SampleOut.wire from the state

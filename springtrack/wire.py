@@ -636,6 +636,7 @@ TRACK_DTYPE = np.dtype([("x", "<f8"), ("y", "<f8"), ("sxx", "<f8"), ("sxy", "<f8
 POS_SCALE = 16.0
 POS_MAX = 0x7FFF / POS_SCALE
 SIGMA_SCALE = 4.0
+RHO_SCALE = 127
 ACT_SCALE = 16.0
 
 
@@ -659,12 +660,23 @@ def encode_telemetry(t_us: int, generation: int, mean_energy: float, trackers) -
     rec["y"] = np.rint(y * POS_SCALE).astype(np.uint16) | (np.asarray(tr["sensitive"], bool).astype(np.uint16) << 15)
     rec["sx"] = np.minimum(np.rint(sx * SIGMA_SCALE), 255)
     rec["sy"] = np.minimum(np.rint(sy * SIGMA_SCALE), 255)
-    rec["rho"] = np.rint(np.clip(rho, -1.0, 1.0) * 127)
+    rec["rho"] = np.rint(np.clip(rho, -1.0, 1.0) * RHO_SCALE)
     rec["act"] = np.minimum(np.rint(ACT_SCALE * np.log2(1.0 + act)), 255)
+    return encode_telemetry_records(t_us, generation, mean_energy, rec.tobytes())
+
+
+def encode_telemetry_records(t_us: int, generation: int, mean_energy: float,
+                             records: bytes) -> bytes:
+    """Pack one snapshot whose tracker records are already in the TELE_TRACKER layout
+    (e.g. written by the fixed-point kernel straight from its integer state)."""
+    n, rest = divmod(len(records), TELE_TRACKER.itemsize)
+    if rest or n > 255 or TELE_HDR.size + len(records) > MAX_PAYLOAD:
+        raise WireError(f"TELEMETRY: {len(records)} bytes of tracker records are not "
+                        f"whole {TELE_TRACKER.itemsize}-byte records that fit one frame")
     me = float(mean_energy)
     if not math.isfinite(me):
         me = float("nan")
-    return TELE_HDR.pack(int(t_us) & (2**64 - 1), int(generation) & 0xFFFF, me, n) + rec.tobytes()
+    return TELE_HDR.pack(int(t_us) & (2**64 - 1), int(generation) & 0xFFFF, me, n) + bytes(records)
 
 
 def decode_telemetry(payload: bytes) -> tuple[int, int, float, np.ndarray]:
@@ -685,7 +697,7 @@ def decode_telemetry(payload: bytes) -> tuple[int, int, float, np.ndarray]:
     sy = rec["sy"] / SIGMA_SCALE
     out["sxx"] = sx * sx
     out["syy"] = sy * sy
-    out["sxy"] = rec["rho"] / 127.0 * sx * sy
+    out["sxy"] = rec["rho"] / RHO_SCALE * sx * sy
     out["activity"] = np.exp2(rec["act"] / ACT_SCALE) - 1.0
     return t_us, gen, me, out
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from springtrack import model as _model
+from springtrack import wire
 from springtrack.track import read_csv
 from springtrack.tracker import Tracker
 from firmware_sim import usb as camusb
@@ -67,6 +68,15 @@ def test_tracking_through_the_usb_path_equals_the_offline_tracker(face, tmp_path
     if backend == "fixed":            # saturations are counted, and none happen on this scene
         assert {k: v for k, v in s["kernel"].items() if k.startswith("saturated_")} == dict(
             saturated_position=0, saturated_activity=0, saturated_energy=0, saturated_inverse=0)
+    snaps = eng.poll_telemetry(10**6)
+    assert len(snaps) == len(recorded(eng)["t"])
+    if backend == "fixed":            # TELEMETRY records packed from the integer state
+        for snap in snaps:
+            _, _, _, dec = wire.decode_telemetry(wire.encode_telemetry_records(
+                snap["t_us"], 1, 0.0, snap["records"]))
+            assert np.all(np.abs(dec["x"] - np.clip(snap["trackers"]["x"], 0, None)) <= 1 / 32)
+    else:
+        assert not any("records" in snap for snap in snaps)
     ref = Tracker("face26", backend=backend).run(face, SAMPLE)
     got = recorded(eng)
     assert np.array_equal(got["t"], ref.t_us)

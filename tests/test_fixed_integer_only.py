@@ -1,8 +1,9 @@
 """Issue 4, deliverable 2: the fixed-point step is integer-only by construction.
 
 springtrack/csrc/fixed_step.c (the per-event step, the springs and every arithmetic
-helper they use) must compile with ``gcc -mgeneral-regs-only``, which on x86-64 rejects
-any floating-point or SIMD operation.  A control case shows the check does fail when a
+helper they use) and fixed_telemetry.c (telemetry records from that state) must compile
+with ``gcc -mgeneral-regs-only``, which on x86-64 rejects any floating-point or SIMD
+operation.  A control case shows the check does fail when a
 float slips in.
 """
 import re
@@ -14,6 +15,7 @@ import pytest
 
 CSRC = Path(__file__).resolve().parents[1] / "springtrack" / "csrc"
 UNIT = CSRC / "fixed_step.c"
+UNITS = [UNIT, CSRC / "fixed_telemetry.c"]
 FLAGS = ["-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", "-mgeneral-regs-only", "-c"]
 
 gcc = shutil.which("gcc")
@@ -26,9 +28,10 @@ def compile_c(src: Path, out: Path) -> subprocess.CompletedProcess:
 
 
 @needs_gcc
-def test_fixed_step_compiles_with_general_regs_only(tmp_path):
-    r = compile_c(UNIT, tmp_path / "fixed_step.o")
-    assert r.returncode == 0, f"{UNIT} does not compile integer-only:\n{r.stderr}"
+@pytest.mark.parametrize("unit", UNITS, ids=lambda u: u.name)
+def test_fixed_units_compile_with_general_regs_only(tmp_path, unit):
+    r = compile_c(unit, tmp_path / "unit.o")
+    assert r.returncode == 0, f"{unit} does not compile integer-only:\n{r.stderr}"
 
 
 @needs_gcc
@@ -43,6 +46,6 @@ def test_the_check_rejects_a_float(tmp_path):
 
 def test_no_float_type_in_the_fixed_unit():
     """A reader's check: no float/double/long double token in the C unit or its header."""
-    for f in (UNIT, CSRC / "fixed_step.h"):
+    for f in UNITS + [u.with_suffix(".h") for u in UNITS]:
         code = re.sub(r"/\*.*?\*/", "", f.read_text(), flags=re.S)   # comments may say "float"
         assert not re.search(r"\b(float|double)\b", code), f"{f} mentions a floating-point type"
