@@ -41,6 +41,7 @@ cnp.import_array()
 assert _limits.MAX_TRACKERS == MAX_TRACKERS and _limits.MAX_CONNECTIONS == MAX_CONNECTIONS
 
 cdef double RHO_MAX = _RHO_MAX
+cdef double RHO_MAX2 = _RHO_MAX * _RHO_MAX * (1.0 - 1e-12)   # slightly low: never miss a clamp
 cdef double TWO_PI = 2.0 * M_PI
 # A gate box is (re)indexed enlarged by INDEX_GROW of itself plus INDEX_MARGIN px, so that a
 # mean jittering by a fraction of sigma (alpha_position = 0.2 moves it ~0.3 sigma) does not
@@ -141,11 +142,12 @@ cdef inline void clamp_and_invert(KState* s, int i) noexcept nogil:
         syy = s.smin2
     if syy > s.smax2:
         syy = s.smax2
-    lim = RHO_MAX * sqrt(sxx * syy)
-    if sxy < -lim:
-        sxy = -lim
-    if sxy > lim:
-        sxy = lim
+    if sxy * sxy > RHO_MAX2 * (sxx * syy):       # |rho| may exceed RHO_MAX: the exact test
+        lim = RHO_MAX * sqrt(sxx * syy)
+        if sxy < -lim:
+            sxy = -lim
+        if sxy > lim:
+            sxy = lim
     s.sxx[i] = sxx
     s.sxy[i] = sxy
     s.syy[i] = syy
