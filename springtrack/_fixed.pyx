@@ -23,7 +23,7 @@ from springtrack import limits as _limits
 from springtrack import wire as _wire
 
 from springtrack._samples cimport SampleOut, sample_buffers
-from springtrack._stepper cimport Stepper
+from springtrack._stepper cimport Stepper, run_array
 
 cnp.import_array()
 
@@ -154,24 +154,6 @@ cdef inline void snapshot_row(const fx_state* s, int64_t t, SampleOut* o) noexce
     if o.wire != NULL:
         fx_tele_records(s, t, o.wire + base * FX_TELE_RECORD)
     o.count = row + 1
-
-
-cdef Py_ssize_t run_events(fx_state* s, const Event* ev, Py_ssize_t n, int64_t sample_us,
-                           int64_t* next_t, SampleOut* o) noexcept nogil:
-    """Process events until done or the sample buffer is full; returns events consumed.
-    Same sampling rule as _kernel.run_events."""
-    cdef Py_ssize_t k
-    cdef int64_t t
-    for k in range(n):
-        t = ev[k].t
-        if sample_us > 0 and t >= next_t[0] and t >= s.last_t:
-            while t >= next_t[0]:
-                if o.count >= o.cap:
-                    return k
-                snapshot_row(s, next_t[0], o)
-                next_t[0] += sample_us
-        fx_step(s, t, ev[k].x, ev[k].y)
-    return n
 
 
 cdef int fixed_step(void* state, int64_t t, int x, int y) noexcept nogil:
@@ -317,25 +299,7 @@ cdef class FixedKernel:
     def run(self, events, long long sample_us, long long next_t, Py_ssize_t cap):
         """Process ``events`` (EVENT_DTYPE, C-contiguous). Returns (consumed, next_t, samples)
         where samples is a dict of arrays with at most ``cap`` rows (None if sample_us <= 0)."""
-        cdef cnp.ndarray ev = events
-        cdef Py_ssize_t n = ev.shape[0], consumed
-        cdef fx_state* s = <fx_state*>self.state
-        cdef SampleOut o
-        cdef int64_t nt = next_t
-        cdef int nt_ = s.n
-        if ev.dtype != EVENT_DTYPE or not ev.flags.c_contiguous:
-            raise TypeError("events must be a C-contiguous EVENT_DTYPE array")
-        if sample_us <= 0:
-            cap = 0
-        out = sample_buffers(cap, nt_, &o)
-        cdef const Event* p = <const Event*>cnp.PyArray_DATA(ev)
-        with nogil:
-            consumed = run_events(s, p, n, sample_us, &nt, &o)
-        if sample_us <= 0:
-            return consumed, nt, None
-        for key in out:
-            out[key] = out[key][:o.count]
-        return consumed, nt, out
+        return run_array(self.stepper(), events, sample_us, next_t, cap)
 
     def step(self, long long t, int x, int y):
         return fx_step(<fx_state*>self.state, t, x, y)

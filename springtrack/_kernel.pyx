@@ -34,7 +34,7 @@ from springtrack import limits as _limits
 from springtrack.reference import covariance_bias, RHO_MAX as _RHO_MAX
 
 from springtrack._samples cimport SampleOut, sample_buffers
-from springtrack._stepper cimport Stepper
+from springtrack._stepper cimport Stepper, run_array
 
 cnp.import_array()
 
@@ -353,23 +353,6 @@ cdef void ksnapshot(const KState* s, int64_t t, SampleOut* o) noexcept nogil:
     o.count = row + 1
 
 
-cdef Py_ssize_t run_events(KState* s, const Event* ev, Py_ssize_t n, int64_t sample_us,
-                           int64_t* next_t, SampleOut* o) noexcept nogil:
-    """Process events until done or the sample buffer is full; returns events consumed."""
-    cdef Py_ssize_t k
-    cdef int64_t t
-    for k in range(n):
-        t = ev[k].t
-        if sample_us > 0 and t >= next_t[0] and t >= s.last_t:
-            while t >= next_t[0]:
-                if o.count >= o.cap:
-                    return k
-                ksnapshot(s, next_t[0], o)
-                next_t[0] += sample_us
-        kstep(s, t, ev[k].x, ev[k].y)
-    return n
-
-
 # the Stepper calls (springtrack/_stepper.pxd): kstep and ksnapshot on an opaque state
 cdef int step_opaque(void* s, int64_t t, int x, int y) noexcept nogil:
     return kstep(<KState*>s, t, x, y)
@@ -506,25 +489,7 @@ cdef class Kernel:
     def run(self, events, long long sample_us, long long next_t, Py_ssize_t cap):
         """Process ``events`` (EVENT_DTYPE, C-contiguous). Returns (consumed, next_t, samples)
         where samples is a dict of arrays with at most ``cap`` rows (None if sample_us <= 0)."""
-        cdef cnp.ndarray ev = events
-        cdef Py_ssize_t n = ev.shape[0], consumed
-        cdef KState* s = &self.st
-        cdef SampleOut o
-        cdef int64_t nt = next_t
-        cdef int nt_ = s.n
-        if ev.dtype != EVENT_DTYPE or not ev.flags.c_contiguous:
-            raise TypeError("events must be a C-contiguous EVENT_DTYPE array")
-        if sample_us <= 0:
-            cap = 0
-        out = sample_buffers(cap, nt_, &o)
-        cdef const Event* p = <const Event*>cnp.PyArray_DATA(ev)
-        with nogil:
-            consumed = run_events(s, p, n, sample_us, &nt, &o)
-        if sample_us <= 0:
-            return consumed, nt, None
-        for key in out:
-            out[key] = out[key][:o.count]
-        return consumed, nt, out
+        return run_array(self.stepper(), events, sample_us, next_t, cap)
 
     def step(self, long long t, int x, int y):
         return kstep(&self.st, t, x, y)

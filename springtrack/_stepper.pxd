@@ -7,8 +7,11 @@
 #         sp.step(sp.state, t, x, y)                # Algorithm 1 for one event
 #         sp.snapshot(sp.state, t, &out)            # one SampleOut row at time t
 #
+# run_events() below is the loop with sampling built on these two calls.
+#
 # The pointers stay valid while the kernel object is alive: hold a reference to it.
 from libc.stdint cimport int64_t
+from springtrack.events cimport Event
 from springtrack._samples cimport SampleOut
 
 ctypedef int (*step_fn)(void* state, int64_t t, int x, int y) noexcept nogil
@@ -23,3 +26,8 @@ cdef struct Stepper:
     const int64_t* n_back         # events skipped: earlier than last_t
     const int64_t* n_outside      # events skipped: outside the sensor
     bint wire_records             # snapshot() also packs SampleOut.wire from the state
+
+# the event loop of Kernel.run and FixedKernel.run (springtrack/_stepper.pyx)
+cdef Py_ssize_t run_events(const Stepper* sp, const Event* ev, Py_ssize_t n, int64_t sample_us,
+                           int64_t* next_t, SampleOut* o) noexcept nogil
+cdef tuple run_array(Stepper sp, events, int64_t sample_us, int64_t next_t, Py_ssize_t cap)

@@ -1,0 +1,50 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+"""The event loop with sampling shared by every tracker backend (see _stepper.pxd)."""
+cimport numpy as cnp
+from libc.stdint cimport int64_t
+
+from springtrack.events cimport Event
+from springtrack.events import EVENT_DTYPE
+from springtrack._samples cimport SampleOut, sample_buffers
+
+cnp.import_array()
+
+
+cdef Py_ssize_t run_events(const Stepper* sp, const Event* ev, Py_ssize_t n, int64_t sample_us,
+                           int64_t* next_t, SampleOut* o) noexcept nogil:
+    """Process events until done or the sample buffer is full; returns events consumed.
+    Sampling rule: before an event at t with t >= the next sample time and t >= the last
+    event time, one snapshot per sample time <= t (the state after all earlier events)."""
+    cdef Py_ssize_t k
+    cdef int64_t t
+    for k in range(n):
+        t = ev[k].t
+        if sample_us > 0 and t >= next_t[0] and t >= sp.last_t[0]:
+            while t >= next_t[0]:
+                if o.count >= o.cap:
+                    return k
+                sp.snapshot(sp.state, next_t[0], o)
+                next_t[0] += sample_us
+        sp.step(sp.state, t, ev[k].x, ev[k].y)
+    return n
+
+
+cdef tuple run_array(Stepper sp, events, int64_t sample_us, int64_t next_t, Py_ssize_t cap):
+    """``Kernel.run`` / ``FixedKernel.run``: (consumed, next_t, samples) where samples is a
+    dict of arrays with at most ``cap`` rows (None if sample_us <= 0)."""
+    cdef cnp.ndarray ev = events
+    cdef Py_ssize_t n = ev.shape[0], consumed
+    cdef SampleOut o
+    if ev.dtype != EVENT_DTYPE or not ev.flags.c_contiguous:
+        raise TypeError("events must be a C-contiguous EVENT_DTYPE array")
+    if sample_us <= 0:
+        cap = 0
+    out = sample_buffers(cap, sp.n, &o)
+    cdef const Event* p = <const Event*>cnp.PyArray_DATA(ev)
+    with nogil:
+        consumed = run_events(&sp, p, n, sample_us, &next_t, &o)
+    if sample_us <= 0:
+        return consumed, next_t, None
+    for key in out:
+        out[key] = out[key][:o.count]
+    return consumed, next_t, out
