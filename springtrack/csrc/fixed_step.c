@@ -114,16 +114,18 @@ static inline int64_t pos16(int64_t v)
 }
 
 /* Mahalanobis d^2 = ia dx^2 + ib2 dx dy + ic dy^2 (eq. 2), Q.40, from the inverse
-   covariance (Q.32 px^-2, < 2^47) and the exact offsets (Q.32 px, < 2^46).  64 x 64 ->
-   128-bit products (integer registers only): (ia dx) >> 32 < 2^61 and every term is
-   < 2^107, so the sum needs no bound on the offsets and is compared with the gate before
-   it is narrowed. */
+   covariance (Q.32 px^-2: ia, ic < 2^47, |ib2| < 2^48) and the exact offsets (Q.32 px,
+   < 2^46).  64 x 64 -> 128-bit products (integer registers only): (ia dx) >> 32 < 2^61,
+   (ib2 dx) >> 32 < 2^62, and every term is < 2^109, so the sum needs no bound on the
+   offsets and is compared with the gate before it is narrowed. */
 static inline __int128 qform(int64_t ia, int64_t ib2, int64_t ic, int64_t dx, int64_t dy)
 {
     int64_t tx = (int64_t)(((__int128)ia * dx) >> 32);     /* < 2^61: fits int64 */
     int64_t ty = (int64_t)(((__int128)ic * dy) >> 32);
     int64_t txy = (int64_t)(((__int128)ib2 * dx) >> 32);
-    return ((__int128)tx * dx + (__int128)ty * dy + (__int128)txy * dy) >> 24;
+    /* ty dy + txy dy = (ty + txy) dy exactly (|ty + txy| < 2^61 + 2^62 < 2^63 fits int64):
+       two 128-bit products, not three */
+    return ((__int128)tx * dx + (__int128)(ty + txy) * dy) >> 24;
 }
 
 static inline int64_t sat_add(fx_state *s, int64_t a, int64_t b, int64_t lim)
@@ -151,8 +153,8 @@ static inline uint32_t exp2neg(const fx_state *s, int64_t w)
     if (ip > 31)
         return 0;
     v = v0 - (((v0 - v1) * rem + ((uint64_t)1 << 23)) >> 24);
-    if (ip > 0)
-        v = (v + ((uint64_t)1 << (ip - 1))) >> ip;
+    /* rounded shift by ip in [0, 31] without a branch (ip is data): half = 2^(ip-1), or 0 */
+    v = (v + (((uint64_t)1 << ip) >> 1)) >> ip;
     return (uint32_t)v;
 }
 
@@ -202,13 +204,21 @@ static inline uint32_t atan2_bam(const fx_state *s, int64_t y, int64_t x)
 static inline void cossin(const fx_state *s, int64_t angle, int64_t *c, int64_t *sn)
 {
     uint32_t u = (uint32_t)((uint64_t)angle & 0xffffffffu);
-    int64_t z = u >= 0x80000000u ? (int64_t)u - ((int64_t)1 << 32) : (int64_t)u;  /* [-pi, pi) */
+    int64_t z = (int64_t)u - ((int64_t)(u >> 31) << 32);  /* [-pi, pi), without a branch */
     int64_t x = s->cordic_x0, y = 0;
     int neg = 0, i;
     if (z < SMALL_ANGLE && z > -SMALL_ANGLE) {            /* |z| < 2^-4 rad: Taylor series */
-        int64_t r = mulsh(z, PI_Q29, 30);                 /* radians, Q.30 */
+        int64_t r = mul32sh(z, PI_Q29, 30);               /* radians, Q.30; |z| < 2^26 */
         int64_t r2 = rshr(r * r, 30);
-        int64_t r4 = rshr(r2 * r2, 30);
+        int64_t r4;
+        if (r < ((int64_t)1 << 23) && r > -((int64_t)1 << 23)) {
+            /* |r| < 2^-7 rad (the usual torsion step): r2 <= 2^16, r4 <= 4, and every r4
+               term below rounds to exactly 0, so this is the same result, shorter */
+            *sn = rshr(r * (ONE_Q30 - rshr(r2 * 715827883, 32)), 30);
+            *c = ONE_Q30 - r2 / 2;
+            return;
+        }
+        r4 = rshr(r2 * r2, 30);
         /* sin r = r (1 - r2/6 + r4/120), cos r = 1 - r2/2 + r4/24 - r2 r4/720: truncation
            < r^7/5040 < 1e-12 for |r| < 2^-4; constants 2^32/6, 2^32/120, 2^32/24, 2^32/720 */
         *sn = rshr(r * (ONE_Q30 - rshr(r2 * 715827883, 32) + rshr(r4 * 35791394, 32)), 30);
@@ -327,11 +337,15 @@ static inline int32_t cell_of(int64_t v, int32_t gmax)
 }
 
 /* (Re)insert tracker i with its gate box sqrt(gate * sxx) x sqrt(gate * syy), enlarged by
-   FX_INDEX_MARGIN. */
+   2^-FX_INDEX_GROW_SHIFT of itself and FX_INDEX_MARGIN, so that a covariance growing a
+   little does not re-index at once (the index only selects candidates: any box that
+   contains the gate box gives the same results). */
 void fx_reindex(fx_state *s, int i)
 {
-    int64_t hx = (int64_t)isqrt64(s, (uint64_t)s->gsxx[i]) + 1 + FX_INDEX_MARGIN;  /* Q.16 */
-    int64_t hy = (int64_t)isqrt64(s, (uint64_t)s->gsyy[i]) + 1 + FX_INDEX_MARGIN;
+    int64_t hx = (int64_t)isqrt64(s, (uint64_t)s->gsxx[i]) + 1;      /* Q.16 */
+    int64_t hy = (int64_t)isqrt64(s, (uint64_t)s->gsyy[i]) + 1;
+    hx += (hx >> FX_INDEX_GROW_SHIFT) + FX_INDEX_MARGIN;
+    hy += (hy >> FX_INDEX_GROW_SHIFT) + FX_INDEX_MARGIN;
     s->bx_lo[i] = pos16(s->mx[i]) - hx;
     s->bx_hi[i] = pos16(s->mx[i]) + hx;
     s->by_lo[i] = pos16(s->my[i]) - hy;
@@ -351,12 +365,18 @@ static inline int inside(int64_t d, int64_t g2)
     return d >= 0 && d * d >= g2;
 }
 
+static inline int64_t min64(int64_t a, int64_t b)
+{
+    return a < b ? a : b;
+}
+
 static inline int box_ok(const fx_state *s, int i)
 {
-    /* positions to Q.16 (floor): an error < 2^-16 px, far inside the 3 px index margin */
+    /* positions to Q.16 (floor): an error < 2^-16 px, far inside the 3 px index margin;
+       both sides of an axis are inside iff the nearer one is (one square per axis) */
     int64_t x = pos16(s->mx[i]), y = pos16(s->my[i]);
-    return inside(x - s->bx_lo[i], s->gsxx[i]) && inside(s->bx_hi[i] - x, s->gsxx[i])
-        && inside(y - s->by_lo[i], s->gsyy[i]) && inside(s->by_hi[i] - y, s->gsyy[i]);
+    return inside(min64(x - s->bx_lo[i], s->bx_hi[i] - x), s->gsxx[i])
+        && inside(min64(y - s->by_lo[i], s->by_hi[i] - y), s->gsyy[i]);
 }
 
 /* Re-index tracker i if its exact gate box has left the box it is indexed with. */

@@ -30,7 +30,7 @@
 
 #define FX_MAX_TRACKERS 64
 #define FX_MAX_CONNECTIONS 128
-#define FX_CELL_SHIFT 4                     /* spatial index cells of 16 x 16 px */
+#define FX_CELL_SHIFT 3                     /* spatial index cells of 8 x 8 px */
 #define FX_POS_FRAC 32                      /* positions Q.32 */
 #define FX_POS_LIM ((int64_t)8192 << 32)    /* |position| < 8192 px */
 #define FX_EXP2_BITS 10                     /* exp2 table: 1024 intervals + 1 */
@@ -40,7 +40,8 @@
 #define FX_SQRT_SHIFT 54                    /* sqrt table: sqrt(j 2^54) / 2, j = 256..1024 */
 #define FX_SQRT_J0 256
 #define FX_SQRT_N 769
-#define FX_INDEX_MARGIN ((int64_t)3 << 16)  /* px added around an indexed gate box */
+#define FX_INDEX_MARGIN ((int64_t)3 << 16)  /* px added around an indexed gate box ... */
+#define FX_INDEX_GROW_SHIFT 3               /* ... after enlarging it by 2^-3 of itself */
 
 enum { FX_NO_TRACKER = -1, FX_BACK_IN_TIME = -2, FX_OUT_OF_SENSOR = -3 };
 
