@@ -1,6 +1,9 @@
 """FirmwareLoop (the Engine): USB path == springtrack track, atomic updates, the CLI."""
 from __future__ import annotations
 
+import os
+import re
+import select
 import subprocess
 import sys
 import threading
@@ -275,7 +278,7 @@ def test_cli_replays_a_real_recording_through_the_usb_path(tmp_path, data_file):
 def test_cli_serves_the_host_link_on_tcp():
     from hostctl import Device
     p = subprocess.Popen([sys.executable, "-m", "firmware_sim.cli", "run", "--source",
-                          "sim:face_occlusion", "--seconds", "4", "--listen", "127.0.0.1:0",
+                          "sim:face_occlusion", "--seconds", "60", "--listen", "127.0.0.1:0",
                           "--stats-every", "0", "--telemetry-us", "10000"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                          text=True)
@@ -385,11 +388,26 @@ def test_cli_sigterm_stops_cleanly_and_writes_the_record(tmp_path):
     out = tmp_path / "fw.csv"
     p = subprocess.Popen([sys.executable, "-m", "firmware_sim.cli", "run", "--source",
                           "sim:face_occlusion", "--seconds", "20", "--record", str(out),
-                          "--stats-every", "0"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                         text=True)
-    time.sleep(2.0)
-    p.send_signal(signal.SIGTERM)
-    stdout, stderr = p.communicate(timeout=30)
+                          "--stats-every", "0.1"], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    # SIGTERM once the run loop has tracked ~0.1 s of the scene (its stats lines on stderr
+    # say so; the handler is installed before the first one).  A fixed 2 s sleep raced with
+    # start-up on a loaded machine: SIGTERM before the first snapshot, a record of no rows.
+    err, tracked, end = b"", 0, time.monotonic() + 60
+    try:
+        while tracked < 50_000 and time.monotonic() < end and p.poll() is None:
+            if select.select([p.stderr], [], [], 0.5)[0]:
+                err += os.read(p.stderr.fileno(), 65536)
+                tracked = max([tracked] + [int(n) for n in re.findall(rb" tracked=(\d+)", err)])
+        assert tracked >= 50_000, err[-2000:]
+        p.send_signal(signal.SIGTERM)
+        p.wait(30)
+    finally:
+        if p.poll() is None:
+            p.kill()
+            p.wait()
+    stdout, stderr = p.stdout.read().decode(), (err + p.stderr.read()).decode()
+    p.stdout.close()
+    p.stderr.close()
     assert p.returncode == 0, stderr
     assert "interrupted" in stderr and stdout.startswith("stats: ")
     tr = read_csv(out)

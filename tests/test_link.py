@@ -350,7 +350,10 @@ def test_telemetry_is_dropped_not_blocking_when_host_is_away():
         host = raw_host(s.path)
         host.write(wire.encode_frame(MsgType.HELLO, 1, wire.encode_hello()))
         host.write(wire.encode_frame(MsgType.START, 2))
-        time.sleep(0.3)
+        deadline = time.monotonic() + 30            # the session is open: snapshots are
+        while not (s.server.session and eng.running) and time.monotonic() < deadline:
+            time.sleep(0.01)                        # for this host, not discarded as stale
+        assert s.server.session and eng.running
         for _ in range(6000):
             eng.step()
         host.write(wire.encode_frame(MsgType.HEARTBEAT, 3))
@@ -425,8 +428,8 @@ def test_tcp_signed_session_drops_unsigned_forged_and_replayed_frames():
             dev.port.write(wire.encode_frame(MsgType.PARAM_SET, 10, wire.encode_param_set("alpha_position", 0.4)))
             dev.port.write(wire.encode_frame(MsgType.PARAM_SET, 11, wire.encode_param_set("alpha_position", 0.5),
                                              signer=wire.Signer(b"wrong key", nonce)))
-            time.sleep(0.3)
-            c = box2["server"].counts
+            dev.ping()         # answered once the four frames before it were handled (one
+            c = box2["server"].counts               # link thread, frames in order)
             assert (c["auth_replay"], c["auth_unsigned"], c["auth_bad_tag"]) == (1, 1, 1)
             assert eng.generation == 3                  # only the first copy was executed
             assert dev.set(alpha_position=0.2) == 4     # the session goes on
