@@ -1,12 +1,15 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
 """Decode CCam ATIS USB words and track them in one nogil pass (issue 6, "the loop").
 
-Per 4-byte word: ``springtrack.io.ccam.ccam_decode_word`` (layout in ccam.pxd), then for a
-change-detection event the sampling rule of ``springtrack._kernel.run_events`` and one step
-of Algorithm 1 by the tracker backend's :c:type:`Stepper` (springtrack/_stepper.pxd): the
-float64 kernel (``springtrack._kernel.Kernel``) or the integer-only fixed-point kernel
-(``springtrack._fixed.FixedKernel``).  No Python object, allocation or GIL per event; the only output
-is a preallocated snapshot buffer that the caller drains.
+Per 4-byte word: ``springtrack.io.ccam.ccam_decode_word`` (layout in ccam.pxd); the
+change-detection events go into a batch of at most BATCH events (a C array in the object,
+4 KiB, stays in L1), and each batch runs through ``springtrack._stepper.run_events``, the
+sampled event loop of ``springtrack track``, on the tracker backend's :c:type:`Stepper`
+(springtrack/_stepper.pxd): the float64 kernel (``springtrack._kernel.Kernel``) or the
+integer-only fixed-point kernel (``springtrack._fixed.FixedKernel``).  No Python object,
+allocation or GIL per event; the only output is a preallocated snapshot buffer that the
+caller drains.  When that buffer fills mid-batch, the rest of the batch waits in the
+object for the next call.
 
 Sampling (identical to ``springtrack track``): the first tracked event at t0 sets the
 first sample time to the smallest multiple of the period >= t0; before an event at t
@@ -28,11 +31,15 @@ import numpy as np
 from springtrack._kernel cimport Kernel
 from springtrack._fixed cimport FixedKernel
 from springtrack._samples cimport SampleOut, sample_buffers
-from springtrack._stepper cimport Stepper
+from springtrack._stepper cimport Stepper, run_events
+from springtrack.events cimport Event
 from springtrack.io.ccam cimport (CCamState, ccam_init, ccam_decode_word, CCAM_CD,
                                   CCAM_EXPOSURE, CCAM_NONE)
 
 cnp.import_array()
+
+cdef enum:
+    BATCH = 256                 # decoded events tracked per run_events call
 
 SNAP_FIELDS = ("x", "y", "sxx", "sxy", "syy", "activity", "active", "sensitive")
 
@@ -72,10 +79,9 @@ cdef class Fused:
     cdef bint await_th
     cdef int64_t period, next_t
     cdef bint have_next
-    # an event whose snapshots did not fit the buffer: finished by the next call
-    cdef bint pend
-    cdef int64_t pend_t
-    cdef int pend_x, pend_y
+    # decoded events not yet tracked: batch[bpos:bn] (left over when the buffer filled)
+    cdef Event batch[BATCH]
+    cdef Py_ssize_t bpos, bn
     cdef bint mark
     cdef readonly int64_t first_t          # first event time after set_kernel(mark=True)
     cdef readonly uint64_t tracked, gap_skipped, gaps, bytes_in
@@ -90,7 +96,8 @@ cdef class Fused:
         self.await_th = True
         self.period = period_us if period_us > 0 else 0
         self.have_next = False
-        self.pend = False
+        self.bpos = 0
+        self.bn = 0
         self.first_t = -1
         self.o.cap = cap
         self._bind(kernel, False)
@@ -128,30 +135,23 @@ cdef class Fused:
         self.gaps += 1
 
     # ---- the nogil core ------------------------------------------------------------------
-    cdef inline int _event(self, int64_t t, int x, int y) noexcept nogil:
-        """Sample then step one event; 1 if the snapshot buffer filled up (event pending)."""
-        if self.period > 0:
-            if not self.have_next:
-                self.next_t = ceil_mul(t, self.period)
-                self.have_next = True
-            if t >= self.next_t and t >= self.sp.last_t[0]:
-                while t >= self.next_t:
-                    if self.o.count >= self.o.cap:
-                        self.pend = True
-                        self.pend_t = t
-                        self.pend_x = x
-                        self.pend_y = y
-                        return 1
-                    self.sp.snapshot(self.sp.state, self.next_t, &self.o)
-                    self.next_t += self.period
+    cdef inline bint _track(self) noexcept nogil:
+        """Track batch[bpos:bn] with the sampling rule; True if the snapshot buffer filled
+        before the batch was done (the rest stays for the next call)."""
+        cdef Py_ssize_t k = self.bpos, c
         if self.mark:
             self.mark = False
-            self.first_t = t
-        self.sp.step(self.sp.state, t, x, y)
-        self.tracked += 1
-        return 0
+            self.first_t = self.batch[k].t
+        if self.period > 0 and not self.have_next:
+            self.next_t = ceil_mul(self.batch[k].t, self.period)
+            self.have_next = True
+        c = run_events(&self.sp, &self.batch[k], self.bn - k, self.period, &self.next_t,
+                       &self.o)
+        self.tracked += c
+        self.bpos = k + c
+        return self.bpos < self.bn
 
-    cdef inline int _word(self, const uint8_t* w) noexcept nogil:
+    cdef inline void _word(self, const uint8_t* w) noexcept nogil:
         cdef int64_t t
         cdef uint16_t x, y
         cdef uint8_t p
@@ -166,19 +166,22 @@ cdef class Fused:
                     # the low bits cannot go back either and no event is skipped
                     self.cs.epoch += 1
                     self.cs.t_offset = (self.cs.epoch + self.cs.last_th) * 0x800
-            return 0
+            return
         if self.await_th:
             self.gap_skipped += 1
-            return 0
-        return self._event(t, x, y)
+            return
+        self.batch[self.bn].t = t
+        self.batch[self.bn].x = x
+        self.batch[self.bn].y = y
+        self.batch[self.bn].p = p
+        self.bn += 1
 
-    cdef Py_ssize_t _run(self, const uint8_t* p, Py_ssize_t pos, Py_ssize_t n) noexcept nogil:
-        """Process bytes [pos, n); return the position reached (< n if the buffer filled)."""
+    cdef Py_ssize_t _decode(self, const uint8_t* p, Py_ssize_t pos, Py_ssize_t n) noexcept nogil:
+        """Decode bytes [pos, n) into the (empty) batch until it holds BATCH events; return
+        the position reached.  A word split across buffers is completed from the carry."""
         cdef Py_ssize_t k
-        if self.pend:
-            self.pend = False
-            if self._event(self.pend_t, self.pend_x, self.pend_y):
-                return pos
+        self.bpos = 0
+        self.bn = 0
         if self.ncarry:
             k = 4 - self.ncarry
             if k > n - pos:
@@ -189,17 +192,25 @@ cdef class Fused:
             if self.ncarry < 4:
                 return pos
             self.ncarry = 0
-            if self._word(self.carry):
-                return pos
-        while pos + 4 <= n:
+            self._word(self.carry)
+        while pos + 4 <= n and self.bn < BATCH:
+            self._word(p + pos)
             pos += 4
-            if self._word(p + pos - 4):
-                return pos
-        if pos < n:                 # a word split across transfers: keep its head
+        if pos < n and pos + 4 > n:     # a word split across transfers: keep its head
             memcpy(self.carry, p + pos, n - pos)
             self.ncarry = <int>(n - pos)
             pos = n
         return pos
+
+    cdef Py_ssize_t _run(self, const uint8_t* p, Py_ssize_t pos, Py_ssize_t n) noexcept nogil:
+        """Process bytes [pos, n); return the position reached (< n, or events left in the
+        batch, if the snapshot buffer filled)."""
+        while True:
+            if self.bpos < self.bn and self._track():
+                return pos
+            if pos >= n:
+                return pos
+            pos = self._decode(p, pos, n)
 
     def feed(self, buf, Py_ssize_t n=-1):
         cdef const uint8_t[::1] mv = memoryview(buf).cast("B")
@@ -214,7 +225,7 @@ cdef class Fused:
                 pos = self._run(p, pos, total)
             if self.o.count:
                 parts.append(self._take())
-            if pos >= total and not self.pend:
+            if pos >= total and self.bpos >= self.bn:
                 break
         if not parts:
             return None

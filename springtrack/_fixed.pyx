@@ -11,7 +11,7 @@ integer state to float64 only when a sample is taken.  Same interface as
 """
 from libc.stdlib cimport calloc, free
 from libc.string cimport memset
-from libc.stdint cimport int64_t, uint64_t, int32_t, uint32_t, uint8_t
+from libc.stdint cimport int64_t, uint64_t, int32_t, uint32_t, uint16_t, uint8_t
 
 import numpy as np
 cimport numpy as cnp
@@ -87,7 +87,13 @@ cdef extern from "csrc/fixed_step.h" nogil:
         int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates, n_reindex
         int64_t sat_position, sat_activity, sat_energy, sat_inverse
         int32_t since_spring
+    ctypedef struct fx_event:
+        int64_t t
+        uint16_t x
+        uint16_t y
+        uint8_t p
     int fx_step(fx_state* s, int64_t t, int32_t x, int32_t y)
+    int64_t fx_steps(fx_state* s, const fx_event* ev, int64_t n, int64_t t_stop)
     void fx_springs(fx_state* s)
     void fx_refresh(fx_state* s, int i)
     void fx_reindex(fx_state* s, int i)
@@ -117,6 +123,8 @@ cdef extern from "csrc/fixed_telemetry.h" nogil:
 cdef extern from "csrc/fixed_telemetry.c":
     pass
 
+# fx_event mirrors springtrack.events' Event (same members in the same order)
+assert sizeof(fx_event) == sizeof(Event) == 16
 assert _limits.MAX_TRACKERS == FX_MAX_TRACKERS and _limits.MAX_CONNECTIONS == FX_MAX_CONNECTIONS
 # the C telemetry packer writes springtrack.wire's layout: the scales must be the same
 assert (_wire.TELE_TRACKER.itemsize == FX_TELE_RECORD
@@ -161,6 +169,12 @@ cdef int fixed_step(void* state, int64_t t, int x, int y) noexcept nogil:
     return fx_step(<fx_state*>state, t, x, y)
 
 
+cdef Py_ssize_t fixed_steps(void* state, const Event* ev, Py_ssize_t n,
+                            int64_t t_stop) noexcept nogil:
+    # fx_event (csrc/fixed_step.h) has Event's layout
+    return fx_steps(<fx_state*>state, <const fx_event*>ev, n, t_stop)
+
+
 cdef void snapshot_opaque(const void* state, int64_t t, SampleOut* o) noexcept nogil:
     snapshot_row(<const fx_state*>state, t, o)
 
@@ -178,6 +192,7 @@ cdef class FixedKernel:
         cdef Stepper sp
         sp.state = self.state
         sp.step = fixed_step
+        sp.steps = fixed_steps
         sp.snapshot = snapshot_opaque
         sp.n = s.n
         sp.last_t = &s.last_t

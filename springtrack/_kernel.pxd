@@ -13,6 +13,7 @@
 # kstep() translates springtrack.reference.ReferenceTracker.step(); it agrees with it to
 # 1e-9 px (libm calls on the hot paths are replaced by csrc/fastmath.h, ~1 ulp).
 from springtrack._samples cimport SampleOut
+from springtrack.events cimport Event
 from springtrack._stepper cimport Stepper
 from libc.stdint cimport int64_t, uint64_t, int32_t, uint8_t
 
@@ -92,6 +93,7 @@ ctypedef struct KState:
     int since_spring
 
 cdef int kstep(KState* s, int64_t t, int x, int y) noexcept nogil
+cdef Py_ssize_t ksteps(KState* s, const Event* ev, Py_ssize_t n, int64_t t_stop) noexcept nogil
 cdef void ksprings(KState* s) noexcept nogil
 cdef double kactivity(const KState* s, int i, int64_t t) noexcept nogil
 cdef void ksnapshot(const KState* s, int64_t t, SampleOut* o) noexcept nogil

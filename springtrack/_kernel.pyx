@@ -175,6 +175,23 @@ cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double f
 
 cdef int kstep(KState* s, int64_t t, int x, int y) noexcept nogil:
     """One event (Algorithm 1). Returns the winning tracker, K_NO_TRACKER or a skip code."""
+    return step_inline(s, t, x, y)
+
+
+cdef Py_ssize_t ksteps(KState* s, const Event* ev, Py_ssize_t n, int64_t t_stop) noexcept nogil:
+    """kstep() over ev[0..n), stopping before the first event with t >= t_stop that is not
+    back in time; returns the events processed (the Stepper's steps(), _stepper.pxd)."""
+    cdef Py_ssize_t k
+    cdef int64_t t
+    for k in range(n):
+        t = ev[k].t
+        if t >= t_stop and t >= s.last_t:
+            return k
+        step_inline(s, t, ev[k].x, ev[k].y)
+    return n
+
+
+cdef inline int step_inline(KState* s, int64_t t, int x, int y) noexcept nogil:
     if t < s.last_t:
         s.n_back += 1
         return K_BACK_IN_TIME
@@ -358,6 +375,10 @@ cdef int step_opaque(void* s, int64_t t, int x, int y) noexcept nogil:
     return kstep(<KState*>s, t, x, y)
 
 
+cdef Py_ssize_t steps_opaque(void* s, const Event* ev, Py_ssize_t n, int64_t t_stop) noexcept nogil:
+    return ksteps(<KState*>s, ev, n, t_stop)
+
+
 cdef void snapshot_opaque(const void* s, int64_t t, SampleOut* o) noexcept nogil:
     ksnapshot(<const KState*>s, t, o)
 
@@ -373,6 +394,7 @@ cdef class Kernel:
         cdef Stepper sp
         sp.state = &self.st
         sp.step = step_opaque
+        sp.steps = steps_opaque
         sp.snapshot = snapshot_opaque
         sp.n = self.st.n
         sp.last_t = &self.st.last_t

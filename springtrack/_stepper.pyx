@@ -1,7 +1,7 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
 """The event loop with sampling shared by every tracker backend (see _stepper.pxd)."""
 cimport numpy as cnp
-from libc.stdint cimport int64_t
+from libc.stdint cimport int64_t, INT64_MAX
 
 from springtrack.events cimport Event
 from springtrack.events import EVENT_DTYPE
@@ -15,18 +15,25 @@ cdef Py_ssize_t run_events(const Stepper* sp, const Event* ev, Py_ssize_t n, int
     """Process events until done or the sample buffer is full; returns events consumed.
     Sampling rule: before an event at t with t >= the next sample time and t >= the last
     event time, one snapshot per sample time <= t (the state after all earlier events)."""
-    cdef Py_ssize_t k
+    cdef Py_ssize_t k = 0
     cdef int64_t t
-    for k in range(n):
-        t = ev[k].t
-        if sample_us > 0 and t >= next_t[0] and t >= sp.last_t[0]:
-            while t >= next_t[0]:
-                if o.count >= o.cap:
-                    return k
-                sp.snapshot(sp.state, next_t[0], o)
-                next_t[0] += sample_us
-        sp.step(sp.state, t, ev[k].x, ev[k].y)
-    return n
+    if sample_us <= 0:
+        while k < n:
+            k += sp.steps(sp.state, ev + k, n - k, INT64_MAX)
+            if k < n:                  # stopped at t == INT64_MAX: not a sample time
+                sp.step(sp.state, ev[k].t, ev[k].x, ev[k].y)
+                k += 1
+        return n
+    while True:
+        k += sp.steps(sp.state, ev + k, n - k, next_t[0])
+        if k >= n:
+            return n
+        t = ev[k].t                    # t >= next_t[0] and t >= the last event time
+        while t >= next_t[0]:
+            if o.count >= o.cap:
+                return k
+            sp.snapshot(sp.state, next_t[0], o)
+            next_t[0] += sample_us
 
 
 cdef tuple run_array(Stepper sp, events, int64_t sample_us, int64_t next_t, Py_ssize_t cap):

@@ -494,7 +494,7 @@ static inline void update_tracker(fx_state *s, int i, int64_t t, int64_t dx, int
 }
 
 /* One event (Algorithm 1).  Returns the winning tracker, FX_NO_TRACKER or a skip code. */
-int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y)
+static inline int step_one(fx_state *s, int64_t t, int32_t x, int32_t y)
 {
     int64_t fx, fy, best_d2, bdx = 0, bdy = 0;
     uint64_t m;
@@ -539,6 +539,21 @@ int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y)
         fx_springs(s);
     }
     return best;
+}
+
+int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y)
+{
+    return step_one(s, t, x, y);
+}
+
+int64_t fx_steps(fx_state *s, const fx_event *ev, int64_t n, int64_t t_stop)
+{
+    for (int64_t k = 0; k < n; k++) {
+        if (ev[k].t >= t_stop && ev[k].t >= s->last_t)
+            return k;
+        step_one(s, ev[k].t, ev[k].x, ev[k].y);
+    }
+    return n;
 }
 
 /* eq. (6) evaluated lazily at time t, Q.32 */

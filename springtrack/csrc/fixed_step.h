@@ -101,7 +101,17 @@ typedef struct {
     int32_t since_spring;
 } fx_state;
 
+/* one event as springtrack.events.EVENT_DTYPE lays it out (16 bytes, springtrack/events.pxd) */
+typedef struct {
+    int64_t t;
+    uint16_t x, y;
+    uint8_t p;
+} fx_event;
+
 int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y);
+/* fx_step over ev[0..n), stopping before the first event with t >= t_stop that is not
+   back in time; returns the events processed (the Stepper's steps(), _stepper.pxd) */
+int64_t fx_steps(fx_state *s, const fx_event *ev, int64_t n, int64_t t_stop);
 void fx_springs(fx_state *s);
 void fx_refresh(fx_state *s, int i);
 void fx_reindex(fx_state *s, int i);
