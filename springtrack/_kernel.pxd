@@ -43,8 +43,9 @@ ctypedef struct KState:
     double ia[MAX_TRACKERS]          # inverse covariance [ia ib; ib ic]
     double ib2[MAX_TRACKERS]         # 2 * ib
     double ic[MAX_TRACKERS]
-    double act[MAX_TRACKERS]
-    int64_t tlast[MAX_TRACKERS]
+    double act[MAX_TRACKERS]          # activity at act_t0 (see kactivity)
+    int64_t act_t0, act_span
+    double inv_tau
     double mass[MAX_TRACKERS]
     double inv_mass[MAX_TRACKERS]
     double gdx0[MAX_TRACKERS]

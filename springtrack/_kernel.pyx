@@ -4,8 +4,8 @@
 The per-event loop touches no Python object, allocates nothing and runs without the GIL.
 Equations cite Valeiras et al. 2015; comments marked [ref] point at the reference lines
 they translate.  The per-event arithmetic (eqs. 2-5) keeps the reference's order of
-floating-point operations, so its decisions match even on exact ties (only the activity's
-exp differs); the springs do not (see below), so the two differ by rounding, ~1e-13 px
+floating-point operations, so its decisions match even on exact ties (the activity is
+stored rescaled, see kactivity: equal up to rounding); the springs do not (see below), so the two differ by rounding, ~1e-13 px
 over a million events.
 
 Speed comes from ideas that do not change any decision of the algorithm:
@@ -133,7 +133,7 @@ cdef inline void check_index(KState* s, int i) noexcept nogil:
 # ---- per tracker ----------------------------------------------------------------------
 cdef inline void clamp_and_invert(KState* s, int i) noexcept nogil:
     # [ref] _clamp_and_invert
-    cdef double sxx = s.sxx[i], syy = s.syy[i], sxy = s.sxy[i], lim, det
+    cdef double sxx = s.sxx[i], syy = s.syy[i], sxy = s.sxy[i], lim, inv_det
     if sxx < s.smin2:
         sxx = s.smin2
     if sxx > s.smax2:
@@ -151,17 +151,19 @@ cdef inline void clamp_and_invert(KState* s, int i) noexcept nogil:
     s.sxx[i] = sxx
     s.sxy[i] = sxy
     s.syy[i] = syy
-    det = sxx * syy - sxy * sxy
-    s.ia[i] = syy / det
-    s.ib2[i] = 2.0 * (-sxy / det)
-    s.ic[i] = sxx / det
+    inv_det = 1.0 / (sxx * syy - sxy * sxy)                         # [ref] one division
+    s.ia[i] = syy * inv_det
+    s.ib2[i] = 2.0 * (-sxy * inv_det)
+    s.ic[i] = sxx * inv_det
 
 
 cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double fy, double d2) noexcept nogil:
     # [ref] _update
-    cdef double p = st_exp(-0.5 * d2)                                # eq. (2), unnormalised
-    s.act[i] = s.act[i] * st_exp(-(<double>(t - s.tlast[i])) / s.tau) + p   # eq. (6)
-    s.tlast[i] = t
+    # eq. (6) with eq. (2)'s unnormalised kernel value p = exp(-d2/2) as the increment,
+    # kept rescaled (see kactivity): act += p * exp((t - act_t0) / tau), one exp
+    if t - s.act_t0 > s.act_span:
+        rescale_activity(s, t)
+    s.act[i] += st_exp(-0.5 * d2 + <double>(t - s.act_t0) * s.inv_tau)
     cdef double dx = fx - s.mx[i]                                    # eq. (5), pre-update mean
     cdef double dy = fy - s.my[i]
     s.mx[i] = s.mx[i] + s.a1 * dx                                    # eq. (3)
@@ -342,8 +344,22 @@ cdef void energy_criteria(KState* s) noexcept nogil:
 
 
 cdef double kactivity(const KState* s, int i, int64_t t) noexcept nogil:
-    """eq. (6) evaluated lazily at time t."""
-    return s.act[i] * exp(-(<double>(t - s.tlast[i])) / s.tau)
+    """eq. (6) at time t: A_i(t) = sum over i's events k of p_k exp(-(t - t_k) / tau).
+    Stored as act[i] = A_i(act_t0) = sum of p_k exp((t_k - act_t0) / tau), the same sum
+    seen from a common time act_t0, so an event adds one term (one exp) instead of
+    decaying the sum since the tracker's last event first (the reference's form; equal
+    up to rounding, ~1e-15 relative)."""
+    return s.act[i] * exp(-(<double>(t - s.act_t0)) * s.inv_tau)
+
+
+cdef void rescale_activity(KState* s, int64_t t) noexcept nogil:
+    """Move act_t0 to t (every act_span = 32 tau of event time), so the terms added,
+    p exp((t - act_t0) / tau) <= e^32, stay far from overflow and rounding loss."""
+    cdef int i
+    cdef double f = exp(-(<double>(t - s.act_t0)) * s.inv_tau)
+    for i in range(s.n):
+        s.act[i] *= f
+    s.act_t0 = t
 
 
 # ---- sampling -------------------------------------------------------------------------
@@ -435,7 +451,6 @@ cdef class Kernel:
             s.inv_mass[i] = 1.0 / s.mass[i]
             s.gdx0[i] = arr["gdx0"][i]
             s.gdy0[i] = arr["gdy0"][i]
-            s.tlast[i] = 0
             s.act[i] = 0.0
         for k in range(nc):
             s.ca[k] = arr["ca"][k]
@@ -488,7 +503,11 @@ cdef class Kernel:
         s.a2 = params.alpha_covariance
         s.keep = 1.0 - params.alpha_covariance
         s.gate = params.gate_d2
+        if s.tau != params.activity_tau_us and s.n_valid > 0:
+            rescale_activity(s, s.last_t)          # [ref] a new tau decays from now on
         s.tau = params.activity_tau_us
+        s.inv_tau = 1.0 / s.tau
+        s.act_span = <int64_t>(32.0 * s.tau)
         s.act_thr = params.activity_threshold
         s.energy_scale = params.energy_scale
         s.energy_gain = params.energy_gain

@@ -125,6 +125,10 @@ class ReferenceTracker:
         self.a1 = p.alpha_position
         self.a2 = p.alpha_covariance
         self.gate = p.gate_d2
+        if getattr(self, "tau", p.activity_tau_us) != p.activity_tau_us and self.n_valid:
+            for i in range(self.n):      # eq. (6): a new tau decays from the change on
+                self.act[i] = self.activity_at(i, self.last_t)
+                self.tlast[i] = self.last_t
         self.tau = p.activity_tau_us
         self.cov_gain = p.alpha_covariance / covariance_bias(p.alpha_position, p.gate_d2)
         self.smin2 = p.sigma_min_px * p.sigma_min_px
@@ -193,10 +197,10 @@ class ReferenceTracker:
         lim = RHO_MAX * math.sqrt(sxx * syy)
         sxy = min(max(self.sxy[i], -lim), lim)
         self.sxx[i], self.sxy[i], self.syy[i] = sxx, sxy, syy
-        det = sxx * syy - sxy * sxy
-        self.ia[i] = syy / det
-        self.ib[i] = -sxy / det
-        self.ic[i] = sxx / det
+        inv_det = 1.0 / (sxx * syy - sxy * sxy)                        # Sigma^-1 for eq. (2)
+        self.ia[i] = syy * inv_det
+        self.ib[i] = -sxy * inv_det
+        self.ic[i] = sxx * inv_det
 
     # ---- springs and energy criteria (every spring_period events) ------------
     def springs(self) -> None:

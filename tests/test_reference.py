@@ -62,6 +62,15 @@ def test_eq6_activity_decays_between_events():
     assert tr.activity_at(0, 3000) == pytest.approx((math.exp(-1) + 1) * math.exp(-2), rel=1e-12)
 
 
+def test_eq6_a_new_tau_decays_from_the_change_on():
+    tr = one(activity_tau_us=1000.0)
+    tr.step(0, 10, 10)                                          # p = 1 at t = 0
+    tr.step(1000, 40, 40)                                       # no tracker: time moves on
+    tr.set_params(Params(spring_period=NEVER, activity_tau_us=2000.0))
+    # 1000 us at tau = 1000 (before the change), then 2000 us at tau = 2000
+    assert tr.activity_at(0, 3000) == pytest.approx(math.exp(-1) * math.exp(-1), rel=1e-12)
+
+
 def test_sigma_bounds_keep_the_covariance_positive_definite():
     tr = one(sigma=(100.0, 99.9, 100.0), sigma_min_px=1.0, sigma_max_px=8.0)
     assert tr.sxx[0] == 64.0 and tr.syy[0] == 64.0
