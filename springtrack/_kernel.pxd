@@ -47,6 +47,7 @@ ctypedef struct KState:
     int64_t act_t0, act_span
     double inv_tau
     double mass[MAX_TRACKERS]
+    double mass_sum                  # sum of mass[i] in index order (eq. 22's G)
     double inv_mass[MAX_TRACKERS]
     double gdx0[MAX_TRACKERS]
     double gdy0[MAX_TRACKERS]
@@ -70,6 +71,8 @@ ctypedef struct KState:
     double a_car[MAX_CONNECTIONS]
     double c0[MAX_CONNECTIONS]
     double s0[MAX_CONNECTIONS]
+    double wa[MAX_CONNECTIONS]       # 1 / mass of end a, of end b
+    double wb[MAX_CONNECTIONS]
     # eq. (14) measured from the rest direction: (rdx, rdy) = (dx0, dy0), or (c0, s0)
     # if that is 0; dth_zero = wrap(-th0), the reference's value when both ends coincide
     double rdx[MAX_CONNECTIONS]

@@ -15,7 +15,8 @@ Speed comes from ideas that do not change any decision of the algorithm:
   Trackers outside an event's cell cannot have d^2 < gate, so scanning only the cell's
   candidates, in index order, finds exactly the full scan's winner;
 * springs in structure-of-arrays passes over the connections (gather, branch-free
-  arithmetic that GCC vectorises, scatter), with per-connection coefficients precomputed;
+  arithmetic that GCC vectorises in csrc/springs.h, scatter), with per-connection
+  coefficients (kind-masked stiffnesses, 1/mass of both ends) precomputed;
 * libm's exp, atan2, sin and cos replaced by csrc/fastmath.h (about 1 ulp; vectorised
   atan2 and sincos batches).  Results then differ from the reference by rounding only
   (~1e-15 relative), far inside the 1e-9 px contract of tests/test_equivalence.py.
@@ -61,15 +62,27 @@ cdef extern from *:
 
 cdef extern from "csrc/fastmath.h" nogil:
     double st_exp(double x)
-    double st_atan2(double y, double x)
-    void st_sincos_small(double e, double* sn, double* cm1)
     void st_atan2_batch(const double* y, const double* x, double* out, int n)
     void st_sincos_batch(const double* e, double* sn, double* cm1, int n)
+
+cdef extern from "csrc/springs.h" nogil:
+    void st_torsion_angles(int n, const double* rx, const double* ry, const double* rdx,
+                           const double* rdy, const double* dth_zero, double* th)
+    void st_torsion_rotation(int n, const double* th, double mean, const double* half_a,
+                             const double* a_tor, double* e_tor, double* sn, double* cm1)
     void st_spring_terms_batch(int n, const double* rx, const double* ry, const double* sn,
                                const double* cm1, const double* l0, const double* half_a,
                                const double* dx0, const double* dy0, const double* c0,
                                const double* s0, const double* a_euc, const double* a_car,
-                               double* e_euc, double* e_car, double* ux, double* uy)
+                               const double* wa, const double* wb,
+                               double* e_euc, double* e_car, double* uax, double* uay,
+                               double* ubx, double* uby)
+    int64_t st_box_left(double mx, double my, double sxx, double syy, double gate,
+                        double bx_lo, double bx_hi, double by_lo, double by_hi)
+    void st_boxes_left(int n, const double* mx, const double* my, const double* sxx,
+                       const double* syy, double gate, const double* bx_lo,
+                       const double* bx_hi, const double* by_lo, const double* by_hi,
+                       int64_t* out)
 
 
 # ---- spatial index ------------------------------------------------------------------
@@ -120,13 +133,9 @@ cdef void reindex(KState* s, int i) noexcept nogil:
 
 
 cdef inline void check_index(KState* s, int i) noexcept nogil:
-    """Re-index tracker i if its exact gate box (half-widths sqrt(gate*sxx), sqrt(gate*syy))
-    has left the box it is indexed with; compared in squares, no sqrt."""
-    cdef double rx = s.mx[i] - s.bx_lo[i], lx = s.bx_hi[i] - s.mx[i]
-    cdef double ry = s.my[i] - s.by_lo[i], ly = s.by_hi[i] - s.my[i]
-    cdef double gx = s.gate * s.sxx[i], gy = s.gate * s.syy[i]
-    if (rx < 0.0 or lx < 0.0 or ry < 0.0 or ly < 0.0 or gx >= rx * rx or gx >= lx * lx
-            or gy >= ry * ry or gy >= ly * ly):
+    """Re-index tracker i if its exact gate box has left the box it is indexed with."""
+    if st_box_left(s.mx[i], s.my[i], s.sxx[i], s.syy[i], s.gate, s.bx_lo[i], s.bx_hi[i],
+                   s.by_lo[i], s.by_hi[i]):
         reindex(s, i)
 
 
@@ -238,26 +247,29 @@ cdef inline double wrap_angle(double a) noexcept nogil:
 
 
 cdef void ksprings(KState* s) noexcept nogil:
-    # [ref] springs, in structure-of-arrays passes over the connections:
-    #   1. gather rx, ry (scalar);  2. eq. (14) angles, vectorised atan2;  3. eq. (15)
-    #   mean-angle correction, summed in the reference's order;  4. eq. (16) rotation,
-    #   vectorised sincos;  5. eqs. (10)-(12), (16), (18)-(20) branch-free (a_euc/a_tor/a_car
-    #   are 0 for kinds a connection lacks), vectorised in csrc/fastmath.h;  6. scatter the
-    #   displacement of each connection onto its two ends, weighted by 1/mass (scalar).
+    # [ref] springs, in structure-of-arrays passes (csrc/springs.h, vectorised):
+    #   1. gather r = end b - end a (scalar);  2. eq. (14) angles;  3. eq. (15) mean angle,
+    #   summed in the reference's order;  4. eqs. (15)-(17) deviation, torsional energy and
+    #   rotation;  5. eqs. (10)-(12), (16), (18)-(20) branch-free (a_euc/a_tor/a_car are 0
+    #   for kinds a connection lacks), displacements divided by each end's mass;  6. scatter
+    #   onto the ends (scalar);  7. energy criteria;  8. re-index the trackers whose gate
+    #   boxes left their indexed boxes.
     # The three kinds' displacements are summed per connection before the scatter (the
     # reference adds them to the ends one by one): a rounding-level difference only.
     cdef int n = s.n, nc = s.nc, k, i, j
     cdef double ddx[MAX_TRACKERS]
     cdef double ddy[MAX_TRACKERS]
+    cdef int64_t left[MAX_TRACKERS]
     cdef double rx[MAX_CONNECTIONS]
     cdef double ry[MAX_CONNECTIONS]
     cdef double th[MAX_CONNECTIONS]
-    cdef double eps[MAX_CONNECTIONS]
     cdef double sn[MAX_CONNECTIONS]
     cdef double cm1[MAX_CONNECTIONS]
-    cdef double ux[MAX_CONNECTIONS]
-    cdef double uy[MAX_CONNECTIONS]
-    cdef double mean_dth = 0.0, d
+    cdef double uax[MAX_CONNECTIONS]
+    cdef double uay[MAX_CONNECTIONS]
+    cdef double ubx[MAX_CONNECTIONS]
+    cdef double uby[MAX_CONNECTIONS]
+    cdef double mean_dth = 0.0
     s.n_spring_updates += 1
     for k in range(nc):                                              # 1. gather
         i = s.ca[k]
@@ -265,57 +277,45 @@ cdef void ksprings(KState* s) noexcept nogil:
         rx[k] = s.mx[j] - s.mx[i]
         ry[k] = s.my[j] - s.my[i]
     if s.need_torsion:
-        # 2. eq. (14): th - th0 = angle from the rest direction (rdx, rdy) to r, i.e.
-        # atan2(rest x r, rest . r); exactly 0 when r is the rest offset (as in the
-        # reference, whose atan2(ry, rx) - th0 is then 0), and already in (-pi, pi]
-        for k in range(nc):
-            sn[k] = s.rdx[k] * ry[k] - s.rdy[k] * rx[k]
-            cm1[k] = s.rdx[k] * rx[k] + s.rdy[k] * ry[k]
-        st_atan2_batch(sn, cm1, th, nc)
+        st_torsion_angles(nc, rx, ry, s.rdx, s.rdy, s.dth_zero, th)  # 2. eq. (14)
         for k in range(nc):                                          # 3. eq. (15)
-            d = th[k]
-            if d >= M_PI:                                            # [ref] wrap_angle's
-                d = d - TWO_PI                                       # range [-pi, pi)
-            if rx[k] == 0.0 and ry[k] == 0.0:                        # [ref] atan2(0, 0) = 0
-                d = s.dth_zero[k]
-            th[k] = d
-            mean_dth += d
+            mean_dth += th[k]
         mean_dth = mean_dth / nc
-        for k in range(nc):
-            d = th[k] - mean_dth                                     # eq. (15)
-            s.energy[1][k] = s.half_a[k] * (d * d)                   # eq. (17)
-            eps[k] = s.a_tor[k] * d                                  # eq. (16)
-        st_sincos_batch(eps, sn, cm1, nc)                            # 4.
+        st_torsion_rotation(nc, th, mean_dth, s.half_a, s.a_tor, s.energy[1], sn, cm1)  # 4.
     else:
         for k in range(nc):
             s.energy[1][k] = 0.0
             sn[k] = 0.0
             cm1[k] = 0.0
     st_spring_terms_batch(nc, rx, ry, sn, cm1, s.l0, s.half_a, s.dx0, s.dy0, s.c0, s.s0,  # 5.
-                          s.a_euc, s.a_car, s.energy[0], s.energy[2], ux, uy)
+                          s.a_euc, s.a_car, s.wa, s.wb, s.energy[0], s.energy[2],
+                          uax, uay, ubx, uby)
     for i in range(n):
         ddx[i] = 0.0
         ddy[i] = 0.0
     for k in range(nc):                                              # 6. scatter
         i = s.ca[k]
         j = s.cb[k]
-        ddx[i] += ux[k] * s.inv_mass[i]
-        ddy[i] += uy[k] * s.inv_mass[i]
-        ddx[j] -= ux[k] * s.inv_mass[j]
-        ddy[j] -= uy[k] * s.inv_mass[j]
+        ddx[i] += uax[k]
+        ddy[i] += uay[k]
+        ddx[j] -= ubx[k]
+        ddy[j] -= uby[k]
     for i in range(n):
         s.mx[i] = s.mx[i] + ddx[i]
         s.my[i] = s.my[i] + ddy[i]
-    energy_criteria(s)
+    energy_criteria(s)                                               # 7.
+    st_boxes_left(n, s.mx, s.my, s.sxx, s.syy, s.gate, s.bx_lo, s.bx_hi, s.by_lo,  # 8.
+                  s.by_hi, left)
     for i in range(n):
-        check_index(s, i)
+        if left[i]:
+            reindex(s, i)
 
 
 cdef void energy_criteria(KState* s) noexcept nogil:
     # [ref] _energy_criteria
     cdef int n = s.n, nc = s.nc, k, i
     cdef int over[MAX_TRACKERS]
-    cdef double total = 0.0, thr, msum = 0.0, gx = 0.0, gy = 0.0
+    cdef double total = 0.0, thr, msum = s.mass_sum, gx = 0.0, gy = 0.0
     if nc == 0:
         return
     for k in range(nc):                                              # eq. (13)
@@ -329,7 +329,6 @@ cdef void energy_criteria(KState* s) noexcept nogil:
             over[s.ca[k]] += 1
             over[s.cb[k]] += 1
     for i in range(n):
-        msum += s.mass[i]
         gx += s.mass[i] * s.mx[i]
         gy += s.mass[i] * s.my[i]
     gx = gx / msum
@@ -463,6 +462,8 @@ cdef class Kernel:
             s.dy0[k] = arr["dy0"][k]
             s.degree[s.ca[k]] += 1
             s.degree[s.cb[k]] += 1
+            s.wa[k] = s.inv_mass[s.ca[k]]
+            s.wb[k] = s.inv_mass[s.cb[k]]
             s.half_a[k] = 0.5 * s.stiff[k]
             s.a_euc[k] = s.stiff[k] if s.kinds[k] & 1 else 0.0
             s.a_tor[k] = s.stiff[k] if s.kinds[k] & 2 else 0.0
@@ -477,8 +478,10 @@ cdef class Kernel:
                 s.rdy[k] = s.s0[k]
             s.dth_zero[k] = wrap_angle(0.0 - s.th0[k])
         s.sensitive_mask = 0
+        s.mass_sum = 0.0
         for i in range(n):
             s.sensitive_mask |= (<uint64_t>1) << i
+            s.mass_sum += s.mass[i]           # [ref] msum, summed in the same order
         s.last_t = -(1 << 62)
         self.set_params(params)
         for i in range(n):

@@ -3,13 +3,12 @@
  * The kernel must equal the float64 reference (springtrack/reference.py, which calls
  * libm through Python's math module) to 1e-9 px, not bit for bit, so these replace the
  * libm calls on the hot paths by branch-free code that is accurate to about one ulp and
- * that GCC vectorises over the connections of a spring update:
+ * that GCC vectorises over the connections of a spring update (csrc/springs.h):
  *
  *   st_atan2(y, x)          eq. (14) angle of a connection; |error| <= ~4.5e-16 rad
  *   st_sincos_small(e,...)  eq. (16) rotation sin(eps), cos(eps) - 1 for |eps| <= pi/4;
  *                           |error| <= ~2e-17 relative (the batch falls back to libm above)
  *   st_exp(x)               eqs. (2), (6) kernel value and activity decay; ~1 ulp
- *   st_spring_terms_batch   eqs. (10)-(12), (16), (18)-(20) per connection, branch-free
  *
  * Polynomials: Chebyshev fits (mpmath.chebyfit, 60 digits), then rounded to double; the
  * worst error of the rounded polynomial was checked in 60-digit arithmetic on 2001 points
@@ -146,43 +145,6 @@ ST_CLONES static void st_sincos_batch(const double *restrict e, double *restrict
                 cm1[k] = cos(e[k]) - 1.0;
             }
         }
-    }
-}
-
-/* Spring terms of one connection batch (the branch-free middle of the kernel's ksprings;
- * springtrack/reference.py springs() is the specification).  Inputs per connection k:
- * r = (rx, ry) = end b - end a; sn, cm1 = sin, cos - 1 of the torsional rotation eps;
- * rest length l0, rest offset (dx0, dy0), a/2 = half_a, the kind-masked stiffnesses a_euc,
- * a_car (0 where the spring lacks that kind) and the rest direction (c0, s0).  Outputs:
- * the Euclidean and Cartesian energies and the summed displacement u of end a (end b gets
- * -u), each to be divided by the end's mass by the caller. */
-ST_CLONES static void st_spring_terms_batch(
-    int n, const double *restrict rx, const double *restrict ry,
-    const double *restrict sn, const double *restrict cm1,
-    const double *restrict l0, const double *restrict half_a,
-    const double *restrict dx0, const double *restrict dy0,
-    const double *restrict c0, const double *restrict s0,
-    const double *restrict a_euc, const double *restrict a_car,
-    double *restrict e_euc, double *restrict e_car, double *restrict ux, double *restrict uy)
-{
-    for (int k = 0; k < n; k++) {
-        double x = rx[k], y = ry[k];
-        double l = sqrt(x * x + y * y);
-        double dl = l - l0[k];                               /* eq. (10) */
-        e_euc[k] = half_a[k] * (dl * dl);                    /* eq. (12) */
-        double ex = x - dx0[k];                              /* eq. (18) */
-        double ey = y - dy0[k];
-        e_car[k] = half_a[k] * (ex * ex + ey * ey);          /* eq. (20) */
-        /* eq. (11) direction r / l, or the rest direction when both ends coincide */
-        int64_t pos = l > 0.0;
-        double inv_l = 1.0 / st_sel(pos, l, 1.0);
-        double cx = st_sel(pos, x * inv_l, c0[k]);
-        double cy = st_sel(pos, y * inv_l, s0[k]);
-        double g = a_euc[k] * dl;                            /* eq. (11) */
-        /* eq. (16): l (cos(th + eps) - cos th) = rx (cos eps - 1) - ry sin eps, and for y;
-         * eq. (19): a (r - r0) */
-        ux[k] = (g * cx + (x * cm1[k] - y * sn[k])) + a_car[k] * ex;
-        uy[k] = (g * cy + (y * cm1[k] + x * sn[k])) + a_car[k] * ey;
     }
 }
 

@@ -1,0 +1,133 @@
+/* The spring update of the tracker kernel (springtrack/_kernel.pyx ksprings) as
+ * structure-of-arrays passes over the connections and trackers, branch-free so that GCC
+ * vectorises them (clones for SSE2 / AVX2 / AVX-512, picked at load time).
+ * springtrack/reference.py springs() and _energy_criteria() are the specification; these
+ * passes compute the same quantities in the same order per connection, so the kernel
+ * differs from the reference by the rounding of fastmath.h's atan2 / sin / cos only.
+ *
+ *   st_torsion_angles       eq. (14): angle of each connection from its rest direction
+ *   st_torsion_rotation     eqs. (15)-(17): deviation from the mean angle, its energy and
+ *                           the rotation sin(eps), cos(eps) - 1 of eq. (16)
+ *   st_spring_terms_batch   eqs. (10)-(12), (16), (18)-(20): energies and the summed
+ *                           displacement of both ends, already divided by their masses
+ *   st_boxes_left           which trackers' gate boxes left their indexed boxes
+ */
+#ifndef SPRINGTRACK_SPRINGS_H
+#define SPRINGTRACK_SPRINGS_H
+
+#include "fastmath.h"
+
+/* eq. (14): th[k] = th - th0 as the angle from the rest direction (rdx, rdy) to
+ * r = (rx, ry), atan2(rest x r, rest . r), in [-pi, pi) as the reference's wrap_angle;
+ * exactly 0 when r is the rest offset.  When both ends coincide (r = 0) the reference's
+ * atan2(0, 0) - th0 gives dth_zero. */
+ST_CLONES static void st_torsion_angles(int n, const double *restrict rx,
+                                        const double *restrict ry,
+                                        const double *restrict rdx,
+                                        const double *restrict rdy,
+                                        const double *restrict dth_zero, double *restrict th)
+{
+    for (int k = 0; k < n; k++) {
+        double x = rx[k], y = ry[k];
+        double d = st_atan2(rdx[k] * y - rdy[k] * x, rdx[k] * x + rdy[k] * y);
+        d = st_sel(d >= ST_PI_HI, d - 2.0 * ST_PI_HI, d);        /* [ref] wrap_angle */
+        th[k] = st_sel(x == 0.0 && y == 0.0, dth_zero[k], d);
+    }
+}
+
+/* eqs. (15)-(17): d = th - mean (eq. 15), e_tor = a/2 d^2 (eq. 17), eps = a_tor d
+ * (eq. 16, a_tor = 0 without a torsional spring), and sn, cm1 = sin eps, cos eps - 1
+ * (libm where |eps| > pi/4: stiffness x angle deviation that large is rare). */
+ST_CLONES static void st_torsion_rotation(int n, const double *restrict th, double mean,
+                                          const double *restrict half_a,
+                                          const double *restrict a_tor,
+                                          double *restrict e_tor, double *restrict sn,
+                                          double *restrict cm1)
+{
+    int wide = 0;
+    for (int k = 0; k < n; k++) {
+        double d = th[k] - mean;
+        double e = a_tor[k] * d;
+        e_tor[k] = half_a[k] * (d * d);
+        st_sincos_small(e, &sn[k], &cm1[k]);
+        wide |= !(fabs(e) <= ST_SINCOS_MAX);
+    }
+    if (wide) {
+        for (int k = 0; k < n; k++) {
+            double e = a_tor[k] * (th[k] - mean);
+            if (!(fabs(e) <= ST_SINCOS_MAX)) {
+                sn[k] = sin(e);
+                cm1[k] = cos(e) - 1.0;
+            }
+        }
+    }
+}
+
+/* Spring terms per connection k.  Inputs: r = (rx, ry) = end b - end a; sn, cm1 = sin,
+ * cos - 1 of the torsional rotation eps (0 without torsion); rest length l0, rest offset
+ * (dx0, dy0), a/2 = half_a, the kind-masked stiffnesses a_euc, a_car (0 where the spring
+ * lacks that kind), the rest direction (c0, s0), and 1/mass of end a (wa) and end b (wb).
+ * Outputs: the Euclidean and Cartesian energies, and the displacement u of the connection
+ * (the three kinds summed) divided by each end's mass: end a moves by (uax, uay), end b
+ * by -(ubx, uby). */
+ST_CLONES static void st_spring_terms_batch(
+    int n, const double *restrict rx, const double *restrict ry,
+    const double *restrict sn, const double *restrict cm1,
+    const double *restrict l0, const double *restrict half_a,
+    const double *restrict dx0, const double *restrict dy0,
+    const double *restrict c0, const double *restrict s0,
+    const double *restrict a_euc, const double *restrict a_car,
+    const double *restrict wa, const double *restrict wb,
+    double *restrict e_euc, double *restrict e_car,
+    double *restrict uax, double *restrict uay, double *restrict ubx, double *restrict uby)
+{
+    for (int k = 0; k < n; k++) {
+        double x = rx[k], y = ry[k];
+        double l = sqrt(x * x + y * y);
+        double dl = l - l0[k];                               /* eq. (10) */
+        e_euc[k] = half_a[k] * (dl * dl);                    /* eq. (12) */
+        double ex = x - dx0[k];                              /* eq. (18) */
+        double ey = y - dy0[k];
+        e_car[k] = half_a[k] * (ex * ex + ey * ey);          /* eq. (20) */
+        /* eq. (11) direction r / l, or the rest direction when both ends coincide */
+        int64_t pos = l > 0.0;
+        double inv_l = 1.0 / st_sel(pos, l, 1.0);
+        double cx = st_sel(pos, x * inv_l, c0[k]);
+        double cy = st_sel(pos, y * inv_l, s0[k]);
+        double g = a_euc[k] * dl;                            /* eq. (11) */
+        /* eq. (16): l (cos(th + eps) - cos th) = rx (cos eps - 1) - ry sin eps, and for y;
+         * eq. (19): a (r - r0) */
+        double ux = (g * cx + (x * cm1[k] - y * sn[k])) + a_car[k] * ex;
+        double uy = (g * cy + (y * cm1[k] + x * sn[k])) + a_car[k] * ey;
+        uax[k] = ux * wa[k];
+        uay[k] = uy * wa[k];
+        ubx[k] = ux * wb[k];
+        uby[k] = uy * wb[k];
+    }
+}
+
+/* 1 where a tracker's exact gate box (half-widths sqrt(gate sxx), sqrt(gate syy) about its
+ * mean (mx, my)) is no longer inside the box [bx_lo, bx_hi] x [by_lo, by_hi] it is indexed
+ * with, compared in squares (no sqrt); else 0.  The kernel re-indexes such a tracker. */
+static inline int64_t st_box_left(double mx, double my, double sxx, double syy, double gate,
+                                  double bx_lo, double bx_hi, double by_lo, double by_hi)
+{
+    double rx = mx - bx_lo, lx = bx_hi - mx, ry = my - by_lo, ly = by_hi - my;
+    double gx = gate * sxx, gy = gate * syy;
+    return (rx < 0.0) | (lx < 0.0) | (ry < 0.0) | (ly < 0.0)
+           | (gx >= rx * rx) | (gx >= lx * lx) | (gy >= ry * ry) | (gy >= ly * ly);
+}
+
+/* out[i] = st_box_left(tracker i) for i < n (after a spring update moved them all) */
+ST_CLONES static void st_boxes_left(int n, const double *restrict mx, const double *restrict my,
+                                    const double *restrict sxx, const double *restrict syy,
+                                    double gate, const double *restrict bx_lo,
+                                    const double *restrict bx_hi, const double *restrict by_lo,
+                                    const double *restrict by_hi, int64_t *restrict out)
+{
+    for (int i = 0; i < n; i++)
+        out[i] = st_box_left(mx[i], my[i], sxx[i], syy[i], gate, bx_lo[i], bx_hi[i],
+                             by_lo[i], by_hi[i]);
+}
+
+#endif /* SPRINGTRACK_SPRINGS_H */
