@@ -36,16 +36,19 @@ cdef extern from "csrc/fixed_step.h" nogil:
         FX_CORDIC_N
         FX_ATAN_BITS
         FX_SQRT_N
+        FX_DECAY_N
+        FX_GAUSS_N
     ctypedef struct fx_state:
         int32_t n, nc, width, height
         int64_t a1, a2, cov_gain, energy_gain
         int64_t gate
-        uint32_t gate_q24
         int64_t k_tau, dt_max, act_thr
         uint32_t escale
         int32_t escale_never
         int64_t smin2, smax2
         int32_t period, ekind, need_torsion
+        int32_t used_kinds, unit_mass, equal_mass
+        int64_t decay_span, gate_q20
         int64_t mx[FX_MAX_TRACKERS]
         int64_t my[FX_MAX_TRACKERS]
         int64_t sxx[FX_MAX_TRACKERS]
@@ -71,6 +74,9 @@ cdef extern from "csrc/fixed_step.h" nogil:
         int32_t c0y[FX_MAX_CONNECTIONS]
         int64_t energy[3][FX_MAX_CONNECTIONS]
         int64_t mean_energy
+        int32_t grx[FX_MAX_CONNECTIONS]
+        int32_t gry[FX_MAX_CONNECTIONS]
+        int32_t energy_stale
         uint64_t* cells
         int32_t gw, gh
         int32_t box_x0[FX_MAX_TRACKERS]
@@ -83,6 +89,10 @@ cdef extern from "csrc/fixed_step.h" nogil:
         uint32_t hyp_tab[(1 << FX_ATAN_BITS) + 2]
         uint32_t ihyp_tab[(1 << FX_ATAN_BITS) + 2]
         uint32_t sqrt_tab[FX_SQRT_N]
+        uint32_t decay_lo[FX_DECAY_N]
+        uint32_t decay_hi[FX_DECAY_N]
+        uint32_t gauss_hi[FX_GAUSS_N]
+        uint32_t gauss_lo[FX_GAUSS_N]
         int64_t cordic_x0
         int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates, n_reindex
         int64_t sat_position, sat_activity, sat_energy, sat_inverse
@@ -95,6 +105,8 @@ cdef extern from "csrc/fixed_step.h" nogil:
     int fx_step(fx_state* s, int64_t t, int32_t x, int32_t y)
     int64_t fx_steps(fx_state* s, const fx_event* ev, int64_t n, int64_t t_stop)
     void fx_springs(fx_state* s)
+    void fx_energies(fx_state* s)
+    void fx_prepare(fx_state* s)
     void fx_refresh(fx_state* s, int i)
     void fx_reindex(fx_state* s, int i)
     void fx_clamp_positions(fx_state* s)
@@ -103,6 +115,8 @@ cdef extern from "csrc/fixed_step.h" nogil:
     int64_t fx_mulsh(int64_t v, uint32_t g, int sh)
     uint64_t fx_isqrt64(const fx_state* s, uint64_t v)
     uint32_t fx_exp2neg(const fx_state* s, int64_t w)
+    int64_t fx_gauss(const fx_state* s, int64_t d2)
+    uint32_t fx_decay(const fx_state* s, int64_t dt)
     uint32_t fx_atan2(const fx_state* s, int64_t y, int64_t x)
     void fx_cossin(const fx_state* s, int64_t angle, int64_t* c, int64_t* sn)
     void fx_polar(const fx_state* s, int64_t x, int64_t y, uint32_t* ang, int64_t* len,
@@ -154,6 +168,7 @@ cdef inline void snapshot_row(const fx_state* s, int64_t t, SampleOut* o) noexce
         o.act[base + i] = a * Q32_UNIT
         o.active[base + i] = a > s.act_thr
         o.sensitive[base + i] = (s.sensitive_mask >> i) & 1
+    fx_energies(<fx_state*>s)     # the kinds the criterion does not use, computed when read
     for q in range(3):
         tot = 0
         for k in range(s.nc):
@@ -237,6 +252,10 @@ cdef class FixedKernel:
             s.ihyp_tab[k] = ihyp[k]
         for k, v in enumerate(_q.sqrt_table()):
             s.sqrt_tab[k] = v
+        ghi, glo = _q.gauss_tables()
+        for k in range(FX_GAUSS_N):
+            s.gauss_hi[k] = ghi[k]
+            s.gauss_lo[k] = glo[k]
         s.cordic_x0 = _q.cordic_x0()
         for i in range(n):
             s.mx[i] = mq["mx"][i]
@@ -293,7 +312,6 @@ cdef class FixedKernel:
         s.cov_gain = pq["cov_gain"]
         s.energy_gain = pq["energy_gain"]
         s.gate = pq["gate"]
-        s.gate_q24 = pq["gate_q24"]
         s.k_tau = pq["k_tau"]
         s.dt_max = pq["dt_max"]
         s.act_thr = pq["act_thr"]
@@ -303,10 +321,11 @@ cdef class FixedKernel:
         s.smax2 = pq["smax2"]
         s.period = pq["period"]
         s.ekind = pq["ekind"]
-        s.need_torsion = 1 if s.ekind == 1 else 0
-        for k in range(s.nc):
-            if s.kinds[k] & 2:
-                s.need_torsion = 1
+        dlo, dhi = pq["decay"]
+        for i in range(FX_DECAY_N):
+            s.decay_lo[i] = dlo[i]
+            s.decay_hi[i] = dhi[i]
+        fx_prepare(s)
         for i in range(s.n):
             fx_refresh(s, i)
             fx_reindex(s, i)
@@ -375,6 +394,7 @@ cdef class FixedKernel:
     def energies(self):
         """(3, nc) array of the last spring update's energies: euclidean, torsional, cartesian."""
         cdef fx_state* s = <fx_state*>self.state
+        fx_energies(s)
         return (np.array([[s.energy[q][k] * Q32_UNIT for k in range(s.nc)] for q in range(3)])
                 .reshape(3, s.nc))
 
@@ -407,6 +427,22 @@ cdef class FixedKernel:
 
     def exp2neg(self, long long w):
         return fx_exp2neg(<fx_state*>self.state, w)
+
+    def gauss(self, long long d2):
+        """exp(-d2 / 2) for d2 in Q.40 (0 <= d2 < 32), Q.30: the kernel value of eq. (2)."""
+        return fx_gauss(<fx_state*>self.state, d2)
+
+    def decay(self, long long dt):
+        """exp(-dt / tau) for dt in us, Q.30: the activity decay of eq. (6)."""
+        return fx_decay(<fx_state*>self.state, dt)
+
+    def recompute_energies(self):
+        """Recompute every kind of the last spring update's energies from the spring
+        vectors it kept, the criterion's kind too (tests: the lazily computed kinds must
+        be what the spring update would have computed)."""
+        cdef fx_state* s = <fx_state*>self.state
+        s.energy_stale = 7 | (s.energy_stale & 8)
+        fx_energies(s)
 
     def atan2(self, long long y, long long x):
         return fx_atan2(<fx_state*>self.state, y, x)

@@ -74,6 +74,28 @@ def hyp_tables() -> tuple[list[int], list[int]]:
             [int(round((1 << 30) / math.sqrt(1 + t * t))) for t in ts])
 
 
+DECAY_BITS = 9               # activity decay: two tables of 2^9 entries (dt < 2^18 us)
+
+
+def decay_tables(tau_us: float) -> tuple[list[int], list[int]]:
+    """exp(-j / tau) and exp(-512 j / tau) for j = 0..511, Q.30 (rounded): the activity
+    decay of eq. (6) for dt = 512 dt_hi + dt_lo < 2^18 us is the product of two entries."""
+    n = 1 << DECAY_BITS
+    lo = [int(round(math.exp(-j / tau_us) * (1 << 30))) for j in range(n)]
+    hi = [int(round(math.exp(-j * n / tau_us) * (1 << 30))) for j in range(n)]
+    return lo, hi
+
+
+GAUSS_N = 1024               # exp(-d2 / 2): tables at d2 steps of 2^-5 (d2 < 32) and 2^-15
+
+
+def gauss_tables() -> tuple[list[int], list[int]]:
+    """exp(-j 2^-5 / 2) and exp(-j 2^-15 / 2) for j = 0..1023, Q.30 (rounded): the kernel
+    value of eq. (2) is their product for d2 = hi 2^-5 + lo 2^-15 + r, times 1 - r / 2."""
+    return ([int(round(math.exp(-j * 2.0 ** -6) * (1 << 30))) for j in range(GAUSS_N)],
+            [int(round(math.exp(-j * 2.0 ** -16) * (1 << 30))) for j in range(GAUSS_N)])
+
+
 def sqrt_table() -> list[int]:
     """floor(sqrt(j 2^54) / 2) for j = 256..1024: the integer sqrt's seed (Q.-1 so that the
     last entry, 2^31, fits uint32)."""
@@ -109,7 +131,6 @@ def params_q(p, nc: int) -> dict:
         cov_gain=gain62(p.alpha_covariance / covariance_bias(p.alpha_position, gate), "cov_gain"),
         energy_gain=gain62(p.energy_gain, "energy_gain"),
         gate=q(gate, D2_FRAC, "gate_d2", 0.0, 31.0),
-        gate_q24=q(gate, 24, "gate_d2", 0.0, 31.0),
         k_tau=k_tau,
         dt_max=-(-(32 << D2_FRAC) // k_tau),       # 2^-32 and beyond: decay = 0 in Q.30
         act_thr=q(min(p.activity_threshold, 2.0 ** 29), ACT_FRAC, "activity_threshold"),
@@ -117,6 +138,7 @@ def params_q(p, nc: int) -> dict:
         escale=q(min(p.energy_scale, max(nc, 1)), ESCALE_FRAC, "energy_scale"),
         smin2=q(p.sigma_min_px ** 2, COV_FRAC, "sigma_min_px^2"),
         smax2=q(p.sigma_max_px ** 2, COV_FRAC, "sigma_max_px^2"),
+        decay=decay_tables(tau),
         period=p.spring_period,
         ekind=p.energy_kind_index,
     )

@@ -61,6 +61,40 @@ def test_exp2neg_edges():
 
 
 @settings(max_examples=400, deadline=None)
+@given(st.integers(0, 31 << 40))
+def test_gauss_is_exp_to_two_units(d2):
+    """exp(-d2 / 2) of eq. (2) from two tables and a linear rest: <= 2.1 units of Q.30."""
+    want = math.exp(-d2 / 2 ** 41) * 2 ** 30
+    assert abs(K.gauss(d2) - want) <= 2.1
+
+
+def test_gauss_edges():
+    assert K.gauss(0) == 1 << 30
+    assert abs(K.gauss(2 << 40) - math.exp(-1.0) * 2 ** 30) <= 2.1
+
+
+@settings(max_examples=400, deadline=None)
+@given(st.integers(-10, 3_000_000))
+def test_decay_is_exp_to_two_units(dt):
+    """exp(-dt / tau) of eq. (6): below 2^18 us two tables (<= 1.5 units of Q.30), beyond
+    them the exp2 table (6e-8 relative), 0 from dt_max on."""
+    tau = resolve_params(springtrack.load_model("grid3x3")).activity_tau_us
+    want = math.exp(-max(dt, 0) / tau) * 2 ** 30
+    got = K.decay(dt)
+    assert abs(got - want) <= (1.5 if dt < 1 << 18 else 1e-7 * want + 1)
+
+
+def test_decay_edges():
+    assert K.decay(0) == K.decay(-7) == 1 << 30
+    assert K.decay(10 ** 9) == 0
+    k = kernel("grid3x3", activity_tau_us=1e9)          # table span 2^18 us < dt_max
+    assert abs(k.decay((1 << 18) - 1) - math.exp(-((1 << 18) - 1) / 1e9) * 2 ** 30) <= 1.5
+    for dt in (1 << 18, 10 ** 7):                        # exp2 table, log2(e) / tau in Q.40
+        want = math.exp(-dt / 1e9) * 2 ** 30
+        assert abs(k.decay(dt) - want) <= (1e-7 + math.log(2) * dt * 2 ** -41) * want + 1
+
+
+@settings(max_examples=400, deadline=None)
 @given(st.integers(-(2 ** 31), 2 ** 31), st.integers(-(2 ** 31), 2 ** 31))
 def test_atan2_matches_math(y, x):
     got = K.atan2(y, x)
@@ -237,6 +271,38 @@ def test_chunked_equals_whole_and_set_params():
                                "saturated_inverse", "events_valid", "events_assigned"}
     assert b.state()["x"].shape == (26,)
     assert b.energies()["euclidean"].shape == (40,)
+
+
+@pytest.mark.parametrize("preset", ["face26", "grid3x3"])
+def test_energies_computed_when_read(preset):
+    """A spring update computes only the criterion's energy kind; the others are computed
+    from the spring vectors it kept when they are read.  Recomputing every kind from those
+    vectors gives the same integers (the criterion's too), and they follow the float kernel."""
+    ev = stream(preset, 30_000)
+    f = Tracker(preset, backend="fixed")
+    c = Tracker(preset, backend="cython")
+    f.process(ev)
+    c.process(ev)
+    first = f._b.energies()
+    assert np.array_equal(f._b.energies(), first)           # reading twice: the same
+    f._b.recompute_energies()
+    assert np.array_equal(f._b.energies(), first)
+    want = c._b.energies()
+    assert np.allclose(first, want, rtol=1e-4, atol=1e-6)
+    if preset == "grid3x3":                                 # no torsion springs: 0, as float
+        assert not first[1].any()
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.integers(0, 8), st.integers(-30, 330), st.integers(-30, 270)),
+                min_size=1, max_size=12))
+def test_index_follows_moves(moves):
+    """Re-indexing moves a tracker's bit to the cells of its new box, only those that
+    change: the index invariant holds after any sequence of moves (also off the sensor)."""
+    k = kernel("grid3x3")
+    for i, x, y in moves:
+        k.set_raw(i, x=x * PX, y=y * PX)
+        assert k.check_index()
 
 
 def test_extreme_parameters_stay_in_range():

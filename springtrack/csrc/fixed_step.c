@@ -10,7 +10,6 @@
 #define ONE_Q30 ((int64_t)1 << 30)
 #define RHO_Q30 1063004406u        /* 0.99 (reference.RHO_MAX), Q.30 */
 #define RHO2_Q30 1052374362u       /* 0.99^2, Q.30 */
-#define HALF_LOG2E_Q30 774541002u  /* log2(e) / 2, Q.30: exp(-d2/2) = 2^(-d2 log2(e)/2) */
 #define PI_Q28 843314857u          /* pi, Q.28 */
 #define PI_Q29 1686629713u         /* pi, Q.29: binary angle * PI_Q29 / 2^30 = rad Q.30 */
 #define SMALL_ANGLE ((int64_t)42722830)   /* 2^-4 rad as a binary angle */
@@ -32,6 +31,13 @@ static inline int64_t mulsh(int64_t v, uint32_t g, int sh)
 static inline int64_t mul62(int64_t v, int64_t g)
 {
     return (int64_t)(((__int128)v * g + ((__int128)1 << 61)) >> 62);
+}
+
+/* v + round((inc g - v a2) / 2^62), half up: one rounding of eq. (4) (gains Q.62; |inc| <
+   2^58, |v| < 2^53, so both products and their difference fit 128 bits) */
+static inline int64_t ema62(int64_t v, int64_t inc, int64_t g, int64_t a2)
+{
+    return v + (int64_t)(((__int128)inc * g - (__int128)v * a2 + ((__int128)1 << 61)) >> 62);
 }
 
 int64_t fx_mulsh(int64_t v, uint32_t g, int sh)
@@ -163,14 +169,47 @@ uint32_t fx_exp2neg(const fx_state *s, int64_t w)
     return exp2neg(s, w);
 }
 
-/* exp(-dt / tau), Q.30, for dt in us (eq. 6) */
+/* exp(-d2 / 2), Q.30, for 0 <= d2 < 32 (Q.40; the gate is <= 31): d2 = hi 2^-5 + lo 2^-15
+   + r, the product of two tables of exact roundings and 1 - r / 2 for the rest r < 2^-15
+   (whose next term r^2 / 8 < 2^-33); error <= 2.1 units of Q.30 */
+static inline int64_t gauss(const fx_state *s, int64_t d2)
+{
+    uint64_t q = ((uint64_t)s->gauss_hi[d2 >> 35] * s->gauss_lo[(d2 >> 25) & (FX_GAUSS_N - 1)]
+                  + ((uint64_t)1 << 29)) >> 30;
+    return (int64_t)(q - ((q * (uint64_t)(d2 & (((int64_t)1 << 25) - 1)) + ((uint64_t)1 << 40)) >> 41));
+}
+
+int64_t fx_gauss(const fx_state *s, int64_t d2)
+{
+    return gauss(s, d2);
+}
+
+/* round(act d / 2^30), half up, for an activity 0 <= act < 2^62 (Q.32) and a decay d <=
+   2^30 (Q.30): act = h 2^31 + l gives 2 h d + round(l d / 2^30), two 64-bit products */
+static inline int64_t decay_mul(int64_t act, uint32_t d)
+{
+    return (act >> 31) * d * 2 + (((act & 0x7fffffff) * d + (1 << 29)) >> 30);
+}
+
+/* exp(-dt / tau), Q.30, for dt in us (eq. 6).  Below decay_span (2^18 us, or dt_max if
+   that is less) the product of two tables of exact roundings, exp(-dt_hi 512 / tau) and
+   exp(-dt_lo / tau) for dt = 512 dt_hi + dt_lo (error <= 1.5 units of Q.30); beyond it
+   the exp2 table (which gives 0 from dt_max on). */
 static inline uint32_t decay(const fx_state *s, int64_t dt)
 {
+    if ((uint64_t)dt < (uint64_t)s->decay_span)
+        return (uint32_t)(((uint64_t)s->decay_hi[dt >> FX_DECAY_BITS]
+                           * s->decay_lo[dt & (FX_DECAY_N - 1)] + ((uint64_t)1 << 29)) >> 30);
     if (dt <= 0)
         return (uint32_t)ONE_Q30;
     if (dt >= s->dt_max)
         return 0;
     return exp2neg(s, dt * s->k_tau);                  /* < 41 * 2^40 */
+}
+
+uint32_t fx_decay(const fx_state *s, int64_t dt)
+{
+    return decay(s, dt);
 }
 
 /* atan(t) for t in [0, 1] Q.30, as a binary angle: table of atan(k / 1024) and linear
@@ -215,7 +254,7 @@ static inline void cossin(const fx_state *s, int64_t angle, int64_t *c, int64_t 
             /* |r| < 2^-7 rad (the usual torsion step): r2 <= 2^16, r4 <= 4, and every r4
                term below rounds to exactly 0, so this is the same result, shorter */
             *sn = rshr(r * (ONE_Q30 - rshr(r2 * 715827883, 32)), 30);
-            *c = ONE_Q30 - r2 / 2;
+            *c = ONE_Q30 - (r2 >> 1);                     /* r2 >= 0 */
             return;
         }
         r4 = rshr(r2 * r2, 30);
@@ -251,6 +290,21 @@ static inline void cossin(const fx_state *s, int64_t angle, int64_t *c, int64_t 
     *sn = neg ? -y : y;
 }
 
+/* cos(z) - 1 and sin(z), Q.30, of a binary angle z, |z| < 2^32: the short series of cossin
+   for the torsion's small rotation a dtheta (the same integers), cossin otherwise */
+static inline void rotation(const fx_state *s, int64_t z, int64_t *cm1, int64_t *sn)
+{
+    if (z <= 5340353 && z >= -5340353) {                  /* |r| < 2^23 below, 0.0078 rad */
+        int64_t r = mul32sh(z, PI_Q29, 30);               /* radians, Q.30 */
+        int64_t r2 = rshr(r * r, 30);
+        *sn = rshr(r * (ONE_Q30 - rshr(r2 * 715827883, 32)), 30);
+        *cm1 = -(r2 >> 1);
+        return;
+    }
+    cossin(s, z, cm1, sn);
+    *cm1 -= ONE_Q30;
+}
+
 uint32_t fx_atan2(const fx_state *s, int64_t y, int64_t x)
 {
     return atan2_bam(s, y, x);
@@ -266,26 +320,36 @@ static inline int64_t unit_interp(const uint32_t *tab, int64_t t)
 
 /* Polar form of r = (x, y), |x|, |y| < 2^31: its angle (binary), its length (unit of x,
    rounded; relative error < 2e-7) and its direction r / |r| (Q.30).  One division, the
-   octant ratio t = min / max, then tables of atan(t), sqrt(1 + t^2), 1 / sqrt(1 + t^2). */
-static inline void polar(const fx_state *s, int64_t x, int64_t y, uint32_t *ang, int64_t *len,
-                         int64_t *cx, int64_t *cy)
+   octant ratio t = min / max, then tables of atan(t), sqrt(1 + t^2), 1 / sqrt(1 + t^2).
+   In two steps, so that the spring pass can do all the divisions first (they overlap):
+   polar_ratio gives t, max(|x|, |y|) and the octant (bit 0: |y| > |x|, bit 1: x < 0,
+   bit 2: y < 0); polar_finish the rest. */
+static inline int64_t polar_ratio(int64_t x, int64_t y, int64_t *big, int *oct)
 {
-    int64_t ax = x < 0 ? -x : x, ay = y < 0 ? -y : y, big, small, t, a, h, cbig, csmall;
+    int64_t ax = x < 0 ? -x : x, ay = y < 0 ? -y : y;
     int swap = ay > ax;
-    if (ax == 0 && ay == 0) {
+    *big = swap ? ay : ax;
+    *oct = swap | (x < 0) << 1 | (y < 0) << 2;
+    if (*big == 0)
+        return 0;
+    return ((swap ? ax : ay) << 30) / *big;                /* [0, 2^30] */
+}
+
+static inline void polar_finish(const fx_state *s, int64_t t, int64_t big, int oct, uint32_t *ang,
+                                int64_t *len, int64_t *cx, int64_t *cy)
+{
+    int64_t a, h, cbig, csmall;
+    if (big == 0) {
         *ang = 0;
         *len = *cx = *cy = 0;
         return;
     }
-    big = swap ? ay : ax;
-    small = swap ? ax : ay;
-    t = (small << 30) / big;                              /* [0, 2^30] */
     a = unit_interp(s->atan_tab, t);
     *len = rshr(big * unit_interp(s->hyp_tab, t), 30);    /* big sqrt(1 + t^2) */
     h = unit_interp(s->ihyp_tab, t);                      /* cos of the octant angle */
     cbig = h;
     csmall = rshr(t * h, 30);
-    if (swap) {
+    if (oct & 1) {
         a = ((int64_t)1 << 30) - a;
         *cx = csmall;
         *cy = cbig;
@@ -293,15 +357,24 @@ static inline void polar(const fx_state *s, int64_t x, int64_t y, uint32_t *ang,
         *cx = cbig;
         *cy = csmall;
     }
-    if (x < 0) {
+    if (oct & 2) {
         a = ((int64_t)1 << 31) - a;
         *cx = -*cx;
     }
-    if (y < 0) {
+    if (oct & 4) {
         a = -a;
         *cy = -*cy;
     }
     *ang = (uint32_t)((uint64_t)a & 0xffffffffu);
+}
+
+static inline void polar(const fx_state *s, int64_t x, int64_t y, uint32_t *ang, int64_t *len,
+                         int64_t *cx, int64_t *cy)
+{
+    int64_t big, t;
+    int oct;
+    t = polar_ratio(x, y, &big, &oct);
+    polar_finish(s, t, big, oct, ang, len, cx, cy);
 }
 
 void fx_polar(const fx_state *s, int64_t x, int64_t y, uint32_t *ang, int64_t *len, int64_t *cx,
@@ -317,17 +390,40 @@ void fx_cossin(const fx_state *s, int64_t angle, int64_t *c, int64_t *sn)
 }
 
 /* ---- spatial index ------------------------------------------------------------------- */
-static void index_set(fx_state *s, int i, int on)
+static inline int32_t max32(int32_t a, int32_t b)
+{
+    return a > b ? a : b;
+}
+
+static inline int32_t min32(int32_t a, int32_t b)
+{
+    return a < b ? a : b;
+}
+
+/* Move tracker i's bit from the cells of its indexed box to those of the box x0..x1,
+   y0..y1: per row, only the cells of one box and not the other change (a box that moves by
+   a cell changes a column and a row, not its whole area).  An empty row range is x0 > x1. */
+static void index_move(fx_state *s, int i, int32_t x0, int32_t x1, int32_t y0, int32_t y1)
 {
     uint64_t bit = (uint64_t)1 << i;
-    int cx, cy;
-    for (cy = s->box_y0[i]; cy <= s->box_y1[i]; cy++)
-        for (cx = s->box_x0[i]; cx <= s->box_x1[i]; cx++) {
-            if (on)
-                s->cells[cy * s->gw + cx] |= bit;
-            else
-                s->cells[cy * s->gw + cx] &= ~bit;
-        }
+    int32_t ox0 = s->box_x0[i], ox1 = s->box_x1[i], oy0 = s->box_y0[i], oy1 = s->box_y1[i];
+    int32_t ylo = min32(oy0, y0), yhi = max32(oy1, y1), y, x;
+    if (ox0 > ox1 || oy0 > oy1)                           /* not indexed yet */
+        ylo = y0, yhi = y1;
+    for (y = ylo; y <= yhi; y++) {
+        uint64_t *row = s->cells + (int64_t)y * s->gw;
+        int old_row = y >= oy0 && y <= oy1 && ox0 <= ox1, new_row = y >= y0 && y <= y1;
+        int32_t a0 = old_row ? ox0 : 0, a1 = old_row ? ox1 : -1;   /* old cells of the row */
+        int32_t b0 = new_row ? x0 : 0, b1 = new_row ? x1 : -1;     /* new cells */
+        for (x = a0; x <= min32(a1, b0 - 1); x++)          /* old, left of the new */
+            row[x] &= ~bit;
+        for (x = max32(a0, b1 + 1); x <= a1; x++)          /* old, right of the new */
+            row[x] &= ~bit;
+        for (x = b0; x <= min32(b1, a0 - 1); x++)          /* new, left of the old */
+            row[x] |= bit;
+        for (x = max32(b0, a1 + 1); x <= b1; x++)          /* new, right of the old */
+            row[x] |= bit;
+    }
 }
 
 static inline int32_t cell_of(int64_t v, int32_t gmax)
@@ -344,18 +440,24 @@ void fx_reindex(fx_state *s, int i)
 {
     int64_t hx = (int64_t)isqrt64(s, (uint64_t)s->gsxx[i]) + 1;      /* Q.16 */
     int64_t hy = (int64_t)isqrt64(s, (uint64_t)s->gsyy[i]) + 1;
+    int32_t x0, x1, y0, y1;
     hx += (hx >> FX_INDEX_GROW_SHIFT) + FX_INDEX_MARGIN;
     hy += (hy >> FX_INDEX_GROW_SHIFT) + FX_INDEX_MARGIN;
     s->bx_lo[i] = pos16(s->mx[i]) - hx;
     s->bx_hi[i] = pos16(s->mx[i]) + hx;
     s->by_lo[i] = pos16(s->my[i]) - hy;
     s->by_hi[i] = pos16(s->my[i]) + hy;
-    index_set(s, i, 0);
-    s->box_x0[i] = cell_of(s->bx_lo[i], s->gw - 1);
-    s->box_x1[i] = cell_of(s->bx_hi[i], s->gw - 1);
-    s->box_y0[i] = cell_of(s->by_lo[i], s->gh - 1);
-    s->box_y1[i] = cell_of(s->by_hi[i], s->gh - 1);
-    index_set(s, i, 1);
+    x0 = cell_of(s->bx_lo[i], s->gw - 1);
+    x1 = cell_of(s->bx_hi[i], s->gw - 1);
+    y0 = cell_of(s->by_lo[i], s->gh - 1);
+    y1 = cell_of(s->by_hi[i], s->gh - 1);
+    if (x0 != s->box_x0[i] || x1 != s->box_x1[i] || y0 != s->box_y0[i] || y1 != s->box_y1[i]) {
+        index_move(s, i, x0, x1, y0, y1);                 /* the box covers other cells */
+        s->box_x0[i] = x0;
+        s->box_x1[i] = x1;
+        s->box_y0[i] = y0;
+        s->box_y1[i] = y1;
+    }
     s->n_reindex++;
 }
 
@@ -416,6 +518,15 @@ static inline int64_t scale2(fx_state *s, int64_t v, int k)
     return v * ((int64_t)1 << k);
 }
 
+/* An upper bound of gate v (Q.32 px^2) for a variance v (Q.40, < 2^53): the square of the
+   gate box's half-width, for the spatial index (which needs a box that contains the gate
+   box, not an exact one).  One 64-bit product: (v / 2^16 + 1) ceil(gate 2^20) < 2^61,
+   rounded up; relative excess < 2^-22 for v >= 0.25 px^2. */
+static inline int64_t gate_box2(const fx_state *s, int64_t v)
+{
+    return (((v >> 16) + 1) * s->gate_q20 + 4095) >> 12;
+}
+
 /* [ref] _clamp_and_invert: sigma_x, sigma_y in [sigma_min, sigma_max], |rho| <= 0.99,
    then the inverse covariance of eq. (2) and the gate box.  One division. */
 static inline void refresh(fx_state *s, int i)
@@ -438,7 +549,8 @@ static inline void refresh(fx_state *s, int i)
         sxy = -big;
     b = sxy >> sh;
     p = a * c;
-    if (b * b > mulsh(p, RHO2_Q30, 30)) {              /* |rho| > 0.99: clamp */
+    /* |rho| > 0.99: clamp (b^2 <= p - p / 32 < 0.99^2 p: certainly not, without the product) */
+    if (b * b > p - (p >> 5) && b * b > mulsh(p, RHO2_Q30, 30)) {
         /* 0.99 sqrt(sxx syy) = 0.99 sqrt(a c) 2^sh, Q.40, 31 significant bits */
         int64_t lim = mulsh((int64_t)isqrt64(s, (uint64_t)p) * ((int64_t)1 << sh), RHO_Q30, 30);
         sxy = sxy < 0 ? -lim : lim;
@@ -460,8 +572,8 @@ static inline void refresh(fx_state *s, int i)
     s->ia[i] = scale2(s, c * r, k);
     s->ic[i] = scale2(s, a * r, k);
     s->ib2[i] = 2 * scale2(s, -b * r, k);
-    s->gsxx[i] = mulsh(sxx, s->gate_q24, 32);          /* gate * sxx, Q.32 px^2 */
-    s->gsyy[i] = mulsh(syy, s->gate_q24, 32);
+    s->gsxx[i] = gate_box2(s, sxx);                       /* >= gate sxx, Q.32 px^2 */
+    s->gsyy[i] = gate_box2(s, syy);
 }
 
 void fx_refresh(fx_state *s, int i)
@@ -471,10 +583,11 @@ void fx_refresh(fx_state *s, int i)
 
 /* [ref] _update: eqs. (2)-(6) for the winning tracker i; dx, dy Q.32 from the pre-update
    mean (|.| < 2^41 inside the gate), d2 Q.40. */
-static inline void update_tracker(fx_state *s, int i, int64_t t, int64_t dx, int64_t dy, int64_t d2)
+static __attribute__((noinline)) void update_tracker(fx_state *s, int i, int64_t t, int64_t dx, int64_t dy,
+                                                   int64_t d2)
 {
-    int64_t p = (int64_t)exp2neg(s, mulsh(d2, HALF_LOG2E_Q30, 30));   /* eq. (2), Q.30 */
-    int64_t act = mulsh(s->act[i], decay(s, t - s->tlast[i]), 30) + p * 4;  /* eq. (6) */
+    int64_t p = gauss(s, d2);                             /* eq. (2), Q.30 */
+    int64_t act = decay_mul(s->act[i], decay(s, t - s->tlast[i])) + p * 4;  /* eq. (6) */
     if (act > ACT_MAX) {
         act = ACT_MAX;
         s->sat_activity++;
@@ -482,23 +595,48 @@ static inline void update_tracker(fx_state *s, int i, int64_t t, int64_t dx, int
     s->act[i] = act;
     s->tlast[i] = t;
     int64_t ex = rshr(dx, 12), ey = rshr(dy, 12);         /* Q.20 px, < 2^29 */
-    /* eq. (3) */
-    s->mx[i] = sat_pos(s, s->mx[i] + mul62(dx, s->a1));
-    s->my[i] = sat_pos(s, s->my[i] + mul62(dy, s->a1));
+    /* eq. (3): m + round(a1 (u - m)) with 0 <= a1 <= 1 lies between m and the event u, both
+       inside +-FX_POS_LIM: it cannot saturate */
+    s->mx[i] += mul62(dx, s->a1);
+    s->my[i] += mul62(dy, s->a1);
     /* eq. (4)-(5): S <- (1 - a2) S + g e e^T, e = (dx, dy); ex ex is Q.40 px^2 */
-    s->sxx[i] += mul62(ex * ex, s->cov_gain) - mul62(s->sxx[i], s->a2);
-    s->sxy[i] += mul62(ex * ey, s->cov_gain) - mul62(s->sxy[i], s->a2);
-    s->syy[i] += mul62(ey * ey, s->cov_gain) - mul62(s->syy[i], s->a2);
+    s->sxx[i] = ema62(s->sxx[i], ex * ex, s->cov_gain, s->a2);
+    s->sxy[i] = ema62(s->sxy[i], ex * ey, s->cov_gain, s->a2);
+    s->syy[i] = ema62(s->syy[i], ey * ey, s->cov_gain, s->a2);
     refresh(s, i);
     check_index(s, i);
 }
 
-/* One event (Algorithm 1).  Returns the winning tracker, FX_NO_TRACKER or a skip code. */
-static inline int step_one(fx_state *s, int64_t t, int32_t x, int32_t y)
+/* eq. (2) and eqs. (3)-(6) for one valid event at pixel (x, y): the sensitive trackers
+   indexed in the event's cell (mask), in index order, so ties resolve as in the reference's
+   full scan; the winner is updated.  Returns the winner or FX_NO_TRACKER. */
+static inline __attribute__((always_inline)) int assign(fx_state *s, uint64_t mask, int64_t t,
+                                                        int32_t x, int32_t y)
 {
-    int64_t fx, fy, best_d2, bdx = 0, bdy = 0;
-    uint64_t m;
+    int64_t fx = (int64_t)x << FX_POS_FRAC, fy = (int64_t)y << FX_POS_FRAC;
+    int64_t best_d2 = s->gate;
+    uint64_t m = s->cells[(y >> FX_CELL_SHIFT) * s->gw + (x >> FX_CELL_SHIFT)] & mask;
     int best = FX_NO_TRACKER;
+    while (m) {
+        int i = __builtin_ctzll(m);
+        __int128 d2;
+        m &= m - 1;
+        /* offsets Q.32, |.| < 2^46 */
+        d2 = qform(s->ia[i], s->ib2[i], s->ic[i], fx - s->mx[i], fy - s->my[i]);
+        if (d2 < best_d2) {
+            best_d2 = (int64_t)d2;
+            best = i;
+        }
+    }
+    if (best >= 0)
+        update_tracker(s, best, t, fx - s->mx[best], fy - s->my[best], best_d2 < 0 ? 0 : best_d2);
+    return best;
+}
+
+/* One event (Algorithm 1).  Returns the winning tracker, FX_NO_TRACKER or a skip code. */
+int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y)
+{
+    int best;
     if (t < s->last_t) {
         s->n_back++;
         return FX_BACK_IN_TIME;
@@ -509,31 +647,9 @@ static inline int step_one(fx_state *s, int64_t t, int32_t x, int32_t y)
         return FX_OUT_OF_SENSOR;
     }
     s->n_valid++;
-    fx = (int64_t)x << FX_POS_FRAC;
-    fy = (int64_t)y << FX_POS_FRAC;
-    best_d2 = s->gate;
-    /* eq. (2): the sensitive trackers indexed in this event's cell, in index order, so
-       ties resolve as in the reference's full scan */
-    m = s->cells[(y >> FX_CELL_SHIFT) * s->gw + (x >> FX_CELL_SHIFT)] & s->sensitive_mask;
-    while (m) {
-        int i = __builtin_ctzll(m);
-        int64_t dx, dy;
-        __int128 d2;
-        m &= m - 1;
-        dx = fx - s->mx[i];                               /* Q.32, |.| < 2^46 */
-        dy = fy - s->my[i];
-        d2 = qform(s->ia[i], s->ib2[i], s->ic[i], dx, dy);
-        if (d2 < best_d2) {
-            best_d2 = (int64_t)d2;
-            best = i;
-            bdx = dx;
-            bdy = dy;
-        }
-    }
-    if (best >= 0) {
-        update_tracker(s, best, t, bdx, bdy, best_d2 < 0 ? 0 : best_d2);
+    best = assign(s, s->sensitive_mask, t, x, y);
+    if (best >= 0)
         s->n_assigned++;
-    }
     if (++s->since_spring >= s->period) {
         s->since_spring = 0;
         fx_springs(s);
@@ -541,145 +657,292 @@ static inline int step_one(fx_state *s, int64_t t, int32_t x, int32_t y)
     return best;
 }
 
-int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y)
-{
-    return step_one(s, t, x, y);
-}
-
+/* fx_step over a batch, with the event counters, the clock and the sensitive mask kept in
+   registers (the springs are the only other writer of the mask) */
 int64_t fx_steps(fx_state *s, const fx_event *ev, int64_t n, int64_t t_stop)
 {
-    for (int64_t k = 0; k < n; k++) {
-        if (ev[k].t >= t_stop && ev[k].t >= s->last_t)
-            return k;
-        step_one(s, ev[k].t, ev[k].x, ev[k].y);
+    int64_t k, last_t = s->last_t, n_assigned = 0, n_skipped = 0, n_back = 0;
+    uint32_t width = (uint32_t)s->width, height = (uint32_t)s->height;
+    int32_t until = s->period - s->since_spring;          /* >= 1 */
+    uint64_t mask = s->sensitive_mask;
+    for (k = 0; k < n; k++) {
+        int64_t t = ev[k].t;
+        uint32_t x = ev[k].x, y = ev[k].y;
+        if (t < last_t) {
+            n_back++;
+            continue;
+        }
+        if (t >= t_stop)
+            break;
+        last_t = t;
+        if (x >= width || y >= height) {
+            n_skipped++;
+            continue;
+        }
+        n_assigned += assign(s, mask, t, (int32_t)x, (int32_t)y) >= 0;
+        if (--until <= 0) {
+            until = s->period;
+            fx_springs(s);
+            mask = s->sensitive_mask;
+        }
     }
-    return n;
+    s->last_t = last_t;
+    s->since_spring = s->period - until;
+    s->n_valid += k - n_back - n_skipped;
+    s->n_assigned += n_assigned;
+    s->n_back += n_back;
+    s->n_outside += n_skipped;
+    return k;
 }
 
 /* eq. (6) evaluated lazily at time t, Q.32 */
 int64_t fx_activity(const fx_state *s, int i, int64_t t)
 {
-    return mulsh(s->act[i], decay(s, t - s->tlast[i]), 30);
+    return decay_mul(s->act[i], decay(s, t - s->tlast[i]));
 }
 
 /* ---- springs and energy criteria (every `period` events) ----------------------------- */
 #define OFFSET_LIM ((int64_t)1 << 30)                     /* 16384 px: ex^2 + ey^2 < 2^61 */
 
-static inline int64_t clamp_offset(fx_state *s, int64_t v)
+static inline int64_t clamp_offset(int64_t v)
 {
-    if (v >= OFFSET_LIM || v <= -OFFSET_LIM) {
-        s->sat_energy++;
-        return v < 0 ? -OFFSET_LIM + 1 : OFFSET_LIM - 1;
-    }
-    return v;
+    return v >= OFFSET_LIM ? OFFSET_LIM - 1 : (v <= -OFFSET_LIM ? -OFFSET_LIM + 1 : v);
 }
 
-static void energy_criteria(fx_state *s);
-
-/* [ref] springs: displacements from the same positions, applied together (Jacobi).  The
-   forces of eqs. (11), (16), (19) are summed per tracker (Q.32 px, |sum| < 2^55) and
-   divided by the mass once: the same sums as the reference's per-connection f / m_i. */
-void fx_springs(fx_state *s)
+/* the offsets of eq. (18) of connection k, each clamped to +-16384 px; returns how many
+   were */
+static inline int offsets(const fx_state *s, int k, int64_t rx, int64_t ry, int64_t *ex, int64_t *ey)
 {
-    int n = s->n, nc = s->nc, k, i, j;
-    int64_t ddx[FX_MAX_TRACKERS], ddy[FX_MAX_TRACKERS];
-    int64_t dth_raw[FX_MAX_CONNECTIONS], pl[FX_MAX_CONNECTIONS];
-    int64_t pcx[FX_MAX_CONNECTIONS], pcy[FX_MAX_CONNECTIONS];
-    int64_t mean_dth = 0;
-    s->n_spring_updates++;
-    for (i = 0; i < n; i++)
-        ddx[i] = ddy[i] = 0;
-    if (s->need_torsion && nc > 0) {
-        for (k = 0; k < nc; k++) {                        /* eq. (14), wrapped to [-pi, pi) */
-            uint32_t th;
-            i = s->ca[k];
-            j = s->cb[k];
-            polar(s, rshr(s->mx[j] - s->mx[i], 16), rshr(s->my[j] - s->my[i], 16), &th,
-                  &pl[k], &pcx[k], &pcy[k]);
-            th -= s->th0[k];                              /* mod 2^32 = mod 2 pi */
-            dth_raw[k] = th >= 0x80000000u ? (int64_t)th - ((int64_t)1 << 32) : (int64_t)th;
-            mean_dth += dth_raw[k];
+    int64_t x = rx - s->dx0[k], y = ry - s->dy0[k];      /* |.| < 2^31 */
+    *ex = clamp_offset(x);
+    *ey = clamp_offset(y);
+    return ((uint64_t)(x + OFFSET_LIM - 1) > (uint64_t)(2 * OFFSET_LIM - 2))
+        + ((uint64_t)(y + OFFSET_LIM - 1) > (uint64_t)(2 * OFFSET_LIM - 2));
+}
+
+/* a dl (Q.16 x Q.30 = Q.46, exact) rounded to Q.30 when |a dl| < 2 px (the usual case:
+   then the products of the Euclidean force and energy fit 64 bits), else ADL_WIDE */
+#define ADL_WIDE INT64_MIN
+static inline int64_t adl30(const fx_state *s, int k, int64_t dl)
+{
+    int64_t adl = dl * (int64_t)s->stiff[k];              /* |dl| < 2^31, a <= 2^30 */
+    return adl < ((int64_t)1 << 47) && adl > -((int64_t)1 << 47) ? rshr(adl, 16) : ADL_WIDE;
+}
+
+/* energies of connection k (Q.32): eq. (12) a dl^2 / 2 from dl (Q.16) and a dl, or from the
+   length l (Q.16); eq. (17) a dtheta^2 / 2 from the corrected angle (binary); eq. (20)
+   a |e|^2 / 2 from the offsets */
+static inline int64_t energy_euclid_dl(const fx_state *s, int k, int64_t dl, int64_t adl)
+{
+    if (adl != ADL_WIDE)
+        return rshr(adl * dl, 15);                        /* Q.30 x Q.16 / 2 -> Q.32 */
+    return mulsh(dl * dl, s->stiff[k], 31);
+}
+
+static inline int64_t energy_euclid(const fx_state *s, int k, int64_t l)
+{
+    int64_t dl = l - s->l0[k];                            /* eq. (10) */
+    return energy_euclid_dl(s, k, dl, adl30(s, k, dl));
+}
+
+static inline int64_t energy_torsion(const fx_state *s, int k, int64_t dth)
+{
+    int64_t dq = mul32sh(dth, PI_Q28, 31);                /* radians, Q.28 */
+    return mulsh(dq * dq, s->stiff[k], 55);
+}
+
+static inline int64_t energy_cart(const fx_state *s, int k, int64_t ex, int64_t ey)
+{
+    return mulsh(ex * ex + ey * ey, s->stiff[k], 31);
+}
+
+/* Eq. (14) and the polar form of a spring vector r (Q.16), in two steps so that the spring
+   pass can issue all the divisions first (they then overlap).  In the connection's rest
+   frame, (u, v) = (c0 . r, c0 x r) rounded to Q.18 (finer than r, so that this rotation
+   adds no error of note), with c0 = (cos th0, sin th0) (Q.30): when |v| <= u (r within 45
+   degrees of its rest direction, the usual case) the angle from rest is atan(t), t =
+   |v| / u (Q.28, 2 zero bits added), the direction r / |r| is c0 rotated by it, and |r| =
+   u cos + |v| sin of it, from the tables of atan and 1 / sqrt(1 + t^2); otherwise the
+   polar form of r itself minus th0, wrapped to [-pi, pi).  Both: one division. */
+typedef struct {
+    int64_t t, u, v;                                      /* u = 0: the polar form of r */
+} spring_ratio;
+
+static inline spring_ratio geom_ratio(const fx_state *s, int k, int64_t rx, int64_t ry)
+{
+    spring_ratio g;
+    int64_t av;
+    int oct;
+    g.u = rshr(s->c0x[k] * rx + s->c0y[k] * ry, 28);     /* Q.18, |.| < 2^33 */
+    g.v = rshr(s->c0x[k] * ry - s->c0y[k] * rx, 28);
+    av = g.v < 0 ? -g.v : g.v;
+    if (g.u > 0 && av <= g.u) {
+        g.t = ((av << 28) / g.u) << 2;                    /* [0, 2^30] */
+        return g;
+    }
+    g.u = 0;
+    g.t = polar_ratio(rx, ry, &g.v, &oct);                /* v = max(|x|, |y|) */
+    g.u = -oct - 1;                                       /* < 0: the octant */
+    return g;
+}
+
+/* the angle from rest (binary angle, [-pi, pi)), the length (Q.16) and direction (Q.30) */
+static inline int64_t geom_finish(const fx_state *s, int k, spring_ratio g, int64_t *l,
+                                  int64_t *cx, int64_t *cy)
+{
+    if (g.u > 0) {
+        int64_t a = unit_interp(s->atan_tab, g.t);
+        int64_t h = unit_interp(s->ihyp_tab, g.t);        /* cos of the angle */
+        int64_t sn = rshr(g.t * h, 30);                   /* |sin| */
+        int64_t sg = g.v >> 63;                           /* -1 if v < 0: a mask, the sign */
+        *l = rshr(g.u * h + ((g.v ^ sg) - sg) * sn, 32);  /* of a spring is data the branch */
+        a = (a ^ sg) - sg;                                /* predictor cannot learn */
+        sn = (sn ^ sg) - sg;
+        *cx = rshr(s->c0x[k] * h - s->c0y[k] * sn, 30);
+        *cy = rshr(s->c0y[k] * h + s->c0x[k] * sn, 30);
+        return a;
+    } else {
+        uint32_t th;
+        polar_finish(s, g.t, g.v, (int)(-g.u - 1), &th, l, cx, cy);
+        th -= s->th0[k];                                  /* mod 2^32 = mod 2 pi */
+        return (int64_t)th - ((int64_t)(th >> 31) << 32);
+    }
+}
+
+static inline int64_t spring_angle(const fx_state *s, int k, int64_t rx, int64_t ry, int64_t *l,
+                                   int64_t *cx, int64_t *cy)
+{
+    return geom_finish(s, k, geom_ratio(s, k, rx, ry), l, cx, cy);
+}
+
+static inline int64_t sat_energy_of(fx_state *s, int64_t e)
+{
+    if (e > E_MAX) {
+        s->sat_energy++;
+        return E_MAX;
+    }
+    return e;
+}
+
+/* Eqs. (10)-(20) for every connection: the forces summed per tracker into ddx, ddy (Q.32)
+   and the criterion's energy (eq. 13: each and their sum saturating at 2^29), which is
+   returned.  `used` = the kinds whose geometry the model needs (its springs' kinds and the
+   criterion's); each instantiation below contains only that geometry.
+   Structure of arrays, one short step per pass: the connections are independent, and a
+   pass whose iterations are short lets the processor overlap many of them (one pass doing
+   everything per connection is bound by its dependency chain: division, table look-ups,
+   products, ~100 cycles). */
+static inline __attribute__((always_inline)) int64_t spring_passes(fx_state *s, const int used,
+                                                                   int64_t *ddx, int64_t *ddy)
+{
+    int nc = s->nc, ek = s->ekind, k, sat = 0;
+    int64_t fx[FX_MAX_CONNECTIONS], fy[FX_MAX_CONNECTIONS], dth[FX_MAX_CONNECTIONS];
+    int64_t total = 0, mean_dth = 0;
+    int64_t *en = s->energy[ek];
+    int32_t *grx = s->grx, *gry = s->gry;
+    if (used & 3) {
+        int64_t sum = 0;
+        spring_ratio g[FX_MAX_CONNECTIONS];
+        for (k = 0; k < nc; k++) {                        /* r, and the divisions */
+            int i = s->ca[k], j = s->cb[k];
+            int64_t rx = rshr(s->mx[j] - s->mx[i], 16);  /* Q.16, |.| < 2^30 */
+            int64_t ry = rshr(s->my[j] - s->my[i], 16);
+            grx[k] = (int32_t)rx;
+            gry[k] = (int32_t)ry;
+            g[k] = geom_ratio(s, k, rx, ry);
         }
-        mean_dth = div_round(mean_dth, nc);
+        for (k = 0; k < nc; k++) {
+            int64_t l, cx, cy;
+            dth[k] = geom_finish(s, k, g[k], &l, &cx, &cy);   /* eq. (14) */
+            sum += dth[k];
+            fx[k] = fy[k] = 0;
+            if (used & 1) {
+                int64_t dl = l - s->l0[k];                /* eq. (10) */
+                int64_t adl = adl30(s, k, dl);
+                if (s->kinds[k] & 1) {                    /* eq. (11): a dl (r / l) */
+                    if (l <= 0) {
+                        cx = s->c0x[k];
+                        cy = s->c0y[k];
+                    }
+                    if (adl != ADL_WIDE) {                /* Q.30 x Q.30 -> Q.32 */
+                        fx[k] = rshr(adl * cx, 28);
+                        fy[k] = rshr(adl * cy, 28);
+                    } else {                              /* dl r / l, Q.32, times a */
+                        fx[k] = mulsh(rshr(dl * cx, 14), s->stiff[k], 30);
+                        fy[k] = mulsh(rshr(dl * cy, 14), s->stiff[k], 30);
+                    }
+                }
+                if (ek == 0) {                            /* eq. (12), the criterion's */
+                    en[k] = sat_energy_of(s, energy_euclid_dl(s, k, dl, adl));
+                    total = sat_add(s, total, en[k], E_MAX);
+                }
+            }
+        }
+        if ((used & 2) && nc > 0)
+            mean_dth = div_round(sum, nc);                /* eq. (15) */
+    } else {
+        for (k = 0; k < nc; k++) {                        /* r = x_j - x_i, Q.16 */
+            int i = s->ca[k], j = s->cb[k];
+            grx[k] = (int32_t)rshr(s->mx[j] - s->mx[i], 16);
+            gry[k] = (int32_t)rshr(s->my[j] - s->my[i], 16);
+            fx[k] = fy[k] = 0;
+        }
     }
     for (k = 0; k < nc; k++) {
-        int64_t rx, ry, l, dl, ex, ey, cx = 0, cy = 0;
-        int kind = s->kinds[k];
-        i = s->ca[k];
-        j = s->cb[k];
-        rx = rshr(s->mx[j] - s->mx[i], 16);               /* Q.16, |.| < 2^30 */
-        ry = rshr(s->my[j] - s->my[i], 16);
-        if (s->need_torsion) {                            /* polar form computed above */
-            l = pl[k];
-            cx = pcx[k];
-            cy = pcy[k];
-        } else {
-            l = (int64_t)isqrt64(s, (uint64_t)(rx * rx + ry * ry));   /* Q.16 */
-            if ((kind & 1) && l > 0) {                    /* r / l in Q.30, one division */
-                int64_t inv = ((int64_t)1 << 60) / l;     /* 2^60 / l, >= 2^29 */
-                cx = rshr(rx * inv, 30);                  /* rx inv <= 2^60 (|rx| <= l) */
-                cy = rshr(ry * inv, 30);
+        int i = s->ca[k], j = s->cb[k], kind = s->kinds[k];
+        int64_t rx = grx[k], ry = gry[k], d = 0, ex = 0, ey = 0, gx = fx[k], gy = fy[k];
+        uint32_t a = s->stiff[k];
+        if (used & 2) {
+            d = dth[k] - mean_dth;                        /* eq. (15), binary angle */
+            if (kind & 2) {                               /* eq. (16): rotate r by a d */
+                int64_t c, sn;
+                rotation(s, mul32sh(d, a, 30), &c, &sn);  /* cos - 1, sin */
+                gx += rshr(rx * c - ry * sn, 14);         /* l (cos(th + a d) - cos th), Q.32 */
+                gy += rshr(rx * sn + ry * c, 14);
             }
         }
-        dl = l - s->l0[k];                                /* eq. (10) */
-        s->energy[0][k] = mulsh(dl * dl, s->stiff[k], 31);     /* eq. (12): a dl^2 / 2 */
-        ex = clamp_offset(s, rx - s->dx0[k]);             /* eq. (18) */
-        ey = clamp_offset(s, ry - s->dy0[k]);
-        s->energy[2][k] = mulsh(ex * ex + ey * ey, s->stiff[k], 31);   /* eq. (20) */
-        if (kind & 1) {                                   /* eq. (11): a dl (r / l) / m */
-            int64_t qx, qy;
-            if (l > 0) {                                  /* dl r / l, Q.32 */
-                qx = rshr(dl * cx, 14);
-                qy = rshr(dl * cy, 14);
-            } else {
-                qx = rshr(dl * s->c0x[k], 14);
-                qy = rshr(dl * s->c0y[k], 14);
+        if (used & 4) {
+            sat += offsets(s, k, rx, ry, &ex, &ey);       /* eq. (18) */
+            if (kind & 4) {                               /* eq. (19): a e, Q.16 x Q.30 -> Q.32 */
+                gx += mul32sh(ex, a, 14);
+                gy += mul32sh(ey, a, 14);
             }
-            qx = mulsh(qx, s->stiff[k], 30);              /* a dl r / l */
-            qy = mulsh(qy, s->stiff[k], 30);
-            ddx[i] += qx;
-            ddy[i] += qy;
-            ddx[j] -= qx;
-            ddy[j] -= qy;
         }
-        if (s->need_torsion) {
-            int64_t dth = dth_raw[k] - mean_dth;          /* eq. (15), binary angle */
-            int64_t dq = mul32sh(dth, PI_Q28, 31);       /* radians, Q.28 */
-            s->energy[1][k] = mulsh(dq * dq, s->stiff[k], 55);  /* eq. (17) */
-            if (kind & 2) {                               /* eq. (16): rotate r by a dth */
-                int64_t c, sn, ux, uy;
-                cossin(s, mul32sh(dth, s->stiff[k], 30), &c, &sn);
-                c -= ONE_Q30;
-                ux = rshr(rx * c - ry * sn, 14);          /* l (cos(th + a dth) - cos th), Q.32 */
-                uy = rshr(rx * sn + ry * c, 14);
-                ddx[i] += ux;
-                ddy[i] += uy;
-                ddx[j] -= ux;
-                ddy[j] -= uy;
-            }
-        } else {
-            s->energy[1][k] = 0;
-        }
-        if (kind & 4) {                                   /* eq. (19) */
-            int64_t fx = mul32sh(ex, s->stiff[k], 14);    /* a e: Q.16 x Q.30 -> Q.32 */
-            int64_t fy = mul32sh(ey, s->stiff[k], 14);
-            ddx[i] += fx;
-            ddy[i] += fy;
-            ddx[j] -= fx;
-            ddy[j] -= fy;
+        ddx[i] += gx;                                     /* onto both ends */
+        ddy[i] += gy;
+        ddx[j] -= gx;
+        ddy[j] -= gy;
+        if (ek != 0) {                                    /* the criterion's energy */
+            en[k] = sat_energy_of(s, (used & 2) && ek == 1 ? energy_torsion(s, k, d)  /* (17) */
+                                                           : energy_cart(s, k, ex, ey));  /* (20) */
+            total = sat_add(s, total, en[k], E_MAX);
         }
     }
-    for (i = 0; i < n; i++) {                             /* the sums of forces / m_i */
-        s->mx[i] = sat_pos(s, s->mx[i] + mulsh(ddx[i], s->invm[i], 24));
-        s->my[i] = sat_pos(s, s->my[i] + mulsh(ddy[i], s->invm[i], 24));
-    }
-    energy_criteria(s);
-    for (i = 0; i < n; i++)
-        check_index(s, i);
+    s->sat_energy += sat;
+    return total;
 }
 
-/* x0 + sum m_i (x_i - x0) / sum m_i for Q.32 positions: the offsets are split into a
-   Q.16 high part and 16 low bits so that no sum exceeds 2^61, then recombined exactly. */
+/* one function per set of used kinds (1..7), each compiled with only that geometry */
+#define SPRING_PASSES(u)                                                                   \
+    static __attribute__((noinline)) int64_t spring_passes_##u(fx_state *s, int64_t *ddx,  \
+                                                               int64_t *ddy)               \
+    {                                                                                      \
+        return spring_passes(s, u, ddx, ddy);                                              \
+    }
+SPRING_PASSES(1)
+SPRING_PASSES(2)
+SPRING_PASSES(3)
+SPRING_PASSES(4)
+SPRING_PASSES(5)
+SPRING_PASSES(6)
+SPRING_PASSES(7)
+static int64_t (*const spring_passes_of[8])(fx_state *, int64_t *, int64_t *) = {
+    spring_passes_7, spring_passes_1, spring_passes_2, spring_passes_3,
+    spring_passes_4, spring_passes_5, spring_passes_6, spring_passes_7};
+
+/* x0 + sum m_i (x_i - x0) / sum m_i for Q.32 positions, rounded half up: the offsets are
+   split into a Q.16 high part and 16 low bits so that no sum exceeds 2^61, then
+   recombined exactly. */
 static int64_t centre(const fx_state *s, const int64_t *x, int64_t msum)
 {
     int64_t hi = 0, lo = 0, q, r;
@@ -698,53 +961,139 @@ static int64_t centre(const fx_state *s, const int64_t *x, int64_t msum)
     return x[0] + q * 65536 + div_round(r * 65536 + lo, msum);
 }
 
-/* [ref] _energy_criteria: eqs. (13), (21), (22) */
-static void energy_criteria(fx_state *s)
+/* floor(a / b), b > 0 */
+static inline int64_t floor_div(int64_t a, int64_t b)
 {
-    int n = s->n, nc = s->nc, k, i;
+    int64_t q = a / b;
+    return q - (a % b < 0);
+}
+
+/* [ref] springs: displacements from the same positions, applied together (Jacobi).  The
+   forces of eqs. (11), (16), (19) are summed per tracker (Q.32 px, |sum| < 2^55) and
+   divided by the mass once: the same sums as the reference's per-connection f / m_i.
+   Only the criterion's energy kind is computed here; the spring vectors are kept for
+   fx_energies(). */
+__attribute__((noinline)) void fx_springs(fx_state *s)
+{
+    int n = s->n, nc = s->nc, used = s->used_kinds, i, k;
+    int64_t ddx[FX_MAX_TRACKERS], ddy[FX_MAX_TRACKERS], total, thr, gx, gy, sx = 0, sy = 0;
     int over[FX_MAX_TRACKERS];
-    int64_t total = 0, thr, gx, gy, msum = 0;
-    int64_t *e;
-    if (nc == 0)
-        return;
-    e = s->energy[s->ekind];
-    for (k = 0; k < nc; k++) {                            /* eq. (13) */
-        if (e[k] > E_MAX) {
-            e[k] = E_MAX;
-            s->sat_energy++;
-        }
-        total = sat_add(s, total, e[k], E_MAX);
-    }
-    s->mean_energy = total / nc;
-    /* e > s mean; with s >= nc no connection can exceed it (e <= total = nc mean) */
-    if (s->escale_never)
-        thr = E_MAX;
-    else if (s->mean_energy < ((int64_t)1 << 54))          /* escale < nc 2^14 <= 2^21 */
-        thr = mulsh(s->mean_energy, s->escale, 14);
-    else                                                  /* huge energies: 10 bits less */
-        thr = mulsh(s->mean_energy >> 10, s->escale, 4);
-    for (i = 0; i < n; i++)
+    uint64_t mask = 0, bad = 0;
+    const int64_t *e = s->energy[s->ekind];
+    s->n_spring_updates++;
+    for (i = 0; i < n; i++) {
+        ddx[i] = ddy[i] = 0;
         over[i] = 0;
-    if (!s->escale_never)
-        for (k = 0; k < nc; k++)
-            if (e[k] > thr) {
-                over[s->ca[k]]++;
-                over[s->cb[k]]++;
+    }
+    total = spring_passes_of[used & 7](s, ddx, ddy);
+    /* bit 3: no torsional energies at this update (0, as the float kernel) */
+    s->energy_stale = (7 & ~(1 << s->ekind)) | (used & 2 ? 0 : 8);
+    for (i = 0; i < n; i++) {                             /* the sums of forces / m_i */
+        int64_t fx = ddx[i], fy = ddy[i];
+        if (!s->unit_mass) {                              /* m_i = 1: f / m_i = f exactly */
+            fx = mulsh(fx, s->invm[i], 24);
+            fy = mulsh(fy, s->invm[i], 24);
+        }
+        s->mx[i] = sat_pos(s, s->mx[i] + fx);
+        s->my[i] = sat_pos(s, s->my[i] + fy);
+        sx += s->mx[i];                                   /* |sum| < 2^51 */
+        sy += s->my[i];
+    }
+    /* [ref] _energy_criteria: eqs. (13), (21), (22) */
+    if (nc > 0) {
+        s->mean_energy = total / nc;                      /* eq. (13) */
+        /* e > s mean; with s >= nc no connection can exceed it (e <= total = nc mean) */
+        if (s->escale_never)
+            thr = E_MAX;
+        else if (s->mean_energy < ((int64_t)1 << 54))      /* escale < nc 2^14 <= 2^21 */
+            thr = mulsh(s->mean_energy, s->escale, 14);
+        else                                              /* huge energies: 10 bits less */
+            thr = mulsh(s->mean_energy >> 10, s->escale, 4);
+        if (!s->escale_never)
+            for (k = 0; k < nc; k++) {                    /* without branches: data */
+                int o = e[k] > thr;
+                over[s->ca[k]] += o;
+                over[s->cb[k]] += o;
             }
-    /* centre of mass G = x0 + sum m_i (x_i - x0) / sum m_i */
-    for (i = 0; i < n; i++)
-        msum += s->mq[i];
-    gx = centre(s, s->mx, msum);
-    gy = centre(s, s->my, msum);
-    s->sensitive_mask = 0;
+    }
+    /* centre of mass G = x0 + sum m_i (x_i - x0) / sum m_i, rounded half up */
+    if (n == 0)
+        return;
+    if (s->equal_mass) {                                  /* = x0 + round(sum (x_i - x0) / n) */
+        gx = s->mx[0] + floor_div(2 * (sx - n * s->mx[0]) + n, 2 * (int64_t)n);
+        gy = s->my[0] + floor_div(2 * (sy - n * s->my[0]) + n, 2 * (int64_t)n);
+    } else {
+        int64_t msum = 0;
+        for (i = 0; i < n; i++)
+            msum += s->mq[i];
+        gx = centre(s, s->mx, msum);
+        gy = centre(s, s->my, msum);
+    }
     for (i = 0; i < n; i++) {
         if (over[i] > 0) {                                /* eq. (22) */
             s->mx[i] = sat_pos(s, s->mx[i] + mul62(gx + s->gdx0[i] - s->mx[i], s->energy_gain));
             s->my[i] = sat_pos(s, s->my[i] + mul62(gy + s->gdy0[i] - s->my[i], s->energy_gain));
         }
-        if (!(s->degree[i] > 0 && over[i] == s->degree[i]))   /* eq. (21) */
-            s->sensitive_mask |= (uint64_t)1 << i;
+        mask |= (uint64_t)(s->degree[i] == 0 || over[i] != s->degree[i]) << i;   /* eq. (21) */
+        bad |= (uint64_t)!box_ok(s, i) << i;
     }
+    s->sensitive_mask = mask;
+    while (bad) {                                         /* re-index who left its box */
+        fx_reindex(s, __builtin_ctzll(bad));
+        bad &= bad - 1;
+    }
+}
+
+/* The energies of all three kinds at the last spring update (eqs. 12, 17, 20), from the
+   spring vectors it kept: the kinds the criterion does not use are computed here, when
+   they are read, with the same arithmetic as fx_springs (so the values do not depend on
+   when they are read).  Offsets are clamped as there, not counted again. */
+void fx_energies(fx_state *s)
+{
+    int nc = s->nc, k, stale = s->energy_stale;
+    int64_t l[FX_MAX_CONNECTIONS], dth[FX_MAX_CONNECTIONS], mean_dth = 0, sum = 0, cx, cy;
+    if (!(stale & 7))
+        return;
+    if (stale & 3) {
+        for (k = 0; k < nc; k++) {
+            dth[k] = spring_angle(s, k, s->grx[k], s->gry[k], &l[k], &cx, &cy);
+            sum += dth[k];
+        }
+        if (nc > 0)
+            mean_dth = div_round(sum, nc);
+    }
+    for (k = 0; k < nc; k++) {
+        int64_t ex, ey;
+        if (stale & 1)
+            s->energy[0][k] = energy_euclid(s, k, l[k]);
+        if (stale & 2)
+            s->energy[1][k] = stale & 8 ? 0 : energy_torsion(s, k, dth[k] - mean_dth);
+        if (stale & 4) {
+            offsets(s, k, s->grx[k], s->gry[k], &ex, &ey);
+            s->energy[2][k] = energy_cart(s, k, ex, ey);
+        }
+    }
+    s->energy_stale &= 8;
+}
+
+/* Derived flags, after the model and the parameters are set (and after each change). */
+void fx_prepare(fx_state *s)
+{
+    int i, k;
+    s->used_kinds = 1 << s->ekind;
+    for (k = 0; k < s->nc; k++)
+        s->used_kinds |= s->kinds[k] & 7;
+    s->need_torsion = (s->used_kinds >> 1) & 1;
+    s->unit_mass = s->equal_mass = 1;
+    for (i = 0; i < s->n; i++) {
+        if (s->invm[i] != (uint32_t)1 << 24)
+            s->unit_mass = 0;
+        if (s->mq[i] != s->mq[0])
+            s->equal_mass = 0;
+    }
+    s->gate_q20 = (s->gate + ((int64_t)1 << 20) - 1) >> 20;   /* the gate is Q.40 */
+    s->decay_span = s->dt_max < ((int64_t)1 << (2 * FX_DECAY_BITS)) ? s->dt_max
+                    : ((int64_t)1 << (2 * FX_DECAY_BITS));
 }
 
 /* Clamp every position into +-FX_POS_LIM (after loading a model), counting saturations. */

@@ -6,7 +6,7 @@
  * tests/test_fixed_integer_only.py checks that.  Q formats (docs/fixed_point.md):
  *
  *   positions mx, my, gdx0                int64  Q.32 px, clamped to +-FX_POS_LIM
- *   spring geometry l0, dx0, r, l ...     int32/int64  Q.16 px
+ *   spring geometry l0, dx0, r, l ...     int32/int64  Q.16 px (rest-frame u, v: Q.18)
  *   covariances sxx, sxy, syy            int64  Q.40 px^2 (<= 4096 px^2)
  *   inverse covariance ia, ib2, ic        int64  Q.32 px^-2
  *   Mahalanobis d^2, gate                 int128 sums, narrowed to int64, Q.40
@@ -16,7 +16,8 @@
  *   stiffness                             uint32 Q2.30 (<= 1.0)
  *   1/mass                                uint32 Q7.24
  *   angles                                uint32 binary angle, 2^32 = 2 pi
- *   exp2 / atan / hypot / sqrt / CORDIC   uint32 tables, Q.30 / binary angle
+ *   exp / exp2 / atan / hypot / sqrt /    uint32 tables, Q.30 / binary angle
+ *   CORDIC
  *
  * Arithmetic right shifts of negative values are floor divisions (GCC and Clang define
  * them so); no signed overflow can happen (bounds in docs/fixed_point.md), and the
@@ -42,6 +43,9 @@
 #define FX_SQRT_N 769
 #define FX_INDEX_MARGIN ((int64_t)3 << 16)  /* px added around an indexed gate box ... */
 #define FX_INDEX_GROW_SHIFT 3               /* ... after enlarging it by 2^-3 of itself */
+#define FX_DECAY_BITS 9                     /* activity decay: two tables of 2^9 entries ... */
+#define FX_DECAY_N (1 << FX_DECAY_BITS)     /* ... cover dt < 2^18 us exactly */
+#define FX_GAUSS_N 1024                     /* exp(-d2/2): d2 steps of 2^-5 and 2^-15 */
 
 enum { FX_NO_TRACKER = -1, FX_BACK_IN_TIME = -2, FX_OUT_OF_SENSOR = -3 };
 
@@ -51,7 +55,6 @@ typedef struct {
     /* parameters, converted by springtrack/fixed_q.py */
     int64_t a1, a2, cov_gain, energy_gain;    /* Q.62, <= 2^62 = 1.0 */
     int64_t gate;                             /* d^2 gate, Q.40 */
-    uint32_t gate_q24;                        /* the same gate, Q8.24 */
     int64_t k_tau;                            /* log2(e) / tau per us, Q.40 */
     int64_t dt_max;                           /* us after which the decay is taken as 0 */
     int64_t act_thr;                          /* Q.32 */
@@ -59,6 +62,12 @@ typedef struct {
     int32_t escale_never;                     /* 1: energy_scale >= nc, nothing is ever over */
     int64_t smin2, smax2;                     /* Q.40 px^2 */
     int32_t period, ekind, need_torsion;
+    /* derived by fx_prepare() from the model and parameters above */
+    int32_t used_kinds;                       /* bit q: a spring or the criterion is of kind q */
+    int32_t unit_mass;                        /* every 1/mass is exactly 1 (no division) */
+    int32_t equal_mass;                       /* every centre-of-mass weight is the same */
+    int64_t decay_span;                       /* min(dt_max, 2^(2 FX_DECAY_BITS)) us */
+    int64_t gate_q20;                         /* ceil(gate 2^20): gate boxes, rounded up */
     /* tracker state, structure of arrays */
     int64_t mx[FX_MAX_TRACKERS], my[FX_MAX_TRACKERS];
     int64_t sxx[FX_MAX_TRACKERS], sxy[FX_MAX_TRACKERS], syy[FX_MAX_TRACKERS];
@@ -77,8 +86,14 @@ typedef struct {
     int32_t l0[FX_MAX_CONNECTIONS], dx0[FX_MAX_CONNECTIONS], dy0[FX_MAX_CONNECTIONS];
     uint32_t th0[FX_MAX_CONNECTIONS];         /* binary angle */
     int32_t c0x[FX_MAX_CONNECTIONS], c0y[FX_MAX_CONNECTIONS];    /* cos, sin th0, Q.30 */
-    int64_t energy[3][FX_MAX_CONNECTIONS];
+    int64_t energy[3][FX_MAX_CONNECTIONS];   /* read them through fx_energies() */
     int64_t mean_energy;
+    /* the spring vectors r = x_j - x_i of the last spring update (Q.16 px, |.| < 2^30): the
+       energies of the kinds the criterion does not use are computed from them only when
+       they are read (fx_energies) */
+    int32_t grx[FX_MAX_CONNECTIONS], gry[FX_MAX_CONNECTIONS];
+    int32_t energy_stale;                     /* bit q < 3: energy[q] not yet computed;
+                                                 bit 3: no torsion energies at that update */
     /* spatial index (see _kernel.pyx): bit i of cells[cy * gw + cx] set if tracker i's
        indexed box covers the cell; bx_* is that box, Q.16 px */
     uint64_t *cells;
@@ -94,6 +109,10 @@ typedef struct {
     uint32_t hyp_tab[(1 << FX_ATAN_BITS) + 2];    /* sqrt(1 + (k / 1024)^2), Q.30 */
     uint32_t ihyp_tab[(1 << FX_ATAN_BITS) + 2];   /* 1 / sqrt(1 + (k / 1024)^2), Q.30 */
     uint32_t sqrt_tab[FX_SQRT_N];             /* floor(sqrt((j + 256) 2^54) / 2) */
+    uint32_t decay_lo[FX_DECAY_N];            /* exp(-j / tau), Q.30, j = 0..511 (us) */
+    uint32_t decay_hi[FX_DECAY_N];            /* exp(-512 j / tau), Q.30 */
+    uint32_t gauss_hi[FX_GAUSS_N];            /* exp(-j 2^-5 / 2), Q.30 (d2 < 32) */
+    uint32_t gauss_lo[FX_GAUSS_N];            /* exp(-j 2^-15 / 2), Q.30 */
     int64_t cordic_x0;                        /* 1 / CORDIC gain, Q.60 */
     /* counters */
     int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates, n_reindex;
@@ -113,6 +132,8 @@ int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y);
    back in time; returns the events processed (the Stepper's steps(), _stepper.pxd) */
 int64_t fx_steps(fx_state *s, const fx_event *ev, int64_t n, int64_t t_stop);
 void fx_springs(fx_state *s);
+void fx_energies(fx_state *s);
+void fx_prepare(fx_state *s);
 void fx_refresh(fx_state *s, int i);
 void fx_reindex(fx_state *s, int i);
 void fx_clamp_positions(fx_state *s);
@@ -122,6 +143,8 @@ int fx_check_index(const fx_state *s);
 int64_t fx_mulsh(int64_t v, uint32_t g, int sh);
 uint64_t fx_isqrt64(const fx_state *s, uint64_t v);
 uint32_t fx_exp2neg(const fx_state *s, int64_t w);
+int64_t fx_gauss(const fx_state *s, int64_t d2);
+uint32_t fx_decay(const fx_state *s, int64_t dt);
 uint32_t fx_atan2(const fx_state *s, int64_t y, int64_t x);
 void fx_cossin(const fx_state *s, int64_t angle, int64_t *c, int64_t *sn);
 void fx_polar(const fx_state *s, int64_t x, int64_t y, uint32_t *ang, int64_t *len, int64_t *cx,
