@@ -306,6 +306,11 @@ cdef class FixedKernel:
         cdef fx_state* s = <fx_state*>self.state
         cdef int i
         pq = _q.params_q(params, s.nc)
+        if (self.params is not None and s.n_valid > 0
+                and params.activity_tau_us != self.params.activity_tau_us):
+            for i in range(s.n):         # [ref] eq. (6): a new tau decays from the change on
+                s.act[i] = fx_activity(s, i, s.last_t)
+                s.tlast[i] = s.last_t
         self.params = params
         s.a1 = pq["a1"]
         s.a2 = pq["a2"]

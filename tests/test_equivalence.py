@@ -187,20 +187,23 @@ def test_chunked_processing_equals_whole():
 def test_activity_equal_across_rescales_and_a_change_of_tau():
     """The kernel keeps activity as a sum seen from a common time it moves every 32 tau
     (springtrack/_kernel.pyx kactivity); with tau = 100 us a 2 s stream moves it hundreds
-    of times, and a tau change mid-stream applies from the change on in both."""
+    of times, and a tau change mid-stream applies from the change on in all three backends
+    (the fixed-point one to its own precision)."""
     model = grid3x3()
     ev, _ = blob_stream(model, 60_000, rate_hz=30_000, noise=0.3, seed=4, speed_px_s=(5, 3))
     trackers = [springtrack.Tracker(model, {"activity_tau_us": 100.0}, backend=b)
-                for b in ("cython", "reference")]
+                for b in ("cython", "reference", "fixed")]
     half = len(ev) // 2
     runs = []
     for tr in trackers:
         first = tr.run(ev[:half], 1000)
         tr.set_params(activity_tau_us=5000.0)
         runs.append((first, tr.run(ev[half:], 1000)))
-    for (a1, a2), (b1, b2) in [runs]:
-        for a, b in ((a1, b1), (a2, b2)):
-            np.testing.assert_allclose(a.activity, b.activity, rtol=1e-12, atol=1e-12)
-            assert (a.active == b.active).all()
+    (a1, a2), (b1, b2), (f1, f2) = runs
+    for a, b in ((a1, b1), (a2, b2)):
+        np.testing.assert_allclose(a.activity, b.activity, rtol=1e-12, atol=1e-12)
+        assert (a.active == b.active).all()
+    for f, b in ((f1, b1), (f2, b2)):        # the integer kernel, within its Q.32 tables
+        np.testing.assert_allclose(f.activity, b.activity, rtol=1e-6, atol=1e-6)
     assert trackers[0].counters["events_assigned"] > 10_000
     assert np.ptp(runs[0][1].activity) > 1.0     # the activities tested are not all ~0
