@@ -5,7 +5,8 @@ The per-event loop touches no Python object, allocates nothing and runs without 
 Equations cite Valeiras et al. 2015; comments marked [ref] point at the reference lines
 they translate.  The per-event arithmetic (eqs. 2-5) keeps the reference's order of
 floating-point operations, so its decisions match even on exact ties (the activity is
-stored rescaled, see kactivity: equal up to rounding); the springs do not (see below), so the two differ by rounding, ~1e-13 px
+stored rescaled, see kactivity: equal up to rounding); the springs do not (see below),
+so the two differ by rounding, ~1e-13 px
 over a million events.
 
 Speed comes from ideas that do not change any decision of the algorithm:
@@ -69,7 +70,8 @@ cdef extern from "csrc/springs.h" nogil:
     void st_torsion_angles(int n, const double* rx, const double* ry, const double* rdx,
                            const double* rdy, const double* dth_zero, double* th)
     void st_torsion_rotation(int n, const double* th, double mean, const double* half_a,
-                             const double* a_tor, double* e_tor, double* sn, double* cm1)
+                             const double* a_tor, double* e_tor, double* eps, double* sn,
+                             double* cm1)
     void st_spring_terms_batch(int n, const double* rx, const double* ry, const double* sn,
                                const double* cm1, const double* l0, const double* half_a,
                                const double* dx0, const double* dy0, const double* c0,
@@ -263,6 +265,7 @@ cdef void ksprings(KState* s) noexcept nogil:
     cdef double rx[MAX_CONNECTIONS]
     cdef double ry[MAX_CONNECTIONS]
     cdef double th[MAX_CONNECTIONS]
+    cdef double eps[MAX_CONNECTIONS]
     cdef double sn[MAX_CONNECTIONS]
     cdef double cm1[MAX_CONNECTIONS]
     cdef double uax[MAX_CONNECTIONS]
@@ -281,7 +284,8 @@ cdef void ksprings(KState* s) noexcept nogil:
         for k in range(nc):                                          # 3. eq. (15)
             mean_dth += th[k]
         mean_dth = mean_dth / nc
-        st_torsion_rotation(nc, th, mean_dth, s.half_a, s.a_tor, s.energy[1], sn, cm1)  # 4.
+        st_torsion_rotation(nc, th, mean_dth, s.half_a, s.a_tor, s.energy[1], eps, sn,  # 4.
+                            cm1)
     else:
         for k in range(nc):
             s.energy[1][k] = 0.0

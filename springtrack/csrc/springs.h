@@ -36,31 +36,20 @@ ST_CLONES static void st_torsion_angles(int n, const double *restrict rx,
 }
 
 /* eqs. (15)-(17): d = th - mean (eq. 15), e_tor = a/2 d^2 (eq. 17), eps = a_tor d
- * (eq. 16, a_tor = 0 without a torsional spring), and sn, cm1 = sin eps, cos eps - 1
- * (libm where |eps| > pi/4: stiffness x angle deviation that large is rare). */
+ * (eq. 16, a_tor = 0 without a torsional spring), then sn, cm1 = sin eps, cos eps - 1 by
+ * fastmath.h's st_sincos_batch. */
 ST_CLONES static void st_torsion_rotation(int n, const double *restrict th, double mean,
                                           const double *restrict half_a,
                                           const double *restrict a_tor,
-                                          double *restrict e_tor, double *restrict sn,
-                                          double *restrict cm1)
+                                          double *restrict e_tor, double *restrict eps,
+                                          double *restrict sn, double *restrict cm1)
 {
-    int wide = 0;
     for (int k = 0; k < n; k++) {
         double d = th[k] - mean;
-        double e = a_tor[k] * d;
         e_tor[k] = half_a[k] * (d * d);
-        st_sincos_small(e, &sn[k], &cm1[k]);
-        wide |= !(fabs(e) <= ST_SINCOS_MAX);
+        eps[k] = a_tor[k] * d;
     }
-    if (wide) {
-        for (int k = 0; k < n; k++) {
-            double e = a_tor[k] * (th[k] - mean);
-            if (!(fabs(e) <= ST_SINCOS_MAX)) {
-                sn[k] = sin(e);
-                cm1[k] = cos(e) - 1.0;
-            }
-        }
-    }
+    st_sincos_batch(eps, sn, cm1, n);
 }
 
 /* Spring terms per connection k.  Inputs: r = (rx, ry) = end b - end a; sn, cm1 = sin,
