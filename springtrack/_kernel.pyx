@@ -193,15 +193,40 @@ cdef int kstep(KState* s, int64_t t, int x, int y) noexcept nogil:
 
 cdef Py_ssize_t ksteps(KState* s, const Event* ev, Py_ssize_t n, int64_t t_stop) noexcept nogil:
     """kstep() over ev[0..n), stopping before the first event with t >= t_stop that is not
-    back in time; returns the events processed (the Stepper's steps(), _stepper.pxd)."""
+    back in time; returns the events processed (the Stepper's steps(), _stepper.pxd).
+    The counters and the last time live in locals for the batch and are written back at
+    its end (nothing the step calls reads them)."""
     cdef Py_ssize_t k
-    cdef int64_t t
+    cdef int64_t t, last_t = s.last_t, n_back = 0, n_outside = 0, n_valid = 0
+    cdef int since = s.since_spring, period = s.period
+    cdef unsigned int x, y, width = s.width, height = s.height
     for k in range(n):
         t = ev[k].t
-        if t >= t_stop and t >= s.last_t:
-            return k
-        step_inline(s, t, ev[k].x, ev[k].y)
-    return n
+        if t < last_t:
+            n_back += 1
+            continue
+        if t >= t_stop:
+            break
+        last_t = t
+        x = ev[k].x
+        y = ev[k].y
+        if x >= width or y >= height:
+            n_outside += 1
+            continue
+        n_valid += 1
+        assign_event(s, t, x, y)
+        since += 1
+        if since >= period:
+            since = 0
+            ksprings(s)
+    else:
+        k = n
+    s.last_t = last_t
+    s.since_spring = since
+    s.n_back += n_back
+    s.n_outside += n_outside
+    s.n_valid += n_valid
+    return k
 
 
 cdef inline int step_inline(KState* s, int64_t t, int x, int y) noexcept nogil:
@@ -213,6 +238,16 @@ cdef inline int step_inline(KState* s, int64_t t, int x, int y) noexcept nogil:
         s.n_outside += 1
         return K_OUT_OF_SENSOR
     s.n_valid += 1
+    cdef int best = assign_event(s, t, x, y)
+    s.since_spring += 1
+    if s.since_spring >= s.period:
+        s.since_spring = 0
+        ksprings(s)
+    return best
+
+
+cdef inline int assign_event(KState* s, int64_t t, int x, int y) noexcept nogil:
+    """eqs. (2)-(6) for a valid event: the most probable sensitive tracker takes it."""
     cdef double fx = x, fy = y, dx, dy, d2
     cdef double best_d2 = s.gate
     cdef int best = K_NO_TRACKER, i
@@ -231,10 +266,6 @@ cdef inline int step_inline(KState* s, int64_t t, int x, int y) noexcept nogil:
     if best >= 0:
         update_tracker(s, best, t, fx, fy, best_d2)
         s.n_assigned += 1
-    s.since_spring += 1
-    if s.since_spring >= s.period:
-        s.since_spring = 0
-        ksprings(s)
     return best
 
 
