@@ -67,6 +67,11 @@ cdef extern from "csrc/fastmath.h" nogil:
     void st_sincos_batch(const double* e, double* sn, double* cm1, int n)
 
 cdef extern from "csrc/springs.h" nogil:
+    void st_gather_offsets(int n, const int* ca, const int* cb, const double* mx,
+                           const double* my, double* rx, double* ry)
+    uint64_t st_energy_pull(int n, int nc, const double* e, double thr, const uint64_t* inc_lo,
+                            const uint64_t* inc_hi, double gx, double gy, double gain,
+                            const double* gdx0, const double* gdy0, double* mx, double* my)
     void st_torsion_angles(int n, const double* rx, const double* ry, const double* rdx,
                            const double* rdy, const double* dth_zero, double* th)
     void st_torsion_rotation(int n, const double* th, double mean, const double* half_a,
@@ -281,12 +286,12 @@ cdef inline double wrap_angle(double a) noexcept nogil:
 
 cdef void ksprings(KState* s) noexcept nogil:
     # [ref] springs, in structure-of-arrays passes (csrc/springs.h, vectorised):
-    #   1. gather r = end b - end a (scalar);  2. eq. (14) angles;  3. eq. (15) mean angle,
+    #   1. gather r = end b - end a;  2. eq. (14) angles;  3. eq. (15) mean angle,
     #   summed in the reference's order;  4. eqs. (15)-(17) deviation, torsional energy and
     #   rotation;  5. eqs. (10)-(12), (16), (18)-(20) branch-free (a_euc/a_tor/a_car are 0
     #   for kinds a connection lacks), displacements divided by each end's mass;  6. scatter
-    #   onto the ends (scalar);  7. energy criteria;  8. re-index the trackers whose gate
-    #   boxes left their indexed boxes.
+    #   onto the ends (scalar);  7. energy criteria (branch-free masks);  8. re-index the
+    #   trackers whose gate boxes left their indexed boxes.
     # The three kinds' displacements are summed per connection before the scatter (the
     # reference adds them to the ends one by one): a rounding-level difference only.
     cdef int n = s.n, nc = s.nc, k, i, j
@@ -305,11 +310,7 @@ cdef void ksprings(KState* s) noexcept nogil:
     cdef double uby[MAX_CONNECTIONS]
     cdef double mean_dth = 0.0
     s.n_spring_updates += 1
-    for k in range(nc):                                              # 1. gather
-        i = s.ca[k]
-        j = s.cb[k]
-        rx[k] = s.mx[j] - s.mx[i]
-        ry[k] = s.my[j] - s.my[i]
+    st_gather_offsets(nc, s.ca, s.cb, s.mx, s.my, rx, ry)            # 1. gather
     if s.need_torsion:
         st_torsion_angles(nc, rx, ry, s.rdx, s.rdy, s.dth_zero, th)  # 2. eq. (14)
         for k in range(nc):                                          # 3. eq. (15)
@@ -349,32 +350,21 @@ cdef void ksprings(KState* s) noexcept nogil:
 cdef void energy_criteria(KState* s) noexcept nogil:
     # [ref] _energy_criteria
     cdef int n = s.n, nc = s.nc, k, i
-    cdef int over[MAX_TRACKERS]
+    cdef const double* e = s.energy[s.ekind]
     cdef double total = 0.0, thr, msum = s.mass_sum, gx = 0.0, gy = 0.0
     if nc == 0:
         return
     for k in range(nc):                                              # eq. (13)
-        total += s.energy[s.ekind][k]
+        total += e[k]
     s.mean_energy = total / nc
     thr = s.energy_scale * s.mean_energy
-    for i in range(n):
-        over[i] = 0
-    for k in range(nc):
-        if s.energy[s.ekind][k] > thr:
-            over[s.ca[k]] += 1
-            over[s.cb[k]] += 1
-    for i in range(n):
+    for i in range(n):                                               # eq. (22): G
         gx += s.mass[i] * s.mx[i]
         gy += s.mass[i] * s.my[i]
     gx = gx / msum
     gy = gy / msum
-    s.sensitive_mask = 0
-    for i in range(n):
-        if over[i] > 0:                                              # eq. (22)
-            s.mx[i] = s.mx[i] + s.energy_gain * (gx + s.gdx0[i] - s.mx[i])
-            s.my[i] = s.my[i] + s.energy_gain * (gy + s.gdy0[i] - s.my[i])
-        if not (s.degree[i] > 0 and over[i] == s.degree[i]):         # eq. (21)
-            s.sensitive_mask |= (<uint64_t>1) << i
+    s.sensitive_mask = st_energy_pull(n, nc, e, thr, s.inc_lo, s.inc_hi, gx, gy,  # (21)-(22)
+                                      s.energy_gain, s.gdx0, s.gdy0, s.mx, s.my)
 
 
 cdef double kactivity(const KState* s, int i, int64_t t) noexcept nogil:
@@ -497,6 +487,12 @@ cdef class Kernel:
             s.dy0[k] = arr["dy0"][k]
             s.degree[s.ca[k]] += 1
             s.degree[s.cb[k]] += 1
+            if k < 64:
+                s.inc_lo[s.ca[k]] |= (<uint64_t>1) << k
+                s.inc_lo[s.cb[k]] |= (<uint64_t>1) << k
+            else:
+                s.inc_hi[s.ca[k]] |= (<uint64_t>1) << (k - 64)
+                s.inc_hi[s.cb[k]] |= (<uint64_t>1) << (k - 64)
             s.wa[k] = s.inv_mass[s.ca[k]]
             s.wb[k] = s.inv_mass[s.cb[k]]
             s.half_a[k] = 0.5 * s.stiff[k]

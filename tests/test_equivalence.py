@@ -207,3 +207,27 @@ def test_activity_equal_across_rescales_and_a_change_of_tau():
         np.testing.assert_allclose(f.activity, b.activity, rtol=1e-6, atol=1e-6)
     assert trackers[0].counters["events_assigned"] > 10_000
     assert np.ptp(runs[0][1].activity) > 1.0     # the activities tested are not all ~0
+
+
+def test_kernel_equals_reference_beyond_64_connections():
+    """Connections 64 and up sit in the second word of the kernel's per-tracker connection
+    masks (eqs. 21-22, csrc/springs.h st_energy_pull); a ring of 30 trackers, each linked
+    to its next three neighbours (90 connections), with a low energy_scale so that many
+    connections are over threshold and trackers turn insensitive."""
+    n = 30
+    ang = 2 * np.pi * np.arange(n) / n
+    trackers = [TrackerSpec(f"t{i}", 150 + 80 * np.cos(a), 120 + 80 * np.sin(a),
+                            (9.0, 0.0, 9.0), 1.0) for i, a in enumerate(ang)]
+    conns = [Connection(f"t{i}", f"t{(i + d) % n}", ("euclidean", "cartesian"), 0.01)
+             for d in (1, 2, 3) for i in range(n)]
+    m = ShapeModel("ring90", 304, 240, trackers, conns)
+    ev, _ = blob_stream(m, 40_000, noise=0.3, seed=5, speed_px_s=(20, -10), rot_deg_s=15)
+    prm = dict(energy_scale=0.7, energy_gain=0.05, spring_period=20, energy_kind="euclidean")
+    a = assert_same(m, prm, ev)
+    b = springtrack.Tracker(m, prm, backend="reference")
+    insensitive = 0
+    for s in range(0, len(ev), 2000):             # the criteria acted on high connections
+        b.process(ev[s:s + 2000])
+        insensitive += int((~b.state()["sensitive"][20:]).sum())
+    assert insensitive > 0
+    assert a.counters["spring_updates"] == len(ev) // 20

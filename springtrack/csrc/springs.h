@@ -10,12 +10,62 @@
  *                           the rotation sin(eps), cos(eps) - 1 of eq. (16)
  *   st_spring_terms_batch   eqs. (10)-(12), (16), (18)-(20): energies and the summed
  *                           displacement of both ends, already divided by their masses
+ *   st_gather_offsets       r = end b - end a of every connection
+ *   st_energy_pull          eqs. (21)-(22) once the threshold is known: the pull toward
+ *                           G of the ends of over-threshold connections, and which
+ *                           trackers stay sensitive, from bit masks (no branch)
  *   st_boxes_left           which trackers' gate boxes left their indexed boxes
  */
 #ifndef SPRINGTRACK_SPRINGS_H
 #define SPRINGTRACK_SPRINGS_H
 
 #include "fastmath.h"
+
+/* r = (rx, ry) = position of end b - position of end a, per connection */
+static inline void st_gather_offsets(int n, const int *restrict ca, const int *restrict cb,
+                                        const double *restrict mx, const double *restrict my,
+                                        double *restrict rx, double *restrict ry)
+{
+    for (int k = 0; k < n; k++) {
+        rx[k] = mx[cb[k]] - mx[ca[k]];
+        ry[k] = my[cb[k]] - my[ca[k]];
+    }
+}
+
+/* eqs. (21)-(22) for n trackers and nc <= 128 connections of energies e, threshold thr
+ * (energy_scale times the mean energy, eq. 13), centre of mass (gx, gy):
+ *  - over = the connections with e > thr, as a 128-bit mask (over_lo, over_hi);
+ *  - eq. (22): a tracker with an over connection moves toward G + (gdx0, gdy0) by gain;
+ *  - eq. (21): a tracker whose every connection is over (inc, its incident connections'
+ *    mask, non-empty) is insensitive.
+ * The reference counts the over connections of each tracker and compares the count with
+ * the degree; masks give the same answer.  Returns the sensitive mask (bit i: tracker i). */
+static inline uint64_t st_energy_pull(int n, int nc, const double *restrict e, double thr,
+                                      const uint64_t *restrict inc_lo,
+                                      const uint64_t *restrict inc_hi,
+                                      double gx, double gy, double gain,
+                                      const double *restrict gdx0,
+                                      const double *restrict gdy0,
+                                      double *restrict mx, double *restrict my)
+{
+    uint64_t over_lo = 0, over_hi = 0, sensitive = 0;
+    int nlo = nc < 64 ? nc : 64;
+    for (int k = 0; k < nlo; k++)
+        over_lo |= (uint64_t)(e[k] > thr) << k;
+    for (int k = 64; k < nc; k++)
+        over_hi |= (uint64_t)(e[k] > thr) << (k - 64);
+    for (int i = 0; i < n; i++) {
+        uint64_t lo = inc_lo[i], hi = inc_hi[i];
+        /* eq. (22) with gain 0 (mx + 0 = mx) unless a connection of i is over */
+        double g = st_sel(((lo & over_lo) | (hi & over_hi)) != 0, gain, 0.0);
+        mx[i] = mx[i] + g * ((gx + gdx0[i]) - mx[i]);
+        my[i] = my[i] + g * ((gy + gdy0[i]) - my[i]);
+        /* eq. (21): insensitive if i has connections and none of them is under */
+        uint64_t insensitive = ((lo | hi) != 0) & (((lo & ~over_lo) | (hi & ~over_hi)) == 0);
+        sensitive |= (1 - insensitive) << i;
+    }
+    return sensitive;
+}
 
 /* eq. (14): th[k] = th - th0 as the angle from the rest direction (rdx, rdy) to
  * r = (rx, ry), atan2(rest x r, rest . r), in [-pi, pi) as the reference's wrap_angle;
