@@ -1,12 +1,14 @@
 """Firmware loop benchmarks (issue 6, item 7); writes the "Firmware loop" section of
 docs/benchmarks.md.
 
-Run: .venv/bin/python benchmarks/firmware.py [--seconds S] [--realtime-seconds S] [--no-write]
+Run: .venv/bin/python benchmarks/firmware.py [--seconds S] [--realtime-seconds S] [--realtime-runs N]
+     [--no-write]
 
 1. fused decode+track from in-memory 128 KiB USB buffers (CCam words) for face26 on the
    face_occlusion scene, telemetry every 1 ms, best of 3; beside it the kernel alone
    (``Tracker.run`` on decoded events) and the decoder alone, to show where time goes;
-2. the simulated camera in real time (face_occlusion) through pyusb -> reader -> fused loop:
+2. the simulated camera in real time (face_occlusion) through pyusb -> reader -> fused loop,
+   --realtime-runs times (the median run by p99 is reported, every run's p99 listed):
    dropped transfers, and the event-time-to-telemetry latency of every snapshot (wall time
    the snapshot left the fused loop minus the wall time its sample time occurred at the
    device clock);
@@ -135,7 +137,9 @@ def bench_overload(ev, fused_rate):
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=5.0, help="scene seconds for (1) and (3)")
-    ap.add_argument("--realtime-seconds", type=float, default=10.0)
+    ap.add_argument("--realtime-runs", type=int, default=3,
+                    help="real-time runs; the median run by latency p99 is reported")
+    ap.add_argument("--realtime-seconds", type=float, default=10.0, help="scene seconds per run")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
     load = os.getloadavg()
@@ -149,10 +153,17 @@ def main():
     fx_fused, fx_kernel, _, _ = bench_fused(ev, "fixed")
     print(f"fixed-point backend: fused {fx_fused / 1e6:.2f} M ev/s, kernel alone "
           f"{fx_kernel / 1e6:.2f}")
-    s, lat, rt_rate = bench_realtime(args.realtime_seconds)
-    print(f"realtime: {s['events_tracked']} events ({rt_rate / 1e3:.0f} k ev/s), dropped "
-          f"{s['transfers_dropped']}, latency ms p50 {np.median(lat):.3f} p99 "
-          f"{np.percentile(lat, 99):.3f} max {lat.max():.3f}; {s['transfers']} transfers")
+    runs = []
+    for r in range(args.realtime_runs):
+        s, lat, rt_rate = bench_realtime(args.realtime_seconds)
+        runs.append((s, lat))
+        print(f"realtime run {r + 1}: {s['events_tracked']} events ({rt_rate / 1e3:.0f} k ev/s), "
+              f"dropped {s['transfers_dropped']}, latency ms p50 {np.median(lat):.3f} p99 "
+              f"{np.percentile(lat, 99):.3f} max {lat.max():.3f}; {s['transfers']} transfers")
+    p99s = [float(np.percentile(lat, 99)) for _, lat in runs]
+    s, lat = runs[int(np.argsort(p99s)[len(p99s) // 2])]          # the median run by p99
+    drops = sum(r[0]["transfers_dropped"] for r in runs)
+    tracked = sum(r[0]["events_tracked"] for r in runs)
     ov, inj, rate, drss, after, t_end, pool = bench_overload(ev[ev["t"] < 1_500_000], fused)
     print(f"overload: burst {inj['burst_events']} events at {rate / 1e6:.0f} M ev/s, dropped "
           f"{ov['transfers_dropped']} transfers ({ov['bytes_dropped'] / 1e6:.1f} MB), queue hwm "
@@ -164,7 +175,7 @@ def main():
     body = f"""
 Machine: {machine()}; load average {load[0]:.1f} / {load[1]:.1f} (1 / 5 min) when the run
 started (a shared machine: under load, real-time latency p99 grows to several ms).
-Command: `.venv/bin/python benchmarks/firmware.py --seconds {args.seconds:g} --realtime-seconds {args.realtime_seconds:g}`.
+Command: `.venv/bin/python benchmarks/firmware.py --seconds {args.seconds:g} --realtime-seconds {args.realtime_seconds:g} --realtime-runs {args.realtime_runs}`.
 
 **Fused decode + track** from in-memory 128 KiB USB buffers (CCam words), face26 on
 face_occlusion ({len(ev):,} events, {nbuf} buffers, {assigned:.0%} of them assigned), telemetry every 1 ms,
@@ -184,15 +195,19 @@ kernel's per-event cost on this machine, not the USB path.  USB 2.0 high speed c
 about 13 M words/s, so the tracker keeps up with the link when fused >= 13.
 
 **Real time**, simulated camera on face_occlusion (simulated beforehand, served at the
-event timestamps) for {args.realtime_seconds:g} s of scene
+event timestamps), {len(runs)} runs of {args.realtime_seconds:g} s of scene
 ({rt_rate / 1e3:.0f} k events/s) through pyusb -> reader thread -> fused loop:
-{s['events_tracked']:,} events tracked, **{s['transfers_dropped']} dropped transfers**
-({s['transfers']:,} transfers; the simulated controller ends a transfer 250 us after its
-oldest word), queue high-water mark {s['queue_hwm']}.  Event-time-to-telemetry latency
-(wall time a snapshot left the fused loop minus the wall time its sample time occurred on
-the device clock; first 5 % skipped): p50 {np.median(lat):.3f} ms, p99
-{np.percentile(lat, 99):.3f} ms, max {lat.max():.3f} ms.  The latency includes the
-simulated controller's 0.25 ms short-packet delay.
+{tracked:,} events tracked, **{drops} dropped transfers** (the simulated controller ends a
+transfer 250 us after its oldest word).  Event-time-to-telemetry latency (wall time a
+snapshot left the fused loop minus the wall time its sample time occurred on the device
+clock; first 5 % of each run skipped), p99 per run: {", ".join(f"{v:.3f}" for v in p99s)} ms;
+the median run: p50 {np.median(lat):.3f} ms, p99 {np.percentile(lat, 99):.3f} ms, max
+{lat.max():.3f} ms, {s['transfers']:,} transfers, queue high-water mark {s['queue_hwm']}.
+Target p99 < 1 ms: **{'met' if np.median(p99s) < 1.0 else 'not met'}** (median of the runs'
+p99).  The latency includes the simulated controller's 0.25 ms short-packet delay; the
+rare stalls of several ms that set the maximum come in bursts of consecutive snapshots
+(the whole process paused: the reader, the simulated device and the loop are Python
+threads of one process on a shared 2-core VM).
 
 **Overload**: a noise burst of {inj['burst_events']:,} events at {rate / 1e6:.0f} M
 events/s (10x the fused rate above) for 0.2 s of event time, in a real-time run.  The
