@@ -67,8 +67,6 @@ cdef extern from "csrc/fastmath.h" nogil:
     void st_sincos_batch(const double* e, double* sn, double* cm1, int n)
 
 cdef extern from "csrc/springs.h" nogil:
-    void st_gather_offsets(int n, const int* ca, const int* cb, const double* mx,
-                           const double* my, double* rx, double* ry)
     uint64_t st_energy_pull(int n, int nc, const double* e, double thr, const uint64_t* inc_lo,
                             const uint64_t* inc_hi, double gx, double gy, double gain,
                             const double* gdx0, const double* gdy0, double* mx, double* my)
@@ -310,7 +308,11 @@ cdef void ksprings(KState* s) noexcept nogil:
     cdef double uby[MAX_CONNECTIONS]
     cdef double mean_dth = 0.0
     s.n_spring_updates += 1
-    st_gather_offsets(nc, s.ca, s.cb, s.mx, s.my, rx, ry)            # 1. gather
+    for k in range(nc):                                              # 1. gather
+        i = s.ca[k]
+        j = s.cb[k]
+        rx[k] = s.mx[j] - s.mx[i]
+        ry[k] = s.my[j] - s.my[i]
     if s.need_torsion:
         st_torsion_angles(nc, rx, ry, s.rdx, s.rdy, s.dth_zero, th)  # 2. eq. (14)
         for k in range(nc):                                          # 3. eq. (15)

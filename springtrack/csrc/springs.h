@@ -10,7 +10,6 @@
  *                           the rotation sin(eps), cos(eps) - 1 of eq. (16)
  *   st_spring_terms_batch   eqs. (10)-(12), (16), (18)-(20): energies and the summed
  *                           displacement of both ends, already divided by their masses
- *   st_gather_offsets       r = end b - end a of every connection
  *   st_energy_pull          eqs. (21)-(22) once the threshold is known: the pull toward
  *                           G of the ends of over-threshold connections, and which
  *                           trackers stay sensitive, from bit masks (no branch)
@@ -20,17 +19,6 @@
 #define SPRINGTRACK_SPRINGS_H
 
 #include "fastmath.h"
-
-/* r = (rx, ry) = position of end b - position of end a, per connection */
-static inline void st_gather_offsets(int n, const int *restrict ca, const int *restrict cb,
-                                        const double *restrict mx, const double *restrict my,
-                                        double *restrict rx, double *restrict ry)
-{
-    for (int k = 0; k < n; k++) {
-        rx[k] = mx[cb[k]] - mx[ca[k]];
-        ry[k] = my[cb[k]] - my[ca[k]];
-    }
-}
 
 /* eqs. (21)-(22) for n trackers and nc <= 128 connections of energies e, threshold thr
  * (energy_scale times the mean energy, eq. 13), centre of mass (gx, gy):
