@@ -48,10 +48,8 @@ ctypedef struct KState:
     double inv_tau
     double mass[MAX_TRACKERS]
     double mass_sum                  # sum of mass[i] in index order (eq. 22's G)
-    double inv_mass[MAX_TRACKERS]
     double gdx0[MAX_TRACKERS]
     double gdy0[MAX_TRACKERS]
-    int degree[MAX_TRACKERS]
     uint64_t inc_lo[MAX_TRACKERS]    # bit k: connection k (inc_hi: k - 64) ends at tracker i
     uint64_t inc_hi[MAX_TRACKERS]
     uint64_t sensitive_mask          # bit i set: tracker i may take events (eq. 21)

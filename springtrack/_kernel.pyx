@@ -189,9 +189,6 @@ cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double f
     check_index(s, i)
 
 
-cdef int kstep(KState* s, int64_t t, int x, int y) noexcept nogil:
-    """One event (Algorithm 1). Returns the winning tracker, K_NO_TRACKER or a skip code."""
-    return step_inline(s, t, x, y)
 
 
 cdef Py_ssize_t ksteps(KState* s, const Event* ev, Py_ssize_t n, int64_t t_stop) noexcept nogil:
@@ -232,7 +229,9 @@ cdef Py_ssize_t ksteps(KState* s, const Event* ev, Py_ssize_t n, int64_t t_stop)
     return k
 
 
-cdef inline int step_inline(KState* s, int64_t t, int x, int y) noexcept nogil:
+cdef int kstep(KState* s, int64_t t, int x, int y) noexcept nogil:
+    """One event (Algorithm 1). Returns the winning tracker, K_NO_TRACKER or a skip code.
+    ksteps() is the same step over a batch, with the counters kept in locals."""
     if t < s.last_t:
         s.n_back += 1
         return K_BACK_IN_TIME
@@ -474,7 +473,6 @@ cdef class Kernel:
             s.sxy[i] = arr["sxy"][i]
             s.syy[i] = arr["syy"][i]
             s.mass[i] = arr["mass"][i]
-            s.inv_mass[i] = 1.0 / s.mass[i]
             s.gdx0[i] = arr["gdx0"][i]
             s.gdy0[i] = arr["gdy0"][i]
             s.act[i] = 0.0
@@ -487,16 +485,14 @@ cdef class Kernel:
             s.th0[k] = arr["th0"][k]
             s.dx0[k] = arr["dx0"][k]
             s.dy0[k] = arr["dy0"][k]
-            s.degree[s.ca[k]] += 1
-            s.degree[s.cb[k]] += 1
             if k < 64:
                 s.inc_lo[s.ca[k]] |= (<uint64_t>1) << k
                 s.inc_lo[s.cb[k]] |= (<uint64_t>1) << k
             else:
                 s.inc_hi[s.ca[k]] |= (<uint64_t>1) << (k - 64)
                 s.inc_hi[s.cb[k]] |= (<uint64_t>1) << (k - 64)
-            s.wa[k] = s.inv_mass[s.ca[k]]
-            s.wb[k] = s.inv_mass[s.cb[k]]
+            s.wa[k] = 1.0 / s.mass[s.ca[k]]
+            s.wb[k] = 1.0 / s.mass[s.cb[k]]
             s.half_a[k] = 0.5 * s.stiff[k]
             s.a_euc[k] = s.stiff[k] if s.kinds[k] & 1 else 0.0
             s.a_tor[k] = s.stiff[k] if s.kinds[k] & 2 else 0.0
