@@ -50,13 +50,13 @@ ctypedef struct KState:
     double mass_sum                  # sum of mass[i] in index order (eq. 22's G)
     double gdx0[MAX_TRACKERS]
     double gdy0[MAX_TRACKERS]
-    uint64_t inc_lo[MAX_TRACKERS]    # bit k: connection k (inc_hi: k - 64) ends at tracker i
-    uint64_t inc_hi[MAX_TRACKERS]
+    uint64_t isolated                # bit i set: tracker i has no connection
     uint64_t sensitive_mask          # bit i set: tracker i may take events (eq. 21)
     # connections
     int ca[MAX_CONNECTIONS]
     int cb[MAX_CONNECTIONS]
     int kinds[MAX_CONNECTIONS]       # bit 1 euclidean, 2 torsional, 4 cartesian
+    uint64_t ends[MAX_CONNECTIONS]   # bits ca[k] and cb[k]: the trackers connection k links
     double stiff[MAX_CONNECTIONS]
     double l0[MAX_CONNECTIONS]
     double th0[MAX_CONNECTIONS]

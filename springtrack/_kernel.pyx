@@ -67,9 +67,10 @@ cdef extern from "csrc/fastmath.h" nogil:
     void st_sincos_batch(const double* e, double* sn, double* cm1, int n)
 
 cdef extern from "csrc/springs.h" nogil:
-    uint64_t st_energy_pull(int n, int nc, const double* e, double thr, const uint64_t* inc_lo,
-                            const uint64_t* inc_hi, double gx, double gy, double gain,
-                            const double* gdx0, const double* gdy0, double* mx, double* my)
+    void st_over_ends(int nc, const double* e, double thr, const uint64_t* ends,
+                      uint64_t* pulled, uint64_t* calm)
+    void st_pull(int n, uint64_t pulled, double gx, double gy, double gain, const double* gdx0,
+                 const double* gdy0, double* mx, double* my)
     void st_torsion_angles(int n, const double* rx, const double* ry, const double* rdx,
                            const double* rdy, const double* dth_zero, double* th)
     void st_torsion_rotation(int n, const double* th, double mean, const double* half_a,
@@ -287,7 +288,7 @@ cdef void ksprings(KState* s) noexcept nogil:
     #   summed in the reference's order;  4. eqs. (15)-(17) deviation, torsional energy and
     #   rotation;  5. eqs. (10)-(12), (16), (18)-(20) branch-free (a_euc/a_tor/a_car are 0
     #   for kinds a connection lacks), displacements divided by each end's mass;  6. scatter
-    #   onto the ends (scalar);  7. energy criteria (branch-free masks);  8. re-index the
+    #   onto the ends (scalar);  7. energy criteria (OR-reduced bit masks);  8. re-index the
     #   trackers whose gate boxes left their indexed boxes.
     # The three kinds' displacements are summed per connection before the scatter (the
     # reference adds them to the ends one by one): a rounding-level difference only.
@@ -353,6 +354,7 @@ cdef void energy_criteria(KState* s) noexcept nogil:
     cdef int n = s.n, nc = s.nc, k, i
     cdef const double* e = s.energy[s.ekind]
     cdef double total = 0.0, thr, msum = s.mass_sum, gx = 0.0, gy = 0.0
+    cdef uint64_t pulled, calm
     if nc == 0:
         return
     for k in range(nc):                                              # eq. (13)
@@ -364,8 +366,9 @@ cdef void energy_criteria(KState* s) noexcept nogil:
         gy += s.mass[i] * s.my[i]
     gx = gx / msum
     gy = gy / msum
-    s.sensitive_mask = st_energy_pull(n, nc, e, thr, s.inc_lo, s.inc_hi, gx, gy,  # (21)-(22)
-                                      s.energy_gain, s.gdx0, s.gdy0, s.mx, s.my)
+    st_over_ends(nc, e, thr, s.ends, &pulled, &calm)
+    st_pull(n, pulled, gx, gy, s.energy_gain, s.gdx0, s.gdy0, s.mx, s.my)  # eq. (22)
+    s.sensitive_mask = calm | s.isolated     # eq. (21): insensitive if all its connections are over
 
 
 cdef double kactivity(const KState* s, int i, int64_t t) noexcept nogil:
@@ -485,12 +488,7 @@ cdef class Kernel:
             s.th0[k] = arr["th0"][k]
             s.dx0[k] = arr["dx0"][k]
             s.dy0[k] = arr["dy0"][k]
-            if k < 64:
-                s.inc_lo[s.ca[k]] |= (<uint64_t>1) << k
-                s.inc_lo[s.cb[k]] |= (<uint64_t>1) << k
-            else:
-                s.inc_hi[s.ca[k]] |= (<uint64_t>1) << (k - 64)
-                s.inc_hi[s.cb[k]] |= (<uint64_t>1) << (k - 64)
+            s.ends[k] = ((<uint64_t>1) << s.ca[k]) | ((<uint64_t>1) << s.cb[k])
             s.wa[k] = 1.0 / s.mass[s.ca[k]]
             s.wb[k] = 1.0 / s.mass[s.cb[k]]
             s.half_a[k] = 0.5 * s.stiff[k]
@@ -507,9 +505,14 @@ cdef class Kernel:
                 s.rdy[k] = s.s0[k]
             s.dth_zero[k] = wrap_angle(0.0 - s.th0[k])
         s.sensitive_mask = 0
+        s.isolated = 0
         s.mass_sum = 0.0
         for i in range(n):
             s.sensitive_mask |= (<uint64_t>1) << i
+        s.isolated = s.sensitive_mask
+        for k in range(nc):
+            s.isolated &= ~s.ends[k]
+        for i in range(n):
             s.mass_sum += s.mass[i]           # [ref] msum, summed in the same order
         s.last_t = -(1 << 62)
         self.set_params(params)

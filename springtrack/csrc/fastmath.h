@@ -59,18 +59,19 @@ static inline double st_sel(int64_t c, double a, double b)
  * error of the rounded P times t^2 <= 6.8e-18 (relative to atan t). */
 static inline double st_atan_reduced(double t)
 {
-    double s = t * t;
-    double p = -0.01917688711906226;
-    p = p * s + 0.03923165829558719;
-    p = p * s - 0.0508544973794026;
-    p = p * s + 0.0585814891280221;
-    p = p * s - 0.06664511447381948;
-    p = p * s + 0.07692183190826087;
-    p = p * s - 0.09090904578123903;
-    p = p * s + 0.11111111015256361;
-    p = p * s - 0.14285714284666542;
-    p = p * s + 0.1999999999999552;
-    p = p * s - 0.3333333333333333;
+    /* Estrin's scheme: the same polynomial as Horner's rule in a dependency chain of 7
+     * operations instead of 22, so that the batch's few iterations overlap (the spring
+     * update's atan2 batch was bound by that chain's latency, not by its operations) */
+    double s = t * t, s2 = s * s, s4 = s2 * s2, s8 = s4 * s4;
+    double q0 = -0.3333333333333333 + 0.1999999999999552 * s;
+    double q1 = -0.14285714284666542 + 0.11111111015256361 * s;
+    double q2 = -0.09090904578123903 + 0.07692183190826087 * s;
+    double q3 = -0.06664511447381948 + 0.0585814891280221 * s;
+    double q4 = -0.0508544973794026 + 0.03923165829558719 * s;
+    double r0 = q0 + q1 * s2;
+    double r1 = q2 + q3 * s2;
+    double r2 = q4 + -0.01917688711906226 * s2;
+    double p = (r0 + r1 * s4) + r2 * s8;
     return t + t * (s * p);
 }
 
@@ -102,20 +103,16 @@ static inline double st_atan2(double y, double x)
  * relative; cos - 1: e^2 C(e^2), error <= 1.4e-18 relative. */
 static inline void st_sincos_small(double e, double *sn, double *cm1)
 {
-    double s = e * e;
-    double ps = 1.5918129294866608e-10;
-    ps = ps * s - 2.5051131845003624e-08;
-    ps = ps * s + 2.755731610255244e-06;
-    ps = ps * s - 0.00019841269836758574;
-    ps = ps * s + 0.008333333333330948;
-    ps = ps * s - 0.16666666666666666;
-    double pc = -1.1367998654022494e-11;
-    pc = pc * s + 2.0875886738047052e-09;
-    pc = pc * s - 2.7557315566341895e-07;
-    pc = pc * s + 2.480158729369346e-05;
-    pc = pc * s - 0.0013888888888880775;
-    pc = pc * s + 0.04166666666666664;
-    pc = pc * s - 0.5;
+    /* Estrin's scheme, as st_atan_reduced */
+    double s = e * e, s2 = s * s, s4 = s2 * s2;
+    double a0 = -0.16666666666666666 + 0.008333333333330948 * s;
+    double a1 = -0.00019841269836758574 + 2.755731610255244e-06 * s;
+    double a2 = -2.5051131845003624e-08 + 1.5918129294866608e-10 * s;
+    double ps = (a0 + a1 * s2) + a2 * s4;
+    double b0 = -0.5 + 0.04166666666666664 * s;
+    double b1 = -0.0013888888888880775 + 2.480158729369346e-05 * s;
+    double b2 = -2.7557315566341895e-07 + 2.0875886738047052e-09 * s;
+    double pc = (b0 + b1 * s2) + (b2 + -1.1367998654022494e-11 * s2) * s4;
     *sn = e + e * (s * ps);
     *cm1 = s * pc;
 }
