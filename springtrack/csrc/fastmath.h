@@ -62,7 +62,7 @@ static inline double st_atan_reduced(double t)
     /* Estrin's scheme: the same polynomial as Horner's rule in a dependency chain of 7
      * operations instead of 22, so that the batch's few iterations overlap (the spring
      * update's atan2 batch was bound by that chain's latency, not by its operations) */
-    double s = t * t, s2 = s * s, s4 = s2 * s2, s8 = s4 * s4;
+    double s = t * t, s2 = s * s, s4 = s2 * s2, s8 = s4 * s4, ts = t * s;
     double q0 = -0.3333333333333333 + 0.1999999999999552 * s;
     double q1 = -0.14285714284666542 + 0.11111111015256361 * s;
     double q2 = -0.09090904578123903 + 0.07692183190826087 * s;
@@ -72,30 +72,43 @@ static inline double st_atan_reduced(double t)
     double r1 = q2 + q3 * s2;
     double r2 = q4 + -0.01917688711906226 * s2;
     double p = (r0 + r1 * s4) + r2 * s8;
-    return t + t * (s * p);
+    return t + ts * p;
 }
 
 /* atan2(y, x) in [-pi, pi] like libm for finite arguments, branch-free.
  * Reduction: z = min(|x|,|y|) / max(|x|,|y|) in [0, 1]; above tan(pi/8) use
- * atan z = pi/4 + atan((z - 1)/(z + 1)) (one division either way); then the octant,
- * with pi/4, pi/2 and pi split in two doubles.  atan2(+-0, +0) = +-0 and
+ * atan z = pi/4 + atan((z - 1)/(z + 1)) (one division either way).  The octant then
+ * gives the result as c + sigma atan(t) with c a multiple k pi/4 (k = 0..4, as two
+ * doubles hi + lo) and sigma = +-1: pi/4 if big, k -> 2 - k if |y| > |x| (swap),
+ * k -> 4 - k if x < 0, sigma flipping with each of the last two.  c and sigma come from
+ * the comparisons alone, beside the division and the polynomial, so that only two
+ * additions follow them (the batch is bound by the length of this chain: few
+ * iterations, each too long for the CPU to overlap many).  atan2(+-0, +0) = +-0 and
  * atan2(+-0, x < 0) = +-pi as in libm (the kernel never produces -0 differences). */
+#define ST_3PI4_HI 2.356194490192345
+#define ST_3PI4_LO 9.184850993605148e-17
 static inline double st_atan2(double y, double x)
 {
     /* every candidate is computed, then blended (st_sel): no branch in the batch loop */
     double ax = fabs(x), ay = fabs(y);
     int64_t swap = ay > ax;
-    double lo = st_sel(swap, ax, ay);
-    double hi = st_sel(swap, ay, ax);
+    double lo = ay < ax ? ay : ax;                    /* min and max (vminpd, vmaxpd) */
+    double hi = ay > ax ? ay : ax;
     int64_t big = lo > ST_TAN_PI_8 * hi;
+    int64_t neg = copysign(1.0, x) < 0.0;             /* x < 0 or x = -0 */
     double num = st_sel(big, lo - hi, lo);
-    double den = st_sel(big, lo + hi, hi);
-    den = st_sel(den > 0.0, den, 1.0);                /* x = y = 0: t = 0 */
+    double den = st_sel(big, lo + hi, st_sel(hi > 0.0, hi, 1.0));   /* x = y = 0: t = 0 */
+    /* c = k pi/4: big ? (neg ? 3 : 1) : (swap ? 2 : (neg ? 4 : 0)) */
+    double c_hi = st_sel(big, st_sel(neg, ST_3PI4_HI, ST_PI4_HI),
+                         st_sel(swap, ST_PI2_HI, st_sel(neg, ST_PI_HI, 0.0)));
+    double c_lo = st_sel(big, st_sel(neg, ST_3PI4_LO, ST_PI4_LO),
+                         st_sel(swap, ST_PI2_LO, st_sel(neg, ST_PI_LO, 0.0)));
+    uint64_t flip = (uint64_t)(swap ^ neg) << 63, ua;
     double a = st_atan_reduced(num / den);
-    a = st_sel(big, (a + ST_PI4_LO) + ST_PI4_HI, a);  /* atan z, z in [0, 1] */
-    a = st_sel(swap, (ST_PI2_LO - a) + ST_PI2_HI, a); /* octant: |y| > |x| */
-    a = st_sel(copysign(1.0, x) < 0.0, (ST_PI_LO - a) + ST_PI_HI, a);  /* x < 0, x = -0 */
-    return copysign(a, y);
+    memcpy(&ua, &a, 8);
+    ua ^= flip;                                       /* sigma atan(t) */
+    memcpy(&a, &ua, 8);
+    return copysign((c_lo + a) + c_hi, y);
 }
 
 /* sin(e) and cos(e) - 1 for |e| <= pi/4 (eq. 16 needs cos(eps) - 1: computed directly,
