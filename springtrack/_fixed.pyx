@@ -60,11 +60,12 @@ cdef extern from "csrc/fixed_step.h" nogil:
         uint32_t invm[FX_MAX_TRACKERS]
         int64_t gdx0[FX_MAX_TRACKERS]
         int64_t gdy0[FX_MAX_TRACKERS]
-        int32_t degree[FX_MAX_TRACKERS]
+        uint64_t isolated
         uint64_t sensitive_mask
         int32_t ca[FX_MAX_CONNECTIONS]
         int32_t cb[FX_MAX_CONNECTIONS]
         int32_t kinds[FX_MAX_CONNECTIONS]
+        uint64_t ends[FX_MAX_CONNECTIONS]
         uint32_t stiff[FX_MAX_CONNECTIONS]
         int32_t l0[FX_MAX_CONNECTIONS]
         int32_t dx0[FX_MAX_CONNECTIONS]
@@ -278,12 +279,14 @@ cdef class FixedKernel:
             s.th0[k] = mq["th0"][k]
             s.c0x[k] = mq["c0x"][k]
             s.c0y[k] = mq["c0y"][k]
-            s.degree[s.ca[k]] += 1
-            s.degree[s.cb[k]] += 1
+            s.ends[k] = ((<uint64_t>1) << s.ca[k]) | ((<uint64_t>1) << s.cb[k])
         fx_clamp_positions(s)
         s.sensitive_mask = 0
         for i in range(n):
             s.sensitive_mask |= (<uint64_t>1) << i
+        s.isolated = s.sensitive_mask
+        for k in range(nc):
+            s.isolated &= ~s.ends[k]
         s.last_t = -(1 << 62)
         for i in range(n):
             s.box_x0[i] = 0

@@ -977,14 +977,11 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
 {
     int n = s->n, nc = s->nc, used = s->used_kinds, i, k;
     int64_t ddx[FX_MAX_TRACKERS], ddy[FX_MAX_TRACKERS], total, thr, gx, gy, sx = 0, sy = 0;
-    int over[FX_MAX_TRACKERS];
-    uint64_t mask = 0, bad = 0;
+    uint64_t pulled = 0, calm = ~(uint64_t)0, bad = 0;
     const int64_t *e = s->energy[s->ekind];
     s->n_spring_updates++;
-    for (i = 0; i < n; i++) {
+    for (i = 0; i < n; i++)
         ddx[i] = ddy[i] = 0;
-        over[i] = 0;
-    }
     total = spring_passes_of[used & 7](s, ddx, ddy);
     /* bit 3: no torsional energies at this update (0, as the float kernel) */
     s->energy_stale = (7 & ~(1 << s->ekind)) | (used & 2 ? 0 : 8);
@@ -1009,12 +1006,17 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
             thr = mulsh(s->mean_energy, s->escale, 14);
         else                                              /* huge energies: 10 bits less */
             thr = mulsh(s->mean_energy >> 10, s->escale, 4);
-        if (!s->escale_never)
-            for (k = 0; k < nc; k++) {                    /* without branches: data */
-                int o = e[k] > thr;
-                over[s->ca[k]] += o;
-                over[s->cb[k]] += o;
+        if (!s->escale_never) {
+            /* the trackers at an over-threshold connection (pulled, eq. 22) and those at
+               one under it (calm: eq. 21 keeps them sensitive), as OR-reductions of the
+               connections' end masks: no branch, no counting per tracker */
+            calm = s->isolated;
+            for (k = 0; k < nc; k++) {
+                uint64_t o = (uint64_t)0 - (uint64_t)(e[k] > thr);
+                pulled |= s->ends[k] & o;
+                calm |= s->ends[k] & ~o;
             }
+        }
     }
     /* centre of mass G = x0 + sum m_i (x_i - x0) / sum m_i, rounded half up */
     if (n == 0)
@@ -1029,15 +1031,15 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
         gx = centre(s, s->mx, msum);
         gy = centre(s, s->my, msum);
     }
-    for (i = 0; i < n; i++) {
-        if (over[i] > 0) {                                /* eq. (22) */
-            s->mx[i] = sat_pos(s, s->mx[i] + mul62(gx + s->gdx0[i] - s->mx[i], s->energy_gain));
-            s->my[i] = sat_pos(s, s->my[i] + mul62(gy + s->gdy0[i] - s->my[i], s->energy_gain));
-        }
-        mask |= (uint64_t)(s->degree[i] == 0 || over[i] != s->degree[i]) << i;   /* eq. (21) */
-        bad |= (uint64_t)!box_ok(s, i) << i;
+    for (uint64_t p = pulled; p; p &= p - 1) {            /* eq. (22) */
+        i = __builtin_ctzll(p);
+        s->mx[i] = sat_pos(s, s->mx[i] + mul62(gx + s->gdx0[i] - s->mx[i], s->energy_gain));
+        s->my[i] = sat_pos(s, s->my[i] + mul62(gy + s->gdy0[i] - s->my[i], s->energy_gain));
     }
-    s->sensitive_mask = mask;
+    for (i = 0; i < n; i++)
+        bad |= (uint64_t)!box_ok(s, i) << i;
+    /* eq. (21): insensitive when every connection of the tracker is over */
+    s->sensitive_mask = calm & (n == 64 ? ~(uint64_t)0 : ((uint64_t)1 << n) - 1);
     while (bad) {                                         /* re-index who left its box */
         fx_reindex(s, __builtin_ctzll(bad));
         bad &= bad - 1;

@@ -78,10 +78,11 @@ typedef struct {
     uint32_t mq[FX_MAX_TRACKERS];             /* mass / max mass, Q.24 (centre of mass) */
     uint32_t invm[FX_MAX_TRACKERS];           /* 1 / mass, Q7.24 */
     int64_t gdx0[FX_MAX_TRACKERS], gdy0[FX_MAX_TRACKERS];
-    int32_t degree[FX_MAX_TRACKERS];
+    uint64_t isolated;                        /* bit i: tracker i has no connection */
     uint64_t sensitive_mask;
     /* connections */
     int32_t ca[FX_MAX_CONNECTIONS], cb[FX_MAX_CONNECTIONS], kinds[FX_MAX_CONNECTIONS];
+    uint64_t ends[FX_MAX_CONNECTIONS];        /* bits ca[k] and cb[k] */
     uint32_t stiff[FX_MAX_CONNECTIONS];       /* Q2.30 */
     int32_t l0[FX_MAX_CONNECTIONS], dx0[FX_MAX_CONNECTIONS], dy0[FX_MAX_CONNECTIONS];
     uint32_t th0[FX_MAX_CONNECTIONS];         /* binary angle */
