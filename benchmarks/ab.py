@@ -1,7 +1,7 @@
 """A/B kernel timing: the same events through two builds of springtrack, interleaved.
 
 Run: .venv/bin/python benchmarks/ab.py OLD_TREE NEW_TREE [--preset face26] [--backend cython]
-     [--events 2000000] [--rounds 5] [--paired [--pairs 30]]
+     [--scene face_occlusion] [--events 2000000] [--rounds 5] [--paired [--pairs 30]]
 
 Each tree is a source checkout with its extensions built in place (for example a
 `git worktree add /tmp/base HEAD~3` built with `python setup.py build_ext --inplace`).
@@ -82,6 +82,9 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("trees", nargs=2, help="two source trees with built extensions")
     ap.add_argument("--preset", default="face26")
+    ap.add_argument("--scene", default=None,
+                    help="a firmware_sim scene (e.g. face_occlusion, 5 s) instead of the "
+                         "preset's blob_stream of benchmarks/kernel.py")
     ap.add_argument("--backend", default="cython")
     ap.add_argument("--events", type=int, default=2_000_000)
     ap.add_argument("--rounds", type=int, default=5)
@@ -98,9 +101,14 @@ def main():
     import springtrack
     from springtrack.synthetic import blob_stream
     from kernel import SCENES
-    noise, motion = SCENES[args.preset]
-    ev, _ = blob_stream(springtrack.load_model(args.preset), args.events, rate_hz=300_000,
-                        noise=noise, seed=1, **motion)
+    if args.scene:
+        from firmware_sim.sensor import simulate_all
+        ev, _ = simulate_all(args.scene, 5.0, seed=0)
+        ev = ev[:args.events]
+    else:
+        noise, motion = SCENES[args.preset]
+        ev, _ = blob_stream(springtrack.load_model(args.preset), args.events, rate_hz=300_000,
+                            noise=noise, seed=1, **motion)
     env = dict(os.environ, OPENBLAS_NUM_THREADS="1")
     times = {t: [] for t in args.trees}
     with tempfile.TemporaryDirectory() as tmp:
