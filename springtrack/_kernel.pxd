@@ -20,7 +20,7 @@ from libc.stdint cimport int64_t, uint64_t, int32_t, uint8_t
 cdef enum:
     MAX_TRACKERS = 64
     MAX_CONNECTIONS = 128
-    CELL_SHIFT = 4             # spatial index cells of 16 x 16 px
+    CELL_SHIFT = 3             # spatial index cells of 8 x 8 px
 
 cdef enum:
     K_NO_TRACKER = -1

@@ -11,7 +11,7 @@ over a million events.
 
 Speed comes from ideas that do not change any decision of the algorithm:
 * argmin of the Mahalanobis distance d^2 (eq. 2 in the log domain, no exp per tracker);
-* a coarse spatial index: a bitmask of trackers per 16x16 px cell whose gate box
+* a coarse spatial index: a bitmask of trackers per 8x8 px cell whose gate box
   (|dx| <= sqrt(gate*sxx), |dy| <= sqrt(gate*syy), enlarged by a margin) covers the cell.
   Trackers outside an event's cell cannot have d^2 < gate, so scanning only the cell's
   candidates, in index order, finds exactly the full scan's winner;
