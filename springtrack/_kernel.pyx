@@ -395,9 +395,11 @@ cdef void ksnapshot(const KState* s, int64_t t, SampleOut* o) noexcept nogil:
     cdef Py_ssize_t row = o.count, base = row * s.n
     cdef int i, k, q
     cdef double a, tot
+    # kactivity(s, i, t) for every tracker: its decay factor depends on t only, one exp
+    cdef double decay = exp(-(<double>(t - s.act_t0)) * s.inv_tau)
     o.t[row] = t
     for i in range(s.n):
-        a = kactivity(s, i, t)
+        a = s.act[i] * decay
         o.x[base + i] = s.mx[i]
         o.y[base + i] = s.my[i]
         o.sxx[base + i] = s.sxx[i]
