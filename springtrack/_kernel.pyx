@@ -507,7 +507,6 @@ cdef class Kernel:
                 s.rdy[k] = s.s0[k]
             s.dth_zero[k] = wrap_angle(0.0 - s.th0[k])
         s.sensitive_mask = 0
-        s.isolated = 0
         s.mass_sum = 0.0
         for i in range(n):
             s.sensitive_mask |= (<uint64_t>1) << i

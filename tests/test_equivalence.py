@@ -210,10 +210,11 @@ def test_activity_equal_across_rescales_and_a_change_of_tau():
 
 
 def test_kernel_equals_reference_beyond_64_connections():
-    """Connections 64 and up sit in the second word of the kernel's per-tracker connection
-    masks (eqs. 21-22, csrc/springs.h st_energy_pull); a ring of 30 trackers, each linked
-    to its next three neighbours (90 connections), with a low energy_scale so that many
-    connections are over threshold and trackers turn insensitive."""
+    """More than 64 connections (the kernel's energy criteria, eqs. 21-22, reduce per-
+    connection end masks, csrc/springs.h st_over_ends); a ring of
+    30 trackers, each linked to its next three neighbours (90 connections), with a low
+    energy_scale so that many connections are over threshold and trackers turn
+    insensitive."""
     n = 30
     ang = 2 * np.pi * np.arange(n) / n
     trackers = [TrackerSpec(f"t{i}", 150 + 80 * np.cos(a), 120 + 80 * np.sin(a),
