@@ -190,8 +190,6 @@ cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double f
     check_index(s, i)
 
 
-
-
 cdef Py_ssize_t ksteps(KState* s, const Event* ev, Py_ssize_t n, int64_t t_stop) noexcept nogil:
     """kstep() over ev[0..n), stopping before the first event with t >= t_stop that is not
     back in time; returns the events processed (the Stepper's steps(), _stepper.pxd).
@@ -377,14 +375,20 @@ cdef double kactivity(const KState* s, int i, int64_t t) noexcept nogil:
     seen from a common time act_t0, so an event adds one term (one exp) instead of
     decaying the sum since the tracker's last event first (the reference's form; equal
     up to rounding, ~1e-15 relative)."""
-    return s.act[i] * exp(-(<double>(t - s.act_t0)) * s.inv_tau)
+    return s.act[i] * activity_decay(s, t)
+
+
+cdef inline double activity_decay(const KState* s, int64_t t) noexcept nogil:
+    """exp(-(t - act_t0) / tau): the factor from the stored activities to those at t, the
+    same for every tracker."""
+    return exp(-(<double>(t - s.act_t0)) * s.inv_tau)
 
 
 cdef void rescale_activity(KState* s, int64_t t) noexcept nogil:
     """Move act_t0 to t (every act_span = 32 tau of event time), so the terms added,
     p exp((t - act_t0) / tau) <= e^32, stay far from overflow and rounding loss."""
     cdef int i
-    cdef double f = exp(-(<double>(t - s.act_t0)) * s.inv_tau)
+    cdef double f = activity_decay(s, t)
     for i in range(s.n):
         s.act[i] *= f
     s.act_t0 = t
@@ -395,8 +399,7 @@ cdef void ksnapshot(const KState* s, int64_t t, SampleOut* o) noexcept nogil:
     cdef Py_ssize_t row = o.count, base = row * s.n
     cdef int i, k, q
     cdef double a, tot
-    # kactivity(s, i, t) for every tracker: its decay factor depends on t only, one exp
-    cdef double decay = exp(-(<double>(t - s.act_t0)) * s.inv_tau)
+    cdef double decay = activity_decay(s, t)         # kactivity's factor, one exp for all
     o.t[row] = t
     for i in range(s.n):
         a = s.act[i] * decay
@@ -510,11 +513,10 @@ cdef class Kernel:
         s.mass_sum = 0.0
         for i in range(n):
             s.sensitive_mask |= (<uint64_t>1) << i
-        s.isolated = s.sensitive_mask
+            s.mass_sum += s.mass[i]           # [ref] msum, summed in the same order
+        s.isolated = s.sensitive_mask         # less every tracker a connection links
         for k in range(nc):
             s.isolated &= ~s.ends[k]
-        for i in range(n):
-            s.mass_sum += s.mass[i]           # [ref] msum, summed in the same order
         s.last_t = -(1 << 62)
         self.set_params(params)
         for i in range(n):
