@@ -78,6 +78,10 @@ ctypedef struct KState:
     double rdx[MAX_CONNECTIONS]
     double rdy[MAX_CONNECTIONS]
     double dth_zero[MAX_CONNECTIONS]
+    # eq. (14)'s fast frame (see set_frame): the rest directions turned by frame_phi
+    double frame_phi
+    double qdx[MAX_CONNECTIONS]
+    double qdy[MAX_CONNECTIONS]
     double energy[3][MAX_CONNECTIONS]
     double mean_energy
     # spatial index: cells[cy * gw + cx] has bit i set if tracker i's gate box may cover
@@ -94,6 +98,7 @@ ctypedef struct KState:
     double by_hi[MAX_TRACKERS]
     # counters
     int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates, n_reindex
+    int64_t n_frame_misses, n_frame_moves
     int since_spring
 
 cdef int kstep(KState* s, int64_t t, int x, int y) noexcept nogil

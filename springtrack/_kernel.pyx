@@ -22,7 +22,7 @@ Speed comes from ideas that do not change any decision of the algorithm:
   atan2 and sincos batches).  Results then differ from the reference by rounding only
   (~1e-15 relative), far inside the 1e-9 px contract of tests/test_equivalence.py.
 """
-from libc.math cimport exp, sqrt, cos, sin, floor, M_PI
+from libc.math cimport exp, sqrt, cos, sin, floor, fabs, M_PI
 from libc.stdlib cimport calloc, free
 from libc.string cimport memset
 from libc.stdint cimport int64_t, uint64_t, uint8_t
@@ -51,6 +51,10 @@ cdef double TWO_PI = 2.0 * M_PI
 # Any enlargement keeps the scan exact; these only trade re-indexing against candidates.
 cdef double INDEX_MARGIN = 3.0
 cdef double INDEX_GROW = 0.25
+# The frame of eq. (14)'s fast path (st_torsion_angles_framed) follows the mean angle once
+# it is this far (rad) from it: connections within 3 pi/8 - pi/16 of the mean angle then
+# stay on the fast path.
+cdef double FRAME_SLACK = M_PI / 16
 
 
 
@@ -67,12 +71,16 @@ cdef extern from "csrc/fastmath.h" nogil:
     void st_sincos_batch(const double* e, double* sn, double* cm1, int n)
 
 cdef extern from "csrc/springs.h" nogil:
+    double st_sum(int n, const double* x)
     void st_over_ends(int nc, const double* e, double thr, const uint64_t* ends,
                       uint64_t* pulled, uint64_t* calm)
     void st_pull(int n, uint64_t pulled, double gx, double gy, double gain, const double* gdx0,
                  const double* gdy0, double* mx, double* my)
     void st_torsion_angles(int n, const double* rx, const double* ry, const double* rdx,
                            const double* rdy, const double* dth_zero, double* th)
+    int64_t st_torsion_angles_framed(int n, const double* rx, const double* ry,
+                                     const double* qdx, const double* qdy, double phi,
+                                     double* th)
     void st_torsion_rotation(int n, const double* th, double mean, const double* half_a,
                              const double* a_tor, double* e_tor, double* eps, double* sn,
                              double* cm1)
@@ -282,17 +290,19 @@ cdef inline double wrap_angle(double a) noexcept nogil:
 
 cdef void ksprings(KState* s) noexcept nogil:
     # [ref] springs, in structure-of-arrays passes (csrc/springs.h, vectorised):
-    #   1. gather r = end b - end a;  2. eq. (14) angles;  3. eq. (15) mean angle,
-    #   summed in the reference's order;  4. eqs. (15)-(17) deviation, torsional energy and
-    #   rotation;  5. eqs. (10)-(12), (16), (18)-(20) branch-free (a_euc/a_tor/a_car are 0
-    #   for kinds a connection lacks), displacements divided by each end's mass;  6. scatter
-    #   onto the ends (scalar);  7. energy criteria (OR-reduced bit masks);  8. re-index the
-    #   trackers whose gate boxes left their indexed boxes.
-    # The three kinds' displacements are summed per connection before the scatter (the
-    # reference adds them to the ends one by one): a rounding-level difference only.
+    #   1. gather r = end b - end a;  2. eq. (14) angles, in the frame of a recent mean
+    #   angle (fast) or from the rest directions;  3. eq. (15) mean angle;  4. eqs.
+    #   (15)-(17) deviation, torsional energy and rotation;  5. eqs. (10)-(12), (16),
+    #   (18)-(20) branch-free (a_euc/a_tor/a_car are 0 for kinds a connection lacks),
+    #   displacements divided by each end's mass;  6. scatter onto the ends' means
+    #   (scalar);  7. energy criteria (OR-reduced bit masks);  8. re-index the trackers
+    #   whose gate boxes left their indexed boxes.
+    # Rounding-level differences from the reference, none larger than ~1e-15 relative: the
+    # three kinds' displacements are summed per connection and added straight to the means
+    # (the reference adds them one by one to per-tracker sums, then those to the means);
+    # the mean angle and the mean energy are summed in four interleaved partial sums
+    # (st_sum: a chain of n/4 additions instead of n; both gate the rest of the update).
     cdef int n = s.n, nc = s.nc, k, i, j
-    cdef double ddx[MAX_TRACKERS]
-    cdef double ddy[MAX_TRACKERS]
     cdef int64_t left[MAX_TRACKERS]
     cdef double rx[MAX_CONNECTIONS]
     cdef double ry[MAX_CONNECTIONS]
@@ -312,10 +322,12 @@ cdef void ksprings(KState* s) noexcept nogil:
         rx[k] = s.mx[j] - s.mx[i]
         ry[k] = s.my[j] - s.my[i]
     if s.need_torsion:
-        st_torsion_angles(nc, rx, ry, s.rdx, s.rdy, s.dth_zero, th)  # 2. eq. (14)
-        for k in range(nc):                                          # 3. eq. (15)
-            mean_dth += th[k]
-        mean_dth = mean_dth / nc
+        if st_torsion_angles_framed(nc, rx, ry, s.qdx, s.qdy, s.frame_phi, th):  # 2. eq. (14)
+            s.n_frame_misses += 1
+            st_torsion_angles(nc, rx, ry, s.rdx, s.rdy, s.dth_zero, th)
+        mean_dth = st_sum(nc, th) / nc                               # 3. eq. (15)
+        if fabs(mean_dth - s.frame_phi) > FRAME_SLACK:
+            set_frame(s, mean_dth)
         st_torsion_rotation(nc, th, mean_dth, s.half_a, s.a_tor, s.energy[1], eps, sn,  # 4.
                             cm1)
     else:
@@ -326,19 +338,13 @@ cdef void ksprings(KState* s) noexcept nogil:
     st_spring_terms_batch(nc, rx, ry, sn, cm1, s.l0, s.half_a, s.dx0, s.dy0, s.c0, s.s0,  # 5.
                           s.a_euc, s.a_car, s.wa, s.wb, s.energy[0], s.energy[2],
                           uax, uay, ubx, uby)
-    for i in range(n):
-        ddx[i] = 0.0
-        ddy[i] = 0.0
     for k in range(nc):                                              # 6. scatter
         i = s.ca[k]
         j = s.cb[k]
-        ddx[i] += uax[k]
-        ddy[i] += uay[k]
-        ddx[j] -= ubx[k]
-        ddy[j] -= uby[k]
-    for i in range(n):
-        s.mx[i] = s.mx[i] + ddx[i]
-        s.my[i] = s.my[i] + ddy[i]
+        s.mx[i] += uax[k]
+        s.my[i] += uay[k]
+        s.mx[j] -= ubx[k]
+        s.my[j] -= uby[k]
     energy_criteria(s)                                               # 7.
     st_boxes_left(n, s.mx, s.my, s.sxx, s.syy, s.gate, s.bx_lo, s.bx_hi, s.by_lo,  # 8.
                   s.by_hi, left)
@@ -347,17 +353,27 @@ cdef void ksprings(KState* s) noexcept nogil:
             reindex(s, i)
 
 
+cdef void set_frame(KState* s, double phi) noexcept nogil:
+    """Turn the rest directions by phi for st_torsion_angles_framed (a cache: any phi gives
+    the same angles, up to rounding; one near the mean angle lets the fast path apply)."""
+    cdef double c = cos(phi), sn = sin(phi)
+    cdef int k
+    s.frame_phi = phi
+    for k in range(s.nc):
+        s.qdx[k] = c * s.rdx[k] - sn * s.rdy[k]
+        s.qdy[k] = sn * s.rdx[k] + c * s.rdy[k]
+    s.n_frame_moves += 1
+
+
 cdef void energy_criteria(KState* s) noexcept nogil:
     # [ref] _energy_criteria
     cdef int n = s.n, nc = s.nc, k, i
     cdef const double* e = s.energy[s.ekind]
-    cdef double total = 0.0, thr, msum = s.mass_sum, gx = 0.0, gy = 0.0
+    cdef double thr, msum = s.mass_sum, gx = 0.0, gy = 0.0
     cdef uint64_t pulled, calm
     if nc == 0:
         return
-    for k in range(nc):                                              # eq. (13)
-        total += e[k]
-    s.mean_energy = total / nc
+    s.mean_energy = st_sum(nc, e) / nc                               # eq. (13)
     thr = s.energy_scale * s.mean_energy
     for i in range(n):                                               # eq. (22): G
         gx += s.mass[i] * s.mx[i]
@@ -509,6 +525,8 @@ cdef class Kernel:
                 s.rdx[k] = s.c0[k]
                 s.rdy[k] = s.s0[k]
             s.dth_zero[k] = wrap_angle(0.0 - s.th0[k])
+        set_frame(s, 0.0)
+        s.n_frame_moves = 0
         s.sensitive_mask = 0
         s.mass_sum = 0.0
         for i in range(n):
@@ -576,6 +594,14 @@ cdef class Kernel:
     def springs(self):
         ksprings(&self.st)
 
+    def place(self, int i, double x, double y):
+        """Move tracker i's mean to (x, y) px (tests: set up a configuration for springs())."""
+        if not 0 <= i < self.st.n:
+            raise IndexError(f"tracker {i} out of range [0, {self.st.n})")
+        self.st.mx[i] = x
+        self.st.my[i] = y
+        reindex(&self.st, i)
+
     def snapshot(self, long long t):
         """Dict of per-tracker arrays at event time t."""
         cdef KState* s = &self.st
@@ -608,6 +634,12 @@ cdef class Kernel:
                     skipped_back_in_time=s.n_back, skipped_outside_sensor=s.n_outside,
                     spring_updates=s.n_spring_updates, index_updates=s.n_reindex)
 
+    def frame_stats(self):
+        """Diagnostics of eq. (14)'s fast path (ksprings): spring updates that fell back to
+        the full atan2 (a connection more than 3 pi/8 from its frame direction), and
+        frame moves (the mean angle drifted by more than FRAME_SLACK)."""
+        return dict(frame_misses=self.st.n_frame_misses, frame_moves=self.st.n_frame_moves)
+
     def check_index(self):
         """Verify the spatial index invariant (tests): each tracker's exact gate box lies
         inside its indexed box and its bit is set in every cell of that box."""
@@ -638,6 +670,23 @@ def fastmath_atan2(y, x):
     if vy.shape[0]:
         st_atan2_batch(&vy[0], &vx[0], &vo[0], <int>vy.shape[0])
     return out
+
+
+def torsion_angles_framed(rx, ry, qdx, qdy, double phi):
+    """st_torsion_angles_framed over float64 arrays: (th, far), the kernel's fast eq. (14)."""
+    cdef double[::1] vrx = np.ascontiguousarray(rx, np.float64)
+    cdef double[::1] vry = np.ascontiguousarray(ry, np.float64)
+    cdef double[::1] vqx = np.ascontiguousarray(qdx, np.float64)
+    cdef double[::1] vqy = np.ascontiguousarray(qdy, np.float64)
+    cdef Py_ssize_t n = vrx.shape[0]
+    if not (vry.shape[0] == vqx.shape[0] == vqy.shape[0] == n):
+        raise ValueError("rx, ry, qdx and qdy must have the same length")
+    th = np.empty(n)
+    cdef double[::1] vo = th
+    cdef int64_t far = 0
+    if n:
+        far = st_torsion_angles_framed(<int>n, &vrx[0], &vry[0], &vqx[0], &vqy[0], phi, &vo[0])
+    return th, bool(far)
 
 
 def fastmath_sincos(e):

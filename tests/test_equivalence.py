@@ -232,3 +232,58 @@ def test_kernel_equals_reference_beyond_64_connections():
         insensitive += int((~b.state()["sensitive"][20:]).sum())
     assert insensitive > 0
     assert a.counters["spring_updates"] == len(ev) // 20
+
+
+def turned_face(turn, rng, jitter_px=1.5):
+    """face26's rest means turned by `turn` rad about their centroid, each jittered."""
+    m = springtrack.load_model("face26")
+    x = np.array([t.x for t in m.trackers])
+    y = np.array([t.y for t in m.trackers])
+    cx, cy = x.mean(), y.mean()
+    c, s = np.cos(turn), np.sin(turn)
+    return (m, cx + c * (x - cx) - s * (y - cy) + rng.normal(0, jitter_px, len(x)),
+            cy + s * (x - cx) + c * (y - cy) + rng.normal(0, jitter_px, len(x)))
+
+
+def assert_springs_equal(ker, ref, x, y):
+    for i in range(len(x)):
+        ker.place(i, x[i], y[i])
+    ref.mx, ref.my = [float(v) for v in x], [float(v) for v in y]
+    ker.springs()
+    ref.springs()
+    snap = ker.snapshot(0)
+    np.testing.assert_allclose(snap["x"], ref.mx, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(snap["y"], ref.my, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(ker.energies(), np.array(ref.energy), rtol=1e-12, atol=1e-15)
+    assert snap["sensitive"].tolist() == list(ref.sensitive)
+
+
+def test_spring_update_equals_reference_while_the_face_turns_round():
+    """eq. (14): the kernel measures the angles in a frame that follows the mean angle
+    (st_torsion_angles_framed, fast while every connection is within 3 pi/8 of its frame
+    direction; the full atan2 otherwise).  A face turning a whole circle in steps of 0.05 rad
+    moves that frame, a tracker thrown 90 degrees off makes the fast path fall back, and
+    every spring update equals the reference's, the wrap at +-pi included."""
+    from springtrack._kernel import Kernel
+    from springtrack.reference import ReferenceTracker
+    from springtrack.tracker import resolve_params
+    rng = np.random.default_rng(5)
+    m = springtrack.load_model("face26")
+    p = resolve_params(m, None)
+    ker, ref = Kernel(m, p), ReferenceTracker(m, p)
+    missed = []
+    for turn in np.arange(0.0, 2 * np.pi + 0.1, 0.05):
+        _, x, y = turned_face(turn, rng)
+        before = ker.frame_stats()["frame_misses"]
+        assert_springs_equal(ker, ref, x, y)
+        if ker.frame_stats()["frame_misses"] > before:
+            missed.append(turn)
+    fast = ker.frame_stats()
+    assert fast["frame_moves"] >= 10, fast
+    # only upside down: the angles straddle the wrap at +-pi (eq. 14 wraps each one), so
+    # their mean (eq. 15) lies far from some of them and the frame cannot follow
+    assert 0 < len(missed) <= 8 and all(abs(t - np.pi) < 0.3 for t in missed), missed
+    _, x, y = turned_face(1.0, rng)
+    x[6], y[6] = x[16] + (y[17] - y[16]), y[16] - (x[17] - x[16])     # mouth 90 deg off
+    assert_springs_equal(ker, ref, x, y)
+    assert ker.frame_stats()["frame_misses"] == fast["frame_misses"] + 1

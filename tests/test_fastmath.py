@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from springtrack._kernel import fastmath_atan2, fastmath_exp, fastmath_sincos
+from springtrack._kernel import (fastmath_atan2, fastmath_exp, fastmath_sincos,
+                                torsion_angles_framed)
 
 ULP1 = 2.0 ** -52
 
@@ -79,3 +80,42 @@ def test_exp_matches_libm():
     assert fastmath_exp([0.0])[0] == 1.0
     inf_nan = fastmath_exp([-np.inf, np.inf, np.nan, -1000.0])
     assert inf_nan[0] == 0.0 and inf_nan[1] == np.inf and np.isnan(inf_nan[2]) and inf_nan[3] == 0.0
+
+
+def wrap(a):
+    return (a + math.pi) % (2 * math.pi) - math.pi
+
+
+def test_framed_angles_match_libm_within_three_eighths_of_pi():
+    """csrc/springs.h st_torsion_angles_framed: th = wrap(phi + angle from q to r) for r
+    within 3 pi/8 of q, the reduced branch (|t| > tan(pi/8)) and the wrap at +-pi included."""
+    rng = np.random.default_rng(3)
+    n = 100_000
+    q_ang = rng.uniform(-math.pi, math.pi, n)
+    dev = rng.uniform(-0.374, 0.374, n) * math.pi          # just inside +-3 pi/8
+    dev[:1000] = rng.choice([1 / 8, -1 / 8, 0.0], 1000) * math.pi + rng.normal(0, 1e-12, 1000)
+    ql, rl = 10.0 ** rng.uniform(-1, 3, n), 10.0 ** rng.uniform(-3, 3, n)
+    qx, qy = ql * np.cos(q_ang), ql * np.sin(q_ang)
+    rx, ry = rl * np.cos(q_ang + dev), rl * np.sin(q_ang + dev)
+    for phi in (0.0, 1.0, -2.9, math.pi - 1e-9, -math.pi):
+        th, far = torsion_angles_framed(rx, ry, qx, qy, phi)
+        assert not far
+        want = np.array([math.atan2(qxk * ryk - qyk * rxk, qxk * rxk + qyk * ryk)
+                         for qxk, qyk, rxk, ryk in zip(qx.tolist(), qy.tolist(), rx.tolist(),
+                                                       ry.tolist())]) + phi
+        err = np.abs(th - np.where(want >= math.pi, want - 2 * math.pi,
+                                   np.where(want < -math.pi, want + 2 * math.pi, want)))
+        assert err.max() <= 1e-15, (phi, err.max())
+        assert np.all((th >= -math.pi) & (th < math.pi))
+
+
+@pytest.mark.parametrize("ang", [0.376 * math.pi, -0.376 * math.pi, 0.5 * math.pi, math.pi, None])
+def test_framed_angles_report_a_connection_outside_their_range(ang):
+    """One connection beyond 3 pi/8 from its q (or r = 0) sets the fallback flag."""
+    rx, ry = np.ones(9), np.zeros(9)
+    if ang is None:
+        rx[4] = 0.0
+    else:
+        rx[4], ry[4] = math.cos(ang), math.sin(ang)
+    th, far = torsion_angles_framed(rx, ry, np.ones(9), np.zeros(9), 0.0)
+    assert far

@@ -6,6 +6,8 @@
  * differs from the reference by the rounding of fastmath.h's atan2 / sin / cos only.
  *
  *   st_torsion_angles       eq. (14): angle of each connection from its rest direction
+ *   st_torsion_angles_framed  the same, fast, when every connection is near its rest
+ *                           direction turned by a common frame angle
  *   st_torsion_rotation     eqs. (15)-(17): deviation from the mean angle, its energy and
  *                           the rotation sin(eps), cos(eps) - 1 of eq. (16)
  *   st_spring_terms_batch   eqs. (10)-(12), (16), (18)-(20): energies and the summed
@@ -20,6 +22,23 @@
 #define SPRINGTRACK_SPRINGS_H
 
 #include "fastmath.h"
+
+/* x[0] + ... + x[n-1] in four interleaved partial sums (a chain of n/4 additions, not n:
+ * the mean angle and the mean energy gate the rest of the spring update) */
+static inline double st_sum(int n, const double *restrict x)
+{
+    double a0 = 0.0, a1 = 0.0, a2 = 0.0, a3 = 0.0;
+    int k = 0;
+    for (; k + 4 <= n; k += 4) {
+        a0 += x[k];
+        a1 += x[k + 1];
+        a2 += x[k + 2];
+        a3 += x[k + 3];
+    }
+    for (; k < n; k++)
+        a0 += x[k];
+    return (a0 + a1) + (a2 + a3);
+}
 
 /* eqs. (21)-(22), which trackers the over-threshold connections touch: ends[k] has the
  * bits of connection k's two trackers; over = e[k] > thr (thr: energy_scale times the mean
@@ -72,6 +91,38 @@ ST_CLONES static void st_torsion_angles(int n, const double *restrict rx,
         d = st_sel(d >= ST_PI_HI, d - 2.0 * ST_PI_HI, d);        /* [ref] wrap_angle */
         th[k] = st_sel(x == 0.0 && y == 0.0, dth_zero[k], d);
     }
+}
+
+/* eq. (14) the fast way, measured in a frame: (qdx, qdy) is each rest direction turned by
+ * the frame angle phi (the mean angle of a recent update), so that
+ *     th[k] = wrap(phi + atan2(q x r, q . r))
+ * and the angle from q to r stays well inside +-3 pi/8 while the structure moves and
+ * turns as a whole.  Within that range (q . r > 0, |q x r| < tan(3 pi/8) q . r) the angle
+ * is atan t of t = (q x r) / (q . r), reduced as in st_atan2 only for |t| > tan(pi/8) and
+ * with the sign of t: no swap, no octant, about half the work of st_atan2 and a shorter
+ * chain.  Returns 1 if any connection is outside that range (r = 0 included): th is then
+ * not filled right and the caller runs st_torsion_angles instead.  th equals
+ * st_torsion_angles' value up to rounding (~1e-15 rad), as both equal the reference's. */
+#define ST_TAN_3PI_8 2.414213562373095
+ST_CLONES static int64_t st_torsion_angles_framed(int n, const double *restrict rx,
+                                                  const double *restrict ry,
+                                                  const double *restrict qdx,
+                                                  const double *restrict qdy, double phi,
+                                                  double *restrict th)
+{
+    int64_t far = 0;
+    for (int k = 0; k < n; k++) {
+        double x = rx[k], y = ry[k];
+        double c = qdx[k] * y - qdy[k] * x, d = qdx[k] * x + qdy[k] * y, ac = fabs(c);
+        far |= !(ac < ST_TAN_3PI_8 * d);
+        int64_t big = ac > ST_TAN_PI_8 * d;           /* atan t = pi/4 + atan((t-1)/(t+1)) */
+        double a = st_atan_reduced(st_sel(big, ac - d, c) / st_sel(big, ac + d, d));
+        a = st_sel(big, copysign((ST_PI4_LO + a) + ST_PI4_HI, c), a);
+        a = a + phi;
+        a = st_sel(a >= ST_PI_HI, a - 2.0 * ST_PI_HI, a);        /* [ref] wrap_angle */
+        th[k] = st_sel(a < -ST_PI_HI, a + 2.0 * ST_PI_HI, a);
+    }
+    return far;
 }
 
 /* eqs. (15)-(17): d = th - mean (eq. 15), e_tor = a/2 d^2 (eq. 17), eps = a_tor d
