@@ -96,6 +96,14 @@ ctypedef struct KState:
     double bx_hi[MAX_TRACKERS]
     double by_lo[MAX_TRACKERS]
     double by_hi[MAX_TRACKERS]
+    # the per-update check (st_box_left): the box's centre, the slack left there for the
+    # mean to move, and the variances up to which that slack holds
+    double bcx[MAX_TRACKERS]
+    double bcy[MAX_TRACKERS]
+    double dev_x[MAX_TRACKERS]
+    double dev_y[MAX_TRACKERS]
+    double sxx_lim[MAX_TRACKERS]
+    double syy_lim[MAX_TRACKERS]
     # counters
     int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates, n_reindex
     int64_t n_frame_misses, n_frame_moves

@@ -287,3 +287,19 @@ def test_spring_update_equals_reference_while_the_face_turns_round():
     x[6], y[6] = x[16] + (y[17] - y[16]), y[16] - (x[17] - x[16])     # mouth 90 deg off
     assert_springs_equal(ker, ref, x, y)
     assert ker.frame_stats()["frame_misses"] == fast["frame_misses"] + 1
+
+
+@pytest.mark.parametrize("changes", [{}, dict(alpha_position=0.5, alpha_covariance=0.05)])
+def test_spatial_index_invariant_holds_throughout_a_stream(changes):
+    """The kernel re-indexes a tracker only when its mean has moved, or its variances grown,
+    past the slack reindex() left (st_box_left, a sufficient test); the exact gate box must
+    then still lie inside the indexed box, checked every 500 events here, including with
+    fast-moving means and fast-changing covariances, and across spring updates."""
+    m = springtrack.load_model("face26")
+    ev, _ = blob_stream(m, 60_000, rate_hz=300_000, noise=0.3, seed=4, speed_px_s=(40, -20),
+                        rot_deg_s=30, wobble_px=6)
+    tr = springtrack.Tracker(m, changes)
+    for k in range(0, len(ev), 500):
+        tr.process(ev[k:k + 500])
+        assert tr._b.check_index(), k
+    assert tr.counters["index_updates"] > 100

@@ -186,27 +186,30 @@ ST_CLONES static void st_spring_terms_batch(
 }
 
 /* 1 where a tracker's exact gate box (half-widths sqrt(gate sxx), sqrt(gate syy) about its
- * mean (mx, my)) is no longer inside the box [bx_lo, bx_hi] x [by_lo, by_hi] it is indexed
- * with, compared in squares (no sqrt); else 0.  The kernel re-indexes such a tracker. */
-static inline int64_t st_box_left(double mx, double my, double sxx, double syy, double gate,
-                                  double bx_lo, double bx_hi, double by_lo, double by_hi)
+ * mean (mx, my)) may no longer lie inside the box it is indexed with, else 0.  The test is
+ * sufficient, not exact, and cheap: reindex() left slack for the mean to move by
+ * (dev_x, dev_y) from the box centre (bcx, bcy) while the variances stay below
+ * (sxx_lim, syy_lim); within both the gate box stays inside.  The kernel re-indexes a
+ * tracker when this returns 1. */
+static inline int64_t st_box_left(double mx, double my, double sxx, double syy, double bcx,
+                                  double bcy, double dev_x, double dev_y, double sxx_lim,
+                                  double syy_lim)
 {
-    double rx = mx - bx_lo, lx = bx_hi - mx, ry = my - by_lo, ly = by_hi - my;
-    double gx = gate * sxx, gy = gate * syy;
-    return (rx < 0.0) | (lx < 0.0) | (ry < 0.0) | (ly < 0.0)
-           | (gx >= rx * rx) | (gx >= lx * lx) | (gy >= ry * ry) | (gy >= ly * ly);
+    return (fabs(mx - bcx) > dev_x) | (fabs(my - bcy) > dev_y) | (sxx > sxx_lim)
+           | (syy > syy_lim);
 }
 
 /* out[i] = st_box_left(tracker i) for i < n (after a spring update moved them all) */
 ST_CLONES static void st_boxes_left(int n, const double *restrict mx, const double *restrict my,
                                     const double *restrict sxx, const double *restrict syy,
-                                    double gate, const double *restrict bx_lo,
-                                    const double *restrict bx_hi, const double *restrict by_lo,
-                                    const double *restrict by_hi, int64_t *restrict out)
+                                    const double *restrict bcx, const double *restrict bcy,
+                                    const double *restrict dev_x, const double *restrict dev_y,
+                                    const double *restrict sxx_lim,
+                                    const double *restrict syy_lim, int64_t *restrict out)
 {
     for (int i = 0; i < n; i++)
-        out[i] = st_box_left(mx[i], my[i], sxx[i], syy[i], gate, bx_lo[i], bx_hi[i],
-                             by_lo[i], by_hi[i]);
+        out[i] = st_box_left(mx[i], my[i], sxx[i], syy[i], bcx[i], bcy[i], dev_x[i], dev_y[i],
+                             sxx_lim[i], syy_lim[i]);
 }
 
 #endif /* SPRINGTRACK_SPRINGS_H */
