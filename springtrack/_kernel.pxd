@@ -21,6 +21,7 @@ cdef enum:
     MAX_TRACKERS = 64
     MAX_CONNECTIONS = 128
     CELL_SHIFT = 3             # spatial index cells of 8 x 8 px
+    ACT_LOG = 256              # eq. (6) increments logged before their exps run as a batch
 
 cdef enum:
     K_NO_TRACKER = -1
@@ -45,6 +46,10 @@ ctypedef struct KState:
     double ic[MAX_TRACKERS]
     double act[MAX_TRACKERS]          # activity at act_t0 (see kactivity)
     int64_t act_t0, act_span
+    # eq. (6) increments not yet added (see log_activity): tracker and exponent
+    int act_n
+    int act_i[ACT_LOG]
+    double act_arg[ACT_LOG]
     double inv_tau
     double mass[MAX_TRACKERS]
     double mass_sum                  # sum of mass[i] in index order (eq. 22's G)

@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from springtrack._kernel import (fastmath_atan2, fastmath_exp, fastmath_sincos,
-                                torsion_angles_framed)
+from springtrack._kernel import (fastmath_atan2, fastmath_exp, fastmath_exp_batch,
+                                fastmath_sincos, torsion_angles_framed)
 
 ULP1 = 2.0 ** -52
 
@@ -119,3 +119,15 @@ def test_framed_angles_report_a_connection_outside_their_range(ang):
         rx[4], ry[4] = math.cos(ang), math.sin(ang)
     th, far = torsion_angles_framed(rx, ry, np.ones(9), np.zeros(9), 0.0)
     assert far
+
+
+def test_exp_batch_equals_exp_bit_for_bit():
+    """st_exp_batch (the kernel's activity log) gives st_exp's values exactly, the libm
+    fallback beyond |x| >= 700 included, for every length (vector body and tail)."""
+    rng = np.random.default_rng(4)
+    x = np.concatenate([rng.uniform(-40, 0, 5000), rng.uniform(-745, 710, 500),
+                        [0.0, -0.0, 699.9, 700.0, -700.0, -1000.0, np.inf, -np.inf, np.nan]])
+    rng.shuffle(x)
+    for n in (len(x), 1, 3, 7, 257):
+        got, want = fastmath_exp_batch(x[:n]), fastmath_exp(x[:n])
+        assert np.array_equal(got, want, equal_nan=True), n

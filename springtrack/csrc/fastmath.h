@@ -9,6 +9,7 @@
  *   st_sincos_small(e,...)  eq. (16) rotation sin(eps), cos(eps) - 1 for |eps| <= pi/4;
  *                           |error| <= ~2e-17 relative (the batch falls back to libm above)
  *   st_exp(x)               eqs. (2), (6) kernel value and activity decay; ~1 ulp
+ *   st_exp_batch            the same over an array, vectorised (the activity log)
  *
  * Polynomials: Chebyshev fits (mpmath.chebyfit, 60 digits), then rounded to double; the
  * worst error of the rounded polynomial was checked in 60-digit arithmetic on 2001 points
@@ -178,10 +179,9 @@ static const double st_exp2_table[32] = {
 #define ST_EXP_LN2_LO 5.9631716539705866e-12
 #define ST_EXP_SHIFT 6755399441055744.0           /* 1.5 * 2^52: round to integer */
 
-static inline double st_exp(double x)
+/* st_exp for |x| < 700 (no range check) */
+static inline double st_exp_core(double x)
 {
-    if (!(fabs(x) < 700.0))
-        return exp(x);
     double kd = x * ST_EXP_INV_LN2_32 + ST_EXP_SHIFT;
     uint64_t kb;
     memcpy(&kb, &kd, 8);
@@ -196,6 +196,28 @@ static inline double st_exp(double x)
     double r2 = r * r;
     double p = r + r2 * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0)))));
     return scale + scale * p;
+}
+
+static inline double st_exp(double x)
+{
+    if (!(fabs(x) < 700.0))
+        return exp(x);
+    return st_exp_core(x);
+}
+
+/* out[k] = st_exp(x[k]) for k < n, the same values, vectorised (the table read as
+ * scalar loads; libm where |x| >= 700, rare) */
+ST_CLONES static void st_exp_batch(const double *restrict x, double *restrict out, int n)
+{
+    int64_t wide = 0;
+    for (int k = 0; k < n; k++) {
+        out[k] = st_exp_core(x[k]);
+        wide |= !(fabs(x[k]) < 700.0);
+    }
+    if (wide)
+        for (int k = 0; k < n; k++)
+            if (!(fabs(x[k]) < 700.0))
+                out[k] = exp(x[k]);
 }
 
 #endif /* SPRINGTRACK_FASTMATH_H */
