@@ -458,26 +458,35 @@ cdef void rescale_activity(KState* s, int64_t t) noexcept nogil:
 
 # ---- sampling -------------------------------------------------------------------------
 cdef void ksnapshot(const KState* s, int64_t t, SampleOut* o) noexcept nogil:
+    # the row's pointers in locals: stores through them could alias the SampleOut fields,
+    # which the compiler would otherwise reload for every tracker
     cdef Py_ssize_t row = o.count, base = row * s.n
-    cdef int i, k, q
-    cdef double a, tot
+    cdef int i, q
+    cdef double a
     cdef double decay = activity_decay(s, t)         # kactivity's factor, one exp for all
+    cdef double thr = s.act_thr
+    cdef uint64_t sensitive = s.sensitive_mask
+    cdef double* x = o.x + base
+    cdef double* y = o.y + base
+    cdef double* sxx = o.sxx + base
+    cdef double* sxy = o.sxy + base
+    cdef double* syy = o.syy + base
+    cdef double* act = o.act + base
+    cdef uint8_t* active = o.active + base
+    cdef uint8_t* sens = o.sensitive + base
     o.t[row] = t
     for i in range(s.n):
         a = s.act[i] * decay
-        o.x[base + i] = s.mx[i]
-        o.y[base + i] = s.my[i]
-        o.sxx[base + i] = s.sxx[i]
-        o.sxy[base + i] = s.sxy[i]
-        o.syy[base + i] = s.syy[i]
-        o.act[base + i] = a
-        o.active[base + i] = a > s.act_thr
-        o.sensitive[base + i] = (s.sensitive_mask >> i) & 1
-    for q in range(3):
-        tot = 0.0
-        for k in range(s.nc):
-            tot += s.energy[q][k]
-        o.energy[row * 3 + q] = tot / s.nc if s.nc > 0 else 0.0
+        x[i] = s.mx[i]
+        y[i] = s.my[i]
+        sxx[i] = s.sxx[i]
+        sxy[i] = s.sxy[i]
+        syy[i] = s.syy[i]
+        act[i] = a
+        active[i] = a > thr
+        sens[i] = (sensitive >> i) & 1
+    for q in range(3):                                # eq. (13) of each kind
+        o.energy[row * 3 + q] = st_sum(s.nc, s.energy[q]) / s.nc if s.nc > 0 else 0.0
     o.count = row + 1
 
 
