@@ -11,6 +11,7 @@ import numpy as np
 from Cython.Build import cythonize
 from setuptools import Extension, setup
 
+ROOT = os.path.dirname(os.path.abspath(__file__))     # headers by their repository path
 COMPILE_ARGS = ["-O3", "-ffp-contract=off", "-fno-math-errno"]
 if os.environ.get("SPRINGTRACK_NATIVE", "0") == "1":
     COMPILE_ARGS.append("-march=native")
@@ -26,7 +27,7 @@ def extensions():
             continue
         exts.append(Extension(
             module, [pyx],
-            include_dirs=[np.get_include(), os.path.dirname(pyx)],
+            include_dirs=[np.get_include(), os.path.dirname(pyx), ROOT],
             extra_compile_args=COMPILE_ARGS,
             define_macros=[("NPY_NO_DEPRECATED_API", "NPY_1_7_API_VERSION")],
         ))

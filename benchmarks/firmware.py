@@ -142,6 +142,9 @@ def main():
     ap.add_argument("--realtime-seconds", type=float, default=10.0, help="scene seconds per run")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
+    if args.realtime_runs < 1:
+        ap.error(f"--realtime-runs must be >= 1 (the report needs a real-time run), "
+                 f"got {args.realtime_runs}")
     load = os.getloadavg()
     ev, _ = simulate_all("face_occlusion", args.seconds, seed=0)
     fused, kernel, dec, nbuf = bench_fused(ev)

@@ -1,7 +1,9 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
 """Decode CCam ATIS USB words and track them in one nogil pass (issue 6, "the loop").
 
-Per 4-byte word: ``springtrack.io.ccam.ccam_decode_word`` (layout in ccam.pxd); the
+Per 4-byte word: ``springtrack.io.ccam.ccam_decode_word`` (layout in ccam.pxd), or 32
+words at once while they are all plain change-detection events (``ccam_decode_plain``,
+springtrack/io/ccam_block.h, vectorised: time-high and special words go word by word); the
 change-detection events go into a batch of at most BATCH events (a C array in the object,
 4 KiB, stays in L1), and each batch runs through ``springtrack._stepper.run_events``, the
 sampled event loop of ``springtrack track``, on the tracker backend's :c:type:`Stepper`
@@ -33,8 +35,8 @@ from springtrack._fixed cimport FixedKernel
 from springtrack._samples cimport SampleOut, sample_buffers
 from springtrack._stepper cimport Stepper, run_events
 from springtrack.events cimport Event
-from springtrack.io.ccam cimport (CCamState, ccam_init, ccam_decode_word, CCAM_CD,
-                                  CCAM_EXPOSURE, CCAM_NONE)
+from springtrack.io.ccam cimport (CCamState, ccam_init, ccam_decode_word, ccam_decode_plain,
+                                  CCAM_BLOCK, CCAM_CD, CCAM_EXPOSURE, CCAM_NONE)
 
 cnp.import_array()
 
@@ -186,7 +188,7 @@ cdef class Fused:
     cdef Py_ssize_t _decode(self, const uint8_t* p, Py_ssize_t pos, Py_ssize_t n) noexcept nogil:
         """Decode bytes [pos, n) into the (empty) batch until it holds BATCH events; return
         the position reached.  A word split across buffers is completed from the carry."""
-        cdef Py_ssize_t k
+        cdef Py_ssize_t k, end
         self.bpos = 0
         self.bn = 0
         if self.ncarry:
@@ -201,8 +203,22 @@ cdef class Fused:
             self.ncarry = 0
             self._word(self.carry)
         while pos + 4 <= n and self.bn < BATCH:
-            self._word(p + pos)
-            pos += 4
+            # a block of plain change-detection words at once (ccam_block.h), else a block's
+            # worth word by word
+            if (pos + 4 * CCAM_BLOCK <= n and self.bn + CCAM_BLOCK <= BATCH
+                    and not self.await_th and self.cs.last_th >= 0
+                    and ccam_decode_plain(p + pos, CCAM_BLOCK, self.cs.t_offset,
+                                          &self.batch[self.bn])):
+                self.bn += CCAM_BLOCK
+                self.cs.words += CCAM_BLOCK
+                self.cs.cd += CCAM_BLOCK
+                self.cs.last_t = self.batch[self.bn - 1].t
+                pos += 4 * CCAM_BLOCK
+                continue
+            end = pos + 4 * CCAM_BLOCK
+            while pos + 4 <= n and pos < end and self.bn < BATCH:
+                self._word(p + pos)
+                pos += 4
         if pos < n and pos + 4 > n:     # a word split across transfers: keep its head
             memcpy(self.carry, p + pos, n - pos)
             self.ncarry = <int>(n - pos)

@@ -148,3 +148,16 @@ def test_a_camera_counter_restart_is_rebased_so_time_never_goes_back():
     assert c["anomalies"]["time_backwards"] == 1
     assert c["events_tracked"] == 3 and c["anomalies"]["tracker_back_in_time"] == 0
     assert f.last_t == 101 * 2048 + 20
+
+
+def test_block_decoding_equals_word_by_word_in_the_fused_loop():
+    """The fused loop decodes runs of plain event words 32 at a time (io/ccam_block.h);
+    fed one word per call it never does, and tracks, samples and counts the same."""
+    from test_io_decoders import ccam_mixed_words
+    data = ccam_mixed_words(7, n_events=6000, n_special=80)
+    whole, single = fused(cap=4096), fused(cap=4096)
+    a = collect(whole, [data])
+    b = collect(single, [data[i:i + 4] for i in range(0, len(data), 4)])
+    assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+    assert whole.counters() == single.counters()
+    assert whole.counters()["events_tracked"] > 5000 and len(a["t"]) > 10

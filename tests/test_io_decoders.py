@@ -198,3 +198,52 @@ def test_dat_records_and_wrap():
 def test_unknown_decoder_name():
     with pytest.raises(ValueError, match="known: ccam, evt2, evt3, es, dat"):
         sio.decoder("evt4")
+
+
+def ccam_mixed_words(seed, n_events=3000, n_special=60):
+    from springtrack.io import ccam
+    """A CCam word stream of plain events with special words at random places: exposure
+    events, events out of the sensor (y, x), unknown words, repeated time-high words."""
+    from springtrack.events import make
+    rng = np.random.default_rng(seed)
+    t = np.sort(rng.integers(0, 20_000, n_events))
+    ev = make(t, rng.integers(0, 304, n_events), rng.integers(0, 240, n_events),
+              rng.integers(0, 2, n_events))
+    words = np.frombuffer(ccam.encode(ev), np.uint8).reshape(-1, 4).copy()
+    special = []
+    for pos in sorted(rng.integers(1, len(words), n_special)):
+        kind = rng.integers(0, 5)
+        w = words[pos].copy()
+        if kind == 0 and w[3] != 0x80:
+            w[3] |= 0x20                                  # exposure event
+        elif kind == 1 and w[3] != 0x80:
+            w[0] = 250                                    # y out of the sensor
+        elif kind == 2:
+            w = np.array([0, 0, 0, 0xC1], np.uint8)       # unknown type
+        elif kind == 3 and w[3] != 0x80:
+            w[1], w[2] = 0x40, w[2] | 1                   # x = 320, out of the sensor
+        else:
+            prev = [q for q in words[:pos] if q[3] == 0x80][-1]
+            w = prev.copy()                               # the same time-high again
+        special.append((pos, w))
+    out = list(words)
+    for pos, w in reversed(special):
+        out.insert(pos, w)
+    return np.array(out, np.uint8).tobytes()
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_ccam_block_path_equals_word_by_word(seed):
+    """The decoder takes runs of plain event words 32 at a time (io/ccam_block.h) and any
+    block with another word word by word: the same events, exposure events and counters
+    as decoding one word per call (never a block), special words at every kind of place."""
+    data = ccam_mixed_words(seed)
+    whole = sio.decoder("ccam", keep_exposure=True)
+    single = sio.decoder("ccam", keep_exposure=True)
+    a = whole.decode(data)
+    b = np.concatenate([single.decode(data[i:i + 4]) for i in range(0, len(data), 4)])
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(whole.take_exposure(), single.take_exposure())
+    assert whole.stats.anomalies == single.stats.anomalies
+    assert whole.stats.info == single.stats.info
+    assert len(a) > 2500 and sum(whole.stats.anomalies.values()) > 10

@@ -4,6 +4,8 @@
 #   cdef CCamState st
 #   ccam_init(&st)
 #   kind = ccam_decode_word(&st, word_ptr, &t, &x, &y, &p)   # per 4-byte word b0..b3
+#   ok = ccam_decode_plain(words, CCAM_BLOCK, st.t_offset, out)  # a block at once, if all
+#        plain events (ccam_block.h); the caller then counts words/cd and sets last_t
 #
 # Layout (public ccam_atis_sepia driver, bulk IN endpoint 0x81):
 #   b3 == 0x80          time-high word: t_offset = (b0 | b1<<8 | b2<<16) * 0x800 us
@@ -31,6 +33,11 @@ cdef struct CCamState:
     int64_t last_t       # timestamp of the last event returned
     uint64_t words, time_high, cd, exposure
     uint64_t wraps, backwards, out_of_geometry, unknown, before_time_high
+
+cdef extern from "springtrack/io/ccam_block.h" nogil:
+    enum:
+        CCAM_BLOCK
+    int ccam_decode_plain(const uint8_t* p, int n, int64_t t_offset, void* out)
 
 cdef inline void ccam_init(CCamState* s) noexcept nogil:
     memset(s, 0, sizeof(CCamState))

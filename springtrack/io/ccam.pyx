@@ -34,19 +34,32 @@ cdef class CCamDecoder(Decoder):
     cdef Py_ssize_t _run(self, const uint8_t* p, Py_ssize_t n, Event* out, Py_ssize_t cap,
                          Py_ssize_t* nout, Event* side, Py_ssize_t* nside) noexcept nogil:
         cdef CCamState st = self.st          # local copy: stays in registers
-        cdef Py_ssize_t i, nw = n >> 2, k = nout[0], ks = nside[0]
+        cdef Py_ssize_t i, j, nw = n >> 2, k = nout[0], ks = nside[0]
         cdef int kind
         cdef Event e
         if nw > cap - k:
             nw = cap - k
-        for i in range(nw):
-            kind = ccam_decode_word(&st, p + 4 * i, &e.t, &e.x, &e.y, &e.p)
-            if kind == CCAM_CD:
-                out[k] = e
-                k += 1
-            elif kind == CCAM_EXPOSURE and side != NULL:
-                side[ks] = e
-                ks += 1
+        i = 0
+        while i < nw:
+            # a block of plain change-detection words at once (ccam_block.h), else word
+            # by word; the block never writes past out[cap): k <= k0 + i, nw <= cap - k0
+            if (i + CCAM_BLOCK <= nw and st.last_th >= 0
+                    and ccam_decode_plain(p + 4 * i, CCAM_BLOCK, st.t_offset, &out[k])):
+                k += CCAM_BLOCK
+                st.words += CCAM_BLOCK
+                st.cd += CCAM_BLOCK
+                st.last_t = out[k - 1].t
+                i += CCAM_BLOCK
+                continue
+            for j in range(i, min(i + CCAM_BLOCK, nw)):
+                kind = ccam_decode_word(&st, p + 4 * j, &e.t, &e.x, &e.y, &e.p)
+                if kind == CCAM_CD:
+                    out[k] = e
+                    k += 1
+                elif kind == CCAM_EXPOSURE and side != NULL:
+                    side[ks] = e
+                    ks += 1
+            i += CCAM_BLOCK
         self.st = st
         self.words = st.words
         self.anomalies[<int>AN_UNKNOWN_TYPE] = st.unknown
