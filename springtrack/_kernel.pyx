@@ -17,9 +17,13 @@ Speed comes from ideas that do not change any decision of the algorithm:
   candidates, in index order, finds exactly the full scan's winner;
 * springs in structure-of-arrays passes over the connections (gather, branch-free
   arithmetic that GCC vectorises in csrc/springs.h, scatter), with per-connection
-  coefficients (kind-masked stiffnesses, 1/mass of both ends) precomputed;
+  coefficients (kind-masked stiffnesses, 1/mass of both ends) precomputed, and eq. (14)'s
+  angles measured in a frame that follows the mean angle (one atan per connection, no
+  octant logic, while no connection strays far: see ksprings);
+* eq. (6)'s exps logged and computed in vectorised batches (log_activity), as nothing in
+  the event loop reads the activity;
 * libm's exp, atan2, sin and cos replaced by csrc/fastmath.h (about 1 ulp; vectorised
-  atan2 and sincos batches).  Results then differ from the reference by rounding only
+  atan2, sincos and exp batches).  Results then differ from the reference by rounding only
   (~1e-15 relative), far inside the 1e-9 px contract of tests/test_equivalence.py.
 """
 from libc.math cimport exp, sqrt, cos, sin, floor, fabs, M_PI
@@ -386,7 +390,7 @@ cdef void set_frame(KState* s, double phi) noexcept nogil:
 
 cdef void energy_criteria(KState* s) noexcept nogil:
     # [ref] _energy_criteria
-    cdef int n = s.n, nc = s.nc, k, i
+    cdef int n = s.n, nc = s.nc, i
     cdef const double* e = s.energy[s.ekind]
     cdef double thr, msum = s.mass_sum, gx = 0.0, gy = 0.0
     cdef uint64_t pulled, calm
