@@ -53,7 +53,11 @@ cdef class Evt3Decoder(Decoder):
         cdef int b
         cdef uint32_t W = self.width if self.width else 0x10000
         cdef uint32_t H = self.height if self.height else 0x10000
-        cdef int64_t raw, t = ((self.epoch + self.th_last) << 12) | self.tl
+        # the time state in locals for the loop (written back after it): kept in the object,
+        # every TIME_LOW word's load and store of t_low_last would chain through memory
+        cdef int64_t epoch = self.epoch, th_last = self.th_last, tl = self.tl
+        cdef int64_t t_low_last = self.t_low_last
+        cdef int64_t raw, t = ((epoch + th_last) << 12) | tl
         cdef int y = self.y, base = self.base_x
         cdef uint8_t vp = self.vec_p
         cdef bint have_th = self.have_th
@@ -96,25 +100,25 @@ cdef class Evt3Decoder(Decoder):
                 base = v & 0x7FF
                 vp = (v >> 11) & 1
             elif typ == 0x6:           # TIME_LOW
-                self.tl = v & 0xFFF
-                raw = ((self.epoch + self.th_last) << 12) | self.tl
-                if raw < self.t_low_last:   # real sensors jitter by a few us: kept, counted
+                tl = v & 0xFFF
+                raw = ((epoch + th_last) << 12) | tl
+                if raw < t_low_last:        # real sensors jitter by a few us: kept, counted
                     self.info[<int>IN_TIME_LOW_BACK] += 1
-                self.t_low_last = raw
+                t_low_last = raw
                 t = raw
             elif typ == 0x8:           # TIME_HIGH
                 raw = v & 0xFFF
                 self.info[<int>IN_TIME_HIGH] += 1
-                if have_th and raw < self.th_last:
-                    if self.th_last - raw > 2048:    # 12-bit counter wrapped
-                        self.epoch += 4096
+                if have_th and raw < th_last:
+                    if th_last - raw > 2048:         # 12-bit counter wrapped
+                        epoch += 4096
                         self.info[<int>IN_TIME_WRAPS] += 1
                     else:                           # jumped back: rebase
-                        self.epoch += self.th_last - raw
+                        epoch += th_last - raw
                         self.anomalies[<int>AN_TIME_BACKWARDS] += 1
-                self.th_last = raw
+                th_last = raw
                 have_th = True
-                t = ((self.epoch + raw) << 12) | self.tl
+                t = ((epoch + raw) << 12) | tl
             elif typ == 0xA:
                 self.info[<int>IN_TRIGGERS] += 1
             elif typ == 0x7 or typ == 0xE or typ == 0xF:
@@ -122,6 +126,10 @@ cdef class Evt3Decoder(Decoder):
             else:
                 self.anomalies[<int>AN_UNKNOWN_TYPE] += 1
         self.have_th = have_th
+        self.epoch = epoch
+        self.th_last = th_last
+        self.tl = tl
+        self.t_low_last = t_low_last
         self.info[<int>IN_BEFORE_TIME_HIGH] += before
         self.y = y
         self.base_x = base
