@@ -30,6 +30,9 @@ CCAM_CLONES static int ccam_decode_plain(const uint8_t *restrict p, int n, int64
 {
     uint64_t *restrict out = (uint64_t *)out_;
     uint32_t other = 0;
+#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_BIG_ENDIAN__
+    return 0;                       /* the loads and records below are little-endian */
+#endif
     for (size_t k = 0; k < (size_t)n; k++) {
         uint32_t w;                                 /* b0 | b1 << 8 | b2 << 16 | b3 << 24 */
         memcpy(&w, p + 4 * k, 4);
