@@ -1,20 +1,16 @@
 /* The fast path of the CCam ATIS word decoder (springtrack/io/ccam.pxd): a block of words
  * that are all plain change-detection events (no time-high, exposure or unknown word,
  * coordinates inside 304 x 240), decoded without a branch so that GCC vectorises it
- * (an AVX2 clone picked at load time).  The word layout, fields and checks are those of
- * ccam_decode_word; the caller falls back to it, word by word, for a block with any other
- * word, and counts the words and events itself. */
+ * (an AVX2 clone picked at load time: clones.h).  The word layout, fields and checks are
+ * those of ccam_decode_word; the caller falls back to it, word by word, for a block with
+ * any other word, and counts the words and events itself. */
 #ifndef SPRINGTRACK_CCAM_BLOCK_H
 #define SPRINGTRACK_CCAM_BLOCK_H
 
 #include <stdint.h>
 #include <string.h>
 
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
-#define CCAM_CLONES __attribute__((unused, target_clones("default", "avx2")))
-#else
-#define CCAM_CLONES __attribute__((unused))
-#endif
+#include "springtrack/io/clones.h"
 
 #define CCAM_BLOCK 32        /* words per block: a time-high word every ~2 ms sends one
                                 block in a few to the word-by-word path */
@@ -25,14 +21,13 @@
  * plain change-detection event inside the sensor (out is then right), else 0 (out holds
  * garbage: decode the block word by word).  Written as two uint64 per record and indexed
  * with size_t, so that GCC sees contiguous loads and stores and vectorises them. */
-CCAM_CLONES static int ccam_decode_plain(const uint8_t *restrict p, int n, int64_t t_offset,
-                                         void *restrict out_)
+IO_CLONES static int ccam_decode_plain(const uint8_t *restrict p, int n, int64_t t_offset,
+                                       void *restrict out_)
 {
     uint64_t *restrict out = (uint64_t *)out_;
     uint32_t other = 0;
-#if defined(__BYTE_ORDER__) && __BYTE_ORDER__ == __ORDER_BIG_ENDIAN__
-    return 0;                       /* the loads and records below are little-endian */
-#endif
+    if (!IO_BLOCKS_LITTLE_ENDIAN)
+        return 0;                   /* the loads and records below are little-endian */
     for (size_t k = 0; k < (size_t)n; k++) {
         uint32_t w;                                 /* b0 | b1 << 8 | b2 << 16 | b3 << 24 */
         memcpy(&w, p + 4 * k, 4);

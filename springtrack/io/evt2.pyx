@@ -14,6 +14,12 @@ import numpy as np
 from springtrack.events cimport Event
 from springtrack.io.base cimport *
 from springtrack.io.base import encoder_input
+
+cdef extern from "springtrack/io/evt2_block.h" nogil:
+    enum:
+        EVT2_BLOCK
+    int evt2_decode_plain(const uint8_t* p, int n, int64_t th, uint32_t width,
+                          uint32_t height, void* out)
 from springtrack.events import EVENT_DTYPE
 
 cnp.import_array()
@@ -43,6 +49,14 @@ cdef class Evt2Decoder(Decoder):
         if nw > room:
             nw = room
         while i < nw:
+            # a block of plain CD words at once (evt2_block.h), else word by word up to the
+            # next block boundary; the block never writes past out[cap): k <= k0 + i
+            if i & (EVT2_BLOCK - 1) == 0:
+                if (i + EVT2_BLOCK <= nw and have_th
+                        and evt2_decode_plain(p + 4 * i, EVT2_BLOCK, th, W, H, &out[k])):
+                    k += EVT2_BLOCK
+                    i += EVT2_BLOCK
+                    continue
             memcpy(&v, p + 4 * i, 4)   # little-endian host assumed (x86, ARM)
             i += 1
             typ = v >> 28
