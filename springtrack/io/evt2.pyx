@@ -14,13 +14,13 @@ import numpy as np
 from springtrack.events cimport Event
 from springtrack.io.base cimport *
 from springtrack.io.base import encoder_input
+from springtrack.events import EVENT_DTYPE
 
 cdef extern from "springtrack/io/evt2_block.h" nogil:
     enum:
         EVT2_BLOCK
     int evt2_decode_plain(const uint8_t* p, int n, int64_t th, uint32_t width,
                           uint32_t height, void* out)
-from springtrack.events import EVENT_DTYPE
 
 cnp.import_array()
 
