@@ -355,3 +355,20 @@ def test_cli_track_backend_fixed(tmp_path):
     assert d < 1e-3
     assert all(a["active"] == b["active"] and a["sensitive"] == b["sensitive"]
                for a, b in zip(rows["cython"], rows["fixed"]))
+
+
+@pytest.mark.parametrize("changes", [{}, dict(alpha_position=0.5, alpha_covariance=0.05)])
+def test_index_invariant_holds_throughout_a_stream(changes):
+    """After each update the kernel re-indexes a tracker only when its mean has moved, or
+    its variances grown, past the slack fx_reindex noted (box_kept, a sufficient test):
+    the exact gate box must still lie inside the indexed box, checked every 500 events of
+    a fast, turning face, with fast-changing covariances too, and across spring updates."""
+    from springtrack.synthetic import blob_stream
+    m = springtrack.load_model("face26")
+    ev, _ = blob_stream(m, 60_000, rate_hz=300_000, noise=0.3, seed=4, speed_px_s=(40, -20),
+                        rot_deg_s=30, wobble_px=6)
+    tr = Tracker(m, params=changes, backend="fixed")
+    for k in range(0, len(ev), 500):
+        tr.process(ev[k:k + 500])
+        assert tr._b.check_index(), k
+    assert tr.counters["index_updates"] > 100

@@ -432,21 +432,57 @@ static inline int32_t cell_of(int64_t v, int32_t gmax)
     return c < 0 ? 0 : (c > gmax ? gmax : (int32_t)c);
 }
 
+/* An upper bound of gate v (Q.32 px^2) for a variance v (Q.40, < 2^53): the square of the
+   gate box's half-width, for the spatial index (which needs a box that contains the gate
+   box, not an exact one).  One 64-bit product: (v / 2^16 + 1) ceil(gate 2^20) < 2^61,
+   rounded up; relative excess < 2^-22 for v >= 0.25 px^2. */
+static inline int64_t gate_box2(const fx_state *s, int64_t v)
+{
+    return (((v >> 16) + 1) * s->gate_q20 + 4095) >> 12;
+}
+
 /* (Re)insert tracker i with its gate box sqrt(gate * sxx) x sqrt(gate * syy), enlarged by
    2^-FX_INDEX_GROW_SHIFT of itself and FX_INDEX_MARGIN, so that a covariance growing a
    little does not re-index at once (the index only selects candidates: any box that
    contains the gate box gives the same results). */
+/* half-width of the gate box for a variance v (Q.40), Q.16, rounded up */
+static inline int64_t gate_half(const fx_state *s, int64_t v)
+{
+    return (int64_t)isqrt64(s, (uint64_t)gate_box2(s, v)) + 1;
+}
+
+/* the variance up to which box_kept holds: 1/32 above v (sigma 1.5 % above), at most the
+   clamp's sigma_max^2 (refresh never lets a variance exceed it) */
+static inline int64_t var_lim(const fx_state *s, int64_t v)
+{
+    int64_t lim = v + (v >> 5);
+    return lim < s->smax2 ? lim : s->smax2;
+}
+
 void fx_reindex(fx_state *s, int i)
 {
-    int64_t hx = (int64_t)isqrt64(s, (uint64_t)s->gsxx[i]) + 1;      /* Q.16 */
-    int64_t hy = (int64_t)isqrt64(s, (uint64_t)s->gsyy[i]) + 1;
+    int64_t hx = gate_half(s, s->sxx[i]), hy = gate_half(s, s->syy[i]);     /* Q.16 */
+    int64_t cx = pos16(s->mx[i]), cy = pos16(s->my[i]);
     int32_t x0, x1, y0, y1;
     hx += (hx >> FX_INDEX_GROW_SHIFT) + FX_INDEX_MARGIN;
     hy += (hy >> FX_INDEX_GROW_SHIFT) + FX_INDEX_MARGIN;
-    s->bx_lo[i] = pos16(s->mx[i]) - hx;
-    s->bx_hi[i] = pos16(s->mx[i]) + hx;
-    s->by_lo[i] = pos16(s->my[i]) - hy;
-    s->by_hi[i] = pos16(s->my[i]) + hy;
+    s->bx_lo[i] = cx - hx;
+    s->bx_hi[i] = cx + hx;
+    s->by_lo[i] = cy - hy;
+    s->by_hi[i] = cy + hy;
+    /* box_kept's slack: while sxx <= sxx_lim the gate half-width is at most
+       gate_half(sxx_lim), so the mean may move by the rest of hx (>= 0: the enlargement
+       is 1/8 and 3 px, the growth allowed about 1/64) */
+    s->sxx_lim[i] = var_lim(s, s->sxx[i]);
+    s->syy_lim[i] = var_lim(s, s->syy[i]);
+    s->bcx[i] = cx;
+    s->bcy[i] = cy;
+    s->devx[i] = hx - gate_half(s, s->sxx_lim[i]);
+    s->devy[i] = hy - gate_half(s, s->syy_lim[i]);
+    if (s->devx[i] < 0)
+        s->devx[i] = 0;
+    if (s->devy[i] < 0)
+        s->devy[i] = 0;
     x0 = cell_of(s->bx_lo[i], s->gw - 1);
     x1 = cell_of(s->bx_hi[i], s->gw - 1);
     y0 = cell_of(s->by_lo[i], s->gh - 1);
@@ -472,19 +508,31 @@ static inline int64_t min64(int64_t a, int64_t b)
     return a < b ? a : b;
 }
 
+/* 1 if tracker i's gate box lies inside its indexed box (the exact test, for
+   fx_check_index) */
 static inline int box_ok(const fx_state *s, int i)
 {
     /* positions to Q.16 (floor): an error < 2^-16 px, far inside the 3 px index margin;
        both sides of an axis are inside iff the nearer one is (one square per axis) */
     int64_t x = pos16(s->mx[i]), y = pos16(s->my[i]);
-    return inside(min64(x - s->bx_lo[i], s->bx_hi[i] - x), s->gsxx[i])
-        && inside(min64(y - s->by_lo[i], s->by_hi[i] - y), s->gsyy[i]);
+    return inside(min64(x - s->bx_lo[i], s->bx_hi[i] - x), gate_box2(s, s->sxx[i]))
+        && inside(min64(y - s->by_lo[i], s->by_hi[i] - y), gate_box2(s, s->syy[i]));
 }
 
-/* Re-index tracker i if its exact gate box has left the box it is indexed with. */
+/* 1 if tracker i's mean and variances are still within the slack fx_reindex noted: a
+   sufficient test for box_ok, four comparisons (the exact one needs the gate box of the
+   current variances, two products and two squares) */
+static inline int box_kept(const fx_state *s, int i)
+{
+    int64_t dx = pos16(s->mx[i]) - s->bcx[i], dy = pos16(s->my[i]) - s->bcy[i];
+    return (dx < 0 ? -dx : dx) <= s->devx[i] && (dy < 0 ? -dy : dy) <= s->devy[i]
+        && s->sxx[i] <= s->sxx_lim[i] && s->syy[i] <= s->syy_lim[i];
+}
+
+/* Re-index tracker i if its gate box may have left the box it is indexed with. */
 static inline void check_index(fx_state *s, int i)
 {
-    if (!box_ok(s, i))
+    if (!box_kept(s, i))
         fx_reindex(s, i);
 }
 
@@ -518,14 +566,6 @@ static inline int64_t scale2(fx_state *s, int64_t v, int k)
     return v * ((int64_t)1 << k);
 }
 
-/* An upper bound of gate v (Q.32 px^2) for a variance v (Q.40, < 2^53): the square of the
-   gate box's half-width, for the spatial index (which needs a box that contains the gate
-   box, not an exact one).  One 64-bit product: (v / 2^16 + 1) ceil(gate 2^20) < 2^61,
-   rounded up; relative excess < 2^-22 for v >= 0.25 px^2. */
-static inline int64_t gate_box2(const fx_state *s, int64_t v)
-{
-    return (((v >> 16) + 1) * s->gate_q20 + 4095) >> 12;
-}
 
 /* [ref] _clamp_and_invert: sigma_x, sigma_y in [sigma_min, sigma_max], |rho| <= 0.99,
    then the inverse covariance of eq. (2) and the gate box.  One division. */
@@ -572,8 +612,6 @@ static inline void refresh(fx_state *s, int i)
     s->ia[i] = scale2(s, c * r, k);
     s->ic[i] = scale2(s, a * r, k);
     s->ib2[i] = 2 * scale2(s, -b * r, k);
-    s->gsxx[i] = gate_box2(s, sxx);                       /* >= gate sxx, Q.32 px^2 */
-    s->gsyy[i] = gate_box2(s, syy);
 }
 
 void fx_refresh(fx_state *s, int i)
@@ -1037,7 +1075,7 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
         s->my[i] = sat_pos(s, s->my[i] + mul62(gy + s->gdy0[i] - s->my[i], s->energy_gain));
     }
     for (i = 0; i < n; i++)
-        bad |= (uint64_t)!box_ok(s, i) << i;
+        bad |= (uint64_t)!box_kept(s, i) << i;
     /* eq. (21): insensitive when every connection of the tracker is over */
     s->sensitive_mask = calm & (n == 64 ? ~(uint64_t)0 : ((uint64_t)1 << n) - 1);
     while (bad) {                                         /* re-index who left its box */

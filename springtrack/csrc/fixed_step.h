@@ -72,7 +72,6 @@ typedef struct {
     int64_t mx[FX_MAX_TRACKERS], my[FX_MAX_TRACKERS];
     int64_t sxx[FX_MAX_TRACKERS], sxy[FX_MAX_TRACKERS], syy[FX_MAX_TRACKERS];
     int64_t ia[FX_MAX_TRACKERS], ib2[FX_MAX_TRACKERS], ic[FX_MAX_TRACKERS];
-    int64_t gsxx[FX_MAX_TRACKERS], gsyy[FX_MAX_TRACKERS];    /* gate * sxx, gate * syy, Q.32 */
     int64_t act[FX_MAX_TRACKERS];
     int64_t tlast[FX_MAX_TRACKERS];
     uint32_t mq[FX_MAX_TRACKERS];             /* mass / max mass, Q.24 (centre of mass) */
@@ -103,6 +102,11 @@ typedef struct {
     int32_t box_y0[FX_MAX_TRACKERS], box_y1[FX_MAX_TRACKERS];
     int64_t bx_lo[FX_MAX_TRACKERS], bx_hi[FX_MAX_TRACKERS];
     int64_t by_lo[FX_MAX_TRACKERS], by_hi[FX_MAX_TRACKERS];
+    /* the per-update index check (box_kept): the box's centre (Q.16), the slack left
+       there for the mean to move (Q.16), and the variances up to which it holds (Q.40) */
+    int64_t bcx[FX_MAX_TRACKERS], bcy[FX_MAX_TRACKERS];
+    int64_t devx[FX_MAX_TRACKERS], devy[FX_MAX_TRACKERS];
+    int64_t sxx_lim[FX_MAX_TRACKERS], syy_lim[FX_MAX_TRACKERS];
     /* tables, filled by springtrack/fixed_q.py */
     uint32_t exp2_lut[FX_EXP2_N + 1];         /* 2^(-k / FX_EXP2_N), Q.30 */
     uint32_t atan_lut[FX_CORDIC_N];           /* atan(2^-i), binary angle (CORDIC) */
