@@ -2,7 +2,7 @@
 """Decode CCam ATIS USB words and track them in one nogil pass (issue 6, "the loop").
 
 Per 4-byte word: ``springtrack.io.ccam.ccam_decode_word`` (layout in ccam.pxd), or 32
-words at once while they are all plain change-detection events (``ccam_decode_plain``,
+words at once while they are all plain change-detection events (``ccam_decode_block``,
 springtrack/io/ccam_block.h, vectorised: time-high and special words go word by word); the
 change-detection events go into a batch of at most BATCH events (a C array in the object,
 4 KiB, stays in L1), and each batch runs through ``springtrack._stepper.run_events``, the
@@ -35,7 +35,7 @@ from springtrack._fixed cimport FixedKernel
 from springtrack._samples cimport SampleOut, sample_buffers
 from springtrack._stepper cimport Stepper, run_events
 from springtrack.events cimport Event
-from springtrack.io.ccam cimport (CCamState, ccam_init, ccam_decode_word, ccam_decode_plain,
+from springtrack.io.ccam cimport (CCamState, ccam_init, ccam_decode_word, ccam_decode_block,
                                   CCAM_BLOCK, CCAM_CD, CCAM_EXPOSURE, CCAM_NONE)
 
 cnp.import_array()
@@ -206,13 +206,9 @@ cdef class Fused:
             # a block of plain change-detection words at once (ccam_block.h), else a block's
             # worth word by word
             if (pos + 4 * CCAM_BLOCK <= n and self.bn + CCAM_BLOCK <= BATCH
-                    and not self.await_th and self.cs.last_th >= 0
-                    and ccam_decode_plain(p + pos, CCAM_BLOCK, self.cs.t_offset,
-                                          &self.batch[self.bn])):
+                    and not self.await_th
+                    and ccam_decode_block(&self.cs, p + pos, &self.batch[self.bn])):
                 self.bn += CCAM_BLOCK
-                self.cs.words += CCAM_BLOCK
-                self.cs.cd += CCAM_BLOCK
-                self.cs.last_t = self.batch[self.bn - 1].t
                 pos += 4 * CCAM_BLOCK
                 continue
             end = pos + 4 * CCAM_BLOCK

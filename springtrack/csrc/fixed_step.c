@@ -441,10 +441,6 @@ static inline int64_t gate_box2(const fx_state *s, int64_t v)
     return (((v >> 16) + 1) * s->gate_q20 + 4095) >> 12;
 }
 
-/* (Re)insert tracker i with its gate box sqrt(gate * sxx) x sqrt(gate * syy), enlarged by
-   2^-FX_INDEX_GROW_SHIFT of itself and FX_INDEX_MARGIN, so that a covariance growing a
-   little does not re-index at once (the index only selects candidates: any box that
-   contains the gate box gives the same results). */
 /* half-width of the gate box for a variance v (Q.40), Q.16, rounded up */
 static inline int64_t gate_half(const fx_state *s, int64_t v)
 {
@@ -459,6 +455,10 @@ static inline int64_t var_lim(const fx_state *s, int64_t v)
     return lim < s->smax2 ? lim : s->smax2;
 }
 
+/* (Re)insert tracker i with its gate box sqrt(gate * sxx) x sqrt(gate * syy), enlarged by
+   2^-FX_INDEX_GROW_SHIFT of itself and FX_INDEX_MARGIN, so that a covariance growing a
+   little does not re-index at once (the index only selects candidates: any box that
+   contains the gate box gives the same results). */
 void fx_reindex(fx_state *s, int i)
 {
     int64_t hx = gate_half(s, s->sxx[i]), hy = gate_half(s, s->syy[i]);     /* Q.16 */
@@ -566,9 +566,8 @@ static inline int64_t scale2(fx_state *s, int64_t v, int k)
     return v * ((int64_t)1 << k);
 }
 
-
 /* [ref] _clamp_and_invert: sigma_x, sigma_y in [sigma_min, sigma_max], |rho| <= 0.99,
-   then the inverse covariance of eq. (2) and the gate box.  One division. */
+   then the inverse covariance of eq. (2).  One division. */
 static inline void refresh(fx_state *s, int i)
 {
     int64_t sxx = s->sxx[i], syy = s->syy[i], sxy = s->sxy[i];

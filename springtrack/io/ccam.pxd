@@ -4,8 +4,8 @@
 #   cdef CCamState st
 #   ccam_init(&st)
 #   kind = ccam_decode_word(&st, word_ptr, &t, &x, &y, &p)   # per 4-byte word b0..b3
-#   ok = ccam_decode_plain(words, CCAM_BLOCK, st.t_offset, out)  # a block at once, if all
-#        plain events (ccam_block.h); the caller then counts words/cd and sets last_t
+#   if ccam_decode_block(&st, words, out): ...    # CCAM_BLOCK words at once, if all plain
+#                                                  # events (ccam_block.h), counted as above
 #
 # Layout (public ccam_atis_sepia driver, bulk IN endpoint 0x81):
 #   b3 == 0x80          time-high word: t_offset = (b0 | b1<<8 | b2<<16) * 0x800 us
@@ -18,6 +18,8 @@
 # counted in 'backwards' and rebased so the time base never decreases.
 from libc.stdint cimport uint8_t, uint16_t, uint32_t, int64_t, uint64_t
 from libc.string cimport memset
+
+from springtrack.events cimport Event
 
 cdef enum:
     CCAM_NONE = 0        # time-high word, or a word dropped and counted
@@ -81,3 +83,15 @@ cdef inline int ccam_decode_word(CCamState* s, const uint8_t* w, int64_t* t, uin
         return CCAM_EXPOSURE
     s.cd += 1
     return CCAM_CD
+
+
+cdef inline bint ccam_decode_block(CCamState* s, const uint8_t* w, Event* out) noexcept nogil:
+    """CCAM_BLOCK words at once when the time base is known and every word is a plain
+    change-detection event (ccam_block.h): out[0..CCAM_BLOCK) holds them and s counts them
+    as ccam_decode_word would.  Else False, s untouched, out garbage: decode word by word."""
+    if s.last_th < 0 or not ccam_decode_plain(w, CCAM_BLOCK, s.t_offset, out):
+        return False
+    s.words += CCAM_BLOCK
+    s.cd += CCAM_BLOCK
+    s.last_t = out[CCAM_BLOCK - 1].t
+    return True

@@ -43,12 +43,8 @@ cdef class CCamDecoder(Decoder):
         while i < nw:
             # a block of plain change-detection words at once (ccam_block.h), else word
             # by word; the block never writes past out[cap): k <= k0 + i, nw <= cap - k0
-            if (i + CCAM_BLOCK <= nw and st.last_th >= 0
-                    and ccam_decode_plain(p + 4 * i, CCAM_BLOCK, st.t_offset, &out[k])):
+            if i + CCAM_BLOCK <= nw and ccam_decode_block(&st, p + 4 * i, &out[k]):
                 k += CCAM_BLOCK
-                st.words += CCAM_BLOCK
-                st.cd += CCAM_BLOCK
-                st.last_t = out[k - 1].t
                 i += CCAM_BLOCK
                 continue
             for j in range(i, min(i + CCAM_BLOCK, nw)):
