@@ -22,7 +22,7 @@ build: $(STAMP) $(PYX)
 	$(PY) setup.py -q build_ext --inplace -j 2
 
 demo: build
-	$(PY) -m springtrack.demo
+	$(VENV)/bin/hostctl demo
 
 test: build
 	$(PY) -m pytest -q tests; rc=$$?; if [ $$rc -eq 5 ]; then echo "no tests ran"; exit 1; fi; exit $$rc
@@ -31,4 +31,4 @@ bench: build
 	$(PY) benchmarks/kernel.py
 
 clean:
-	rm -rf $(VENV) build springtrack/*.so firmware_sim/*.so
+	rm -rf $(VENV) build springtrack/*.so springtrack/*/*.so firmware_sim/*.so

@@ -102,7 +102,7 @@ def main():
     from springtrack.synthetic import blob_stream
     from kernel import SCENES
     if args.scene:
-        from firmware_sim.sensor import simulate_all
+        from springtrack.sim.sensor import simulate_all
         ev, _ = simulate_all(args.scene, 5.0, seed=0)
         ev = ev[:args.events]
     else:

@@ -6,7 +6,7 @@ scene: every part emits events at a total of 300 k events/s of scene time, the s
 drifts and rotates, and a fraction of the events is background noise, so that about 30 %
 (face) of events are assigned to a tracker.  The cost per event depends on that
 fraction, so it is reported beside each figure.  Springs every 55 events (paper).
-A third stream is the simulator's face_occlusion scene (firmware_sim.sensor), the face the
+A third stream is the simulator's face_occlusion scene (springtrack.sim.sensor), the face the
 demo and the firmware track: most of its events fall on the face, so far more are assigned.
 
 Each figure is the best of 7 runs (the backends of a stream alternating run by run),
@@ -71,7 +71,7 @@ def streams(n_events: int):
         m = springtrack.load_model(preset)
         ev, _ = blob_stream(m, n_events, rate_hz=300_000, noise=noise, seed=1, **motion)
         yield f"{preset} (blob_stream)", preset, ev
-    from firmware_sim.sensor import simulate_all
+    from springtrack.sim.sensor import simulate_all
     ev, _ = simulate_all("face_occlusion", 5.0, seed=0)
     yield "face26 (face_occlusion, 5 s)", "face26", ev
 

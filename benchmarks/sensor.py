@@ -1,4 +1,4 @@
-"""Simulated ATIS sensor speed (firmware_sim.sensor) on the paper scenes, one core.
+"""Simulated ATIS sensor speed (springtrack.sim.sensor) on the paper scenes, one core.
 
 Writes the "Simulated sensor" section of docs/benchmarks.md: events/s produced, real-time
 factor (simulated seconds per wall second, best of --repeat runs so background load on a
@@ -18,7 +18,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _report import machine, write_section  # noqa: E402
 
-from firmware_sim.sensor import simulate  # noqa: E402
+from springtrack.sim.sensor import simulate  # noqa: E402
 
 SCENES = ("face_occlusion", "grid_pull", "grid_rot_y", "grid_inplane")
 CHUNK_US = 100_000
@@ -53,7 +53,7 @@ def main(argv=None) -> int:
     body = [f"Command: `.venv/bin/python benchmarks/sensor.py --seconds {args.seconds:g} "
             f"--repeat {args.repeat}`  ",
             f"Machine: {machine()}  ",
-            f"Scenes from `firmware_sim.scenes`, seed {args.seed}, default sensor config "
+            f"Scenes from `springtrack.sim.scenes`, seed {args.seed}, default sensor config "
             "(304x240, threshold 0.2, 0.1 Hz/px noise), 100 ms chunks, one core. Best of "
             f"{args.repeat} runs (the machine is shared); 'worst run' shows the spread.", "",
             "| scene | events | events/s | x real time (best) | x real time (worst run) | slowest chunk / its duration |",

@@ -24,7 +24,7 @@ from . import usb as camusb
 NEVER_OPENED_S = 10.0      # give up if the camera never delivered a transfer this long
 
 EPILOG = """\
-sources:  sim:SCENE (firmware_sim.scenes: face_occlusion, grid_pull, ...) through the
+sources:  sim:SCENE (springtrack.sim.scenes: face_occlusion, grid_pull, ...) through the
           simulated USB camera; replay:FILE (any format springtrack.io reads, re-encoded
           as CCam words, events outside 304x240 dropped and counted); usb (a real CCam ATIS
           through pyusb/libusb, docs/hardware.md).
@@ -112,7 +112,7 @@ def make_source(args, biases: dict):
         return open_usb, None, None
     from . import simusb
     if kind == "sim":
-        from .scenes import make_scene
+        from springtrack.sim.scenes import make_scene
         scene = make_scene(arg, seed=args.seed)
         source = simusb.scene_source(arg, args.seconds, seed=args.seed)
         default_model = None

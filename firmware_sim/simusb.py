@@ -98,7 +98,7 @@ def encode_stream_chunk(events, fmt: str) -> Chunk | None:
 def scene_source(scene: str, seconds: float | None = None, seed: int = 0,
                  chunk_us: int = 2000, **scene_params):
     """Events of a firmware_sim scene, chunk by chunk (generated lazily)."""
-    from .sensor import simulate
+    from springtrack.sim.sensor import simulate
     for events, _truth in simulate(scene, seconds, seed=seed, chunk_us=chunk_us, **scene_params):
         yield events
 

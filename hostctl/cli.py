@@ -1,6 +1,7 @@
 """The ``hostctl`` command: steer a springtrack firmware over serial, USB-CDC or TCP.
 
     hostctl ports
+    hostctl demo [--seconds S] [--out DIR]                 # the end-to-end demo (make demo)
     hostctl --port /dev/pts/5 info
     hostctl --port /dev/pts/5 load-model face26            # preset or FILE.toml
     hostctl --port /dev/pts/5 set alpha_position=0.05 energy_scale=3
@@ -23,7 +24,7 @@ import time
 
 from .device import Device, HostctlError
 
-VERBS = ("ports", "info", "load-model", "set", "get", "start", "stop", "reset", "stats",
+VERBS = ("ports", "demo", "info", "load-model", "set", "get", "start", "stop", "reset", "stats",
          "ping", "monitor", "record")
 
 
@@ -39,6 +40,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--key-file", help="file holding the shared link key (else $HOSTCTL_KEY)")
     sub = p.add_subparsers(dest="verb", metavar="VERB", required=True)
     sub.add_parser("ports", help="list serial ports")
+    from .demo import add_arguments as demo_arguments
+    demo_arguments(sub.add_parser("demo", help="end-to-end demo: simulated camera -> firmware-sim "
+                                               "-> this host, scored and drawn"))
     sub.add_parser("info", help="firmware/protocol versions, geometry, model")
     sp = sub.add_parser("load-model", help="upload a model (preset name or TOML file)")
     sp.add_argument("model")
@@ -103,6 +107,9 @@ def main(argv=None) -> int:
     try:
         if args.verb == "ports":
             return cmd_ports()
+        if args.verb == "demo":
+            from .demo import run_demo
+            return run_demo(args)
         if not args.port:
             raise HostctlError("no port given: use --port URL or set HOSTCTL_PORT "
                                "(see `hostctl ports`)")

@@ -91,7 +91,7 @@ def read_truth_csv(path) -> Truth:
 
 
 def truth_from_array(truth) -> Truth:
-    """A :class:`Truth` from a ``firmware_sim.sensor.TRUTH_DTYPE`` array (time-major)."""
+    """A :class:`Truth` from a ``springtrack.sim.sensor.TRUTH_DTYPE`` array (time-major)."""
     ids = list(dict.fromkeys(truth["part"].tolist()))
     times = np.unique(truth["t"])
     xy = np.stack([truth["x"], truth["y"]], axis=1).reshape(len(times), len(ids), 2)

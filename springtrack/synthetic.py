@@ -3,7 +3,7 @@
 Each part of the model emits events from a Gaussian with the part's covariance around its
 position; the whole shape translates and rotates smoothly; a fraction of events is
 uniform background noise.  This is a statistical stand-in for a camera, not a sensor
-model (the sensor simulator is ``firmware_sim.sensor``).
+model (the sensor simulator is ``springtrack.sim.sensor``).
 """
 from __future__ import annotations
 

@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
-from firmware_sim.scenes import make_scene
-from firmware_sim.sensor import truth_between
+from springtrack.sim.scenes import make_scene
+from springtrack.sim.sensor import truth_between
 from springtrack.commands import experiments as ex
 from springtrack.metrics import ErrorSeries, truth_from_array
 

@@ -11,7 +11,7 @@ from springtrack.tracker import Tracker
 from firmware_sim import usb as camusb
 from firmware_sim.faults import FAULT_NAMES, Faults, parse
 from firmware_sim.loop import FirmwareLoop
-from firmware_sim.sensor import simulate_all
+from springtrack.sim.sensor import simulate_all
 from firmware_sim.simusb import SimBackend, SimCamera, events_source
 
 SAMPLE = 1000

@@ -10,7 +10,7 @@ from springtrack.events import make
 from springtrack.io.ccam import encode
 from springtrack.tracker import Tracker
 from firmware_sim._fused import Fused
-from firmware_sim.sensor import simulate_all
+from springtrack.sim.sensor import simulate_all
 
 SAMPLE = 1000
 

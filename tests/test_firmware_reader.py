@@ -10,7 +10,7 @@ from springtrack.tracker import Tracker
 from firmware_sim import usb as camusb
 from firmware_sim._fused import Fused
 from firmware_sim.reader import Reader
-from firmware_sim.sensor import simulate_all
+from springtrack.sim.sensor import simulate_all
 from firmware_sim.simusb import SimBackend, SimCamera, events_source
 
 

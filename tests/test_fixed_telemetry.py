@@ -6,7 +6,7 @@ import pytest
 
 from springtrack import wire
 from springtrack.tracker import Tracker, make_backend
-from firmware_sim.sensor import simulate_all
+from springtrack.sim.sensor import simulate_all
 
 FIELDS = ("x", "y", "sx", "sy", "rho", "act")
 

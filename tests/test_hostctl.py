@@ -8,7 +8,7 @@ import pytest
 
 import springtrack
 from firmware_sim import transport
-from firmware_sim.sensor import simulate_all
+from springtrack.sim.sensor import simulate_all
 from hostctl import Device, cli
 from hostctl.monitor import monitor
 from hostctl.smooth import Smoother, smooth_track

@@ -16,7 +16,7 @@ import pytest
 import serial
 
 from firmware_sim import transport
-from firmware_sim.sensor import simulate_all
+from springtrack.sim.sensor import simulate_all
 from hostctl import Device, HostctlError
 from hostctl.record import save
 from springtrack import cli as st_cli

@@ -16,7 +16,7 @@ import pytest
 
 import springtrack
 from firmware_sim.engine import UpdateRejected
-from firmware_sim.sensor import simulate_all
+from springtrack.sim.sensor import simulate_all
 from springtrack import model as _model
 from springtrack import params as _params
 from springtrack.limits import MAX_CONNECTIONS, MAX_TRACKERS

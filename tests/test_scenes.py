@@ -1,12 +1,12 @@
-"""Scenes of the simulated sensor (firmware_sim.scenes): ids and initial models match the
+"""Scenes of the simulated sensor (springtrack.sim.scenes): ids and initial models match the
 presets, ground truth is exact, motions follow the paper's section IV description."""
 import math
 
 import numpy as np
 import pytest
 
-from firmware_sim.scenes import SCENES, make_scene
-from firmware_sim.sensor import SensorConfig, simulate, simulate_all, truth_between, write_truth_csv
+from springtrack.sim.scenes import SCENES, make_scene
+from springtrack.sim.sensor import SensorConfig, simulate, simulate_all, truth_between, write_truth_csv
 from springtrack.metrics import read_truth_csv
 from springtrack.model import face26, grid3x3
 

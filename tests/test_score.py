@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from firmware_sim.scenes import make_scene
-from firmware_sim.sensor import truth_between
+from springtrack.sim.scenes import make_scene
+from springtrack.sim.sensor import truth_between
 from springtrack.cli import main
 from springtrack.metrics import (Truth, match_times, object_length, read_truth_csv,
                                  tracking_error, truth_from_array)
@@ -138,7 +138,7 @@ def test_tracker_follows_a_short_grid_pull_run():
     """End to end: simulated grid_pull (6 s, one pull of r0c2) tracked with the preset
     grid model; the paper's error must stay below a bound (paper best: 2.74 %)."""
     import springtrack
-    from firmware_sim.sensor import simulate_all
+    from springtrack.sim.sensor import simulate_all
     sc = make_scene("grid_pull", seed=0)
     ev, tr = simulate_all(sc, 6.0, seed=0)
     truth = truth_from_array(tr)

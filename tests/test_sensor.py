@@ -1,4 +1,4 @@
-"""The simulated ATIS sensor (firmware_sim.sensor): event statistics against hand-computed
+"""The simulated ATIS sensor (springtrack.sim.sensor): event statistics against hand-computed
 values of the contrast-threshold model, determinism, chunking, noise and refractory."""
 import math
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from firmware_sim.sensor import SensorConfig, simulate, simulate_all
+from springtrack.sim.sensor import SensorConfig, simulate, simulate_all
 from springtrack.events import EVENT_DTYPE
 
 BG = 0.15           # moving_blob background (Scene.background)

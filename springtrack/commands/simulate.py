@@ -1,5 +1,5 @@
 """``springtrack simulate SCENE --out EVENTS --truth TRUTH.csv``: run the simulated ATIS
-sensor (firmware_sim.sensor) on a scene and write its events, ground truth and the
+sensor (springtrack.sim.sensor) on a scene and write its events, ground truth and the
 matching initial shape model."""
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ EVENT_SUFFIXES = (".npy", ".raw", ".es")
 
 
 EPILOG = """\
-scenes (firmware_sim/scenes.py; paper section IV):
+scenes (springtrack/sim/scenes.py; paper section IV):
   grid_rot_y      3x3 grid rotating about the vertical axis, +-75 deg at 15 deg/s (Figs. 9-11)
   grid_pull       rotations about x and y, motion, disturbances, one element pulled away
                   and returned every 10 s; its truth is the unpulled position (Figs. 12-14)
@@ -26,7 +26,7 @@ truth CSV: t_us,part,x,y every 1 ms; part = the tracker ids of the matching pres
 
 
 def add_arguments(p):
-    from firmware_sim.scenes import SCENES
+    from springtrack.sim.scenes import SCENES
     p.epilog = EPILOG
     p.add_argument("scene", choices=sorted(SCENES), help="scene name")
     p.add_argument("--out", required=True,
@@ -54,8 +54,8 @@ def _writer(path: Path):
 
 
 def run(args) -> int:
-    from firmware_sim.scenes import make_scene
-    from firmware_sim.sensor import SensorConfig, simulate, write_truth_csv
+    from springtrack.sim.scenes import make_scene
+    from springtrack.sim.sensor import SensorConfig, simulate, write_truth_csv
 
     out = Path(args.out)
     if out.suffix not in EVENT_SUFFIXES:

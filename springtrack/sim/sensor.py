@@ -1,7 +1,7 @@
 """Simulated ATIS sensor: scene -> log-intensity frames -> events, with ground truth.
 
 The contrast-threshold model of ESIM (Rebecq et al., CoRL 2018) and v2e (Hu et al.,
-CVPRW 2021), kernels in ``firmware_sim/_sensor.pyx``:
+CVPRW 2021), kernels in ``springtrack/sim/_sensor.pyx``:
 
 * the scene is rendered at adaptive steps (ESIM's adaptive sampling): each block of
   ``step_us`` (default 4 ms) is halved, down to ``min_step_us``, until nothing in the
@@ -278,7 +278,7 @@ def simulate(scene, seconds: float | None = None, seed: int = 0, chunk_us: int =
              config: SensorConfig | None = None, stats: dict | None = None, **scene_params):
     """Generator of ``(events, truth)`` chunks covering ``[0, seconds)``.
 
-    ``scene`` is a name in :data:`firmware_sim.scenes.SCENES` (``scene_params`` go to its
+    ``scene`` is a name in :data:`springtrack.sim.scenes.SCENES` (``scene_params`` go to its
     constructor) or a Scene instance; ``seconds=None`` is the scene's default duration,
     ``math.inf`` streams without end (for a simulated camera).  ``chunk_us`` is rounded up
     to a multiple of the rendering step.  If ``stats`` is a dict it is updated with the

@@ -1,5 +1,5 @@
 # cython: language_level=3
-"""Per-pixel kernels of the simulated ATIS sensor (see firmware_sim/sensor.py).
+"""Per-pixel kernels of the simulated ATIS sensor (see springtrack/sim/sensor.py).
 
 ``render``  draws a scene frame (additive Gaussian blobs or soft-edged disks on a flat
             background, then opaque soft-edged ellipses composited on top) and takes

@@ -8,7 +8,9 @@
 4. ``springtrack score`` compares the recording with the ground truth;
 5. an overlay GIF and the plots (error, energy, compute load) are written.
 
-Run ``python -m springtrack.demo [--seconds S] [--out DIR]``.
+Run ``hostctl demo [--seconds S] [--seed N] [--out DIR]`` (``make demo``).  The demo composes
+the apps as separate processes: it lives in ``hostctl``, which may start ``firmware-sim``,
+while the ``springtrack`` library knows neither.
 """
 from __future__ import annotations
 
@@ -63,12 +65,20 @@ def start_firmware(seconds: float, seed: int, model: Path, out: Path):
     return fw, line.split(" ", 1)[1]
 
 
+def add_arguments(ap: argparse.ArgumentParser) -> None:
+    ap.add_argument("--seconds", type=float, default=12.0, help="scene length, s (real time; 12)")
+    ap.add_argument("--seed", type=int, default=1, help="scene and sensor seed (1)")
+    ap.add_argument("--out", default="demo_out", help="output folder (default demo_out/)")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description="springtrack end-to-end demo on the simulated camera")
-    ap.add_argument("--seconds", type=float, default=12.0, help="scene length, s (real time)")
-    ap.add_argument("--seed", type=int, default=1)
-    ap.add_argument("--out", default="demo_out", help="output folder (default demo_out/)")
-    args = ap.parse_args(argv)
+    add_arguments(ap)
+    return run_demo(ap.parse_args(argv))
+
+
+def run_demo(args) -> int:
+    os.environ.setdefault("MPLBACKEND", "Agg")
     out = Path(args.out).resolve()
     if out.exists():
         shutil.rmtree(out)
@@ -153,12 +163,12 @@ def count_rate(out: Path) -> float:
 def plots(out: Path) -> float:
     """Error, energy and load plots; returns the offline kernel's events/s."""
     import numpy as np
-    from . import Tracker
-    from .metrics import read_truth_csv, score_track
-    from .model import load
-    from .render import plot_energies, plot_error, plot_load
-    from .track import read_csv
-    from .tracker import profile
+    from springtrack import Tracker
+    from springtrack.metrics import read_truth_csv, score_track
+    from springtrack.model import load
+    from springtrack.render import plot_energies, plot_error, plot_load
+    from springtrack.track import read_csv
+    from springtrack.tracker import profile
     ev = np.load(out / "events.npy")
     model = load(out / "face26.toml")
     truth = read_truth_csv(out / "truth.csv")
@@ -174,5 +184,4 @@ def plots(out: Path) -> float:
 
 
 if __name__ == "__main__":
-    os.environ.setdefault("MPLBACKEND", "Agg")
     sys.exit(main())

@@ -1,0 +1,7 @@
+"""The simulated ATIS sensor and its scenes, with exact ground truth.
+
+``scenes``: deterministic scenes of the paper's section IV (and test scenes);
+``sensor``: the sensor model turning a scene into events (``simulate``).
+The library's ``simulate`` and ``experiments`` commands and firmware_sim's simulated
+camera both use them; nothing here knows a device or a host.
+"""
