@@ -32,8 +32,8 @@ import numpy as np
 
 from springtrack._kernel cimport Kernel
 from springtrack._fixed cimport FixedKernel
-from springtrack._samples cimport SampleOut, sample_buffers
-from springtrack._stepper cimport Stepper, run_events
+from springtrack._samples cimport SampleOut, sample_buffers, take_samples
+from springtrack._stepper cimport Stepper, run_array, run_events
 from springtrack.events cimport Event
 from springtrack.io.ccam cimport (CCamState, ccam_init, ccam_decode_word, ccam_decode_block,
                                   CCAM_BLOCK, CCAM_CD, CCAM_EXPOSURE, CCAM_NONE)
@@ -70,15 +70,22 @@ cdef Stepper stepper_of(kernel) except *:
                     f"springtrack._fixed.FixedKernel, not {type(kernel).__name__}")
 
 
+def track_events(kernel, events, long long period_us, long long next_t, Py_ssize_t cap):
+    """``kernel.run(events, period_us, next_t, cap)`` whose sample rows also carry their
+    TELEMETRY records (``wire``), like :meth:`Fused.feed`'s: for a decoder other than
+    the fused CCam one."""
+    return run_array(stepper_of(kernel), events, period_us, next_t, cap, True)
+
+
 cdef class Fused:
     """``Fused(kernel, period_us, cap)``: decoder + tracker state for one stream;
     ``kernel`` is a ``springtrack._kernel.Kernel`` or ``springtrack._fixed.FixedKernel``.
 
     ``feed(buf, n)`` processes the first ``n`` bytes of a buffer (bytes, bytearray,
     array('B'), numpy uint8) and returns the snapshots taken as a dict of arrays (rows
-    ``t``; ``x`` ... ``sensitive`` of shape (rows, trackers); ``energy`` (rows, 3); with the
-    fixed-point kernel also ``wire`` (rows, trackers * 8), the TELEMETRY tracker records it
-    packs from its integer state).
+    ``t``; ``x`` ... ``sensitive`` of shape (rows, trackers); ``energy`` (rows, 3); ``wire``
+    (rows, trackers * 8), the TELEMETRY tracker records: packed by the fixed-point kernel
+    from its integer state, quantised from the float rows for the float kernel).
     """
     cdef object kernel                      # owns the state sp points into
     cdef Stepper sp
@@ -114,7 +121,7 @@ cdef class Fused:
     cdef _bind(self, kernel, bint mark):
         self.sp = stepper_of(kernel)
         self.kernel = kernel
-        self.bufs = sample_buffers(self.o.cap, self.sp.n, &self.o, self.sp.wire_records)
+        self.bufs = sample_buffers(self.o.cap, self.sp.n, &self.o, True, self.sp.wire_records)
         self.mark = mark
         if mark:
             self.first_t = -1
@@ -256,10 +263,7 @@ cdef class Fused:
         return {k: np.concatenate([q[k] for q in parts]) for k in parts[0]}
 
     cdef object _take(self):
-        c = self.o.count
-        out = {k: v[:c].copy() for k, v in self.bufs.items()}
-        self.o.count = 0
-        return out
+        return take_samples(self.bufs, &self.o, True)
 
     def counters(self) -> dict:
         cs = self.cs

@@ -26,11 +26,11 @@ from springtrack import params as _params
 from springtrack.limits import MAX_CONNECTIONS, MAX_TRACKERS
 from springtrack.track import CSV_HEADER, Track
 from springtrack.tracker import make_backend, resolve_params
-from springtrack.wire import TRACK_DTYPE
+from springtrack.wire import TRACK_DTYPE, Nack
 
-from ._fused import SNAP_FIELDS, Fused
+from ._fused import SNAP_FIELDS, Fused, track_events
 from . import usb as camusb
-from .engine import UpdateRejected
+from .engine import Snapshot, UpdateRejected
 from .reader import Reader
 
 FIRMWARE = "firmware-sim 0.1 (fused CCam loop)"
@@ -40,20 +40,11 @@ BIAS_PREFIX = "bias."     # camera biases are parameters "bias.<name>" on the ho
 WINDOW_US = 10_000        # processing time is reported per 10 ms of events (paper Figs. 22-23)
 
 
-def param_error_code(e: Exception) -> str:
-    msg = str(e)
-    if "unknown parameter" in msg:
-        return "unknown_name"
-    if "must be a number" in msg or "must be one of" in msg or "whole number" in msg:
-        return "wrong_type"
-    return "out_of_range"
-
-
 class DecodedFeed:
     """The non-fused path for the EVT 2.0 / 3.0 profiles, with the interface of
     ``_fused.Fused``: a ``springtrack.io`` streaming decoder turns each piece into an event
-    array, then ``Kernel.run`` tracks it with the same sampling rule.  One Python call per
-    piece, never per event."""
+    array, then the kernel tracks it with the same sampling rule (``_fused.track_events``:
+    ``Kernel.run`` with TELEMETRY records).  One Python call per piece, never per event."""
 
     def __init__(self, kernel, period_us: int, profile):
         self.profile = profile
@@ -111,7 +102,8 @@ class DecodedFeed:
             self.next_t = -(-t0 // self.period) * self.period
         parts, pos = [], 0
         while pos < len(ev):
-            consumed, self.next_t, out = self.kernel.run(ev[pos:], self.period, self.next_t, 512)
+            consumed, self.next_t, out = track_events(self.kernel, ev[pos:], self.period,
+                                                      self.next_t, 512)
             pos += consumed
             if out is not None and len(out["t"]):
                 parts.append(out)
@@ -145,7 +137,7 @@ class FirmwareLoop:
                  transfer_bytes: int | None = None, lossless: bool = False,
                  biases: dict | None = None, profile="ccam_atis",
                  record: bool = False, width: int | None = None, height: int | None = None,
-                 backend: str = "cython", energy_period_us: int = 100_000):
+                 backend: str = "cython"):
         if telemetry_period_us <= 0:
             raise ValueError(f"telemetry_period_us must be positive, got {telemetry_period_us}")
         if backend not in BACKENDS:
@@ -189,7 +181,6 @@ class FirmwareLoop:
                       updates_rejected=0, proc_ns=0, kernel_swaps=0, processing_errors=0)
         self.last_error = ""
         self.retired: dict = {}             # counters of the kernels swapped out
-        self.energy_period_us, self.next_energy_t = int(energy_period_us), None
         self.windows: deque = deque(maxlen=4096)   # processing us per 10 ms of events
         self._win_t0 = None
         self._win_ns = 0
@@ -250,7 +241,7 @@ class FirmwareLoop:
             k = self._new_kernel(m, p)
         except (ValueError, TypeError) as e:       # ModelError, ParamError are ValueErrors
             self.c["updates_rejected"] += 1
-            raise UpdateRejected("invalid_model", str(e)) from None
+            raise UpdateRejected(Nack.INVALID_MODEL, str(e)) from None
         with self.lock:
             self.gen_next += 1
             self.pending_model = (m, p, k, self.gen_next)
@@ -270,7 +261,7 @@ class FirmwareLoop:
                 _params.from_mapping(merged, base)
             except _params.ParamError as e:
                 self.c["updates_rejected"] += 1
-                raise UpdateRejected(param_error_code(e), str(e)) from None
+                raise UpdateRejected(e.code, str(e)) from None
             self.gen_next += 1
             self.pending_params[name] = (_params.check(name, value), self.gen_next)
             gen = self.gen_next
@@ -289,16 +280,16 @@ class FirmwareLoop:
         (not started yet, reconnecting) it is kept and loaded when the camera opens."""
         if name not in camusb.BIASES:
             self.c["updates_rejected"] += 1
-            raise UpdateRejected("unknown_name", f"unknown bias {name!r}; known: "
+            raise UpdateRejected(Nack.UNKNOWN_NAME, f"unknown bias {name!r}; known: "
                                                  f"{', '.join(camusb.BIASES)}")
         if isinstance(value, float) and value.is_integer():
             value = int(value)
         if isinstance(value, bool) or not isinstance(value, int):
             self.c["updates_rejected"] += 1
-            raise UpdateRejected("wrong_type", f"bias {name} must be an integer 0..255, got {value!r}")
+            raise UpdateRejected(Nack.WRONG_TYPE, f"bias {name} must be an integer 0..255, got {value!r}")
         if not 0 <= value <= 255:
             self.c["updates_rejected"] += 1
-            raise UpdateRejected("out_of_range", f"bias {name}={value} out of range [0, 255]")
+            raise UpdateRejected(Nack.OUT_OF_RANGE, f"bias {name}={value} out of range [0, 255]")
         with self.lock:
             old = self.biases[name]
             self.biases[name] = value     # (re)opening the camera loads this dict
@@ -308,7 +299,7 @@ class FirmwareLoop:
             except (TimeoutError, OSError, camusb.CameraError) as e:
                 with self.lock:
                     self.biases[name] = old
-                raise UpdateRejected("busy", f"bias {name}: camera did not take it: {e}") from None
+                raise UpdateRejected(Nack.BUSY, f"bias {name}: camera did not take it: {e}") from None
             except RuntimeError:          # closed meanwhile: loaded at the next open
                 pass
         with self.lock:
@@ -413,7 +404,7 @@ class FirmwareLoop:
             self.snap_wall.extend((int(t), now) for t in out["t"])
         if self.record:
             self.recorded.append((list(self.model.ids), out))
-        energies = self._energies_due(int(out["t"][-1]))
+        energies = self.kernel.energies()[self.params.energy_kind_index].copy()
         with self.lock:
             self.tele.append([self.generation, self.params.energy_kind_index, out, 0, energies])
             self.tele_rows += rows
@@ -428,16 +419,6 @@ class FirmwareLoop:
                 self.tele_rows -= drop
                 self.c["telemetry_dropped"] += drop
 
-    def _energies_due(self, t_us: int):
-        """Per-connection energies of the criterion's kind (eqs. 12, 17, 20) from the last
-        spring update, at most once per ``energy_period_us`` of event time, else None.
-        They ride on the block's last snapshot, which lies within one telemetry period of
-        that update (the link sends them as ENERGIES)."""
-        if self.next_energy_t is not None and t_us < self.next_energy_t:
-            return None
-        self.next_energy_t = t_us + self.energy_period_us
-        return self.kernel.energies()[self.params.energy_kind_index].copy()
-
     # ---- Engine: observation ---------------------------------------------------------------
     def poll_telemetry(self, max_items: int = 64) -> list:
         res = []
@@ -450,12 +431,10 @@ class FirmwareLoop:
                     tr = np.empty(blk["x"].shape[1], TRACKER_DTYPE)
                     for f in SNAP_FIELDS:
                         tr[f] = blk[f][r]
-                    res.append(dict(t_us=int(blk["t"][r]), generation=g,
-                                     mean_energy=float(blk["energy"][r, ek]), trackers=tr))
-                    if "wire" in blk:        # fixed kernel: records packed from its integer state
-                        res[-1]["records"] = blk["wire"][r].tobytes()
-                    if energies is not None and r == len(blk["t"]) - 1:
-                        res[-1]["energies"] = (ek, energies)
+                    last = r == len(blk["t"]) - 1
+                    res.append(Snapshot(int(blk["t"][r]), g, float(blk["energy"][r, ek]), tr,
+                                        blk["wire"][r].tobytes(),
+                                        (ek, energies) if last else None))
                 item[3] = first + take
                 self.tele_rows -= take
                 if item[3] >= len(blk["t"]):

@@ -5,7 +5,7 @@ from libc.stdint cimport int64_t, INT64_MAX
 
 from springtrack.events cimport Event
 from springtrack.events import EVENT_DTYPE
-from springtrack._samples cimport SampleOut, sample_buffers
+from springtrack._samples cimport SampleOut, sample_buffers, take_samples
 
 cnp.import_array()
 
@@ -36,9 +36,11 @@ cdef Py_ssize_t run_events(const Stepper* sp, const Event* ev, Py_ssize_t n, int
             next_t[0] += sample_us
 
 
-cdef tuple run_array(Stepper sp, events, int64_t sample_us, int64_t next_t, Py_ssize_t cap):
+cdef tuple run_array(Stepper sp, events, int64_t sample_us, int64_t next_t, Py_ssize_t cap,
+                     bint records=False):
     """``Kernel.run`` / ``FixedKernel.run``: (consumed, next_t, samples) where samples is a
-    dict of arrays with at most ``cap`` rows (None if sample_us <= 0)."""
+    dict of arrays with at most ``cap`` rows (None if sample_us <= 0); with ``records``
+    the rows carry their TELEMETRY records too (``wire``, see _samples.sample_buffers)."""
     cdef cnp.ndarray ev = events
     cdef Py_ssize_t n = ev.shape[0], consumed
     cdef SampleOut o
@@ -46,12 +48,10 @@ cdef tuple run_array(Stepper sp, events, int64_t sample_us, int64_t next_t, Py_s
         raise TypeError("events must be a C-contiguous EVENT_DTYPE array")
     if sample_us <= 0:
         cap = 0
-    out = sample_buffers(cap, sp.n, &o)
+    out = sample_buffers(cap, sp.n, &o, records, sp.wire_records)
     cdef const Event* p = <const Event*>cnp.PyArray_DATA(ev)
     with nogil:
         consumed = run_events(&sp, p, n, sample_us, &next_t, &o)
     if sample_us <= 0:
         return consumed, next_t, None
-    for key in out:
-        out[key] = out[key][:o.count]
-    return consumed, next_t, out
+    return consumed, next_t, take_samples(out, &o, False)
