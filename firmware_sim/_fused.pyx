@@ -50,9 +50,6 @@ cdef enum:
     # while a piece is tracked; real-time transfers, even coalesced, mostly stay below.
     NOGIL_MIN_BYTES = 16384
 
-SNAP_FIELDS = ("x", "y", "sxx", "sxy", "syy", "activity", "active", "sensitive")
-
-
 cdef inline int64_t ceil_mul(int64_t t, int64_t p) noexcept nogil:
     # smallest multiple of p >= t (C division truncates toward zero: handle t < 0)
     cdef int64_t q = t / p

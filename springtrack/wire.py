@@ -27,6 +27,8 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .track import TRACK_DTYPE     # the decoded TELEMETRY trackers are track records
+
 PROTOCOL_VERSION = 1
 
 HEADER = struct.Struct("<BBBH")          # version, type, flags, seq
@@ -672,9 +674,6 @@ def decode_log(payload: bytes) -> tuple[int, str]:
 TELE_HDR = struct.Struct("<QHfB")
 TELE_TRACKER = np.dtype([("x", "<u2"), ("y", "<u2"), ("sx", "u1"), ("sy", "u1"),
                          ("rho", "i1"), ("act", "u1")])
-TRACK_DTYPE = np.dtype([("x", "<f8"), ("y", "<f8"), ("sxx", "<f8"), ("sxy", "<f8"),
-                        ("syy", "<f8"), ("activity", "<f8"), ("active", "?"),
-                        ("sensitive", "?")])
 POS_SCALE = 16.0
 POS_MAX = 0x7FFF / POS_SCALE
 SIGMA_SCALE = 4.0

@@ -57,7 +57,7 @@ def run_to_end(cam, eng, timeout=30.0):
 
 
 def recorded(eng):
-    parts = [b for _, b in eng.recorded]
+    parts = [b.samples for b in eng.recorder.blocks]
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
@@ -110,7 +110,7 @@ def test_model_swap_under_a_stream_is_atomic(face, backend):
     time.sleep(0.1)
     eng.stop()
     snaps += eng.poll_telemetry(100000)
-    (g, n_before), = [x for x in eng.swaps if x[0] == gen]
+    (g, n_before), = [x for x in eng.applied.swaps if x[0] == gen]
     applied = dict(eng.poll_applied())
     assert 0 < n_before < len(face)
     assert applied[gen] == face["t"][n_before]          # the first event under the new model
@@ -170,7 +170,7 @@ def test_parameter_change_applies_between_events_and_reports_its_time(face):
     time.sleep(0.05)
     eng.stop()
     applied = dict(eng.poll_applied())
-    (g, n_before), = [x for x in eng.swaps if x[0] == gen]
+    (g, n_before), = [x for x in eng.applied.swaps if x[0] == gen]
     assert eng.get_params()["alpha_position"] == 0.1
     assert eng.stats()["transfers_dropped"] == 0, eng.stats_line()
     assert applied[gen] == face["t"][n_before]
@@ -310,7 +310,7 @@ def test_per_connection_energies_ride_on_the_last_snapshot_of_each_block(face):
     snaps = eng.poll_telemetry(100000)
     with_e = [s for s in snaps if s.energies is not None]
     nc = len(_model.load_model("face26").connections)
-    assert [s.t_us for s in with_e] == [int(b["t"][-1]) for _, b in eng.recorded]
+    assert [s.t_us for s in with_e] == [int(b.samples["t"][-1]) for b in eng.recorder.blocks]
     for s in with_e:
         kind, values = s.energies
         assert kind == eng.params.energy_kind_index and values.shape == (nc,)

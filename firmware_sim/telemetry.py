@@ -1,0 +1,77 @@
+"""The firmware's telemetry queue: the snapshots the tracking loop took, waiting for the
+host link, bounded in rows (the oldest are dropped and counted).
+
+The loop pushes whole blocks (the sample rows of one fed piece, as the fused loop returns
+them); the link polls :class:`firmware_sim.engine.Snapshot` records, one per row.
+"""
+from __future__ import annotations
+
+import threading
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from springtrack.track import TRACK_DTYPE, TRACK_FIELDS
+
+from .engine import Snapshot
+
+
+@dataclass(slots=True)
+class Block:
+    """Sample rows of one fed piece, all computed under one generation."""
+    generation: int
+    energy_kind: int          # which mean energy (eqs. 12, 17, 20) the snapshots report
+    samples: dict             # the fused loop's rows: t, x ... sensitive, energy, wire
+    energies: np.ndarray      # per-connection energies of that kind at the last row
+    first: int = 0            # rows before this one were polled or dropped
+
+    @property
+    def end(self) -> int:
+        return len(self.samples["t"])
+
+    def snapshot(self, r: int) -> Snapshot:
+        s = self.samples
+        tr = np.empty(s["x"].shape[1], TRACK_DTYPE)
+        for f in TRACK_FIELDS:
+            tr[f] = s[f][r]
+        return Snapshot(int(s["t"][r]), self.generation, float(s["energy"][r, self.energy_kind]),
+                        tr, s["wire"][r].tobytes(),
+                        (self.energy_kind, self.energies) if r == self.end - 1 else None)
+
+
+class TelemetryQueue:
+    """Blocks of snapshots, at most ``cap`` rows in all; thread-safe."""
+
+    def __init__(self, cap: int):
+        self.cap = int(cap)
+        self.rows = 0                 # rows waiting
+        self.dropped = 0              # rows dropped to keep within cap
+        self._blocks: deque = deque()
+        self._lock = threading.Lock()
+
+    def push(self, block: Block) -> None:
+        with self._lock:
+            self._blocks.append(block)
+            self.rows += block.end - block.first
+            while self.rows > self.cap and self._blocks:       # drop the oldest rows
+                old = self._blocks[0]
+                drop = min(old.end - old.first, self.rows - self.cap)
+                old.first += drop
+                if old.first == old.end:
+                    self._blocks.popleft()
+                self.rows -= drop
+                self.dropped += drop
+
+    def poll(self, max_items: int = 64) -> list[Snapshot]:
+        out = []
+        with self._lock:
+            while self._blocks and len(out) < max_items:
+                blk = self._blocks[0]
+                take = min(blk.end - blk.first, max_items - len(out))
+                out.extend(blk.snapshot(r) for r in range(blk.first, blk.first + take))
+                blk.first += take
+                self.rows -= take
+                if blk.first == blk.end:
+                    self._blocks.popleft()
+        return out
