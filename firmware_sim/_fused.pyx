@@ -1,5 +1,5 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
-"""Decode CCam ATIS USB words and track them in one nogil pass (issue 6, "the loop").
+"""Decode CCam ATIS USB words and track them in one nogil pass.
 
 Per 4-byte word: ``springtrack.io.ccam.ccam_decode_word`` (layout in ccam.pxd), or 32
 words at once while they are all plain change-detection events (``ccam_decode_block``,
@@ -13,10 +13,10 @@ allocation or GIL per event; the only output is a preallocated snapshot buffer t
 caller drains.  When that buffer fills mid-batch, the rest of the batch waits in the
 object for the next call.
 
-Sampling (identical to ``springtrack track``): the first tracked event at t0 sets the
-first sample time to the smallest multiple of the period >= t0; before an event at t
-with t >= next sample and t >= the kernel's last time, one snapshot per sample time
-<= t is taken (state after all events with t < sample time).
+Sampling is ``springtrack track``'s, in run_events (the rule of springtrack/csrc/sampling.h):
+the first tracked event at t0 sets the first sample time to the smallest multiple of the
+period >= t0; before an event at t with t >= next sample and t >= the kernel's last time,
+one snapshot per sample time <= t is taken (state after all events with t < sample time).
 
 Gaps: after a dropped transfer or a reconnect (:meth:`Fused.gap`) and at stream start,
 events are discarded (counted, ``gap_skipped``) until the next time-high word, so no event
@@ -33,7 +33,7 @@ import numpy as np
 from springtrack._kernel cimport Kernel
 from springtrack._fixed cimport FixedKernel
 from springtrack._samples cimport SampleOut, sample_buffers, take_samples
-from springtrack._stepper cimport Stepper, run_array, run_events
+from springtrack._stepper cimport Stepper, ST_UNSET, run_array, run_events
 from springtrack.events cimport Event
 from springtrack.io.ccam cimport (CCamState, ccam_init, ccam_decode_word, ccam_decode_block,
                                   CCAM_BLOCK, CCAM_CD, CCAM_EXPOSURE, CCAM_NONE)
@@ -49,14 +49,6 @@ cdef enum:
     # FirmwareLoop's full pieces (16 KiB) reach it, so under load the reader still runs
     # while a piece is tracked; real-time transfers, even coalesced, mostly stay below.
     NOGIL_MIN_BYTES = 16384
-
-cdef inline int64_t ceil_mul(int64_t t, int64_t p) noexcept nogil:
-    # smallest multiple of p >= t (C division truncates toward zero: handle t < 0)
-    cdef int64_t q = t / p
-    if q * p < t:
-        q += 1
-    return q * p
-
 
 cdef Stepper stepper_of(kernel) except *:
     if isinstance(kernel, Kernel):
@@ -90,8 +82,7 @@ cdef class Fused:
     cdef uint8_t carry[4]
     cdef int ncarry
     cdef bint await_th
-    cdef int64_t period, next_t
-    cdef bint have_next
+    cdef int64_t period, next_t             # next_t: ST_UNSET before the first event
     # decoded events not yet tracked: batch[bpos:bn] (left over when the buffer filled)
     cdef Event batch[BATCH]
     cdef Py_ssize_t bpos, bn
@@ -108,7 +99,7 @@ cdef class Fused:
         self.ncarry = 0
         self.await_th = True
         self.period = period_us if period_us > 0 else 0
-        self.have_next = False
+        self.next_t = ST_UNSET
         self.bpos = 0
         self.bn = 0
         self.first_t = -1
@@ -155,9 +146,6 @@ cdef class Fused:
         if self.mark:
             self.mark = False
             self.first_t = self.batch[k].t
-        if self.period > 0 and not self.have_next:
-            self.next_t = ceil_mul(self.batch[k].t, self.period)
-            self.have_next = True
         c = run_events(&self.sp, &self.batch[k], self.bn - k, self.period, &self.next_t,
                        &self.o)
         self.tracked += c
@@ -281,4 +269,4 @@ cdef class Fused:
 
     @property
     def next_sample_t(self):
-        return self.next_t if self.have_next else None
+        return None if self.next_t == ST_UNSET else self.next_t

@@ -28,7 +28,7 @@ class Snapshot:
     t_us: int
     generation: int                 # of the model and parameters it was computed with
     mean_energy: float              # the energy feeding eqs. (21)-(22)
-    trackers: np.ndarray            # (trackers,) springtrack.wire.TRACK_DTYPE, float state
+    trackers: np.ndarray            # (trackers,) springtrack.track.TRACK_DTYPE, float state
     records: bytes                  # the same in the TELEMETRY layout (wire.TELE_TRACKER)
     energies: tuple | None = None   # (energy kind index, per-connection array) or None
 

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from springtrack.sampling import UNSET
+
 from ._fused import track_events
 from . import usb as camusb
 
@@ -19,7 +21,7 @@ class DecodedFeed:
         self.decoder = camusb.make_decoder(profile)
         self.kernel = kernel
         self.period = int(period_us)
-        self.next_t = None
+        self.next_t = UNSET
         self.first_t = -1
         self.mark = False
         self.tracked = 0
@@ -65,9 +67,6 @@ class DecodedFeed:
         if self.mark:
             self.mark = False
             self.first_t = int(ev["t"][0])
-        if self.next_t is None:
-            t0 = int(ev["t"][0])
-            self.next_t = -(-t0 // self.period) * self.period
         parts, pos = [], 0
         while pos < len(ev):
             consumed, self.next_t, out = track_events(self.kernel, ev[pos:], self.period,

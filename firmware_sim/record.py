@@ -11,7 +11,7 @@ from springtrack.track import CSV_HEADER, Track
 @dataclass(frozen=True, slots=True)
 class Recorded:
     ids: list                 # tracker ids of the model the block was computed with
-    samples: dict             # the fused loop's rows: t, x ... sensitive, energy, wire
+    samples: dict             # the fused loop's rows: t, trackers, energy, wire
     wall: float               # time.monotonic() when the block was taken
 
 

@@ -12,8 +12,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from springtrack.track import TRACK_DTYPE, TRACK_FIELDS
-
 from .engine import Snapshot
 
 
@@ -22,7 +20,7 @@ class Block:
     """Sample rows of one fed piece, all computed under one generation."""
     generation: int
     energy_kind: int          # which mean energy (eqs. 12, 17, 20) the snapshots report
-    samples: dict             # the fused loop's rows: t, x ... sensitive, energy, wire
+    samples: dict             # the fused loop's rows: t, trackers, energy, wire
     energies: np.ndarray      # per-connection energies of that kind at the last row
     first: int = 0            # rows before this one were polled or dropped
 
@@ -32,11 +30,8 @@ class Block:
 
     def snapshot(self, r: int) -> Snapshot:
         s = self.samples
-        tr = np.empty(s["x"].shape[1], TRACK_DTYPE)
-        for f in TRACK_FIELDS:
-            tr[f] = s[f][r]
         return Snapshot(int(s["t"][r]), self.generation, float(s["energy"][r, self.energy_kind]),
-                        tr, s["wire"][r].tobytes(),
+                        s["trackers"][r], s["wire"][r].tobytes(),
                         (self.energy_kind, self.energies) if r == self.end - 1 else None)
 
 

@@ -25,7 +25,10 @@ FLOAT_FIELDS = ("x", "y",                 # position, px (eq. 3)
 BOOL_FIELDS = ("active",                  # A > activity threshold
                "sensitive")               # takes part in the energy criteria (eq. 21)
 TRACK_FIELDS = FLOAT_FIELDS + BOOL_FIELDS
-TRACK_DTYPE = np.dtype([(f, "<f8") for f in FLOAT_FIELDS] + [(f, "?") for f in BOOL_FIELDS])
+# one tracker's state; aligned: the C view is TrackRow in track.pxd (checked at import by
+# springtrack._samples, whose sample rows are arrays of it)
+TRACK_DTYPE = np.dtype([(f, "<f8") for f in FLOAT_FIELDS] + [(f, "?") for f in BOOL_FIELDS],
+                       align=True)
 CSV_HEADER = ("t_us", "tracker") + TRACK_FIELDS
 _FLAGS_AT = 2 + len(FLOAT_FIELDS)           # CSV column of the first flag
 
@@ -70,11 +73,11 @@ class Track:
 
     @classmethod
     def from_samples(cls, samples: dict, ids) -> "Track":
-        """A Track from a kernel's sample rows (``t``, the TRACK_FIELDS as (rows, K)
-        arrays, flags 0/1, ``energy`` (rows, 3))."""
+        """A Track from a tracker loop's sample rows: ``t`` (rows,), ``trackers`` (rows, K)
+        of TRACK_DTYPE, ``energy`` (rows, 3)."""
+        tr = samples["trackers"]
         return cls(samples["t"], list(ids), energy=samples["energy"],
-                   **{f: samples[f] for f in FLOAT_FIELDS},
-                   **{f: samples[f].astype(bool) for f in BOOL_FIELDS})
+                   **{f: tr[f] for f in TRACK_FIELDS})
 
     def tracker(self, tracker_id) -> dict:
         k = self.ids.index(tracker_id)

@@ -49,7 +49,7 @@ def run(ev, names, realtime=False, nbuf=64, transfer_bytes=16384, timeout=30.0, 
 
 
 def recorded_x(eng):
-    return np.concatenate([b.samples["x"] for b in eng.recorder.blocks]), \
+    return np.concatenate([b.samples["trackers"]["x"] for b in eng.recorder.blocks]), \
         np.concatenate([b.samples["t"] for b in eng.recorder.blocks])
 
 

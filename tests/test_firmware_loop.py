@@ -14,7 +14,7 @@ import pytest
 
 from springtrack import model as _model
 from springtrack import wire
-from springtrack.track import read_csv
+from springtrack.track import TRACK_FIELDS, Track, read_csv
 from springtrack.tracker import Tracker
 from firmware_sim import usb as camusb
 from firmware_sim.engine import UpdateRejected
@@ -57,8 +57,9 @@ def run_to_end(cam, eng, timeout=30.0):
 
 
 def recorded(eng):
-    parts = [b.samples for b in eng.recorder.blocks]
-    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    """Every snapshot the engine recorded, as a Track."""
+    return Track.concat([Track.from_samples(b.samples, b.ids) for b in eng.recorder.blocks],
+                        eng.recorder.blocks[0].ids)
 
 
 @pytest.mark.parametrize("backend", ["cython", "fixed"])
@@ -73,7 +74,7 @@ def test_tracking_through_the_usb_path_equals_the_offline_tracker(face, tmp_path
         assert {k: v for k, v in s["kernel"].items() if k.startswith("saturated_")} == dict(
             saturated_position=0, saturated_activity=0, saturated_energy=0, saturated_inverse=0)
     snaps = eng.poll_telemetry(10**6)
-    assert len(snaps) == len(recorded(eng)["t"])
+    assert len(snaps) == len(recorded(eng))
     for snap in snaps:                # packed from the integer state by the fixed kernel
         if backend == "cython":
             assert snap.records == wire.quantise_trackers(snap.trackers).tobytes()
@@ -82,9 +83,9 @@ def test_tracking_through_the_usb_path_equals_the_offline_tracker(face, tmp_path
         assert np.all(np.abs(dec["x"] - np.clip(snap.trackers["x"], 0, None)) <= 1 / 32)
     ref = Tracker("face26", backend=backend).run(face, SAMPLE)
     got = recorded(eng)
-    assert np.array_equal(got["t"], ref.t_us)
-    for k in ("x", "y", "sxx", "sxy", "syy", "activity"):
-        assert np.array_equal(got[k], getattr(ref, k)), k
+    assert np.array_equal(got.t_us, ref.t_us)
+    for k in TRACK_FIELDS:
+        assert np.array_equal(getattr(got, k), getattr(ref, k)), k
     out = tmp_path / "fw.csv"
     ref_csv = tmp_path / "ref.csv"
     eng.write_record(out)
@@ -176,7 +177,7 @@ def test_parameter_change_applies_between_events_and_reports_its_time(face):
     assert applied[gen] == face["t"][n_before]
 
 
-def test_stats_expose_the_issue_counters(face):
+def test_stats_expose_the_loop_counters(face):
     cam, eng = make_engine(face)
     s = run_to_end(cam, eng)
     for key in ("transfers", "bytes", "events_decoded", "events_tracked", "transfers_dropped",
@@ -379,7 +380,7 @@ def test_evt_profiles_run_through_the_engine_like_the_offline_tracker(face, fmt)
     assert s["events_decoded"] == s["events_tracked"] == len(face)
     got = recorded(eng)
     ref = Tracker("face26").run(face, SAMPLE)
-    assert np.array_equal(got["t"], ref.t_us) and np.array_equal(got["x"], ref.x)
+    assert np.array_equal(got.t_us, ref.t_us) and np.array_equal(got.x, ref.x)
 
 
 def test_cli_sigterm_stops_cleanly_and_writes_the_record(tmp_path):
