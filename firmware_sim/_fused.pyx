@@ -59,10 +59,16 @@ cdef Stepper stepper_of(kernel) except *:
                     f"springtrack._fixed.FixedKernel, not {type(kernel).__name__}")
 
 
+def packs_records(kernel) -> bool:
+    """Whether the kernel's snapshots pack TELEMETRY records themselves (the fixed-point
+    kernel, from its integer state): then the fused loop's sample rows carry them."""
+    return stepper_of(kernel).wire_records
+
+
 def track_events(kernel, events, long long period_us, long long next_t, Py_ssize_t cap):
-    """``kernel.run(events, period_us, next_t, cap)`` whose sample rows also carry their
-    TELEMETRY records (``wire``), like :meth:`Fused.feed`'s: for a decoder other than
-    the fused CCam one."""
+    """``kernel.run(events, period_us, next_t, cap)`` whose sample rows carry the TELEMETRY
+    records the kernel packs (``wire``, see :func:`packs_records`), like
+    :meth:`Fused.feed`'s: for a decoder other than the fused CCam one."""
     return run_array(stepper_of(kernel), events, period_us, next_t, cap, True)
 
 
@@ -72,9 +78,9 @@ cdef class Fused:
 
     ``feed(buf, n)`` processes the first ``n`` bytes of a buffer (bytes, bytearray,
     array('B'), numpy uint8) and returns the snapshots taken as a dict of arrays (rows
-    ``t``; ``x`` ... ``sensitive`` of shape (rows, trackers); ``energy`` (rows, 3); ``wire``
-    (rows, trackers * 8), the TELEMETRY tracker records: packed by the fixed-point kernel
-    from its integer state, quantised from the float rows for the float kernel).
+    ``t``; ``trackers`` (rows, trackers) springtrack.track.TRACK_DTYPE; ``energy``
+    (rows, 3); for a kernel that packs them (:attr:`native_records`, the fixed-point kernel
+    from its integer state) ``wire`` (rows, trackers * 8), the TELEMETRY tracker records).
     """
     cdef object kernel                      # owns the state sp points into
     cdef Stepper sp
@@ -109,7 +115,7 @@ cdef class Fused:
     cdef _bind(self, kernel, bint mark):
         self.sp = stepper_of(kernel)
         self.kernel = kernel
-        self.bufs = sample_buffers(self.o.cap, self.sp.n, &self.o, True, self.sp.wire_records)
+        self.bufs = sample_buffers(self.o.cap, self.sp.n, &self.o, self.sp.wire_records)
         self.mark = mark
         if mark:
             self.first_t = -1
@@ -131,6 +137,11 @@ cdef class Fused:
     @property
     def kernel_obj(self):
         return self.kernel
+
+    @property
+    def native_records(self):
+        """The sample rows carry the kernel's own TELEMETRY records (``wire``)."""
+        return self.sp.wire_records
 
     def gap(self):
         """Data was lost before the next buffer: wait for a fresh time base."""

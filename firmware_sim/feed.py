@@ -6,7 +6,7 @@ import numpy as np
 
 from springtrack.sampling import UNSET
 
-from ._fused import track_events
+from ._fused import packs_records, track_events
 from . import usb as camusb
 
 
@@ -14,7 +14,7 @@ class DecodedFeed:
     """The non-fused path for the EVT 2.0 / 3.0 profiles, with the interface of
     ``_fused.Fused``: a ``springtrack.io`` streaming decoder turns each piece into an event
     array, then the kernel tracks it with the same sampling rule (``_fused.track_events``:
-    ``Kernel.run`` with TELEMETRY records).  One Python call per piece, never per event."""
+    ``Kernel.run`` with the TELEMETRY records the kernel packs).  One Python call per piece, never per event."""
 
     def __init__(self, kernel, period_us: int, profile):
         self.profile = profile
@@ -33,6 +33,10 @@ class DecodedFeed:
     @property
     def kernel_obj(self):
         return self.kernel
+
+    @property
+    def native_records(self):
+        return packs_records(self.kernel)
 
     @property
     def last_t(self):

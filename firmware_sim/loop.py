@@ -233,7 +233,8 @@ class FirmwareLoop:
         if self.recorder is not None:
             self.recorder.add(self.model.ids, out)
         kind = self.params.energy_kind_index
-        self.telemetry.push(Block(self.generation, kind, out, self.kernel.energies()[kind].copy()))
+        self.telemetry.push(Block(self.generation, kind, out, self.kernel.energies()[kind].copy(),
+                                  self.fused.native_records))
 
     # ---- Engine: observation ---------------------------------------------------------------
     def poll_telemetry(self, max_items: int = 64) -> list:

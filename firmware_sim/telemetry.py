@@ -2,7 +2,10 @@
 host link, bounded in rows (the oldest are dropped and counted).
 
 The loop pushes whole blocks (the sample rows of one fed piece, as the fused loop returns
-them); the link polls :class:`firmware_sim.engine.Snapshot` records, one per row.
+them); the link polls :class:`firmware_sim.engine.Snapshot` records, one per row, each
+with its TELEMETRY records: the kernel's own (the fixed-point kernel packs them from its
+integer state), else quantised from the float rows by ``wire.quantise_trackers``, once
+per block and in the polling (link) thread, off the tracking loop.
 """
 from __future__ import annotations
 
@@ -12,6 +15,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from springtrack.wire import quantise_trackers
+
 from .engine import Snapshot
 
 
@@ -20,18 +25,27 @@ class Block:
     """Sample rows of one fed piece, all computed under one generation."""
     generation: int
     energy_kind: int          # which mean energy (eqs. 12, 17, 20) the snapshots report
-    samples: dict             # the fused loop's rows: t, trackers, energy, wire
+    samples: dict             # the fused loop's rows: t, trackers, energy (+ wire)
     energies: np.ndarray      # per-connection energies of that kind at the last row
+    native: bool              # samples["wire"] holds the kernel's own TELEMETRY records
     first: int = 0            # rows before this one were polled or dropped
+    _records: np.ndarray | None = None
 
     @property
     def end(self) -> int:
         return len(self.samples["t"])
 
+    def records(self) -> np.ndarray:
+        """(rows, trackers * 8) TELEMETRY tracker records of every row."""
+        if self._records is None:
+            self._records = (self.samples["wire"] if self.native else
+                             quantise_trackers(self.samples["trackers"]).view(np.uint8))
+        return self._records
+
     def snapshot(self, r: int) -> Snapshot:
         s = self.samples
         return Snapshot(int(s["t"][r]), self.generation, float(s["energy"][r, self.energy_kind]),
-                        s["trackers"][r], s["wire"][r].tobytes(),
+                        s["trackers"][r], self.records()[r].tobytes(),
                         (self.energy_kind, self.energies) if r == self.end - 1 else None)
 
 

@@ -10,9 +10,7 @@ cdef struct SampleOut:
     double* energy            # (cap, 3): mean energy of each kind
     uint8_t* wire             # (cap, n * 8) TELEMETRY tracker records (wire.TELE_TRACKER)
                               # written by kernels that pack them natively, or NULL
-    bint quantise             # records wanted from a kernel that does not pack them:
-                              # take_samples() quantises the float rows (wire.py)
     Py_ssize_t cap, count
 
-cdef dict sample_buffers(Py_ssize_t cap, int n, SampleOut* o, bint records=*, bint native=*)
+cdef dict sample_buffers(Py_ssize_t cap, int n, SampleOut* o, bint wire=*)
 cdef dict take_samples(dict bufs, SampleOut* o, bint copy)

@@ -4,7 +4,7 @@ import numpy as np
 cimport numpy as cnp
 from springtrack.track import TRACK_DTYPE, TRACK_FIELDS
 from springtrack.track cimport TrackRow
-from springtrack.wire import TELE_TRACKER, quantise_trackers
+from springtrack.wire import TELE_TRACKER
 from libc.stdint cimport int64_t, uint8_t
 
 cnp.import_array()
@@ -28,13 +28,11 @@ def _check_track_row():
 _check_track_row()
 
 
-cdef dict sample_buffers(Py_ssize_t cap, int n, SampleOut* o, bint records=False,
-                         bint native=False):
+cdef dict sample_buffers(Py_ssize_t cap, int n, SampleOut* o, bint wire=False):
     """Arrays for ``cap`` snapshot rows of ``n`` trackers: ``t`` (cap,), ``trackers``
-    (cap, n) TRACK_DTYPE, ``energy`` (cap, 3); bound to ``o`` with ``o.count = 0``.  With
-    ``records`` the rows taken by :func:`take_samples` also carry ``wire``, their TELEMETRY
-    records: packed by the kernel's snapshot itself when it can (``native``, the Stepper's
-    wire_records), else quantised from the float rows."""
+    (cap, n) TRACK_DTYPE, ``energy`` (cap, 3), and with ``wire`` (for a kernel whose
+    snapshot packs them, the Stepper's wire_records) ``wire`` (cap, n * 8), the TELEMETRY
+    tracker records; bound to ``o`` with ``o.count = 0``."""
     b = dict(t=np.empty(cap, np.int64), trackers=np.empty((cap, n), TRACK_DTYPE),
              energy=np.empty((cap, 3)))
     o.cap = cap
@@ -43,19 +41,15 @@ cdef dict sample_buffers(Py_ssize_t cap, int n, SampleOut* o, bint records=False
     o.trackers = <TrackRow*>cnp.PyArray_DATA(b["trackers"])
     o.energy = <double*>cnp.PyArray_DATA(b["energy"])
     o.wire = NULL
-    o.quantise = records and not native
-    if records and native:
+    if wire:
         b["wire"] = np.empty((cap, n * TELE_RECORD), np.uint8)
         o.wire = <uint8_t*>cnp.PyArray_DATA(b["wire"])
     return b
 
 
 cdef dict take_samples(dict bufs, SampleOut* o, bint copy):
-    """The ``o.count`` rows written so far (copies, or views of the buffers) and
-    ``o.count = 0``; with records, ``wire`` holds each row's TELEMETRY records."""
+    """The ``o.count`` rows written so far (copies, or views of the buffers); ``o.count = 0``."""
     c = o.count
     out = {k: (v[:c].copy() if copy else v[:c]) for k, v in bufs.items()}
-    if o.quantise:
-        out["wire"] = quantise_trackers(out["trackers"]).view(np.uint8)      # (c, n * 8)
     o.count = 0
     return out

@@ -47,8 +47,8 @@ cdef tuple run_array(Stepper sp, events, int64_t sample_us, int64_t next_t, Py_s
     """``Kernel.run`` / ``FixedKernel.run``: (consumed, next_t, samples) where samples is a
     dict of arrays with at most ``cap`` rows (None if sample_us <= 0; keys as
     _samples.sample_buffers; ``next_t`` springtrack.sampling.UNSET before the first event
-    sets the first sample time); with ``records``
-    the rows carry their TELEMETRY records too (``wire``, see _samples.sample_buffers)."""
+    sets the first sample time); with ``records`` a kernel that packs TELEMETRY records
+    (the Stepper's wire_records) adds them (``wire``)."""
     cdef cnp.ndarray ev = events
     cdef Py_ssize_t n = ev.shape[0], consumed
     cdef SampleOut o
@@ -56,7 +56,7 @@ cdef tuple run_array(Stepper sp, events, int64_t sample_us, int64_t next_t, Py_s
         raise TypeError("events must be a C-contiguous EVENT_DTYPE array")
     if sample_us <= 0:
         cap = 0
-    out = sample_buffers(cap, sp.n, &o, records, sp.wire_records)
+    out = sample_buffers(cap, sp.n, &o, records and sp.wire_records)
     cdef const Event* p = <const Event*>cnp.PyArray_DATA(ev)
     with nogil:
         consumed = run_events(&sp, p, n, sample_us, &next_t, &o)
