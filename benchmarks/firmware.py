@@ -37,7 +37,8 @@ from firmware_sim._fused import Fused  # noqa: E402
 from firmware_sim.faults import Faults  # noqa: E402
 from firmware_sim.loop import FirmwareLoop  # noqa: E402
 from springtrack.sim.sensor import simulate_all  # noqa: E402
-from firmware_sim.simusb import SimBackend, SimCamera, events_source  # noqa: E402
+from firmware_sim.simcam import SimBackend, SimCamera  # noqa: E402
+from firmware_sim.sources import events_source  # noqa: E402
 
 from _report import machine, write_section  # noqa: E402
 

@@ -15,7 +15,8 @@ import usb.core
 import usb.util
 
 from firmware_sim import usb as camusb
-from firmware_sim.simusb import SimBackend, SimCamera, events_source
+from firmware_sim.simcam import SimBackend, SimCamera
+from firmware_sim.sources import events_source
 from springtrack.events import make
 from springtrack.io.ccam import CCamDecoder
 
