@@ -244,7 +244,7 @@ def test_rejects_what_its_formats_cannot_hold():
 
 
 def stream(preset, n, seed=2):
-    from springtrack.fixed_accuracy import scene_stream
+    from fixed_bound import scene_stream
     return scene_stream(preset, n, seed)[1]
 
 
