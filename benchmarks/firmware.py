@@ -1,4 +1,4 @@
-"""Firmware loop benchmarks (issue 6, item 7); writes the "Firmware loop" section of
+"""Firmware loop benchmarks; writes the "Firmware loop" section of
 docs/benchmarks.md.
 
 Run: .venv/bin/python benchmarks/firmware.py [--seconds S] [--realtime-seconds S] [--realtime-runs N]

@@ -51,12 +51,12 @@ cdef double RHO_MAX2 = _RHO_MAX * _RHO_MAX * (1.0 - 1e-12)   # slightly low: nev
 cdef double TWO_PI = 2.0 * M_PI
 # A gate box is (re)indexed enlarged by INDEX_GROW of itself plus INDEX_MARGIN px, so that a
 # mean jittering by a fraction of sigma (alpha_position = 0.2 moves it ~0.3 sigma) does not
-# re-index at every few events (face26: 0.14 -> 0.01 re-index per event; candidates +~5 %).
-# Any enlargement keeps the scan exact; these only trade re-indexing against candidates.
+# re-index every few events.  Any enlargement keeps the scan exact; these only trade
+# re-indexing against candidates (docs/benchmarks.md, "Where the time goes").
 # After each update a cheap sufficient test (st_box_left) re-indexes a tracker once its
 # sigmas have grown by INDEX_SIGMA_SLACK or its mean has moved by what that growth leaves
-# of the enlargement (the exact test took ~28 instructions per assigned event, this ~10; it
-# re-indexes face26 0.0065 -> 0.0095 times per event).
+# of the enlargement: four comparisons instead of the exact gate box, for re-indexing a
+# little earlier than needed.
 cdef double INDEX_MARGIN = 3.0
 cdef double INDEX_GROW = 0.25
 cdef double INDEX_SIGMA_SLACK = 0.05

@@ -1,4 +1,4 @@
-"""Every injected fault is survived, counted and recovered from (issue 6, items 2-3, 8)."""
+"""Every injected fault is survived, counted and recovered from."""
 from __future__ import annotations
 
 import threading

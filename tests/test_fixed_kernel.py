@@ -268,7 +268,7 @@ def test_chunked_equals_whole_and_set_params():
         t.set_params(alpha_position=0.1, p_threshold=0.05)
     ta, tb = a.run(ev[15_000:], sample_us=1000), b.run(ev[15_000:], sample_us=1000)
     d = np.hypot(ta.x - tb.x, ta.y - tb.y)
-    assert float(np.sqrt(np.mean(d ** 2))) < 0.05 and float(d.max()) < 0.25   # issue 4 bound
+    assert float(np.sqrt(np.mean(d ** 2))) < 0.05 and float(d.max()) < 0.25   # fixed_bound.py
     assert set(b.counters) >= {"saturated_position", "saturated_activity", "saturated_energy",
                                "saturated_inverse", "events_valid", "events_assigned"}
     assert b.state()["x"].shape == (26,)

@@ -1,5 +1,4 @@
-"""Issue 4, deliverable 6: the fixed-point kernel's telemetry records come straight from its
-integer state (csrc/fixed_telemetry.c), in springtrack.wire's TELE_TRACKER layout, and
+"""The fixed-point kernel's telemetry records come straight from its integer state (csrc/fixed_telemetry.c), in springtrack.wire's TELE_TRACKER layout, and
 agree with wire.encode_telemetry of the float view of the same state."""
 import numpy as np
 import pytest

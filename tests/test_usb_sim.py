@@ -1,4 +1,4 @@
-"""The pyusb path end to end against the simulated CCam ATIS backend (issue 6, items 1-2).
+"""The pyusb path end to end against the simulated CCam ATIS backend.
 
 Everything goes through ``usb.core.find(..., backend=SimBackend(...))`` and pyusb's own
 Device/ctrl_transfer/read code, as it would against libusb and a real camera.
