@@ -8,7 +8,8 @@
 Without a host link it prints a statistics line every ``--stats-every`` s on stderr and a
 final one on stdout; ``--record`` writes every telemetry snapshot in the CSV schema of
 ``springtrack track`` (``t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive``).
-Exit status: 0 done, 1 the camera never opened (10 s), 2 bad arguments / no camera found.
+Exit status: 0 done, 1 the camera never opened (10 s) or a simulated source failed,
+2 bad arguments / no camera found.
 """
 from __future__ import annotations
 
@@ -218,6 +219,8 @@ def run(args) -> int:
         print(f"record: {rows} rows -> {args.record}", file=sys.stderr)
     for line in source.report():
         print(line, file=sys.stderr)
+    if failed is None and _sources.failure(source):
+        failed = f"the source {args.source} failed: {_sources.failure(source)}"
     print("stats: " + engine.stats_line(), flush=True)
     if failed:
         print(f"firmware-sim run: error: {failed}", file=sys.stderr)

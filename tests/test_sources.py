@@ -54,6 +54,18 @@ def test_a_registered_scheme_is_served_without_editing_any_caller(array_scheme):
     assert np.array_equal(read_all(src), stream()[:1500])
 
 
+def test_a_failing_source_ends_the_stream_and_says_why():
+    """A source that raises mid-stream (an unreadable file, a bug) ends the simulated
+    camera's stream like a camera that stops sending; the error is kept for the run's
+    end instead of killing the host's reader thread."""
+    def events():
+        yield stream()[:1000]
+        raise OSError("disk gone")
+    src = sources.simulated("test:", events(), SourceOptions(realtime=False))
+    assert np.array_equal(read_all(src), stream()[:1000])
+    assert sources.failure(src) == "OSError: disk gone"
+
+
 def test_unknown_scheme_names_the_known_ones():
     with pytest.raises(ValueError, match=r"unknown source scheme 'camera'; use sim:SCENE \| "
                                          r"replay:FILE \| usb"):
@@ -78,7 +90,10 @@ def test_replay_drops_events_outside_the_ccam_sensor_and_reports_them(tmp_path):
     assert src.report() == [f"replay: {len(ev) - len(keep)} events outside the 304x240 "
                             f"sensor dropped before encoding"]
     with pytest.raises(FileNotFoundError, match="replay file not found"):
-        list(open_source(f"replay:{tmp_path / 'none.raw'}").device.source)
+        open_source(f"replay:{tmp_path / 'none.raw'}")
+    (tmp_path / "junk.raw").write_bytes(b"\x00junk")
+    with pytest.raises(ValueError, match="junk.raw"):
+        open_source(f"replay:{tmp_path / 'junk.raw'}")
 
 
 def test_options_that_do_not_apply_are_refused_clearly():

@@ -70,6 +70,7 @@ class SimCamera:
         self.t0_wall = None              # device clock origin: wall time when the first
         self.t_origin = None             # chunk was made, and its first event's time
         self.skip_before = None          # events before this time are lost (disconnect)
+        self.source_error = None         # why the source stopped early, if it failed
         self._burst = None
         self.counts = dict(bulk_reads=0, bytes_sent=0, events_generated=0, control_in=0,
                            control_out=0, rejected=0, overflow=0, timeouts=0, starts=0,
@@ -126,7 +127,13 @@ class SimCamera:
                 return c
             self._burst = None
         while True:
-            ev = next(self.source, None)
+            try:
+                ev = next(self.source, None)
+            except Exception as e:   # noqa: BLE001 - any failure of the source ends the stream
+                # (as a camera that stops sending), told by source_error, never by an
+                # exception in the host's reader thread
+                self.source_error = f"{type(e).__name__}: {e}"
+                ev = None
             if ev is None:
                 self.exhausted = True
                 return None

@@ -110,6 +110,11 @@ def simulated(url: str, events, opts: SourceOptions, **known) -> CameraSource:
     return CameraSource(url, open_camera, profile="ccam_atis", device=cam, **known)
 
 
+def failure(source: CameraSource) -> str | None:
+    """Why a simulated source stopped before its end (its events raised), else None."""
+    return source.device.source_error if source.device is not None else None
+
+
 def events_source(events, chunk_events: int = 4096):
     """An in-memory event array, in pieces of ``chunk_events``."""
     ev = as_events(events)

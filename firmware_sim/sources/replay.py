@@ -17,14 +17,20 @@ HELP = (f"any format springtrack.io reads, re-encoded as CCam words through the 
 def file_source(path, width: int = CCAM.width, height: int = CCAM.height,
                 stats: dict | None = None):
     """Events of any file ``springtrack.io`` reads, for a ``width x height`` sensor;
-    events outside it are dropped and counted in ``stats['outside']``."""
+    events outside it are dropped and counted in ``stats['outside']``.  The file is
+    opened (its format and header checked) now, so a bad path fails here with a clear
+    error rather than later in the simulated camera's reader thread."""
     from springtrack import io as stio
     stats = {} if stats is None else stats
     stats.setdefault("outside", 0)
     path = Path(path)
-    if not path.exists():
+    if not path.is_file():
         raise FileNotFoundError(f"{path}: replay file not found")
-    for chunk in stio.open(path):
+    return _inside(stio.open(path), width, height, stats)
+
+
+def _inside(chunks, width: int, height: int, stats: dict):
+    for chunk in chunks:
         ev = as_events(chunk)
         keep = (ev["x"] < width) & (ev["y"] < height)
         stats["outside"] += int((~keep).sum())
