@@ -20,7 +20,7 @@ import springtrack  # noqa: E402
 from springtrack.synthetic import blob_stream  # noqa: E402
 
 from _report import machine, replace_section, write_section  # noqa: E402
-from kernel import SCENES  # noqa: E402  (same streams as the wall-clock benchmark)
+from _streams import SCENES  # noqa: E402  (same streams as the wall-clock benchmark)
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "fixed_point.md"
 

@@ -33,12 +33,7 @@ import springtrack  # noqa: E402
 from springtrack.synthetic import blob_stream  # noqa: E402
 
 from _report import machine, write_section  # noqa: E402
-
-SCENES = {
-    # preset: (noise fraction, motion)
-    "face26": (0.62, dict(speed_px_s=(10, -5), rot_deg_s=-8, wobble_px=4)),
-    "grid3x3": (0.62, dict(speed_px_s=(15, 8), rot_deg_s=10)),
-}
+from _streams import SCENES  # noqa: E402
 
 
 REPEATS = 7
