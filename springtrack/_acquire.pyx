@@ -80,11 +80,27 @@ def score_grid(const float[:, :, ::1] levels, const int[:, ::1] off, const int[:
                             worst = j
 
 
-cdef void _moments_one(const float[:, ::1] img, double mx, double my, double sxx,
-                       double sxy, double syy, double flat2, double gate2, double sur2,
+cdef struct Sparse:
+    # the nonzero pixels of a count image, row by row (compressed sparse rows)
+    const int *row             # (H + 1,) start of each row in col / val
+    const int *col             # x of each nonzero pixel, increasing within a row
+    const float *val           # its count
+    int h, w
+
+
+cdef inline Sparse _sparse(const int[::1] row, const int[::1] col, const float[::1] val,
+                           int w):
+    cdef Sparse sp
+    sp.row, sp.col, sp.val = &row[0], &col[0], &val[0]
+    sp.h, sp.w = row.shape[0] - 1, w
+    return sp
+
+
+cdef void _moments_one(Sparse img, double mx, double my, double sxx, double sxy,
+                       double syy, double flat2, double gate2, double sur2,
                        double *out) noexcept nogil:
     """out = (sum w, sum w dx, sum w dy, surround count) of one tracker (``moments``)."""
-    cdef Py_ssize_t H = img.shape[0], W = img.shape[1], x, y, x0, x1, y0, y1
+    cdef int x0, x1, y0, y1, y, i, lo, hi, mid
     cdef double det = sxx * syy - sxy * sxy, ia, ib, ic, bx, by, dx, dy, d2, w, v
     cdef double sw = 0.0, swx = 0.0, swy = 0.0, sur = 0.0
     cdef double taper = 1.0 / (gate2 - flat2) if gate2 > flat2 else 0.0
@@ -94,19 +110,26 @@ cdef void _moments_one(const float[:, ::1] img, double mx, double my, double sxx
         return
     ia, ib, ic = syy / det, -sxy / det, sxx / det
     bx, by = sqrt(reach2 * sxx), sqrt(reach2 * syy)     # the bounding box of d^2 < reach2
-    if not (mx + bx >= 0 and my + by >= 0 and mx - bx <= W - 1 and my - by <= H - 1):
+    if not (mx + bx >= 0 and my + by >= 0 and mx - bx <= img.w - 1 and my - by <= img.h - 1):
         return
-    x0 = <Py_ssize_t>ceil(mx - bx) if mx - bx > 0 else 0
-    y0 = <Py_ssize_t>ceil(my - by) if my - by > 0 else 0
-    x1 = <Py_ssize_t>floor(mx + bx) if mx + bx < W - 1 else W - 1
-    y1 = <Py_ssize_t>floor(my + by) if my + by < H - 1 else H - 1
+    x0 = <int>ceil(mx - bx) if mx - bx > 0 else 0
+    y0 = <int>ceil(my - by) if my - by > 0 else 0
+    x1 = <int>floor(mx + bx) if mx + bx < img.w - 1 else img.w - 1
+    y1 = <int>floor(my + by) if my + by < img.h - 1 else img.h - 1
     for y in range(y0, y1 + 1):
+        lo, hi = img.row[y], img.row[y + 1]
+        while lo < hi:                                  # first pixel of the row at x >= x0
+            mid = (lo + hi) >> 1
+            if img.col[mid] < x0:
+                lo = mid + 1
+            else:
+                hi = mid
         dy = y - my
-        for x in range(x0, x1 + 1):
-            v = img[y, x]
-            if v == 0:
-                continue
-            dx = x - mx
+        i = lo
+        while i < img.row[y + 1] and img.col[i] <= x1:
+            v = img.val[i]
+            dx = img.col[i] - mx
+            i += 1
             d2 = ia * dx * dx + 2.0 * ib * dx * dy + ic * dy * dy
             if d2 >= gate2:
                 if d2 < sur2:
@@ -122,19 +145,23 @@ cdef void _moments_one(const float[:, ::1] img, double mx, double my, double sxx
     out[3] = sur
 
 
-def moments(const float[:, ::1] img, const double[::1] mx, const double[::1] my,
+def moments(const int[::1] row, const int[::1] col, const float[::1] val, int width,
+            const double[::1] mx, const double[::1] my,
             const double[::1] sxx, const double[::1] sxy, const double[::1] syy,
             double flat2, double gate2, double sur2, double[:, ::1] out):
-    """Weighted count and first moments of the count image ``img`` about each tracker.
+    """Weighted count and first moments of a count image about each tracker.
 
-    Tracker k: mean (mx, my) px, covariance [[sxx, sxy], [sxy, syy]] px^2; a pixel of
-    count c at Mahalanobis distance d weighs w = c for d^2 <= flat2,
-    c (gate2 - d^2) / (gate2 - flat2) up to gate2, 0 beyond: a flat top, so that the
-    weighted mean of a ring or a blob of the tracker's size is its centre wherever it
-    lies within the top.  out[k] = (sum w, sum w dx, sum w dy, surround), dx = x - mx,
-    surround the plain count of the annulus gate2 <= d^2 < sur2 (0 if sur2 <= gate2).
+    The image: its nonzero pixels by rows (row (H + 1,) offsets into col, val: x and
+    count, x increasing within a row), ``width`` W.  Tracker k: mean (mx, my) px,
+    covariance [[sxx, sxy], [sxy, syy]] px^2; a pixel of count c at Mahalanobis
+    distance d weighs w = c for d^2 <= flat2, c (gate2 - d^2) / (gate2 - flat2) up to
+    gate2, 0 beyond: a flat top, so that the weighted mean of a ring or a blob of the
+    tracker's size is its centre wherever it lies within the top.  out[k] = (sum w,
+    sum w dx, sum w dy, surround), dx = x - mx, surround the plain count of the annulus
+    gate2 <= d^2 < sur2 (0 if sur2 <= gate2).
     """
     cdef Py_ssize_t k
+    cdef Sparse img = _sparse(row, col, val, width)
     with nogil:
         for k in range(mx.shape[0]):
             _moments_one(img, mx[k], my[k], sxx[k], sxy[k], syy[k], flat2, gate2, sur2,
@@ -175,13 +202,15 @@ cdef inline double _clamp(double v, double lo, double hi) noexcept nogil:
     return lo if v < lo else (hi if v > hi else v)
 
 
-def refine(const float[:, ::1] img, const double[:, ::1] q, const double[:, ::1] cov,
+def refine(const int[::1] row, const int[::1] col, const float[::1] val, int width,
+           const double[:, ::1] q, const double[:, ::1] cov,
            const double[::1] sigma, double[::1] pose, const double[::1] lo,
            const double[::1] hi, const double[::1] tau, int max_iter, double converged_px,
            double rho, double flat2, double gate2, double gate_area, double kappa,
            double z, double n_min, double cauchy, double[:, ::1] scratch):
     """Annealed EM of the acquisition's refinement, from and into ``pose``.
 
+    The count image as for ``moments``.
     q (K, 2): the model's points about its centre of mass; cov (K, 3): their covariances
     (sxx, sxy, syy); sigma (K,): their sizes sqrt(sqrt(det)); pose (4,): (tx, ty, theta,
     s), kept within [lo, hi] (4,) each; tau: the widening (px) of the first iterations,
@@ -189,7 +218,8 @@ def refine(const float[:, ::1] img, const double[:, ::1] q, const double[:, ::1]
     s^2 R cov R^T + tau^2 I: its moments (``moments``); the background's share
     b = rho * gate_area * sqrt(det) removed from the weighted count (net); the observed
     centre mean + first moment / net; the weight net / (net + kappa b + z sqrt(b) +
-    n_min) (0 when net <= 0), times a Cauchy weight
+    n_min) (0 when net <= 0 or when the sensor's edge cuts the flat top), times a Cauchy
+    weight
     1 / (1 + r^2 / (cauchy^2 (sigma^2 s^2 + tau^2))) of the residual r
     to the fit (two reweighting rounds); the pose <- the weighted similarity fit.  Stops
     after ``max_iter`` iterations, or when tau is 0 and no tracker moved more than
@@ -197,6 +227,8 @@ def refine(const float[:, ::1] img, const double[:, ::1] q, const double[:, ::1]
     Returns the number of iterations run.
     """
     cdef Py_ssize_t K = q.shape[0], k
+    cdef Sparse img = _sparse(row, col, val, width)
+    cdef int H = img.h, W = img.w
     cdef int it, r, n_ok
     cdef double t, c, n, s, cxx, cxy, cyy, rxx, rxy, ryy, det, bg, net
     cdef double fx, fy, d2, moved
@@ -232,7 +264,10 @@ def refine(const float[:, ::1] img, const double[:, ::1] q, const double[:, ::1]
                 net = mom[0] - bg
                 ox[k], oy[k] = px[k], py[k]
                 wv[k] = 0.0
-                if net > 0:
+                # a tracker whose flat top the sensor's edge cuts sees a biased mean
+                fx, fy = sqrt(flat2 * rxx), sqrt(flat2 * ryy)
+                if net > 0 and px[k] - fx >= 0 and py[k] - fy >= 0 and px[k] + fx <= W - 1 \
+                        and py[k] + fy <= H - 1:
                     ox[k] = px[k] + mom[1] / net
                     oy[k] = py[k] + mom[2] / net
                     wv[k] = net / (net + kappa * bg + z * sqrt(bg) + n_min)

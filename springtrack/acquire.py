@@ -18,9 +18,9 @@ Pose
     placed positions, as for any model.
 
 Evidence
-    Events are counted per pixel over the window (polarity and time ignored); a pixel's
-    count is clipped at the median count of the pixels that fired (at least 1), so that
-    neither a hot pixel nor a part of strong contrast outweighs the others.  A tracker k
+    Events are counted per pixel over the window (polarity and time ignored); a pixel
+    counts at most one more than its busiest neighbour, so that an isolated hot pixel
+    counts 1 while a pixel on a moving edge, whose neighbours fire too, counts whole.  A tracker k
     placed with covariance S_k collects n_k, the count in its gate d^2 < 9 (3 sigma)
     weighted 1 up to d^2 = 4 and tapering linearly in d^2 beyond, a flat top on which a
     ring or a blob of the tracker's size counts whole (events of moving parts lie on
@@ -59,12 +59,14 @@ Search
     COARSE_STEP sigma_c, and every cell of the search region is scored
     (``_acquire.score_grid``).  (2) The best distinct poses (up to ``CANDIDATES`` per
     search) are refined by annealed EM (``_acquire.refine``): each tracker's flat-top
-    mean of the events in its gate, the background's share removed, with the tracker's
+    mean of the events in its gate, the background's share removed (none if the sensor's
+    edge cuts its flat top, which would bias it), with the tracker's
     covariance widened by tau^2 and tau shrinking from sigma_c to 0; then the weighted
     similarity (Umeyama 1991, closed form in 2-D) from the model's points to those means,
     weighted by each tracker's excess and a Cauchy weight of its residual, so that
-    occluded, absent or distracted parts do not pull.  (3) The refined pose of highest
-    score is refined again to convergence and reported with its support and confidence.
+    occluded, absent or distracted parts do not pull.  (3) The ``KEEP`` best after the
+    annealing go on to convergence; the one of highest score is reported with its
+    support and confidence.
 
 Bounds (parameters, with defaults): ``region`` (x0, y0, x1, y1) for G, default the whole
 sensor; ``angle_deg`` (-45, 45); ``scale`` (0.6, 1.6).  The returned pose lies within them.
@@ -98,8 +100,8 @@ SURROUNDS = (0.0, 4.0)   # coarse searches: global background; local, blurred 4x
 CANDIDATES = 4           # distinct coarse poses refined, per coarse search
 TOP_N = 128              # coarse local maxima kept before choosing distinct ones
 ANNEAL = (1.0, 0.6, 0.35, 0.15)   # tau / sigma_c of the first EM iterations, then 0
-MAX_ITER = 20            # EM iterations at most (the winner: FINAL_ITER more)
-FINAL_ITER = 60
+KEEP = 3                 # candidates refined to convergence after the annealing
+MAX_ITER = 60            # EM iterations at most after the annealing
 CONVERGED_PX = 0.02      # EM stops when no tracker moves more than this
 CAUCHY = 2.0             # residual scale of the robust weight, in tracker sigmas
 MIN_EVENTS = 20          # fewer events in the window: not found without searching
@@ -210,10 +212,17 @@ def count_image(events, width: int, height: int):
     inside = (x < width) & (y < height)
     flat = y[inside] * width + x[inside]
     counts = np.bincount(flat, minlength=width * height).astype(np.float32)
-    fired = counts[counts > 0]
-    if len(fired):
-        np.minimum(counts, max(1.0, float(np.median(fired))), out=counts)
-    return counts.reshape(height, width), int(inside.sum())
+    counts = counts.reshape(height, width)
+    # a pixel counts at most one more than its busiest neighbour: an isolated hot pixel
+    # counts 1, a pixel on an edge (whose neighbours fire too) counts whole
+    pad = np.pad(counts, 1)
+    busiest = np.zeros_like(counts)
+    for dy in range(3):
+        for dx in range(3):
+            if dy != 1 or dx != 1:
+                np.maximum(busiest, pad[dy:dy + height, dx:dx + width], out=busiest)
+    np.minimum(counts, busiest + 1.0, out=counts)
+    return counts, int(inside.sum())
 
 
 def background_density(img) -> float:
@@ -239,16 +248,21 @@ class _Evidence:
     """Tracker evidence on one count image: the refinement and the judgement of a pose."""
 
     def __init__(self, geo: _Geometry, img, rho: float):
-        self.geo, self.img, self.rho = geo, img, rho
+        self.geo, self.rho = geo, rho
+        self.h, self.w = img.shape
+        ys, xs = np.nonzero(img)                 # the image by rows of nonzero pixels
+        self.sparse = (np.searchsorted(ys, np.arange(self.h + 1)).astype(np.int32),
+                       np.append(xs, 0).astype(np.int32),      # one spare entry: never
+                       np.append(img[ys, xs], 0).astype(np.float32), self.w)   # empty
         self.out = np.empty((geo.k, 4))
         self.cov = np.ascontiguousarray(geo.cov.reshape(geo.k, 4)[:, [0, 1, 3]])
         self.scratch = np.empty((7, geo.k))
 
-    def refine(self, pose, sig_c, lo, hi, max_iter=MAX_ITER):
+    def refine(self, pose, sig_c, lo, hi, max_iter):
         """Annealed EM from ``pose`` (tx, ty, theta, s) within [lo, hi] (see 'Search' (2))."""
         from ._acquire import refine
         p = np.array(pose, float)
-        refine(self.img, self.geo.q, self.cov, self.geo.sigma, p, lo, hi,
+        refine(*self.sparse, self.geo.q, self.cov, self.geo.sigma, p, lo, hi,
                np.array(ANNEAL) * sig_c, max_iter, CONVERGED_PX, self.rho, FLAT2, GATE2,
                GATE_AREA, KAPPA, Z, N_MIN, CAUCHY, self.scratch)
         return tuple(p)
@@ -256,10 +270,10 @@ class _Evidence:
     def judge(self, tx, ty, th, s, events: int) -> Pose:
         """The pose with its score, support and found decision (module docstring)."""
         from ._acquire import moments
-        h, w = self.img.shape
+        h, w = self.h, self.w
         mx, my = self.geo.means(tx, ty, th, s)
         cov = self.geo.covs(th, s)
-        moments(self.img, mx, my, cov[:, 0, 0].copy(), cov[:, 0, 1].copy(), cov[:, 1, 1].copy(),
+        moments(*self.sparse, mx, my, cov[:, 0, 0].copy(), cov[:, 0, 1].copy(), cov[:, 1, 1].copy(),
                 FLAT2, GATE2, SUR2, self.out)
         root_det = np.sqrt(cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] ** 2)
         rho = np.maximum(self.rho, self.out[:, 3] / (SUR_AREA * root_det))
@@ -334,23 +348,28 @@ def _coarse(geo: _Geometry, img, rho, region, angles, scales):
     weight = np.full(geo.k, 1.0 / geo.k, np.float32)
     plane = np.empty((jy1 - jy0, jx1 - jx0), np.float32)
     rms_q = math.sqrt(float(np.mean((geo.q ** 2).sum(1)))) or 1.0
-    chosen = []
+    chosen, placed = [], np.empty((0, geo.k, 2))
     for surround in SURROUNDS:
         levels = _levels(cells, c0, sig_c, int(lev.max()) + 1, pad, rho, surround)
         best_idx = np.zeros((TOP_N, 3), np.int32)
         best = np.full(TOP_N, -np.inf, np.float32)
         score_grid(levels, off, lev, weight, jy1 - jy0, jx1 - jx0, plane, best_idx, best)
-        new = []
-        for i in np.argsort(-best, kind="stable"):
-            if not np.isfinite(best[i]) or len(new) == CANDIDATES:
-                break
-            p, y, x = best_idx[i]
-            cand = ((jx0 + x) * c0 + (c0 - 1) / 2, (jy0 + y) * c0 + (c0 - 1) / 2,
-                    float(th_arr[p]), float(s_arr[p]))
-            if all(_pose_distance(geo, cand, o) > max(2 * sig_c, 0.25 * rms_q * cand[3])
-                   for o in chosen + new):
-                new.append(cand)
-        chosen += new
+        order = np.argsort(-best, kind="stable")
+        order = order[np.isfinite(best[order])]
+        p, y, x = best_idx[order].T
+        tx, ty = (jx0 + x) * c0 + (c0 - 1) / 2, (jy0 + y) * c0 + (c0 - 1) / 2
+        # each candidate's trackers placed, for the distance between two poses
+        xy = np.stack([tx[:, None] + ox[p], ty[:, None] + oy[p]], -1)
+        found = 0
+        for i in range(len(order)):
+            # distinct: RMS distance between the placed trackers beyond max(2 sig_c, R s / 4)
+            far = max(2 * sig_c, 0.25 * rms_q * s_arr[p[i]]) ** 2
+            if np.all(np.mean(((placed - xy[i]) ** 2).sum(-1), axis=1) > far):
+                chosen.append((float(tx[i]), float(ty[i]), float(th_arr[p[i]]), float(s_arr[p[i]])))
+                placed = np.concatenate([placed, xy[i:i + 1]])
+                found += 1
+                if found == CANDIDATES:
+                    break
     return chosen, sig_c
 
 
@@ -372,13 +391,6 @@ def _levels(cells, c0: int, sig_c: float, n_lev: int, pad: int, rho: float,
         excess = np.maximum(area * _density(cells, sig / c0) / (c0 * c0) - b, 0.0)
         levels[j, pad:pad + ny_c, pad:pad + nx_c] = np.log1p(excess / _threshold(b))
     return levels
-
-
-def _pose_distance(geo, a, b) -> float:
-    """RMS distance between the model's trackers placed at poses a and b, px."""
-    ax, ay = geo.means(*a)
-    bx, by = geo.means(*b)
-    return math.sqrt(float(np.mean((ax - bx) ** 2 + (ay - by) ** 2)))
 
 
 def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DEFAULT_SCALE,
@@ -415,17 +427,15 @@ def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DE
     cands, sig_c = _coarse(geo, img, rho, region, angles, scales)
     lo = np.array([region[0], region[1], angles[0], scales[0]])
     hi = np.array([region[2], region[3], angles[1], scales[1]])
-    best, best_score = None, -math.inf
-    for c in cands:
-        refined = ev.refine(c, sig_c, lo, hi)
-        score = ev.judge(*refined, n_ev).score
-        if score > best_score:
-            best, best_score = refined, score
-    if best is None:
+    if not cands:
         g = geo.g
         return Pose(float(g[0]), float(g[1]), 0.0, 1.0, 0.0, 0.0, False, 0, 0, n_ev)
-    # the winner may have stopped short of its optimum: on to convergence
-    return ev.judge(*ev.refine(best, 0.0, lo, hi, FINAL_ITER), n_ev)
+    # every candidate through the annealing, the best few on to convergence
+    early = [ev.refine(c, sig_c, lo, hi, len(ANNEAL) + 2) for c in cands]
+    scores = [ev.judge(*p, n_ev).score for p in early]
+    kept = [early[i] for i in np.argsort(scores)[::-1][:KEEP]]
+    final = [ev.judge(*ev.refine(p, 0.0, lo, hi, MAX_ITER), n_ev) for p in kept]
+    return max(final, key=lambda p: p.score)
 
 
 class Acquisition:
