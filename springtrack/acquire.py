@@ -79,7 +79,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .events import as_events
+from .events import EVENT_DTYPE, as_events
 from .model import ShapeModel, TrackerSpec, load_model
 
 KAPPA = 0.5              # support: excess >= KAPPA b + Z sqrt(b) + N_MIN over the background
@@ -394,15 +394,23 @@ def _levels(cells, c0: int, sig_c: float, n_lev: int, pad: int, rho: float,
 
 
 def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DEFAULT_SCALE,
-            width: int | None = None, height: int | None = None) -> Pose:
+            width: int | None = None, height: int | None = None,
+            at_us: int | None = None) -> Pose:
     """Find ``model`` (ShapeModel, preset name or TOML path) in ``events`` (a window of
-    tens of ms, fields t, x, y, p).
+    tens of ms, fields t, x, y, p, in time order).
 
     ``region``: (x0, y0, x1, y1) px where the model's centre of mass may lie (default:
     the sensor); ``angle_deg``: (lo, hi) rotation range from the model's orientation;
     ``scale``: (lo, hi) size range relative to the model; ``width``, ``height``: the
     sensor (default: the model's).  Returns the best :class:`Pose`; ``found`` says
     whether the model is there (see the module docstring for the rule).
+
+    The pose found explains the whole window; a moving object is where it was around
+    the window's middle.  ``at_us``: the pose at that time instead -- refined again on
+    the quarter of the window's events nearest to it (its score, support and decision
+    stay those of the whole window).  A tracker that starts on the window's first event
+    wants ``at_us`` = that event's time: it does not pull a model placed a pixel or two
+    off its parts back onto them.
     """
     model = load_model(model)
     w, h = int(width or model.width), int(height or model.height)
@@ -435,7 +443,16 @@ def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DE
     scores = [ev.judge(*p, n_ev).score for p in early]
     kept = [early[i] for i in np.argsort(scores)[::-1][:KEEP]]
     final = [ev.judge(*ev.refine(p, 0.0, lo, hi, MAX_ITER), n_ev) for p in kept]
-    return max(final, key=lambda p: p.score)
+    best = max(final, key=lambda p: p.score)
+    if at_us is None:
+        return best
+    evs = as_events(events)
+    near = np.argsort(np.abs(evs["t"] - int(at_us)), kind="stable")[:max(len(evs) // 4, 1)]
+    img_at, _ = count_image(evs[np.sort(near)], w, h)
+    ev_at = _Evidence(geo, img_at, background_density(img_at))
+    tx, ty, th, s = ev_at.refine((best.tx, best.ty, math.radians(best.angle_deg), best.scale),
+                                 0.0, lo, hi, MAX_ITER)
+    return replace(best, tx=tx, ty=ty, angle_deg=math.degrees(th), scale=s)
 
 
 class Acquisition:
@@ -470,7 +487,7 @@ class Acquisition:
         if len(ev):
             self._buf.append(ev)
         while self._buf:
-            buf = np.concatenate(self._buf) if len(self._buf) > 1 else self._buf[0]
+            buf = np.concatenate(self._buf, dtype=EVENT_DTYPE) if len(self._buf) > 1 else self._buf[0]
             self._buf = [buf]
             t0 = int(buf["t"][0])
             if int(buf["t"][-1]) - t0 < self.window_us:
@@ -489,7 +506,7 @@ class Acquisition:
         buffered events if found, else ``None`` (they are counted as dropped)."""
         if not self._buf:
             return None
-        buf = np.concatenate(self._buf)
+        buf = np.concatenate(self._buf, dtype=EVENT_DTYPE)
         found = self._try(buf)
         if found is None:
             self.events_dropped += len(buf)
@@ -497,9 +514,9 @@ class Acquisition:
 
     def _try(self, window):
         self.attempts += 1
-        self.pose = acquire(self.model, window, **self.bounds)
+        self.pose = acquire(self.model, window, at_us=int(window["t"][0]), **self.bounds)
         if not self.pose.found:
             return None
-        out = np.concatenate(self._buf) if self._buf else window
+        out = np.concatenate(self._buf, dtype=EVENT_DTYPE) if self._buf else window
         self._buf = []
         return out
