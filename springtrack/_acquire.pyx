@@ -7,6 +7,8 @@
                 the best translation-local maxima of all poses in a small table.
 ``moments``     for placed trackers (means, covariances), the weighted event count and
                 first moments of a count image inside each tracker's gate.
+``surround``    each tracker's local background: the count and area of an annulus
+                around it, outside every tracker's gate.
 ``refine``      the annealed EM of the refinement from one pose: ``moments`` as the
                 E-step, a weighted similarity fit (Umeyama 1991, closed form in 2-D) as
                 the M-step, robust (Cauchy) weights on the residuals.
@@ -96,44 +98,52 @@ cdef inline Sparse _sparse(const int[::1] row, const int[::1] col, const float[:
     return sp
 
 
+cdef inline bint _box(double mx, double my, double sxx, double syy, double reach2, int w,
+                      int h, int *x0, int *y0, int *x1, int *y1) noexcept nogil:
+    """The pixels (x0..x1, y0..y1) of the bounding box of d^2 < reach2 on the sensor;
+    False when it misses the sensor."""
+    cdef double bx = sqrt(reach2 * sxx), by = sqrt(reach2 * syy)
+    if not (mx + bx >= 0 and my + by >= 0 and mx - bx <= w - 1 and my - by <= h - 1):
+        return False
+    x0[0] = <int>ceil(mx - bx) if mx - bx > 0 else 0
+    y0[0] = <int>ceil(my - by) if my - by > 0 else 0
+    x1[0] = <int>floor(mx + bx) if mx + bx < w - 1 else w - 1
+    y1[0] = <int>floor(my + by) if my + by < h - 1 else h - 1
+    return True
+
+
+cdef inline int _first_at(Sparse img, int y, int x0) noexcept nogil:
+    """Index of the first nonzero pixel of row y at x >= x0."""
+    cdef int lo = img.row[y], hi = img.row[y + 1], mid
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if img.col[mid] < x0:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
 cdef void _moments_one(Sparse img, double mx, double my, double sxx, double sxy,
-                       double syy, double flat2, double gate2, double sur2,
-                       double *out) noexcept nogil:
-    """out = (sum w, sum w dx, sum w dy, surround count) of one tracker (``moments``)."""
-    cdef int x0, x1, y0, y1, y, i, lo, hi, mid
-    cdef double det = sxx * syy - sxy * sxy, ia, ib, ic, bx, by, dx, dy, d2, w, v
-    cdef double sw = 0.0, swx = 0.0, swy = 0.0, sur = 0.0
+                       double syy, double flat2, double gate2, double *out) noexcept nogil:
+    """out = (sum w, sum w dx, sum w dy) of one tracker (``moments``)."""
+    cdef int x0, x1, y0, y1, y, i
+    cdef double det = sxx * syy - sxy * sxy, ia, ib, ic, dx, dy, d2, w, v
+    cdef double sw = 0.0, swx = 0.0, swy = 0.0
     cdef double taper = 1.0 / (gate2 - flat2) if gate2 > flat2 else 0.0
-    cdef double reach2 = sur2 if sur2 > gate2 else gate2
-    out[0] = out[1] = out[2] = out[3] = 0.0
-    if not det > 0:
+    out[0] = out[1] = out[2] = 0.0
+    if not det > 0 or not _box(mx, my, sxx, syy, gate2, img.w, img.h, &x0, &y0, &x1, &y1):
         return
     ia, ib, ic = syy / det, -sxy / det, sxx / det
-    bx, by = sqrt(reach2 * sxx), sqrt(reach2 * syy)     # the bounding box of d^2 < reach2
-    if not (mx + bx >= 0 and my + by >= 0 and mx - bx <= img.w - 1 and my - by <= img.h - 1):
-        return
-    x0 = <int>ceil(mx - bx) if mx - bx > 0 else 0
-    y0 = <int>ceil(my - by) if my - by > 0 else 0
-    x1 = <int>floor(mx + bx) if mx + bx < img.w - 1 else img.w - 1
-    y1 = <int>floor(my + by) if my + by < img.h - 1 else img.h - 1
     for y in range(y0, y1 + 1):
-        lo, hi = img.row[y], img.row[y + 1]
-        while lo < hi:                                  # first pixel of the row at x >= x0
-            mid = (lo + hi) >> 1
-            if img.col[mid] < x0:
-                lo = mid + 1
-            else:
-                hi = mid
         dy = y - my
-        i = lo
+        i = _first_at(img, y, x0)
         while i < img.row[y + 1] and img.col[i] <= x1:
             v = img.val[i]
             dx = img.col[i] - mx
             i += 1
             d2 = ia * dx * dx + 2.0 * ib * dx * dy + ic * dy * dy
             if d2 >= gate2:
-                if d2 < sur2:
-                    sur += v
                 continue
             w = v if d2 <= flat2 else v * (gate2 - d2) * taper
             sw += w
@@ -142,13 +152,12 @@ cdef void _moments_one(Sparse img, double mx, double my, double sxx, double sxy,
     out[0] = sw
     out[1] = swx
     out[2] = swy
-    out[3] = sur
 
 
 def moments(const int[::1] row, const int[::1] col, const float[::1] val, int width,
             const double[::1] mx, const double[::1] my,
             const double[::1] sxx, const double[::1] sxy, const double[::1] syy,
-            double flat2, double gate2, double sur2, double[:, ::1] out):
+            double flat2, double gate2, double[:, ::1] out):
     """Weighted count and first moments of a count image about each tracker.
 
     The image: its nonzero pixels by rows (row (H + 1,) offsets into col, val: x and
@@ -157,15 +166,68 @@ def moments(const int[::1] row, const int[::1] col, const float[::1] val, int wi
     distance d weighs w = c for d^2 <= flat2, c (gate2 - d^2) / (gate2 - flat2) up to
     gate2, 0 beyond: a flat top, so that the weighted mean of a ring or a blob of the
     tracker's size is its centre wherever it lies within the top.  out[k] = (sum w,
-    sum w dx, sum w dy, surround), dx = x - mx, surround the plain count of the annulus
-    gate2 <= d^2 < sur2 (0 if sur2 <= gate2).
+    sum w dx, sum w dy), dx = x - mx.
     """
     cdef Py_ssize_t k
     cdef Sparse img = _sparse(row, col, val, width)
     with nogil:
         for k in range(mx.shape[0]):
-            _moments_one(img, mx[k], my[k], sxx[k], sxy[k], syy[k], flat2, gate2, sur2,
-                         &out[k, 0])
+            _moments_one(img, mx[k], my[k], sxx[k], sxy[k], syy[k], flat2, gate2, &out[k, 0])
+
+
+cdef inline double _d2(double ia, double ib, double ic, double dx, double dy) noexcept nogil:
+    return ia * dx * dx + 2.0 * ib * dx * dy + ic * dy * dy
+
+
+def surround(const int[::1] row, const int[::1] col, const float[::1] val, int width,
+             const double[::1] mx, const double[::1] my,
+             const double[::1] sxx, const double[::1] sxy, const double[::1] syy,
+             double gate2, double sur2, unsigned char[:, ::1] mask, double[:, ::1] out):
+    """Each tracker's local background: the count and the area (px) of the annulus
+    gate2 <= d^2 < sur2 around it, on the sensor and outside every tracker's gate
+    (where the model expects no part).  The image as for ``moments``; mask: (H, W)
+    scratch.  out[k] = (count, area)."""
+    cdef Py_ssize_t K = mx.shape[0], k
+    cdef Sparse img = _sparse(row, col, val, width)
+    cdef int x0, x1, y0, y1, x, y, i
+    cdef double det, ia, ib, ic, dy, d2, count, area
+    with nogil:
+        mask[:, :] = 0
+        for k in range(K):                      # the gates
+            det = sxx[k] * syy[k] - sxy[k] * sxy[k]
+            if not det > 0 or not _box(mx[k], my[k], sxx[k], syy[k], gate2, img.w, img.h,
+                                       &x0, &y0, &x1, &y1):
+                continue
+            ia, ib, ic = syy[k] / det, -sxy[k] / det, sxx[k] / det
+            for y in range(y0, y1 + 1):
+                for x in range(x0, x1 + 1):
+                    if _d2(ia, ib, ic, x - mx[k], y - my[k]) < gate2:
+                        mask[y, x] = 1
+        for k in range(K):
+            out[k, 0] = out[k, 1] = 0.0
+            det = sxx[k] * syy[k] - sxy[k] * sxy[k]
+            if not det > 0 or not _box(mx[k], my[k], sxx[k], syy[k], sur2, img.w, img.h,
+                                       &x0, &y0, &x1, &y1):
+                continue
+            ia, ib, ic = syy[k] / det, -sxy[k] / det, sxx[k] / det
+            count = area = 0.0
+            for y in range(y0, y1 + 1):
+                dy = y - my[k]
+                for x in range(x0, x1 + 1):
+                    if mask[y, x] == 0:
+                        d2 = _d2(ia, ib, ic, x - mx[k], dy)
+                        if gate2 <= d2 < sur2:
+                            area += 1.0
+                i = _first_at(img, y, x0)
+                while i < img.row[y + 1] and img.col[i] <= x1:
+                    x = img.col[i]
+                    if mask[y, x] == 0:
+                        d2 = _d2(ia, ib, ic, x - mx[k], dy)
+                        if gate2 <= d2 < sur2:
+                            count += img.val[i]
+                    i += 1
+            out[k, 0] = count
+            out[k, 1] = area
 
 
 cdef void _similarity(const double[:, ::1] q, const double[::1] ox, const double[::1] oy,
@@ -233,7 +295,7 @@ def refine(const int[::1] row, const int[::1] col, const float[::1] val, int wid
     cdef double t, c, n, s, cxx, cxy, cyy, rxx, rxy, ryy, det, bg, net
     cdef double fx, fy, d2, moved
     cdef double new[4]
-    cdef double mom[4]
+    cdef double mom[3]
     cdef double[::1] ox = scratch[0]
     cdef double[::1] oy = scratch[1]
     cdef double[::1] wv = scratch[2]
@@ -258,7 +320,7 @@ def refine(const int[::1] row, const int[::1] col, const float[::1] val, int wid
                 rxx = s * s * (c * c * cxx - 2 * c * n * cxy + n * n * cyy) + t * t
                 rxy = s * s * (c * n * (cxx - cyy) + (c * c - n * n) * cxy)
                 ryy = s * s * (n * n * cxx + 2 * c * n * cxy + c * c * cyy) + t * t
-                _moments_one(img, px[k], py[k], rxx, rxy, ryy, flat2, gate2, 0.0, mom)
+                _moments_one(img, px[k], py[k], rxx, rxy, ryy, flat2, gate2, mom)
                 det = rxx * ryy - rxy * rxy
                 bg = rho * gate_area * sqrt(det)        # the background's share
                 net = mom[0] - bg

@@ -26,9 +26,11 @@ Evidence
     ring or a blob of the tracker's size counts whole (events of moving parts lie on
     their edges, not in a Gaussian).  Its background is b_k = rho_k a_k, a_k the area of
     that weight (6.5 pi sqrt|S_k|) and rho_k the density of the annulus 3 to 6 sigma
-    around the tracker, at least the image's background density (the median density of
-    cells that hold about BG_EVENTS events each): a tracker inside a dense patch of
-    clutter (an occluder's edges, texture) has a dense surround and little excess.  The
+    around the tracker where the model expects nothing (outside every tracker's gate;
+    if less than a fifth of it is left, not used), at least the image's background
+    density (the median density of cells that hold about BG_EVENTS events each): a
+    tracker inside a dense patch of clutter (an occluder's edges, texture) has a dense
+    surround and little excess.  The
     tracker is *supported* when its excess n_k - b_k reaches the threshold
     KAPPA b_k + Z sqrt(b_k) + N_MIN: a contrast over the local background, a
     significance of 3 Poisson standard deviations and a floor of 3 events.  The pose's
@@ -92,6 +94,7 @@ GATE2 = 9.0              # linearly in d^2 to 0 at the gate d^2 = 9 (3 sigma)
 GATE_AREA = math.pi * (FLAT2 + (GATE2 - FLAT2) / 2)   # integral of that weight / sqrt|S|
 SUR2 = 36.0              # local background: the annulus 9 <= d^2 < 36 (3 to 6 sigma)
 SUR_AREA = math.pi * (SUR2 - GATE2)                   # its area / sqrt|S|
+MIN_SURROUND = 0.2       # of it outside the other trackers' gates, or the global density
 OUT_OF_VIEW = 0.25       # score of a tracker outside the sensor: unknown
 BG_EVENTS = 8.0          # background cells hold this many events on average
 COARSE_DIV = 6.0         # coarse resolution sigma_c = R s_min / COARSE_DIV
@@ -254,7 +257,9 @@ class _Evidence:
         self.sparse = (np.searchsorted(ys, np.arange(self.h + 1)).astype(np.int32),
                        np.append(xs, 0).astype(np.int32),      # one spare entry: never
                        np.append(img[ys, xs], 0).astype(np.float32), self.w)   # empty
-        self.out = np.empty((geo.k, 4))
+        self.out = np.empty((geo.k, 3))
+        self.sur = np.empty((geo.k, 2))
+        self.mask = np.empty(img.shape, np.uint8)
         self.cov = np.ascontiguousarray(geo.cov.reshape(geo.k, 4)[:, [0, 1, 3]])
         self.scratch = np.empty((7, geo.k))
 
@@ -269,15 +274,18 @@ class _Evidence:
 
     def judge(self, tx, ty, th, s, events: int) -> Pose:
         """The pose with its score, support and found decision (module docstring)."""
-        from ._acquire import moments
+        from ._acquire import moments, surround
         h, w = self.h, self.w
         mx, my = self.geo.means(tx, ty, th, s)
         cov = self.geo.covs(th, s)
-        moments(*self.sparse, mx, my, cov[:, 0, 0].copy(), cov[:, 0, 1].copy(), cov[:, 1, 1].copy(),
-                FLAT2, GATE2, SUR2, self.out)
-        root_det = np.sqrt(cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] ** 2)
-        rho = np.maximum(self.rho, self.out[:, 3] / (SUR_AREA * root_det))
-        b = GATE_AREA * root_det * rho
+        sxx, sxy, syy = cov[:, 0, 0].copy(), cov[:, 0, 1].copy(), cov[:, 1, 1].copy()
+        moments(*self.sparse, mx, my, sxx, sxy, syy, FLAT2, GATE2, self.out)
+        surround(*self.sparse, mx, my, sxx, sxy, syy, GATE2, SUR2, self.mask, self.sur)
+        root_det = np.sqrt(sxx * syy - sxy * sxy)
+        # the local density where the model expects nothing, if enough of it is seen
+        seen = self.sur[:, 1] >= MIN_SURROUND * SUR_AREA * root_det
+        local = np.where(seen, self.sur[:, 0] / np.maximum(self.sur[:, 1], 1.0), 0.0)
+        b = GATE_AREA * root_det * np.maximum(self.rho, local)
         excess = np.maximum(self.out[:, 0] - b, 0.0)
         thr = _threshold(b)
         view = (mx >= 0) & (my >= 0) & (mx <= w - 1) & (my <= h - 1)
