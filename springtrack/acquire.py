@@ -100,7 +100,7 @@ BG_EVENTS = 8.0          # background cells hold this many events on average
 COARSE_DIV = 6.0         # coarse resolution sigma_c = R s_min / COARSE_DIV
 COARSE_STEP = 1.5        # rotation and scale steps move the outermost tracker by this x sigma_c
 SURROUNDS = (0.0, 4.0)   # coarse searches: global background; local, blurred 4x wider
-CANDIDATES = 4           # distinct coarse poses refined, per coarse search
+CANDIDATES = 6           # distinct coarse poses refined, per coarse search
 TOP_N = 128              # coarse local maxima kept before choosing distinct ones
 ANNEAL = (1.0, 0.6, 0.35, 0.15)   # tau / sigma_c of the first EM iterations, then 0
 KEEP = 3                 # candidates refined to convergence after the annealing
@@ -368,16 +368,18 @@ def _coarse(geo: _Geometry, img, rho, region, angles, scales):
         tx, ty = (jx0 + x) * c0 + (c0 - 1) / 2, (jy0 + y) * c0 + (c0 - 1) / 2
         # each candidate's trackers placed, for the distance between two poses
         xy = np.stack([tx[:, None] + ox[p], ty[:, None] + oy[p]], -1)
-        found = 0
+        mine = np.empty((0, geo.k, 2))
         for i in range(len(order)):
-            # distinct: RMS distance between the placed trackers beyond max(2 sig_c, R s / 4)
+            # distinct from this search's: RMS distance between the placed trackers beyond
+            # max(2 sig_c, R s / 4); from the other search's: beyond sig_c
             far = max(2 * sig_c, 0.25 * rms_q * s_arr[p[i]]) ** 2
-            if np.all(np.mean(((placed - xy[i]) ** 2).sum(-1), axis=1) > far):
+            if np.all(np.mean(((mine - xy[i]) ** 2).sum(-1), axis=1) > far) and \
+                    np.all(np.mean(((placed - xy[i]) ** 2).sum(-1), axis=1) > sig_c ** 2):
                 chosen.append((float(tx[i]), float(ty[i]), float(th_arr[p[i]]), float(s_arr[p[i]])))
-                placed = np.concatenate([placed, xy[i:i + 1]])
-                found += 1
-                if found == CANDIDATES:
+                mine = np.concatenate([mine, xy[i:i + 1]])
+                if len(mine) == CANDIDATES:
                     break
+        placed = np.concatenate([placed, mine])
     return chosen, sig_c
 
 
