@@ -18,6 +18,11 @@ All run without the GIL on typed memoryviews; no allocation per pose, pixel or i
 from libc.math cimport atan2, ceil, cos, floor, hypot, sin, sqrt
 
 
+cdef extern from "csrc/acquire_grid.h" nogil:
+    void acq_pose_plane(const float *levels, const int *off, const int *lev, const float *w,
+                        int n_k, long hw, int wp, int ny, int nx, float *plane)
+
+
 def score_grid(const float[:, :, ::1] levels, const int[:, ::1] off, const int[:, ::1] lev,
                const float[::1] weight, int ny, int nx, float[:, ::1] plane,
                int[:, ::1] best_idx, float[::1] best_score):
@@ -33,11 +38,8 @@ def score_grid(const float[:, :, ::1] levels, const int[:, ::1] off, const int[:
     """
     cdef Py_ssize_t P = off.shape[0], K = off.shape[1], Wp = levels.shape[2]
     cdef Py_ssize_t HW = levels.shape[1] * Wp, N = best_score.shape[0]
-    cdef Py_ssize_t p, k, y, x, j, worst
-    cdef const float *base
-    cdef const float *row
-    cdef float *orow
-    cdef float w, v, lo
+    cdef Py_ssize_t p, y, x, j, worst
+    cdef float v, lo
     with nogil:
         worst = 0
         lo = best_score[0]
@@ -46,17 +48,8 @@ def score_grid(const float[:, :, ::1] levels, const int[:, ::1] off, const int[:
                 lo = best_score[j]
                 worst = j
         for p in range(P):
-            for y in range(ny):
-                for x in range(nx):
-                    plane[y, x] = 0.0
-            for k in range(K):
-                w = weight[k]
-                base = &levels[0, 0, 0] + lev[p, k] * HW + off[p, k]
-                for y in range(ny):
-                    row = base + y * Wp
-                    orow = &plane[y, 0]
-                    for x in range(nx):
-                        orow[x] = orow[x] + w * row[x]
+            acq_pose_plane(&levels[0, 0, 0], &off[p, 0], &lev[p, 0], &weight[0], <int>K, HW,
+                           <int>Wp, ny, nx, &plane[0, 0])
             for y in range(ny):
                 for x in range(nx):
                     v = plane[y, x]
