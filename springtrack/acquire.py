@@ -72,7 +72,7 @@ Search
 
 Bounds (parameters, with defaults): ``region`` (x0, y0, x1, y1) for G, default the whole
 sensor; ``angle_deg`` (-45, 45); ``scale`` (0.6, 1.6).  The returned pose lies within them.
-Cost: about 5-15 ms for a face26 in 50 ms of 300 k events/s (docs/benchmarks.md).
+Cost: about 11-13 ms of CPU for a face26 in 50 ms of 300 k events/s (docs/benchmarks.md).
 """
 from __future__ import annotations
 
@@ -120,7 +120,7 @@ class Pose:
     ty: float
     angle_deg: float           # rotation from the model's orientation, degrees
     scale: float               # size relative to the model
-    score: float = float("nan")    # mean over trackers of log(1 + n_k / threshold_k)
+    score: float = float("nan")    # mean over trackers of log(1 + excess / threshold)
     confidence: float = 0.0    # fraction of in-view trackers supported
     found: bool = False        # confidence >= FOUND_FRACTION and enough trackers in view
     supported: int = 0         # trackers supported
@@ -209,7 +209,8 @@ def _similarity(q, m, w):
 
 # ---- evidence -------------------------------------------------------------------------
 def count_image(events, width: int, height: int):
-    """(clipped count image (H, W) float32, events inside the sensor): see 'Evidence'."""
+    """(count image (H, W) float32, hot pixels limited; events inside the sensor):
+    see 'Evidence'."""
     ev = as_events(events)
     x, y = ev["x"].astype(np.int64), ev["y"].astype(np.int64)
     inside = (x < width) & (y < height)
@@ -496,17 +497,15 @@ class Acquisition:
         ev = as_events(events)
         if len(ev):
             self._buf.append(ev)
-        while self._buf:
-            buf = np.concatenate(self._buf, dtype=EVENT_DTYPE) if len(self._buf) > 1 else self._buf[0]
-            self._buf = [buf]
+        # the buffer is joined only when it spans a window (cheap for chunks of any size)
+        while self._buf and int(self._buf[-1]["t"][-1]) - int(self._buf[0]["t"][0]) \
+                >= self.window_us:
+            buf = self._joined()
             t0 = int(buf["t"][0])
-            if int(buf["t"][-1]) - t0 < self.window_us:
-                return None
             found = self._try(buf[:int(np.searchsorted(buf["t"], t0 + self.window_us))])
             if found is not None:
                 return found
-            cut = int(np.searchsorted(buf["t"], t0 + self.window_us // 2))
-            cut = max(cut, 1)
+            cut = max(int(np.searchsorted(buf["t"], t0 + self.window_us // 2)), 1)
             self.events_dropped += cut
             self._buf = [buf[cut:]] if cut < len(buf) else []
         return None
@@ -516,17 +515,24 @@ class Acquisition:
         buffered events if found, else ``None`` (they are counted as dropped)."""
         if not self._buf:
             return None
-        buf = np.concatenate(self._buf, dtype=EVENT_DTYPE)
+        buf = self._joined()
         found = self._try(buf)
         if found is None:
             self.events_dropped += len(buf)
+            self._buf = []
         return found
+
+    def _joined(self):
+        """The buffer as one array (kept so)."""
+        if len(self._buf) > 1:
+            self._buf = [np.concatenate(self._buf, dtype=EVENT_DTYPE)]
+        return self._buf[0]
 
     def _try(self, window):
         self.attempts += 1
         self.pose = acquire(self.model, window, at_us=int(window["t"][0]), **self.bounds)
         if not self.pose.found:
             return None
-        out = np.concatenate(self._buf, dtype=EVENT_DTYPE) if self._buf else window
+        out = self._joined()
         self._buf = []
         return out
