@@ -188,7 +188,14 @@ def fit_pose(model, x, y, weights=None) -> Pose:
     (K,) in the model's tracker order (weighted least squares, Umeyama 1991)."""
     geo = _Geometry(load_model(model))
     w = np.ones(geo.k) if weights is None else np.asarray(weights, float)
-    tx, ty, th, s = _similarity(geo.q, np.column_stack([x, y]), w)
+    xy = np.column_stack([np.asarray(x, float), np.asarray(y, float)])
+    if xy.shape != (geo.k, 2) or w.shape != (geo.k,):
+        raise ValueError(f"fit_pose: need {geo.k} positions and weights, one per tracker, "
+                         f"got {len(xy)} positions and {w.shape[0] if w.ndim else 0} weights")
+    if not (np.all(np.isfinite(xy)) and np.all(w >= 0) and w.sum() > 0):
+        raise ValueError("fit_pose: positions must be finite and weights non-negative, "
+                         "not all zero")
+    tx, ty, th, s = _similarity(geo.q, xy, w)
     return Pose(tx, ty, math.degrees(th), s)
 
 

@@ -164,6 +164,10 @@ def test_place_and_fit_pose_are_inverse():
     assert np.allclose(a["l0"], 1.3 * a0["l0"])
     g = model_pose(m)
     assert (g.angle_deg, g.scale) == (0.0, 1.0)
+    with pytest.raises(ValueError):
+        fit_pose(m, a["x"][:5], a["y"][:5])
+    with pytest.raises(ValueError):
+        fit_pose(m, a["x"], a["y"], weights=np.zeros(len(a["x"])))
 
 
 def test_placed_scene_moves_truth_and_initial_model_together():
