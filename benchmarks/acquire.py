@@ -12,8 +12,8 @@ window's middle.  Streams:
 * ``springtrack.synthetic.blob_stream`` of models of 9 to 64 trackers (grid3x3, face26,
   and lattices of blobs) at 300 k events/s with 30 % background noise, moving.
 
-Target (issue 15): a face26 pose from 50 ms of a 300 k events/s scene in under 20 ms of
-CPU on one core.
+Target: a face26 pose from 50 ms of a 300 k events/s scene in under 20 ms of CPU on one
+core.
 
 Run: .venv/bin/python benchmarks/acquire.py [--repeat N] [--no-write]
 """
@@ -159,7 +159,7 @@ def main(argv=None) -> int:
         "shape moving (20, -10) px/s and turning 10 deg/s.", "",
         "Time vs window length:", "", *table(sim), "",
         "Time vs model size (50 ms windows):", "", *table(sizes), "",
-        f"Target (issue 15: a face26 pose from 50 ms of a 300 k events/s scene in under 20 ms "
+        f"Target (a face26 pose from 50 ms of a 300 k events/s scene in under 20 ms "
         f"of CPU on one core): **{'met' if target[5] < 20 else 'not met'}** "
         f"({target[5]:.1f} ms best, {target[6]:.1f} ms median, {target[3]:,} events).",
     ]
