@@ -4,7 +4,11 @@
 #ifndef SPRINGTRACK_ACQUIRE_GRID_H
 #define SPRINGTRACK_ACQUIRE_GRID_H
 
+/* for ST_CLONES; its batch functions are not used here */
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wunused-function"
 #include "fastmath.h"
+#pragma GCC diagnostic pop
 
 /* plane[y nx + x] = sum_k w[k] levels[lev[k] hw + off[k] + y wp + x] for y < ny, x < nx:
  * the score of each translation cell of one pose (trackers k < n_k). */
