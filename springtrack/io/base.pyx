@@ -23,6 +23,7 @@ cnp.import_array()
 ANOMALY_NAMES = ("unknown_type", "out_of_geometry", "time_backwards", "orphan", "truncated")
 INFO_NAMES = ("time_high_words", "time_wraps", "triggers", "other_words", "exposure_events",
               "overflow_bytes", "reset_bytes", "before_time_high", "time_low_backwards")
+assert len(ANOMALY_NAMES) == N_ANOMALY and len(INFO_NAMES) == N_INFO, "names of base.pxd's enums"
 
 
 cdef inline Event* _ptr(object arr):
@@ -54,6 +55,11 @@ cdef class Decoder:
 
     cdef void _reset_state(self) noexcept:
         pass
+
+    cdef void _count_time(self, const TimeBase* tb) noexcept nogil:
+        """Take the time base's wrap and backward-jump counts into the counters."""
+        self.info[<int>IN_TIME_WRAPS] = tb.wraps
+        self.anomalies[<int>AN_TIME_BACKWARDS] = tb.backwards
 
     cdef object _feed(self, const uint8_t* p, Py_ssize_t n, object out, Py_ssize_t* nout,
                       object side, Py_ssize_t* nside):
