@@ -37,6 +37,9 @@ from springtrack._fixed cimport FixedKernel
 from springtrack._samples cimport SampleOut, sample_buffers
 from springtrack._stepper cimport Stepper, run_events
 from springtrack.events cimport Event
+from springtrack.io.base cimport (DecodeCounts, AN_UNKNOWN_TYPE, AN_OUT_OF_GEOMETRY,
+                                  AN_TIME_BACKWARDS, IN_TIME_HIGH, IN_TIME_WRAPS, IN_EXPOSURE,
+                                  IN_BEFORE_TIME_HIGH)
 from springtrack.io.ccam cimport (CCamState, ccam_init, ccam_decode_word, ccam_decode_block,
                                   CCAM_BLOCK, CCAM_CD, CCAM_TIME_BASE)
 
@@ -84,7 +87,9 @@ cdef class Fused:
     """
     cdef object kernel                      # owns the state sp points into
     cdef Stepper sp
-    cdef CCamState cs
+    cdef CCamState cs                       # the CCam decoder's state machine
+    cdef DecodeCounts dn                    # and its counters
+    cdef uint64_t decoded                   # change-detection events decoded
     cdef uint8_t carry[4]
     cdef int ncarry
     cdef bint await_th
@@ -166,11 +171,12 @@ cdef class Fused:
         cdef int64_t t
         cdef uint16_t x, y
         cdef uint8_t p
-        cdef int kind = ccam_decode_word(&self.cs, w, &t, &x, &y, &p)
+        cdef int kind = ccam_decode_word(&self.cs, &self.dn, w, &t, &x, &y, &p)
         if kind != CCAM_CD:
             if kind == CCAM_TIME_BASE:
                 self.await_th = False
             return
+        self.decoded += 1
         if self.await_th:
             self.gap_skipped += 1
             return
@@ -202,7 +208,8 @@ cdef class Fused:
             # worth word by word
             if (pos + 4 * CCAM_BLOCK <= n and self.bn + CCAM_BLOCK <= BATCH
                     and not self.await_th
-                    and ccam_decode_block(&self.cs, p + pos, &self.batch[self.bn])):
+                    and ccam_decode_block(&self.cs, &self.dn, p + pos, &self.batch[self.bn])):
+                self.decoded += CCAM_BLOCK
                 self.bn += CCAM_BLOCK
                 pos += 4 * CCAM_BLOCK
                 continue
@@ -257,14 +264,15 @@ cdef class Fused:
         return out
 
     def counters(self) -> dict:
-        cs = self.cs
-        return dict(words=cs.words, time_high_words=cs.time_high, events_decoded=cs.cd,
-                    exposure_events=cs.exposure, events_tracked=self.tracked,
-                    time_wraps=cs.tb.wraps, gaps=self.gaps, bytes=self.bytes_in,
-                    pending_bytes=self.ncarry,
-                    anomalies=dict(unknown_type=cs.unknown, out_of_geometry=cs.out_of_geometry,
-                                   time_backwards=cs.tb.backwards,
-                                   before_time_high=cs.before_time_high,
+        cdef DecodeCounts* n = &self.dn
+        return dict(words=n.words, time_high_words=n.info[<int>IN_TIME_HIGH],
+                    events_decoded=self.decoded, exposure_events=n.info[<int>IN_EXPOSURE],
+                    events_tracked=self.tracked, time_wraps=n.info[<int>IN_TIME_WRAPS],
+                    gaps=self.gaps, bytes=self.bytes_in, pending_bytes=self.ncarry,
+                    anomalies=dict(unknown_type=n.anomalies[<int>AN_UNKNOWN_TYPE],
+                                   out_of_geometry=n.anomalies[<int>AN_OUT_OF_GEOMETRY],
+                                   time_backwards=n.anomalies[<int>AN_TIME_BACKWARDS],
+                                   before_time_high=n.info[<int>IN_BEFORE_TIME_HIGH],
                                    skipped_after_gap=self.gap_skipped,
                                    tracker_back_in_time=self.sp.n_back[0],
                                    tracker_outside_sensor=self.sp.n_outside[0]))

@@ -56,11 +56,6 @@ cdef class Decoder:
     cdef void _reset_state(self) noexcept:
         pass
 
-    cdef void _count_time(self, const TimeBase* tb) noexcept nogil:
-        """Take the time base's wrap and backward-jump counts into the counters."""
-        self.info[<int>IN_TIME_WRAPS] = tb.wraps
-        self.anomalies[<int>AN_TIME_BACKWARDS] = tb.backwards
-
     cdef object _feed(self, const uint8_t* p, Py_ssize_t n, object out, Py_ssize_t* nout,
                       object side, Py_ssize_t* nside):
         """Run the format loop over ``n`` bytes (whole words), growing ``out`` as needed."""
@@ -158,7 +153,7 @@ cdef class Decoder:
         """End of stream: count a partial trailing word as 'truncated'; return its byte count."""
         pending = self.pending_bytes
         if pending:
-            self.anomalies[<int>AN_TRUNCATED] += 1
+            self.n.anomalies[<int>AN_TRUNCATED] += 1
         self.ncarry = 0
         self._reset_state()
         return pending
@@ -171,16 +166,21 @@ cdef class Decoder:
         return np.concatenate(parts)
 
     @property
+    def words(self):
+        """Words consumed (bytes for Event Stream)."""
+        return self.n.words
+
+    @property
     def pending_bytes(self):
         return self.ncarry + self._pending_state()
 
     @property
     def stats(self):
         return DecodeStats(
-            format=self.format, words=self.words, events=self.events_out,
+            format=self.format, words=self.n.words, events=self.events_out,
             pending_bytes=self.pending_bytes,
-            anomalies={ANOMALY_NAMES[i]: int(self.anomalies[i]) for i in range(<int>N_ANOMALY)},
-            info={INFO_NAMES[i]: int(self.info[i]) for i in range(<int>N_INFO) if self.info[i]})
+            anomalies={ANOMALY_NAMES[i]: int(self.n.anomalies[i]) for i in range(<int>N_ANOMALY)},
+            info={INFO_NAMES[i]: int(self.n.info[i]) for i in range(<int>N_INFO) if self.n.info[i]})
 
 
 def encoder_input(events, str fmt, int width, int height):

@@ -43,12 +43,12 @@ cdef class CCamDecoder(Decoder):
         while i < nw:
             # a block of plain change-detection words at once (ccam_block.h), else word
             # by word; the block never writes past out[cap): k <= k0 + i, nw <= cap - k0
-            if i + CCAM_BLOCK <= nw and ccam_decode_block(&st, p + 4 * i, &out[k]):
+            if i + CCAM_BLOCK <= nw and ccam_decode_block(&st, &self.n, p + 4 * i, &out[k]):
                 k += CCAM_BLOCK
                 i += CCAM_BLOCK
                 continue
             for j in range(i, min(i + CCAM_BLOCK, nw)):
-                kind = ccam_decode_word(&st, p + 4 * j, &e.t, &e.x, &e.y, &e.p)
+                kind = ccam_decode_word(&st, &self.n, p + 4 * j, &e.t, &e.x, &e.y, &e.p)
                 if kind == CCAM_CD:
                     out[k] = e
                     k += 1
@@ -57,13 +57,6 @@ cdef class CCamDecoder(Decoder):
                     ks += 1
             i += CCAM_BLOCK
         self.st = st
-        self.words = st.words
-        self.anomalies[<int>AN_UNKNOWN_TYPE] = st.unknown
-        self.anomalies[<int>AN_OUT_OF_GEOMETRY] = st.out_of_geometry
-        self.info[<int>IN_TIME_HIGH] = st.time_high
-        self.info[<int>IN_EXPOSURE] = st.exposure
-        self._count_time(&st.tb)
-        self.info[<int>IN_BEFORE_TIME_HIGH] = st.before_time_high
         nout[0] = k
         nside[0] = ks
         return nw * 4

@@ -39,8 +39,8 @@ cdef class DatDecoder(Decoder):
                          Py_ssize_t* nout, Event* side, Py_ssize_t* nside) noexcept nogil:
         cdef Py_ssize_t i, nw = n // DAT_RECORD_BYTES, k = nout[0]
         cdef uint32_t ts, data, x, y, pol
-        cdef uint32_t W = self.width if self.width else ANY_COORD
-        cdef uint32_t H = self.height if self.height else ANY_COORD
+        cdef uint32_t W = geometry_bound(self.width)
+        cdef uint32_t H = geometry_bound(self.height)
         cdef TimeBase tb = self.tb
         cdef int64_t t
         if nw > cap - k:
@@ -53,16 +53,16 @@ cdef class DatDecoder(Decoder):
             y = (data >> DAT_Y_SHIFT) & DAT_COORD_MASK
             pol = data >> DAT_POL_SHIFT
             if pol > DAT_POL_ON:
-                self.anomalies[<int>AN_UNKNOWN_TYPE] += 1
+                self.n.anomalies[<int>AN_UNKNOWN_TYPE] += 1
                 continue
             if x >= W or y >= H:
-                self.anomalies[<int>AN_OUT_OF_GEOMETRY] += 1
+                self.n.anomalies[<int>AN_OUT_OF_GEOMETRY] += 1
                 continue
             put_event(&out[k], t, x, y, pol)
             k += 1
         self.tb = tb
-        self._count_time(&tb)
-        self.words += nw
+        count_time(&self.n, &tb)
+        self.n.words += nw
         nout[0] = k
         return nw * DAT_RECORD_BYTES
 

@@ -84,8 +84,8 @@ cdef class EsDecoder(Decoder):
         cdef int64_t t = self.t
         cdef uint32_t x = self.x, y = self.y
         cdef uint8_t pol = self.p, expo = self.exposure
-        cdef uint32_t W = self.width if self.width else ANY_COORD
-        cdef uint32_t H = self.height if self.height else ANY_COORD
+        cdef uint32_t W = geometry_bound(self.width)
+        cdef uint32_t H = geometry_bound(self.height)
         cdef bint atis = self.atis
         while i < n and k < cap:
             b = p[i]
@@ -95,9 +95,9 @@ cdef class EsDecoder(Decoder):
                     if (b & ATIS_OVERFLOW_MASK) == ATIS_OVERFLOW_MASK:
                         if b & ATIS_OVERFLOW_COUNT:
                             t += ATIS_OVERFLOW_US * (b & ATIS_OVERFLOW_COUNT)
-                            self.info[<int>IN_OVERFLOW] += 1
+                            self.n.info[<int>IN_OVERFLOW] += 1
                         else:
-                            self.info[<int>IN_RESET] += 1
+                            self.n.info[<int>IN_RESET] += 1
                         continue
                     t += b >> ATIS_T_SHIFT
                     expo = b & ATIS_EXPOSURE_BIT
@@ -105,10 +105,10 @@ cdef class EsDecoder(Decoder):
                 else:
                     if b == DVS_OVERFLOW:
                         t += DVS_OVERFLOW_US
-                        self.info[<int>IN_OVERFLOW] += 1
+                        self.n.info[<int>IN_OVERFLOW] += 1
                         continue
                     if b == DVS_RESET:
-                        self.info[<int>IN_RESET] += 1
+                        self.n.info[<int>IN_RESET] += 1
                         continue
                     t += b >> DVS_T_SHIFT
                     pol = b & DVS_POL_BIT
@@ -127,9 +127,9 @@ cdef class EsDecoder(Decoder):
                 y |= <uint32_t>b << 8
                 st = ES_AT_BOUNDARY
                 if x >= W or y >= H:
-                    self.anomalies[<int>AN_OUT_OF_GEOMETRY] += 1
+                    self.n.anomalies[<int>AN_OUT_OF_GEOMETRY] += 1
                 elif expo:
-                    self.info[<int>IN_EXPOSURE] += 1
+                    self.n.info[<int>IN_EXPOSURE] += 1
                     if side != NULL:
                         side[ks].t = t
                         side[ks].x = <uint16_t>x
@@ -145,7 +145,7 @@ cdef class EsDecoder(Decoder):
         self.y = y
         self.p = pol
         self.exposure = expo
-        self.words += i
+        self.n.words += i
         nout[0] = k
         nside[0] = ks
         return i

@@ -9,36 +9,7 @@ from libc.string cimport memcpy
 cimport numpy as cnp
 import numpy as np
 
-from springtrack.events cimport Event
-from springtrack.io.base cimport *
 from springtrack.io.base import encoder_input
-from springtrack.io.timebase cimport (TimeBase, timebase_init, timebase_known,
-                                      timebase_count, timebase_update)
-
-cdef extern from "springtrack/io/evt2_types.h" nogil:
-    enum Evt2EventTypes:
-        EVT2_CD_OFF
-        EVT2_CD_ON
-        EVT2_EVT_TIME_HIGH
-        EVT2_EXT_TRIGGER
-        EVT2_OTHERS
-        EVT2_CONTINUED
-    enum:
-        EVT2_TH_BITS
-        EVT2_TH_SHIFT
-    uint32_t evt2_type(uint32_t v)
-    uint32_t evt2_x(uint32_t v)
-    uint32_t evt2_y(uint32_t v)
-    uint32_t evt2_t_low(uint32_t v)
-    uint32_t evt2_time_high(uint32_t v)
-    uint32_t evt2_time_high_word(uint32_t count)
-    uint32_t evt2_cd_word(uint32_t pol, uint32_t t_low, uint32_t x, uint32_t y)
-
-cdef extern from "springtrack/io/evt2_block.h" nogil:
-    enum:
-        EVT2_BLOCK
-    int evt2_decode_plain(const uint8_t* p, int n, int64_t th, uint32_t width,
-                          uint32_t height, void* out)
 
 cnp.import_array()
 
@@ -46,62 +17,18 @@ MAX_COORD = 2048          # 11-bit x and y
 
 
 cdef class Evt2Decoder(Decoder):
-    cdef TimeBase tb          # the EVT_TIME_HIGH counter
+    """The EVT 2.0 state machine (evt2.pxd) as a streaming :class:`Decoder`."""
 
     def __init__(self, int width=0, int height=0):
-        self._setup("evt2", 4, 1, 4, width, height, False)
-        timebase_init(&self.tb)
+        self._setup("evt2", EVT2_WORD_BYTES, 1, EVT2_WORD_BYTES, width, height, False)
+        evt2_init(&self.st, width, height)
 
     cdef Py_ssize_t _run(self, const uint8_t* p, Py_ssize_t n, Event* out, Py_ssize_t cap,
                          Py_ssize_t* nout, Event* side, Py_ssize_t* nside) noexcept nogil:
-        cdef Py_ssize_t i = 0, nw = n >> 2, k = nout[0]
-        cdef Py_ssize_t room = cap - k
-        cdef uint32_t v, typ, x, y
-        cdef uint32_t W = self.width if self.width else ANY_COORD
-        cdef uint32_t H = self.height if self.height else ANY_COORD
-        cdef TimeBase tb = self.tb
-        cdef int64_t th = timebase_count(&tb) << EVT2_TH_SHIFT
-        cdef bint have_th = timebase_known(&tb)
-        cdef uint64_t before = 0       # events before the first EVT_TIME_HIGH
-        if nw > room:
-            nw = room
-        while i < nw:
-            # a block of plain CD words at once (evt2_block.h), else word by word up to the
-            # next block boundary; the block never writes past out[cap): k <= k0 + i
-            if i & (EVT2_BLOCK - 1) == 0:
-                if (i + EVT2_BLOCK <= nw and have_th
-                        and evt2_decode_plain(p + 4 * i, EVT2_BLOCK, th, W, H, &out[k])):
-                    k += EVT2_BLOCK
-                    i += EVT2_BLOCK
-                    continue
-            memcpy(&v, p + 4 * i, 4)   # little-endian host assumed (x86, ARM)
-            i += 1
-            typ = evt2_type(v)
-            if typ == EVT2_CD_OFF or typ == EVT2_CD_ON:
-                x = evt2_x(v)
-                y = evt2_y(v)
-                if x >= W or y >= H:
-                    self.anomalies[<int>AN_OUT_OF_GEOMETRY] += 1
-                    continue
-                put_event(&out[k], th | evt2_t_low(v), x, y, typ)
-                k += 1
-                before += not have_th
-            elif typ == EVT2_EVT_TIME_HIGH:
-                self.info[<int>IN_TIME_HIGH] += 1
-                th = timebase_update(&tb, evt2_time_high(v), EVT2_TH_BITS) << EVT2_TH_SHIFT
-                have_th = True
-            elif typ == EVT2_EXT_TRIGGER:
-                self.info[<int>IN_TRIGGERS] += 1
-            elif typ == EVT2_OTHERS or typ == EVT2_CONTINUED:
-                self.info[<int>IN_OTHERS] += 1
-            else:
-                self.anomalies[<int>AN_UNKNOWN_TYPE] += 1
-        self.tb = tb
-        self._count_time(&tb)
-        self.info[<int>IN_BEFORE_TIME_HIGH] += before
-        self.words += i
-        nout[0] = k
-        return i * 4
+        cdef Py_ssize_t nw = n // EVT2_WORD_BYTES
+        if nw > cap - nout[0]:
+            nw = cap - nout[0]
+        return evt2_decode_words(&self.st, &self.n, p, nw, out, nout) * EVT2_WORD_BYTES
 
 
 def encode(events) -> bytes:

@@ -23,6 +23,7 @@ enum Evt2EventTypes {
 };
 
 enum {
+    EVT2_WORD_BYTES  = 4,
     EVT2_TYPE_SHIFT  = 28,
     EVT2_TH_BITS     = 28,        /* EVT_TIME_HIGH counter width */
     EVT2_TH_SHIFT    = 6,         /* its unit: 2**6 = 64 us, the CD words' t low bits */

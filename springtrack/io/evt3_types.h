@@ -32,9 +32,11 @@ enum Evt3EventTypes {
 };
 
 enum {
+    EVT3_WORD_BYTES   = 2,
     EVT3_TYPE_SHIFT   = 12,
     EVT3_TH_BITS      = 12,       /* EVT_TIME_HIGH counter width */
     EVT3_TH_SHIFT     = 12,       /* its unit: 2**12 = 4096 us, the range of EVT_TIME_LOW */
+    EVT3_TIME_LOW_MASK = (1 << EVT3_TH_SHIFT) - 1,
     EVT3_POL_SHIFT    = 11,
     EVT3_COORD_MASK   = 0x7FF,    /* x, y, vector base: 11 bits, up to 2048 x 2048 */
     EVT3_VECT_12_BITS = 12,
@@ -45,7 +47,7 @@ enum {
 static inline uint32_t evt3_type(uint16_t v) { return (uint32_t)v >> EVT3_TYPE_SHIFT; }
 static inline uint32_t evt3_coord(uint16_t v) { return v & EVT3_COORD_MASK; }
 static inline uint32_t evt3_pol(uint16_t v) { return ((uint32_t)v >> EVT3_POL_SHIFT) & 1; }
-static inline uint32_t evt3_time(uint16_t v) { return v & ((1u << EVT3_TH_SHIFT) - 1); }
+static inline uint32_t evt3_time(uint16_t v) { return v & EVT3_TIME_LOW_MASK; }
 static inline uint32_t evt3_vect_mask(uint16_t v, uint32_t bits) { return v & ((1u << bits) - 1); }
 
 /* words for the encoder */
