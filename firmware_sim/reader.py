@@ -250,7 +250,7 @@ class Reader:
                     self.cond.notify()
                 # yield the GIL to the processing thread just notified, before this thread's
                 # next read runs its Python set-up: otherwise the hand-off waits for that
-                # set-up, which is most of the loop's latency after the USB's own
+                # set-up, most of the loop's latency after the USB's (docs/firmware.md)
                 time.sleep(0)
         finally:
             self._run_commands()
