@@ -16,9 +16,13 @@ DEFAULT_CHUNK = 1 << 20
 
 
 def make_decoder(fmt: str, **opts):
-    """A fresh streaming decoder for ``fmt`` (ccam, evt2, evt3, es, dat)."""
+    """A fresh streaming decoder for ``fmt`` (ccam, evt2, evt21, evt3, es, dat, aedat4)."""
     if fmt == "evt2":
         from .evt2 import Evt2Decoder as cls
+    elif fmt == "evt21":
+        from .evt21 import Evt21Decoder as cls
+    elif fmt == "aedat4":
+        from .aedat4 import Aedat4Decoder as cls
     elif fmt == "evt3":
         from .evt3 import Evt3Decoder as cls
     elif fmt == "ccam":
@@ -28,7 +32,8 @@ def make_decoder(fmt: str, **opts):
     elif fmt == "dat":
         from .dat import DatDecoder as cls
     else:
-        raise ValueError(f"unknown decoder format {fmt!r}; known: ccam, evt2, evt3, es, dat")
+        raise ValueError(f"unknown decoder format {fmt!r}; known: ccam, evt2, evt3, es, dat, "
+                         "evt21, aedat4")
     return cls(**opts)
 
 
@@ -48,6 +53,7 @@ class Reader:
         self.header = info.header
         self.offset = info.offset
         self.event_type = info.event_type
+        self.options = info.options
         self.keep_exposure = keep_exposure
         self.stats = DecodeStats(self.format)
         self.exposure = np.empty(0, EVENT_DTYPE)
@@ -60,9 +66,13 @@ class Reader:
         return self.chunks()
 
     # fewest payload bytes per event (EVT 3.0 vectors can do better: the output then grows)
-    MIN_BYTES_PER_EVENT = {"evt2": 4, "evt3": 2, "es": 5, "dat": 8, "ccam": 4}
-    # typical payload bytes per event, for a progress estimate (EVT 3.0: the Gen4.1 sample)
-    BYTES_PER_EVENT = {"evt2": 4.0, "evt3": 2.8, "es": 5.0, "dat": 8.0, "ccam": 4.0}
+    # (AEDAT 4 packets are compressed: a first guess, the output grows as needed)
+    MIN_BYTES_PER_EVENT = {"evt2": 4, "evt21": 2, "evt3": 2, "es": 5, "dat": 8, "ccam": 4,
+                           "aedat4": 4}
+    # typical payload bytes per event, for a progress estimate (EVT 3.0: the Gen4.1 sample,
+    # AEDAT 4: the DVXplorer sample with its IMU packets)
+    BYTES_PER_EVENT = {"evt2": 4.0, "evt21": 4.0, "evt3": 2.8, "es": 5.0, "dat": 8.0,
+                       "ccam": 4.0, "aedat4": 8.5}
 
     @property
     def size_hint(self) -> int:
@@ -78,8 +88,9 @@ class Reader:
 
     def decoder(self):
         opts = {}
-        if self.format in ("evt2", "evt3", "dat", "es"):
+        if self.format in ("evt2", "evt21", "evt3", "dat", "es", "aedat4"):
             opts = {"width": self.width or 0, "height": self.height or 0}
+        opts.update(self.options)
         if self.format == "es":
             opts["event_type"] = self.event_type
         if self.format in ("es", "ccam"):

@@ -1,4 +1,5 @@
-"""File writers: EVT 2.0 / 3.0 RAW, Event Stream (DVS, ATIS), DAT, CCam words, npy, CSV."""
+"""File writers: EVT 2.0 / 2.1 / 3.0 RAW, Event Stream (DVS, ATIS), DAT, AEDAT 4, CCam words,
+npy, CSV."""
 from __future__ import annotations
 
 import os
@@ -8,11 +9,13 @@ import numpy as np
 from ..events import as_events
 from .detect import EXTENSIONS
 
-WRITE_FORMATS = ("evt2", "evt3", "es", "es-dvs", "es-atis", "dat", "ccam", "npy", "csv")
+WRITE_FORMATS = ("evt2", "evt21", "evt21-legacy", "evt3", "es", "es-dvs", "es-atis", "dat",
+                 "aedat4", "ccam", "npy", "csv")
 
 
 def _raw_header(enc: str, width: int, height: int) -> bytes:
-    name = {"evt2": ("2.0", "EVT2"), "evt3": ("3.0", "EVT3")}[enc]
+    name = {"evt2": ("2.0", "EVT2"), "evt21": ("2.1", "EVT21"),
+            "evt21-legacy": ("2.1", "EVT21;endianness=legacy"), "evt3": ("3.0", "EVT3")}[enc]
     return (f"% evt {name[0]}\n% format {name[1]};height={height};width={width}\n"
             f"% geometry {width}x{height}\n% generator springtrack\n% end\n").encode()
 
@@ -34,6 +37,9 @@ def encode_file(events, width: int, height: int, format: str) -> bytes:
     if format == "evt2":
         from . import evt2
         return _raw_header("evt2", width, height) + evt2.encode(ev)
+    if format in ("evt21", "evt21-legacy"):
+        from . import evt21
+        return _raw_header(format, width, height) + evt21.encode(ev, format == "evt21-legacy")
     if format == "evt3":
         from . import evt3
         return _raw_header("evt3", width, height) + evt3.encode(ev)
@@ -44,6 +50,9 @@ def encode_file(events, width: int, height: int, format: str) -> bytes:
     if format == "dat":
         from . import dat
         return _dat_header(width, height) + dat.encode(ev)
+    if format == "aedat4":
+        from . import aedat4
+        return aedat4.encode(ev, width, height)
     from . import ccam
     if (width, height) != (ccam.WIDTH, ccam.HEIGHT):
         raise ValueError(f"ccam files are {ccam.WIDTH}x{ccam.HEIGHT}, got {width}x{height}")
@@ -53,7 +62,8 @@ def encode_file(events, width: int, height: int, format: str) -> bytes:
 def write(path, events, width: int | None = None, height: int | None = None,
           format: str | None = None) -> str:
     """Write ``events`` to ``path``; the format defaults from the extension
-    (.raw -> evt2, .es -> Event Stream DVS, .dat, .ccam, .npy, .csv)."""
+    (.raw -> evt2, .es -> Event Stream DVS, .dat, .aedat4, .ccam, .npy, .csv; format="evt21"
+    for EVT 2.1, "evt21-legacy" for the IMX636's EVT 2.1 word order)."""
     fmt = format or EXTENSIONS.get(os.path.splitext(str(path))[1].lower())
     if fmt not in WRITE_FORMATS:
         raise ValueError(f"{path}: cannot tell the output format from the extension; "

@@ -1,0 +1,141 @@
+# Prophesee RAW EVT 2.1, C level, for fused nogil loops (layout: docs/formats.md#evt-21).
+#
+#   from springtrack.io.evt21 cimport Evt21State, evt21_init, evt21_decode_words
+#   cdef Evt21State st
+#   evt21_init(&st, width, height, legacy)       # 0 x 0: no geometry check
+#   n = evt21_decode_words(&st, p, nwords, out)  # out: room for EVT21_MAX_PER_WORD * nwords
+#   st.anomalies[AN_OUT_OF_GEOMETRY], st.info[IN_TIME_HIGH], ...   (base.pxd's enums)
+#
+# A word is 64 bits, little-endian, type in bits 63..60 (OpenEB's Evt21Raw structs):
+#   EVT_NEG / EVT_POS  t low 6 bits in 59..54, x base in 53..43, y in 42..32, valid mask in
+#                      31..0: one event at (x base + i, y) for every set bit i, i ascending
+#   EVT_TIME_HIGH      t >> 6 in 59..32 (28 bits: the 34-bit time wraps every 2**34 us)
+#   EXT_TRIGGER, OTHERS, CONTINUED: counted; other types: 'unknown_type', word skipped
+# The IMX636 sends the two 32-bit halves the other way round (OpenEB's Evt21LegacyRaw,
+# format option endianness=legacy): type/t/x/y in the first half, the mask in the second;
+# evt21_word() swaps them so one decoder reads both.
+# Time: evt21_time_high() is the EVT 2.0 policy (evt2.pyx): a time high below the previous
+# one by more than half its range wrapped (+2**28 units); a smaller drop is the anomaly
+# 'time_backwards' and is rebased so the time base never decreases.
+from libc.stdint cimport uint8_t, uint32_t, int64_t, uint64_t
+from libc.string cimport memcpy, memset
+
+from springtrack.events cimport Event
+from springtrack.io.base cimport (Anomaly, Info, N_ANOMALY, N_INFO, AN_UNKNOWN_TYPE,
+                                  AN_OUT_OF_GEOMETRY, AN_TIME_BACKWARDS, IN_TIME_HIGH,
+                                  IN_TIME_WRAPS, IN_TRIGGERS, IN_OTHERS, IN_BEFORE_TIME_HIGH,
+                                  put_event)
+
+cdef extern from *:
+    int __builtin_ctz(unsigned int) nogil
+    int __builtin_popcount(unsigned int) nogil
+
+cdef enum Evt21Type:             # bits 63..60 of a word
+    EVT21_NEG = 0x0              # OFF change-detection events (polarity 0)
+    EVT21_POS = 0x1              # ON change-detection events (polarity 1)
+    EVT21_TIME_HIGH = 0x8
+    EVT21_EXT_TRIGGER = 0xA
+    EVT21_OTHERS = 0xE
+    EVT21_CONTINUED = 0xF
+
+cdef enum:
+    EVT21_WORD_BYTES = 8
+    EVT21_MAX_PER_WORD = 32      # events one word can carry (its valid mask)
+    EVT21_TYPE_SHIFT = 60
+    EVT21_T_SHIFT = 54           # t low bits
+    EVT21_T_BITS = 6
+    EVT21_X_SHIFT = 43
+    EVT21_Y_SHIFT = 32
+    EVT21_XY_MASK = 0x7FF        # x and y are 11 bits
+    EVT21_TH_BITS = 28           # EVT_TIME_HIGH payload in bits 59..32
+    EVT21_HALF_SHIFT = 32        # legacy order: the 32-bit halves swapped
+
+cdef struct Evt21State:
+    int64_t th               # current time base in us: (epoch + th_last) << EVT21_T_BITS
+    int64_t epoch            # time-high units added for wraps and backward-jump rebases
+    int64_t th_last          # last raw 28-bit time-high value
+    bint have_th             # a time-high word has been seen
+    bint legacy              # IMX636 word order
+    uint32_t width, height   # events with x >= width or y >= height are dropped
+    uint64_t words, events
+    uint64_t anomalies[<int>N_ANOMALY]
+    uint64_t info[<int>N_INFO]
+
+
+cdef inline void evt21_init(Evt21State* s, uint32_t width, uint32_t height,
+                            bint legacy) noexcept nogil:
+    memset(s, 0, sizeof(Evt21State))
+    s.width = width if width else 0x10000
+    s.height = height if height else 0x10000
+    s.legacy = legacy
+
+
+cdef inline uint64_t evt21_word(const Evt21State* s, const uint8_t* p) noexcept nogil:
+    """The word at p as a 64-bit value in the standard layout (little-endian host)."""
+    cdef uint64_t v
+    memcpy(&v, p, EVT21_WORD_BYTES)
+    if s.legacy:
+        v = (v << EVT21_HALF_SHIFT) | (v >> EVT21_HALF_SHIFT)
+    return v
+
+
+cdef inline void evt21_time_high(Evt21State* s, int64_t raw) noexcept nogil:
+    s.info[<int>IN_TIME_HIGH] += 1
+    if s.have_th and raw < s.th_last:
+        if s.th_last - raw > (<int64_t>1 << (EVT21_TH_BITS - 1)):     # counter wrapped
+            s.epoch += <int64_t>1 << EVT21_TH_BITS
+            s.info[<int>IN_TIME_WRAPS] += 1
+        else:                                                         # jumped back: rebase
+            s.epoch += s.th_last - raw
+            s.anomalies[<int>AN_TIME_BACKWARDS] += 1
+    s.th_last = raw
+    s.have_th = True
+    s.th = (s.epoch + raw) << EVT21_T_BITS
+
+
+cdef inline int evt21_decode_word(Evt21State* s, uint64_t v, Event* out) noexcept nogil:
+    """Decode one word (standard layout, from evt21_word); write its events to out (room for
+    EVT21_MAX_PER_WORD) and return how many."""
+    cdef uint32_t typ = <uint32_t>(v >> EVT21_TYPE_SHIFT)
+    cdef uint32_t m, x, y, xi
+    cdef int64_t t
+    cdef int k = 0
+    s.words += 1
+    if typ <= EVT21_POS:
+        m = <uint32_t>v
+        x = <uint32_t>(v >> EVT21_X_SHIFT) & EVT21_XY_MASK
+        y = <uint32_t>(v >> EVT21_Y_SHIFT) & EVT21_XY_MASK
+        t = s.th | <int64_t>((v >> EVT21_T_SHIFT) & ((1 << EVT21_T_BITS) - 1))
+        if y >= s.height:
+            s.anomalies[<int>AN_OUT_OF_GEOMETRY] += __builtin_popcount(m)
+            return 0
+        while m:
+            xi = x + <uint32_t>__builtin_ctz(m)
+            m &= m - 1
+            if xi >= s.width:
+                s.anomalies[<int>AN_OUT_OF_GEOMETRY] += 1 + __builtin_popcount(m)
+                break                                # the remaining bits lie further right
+            put_event(&out[k], t, xi, y, typ)
+            k += 1
+        if not s.have_th:
+            s.info[<int>IN_BEFORE_TIME_HIGH] += k
+        s.events += k
+    elif typ == EVT21_TIME_HIGH:
+        evt21_time_high(s, <int64_t>(v >> EVT21_Y_SHIFT) & ((1 << EVT21_TH_BITS) - 1))
+    elif typ == EVT21_EXT_TRIGGER:
+        s.info[<int>IN_TRIGGERS] += 1
+    elif typ == EVT21_OTHERS or typ == EVT21_CONTINUED:
+        s.info[<int>IN_OTHERS] += 1
+    else:
+        s.anomalies[<int>AN_UNKNOWN_TYPE] += 1
+    return k
+
+
+cdef inline Py_ssize_t evt21_decode_words(Evt21State* s, const uint8_t* p, Py_ssize_t nwords,
+                                          Event* out) noexcept nogil:
+    """Decode nwords words at p into out (room for EVT21_MAX_PER_WORD * nwords events);
+    return the number of events written."""
+    cdef Py_ssize_t i, k = 0
+    for i in range(nwords):
+        k += evt21_decode_word(s, evt21_word(s, p + EVT21_WORD_BYTES * i), &out[k])
+    return k

@@ -1,0 +1,120 @@
+"""Prophesee RAW EVT 2.1: streaming decoder and encoder (layout in evt21.pxd,
+docs/formats.md#evt-21).
+
+The per-word decoding lives in ``evt21.pxd`` as inline nogil functions over a state struct
+so a fused firmware loop can call it; this module wraps it as a :class:`Decoder` and adds
+:func:`encode`, which groups events the way the sensor does (same time, row and polarity,
+one 32-pixel column group) so that decoding gives back the same events in the same order.
+"""
+from libc.stdint cimport uint8_t, uint16_t, uint32_t, int64_t, uint64_t
+cimport numpy as cnp
+import numpy as np
+
+from springtrack.events cimport Event
+from springtrack.io.base cimport *
+from springtrack.io.base import encoder_input
+
+cnp.import_array()
+
+WORD_BYTES = EVT21_WORD_BYTES
+MAX_COORD = EVT21_XY_MASK + 1          # x and y are 11-bit fields: sensors up to 2048 x 2048
+
+cdef enum:
+    GROUP_BITS = 5                     # a word covers the 32 columns [x base, x base + 32)
+
+
+cdef class Evt21Decoder(Decoder):
+    """EVT 2.1 words (``legacy=True``: the IMX636's order, 32-bit halves swapped)."""
+    cdef Evt21State st
+
+    def __init__(self, int width=0, int height=0, bint legacy=False):
+        self._setup("evt21", EVT21_WORD_BYTES, EVT21_MAX_PER_WORD, 4, width, height, False)
+        evt21_init(&self.st, width, height, legacy)
+
+    @property
+    def legacy(self):
+        return bool(self.st.legacy)
+
+    cdef Py_ssize_t _run(self, const uint8_t* p, Py_ssize_t n, Event* out, Py_ssize_t cap,
+                         Py_ssize_t* nout, Event* side, Py_ssize_t* nside) noexcept nogil:
+        cdef Evt21State st = self.st           # local copy: stays in registers
+        cdef Py_ssize_t nw = n // EVT21_WORD_BYTES, k = nout[0]
+        cdef int i
+        if nw > (cap - k) // EVT21_MAX_PER_WORD:   # every word could fill its 32 events
+            nw = (cap - k) // EVT21_MAX_PER_WORD
+        k += evt21_decode_words(&st, p, nw, &out[k])
+        self.st = st
+        self.words = st.words
+        for i in range(<int>N_ANOMALY):
+            self.anomalies[i] = st.anomalies[i]
+        for i in range(<int>N_INFO):
+            self.info[i] = st.info[i]
+        nout[0] = k
+        return nw * EVT21_WORD_BYTES
+
+
+cdef inline uint64_t _time_high_word(int64_t h) noexcept nogil:
+    return ((<uint64_t>EVT21_TIME_HIGH << EVT21_TYPE_SHIFT)
+            | ((<uint64_t>h & ((1 << EVT21_TH_BITS) - 1)) << EVT21_Y_SHIFT))
+
+
+def encode(events, bint legacy=False) -> bytes:
+    """EVT 2.1 words (no header) for time-sorted events; decoding gives them back exactly.
+
+    A TIME_HIGH word whenever t >> 6 changes (gaps of half the 28-bit range or more get
+    bridging TIME_HIGH words, so the decoder never takes them for a wrap).  Consecutive
+    events with the same t, y and p and increasing x inside one 32-column group
+    [32 j, 32 j + 32) share a word (x base 32 j), as the sensor sends them.  ``legacy``:
+    the IMX636 order.  Raises ValueError for negative or decreasing timestamps or
+    coordinates above 2047.
+    """
+    ev = encoder_input(events, "evt21", MAX_COORD, MAX_COORD)
+    cdef Py_ssize_t n = ev.shape[0], i, j = 0
+    if n == 0:
+        return b""
+    th = ev["t"] >> EVT21_T_BITS
+    dth = np.diff(th, prepend=0)
+    cdef int64_t step = (1 << (EVT21_TH_BITS - 1)) - 1
+    cdef Py_ssize_t total = (n + 1 + int((dth > 0).sum())
+                             + int(np.maximum(dth - 1, 0).__floordiv__(step).sum()))
+    words = np.empty(total, dtype="<u8")
+    cdef uint64_t[::1] w = words
+    cdef const uint8_t[::1] raw = ev.view(np.uint8)
+    cdef const Event* e = <const Event*>&raw[0]
+    cdef int64_t cur = 0, h, t = -1           # the decoder starts from time-high 0
+    cdef uint32_t x, y = 0, group = 0, last_x = 0, pol = 0
+    cdef bint first = True, open_word = False
+    with nogil:
+        for i in range(n):
+            h = e[i].t >> EVT21_T_BITS
+            if h != cur or first:
+                first = False
+                open_word = False
+                while h - cur > step:
+                    cur += step
+                    w[j] = _time_high_word(cur)
+                    j += 1
+                w[j] = _time_high_word(h)
+                j += 1
+                cur = h
+            x = e[i].x
+            if (open_word and e[i].t == t and e[i].y == y and (e[i].p != 0) == pol
+                    and x >> GROUP_BITS == group and x > last_x):
+                w[j - 1] |= <uint64_t>1 << (x - (group << GROUP_BITS))
+            else:
+                t = e[i].t
+                y = e[i].y
+                pol = e[i].p != 0
+                group = x >> GROUP_BITS
+                w[j] = ((<uint64_t>pol << EVT21_TYPE_SHIFT)
+                        | (<uint64_t>(t & ((1 << EVT21_T_BITS) - 1)) << EVT21_T_SHIFT)
+                        | (<uint64_t>(group << GROUP_BITS) << EVT21_X_SHIFT)
+                        | (<uint64_t>y << EVT21_Y_SHIFT)
+                        | (<uint64_t>1 << (x - (group << GROUP_BITS))))
+                j += 1
+                open_word = True
+            last_x = x
+    out = words[:j]
+    if legacy:
+        out = (out << EVT21_HALF_SHIFT) | (out >> EVT21_HALF_SHIFT)
+    return out.tobytes()
