@@ -31,6 +31,7 @@ MAX_HEADER = 1 << 20
 # RAW encodings by '% format NAME;...' and by '% evt VERSION'
 RAW_FORMAT_NAMES = {"EVT2": "evt2", "EVT21": "evt21", "EVT3": "evt3"}
 RAW_EVT_VERSIONS = {"2.0": "evt2", "2": "evt2", "2.1": "evt21", "3.0": "evt3", "3": "evt3"}
+EVT21_TYPES = np.array([0x0, 0x1, 0x8, 0xA, 0xE, 0xF], np.uint64)   # evt21.pxd's Evt21Type
 
 
 @dataclass
@@ -130,18 +131,25 @@ def _evt21_order(fields: dict, payload: bytes) -> tuple[str, str]:
 
     '% format EVT21;...;endianness=legacy' is the IMX636's order, any other EVT21 format
     line the 64-bit little-endian one (OpenEB's rule).  A file with only '% evt 2.1' does
-    not say: its first words decide (the order under which more of them have a defined
-    word type; a tie, e.g. no payload, keeps the IMX636's, the only EVT 2.1 sensor of the
-    Metavision versions that wrote such headers)."""
+    not say: its first words decide.  Read in the right order, TIME_HIGH words have their
+    other 32 bits zero and every word type is defined; read in the wrong one, a TIME_HIGH
+    word shows as a change-detection word and vice versa.  The order with more such
+    TIME_HIGH words wins, then the one with fewer undefined types; a tie (no payload)
+    keeps the IMX636's, the only EVT 2.1 sensor of the Metavision versions that wrote
+    such headers."""
     fmt = fields.get("format", "")
     if fmt:
         opts = dict(p.split("=", 1) for p in fmt.split(";")[1:] if "=" in p)
         return ("legacy" if opts.get("endianness") == "legacy" else "little"), "format"
     words = np.frombuffer(payload[:len(payload) // 8 * 8][:1 << 15], "<u8")
-    known = np.array([0x0, 0x1, 0x8, 0xA, 0xE, 0xF], np.uint64)
-    little = int(np.isin(words >> np.uint64(60), known).sum())
-    legacy = int(np.isin((words >> np.uint64(28)) & np.uint64(0xF), known).sum())
-    return ("little" if little > legacy else "legacy"), "word types"
+    half = np.uint64(32)
+    keys = []
+    for v in (words, (words << half) | (words >> half)):
+        typ = v >> np.uint64(60)
+        clean_th = int(((typ == 0x8) & ((v & np.uint64(0xFFFFFFFF)) == 0)).sum())
+        undefined = int((~np.isin(typ, EVT21_TYPES)).sum())
+        keys.append((clean_th, -undefined))
+    return ("little" if keys[0] > keys[1] else "legacy"), "word types"
 
 
 def sniff(path, format: str | None = None) -> FileInfo:

@@ -61,12 +61,13 @@ cdef inline uint64_t _time_high_word(int64_t h) noexcept nogil:
 def encode(events, bint legacy=False) -> bytes:
     """EVT 2.1 words (no header) for time-sorted events; decoding gives them back exactly.
 
-    A TIME_HIGH word whenever t >> 6 changes (gaps of half the 28-bit range or more get
-    bridging TIME_HIGH words, so the decoder never takes them for a wrap).  Consecutive
-    events with the same t, y and p and increasing x inside one 32-column group
-    [32 j, 32 j + 32) share a word (x base 32 j), as the sensor sends them.  ``legacy``:
-    the IMX636 order.  Raises ValueError for negative or decreasing timestamps or
-    coordinates above 2047.
+    A TIME_HIGH word whenever t >> 6 changes.  Across a gap of half the 28-bit range or
+    more, bridging TIME_HIGH words at most that far apart, so the decoder never takes the
+    gap for a wrap; across a wrap of the 28-bit counter, TIME_HIGH 2**28 - 1 then 0, the
+    only wrap OpenEB's decoder recognises.  Consecutive events with the same t, y and p and
+    increasing x inside one 32-column group [32 j, 32 j + 32) share a word (x base 32 j), as
+    the sensor sends them.  ``legacy``: the IMX636 order.  Raises ValueError for negative or
+    decreasing timestamps or coordinates above 2047.
     """
     ev = encoder_input(events, "evt21", MAX_COORD, MAX_COORD)
     cdef Py_ssize_t n = ev.shape[0], i, j = 0
@@ -76,12 +77,13 @@ def encode(events, bint legacy=False) -> bytes:
     dth = np.diff(th, prepend=0)
     cdef int64_t step = (1 << (EVT21_TH_BITS - 1)) - 1
     cdef Py_ssize_t total = (n + 1 + int((dth > 0).sum())
-                             + int(np.maximum(dth - 1, 0).__floordiv__(step).sum()))
+                             + int(np.maximum(dth - 1, 0).__floordiv__(step).sum())
+                             + 2 * int(th[-1] >> EVT21_TH_BITS) + 2)
     words = np.empty(total, dtype="<u8")
     cdef uint64_t[::1] w = words
     cdef const uint8_t[::1] raw = ev.view(np.uint8)
     cdef const Event* e = <const Event*>&raw[0]
-    cdef int64_t cur = 0, h, t = -1           # the decoder starts from time-high 0
+    cdef int64_t cur = 0, h, t = -1, wrap      # the decoder starts from time-high 0
     cdef uint32_t x, y = 0, group = 0, last_x = 0, pol = 0
     cdef bint first = True, open_word = False
     with nogil:
@@ -90,13 +92,20 @@ def encode(events, bint legacy=False) -> bytes:
             if h != cur or first:
                 first = False
                 open_word = False
-                while h - cur > step:
-                    cur += step
+                while h - cur > step or h >> EVT21_TH_BITS != cur >> EVT21_TH_BITS:
+                    wrap = ((cur >> EVT21_TH_BITS) + 1) << EVT21_TH_BITS
+                    if cur + step < wrap:
+                        cur += step
+                    else:                        # the counter's last value, then 0
+                        w[j] = _time_high_word(wrap - 1)
+                        j += 1
+                        cur = wrap
                     w[j] = _time_high_word(cur)
                     j += 1
-                w[j] = _time_high_word(h)
-                j += 1
-                cur = h
+                if cur != h or j == 0:
+                    w[j] = _time_high_word(h)
+                    j += 1
+                    cur = h
             x = e[i].x
             if (open_word and e[i].t == t and e[i].y == y and (e[i].p != 0) == pol
                     and x >> GROUP_BITS == group and x > last_x):
