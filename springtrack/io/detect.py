@@ -152,6 +152,30 @@ def _evt21_order(fields: dict, payload: bytes) -> tuple[str, str]:
     return ("little" if keys[0] > keys[1] else "legacy"), "word types"
 
 
+def percent_info(head: bytes, path, ext: str = "", format: str | None = None) -> FileInfo:
+    """RAW (EVT 2.0 / 2.1 / 3.0) or DAT from ``head``: the ``%`` header lines and the first
+    payload bytes after them."""
+    fields, offset = _percent_header(head, path)
+    fmt = format or _raw_format(fields, path, ext)
+    w, h, src = _raw_geometry(fields, path)
+    if src:
+        fields["geometry_source"] = src
+    options = {}
+    if fmt == "evt21":
+        fields["endianness"], fields["endianness_source"] = _evt21_order(fields,
+                                                                        head[offset:])
+        options["legacy"] = fields["endianness"] == "legacy"
+    if fmt == "dat":
+        if len(head) < offset + 2:
+            raise DecodeError(f"{path}: DAT file ends before the event type/size bytes")
+        etype, esize = head[offset], head[offset + 1]
+        if esize != 8:
+            raise DecodeError(f"{path}: DAT event size {esize} not supported (8 is)")
+        fields["event_type"], fields["event_size"] = str(etype), str(esize)
+        offset += 2
+    return FileInfo(fmt, offset, w, h, fields, options=options)
+
+
 def sniff(path, format: str | None = None) -> FileInfo:
     """Detect the format of ``path`` from its first bytes (extension only for CCam)."""
     ext = os.path.splitext(str(path))[1].lower()
@@ -173,25 +197,7 @@ def sniff(path, format: str | None = None) -> FileInfo:
     if head.startswith(AEDAT4_MAGIC):
         return _aedat4_info(head, path)
     if head.startswith(b"%"):
-        fields, offset = _percent_header(head, path)
-        fmt = format or _raw_format(fields, path, ext)
-        w, h, src = _raw_geometry(fields, path)
-        if src:
-            fields["geometry_source"] = src
-        options = {}
-        if fmt == "evt21":
-            fields["endianness"], fields["endianness_source"] = _evt21_order(fields,
-                                                                            head[offset:])
-            options["legacy"] = fields["endianness"] == "legacy"
-        if fmt == "dat":
-            if len(head) < offset + 2:
-                raise DecodeError(f"{path}: DAT file ends before the event type/size bytes")
-            etype, esize = head[offset], head[offset + 1]
-            if esize != 8:
-                raise DecodeError(f"{path}: DAT event size {esize} not supported (8 is)")
-            fields["event_type"], fields["event_size"] = str(etype), str(esize)
-            offset += 2
-        return FileInfo(fmt, offset, w, h, fields, options=options)
+        return percent_info(head, path, ext, format)
     first = head.split(b"\n", 1)[0].strip().replace(b" ", b"")
     if first == b"t,x,y,p":
         return FileInfo("csv")
@@ -200,8 +206,8 @@ def sniff(path, format: str | None = None) -> FileInfo:
         return FileInfo(format, 0, w, h)
     if ext == ".ccam":
         return FileInfo("ccam", 0, 304, 240)
-    raise DecodeError(f"{path}: unknown format (no '% ' header, Event Stream magic, numpy "
-                      f"magic or 't,x,y,p' CSV header; first bytes {head[:16]!r})")
+    raise DecodeError(f"{path}: unknown format (no '% ' header, Event Stream, AEDAT 4 or "
+                      f"numpy magic, or 't,x,y,p' CSV header; first bytes {head[:16]!r})")
 
 
 def _es_info(head: bytes, path) -> FileInfo:

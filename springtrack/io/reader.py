@@ -211,7 +211,11 @@ def _load_csv(path) -> np.ndarray:
 
 
 def open_events(path, format: str | None = None, keep_exposure: bool = False) -> Reader:
-    """Open an event file of any supported format (detected by content)."""
+    """Open an event file of any supported format (detected by content); ``"-"``: the RAW
+    stream on standard input (springtrack.io.stream)."""
+    if isinstance(path, str) and path == "-":
+        from .stream import open_stream
+        return open_stream(format=format)
     info = sniff(path, format)
     if info.format in ("npy", "csv"):
         return ArrayReader(path, info)
