@@ -216,3 +216,44 @@ def test_geometry_from_info_node(tmp_path):
     path.write_bytes(aedat4.encode(EV[:10], 346, 260))
     r = sio.open(path)
     assert (r.width, r.height) == (346, 260) and len(r.read()) == 10
+
+
+def _valid_packets():
+    ev = make(np.arange(50) * 3, np.arange(50) * 7 % 400, np.arange(50) % 240, np.arange(50) % 2)
+    data = aedat4.encode(ev, 400, 240, "NONE", packet_events=9)
+    return data[aedat4.parse_header(data)["offset"]:]
+
+
+VALID = _valid_packets()
+
+
+@st.composite
+def hostile(draw):
+    """Random bytes, or our packets with bytes overwritten (offsets, sizes, events)."""
+    if draw(st.booleans()):
+        return draw(st.binary(max_size=2000))
+    buf = bytearray(VALID)
+    for _ in range(draw(st.integers(1, 6))):
+        i = draw(st.integers(0, len(buf) - 1))
+        buf[i] = draw(st.integers(0, 255))
+    return bytes(buf[:draw(st.integers(0, len(buf)))])
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(hostile(), st.sampled_from(["NONE", "LZ4", "ZSTD"]),
+       st.lists(st.integers(0, 2000), max_size=8))
+def test_any_bytes_decode_consistently(data, compression, cuts):
+    opts = {"width": 320, "height": 240, "compression": compression}
+    whole = sio.decoder("aedat4", **opts)
+    ref = whole.decode(data)
+    pend = whole.finish()
+    dec = sio.decoder("aedat4", **opts)
+    parts, prev = [], 0
+    for c in sorted(set(cuts)) + [len(data)]:
+        parts.append(dec.decode(data[prev:max(prev, c)]))
+        prev = max(prev, c)
+    assert dec.finish() == pend
+    np.testing.assert_array_equal(np.concatenate(parts), ref)
+    assert dec.stats == whole.stats and whole.stats.events == len(ref)
+    assert np.all(ref["x"] < 320) and np.all(ref["y"] < 240)
+    assert whole.stats.anomalies["truncated"] == (pend > 0)
