@@ -3,7 +3,9 @@
 #   from springtrack.io.evt21 cimport Evt21State, evt21_init, evt21_decode_words
 #   cdef Evt21State st
 #   evt21_init(&st, width, height, legacy)       # 0 x 0: no geometry check
-#   n = evt21_decode_words(&st, p, nwords, out)  # out: room for EVT21_MAX_PER_WORD * nwords
+#   n = evt21_decode_words(&st, p, nwords, out, room, &used)   # events written, words used:
+#       as many words as out's room surely holds (EVT21_MAX_PER_WORD each); runs of plain
+#       CD words go through evt21_block.h
 #   st.anomalies[AN_OUT_OF_GEOMETRY], st.info[IN_TIME_HIGH], ...   (base.pxd's enums)
 #
 # A word is 64 bits, little-endian, type in bits 63..60 (OpenEB's Evt21Raw structs):
@@ -29,6 +31,10 @@ from springtrack.io.base cimport (Anomaly, Info, N_ANOMALY, N_INFO, AN_UNKNOWN_T
 cdef extern from *:
     int __builtin_ctz(unsigned int) nogil
     int __builtin_popcount(unsigned int) nogil
+
+cdef extern from "springtrack/io/evt21_block.h" nogil:
+    size_t evt21_decode_run(const uint8_t* p, size_t n, int64_t th, uint32_t width,
+                            uint32_t height, int legacy, void* out, size_t* nev)
 
 cdef enum Evt21Type:             # bits 63..60 of a word
     EVT21_NEG = 0x0              # OFF change-detection events (polarity 0)
@@ -132,10 +138,27 @@ cdef inline int evt21_decode_word(Evt21State* s, uint64_t v, Event* out) noexcep
 
 
 cdef inline Py_ssize_t evt21_decode_words(Evt21State* s, const uint8_t* p, Py_ssize_t nwords,
-                                          Event* out) noexcept nogil:
-    """Decode nwords words at p into out (room for EVT21_MAX_PER_WORD * nwords events);
-    return the number of events written."""
-    cdef Py_ssize_t i, k = 0
-    for i in range(nwords):
+                                          Event* out, Py_ssize_t room,
+                                          Py_ssize_t* used) noexcept nogil:
+    """Decode words at p into out while words remain (nwords) and out has room for a word's
+    worst case (EVT21_MAX_PER_WORD of its room events left); return the number of events
+    written and set used[0] to the words decoded.  Once the time base is known, runs of
+    plain change-detection words go through evt21_decode_run (same events and counters)."""
+    cdef Py_ssize_t i = 0, k = 0, run, lim
+    cdef size_t nev
+    while i < nwords and room - k >= EVT21_MAX_PER_WORD:
+        if s.have_th:
+            lim = min(nwords - i, (room - k) // EVT21_MAX_PER_WORD)
+            nev = 0
+            run = evt21_decode_run(p + EVT21_WORD_BYTES * i, lim, s.th, s.width, s.height,
+                                   s.legacy, &out[k], &nev)
+            s.words += run
+            s.events += nev
+            k += nev
+            i += run
+            if run == lim:
+                continue
         k += evt21_decode_word(s, evt21_word(s, p + EVT21_WORD_BYTES * i), &out[k])
+        i += 1
+    used[0] = i
     return k

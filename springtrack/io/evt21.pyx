@@ -38,11 +38,9 @@ cdef class Evt21Decoder(Decoder):
     cdef Py_ssize_t _run(self, const uint8_t* p, Py_ssize_t n, Event* out, Py_ssize_t cap,
                          Py_ssize_t* nout, Event* side, Py_ssize_t* nside) noexcept nogil:
         cdef Evt21State st = self.st           # local copy: stays in registers
-        cdef Py_ssize_t nw = n // EVT21_WORD_BYTES, k = nout[0]
+        cdef Py_ssize_t used, k = nout[0]
         cdef int i
-        if nw > (cap - k) // EVT21_MAX_PER_WORD:   # every word could fill its 32 events
-            nw = (cap - k) // EVT21_MAX_PER_WORD
-        k += evt21_decode_words(&st, p, nw, &out[k])
+        k += evt21_decode_words(&st, p, n // EVT21_WORD_BYTES, &out[k], cap - k, &used)
         self.st = st
         self.words = st.words
         for i in range(<int>N_ANOMALY):
@@ -50,7 +48,7 @@ cdef class Evt21Decoder(Decoder):
         for i in range(<int>N_INFO):
             self.info[i] = st.info[i]
         nout[0] = k
-        return nw * EVT21_WORD_BYTES
+        return used * EVT21_WORD_BYTES
 
 
 cdef inline uint64_t _time_high_word(int64_t h) noexcept nogil:

@@ -65,10 +65,11 @@ class Reader:
     def __iter__(self):
         return self.chunks()
 
-    # fewest payload bytes per event (EVT 3.0 vectors can do better: the output then grows)
-    # (AEDAT 4 packets are compressed: a first guess, the output grows as needed)
-    MIN_BYTES_PER_EVENT = {"evt2": 4, "evt21": 2, "evt3": 2, "es": 5, "dat": 8, "ccam": 4,
-                           "aedat4": 4}
+    # payload bytes per event for the first output array: the fewest, or a guess where words
+    # carry many (EVT 3.0 vectors, EVT 2.1 masks) or packets are compressed (AEDAT 4): the
+    # output then grows
+    MIN_BYTES_PER_EVENT = {"evt2": 4, "evt21": 4, "evt3": 2, "es": 5, "dat": 8, "ccam": 4,
+                           "aedat4": 8}
     # typical payload bytes per event, for a progress estimate (EVT 3.0: the Gen4.1 sample,
     # AEDAT 4: the DVXplorer sample with its IMU packets)
     BYTES_PER_EVENT = {"evt2": 4.0, "evt21": 4.0, "evt3": 2.8, "es": 5.0, "dat": 8.0,
