@@ -22,11 +22,12 @@ EV = make(np.sort(RNG.integers(0, 1_000_000, N)), RNG.integers(0, 304, N),
           RNG.integers(0, 240, N), RNG.integers(0, 2, N))
 
 
-@pytest.mark.parametrize("fmt", ["evt2", "evt21", "evt21-legacy", "evt3"])
+@pytest.mark.parametrize("fmt", ["evt2", "evt21", "evt21-legacy", "evt3", "es", "dat",
+                                 "aedat4"])
 def test_stream_equals_file(fmt):
     data = sio.encode_file(EV, 304, 240, fmt)
     r = open_stream(io.BytesIO(data))
-    assert (r.format, r.width, r.height, r.size_hint) == (fmt[:5], 304, 240, None)
+    assert (r.format, r.width, r.height, r.size_hint) == (fmt.split("-")[0], 304, 240, None)
     chunks = list(r.chunks(4096))
     assert len(chunks) > 10                       # bounded chunks, not one read of it all
     np.testing.assert_array_equal(np.concatenate(chunks), EV)
@@ -79,9 +80,11 @@ def test_track_reads_stdin(tmp_path):
 
 
 @pytest.mark.parametrize("content,match", [
-    (b"", "must start with the '%' header"),
-    (b"\x00\x01\x02garbage", "must start with the '%' header"),
-    (b"% Version 2\n% Width 10\n% Height 10\n% end\n\x00\x08", "read from files only"),
+    (b"", "must start with its header"),
+    (b"\x00\x01\x02garbage", "must start with its header"),
+    (b"% Version 2\n% Width 10\n% Height 10\n% end\n\x00\x04", "event size 4"),
+    (b"Event Stream\x02\x00\x00\x01\x40", "truncated"),
+    (b"#!AER-DAT4.0\r\n\x40\x00\x00\x00", "IOHeader truncated"),
     (b"% evt 2.0\n% unterminated", "no end of line"),
     (b"% evt 9.0\n% end\n", "not supported"),
 ])

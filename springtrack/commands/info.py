@@ -17,7 +17,7 @@ WORD_UNIT = {"es": "bytes", "aedat4": "packets"}
 
 def add_arguments(p):
     p.add_argument("file", help="event file (.raw EVT 2.0/2.1/3.0, .es, .dat, .aedat4, .ccam, "
-                                ".npy, .csv), or - for a RAW stream on standard input")
+                                ".npy, .csv), or - for an event stream (e.g. RAW) on standard input")
     p.add_argument("--format", help="force the format (needed only for headerless files)")
     p.add_argument("--chunk", type=int, default=1 << 20, help="bytes decoded per step")
     p.add_argument("--json", action="store_true", help="print one JSON object")

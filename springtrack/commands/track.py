@@ -14,8 +14,8 @@ EPILOG = """\
 units: event times are microseconds; positions px; covariances px^2.
 input: .npy structured arrays (fields t, x, y, p), CSV with header t,x,y,p, and every
 camera format springtrack.io reads (EVT 2.0/2.1/3.0 RAW, Event Stream .es, DAT, AEDAT 4);
-- reads a RAW stream (EVT 2.0/2.1/3.0 with its % header) from standard input as it arrives,
-e.g. another stack's live output piped in.
+- reads an event stream (RAW EVT 2.0/2.1/3.0 with its % header, or .es, .dat, .aedat4) from
+standard input as it arrives, e.g. another stack's live output piped in.
 output CSV header: t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive — one row per
 tracker at every multiple of --sample-us between the first and the last event, holding the
 state after all events with t < t_us.
@@ -25,7 +25,7 @@ state after all events with t < t_us.
 def add_arguments(p):
     p.epilog = EPILOG
     p.add_argument("input", help="event file (.npy, .csv, .raw, .es, .dat, .aedat4), or - for "
-                                 "a RAW stream on standard input")
+                                 "an event stream (e.g. RAW) on standard input")
     p.add_argument("--model", required=True,
                    help="shape model: TOML file or preset name (grid3x3, face26)")
     p.add_argument("--params", help="TOML file of parameter overrides (see docs/algorithm.md)")

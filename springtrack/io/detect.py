@@ -178,7 +178,6 @@ def percent_info(head: bytes, path, ext: str = "", format: str | None = None) ->
 
 def sniff(path, format: str | None = None) -> FileInfo:
     """Detect the format of ``path`` from its first bytes (extension only for CCam)."""
-    ext = os.path.splitext(str(path))[1].lower()
     with builtins.open(path, "rb") as f:
         head = f.read(1 << 16)
         if head.startswith(b"%") and not _header_ends(head):
@@ -186,6 +185,14 @@ def sniff(path, format: str | None = None) -> FileInfo:
         if head.startswith(AEDAT4_MAGIC):
             from .aedat4 import MAX_HEADER as AEDAT4_MAX, header_length
             head += f.read(max(0, min(header_length(head), AEDAT4_MAX + 32) - len(head)))
+    return sniff_bytes(head, path, format)
+
+
+def sniff_bytes(head: bytes, path, format: str | None = None) -> FileInfo:
+    """Detect the format from ``head``, the first bytes of a file or stream (its whole
+    header and, for RAW/DAT, some payload); ``path`` names it in errors (its extension
+    matters only for CCam)."""
+    ext = os.path.splitext(str(path))[1].lower()
     if not head:
         raise DecodeError(f"{path}: empty file")
     if format is not None and format not in FORMATS:

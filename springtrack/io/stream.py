@@ -1,9 +1,10 @@
-"""RAW streams on a pipe: ``springtrack.io.open("-")`` reads standard input.
+"""Event streams on a pipe: ``springtrack.io.open("-")`` reads standard input.
 
-Another stack's live output (a Prophesee RAW stream: EVT 2.0, 2.1 or 3.0 after its ``%``
-header) is decoded as it arrives, in bounded chunks: the header lines are read one by one,
-then every ``read1`` (whatever the pipe holds, up to the chunk size) is decoded at once and
-its events yielded, so memory stays bounded however long the stream runs.
+Another stack's live output -- a Prophesee RAW stream (EVT 2.0, 2.1 or 3.0 after its ``%``
+header), or Event Stream, DAT or AEDAT 4 -- is decoded as it arrives, in bounded chunks: the
+header is read (line by line for ``%`` headers), then every ``read1`` (whatever the pipe
+holds, up to the chunk size) is decoded at once and its events yielded, so memory stays
+bounded however long the stream runs.
 """
 from __future__ import annotations
 
@@ -13,11 +14,12 @@ import sys
 import numpy as np
 
 from ..events import EVENT_DTYPE
-from .detect import MAX_HEADER, percent_info
+from .detect import AEDAT4_MAGIC, ES_MAGIC, MAX_HEADER, sniff_bytes
 from .errors import DecodeError
 from .reader import DEFAULT_CHUNK, Reader
 
-STREAM_FORMATS = ("evt2", "evt21", "evt3")
+STREAM_FORMATS = ("evt2", "evt21", "evt3", "es", "dat", "aedat4")
+ES_HEADER = 20          # Event Stream 2.x: magic, version, type, width, height
 STDIN = "-"
 
 
@@ -68,19 +70,29 @@ class StreamReader(Reader):
 
 
 def open_stream(f=None, format: str | None = None, name: str = STDIN) -> StreamReader:
-    """A RAW stream (EVT 2.0 / 2.1 / 3.0 with its ``%`` header) on the binary file object
-    ``f`` (default: standard input)."""
+    """An event stream with its header (RAW EVT 2.0 / 2.1 / 3.0, Event Stream, DAT,
+    AEDAT 4) on the binary file object ``f`` (default: standard input)."""
     if f is None:
         f = sys.stdin.buffer
     if not hasattr(f, "peek") or not hasattr(f, "read1"):
         f = io.BufferedReader(f)
-    head = read_header(f, name)
-    if not head:
-        raise DecodeError(f"{name}: a stream must start with the '%' header of a Prophesee "
-                          f"RAW stream (EVT 2.0, 2.1 or 3.0); first bytes {f.peek(16)[:16]!r}")
-    info = percent_info(head + f.peek(1 << 16), name, "", format)
-    info.offset = 0
+    first = f.peek(len(AEDAT4_MAGIC))[:len(AEDAT4_MAGIC)]
+    if first.startswith(b"%"):
+        head = read_header(f, name)
+    elif first.startswith(ES_MAGIC):
+        head = f.read(ES_HEADER)
+    elif first.startswith(AEDAT4_MAGIC):
+        from .aedat4 import MAX_HEADER as AEDAT4_MAX, header_length
+        head = f.read(len(AEDAT4_MAGIC) + 4)
+        head += f.read(max(0, min(header_length(head), AEDAT4_MAX + 32) - len(head)))
+    else:
+        raise DecodeError(f"{name}: a stream must start with its header (a Prophesee RAW "
+                          "'%' header, Event Stream, DAT or AEDAT 4); first bytes "
+                          f"{f.peek(16)[:16]!r}")
+    info = sniff_bytes(head + f.peek(1 << 16), name, format)
     if info.format not in STREAM_FORMATS:
         raise DecodeError(f"{name}: {info.format} is read from files only; streams may be "
                           f"{', '.join(STREAM_FORMATS)}")
+    f.read(info.offset - len(head))       # what the header holds past its lines (DAT: 2)
+    info.offset = 0
     return StreamReader(f, info, name)
