@@ -43,7 +43,12 @@ PACKET_EVENTS = 4096        # events per packet written by encode()
 
 cdef enum:
     PACKET_HEAD = 8              # int32 stream id, uint32 size
-    EVENT_BYTES = 16             # the Event struct
+    EVENT_BYTES = 16             # the Event struct: int64 t, int16 x, int16 y, bool on
+    EV_T = 0                     # its fields' byte offsets
+    EV_X = 8
+    EV_Y = 10
+    EV_ON = 12
+    UNCHECKED = 0x10000          # width/height of an unknown geometry: every x, y passes
     EVENTS_PACKET_FIELD = 0      # EventPacket: field 0, the vector of Event
     HEADER_COMPRESSION = 0       # IOHeader fields
     HEADER_DATA_TABLE = 1
@@ -371,24 +376,24 @@ cdef class Aedat4Decoder(Decoder):
         cdef const uint8_t[::1] src = memoryview(buf).cast("B")
         cdef const uint8_t* p = &src[first]
         cdef Event* o = <Event*>cnp.PyArray_DATA(<cnp.ndarray>out) + nout
-        cdef uint32_t W = self.width if self.width else 0x10000
-        cdef uint32_t H = self.height if self.height else 0x10000
+        cdef uint32_t W = self.width if self.width else UNCHECKED
+        cdef uint32_t H = self.height if self.height else UNCHECKED
         cdef int64_t t, last_t = self.last_t
         cdef int16_t x, y
         cdef Py_ssize_t i, k = 0
         cdef uint64_t geo = 0, back = 0
         with nogil:
             for i in range(count):
-                memcpy(&t, p + EVENT_BYTES * i, 8)
-                memcpy(&x, p + EVENT_BYTES * i + 8, 2)
-                memcpy(&y, p + EVENT_BYTES * i + 10, 2)
+                memcpy(&t, p + EVENT_BYTES * i + EV_T, 8)
+                memcpy(&x, p + EVENT_BYTES * i + EV_X, 2)
+                memcpy(&y, p + EVENT_BYTES * i + EV_Y, 2)
                 if t < last_t:
                     back += 1
                 last_t = t
                 if x < 0 or y < 0 or <uint32_t>x >= W or <uint32_t>y >= H:
                     geo += 1
                     continue
-                put_event(&o[k], t, <uint16_t>x, <uint16_t>y, p[EVENT_BYTES * i + 12] != 0)
+                put_event(&o[k], t, <uint16_t>x, <uint16_t>y, p[EVENT_BYTES * i + EV_ON] != 0)
                 k += 1
         self.last_t = last_t
         self.anomalies[<int>AN_OUT_OF_GEOMETRY] += geo

@@ -33,28 +33,29 @@ cdef extern from *:
     int __builtin_popcount(unsigned int) nogil
 
 cdef extern from "springtrack/io/evt21_block.h" nogil:
+    # the word layout, named once in the header (bits 63..60 of a word: the type)
+    enum:
+        EVT21_NEG                # OFF change-detection events (polarity 0)
+        EVT21_POS                # ON change-detection events (polarity 1)
+        EVT21_TIME_HIGH
+        EVT21_EXT_TRIGGER
+        EVT21_OTHERS
+        EVT21_CONTINUED
+    enum:
+        EVT21_WORD_BYTES
+        EVT21_MAX_PER_WORD       # events one word can carry (its valid mask)
+        EVT21_TYPE_SHIFT
+        EVT21_T_SHIFT            # t low bits
+        EVT21_T_BITS
+        EVT21_T_MASK
+        EVT21_X_SHIFT
+        EVT21_Y_SHIFT
+        EVT21_XY_MASK            # x and y are 11 bits
+        EVT21_TH_BITS            # EVT_TIME_HIGH payload in bits 59..32
+        EVT21_HALF_SHIFT         # legacy order: the 32-bit halves swapped
+        EVT21_UNCHECKED          # width/height 0: no geometry check (any 16-bit value)
     size_t evt21_decode_run(const uint8_t* p, size_t n, int64_t th, uint32_t width,
                             uint32_t height, int legacy, void* out, size_t* nev)
-
-cdef enum Evt21Type:             # bits 63..60 of a word
-    EVT21_NEG = 0x0              # OFF change-detection events (polarity 0)
-    EVT21_POS = 0x1              # ON change-detection events (polarity 1)
-    EVT21_TIME_HIGH = 0x8
-    EVT21_EXT_TRIGGER = 0xA
-    EVT21_OTHERS = 0xE
-    EVT21_CONTINUED = 0xF
-
-cdef enum:
-    EVT21_WORD_BYTES = 8
-    EVT21_MAX_PER_WORD = 32      # events one word can carry (its valid mask)
-    EVT21_TYPE_SHIFT = 60
-    EVT21_T_SHIFT = 54           # t low bits
-    EVT21_T_BITS = 6
-    EVT21_X_SHIFT = 43
-    EVT21_Y_SHIFT = 32
-    EVT21_XY_MASK = 0x7FF        # x and y are 11 bits
-    EVT21_TH_BITS = 28           # EVT_TIME_HIGH payload in bits 59..32
-    EVT21_HALF_SHIFT = 32        # legacy order: the 32-bit halves swapped
 
 cdef struct Evt21State:
     int64_t th               # current time base in us: (epoch + th_last) << EVT21_T_BITS
@@ -71,8 +72,8 @@ cdef struct Evt21State:
 cdef inline void evt21_init(Evt21State* s, uint32_t width, uint32_t height,
                             bint legacy) noexcept nogil:
     memset(s, 0, sizeof(Evt21State))
-    s.width = width if width else 0x10000
-    s.height = height if height else 0x10000
+    s.width = width if width else EVT21_UNCHECKED
+    s.height = height if height else EVT21_UNCHECKED
     s.legacy = legacy
 
 
@@ -111,7 +112,7 @@ cdef inline int evt21_decode_word(Evt21State* s, uint64_t v, Event* out) noexcep
         m = <uint32_t>v
         x = <uint32_t>(v >> EVT21_X_SHIFT) & EVT21_XY_MASK
         y = <uint32_t>(v >> EVT21_Y_SHIFT) & EVT21_XY_MASK
-        t = s.th | <int64_t>((v >> EVT21_T_SHIFT) & ((1 << EVT21_T_BITS) - 1))
+        t = s.th | <int64_t>((v >> EVT21_T_SHIFT) & EVT21_T_MASK)
         if y >= s.height:
             s.anomalies[<int>AN_OUT_OF_GEOMETRY] += __builtin_popcount(m)
             return 0
