@@ -8,14 +8,10 @@
 #       CD words go through evt21_block.h
 #   st.anomalies[AN_OUT_OF_GEOMETRY], st.info[IN_TIME_HIGH], ...   (base.pxd's enums)
 #
-# A word is 64 bits, little-endian, type in bits 63..60 (OpenEB's Evt21Raw structs):
-#   EVT_NEG / EVT_POS  t low 6 bits in 59..54, x base in 53..43, y in 42..32, valid mask in
-#                      31..0: one event at (x base + i, y) for every set bit i, i ascending
-#   EVT_TIME_HIGH      t >> 6 in 59..32 (28 bits: the 34-bit time wraps every 2**34 us)
-#   EXT_TRIGGER, OTHERS, CONTINUED: counted; other types: 'unknown_type', word skipped
-# The IMX636 sends the two 32-bit halves the other way round (OpenEB's Evt21LegacyRaw,
-# format option endianness=legacy): type/t/x/y in the first half, the mask in the second;
-# evt21_word() swaps them so one decoder reads both.
+# Word types and fields: evt21_types.h (OpenEB's Evt21Raw structs).  The IMX636 sends the
+# two 32-bit halves of a word the other way round (OpenEB's Evt21LegacyRaw, format option
+# endianness=legacy): evt21_word() swaps them so one decoder reads both.
+# Events: one per set bit i of the valid mask, at (x base + i, y), i ascending.
 # Time: evt21_time_high() is the EVT 2.0 policy (evt2.pyx): a time high below the previous
 # one by more than half its range wrapped (+2**28 units); a smaller drop is the anomaly
 # 'time_backwards' and is rebased so the time base never decreases.
@@ -32,33 +28,39 @@ cdef extern from *:
     int __builtin_ctz(unsigned int) nogil
     int __builtin_popcount(unsigned int) nogil
 
-cdef extern from "springtrack/io/evt21_block.h" nogil:
-    # the word layout, named once in the header (bits 63..60 of a word: the type)
-    enum:
-        EVT21_NEG                # OFF change-detection events (polarity 0)
-        EVT21_POS                # ON change-detection events (polarity 1)
-        EVT21_TIME_HIGH
+cdef extern from "springtrack/io/evt21_types.h" nogil:
+    enum Evt21EventTypes:
+        EVT21_EVT_NEG
+        EVT21_EVT_POS
+        EVT21_EVT_TIME_HIGH
         EVT21_EXT_TRIGGER
         EVT21_OTHERS
         EVT21_CONTINUED
     enum:
         EVT21_WORD_BYTES
-        EVT21_MAX_PER_WORD       # events one word can carry (its valid mask)
-        EVT21_TYPE_SHIFT
-        EVT21_T_SHIFT            # t low bits
-        EVT21_T_BITS
-        EVT21_T_MASK
-        EVT21_X_SHIFT
-        EVT21_Y_SHIFT
-        EVT21_XY_MASK            # x and y are 11 bits
-        EVT21_TH_BITS            # EVT_TIME_HIGH payload in bits 59..32
-        EVT21_HALF_SHIFT         # legacy order: the 32-bit halves swapped
-        EVT21_UNCHECKED          # width/height 0: no geometry check (any 16-bit value)
+        EVT21_MAX_PER_WORD
+        EVT21_TH_BITS
+        EVT21_TH_SHIFT
+        EVT21_GROUP_BITS
+    uint64_t evt21_swap(uint64_t v)
+    uint32_t evt21_type(uint64_t v)
+    uint32_t evt21_mask(uint64_t v)
+    uint32_t evt21_x(uint64_t v)
+    uint32_t evt21_y(uint64_t v)
+    uint32_t evt21_t_low(uint64_t v)
+    uint32_t evt21_time_high(uint64_t v)
+    uint64_t evt21_time_high_word(uint64_t count)
+    uint64_t evt21_cd_word(uint32_t pol, uint32_t t_low, uint32_t x, uint32_t y, uint32_t mask)
+
+cdef extern from "springtrack/io/evt21_block.h" nogil:
     size_t evt21_decode_run(const uint8_t* p, size_t n, int64_t th, uint32_t width,
                             uint32_t height, int legacy, void* out, size_t* nev)
 
+cdef enum:
+    EVT21_UNCHECKED = 0x10000    # width/height 0: no geometry check (every uint16 passes)
+
 cdef struct Evt21State:
-    int64_t th               # current time base in us: (epoch + th_last) << EVT21_T_BITS
+    int64_t th               # current time base in us: (epoch + th_last) << EVT21_TH_SHIFT
     int64_t epoch            # time-high units added for wraps and backward-jump rebases
     int64_t th_last          # last raw 28-bit time-high value
     bint have_th             # a time-high word has been seen
@@ -81,12 +83,10 @@ cdef inline uint64_t evt21_word(const Evt21State* s, const uint8_t* p) noexcept 
     """The word at p as a 64-bit value in the standard layout (little-endian host)."""
     cdef uint64_t v
     memcpy(&v, p, EVT21_WORD_BYTES)
-    if s.legacy:
-        v = (v << EVT21_HALF_SHIFT) | (v >> EVT21_HALF_SHIFT)
-    return v
+    return evt21_swap(v) if s.legacy else v
 
 
-cdef inline void evt21_time_high(Evt21State* s, int64_t raw) noexcept nogil:
+cdef inline void evt21_time_base(Evt21State* s, int64_t raw) noexcept nogil:
     s.info[<int>IN_TIME_HIGH] += 1
     if s.have_th and raw < s.th_last:
         if s.th_last - raw > (<int64_t>1 << (EVT21_TH_BITS - 1)):     # counter wrapped
@@ -97,22 +97,22 @@ cdef inline void evt21_time_high(Evt21State* s, int64_t raw) noexcept nogil:
             s.anomalies[<int>AN_TIME_BACKWARDS] += 1
     s.th_last = raw
     s.have_th = True
-    s.th = (s.epoch + raw) << EVT21_T_BITS
+    s.th = (s.epoch + raw) << EVT21_TH_SHIFT
 
 
 cdef inline int evt21_decode_word(Evt21State* s, uint64_t v, Event* out) noexcept nogil:
     """Decode one word (standard layout, from evt21_word); write its events to out (room for
     EVT21_MAX_PER_WORD) and return how many."""
-    cdef uint32_t typ = <uint32_t>(v >> EVT21_TYPE_SHIFT)
+    cdef uint32_t typ = evt21_type(v)
     cdef uint32_t m, x, y, xi
     cdef int64_t t
     cdef int k = 0
     s.words += 1
-    if typ <= EVT21_POS:
-        m = <uint32_t>v
-        x = <uint32_t>(v >> EVT21_X_SHIFT) & EVT21_XY_MASK
-        y = <uint32_t>(v >> EVT21_Y_SHIFT) & EVT21_XY_MASK
-        t = s.th | <int64_t>((v >> EVT21_T_SHIFT) & EVT21_T_MASK)
+    if typ == EVT21_EVT_NEG or typ == EVT21_EVT_POS:
+        m = evt21_mask(v)
+        x = evt21_x(v)
+        y = evt21_y(v)
+        t = s.th | evt21_t_low(v)
         if y >= s.height:
             s.anomalies[<int>AN_OUT_OF_GEOMETRY] += __builtin_popcount(m)
             return 0
@@ -127,8 +127,8 @@ cdef inline int evt21_decode_word(Evt21State* s, uint64_t v, Event* out) noexcep
         if not s.have_th:
             s.info[<int>IN_BEFORE_TIME_HIGH] += k
         s.events += k
-    elif typ == EVT21_TIME_HIGH:
-        evt21_time_high(s, <int64_t>(v >> EVT21_Y_SHIFT) & ((1 << EVT21_TH_BITS) - 1))
+    elif typ == EVT21_EVT_TIME_HIGH:
+        evt21_time_base(s, evt21_time_high(v))
     elif typ == EVT21_EXT_TRIGGER:
         s.info[<int>IN_TRIGGERS] += 1
     elif typ == EVT21_OTHERS or typ == EVT21_CONTINUED:

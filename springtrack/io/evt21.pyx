@@ -17,10 +17,7 @@ from springtrack.io.base import encoder_input
 cnp.import_array()
 
 WORD_BYTES = EVT21_WORD_BYTES
-MAX_COORD = EVT21_XY_MASK + 1          # x and y are 11-bit fields: sensors up to 2048 x 2048
-
-cdef enum:
-    GROUP_BITS = 5                     # a word covers the 32 columns [x base, x base + 32)
+MAX_COORD = 1 << 11                   # x and y are 11-bit fields: sensors up to 2048 x 2048
 
 
 cdef class Evt21Decoder(Decoder):
@@ -51,11 +48,6 @@ cdef class Evt21Decoder(Decoder):
         return used * EVT21_WORD_BYTES
 
 
-cdef inline uint64_t _time_high_word(int64_t h) noexcept nogil:
-    return ((<uint64_t>EVT21_TIME_HIGH << EVT21_TYPE_SHIFT)
-            | ((<uint64_t>h & ((1 << EVT21_TH_BITS) - 1)) << EVT21_Y_SHIFT))
-
-
 def encode(events, bint legacy=False) -> bytes:
     """EVT 2.1 words (no header) for time-sorted events; decoding gives them back exactly.
 
@@ -71,7 +63,7 @@ def encode(events, bint legacy=False) -> bytes:
     cdef Py_ssize_t n = ev.shape[0], i, j = 0
     if n == 0:
         return b""
-    th = ev["t"] >> EVT21_T_BITS
+    th = ev["t"] >> EVT21_TH_SHIFT
     dth = np.diff(th, prepend=0)
     cdef int64_t step = (1 << (EVT21_TH_BITS - 1)) - 1
     cdef Py_ssize_t total = (n + 1 + int((dth > 0).sum())
@@ -86,7 +78,7 @@ def encode(events, bint legacy=False) -> bytes:
     cdef bint first = True, open_word = False
     with nogil:
         for i in range(n):
-            h = e[i].t >> EVT21_T_BITS
+            h = e[i].t >> EVT21_TH_SHIFT
             if h != cur or first:
                 first = False
                 open_word = False
@@ -95,33 +87,31 @@ def encode(events, bint legacy=False) -> bytes:
                     if cur + step < wrap:
                         cur += step
                     else:                        # the counter's last value, then 0
-                        w[j] = _time_high_word(wrap - 1)
+                        w[j] = evt21_time_high_word(wrap - 1)
                         j += 1
                         cur = wrap
-                    w[j] = _time_high_word(cur)
+                    w[j] = evt21_time_high_word(cur)
                     j += 1
                 if cur != h or j == 0:
-                    w[j] = _time_high_word(h)
+                    w[j] = evt21_time_high_word(h)
                     j += 1
                     cur = h
             x = e[i].x
             if (open_word and e[i].t == t and e[i].y == y and (e[i].p != 0) == pol
-                    and x >> GROUP_BITS == group and x > last_x):
-                w[j - 1] |= <uint64_t>1 << (x - (group << GROUP_BITS))
+                    and x >> EVT21_GROUP_BITS == group and x > last_x):
+                w[j - 1] |= <uint64_t>1 << (x - (group << EVT21_GROUP_BITS))
             else:
                 t = e[i].t
                 y = e[i].y
                 pol = e[i].p != 0
-                group = x >> GROUP_BITS
-                w[j] = ((<uint64_t>pol << EVT21_TYPE_SHIFT)
-                        | (<uint64_t>(t & ((1 << EVT21_T_BITS) - 1)) << EVT21_T_SHIFT)
-                        | (<uint64_t>(group << GROUP_BITS) << EVT21_X_SHIFT)
-                        | (<uint64_t>y << EVT21_Y_SHIFT)
-                        | (<uint64_t>1 << (x - (group << GROUP_BITS))))
+                group = x >> EVT21_GROUP_BITS
+                w[j] = evt21_cd_word(pol, <uint32_t>t, group << EVT21_GROUP_BITS, y,
+                                     <uint32_t>1 << (x - (group << EVT21_GROUP_BITS)))
                 j += 1
                 open_word = True
             last_x = x
-    out = words[:j]
     if legacy:
-        out = (out << EVT21_HALF_SHIFT) | (out >> EVT21_HALF_SHIFT)
-    return out.tobytes()
+        with nogil:
+            for i in range(j):
+                w[i] = evt21_swap(w[i])
+    return words[:j].tobytes()
