@@ -26,6 +26,31 @@ def test_evt2_sample_facts(data_file):
     assert r.stats.events == 539_481
 
 
+def test_evt2_sample_equals_peers(data_file):
+    """Event for event against expelliarmus and faery, where installed (the bench extra)."""
+    path = data_file("evt2_sample.raw")
+    ev = sio.open(path).read()
+    refs = {}
+    try:
+        from expelliarmus import Wizard
+        refs["expelliarmus"] = Wizard(encoding="evt2").read(path)
+    except ImportError:
+        pass
+    try:
+        from faery.extension import evt
+        with evt.Decoder(path, (640, 480), None) as d:
+            refs["faery"] = np.concatenate([p["events"] for p in d if "events" in p])
+    except ImportError:
+        pass
+    if not refs:
+        pytest.skip("neither expelliarmus nor faery is installed (pip install .[bench])")
+    for name, ref in refs.items():
+        pol = ref["p"] if "p" in ref.dtype.names else ref["on"]
+        for f, theirs in (("t", ref["t"]), ("x", ref["x"]), ("y", ref["y"]), ("p", pol)):
+            np.testing.assert_array_equal(ev[f].astype(np.int64), theirs.astype(np.int64),
+                                          err_msg=f"{name} {f}")
+
+
 def _py_evt3(words):
     """Independent pure-Python EVT 3.0 decode (scalar, no vectors shortcut).
 
