@@ -132,12 +132,13 @@ def test_geometry_and_unknown_words_are_counted():
 
 
 def test_time_backwards_is_rebased_and_counted():
-    """Our policy (as for EVT 2.0): a small step back is an anomaly and time never
-    decreases; OpenEB logs it and lets time go back."""
+    """The time base of every decoder (timebase.pxd): a small step back is an anomaly, the
+    count going on one unit after the last one, so time never decreases; OpenEB logs it and
+    lets time go back."""
     data = (time_high(100) + word(EVT_POS, 1, 0, 0, 1) + time_high(90)
             + word(EVT_POS, 2, 0, 0, 1) + time_high(95) + word(EVT_POS, 3, 0, 0, 1))
     ours, stats = decode(data)
-    assert ours["t"].tolist() == [100 * 64 + 1, 100 * 64 + 2, 105 * 64 + 3]
+    assert ours["t"].tolist() == [100 * 64 + 1, 101 * 64 + 2, 106 * 64 + 3]
     assert stats.anomalies["time_backwards"] == 1
 
 

@@ -48,7 +48,6 @@ cdef enum:
     EV_X = 8
     EV_Y = 10
     EV_ON = 12
-    UNCHECKED = 0x10000          # width/height of an unknown geometry: every x, y passes
     EVENTS_PACKET_FIELD = 0      # EventPacket: field 0, the vector of Event
     HEADER_COMPRESSION = 0       # IOHeader fields
     HEADER_DATA_TABLE = 1
@@ -339,10 +338,10 @@ cdef class Aedat4Decoder(Decoder):
 
     cdef object _packet(self, int sid, payload, object out, Py_ssize_t* nout_p):
         """Decode one packet's payload: events appended to out (grown if needed)."""
-        self.words += 1
+        self.n.words += 1
         kind = self.streams.get(sid)
         if kind is None:
-            self.anomalies[<int>AN_UNKNOWN_TYPE] += 1
+            self.n.anomalies[<int>AN_UNKNOWN_TYPE] += 1
             return out
         if sid != self.event_stream:
             self.packets[{"EVTS": PK_OTHER_EVENTS, "IMUS": PK_IMU, "TRIG": PK_TRIGGERS,
@@ -376,8 +375,8 @@ cdef class Aedat4Decoder(Decoder):
         cdef const uint8_t[::1] src = memoryview(buf).cast("B")
         cdef const uint8_t* p = &src[first]
         cdef Event* o = <Event*>cnp.PyArray_DATA(<cnp.ndarray>out) + nout
-        cdef uint32_t W = self.width if self.width else UNCHECKED
-        cdef uint32_t H = self.height if self.height else UNCHECKED
+        cdef uint32_t W = geometry_bound(self.width)
+        cdef uint32_t H = geometry_bound(self.height)
         cdef int64_t t, last_t = self.last_t
         cdef int16_t x, y
         cdef Py_ssize_t i, k = 0
@@ -396,8 +395,8 @@ cdef class Aedat4Decoder(Decoder):
                 put_event(&o[k], t, <uint16_t>x, <uint16_t>y, p[EVENT_BYTES * i + EV_ON] != 0)
                 k += 1
         self.last_t = last_t
-        self.anomalies[<int>AN_OUT_OF_GEOMETRY] += geo
-        self.anomalies[<int>AN_TIME_BACKWARDS] += back
+        self.n.anomalies[<int>AN_OUT_OF_GEOMETRY] += geo
+        self.n.anomalies[<int>AN_TIME_BACKWARDS] += back
         return k
 
 

@@ -10,8 +10,6 @@ from libc.stdint cimport uint8_t, uint16_t, uint32_t, int64_t, uint64_t
 cimport numpy as cnp
 import numpy as np
 
-from springtrack.events cimport Event
-from springtrack.io.base cimport *
 from springtrack.io.base import encoder_input
 
 cnp.import_array()
@@ -21,8 +19,8 @@ MAX_COORD = 1 << 11                   # x and y are 11-bit fields: sensors up to
 
 
 cdef class Evt21Decoder(Decoder):
-    """EVT 2.1 words (``legacy=True``: the IMX636's order, 32-bit halves swapped)."""
-    cdef Evt21State st
+    """The EVT 2.1 state machine (evt21.pxd) as a streaming :class:`Decoder`
+    (``legacy=True``: the IMX636's word order, 32-bit halves swapped)."""
 
     def __init__(self, int width=0, int height=0, bint legacy=False):
         self._setup("evt21", EVT21_WORD_BYTES, EVT21_MAX_PER_WORD, 4, width, height, False)
@@ -34,18 +32,8 @@ cdef class Evt21Decoder(Decoder):
 
     cdef Py_ssize_t _run(self, const uint8_t* p, Py_ssize_t n, Event* out, Py_ssize_t cap,
                          Py_ssize_t* nout, Event* side, Py_ssize_t* nside) noexcept nogil:
-        cdef Evt21State st = self.st           # local copy: stays in registers
-        cdef Py_ssize_t used, k = nout[0]
-        cdef int i
-        k += evt21_decode_words(&st, p, n // EVT21_WORD_BYTES, &out[k], cap - k, &used)
-        self.st = st
-        self.words = st.words
-        for i in range(<int>N_ANOMALY):
-            self.anomalies[i] = st.anomalies[i]
-        for i in range(<int>N_INFO):
-            self.info[i] = st.info[i]
-        nout[0] = k
-        return used * EVT21_WORD_BYTES
+        return (evt21_decode_words(&self.st, &self.n, p, n // EVT21_WORD_BYTES, out, cap, nout)
+                * EVT21_WORD_BYTES)
 
 
 def encode(events, bint legacy=False) -> bytes:
