@@ -13,7 +13,9 @@ from ..tracker import profile
 EPILOG = """\
 units: event times are microseconds; positions px; covariances px^2.
 input: .npy structured arrays (fields t, x, y, p), CSV with header t,x,y,p, and every
-camera format springtrack.io reads (EVT 2.0/3.0 RAW, Event Stream .es, DAT).
+camera format springtrack.io reads (EVT 2.0/2.1/3.0 RAW, Event Stream .es, DAT, AEDAT 4);
+- reads an event stream (RAW EVT 2.0/2.1/3.0 with its % header, or .es, .dat, .aedat4) from
+standard input as it arrives, e.g. another stack's live output piped in.
 output CSV header: t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive — one row per
 tracker at every multiple of --sample-us between the first and the last event, holding the
 state after all events with t < t_us.
@@ -26,7 +28,8 @@ by half its length (rows start once it is found).  See docs/acquisition.md.
 
 def add_arguments(p):
     p.epilog = EPILOG
-    p.add_argument("input", help="event file (.npy, .csv, .raw, .es, .dat)")
+    p.add_argument("input", help="event file (.npy, .csv, .raw, .es, .dat, .aedat4), or - for "
+                                 "an event stream (e.g. RAW) on standard input")
     p.add_argument("--model", required=True,
                    help="shape model: TOML file or preset name (grid3x3, face26)")
     p.add_argument("--params", help="TOML file of parameter overrides (see docs/algorithm.md)")
