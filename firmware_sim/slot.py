@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from springtrack import model as _model
 from springtrack import params as _params
 from springtrack.tracker import make_backend, resolve_params
-from springtrack.wire import Nack
+from springtrack.wire import MAX_NAME_BYTES, Nack
 
 from .engine import UpdateRejected
 
@@ -38,6 +38,30 @@ class Swap:
     new_kernel: bool          # a model load or reset (else parameters changed in place)
 
 
+class ApplyFailed(Exception):
+    """Queued updates that could not be applied; ``swap`` is what did take effect."""
+
+    def __init__(self, generations: list, message: str):
+        super().__init__(message)
+        self.generations = generations
+        self.swap: Swap | None = None
+
+
+def check_name(model) -> None:
+    """A model name must fit INFO (``wire.MAX_NAME_BYTES`` of UTF-8)."""
+    n = len(model.name.encode("utf-8"))
+    if n > MAX_NAME_BYTES:
+        raise UpdateRejected(Nack.TOO_LONG, f"model name of {n} bytes: at most "
+                                            f"{MAX_NAME_BYTES} bytes of UTF-8 "
+                                            f"(INFO carries it in one frame)")
+
+
+def _reason(e: BaseException) -> str:
+    if isinstance(e, RecursionError):
+        return "the model text is nested too deeply to parse"
+    return str(e)
+
+
 class ModelSlot:
     """``ModelSlot(backend, model, params)``: ``model``/``params`` as for
     ``springtrack.Tracker``; ``backend`` "cython" (float64) or "fixed" (integer-only,
@@ -49,6 +73,7 @@ class ModelSlot:
             raise ValueError(f"backend {backend!r}: the firmware runs one of {', '.join(BACKENDS)}")
         self.backend = backend
         self.model = _model.load_model(model)
+        check_name(self.model)
         self.params = resolve_params(self.model, params)
         self.kernel = self.new_kernel(self.model, self.params)
         self.generation = 1                  # in effect
@@ -60,6 +85,14 @@ class ModelSlot:
 
     def new_kernel(self, model, params):
         return make_backend(self.backend, model, params)
+
+    def check_kernel_params(self, model, params) -> None:
+        """Raise ValueError if this backend's kernel would refuse ``params`` for ``model``:
+        the checks its ``set_params`` runs (the fixed kernel's Q formats,
+        ``springtrack.fixed_q.params_q``), so that an accepted update always applies."""
+        if self.backend == "fixed":
+            from springtrack import fixed_q
+            fixed_q.params_q(params, len(model.connections))
 
     @property
     def pending(self) -> bool:
@@ -77,10 +110,14 @@ class ModelSlot:
         are dropped (the model brings its own).  Returns its generation."""
         try:
             m = _model.loads(toml_text, "uploaded model")
+        except (ValueError, TypeError, RecursionError) as e:   # ModelError is a ValueError
+            raise UpdateRejected(Nack.INVALID_MODEL, _reason(e)) from None
+        check_name(m)
+        try:
             p = resolve_params(m)
             k = self.new_kernel(m, p)
-        except (ValueError, TypeError) as e:       # ModelError, ParamError are ValueErrors
-            raise UpdateRejected(Nack.INVALID_MODEL, str(e)) from None
+        except (ValueError, TypeError, ArithmeticError) as e:  # ParamError is a ValueError
+            raise UpdateRejected(Nack.INVALID_MODEL, _reason(e)) from None
         with self.lock:
             self._last_gen += 1
             self._build = _Build(m, p, k, self._last_gen)
@@ -104,9 +141,15 @@ class ModelSlot:
             merged = {k: v for k, (v, _) in self._params.items()}
             merged[name] = value
             try:
-                _params.from_mapping(merged, base)
+                new = _params.from_mapping(merged, base)
             except _params.ParamError as e:
                 raise UpdateRejected(e.code, str(e)) from None
+            model = self._build.model if self._build else self.model
+            try:
+                self.check_kernel_params(model, new)
+            except (ValueError, ArithmeticError) as e:
+                raise UpdateRejected(Nack.OUT_OF_RANGE, f"{name}={value!r}: the {self.backend} "
+                                                        f"kernel cannot run it: {e}") from None
             self._last_gen += 1
             self._params[name] = (_params.check(name, value), self._last_gen)
             return self._last_gen
@@ -117,7 +160,10 @@ class ModelSlot:
 
     # ---- applying (processing thread, between two events) ----------------------------------
     def apply(self) -> Swap | None:
-        """Put what is queued in effect; None if nothing was."""
+        """Put what is queued in effect; None if nothing was.  Parameter changes the kernel
+        refuses after all (they were checked when queued, so this is a defect) leave the
+        running parameters as they were and raise :class:`ApplyFailed` after the rest of
+        the update (a model) took effect."""
         with self.lock:
             build, self._build = self._build, None
             changes, self._params = self._params, {}
@@ -126,15 +172,26 @@ class ModelSlot:
             self._retire(self.kernel)
             self.model, self.params, self.kernel = build.model, build.params, build.kernel
             gen = build.generation
+        failed = None
         if changes:
-            new = _params.from_mapping({n: v for n, (v, _) in changes.items()}, self.params)
-            self.kernel.set_params(new)
-            self.params = new
-            gen = max([g for _, g in changes.values()] + [gen or 0])
-        if gen is None:
-            return None
-        self.generation = gen
-        return Swap(gen, build is not None)
+            gens = [g for _, g in changes.values()]
+            try:
+                new = _params.from_mapping({n: v for n, (v, _) in changes.items()}, self.params)
+                self.kernel.set_params(new)
+            except (ValueError, ArithmeticError) as e:
+                self.kernel.set_params(self.params)      # as before the attempt
+                failed = ApplyFailed(gens, f"parameter change(s) {', '.join(changes)} of "
+                                           f"generation(s) {', '.join(map(str, gens))} not "
+                                           f"applied, the kernel refused them: {e}")
+            else:
+                self.params = new
+                gen = max(gens + [gen or 0])
+        if gen is not None:
+            self.generation = gen
+        if failed is not None:
+            failed.swap = Swap(gen, build is not None) if gen is not None else None
+            raise failed
+        return Swap(gen, build is not None) if gen is not None else None
 
     # ---- counters ----------------------------------------------------------------------
     def _retire(self, kernel) -> None:

@@ -78,6 +78,18 @@ class SimCamera:
                            device_overflow_events=0)
         self._reset_state()
 
+    def restart(self, source) -> None:
+        """Serve a new ``source`` from its beginning (a replay): the FIFO, the clock and the
+        one-off faults start again; the counters keep counting."""
+        with self.lock:
+            self.source = iter(source)
+            self.fifo.clear()
+            self.exhausted = False
+            self.t0_wall = self.t_origin = self.skip_before = None
+            self.source_error = None
+            self._burst = None
+            self.faults.rearm()
+
     def _reset_state(self):
         self.configuration = 0
         self.claimed = set()

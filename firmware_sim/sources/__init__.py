@@ -56,6 +56,7 @@ class CameraSource:
     device: SimCamera | None = None            # the simulated camera, None for hardware
     default_model: Callable[[], object] = lambda: None    # the scene's own model, if any
     report: Callable[[], list[str]] = lambda: []         # end-of-run lines (what was dropped)
+    rewind: Callable[[], None] | None = None   # serve the source again from its start
 
 
 def register(scheme: str, module: str) -> None:
@@ -96,10 +97,11 @@ def open_source(url: str, opts: SourceOptions | None = None) -> CameraSource:
     return mod.open(target, opts, url)
 
 
-def simulated(url: str, events, opts: SourceOptions, **known) -> CameraSource:
+def simulated(url: str, events, opts: SourceOptions, restart=None, **known) -> CameraSource:
     """A source whose ``events`` (an iterable of event arrays) are served as CCam ATIS
-    words by a simulated camera, with ``opts``' faults, clock and serial; ``known``:
-    further :class:`CameraSource` fields (default model, report)."""
+    words by a simulated camera, with ``opts``' faults, clock and serial; ``restart()``
+    returns the same events anew (a replay from the start; None: cannot rewind);
+    ``known``: further :class:`CameraSource` fields (default model, report)."""
     from ..simcam import SimBackend, SimCamera
     faults = _faults.Faults(_faults.parse(opts.faults), seed=opts.seed)
     cam = SimCamera(events, realtime=opts.realtime, faults=faults)
@@ -107,7 +109,9 @@ def simulated(url: str, events, opts: SourceOptions, **known) -> CameraSource:
 
     def open_camera():
         return camusb.Camera.open("ccam_atis", opts.serial, backend=backend, biases=opts.biases)
-    return CameraSource(url, open_camera, profile="ccam_atis", device=cam, **known)
+    rewind = (lambda: cam.restart(restart())) if restart is not None else None
+    return CameraSource(url, open_camera, profile="ccam_atis", device=cam, rewind=rewind,
+                        **known)
 
 
 def failure(source: CameraSource) -> str | None:

@@ -54,13 +54,14 @@ def limit_seconds(source, seconds: float):
 
 def open(target: str, opts: SourceOptions, url: str):
     stats: dict = {}
-    events = file_source(target, stats=stats)
-    if opts.seconds is not None:
-        events = limit_seconds(events, opts.seconds)
+
+    def events():
+        ev = file_source(target, stats=stats)
+        return limit_seconds(ev, opts.seconds) if opts.seconds is not None else ev
 
     def report() -> list[str]:
         if not stats.get("outside"):
             return []
         return [f"replay: {stats['outside']} events outside the {CCAM.width}x{CCAM.height} "
                 f"sensor dropped before encoding"]
-    return simulated(url, events, opts, report=report)
+    return simulated(url, events(), opts, restart=events, report=report)
