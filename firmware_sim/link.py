@@ -286,6 +286,10 @@ class Hub:
         self.pump()
         now = time.monotonic()
         for s in list(self.sessions):
+            if s.dead:
+                self.remove(s, s.dead)
+                s.port.close()
+                continue
             if s.closing:
                 self.guarded(s, s._drain)
                 if not s.txq or now > s.closing:
@@ -326,11 +330,11 @@ class Hub:
                 self.counts["pending_timeouts"] += 1
                 self.remove(old, "evicted: all sessions in use")
                 old.port.close()
-            else:
+            else:                                # its first frame is NACKed, then closed
                 self.counts["sessions_refused"] += 1
                 s = LinkServer(port, self.engine, hub=self, heartbeat_s=heartbeat_s)
+                s.refusal = f"all {max_sessions} sessions are in use; try again later"
                 self.sessions.append(s)
-                s.close_soon(f"all {max_sessions} sessions are in use")
                 self.log("refused", f"connection from {port.name} refused: all "
                                     f"{max_sessions} sessions in use")
                 return
@@ -398,6 +402,8 @@ class LinkServer:
         self.next_beat = self.t0 + heartbeat_s
         self.fd = _port_fd(port)
         self.closing = 0.0                     # close at this monotonic time (0: open)
+        self.refusal = ""                      # refused: the first frame is NACKed, closed
+        self.dead = ""                         # why writing to the port failed
         self._sent: list[bytes] = []
         self.closed_reason = ""
         self.counts = dict(rx_frames=0, rx_lost=0, rx_retries=0, auth_unsigned=0,
@@ -461,6 +467,8 @@ class LinkServer:
         self.read_and_handle(POLL_S)
         self.hub.pump()
         self.tick(time.monotonic())
+        if self.dead:
+            raise serial.SerialException(self.dead)
 
     def read_and_handle(self, wait: float) -> None:
         # wait briefly for a byte, then take all that is there (in_waiting is not a byte
@@ -523,7 +531,12 @@ class LinkServer:
                 _, w, _ = select.select([], [self.fd], [], 0)
                 if not w:
                     return
-            n = self.port.write(bytes(self.txq[:4096]))
+            try:
+                n = self.port.write(bytes(self.txq[:4096]))
+            except (OSError, serial.SerialException) as e:    # the peer is gone: the hub
+                self.dead = self.dead or f"write failed: {e}"  # closes this session
+                self.txq.clear()
+                return
             if not n:
                 return
             del self.txq[:n]
@@ -548,6 +561,10 @@ class LinkServer:
         self.counts["rx_frames"] += 1
         self._sent = []                              # replies to this frame (for the cache)
         if self.closing:
+            return
+        if self.refusal:
+            self._nack(frame, Nack.FORBIDDEN, self.refusal)
+            self.close_soon(self.refusal)
             return
         if frame.version != wire.PROTOCOL_VERSION:
             self.counts["version_refused"] += 1

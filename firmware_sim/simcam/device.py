@@ -89,6 +89,7 @@ class SimCamera:
             self.source_error = None
             self._burst = None
             self.faults.rearm()
+            self._reset_state()            # not started: the host's set-up runs again
 
     def _reset_state(self):
         self.configuration = 0

@@ -1,6 +1,7 @@
 """``replay:FILE``: a recording re-encoded as CCam ATIS words by the simulated camera."""
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 from springtrack.events import as_events
@@ -19,14 +20,18 @@ def file_source(path, width: int = CCAM.width, height: int = CCAM.height,
     """Events of any file ``springtrack.io`` reads, for a ``width x height`` sensor;
     events outside it are dropped and counted in ``stats['outside']``.  The file is
     opened (its format and header checked) now, so a bad path fails here with a clear
-    error rather than later in the simulated camera's reader thread."""
+    error rather than later in the simulated camera's reader thread; so is its first chunk
+    of events (formats read lazily, such as .npy, fail there too)."""
     from springtrack import io as stio
     stats = {} if stats is None else stats
     stats.setdefault("outside", 0)
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: replay file not found")
-    return _inside(stio.open(path), width, height, stats)
+    chunks = iter(stio.open(path))
+    first = next(chunks, None)          # read now: a file that cannot be read fails here
+    return _inside(itertools.chain([] if first is None else [first], chunks), width, height,
+                   stats)
 
 
 def _inside(chunks, width: int, height: int, stats: dict):
@@ -53,6 +58,8 @@ def limit_seconds(source, seconds: float):
 
 
 def open(target: str, opts: SourceOptions, url: str):
+    if not target:
+        raise ValueError(f"--source {url!r}: name the file to replay: {USAGE}")
     stats: dict = {}
 
     def events():
