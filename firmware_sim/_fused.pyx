@@ -82,7 +82,8 @@ cdef class Fused:
     ``kernel`` is a ``springtrack._kernel.Kernel`` or ``springtrack._fixed.FixedKernel``.
 
     ``feed(buf, n)`` processes the first ``n`` bytes of a buffer (bytes, bytearray,
-    array('B'), numpy uint8) and returns the snapshots taken as a dict of arrays (rows
+    array('B'), numpy uint8) and returns the snapshots taken (or, with a ``sink``, passes
+    them to ``sink(part)`` part by part and returns None) as a dict of arrays (rows
     ``t``; ``trackers`` (rows, trackers) springtrack.track.TRACK_DTYPE; ``energy``
     (rows, 3); for a kernel that packs them (:attr:`native_records`, the fixed-point kernel
     from its integer state) ``wire`` (rows, trackers * 8), the TELEMETRY tracker records).
@@ -104,6 +105,10 @@ cdef class Fused:
     cdef readonly uint64_t tracked, gap_skipped, gaps, bytes_in
     cdef SampleOut o
     cdef object bufs
+    # called with each part of at most ``cap`` rows as soon as it is taken, instead of
+    # returning them all from feed(): memory stays bounded when a jump in time makes one
+    # feed take many snapshots
+    cdef public object sink
 
     def __init__(self, kernel, long long period_us=1000, Py_ssize_t cap=1024):
         if cap < 1:
@@ -251,7 +256,10 @@ cdef class Fused:
             else:                               # short work: keep the GIL (see above)
                 pos = self._run(p, pos, total)
             if self.o.count:
-                parts.append(self._take())
+                if self.sink is not None:
+                    self.sink(self._take())
+                else:
+                    parts.append(self._take())
             if pos >= total and self.bpos >= self.bn:
                 break
         if not parts:

@@ -184,9 +184,12 @@ class Link:
                 self.session.closed_reason = str(e)
 
     def close(self, timeout: float) -> None:
+        from .transport import PtyPort
         self.stop.set()
         self.thread.join(timeout)
-        if self.port is not None:
+        if isinstance(self.port, PtyPort):
+            self.port.close(linger=timeout)      # the host reads its last frames first
+        elif self.port is not None:
             self.port.close()
         if self.server is not None:
             self.server.close()

@@ -29,6 +29,7 @@ class DecodedFeed:
         self.gaps = 0
         self.old_words = 0            # counts of decoders replaced after gaps
         self.old_events = 0
+        self.sink = None              # as Fused.sink: parts passed on as they are taken
 
     @property
     def kernel_obj(self):
@@ -77,7 +78,10 @@ class DecodedFeed:
                                                       self.next_t, 512)
             pos += consumed
             if out is not None and len(out["t"]):
-                parts.append(out)
+                if self.sink is not None:
+                    self.sink(out)
+                else:
+                    parts.append(out)
         self.tracked += len(ev)
         if not parts:
             return None

@@ -63,7 +63,8 @@ TX_TELEMETRY_LIMIT = 32 * 1024      # unwritten bytes above which no snapshot is
 TX_REPLY_LIMIT = 1024 * 1024        # bytes queued before even replies are dropped (a host
                                     # that sends but never reads must not exhaust memory)
 FIRMWARE_NAME = "firmware-sim"
-MAX_SESSIONS = 4                    # TCP connections served at once (operator + monitors)
+MAX_SESSIONS = 8                    # TCP sessions with a role at once (operator + monitors);
+                                    # twice as many connections may wait for their HELLO
 PENDING_TIMEOUT_S = 5.0             # TCP: no authenticated HELLO within this: closed
 IDLE_TIMEOUT_S = 30.0               # TCP: no frame from the host within this: closed
 MAX_AUTH_FAILURES = 8               # failed authentications before a connection is closed
@@ -90,8 +91,9 @@ class Hub:
         self.sessions: list[LinkServer] = []
         self.operator: LinkServer | None = None
         self.energy_period_us, self.next_energy_t = energy_period_us, None
+        self.max_sessions = MAX_SESSIONS
         self.counts = dict(sessions_opened=0, sessions_closed=0, sessions_refused=0,
-                           pending_timeouts=0, idle_timeouts=0, operator_takeovers=0,
+                           sessions_evicted=0, pending_timeouts=0, idle_timeouts=0, operator_takeovers=0,
                            auth_unsigned=0, auth_bad_tag=0, auth_replay=0, auth_disconnects=0,
                            auth_lockouts=0, telemetry_errors=0, session_faults=0)
         self.closed: dict = {}
@@ -124,9 +126,10 @@ class Hub:
             self.counts["operator_takeovers"] += 1
             old.role = Role.MONITOR
             old.upload = None
-            old.notice(Notice.ROLE_CHANGED, f"the operator role was taken over by "
-                                            f"{session.peer or 'another host'}: this session "
-                                            f"is a monitor now (read-only)")
+            if not old.closing:
+                old.notice(Notice.ROLE_CHANGED, f"the operator role was taken over by "
+                                                f"{session.peer or 'another host'}: this "
+                                                f"session is a monitor now (read-only)")
             self.log("takeover", f"operator role taken over by {session.peer or 'a host'} "
                                  f"from {old.peer or 'a host'}")
 
@@ -258,9 +261,9 @@ class Hub:
                   drain_s: float = 0.3) -> dict:
         """Accept and serve connections until ``stop_event`` is set."""
         try:
+            self.max_sessions = max_sessions
             while not stop_event.is_set():
-                self.tcp_step(server, heartbeat_s, pending_timeout_s, idle_timeout_s,
-                              max_sessions)
+                self.tcp_step(server, heartbeat_s, pending_timeout_s, idle_timeout_s)
             self.shutting_down(drain_s)
         finally:
             for s in list(self.sessions):
@@ -268,7 +271,7 @@ class Hub:
                 s.port.close()
         return self.stats()
 
-    def tcp_step(self, server, heartbeat_s, pending_timeout_s, idle_timeout_s, max_sessions):
+    def tcp_step(self, server, heartbeat_s, pending_timeout_s, idle_timeout_s):
         fds = {s.fd: s for s in self.sessions if s.fd is not None}
         try:
             r, _, _ = select.select([server.sock, *fds], [], [], POLL_S)
@@ -278,7 +281,7 @@ class Hub:
                 if not s.port.is_open:
                     self.remove(s, "socket closed")
         if server.sock in r:
-            self.accept(server, heartbeat_s, max_sessions)
+            self.accept(server, heartbeat_s)
         for fd in r:
             s = fds.get(fd)
             if s is not None:
@@ -311,7 +314,7 @@ class Hub:
             else:
                 self.guarded(s, s.tick, now)
 
-    def accept(self, server, heartbeat_s, max_sessions) -> None:
+    def accept(self, server, heartbeat_s) -> None:
         port = server.accept(0)
         if port is None:
             return
@@ -323,23 +326,37 @@ class Hub:
                                 f"{wait:.1f} s more after failed authentications")
             port.close()
             return
-        if len(self.sessions) >= max_sessions:
+        if len(self.sessions) >= 2 * self.max_sessions:    # connections, not sessions:
             pending = [s for s in self.sessions if not s.authenticated_role]
-            if pending:                          # the oldest unauthenticated one makes room
-                old = min(pending, key=lambda s: s.opened)
-                self.counts["pending_timeouts"] += 1
-                self.remove(old, "evicted: all sessions in use")
-                old.port.close()
-            else:                                # its first frame is NACKed, then closed
-                self.counts["sessions_refused"] += 1
-                s = LinkServer(port, self.engine, hub=self, heartbeat_s=heartbeat_s)
-                s.refusal = f"all {max_sessions} sessions are in use; try again later"
-                self.sessions.append(s)
-                self.log("refused", f"connection from {port.name} refused: all "
-                                    f"{max_sessions} sessions in use")
+            if not pending:                              # (cannot happen: at most
+                self.counts["sessions_refused"] += 1     # max_sessions have a role)
+                port.close()
                 return
+            old = min(pending, key=lambda s: s.opened)   # the oldest without a role goes
+            self.counts["pending_timeouts"] += 1
+            self.remove(old, "evicted: too many connections without a session")
+            old.port.close()
         self.sessions.append(LinkServer(port, self.engine, hub=self, heartbeat_s=heartbeat_s))
         self.counts["sessions_opened"] += 1
+
+    def admit(self, session) -> str:
+        """``session`` is getting its role: "" if there is room (at most ``max_sessions``
+        with a role; an operator always gets in, the session idle longest making room - the
+        previous operator, which becomes a monitor, included), else why not."""
+        others = [s for s in self.sessions
+                  if s is not session and s.authenticated_role and not s.closing]
+        if len(others) < self.max_sessions:
+            return ""
+        if session.role == Role.OPERATOR:     # (the operator it replaces is a monitor now)
+            old = min(others, key=lambda s: s.last_rx)
+            self.counts["sessions_evicted"] += 1
+            old.close_soon(f"evicted: an operator needed a session (all {self.max_sessions} "
+                           f"in use)")
+            return ""
+        self.counts["sessions_refused"] += 1
+        self.log("refused", f"session of {session.peer or 'a host'} refused: all "
+                            f"{self.max_sessions} sessions in use")
+        return f"all {self.max_sessions} sessions are in use; try again later"
 
     def guarded(self, session, fn, *args) -> None:
         """Run a session's step; a peer gone closes it, anything else is a fault of this
@@ -402,7 +419,6 @@ class LinkServer:
         self.next_beat = self.t0 + heartbeat_s
         self.fd = _port_fd(port)
         self.closing = 0.0                     # close at this monotonic time (0: open)
-        self.refusal = ""                      # refused: the first frame is NACKed, closed
         self.dead = ""                         # why writing to the port failed
         self._sent: list[bytes] = []
         self.closed_reason = ""
@@ -562,10 +578,6 @@ class LinkServer:
         self._sent = []                              # replies to this frame (for the cache)
         if self.closing:
             return
-        if self.refusal:
-            self._nack(frame, Nack.FORBIDDEN, self.refusal)
-            self.close_soon(self.refusal)
-            return
         if frame.version != wire.PROTOCOL_VERSION:
             self.counts["version_refused"] += 1
             self._nack(frame, Nack.VERSION_MISMATCH,
@@ -578,8 +590,10 @@ class LinkServer:
                 return
             if not self.authenticated:               # the first authentic frame
                 self.authenticated = True
-                if self.role is not None:
-                    self._open()
+                refusal = self._open() if self.role is not None else ""
+                if refusal:
+                    self._nack(frame, Nack.FORBIDDEN, refusal)
+                    return
         if self.guard is None and frame.flags & wire.FLAG_SIGNED:
             self._nack(frame, Nack.BAD_STATE, "signed frame on a link without a key: "
                                               "the tag cannot be checked, refused")
@@ -646,20 +660,27 @@ class LinkServer:
                        wire.version_reason(wire.PROTOCOL_VERSION, hello.version))
             return
         self.role = hello.role
-        if self.authenticated:
-            self._open()
+        refusal = self._open() if self.authenticated else ""
+        if refusal:
+            raise UpdateRejected(Nack.FORBIDDEN, refusal)
         info = dict(self.engine.info())
         info.setdefault("firmware", FIRMWARE_NAME)
         info.update(role=hello.role.name.lower(),
                     sessions=sum(1 for s in self.hub.sessions if s.authenticated_role))
         self._reply(MsgType.INFO, wire.encode_info(info, self.nonce, self.guard is not None))
 
-    def _open(self) -> None:
-        """This session has its role (a HELLO, authenticated): it receives from now on.
+    def _open(self) -> str:
+        """This session gets its role (a HELLO, authenticated) and receives from now on;
+        returns why not if all sessions are in use (the connection is then closed).
         Snapshots queued for nobody (produced before this session, or unread by a host that
         left) are discarded and counted, so that the host's stream starts now; unwritten
         frames of the previous session on this port are dropped likewise, except the
         remainder of a frame already partly written."""
+        refusal = self.hub.admit(self)
+        if refusal:
+            self.role = None
+            self.close_soon(refusal)
+            return refusal
         if self.role == Role.OPERATOR:
             self.hub.claim_operator(self)
         elif self.hub.operator is self:
@@ -672,6 +693,7 @@ class LinkServer:
         keep = self.txq.find(0) + 1
         self.counts["tx_stale_bytes"] += len(self.txq) - keep
         del self.txq[keep:]
+        return ""
 
     def on_model_begin(self, f) -> None:
         total, crc = wire.decode_model_begin(f.payload)

@@ -55,6 +55,11 @@ WATCHDOG_S = 2.0          # transfers waiting this long with nothing processed: 
 WATCHDOG_POLL_S = 0.25
 
 
+class Stopping(Exception):
+    """The loop was told to stop while a transfer was being processed (a jump in time can
+    make one transfer take very many snapshots): the rest of it is not processed."""
+
+
 class FirmwareLoop:
     """The Engine: ``FirmwareLoop(open_camera, model, params, ...)``; ``open_camera()``
     returns a started ``firmware_sim.usb.Camera`` (called again after a disconnect).
@@ -79,6 +84,9 @@ class FirmwareLoop:
             self.fused = Fused(self.slot.kernel, telemetry_period_us, 512)
         else:                                 # EVT boards: springtrack.io decoder + kernel
             self.fused = DecodedFeed(self.slot.kernel, telemetry_period_us, self.profile)
+        # snapshots reach the telemetry queue part by part (bounded memory whatever the
+        # time span one transfer covers)
+        self.fused.sink = lambda part: self._emit(part)
         self.period = int(telemetry_period_us)
         self.piece = int(piece_bytes)
         self.supervisor = supervisor or Supervisor()
@@ -173,7 +181,8 @@ class FirmwareLoop:
         """Every byte read so far has been processed: nothing queued, and the fused loop
         has consumed all read bytes but the dropped ones."""
         rc = self.reader.counts
-        return self.drained() and self.fused.bytes_in == rc["bytes"] - rc["bytes_dropped"]
+        return self.drained() and (self.fused.bytes_in + self.counters.bytes_abandoned
+                                   == rc["bytes"] - rc["bytes_dropped"])
 
     def reset(self) -> None:
         """Restart the tracker from the current model (queued like a model swap) and clear
@@ -266,6 +275,8 @@ class FirmwareLoop:
                 if gap:
                     self.fused.gap()
                 self._feed(memoryview(r.pool[idx])[:n])
+            except Stopping:                # stopped in the middle of a transfer
+                self.fused.gap()
             except Exception as e:          # never let one transfer kill the loop
                 self.counters.processing_errors += 1
                 self.last_error = f"processing: {type(e).__name__}: {e}"
@@ -298,25 +309,32 @@ class FirmwareLoop:
 
     def _feed(self, mv) -> None:
         n = len(mv)
-        pos = 0
+        fed = 0
         f = self.fused
-        while pos < n:
-            k = min(self.piece, n - pos)
-            t0 = time.perf_counter_ns()
-            out = f.feed(mv[pos:pos + k])
-            dt = time.perf_counter_ns() - t0
-            pos += k
-            self.counters.pieces += 1
-            self.counters.proc_ns += dt
-            self.meter.account(f.last_t, dt, f.tracked)
-            if self.applied.waiting and f.first_t >= 0:
-                self.applied.first_event(f.first_t)
-            if out is not None:
-                self._emit(out)
-            if self.slot.pending:
-                self._apply_pending()
+        try:
+            while fed < n:
+                k = min(self.piece, n - fed)
+                fed += k                        # the feed counts it (bytes_in) as it starts
+                t0 = time.perf_counter_ns()
+                out = f.feed(mv[fed - k:fed])
+                dt = time.perf_counter_ns() - t0
+                self.counters.pieces += 1
+                self.counters.proc_ns += dt
+                self.meter.account(f.last_t, dt, f.tracked)
+                if self.applied.waiting and f.first_t >= 0:
+                    self.applied.first_event(f.first_t)
+                if out is not None:             # a feed without a sink (tests)
+                    self._emit(out)
+                if self.slot.pending:
+                    self._apply_pending()
+        finally:                                # the rest of a transfer abandoned (an error,
+            self.counters.bytes_abandoned += n - fed    # a stop): caught_up() counts it
 
     def _emit(self, out: dict) -> None:
+        """One part of the snapshots a feed took (at most the fused loop's capacity in rows):
+        checked, recorded, queued for the link.  Processing thread."""
+        if self.stop_event.is_set():
+            raise Stopping()
         if not self.fused.native_records:       # the fixed kernel's state is integer
             ok = finite_rows(out["trackers"])
             if not ok.all():

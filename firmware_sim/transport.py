@@ -13,11 +13,15 @@ uses (``read(n)`` honouring ``timeout``, ``write(b)`` returning the count writte
 """
 from __future__ import annotations
 
+import fcntl
 import ipaddress
 import os
 import select
 import socket
+import struct
 import sys
+import termios
+import time
 import tty
 
 import serial
@@ -94,7 +98,19 @@ class PtyPort(FdPort):
         self.path = os.ttyname(slave)
         super().__init__(fd=master, name=self.path)
 
-    def close(self) -> None:
+    def unread(self) -> int:
+        """Bytes written to the pty that the host has not read yet."""
+        try:
+            return struct.unpack("i", fcntl.ioctl(self.slave_fd, termios.FIONREAD, b"\0" * 4))[0]
+        except OSError:
+            return 0
+
+    def close(self, linger: float = 0.0) -> None:
+        """Close both ends, after waiting up to ``linger`` seconds for the host to read what
+        is still in the pty (closing the master discards it: e.g. the ACK of SHUTDOWN)."""
+        end = time.monotonic() + linger
+        while self.is_open and self.unread() and time.monotonic() < end:
+            time.sleep(0.01)
         if self.is_open:
             super().close()
             os.close(self.slave_fd)

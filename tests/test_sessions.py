@@ -200,16 +200,30 @@ def test_auth_failures_are_counted_for_the_lifetime_logged_with_the_peer_and_lim
 
 
 @pytest.mark.parametrize("served", [dict(max_sessions=2)], indirect=True)
-def test_sessions_are_bounded_and_the_newest_is_told_why(served):
-    pending = raw(served.url)                         # unauthenticated: makes room
-    with Device(served.url) as a, Device(served.url, role=Role.MONITOR) as b:
-        assert served.hub.counts["pending_timeouts"] == 1     # the pending one was evicted
-        with pytest.raises(HostctlError, match="all 2 sessions are in use"):
-            Device(served.url, timeout=0.3, retries=1)
-        assert served.hub.counts["sessions_refused"] == 1
-        a.ping()
-        b.ping()
-    pending.close()
+def test_sessions_are_bounded_an_operator_always_gets_in(served):
+    """At most ``max_sessions`` sessions with a role: another monitor is refused (told why),
+    an operator gets in and the monitor idle longest makes room; connections without a
+    session are bounded too (twice as many), the oldest evicted first."""
+    hub = served.hub
+    with Device(served.url, name="a") as a, Device(served.url, name="b", role=Role.MONITOR) as b:
+        with pytest.raises(Nacked, match="all 2 sessions are in use") as e:
+            Device(served.url, role=Role.MONITOR)
+        assert e.value.code == Nack.FORBIDDEN and hub.counts["sessions_refused"] == 1
+        b.ping()                                        # b was active last: a goes
+        with Device(served.url, name="d") as d:         # an operator gets in
+            assert hub.counts["sessions_evicted"] == 1 and hub.counts["operator_takeovers"] == 1
+            got = frames_until_closed(a.port._socket)
+            assert "evicted: an operator needed a session" in notices(got)[-1].text
+            d.set(energy_gain=0.05)
+            b.ping()
+            pending = [raw(served.url) for _ in range(3)]       # 2 sessions + 2 waiting = 4
+            wait_for_count = time.monotonic() + 10
+            while hub.counts["pending_timeouts"] < 1 and time.monotonic() < wait_for_count:
+                time.sleep(0.02)
+            assert hub.counts["pending_timeouts"] == 1          # the oldest waiting one went
+            assert frames_until_closed(pending[0]) == []
+            for p in pending:
+                p.close()
 
 
 def test_short_keys_are_refused_everywhere(tmp_path):

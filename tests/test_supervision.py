@@ -36,7 +36,8 @@ def scene():
     return ev
 
 
-def make_engine(ev, realtime=False, backend="cython", model="face26", camera_wrap=None, **kw):
+def make_engine(ev, realtime=False, backend="cython", model="face26", camera_wrap=None,
+                transfer_bytes=16384, **kw):
     cam = SimCamera(events_source(ev, 2048), realtime=realtime)
     be = SimBackend(cam)
 
@@ -44,7 +45,7 @@ def make_engine(ev, realtime=False, backend="cython", model="face26", camera_wra
         c = camusb.Camera.open("ccam_atis", backend=be)
         return camera_wrap(c) if camera_wrap else c
     eng = FirmwareLoop(open_camera, model, lossless=not realtime, nbuf=64,
-                       transfer_bytes=16384, backend=backend, **kw)
+                       transfer_bytes=transfer_bytes, backend=backend, **kw)
     return cam, eng
 
 
@@ -128,16 +129,15 @@ def test_a_model_that_drives_the_kernel_to_nan_is_refused_or_survived(scene, nam
 def test_injected_nan_rows_are_dropped_counted_reported_and_the_trackers_reset(scene):
     """Whatever validation refuses, a kernel that yields NaN/inf never reaches the wire."""
     cam, eng = make_engine(scene)
-    calls = [0]
+    calls, emit = [0], eng._emit
 
-    def feed(inner, buf):
-        out = inner.feed(buf)
+    def corrupt(part):                  # the parts the fused loop hands on as it takes them
         calls[0] += 1
-        if out is not None and calls[0] == 5:
-            out["trackers"]["x"][::2, 3] = np.nan
-            out["trackers"]["sxx"][1::2, 0] = np.inf
-        return out
-    eng.fused = FeedProxy(eng.fused, feed)
+        if calls[0] == 5:
+            part["trackers"]["x"][::2, 3] = np.nan
+            part["trackers"]["sxx"][1::2, 0] = np.inf
+        emit(part)
+    eng._emit = corrupt
     gen0 = eng.generation
     run_to_end(cam, eng)
     c = eng.stats()["loop"]
@@ -248,6 +248,27 @@ def test_a_thread_that_keeps_failing_is_stopped_cleanly_and_can_be_restarted(sce
         assert eng.stats()["state"] == "streaming"
     finally:
         eng.stop()
+
+
+def test_a_stop_in_the_middle_of_a_transfer_still_lets_the_stream_end(scene):
+    """A stop abandons the rest of the transfer being processed; the bytes abandoned are
+    counted, so the end of the stream is still recognised after the next start."""
+    cam, eng = make_engine(scene, transfer_bytes=131072)      # 8 pieces per transfer
+    once = [True]
+
+    def feed(inner, buf):
+        if once[0] and inner.tracked > 10_000:
+            once[0] = False
+            eng.stop_event.set()                # the stop arrives while this piece runs
+        return inner.feed(buf)
+    eng.fused = FeedProxy(eng.fused, feed)
+    eng.fused.sink = eng.fused._inner.sink
+    eng.start()
+    wait_for(lambda: not once[0] and not eng.running, what="the stop")
+    eng.stop()
+    assert eng.counters.bytes_abandoned > 0
+    run_to_end(cam, eng)                        # ends: caught_up() counts what was abandoned
+    assert eng.stats()["events_decoded"] < len(scene)
 
 
 class FlakyCamera:

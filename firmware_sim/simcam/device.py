@@ -31,6 +31,7 @@ MAX_PACKET = 512
 LOOKAHEAD_US = 20_000        # realtime: scene data generated this far ahead of the clock
 DEVICE_FIFO_BYTES = 16 << 20  # the simulated camera's own buffer; beyond it, it drops
 SIM_SERIAL = 0x0ACE
+CUT_TAIL = -(1 << 62)        # the release time of the cut-off tail of a transfer (at once)
 
 
 def usb_error(code: int, text: str):
@@ -316,7 +317,7 @@ class SimCamera:
             m = self.faults.cut(n)
             if m < n:                  # the cut tail is sent first by the next read
                 tail = bytearray(out[m:n])
-                self.fifo.appendleft(Chunk(tail, np.array([-(1 << 62)], np.int64),
+                self.fifo.appendleft(Chunk(tail, np.array([CUT_TAIL], np.int64),
                                            np.array([len(tail)], np.int64), 0))
                 n = m
         return n
@@ -352,6 +353,9 @@ class SimCamera:
 
     def _on_start(self):
         self.counts["starts"] += 1
+        # a (re)start sends whole words: the tail of a word cut by the odd fault before the
+        # host stopped is gone (as a real camera's FIFO is flushed by the set-up)
+        self.fifo = deque(c for c in self.fifo if c.marks_t[0] != CUT_TAIL)
         now_t = self.device_time() if self.realtime and self.counts["starts"] > 1 else None
         if now_t is not None:
             # after a reconnect the clock ran on: what happened meanwhile is lost
