@@ -47,6 +47,7 @@ cdef extern from "csrc/fixed_step.h" nogil:
         int32_t escale_never
         int64_t smin2, smax2
         int32_t period, ekind, need_torsion
+        int32_t pull_sim, car_sim
         int32_t used_kinds, unit_mass, equal_mass
         int64_t decay_span, gate_q20
         int64_t mx[FX_MAX_TRACKERS]
@@ -75,6 +76,8 @@ cdef extern from "csrc/fixed_step.h" nogil:
         int32_t c0y[FX_MAX_CONNECTIONS]
         int64_t energy[3][FX_MAX_CONNECTIONS]
         int64_t mean_energy
+        int32_t frame_c, frame_s
+        int64_t frame_gx, frame_gy
         int32_t grx[FX_MAX_CONNECTIONS]
         int32_t gry[FX_MAX_CONNECTIONS]
         int32_t energy_stale
@@ -281,6 +284,11 @@ cdef class FixedKernel:
             s.c0y[k] = mq["c0y"][k]
             s.ends[k] = ((<uint64_t>1) << s.ca[k]) | ((<uint64_t>1) << s.cb[k])
         fx_clamp_positions(s)
+        s.frame_c = 1 << 28                  # [ref] the identity frame about G0 until a fit
+        s.frame_s = 0
+        if n:
+            s.frame_gx = s.mx[0] - s.gdx0[0]
+            s.frame_gy = s.my[0] - s.gdy0[0]
         s.sensitive_mask = 0
         for i in range(n):
             s.sensitive_mask |= (<uint64_t>1) << i
@@ -329,6 +337,8 @@ cdef class FixedKernel:
         s.smax2 = pq["smax2"]
         s.period = pq["period"]
         s.ekind = pq["ekind"]
+        s.pull_sim = pq["pull_sim"]
+        s.car_sim = pq["car_sim"]
         dlo, dhi = pq["decay"]
         for i in range(FX_DECAY_N):
             s.decay_lo[i] = dlo[i]
@@ -409,6 +419,14 @@ cdef class FixedKernel:
     @property
     def mean_energy(self):
         return (<fx_state*>self.state).mean_energy * Q32_UNIT
+
+    def frame(self):
+        """The similarity frame of the last spring update: (c, sn, gx, gy) as floats, s R =
+        [[c, -sn], [sn, c]] (Q.28 in the state), (gx, gy) the image of the rest centre of
+        mass (Q.32)."""
+        cdef fx_state* s = <fx_state*>self.state
+        return (s.frame_c / 268435456.0, s.frame_s / 268435456.0, s.frame_gx * POS_UNIT,
+                s.frame_gy * POS_UNIT)
 
     @property
     def last_t(self):

@@ -141,6 +141,8 @@ def params_q(p, nc: int) -> dict:
         decay=decay_tables(tau),
         period=p.spring_period,
         ekind=p.energy_kind_index,
+        pull_sim=1 if p.pull_similarity else 0,
+        car_sim=1 if p.cartesian_similarity else 0,
     )
 
 

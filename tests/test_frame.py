@@ -17,7 +17,7 @@ IMAGE = dict(pull_frame="image", cartesian_frame="image")
 FRAMES = {"similarity": SIMILARITY, "image": IMAGE}
 # positions after one spring update: the float kernel equals the reference to rounding,
 # the fixed-point kernel to its Q.16 fit (docs/fixed_point.md)
-BACKENDS = {"reference": 1e-9, "cython": 1e-9}
+BACKENDS = {"reference": 1e-9, "cython": 1e-9, "fixed": 1e-4}
 
 
 def pose(model, angle, scale, shift=(0.0, 0.0)):
@@ -103,7 +103,7 @@ def test_a_turned_and_scaled_model_feels_no_cartesian_force_in_its_frame(backend
     cart = run.tr.energies()["cartesian"]
     if frame == "similarity":
         assert moved < BACKENDS[backend] * 10
-        assert cart.max() < 1e-12
+        assert cart.max() < BACKENDS[backend]
     else:
         assert moved > 1.0
         assert cart.min() > 1.0
@@ -115,9 +115,10 @@ def test_a_turned_and_scaled_model_is_not_pulled_in_its_frame(backend, frame):
     """eq. (22) pulls toward G + s R dG0 in the similarity frame: with every connection
     over the threshold (s = 0, the Euclidean energies of a scaled model are all > 0) and
     the full pull (gain 1), a turned and scaled face stays where it is; in the image frame
-    it is pulled back toward the upright, unscaled shape."""
+    it is pulled back toward the upright, unscaled shape.  Torsional springs only: they
+    feel no rigid turn (eq. 15), and the Euclidean energies are computed all the same."""
     m = ShapeModel("f", 304, 240, face26().trackers,
-                   [Connection(c.a, c.b, ("cartesian",), 1e-12) for c in face26().connections])
+                   [Connection(c.a, c.b, ("torsional",), 0.01) for c in face26().connections])
     run = Springs(backend, m, dict(FRAMES[frame], energy_scale=0.0, energy_gain=1.0,
                                    energy_kind="euclidean"))
     x, y = pose(m, math.radians(-35), 1.2, (-6.0, 2.0))

@@ -37,7 +37,7 @@ def classify(name, value) -> str | None:
     if spec is None:
         return "unknown_name"
     if spec.kind is str:
-        return None if isinstance(value, str) and value in _params.ENERGY_KINDS else (
+        return None if isinstance(value, str) and value in spec.choices else (
             "wrong_type" if not isinstance(value, str) else "out_of_range")
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return "wrong_type"

@@ -746,11 +746,18 @@ static inline int64_t clamp_offset(int64_t v)
     return v >= OFFSET_LIM ? OFFSET_LIM - 1 : (v <= -OFFSET_LIM ? -OFFSET_LIM + 1 : v);
 }
 
+static inline void frame_offset(const fx_state *s, int k, int64_t *ox, int64_t *oy);
+
 /* the offsets of eq. (18) of connection k, each clamped to +-16384 px; returns how many
-   were */
+   were.  The rest offset is (dx0, dy0), or s R (dx0, dy0) (frame_offset) if the spring
+   update computing the energies used the similarity frame. */
 static inline int offsets(const fx_state *s, int k, int64_t rx, int64_t ry, int64_t *ex, int64_t *ey)
 {
-    int64_t x = rx - s->dx0[k], y = ry - s->dy0[k];      /* |.| < 2^31 */
+    int64_t ox = s->dx0[k], oy = s->dy0[k], x, y;
+    if (s->car_turned)
+        frame_offset(s, k, &ox, &oy);
+    x = rx - ox;                                         /* |.| < 2^33 */
+    y = ry - oy;
     *ex = clamp_offset(x);
     *ey = clamp_offset(y);
     return ((uint64_t)(x + OFFSET_LIM - 1) > (uint64_t)(2 * OFFSET_LIM - 2))
@@ -1005,6 +1012,139 @@ static inline int64_t floor_div(int64_t a, int64_t b)
     return q - (a % b < 0);
 }
 
+/* ---- the similarity frame (pull_frame, cartesian_frame = "similarity") --------------
+   [ref] fit_frame.  32-bit clean: every product is a 32 x 32 -> 64-bit one (smul), every
+   division an int64 by a divisor below 2^31 (div_round), no __int128.  Formats: the fit's
+   positions and offsets Q.16 px (|.| < 2^30: positions and rest offsets within +-8192
+   px), its sums Q.24 px^2 in units of the largest mass, s R = [[c, -sn], [sn, c]] Q.28
+   (|c|, |sn| <= 4 < 8), G Q.32. */
+#define FRAME_ONE ((int32_t)1 << 28)                  /* 1.0 in Q.28 */
+#define FRAME_SCALE_MIN_Q ((int32_t)1 << 26)          /* [ref] FRAME_SCALE_MIN = 1/4, Q.28 */
+#define FRAME_SCALE_MAX_Q ((int32_t)1 << 30)          /* [ref] FRAME_SCALE_MAX = 4, Q.28 */
+#define FRAME_SPREAD_SHIFT 20                         /* [ref] FRAME_MIN_SPREAD = 2^-20 */
+
+/* a b, a 32 x 32 -> 64-bit product (the 32-bit kernel's smul) */
+static inline int64_t frame_mul(int32_t a, int32_t b)
+{
+    return (int64_t)a * b;
+}
+
+/* v 2^16 for any sign: Q.16 -> Q.32 (a shift, not a multiplication) */
+static inline int64_t frame_q32(int64_t v)
+{
+    return (int64_t)((uint64_t)v << 16);
+}
+
+/* (x, y) scaled to the length len (Q.28): x len / |(x, y)|, |x|, |y| < 2^30, not both 0 */
+static inline void frame_to_length(const fx_state *s, int32_t x, int32_t y, int32_t len,
+                                   int32_t *c, int32_t *sn)
+{
+    uint64_t r = isqrt64(s, (uint64_t)(frame_mul(x, x) + frame_mul(y, y)));   /* < 2^31 */
+    *c = (int32_t)div_round(frame_mul(x, len), (int64_t)r);
+    *sn = (int32_t)div_round(frame_mul(y, len), (int64_t)r);
+}
+
+/* The similarity x -> G + s R (x - G0) that best maps the rest shape onto the means, in
+   the mass-weighted least-squares sense, over the trackers of `fit` (all if it holds
+   fewer than 2): with p = dG0 - pbar, q = mu - qbar about the set's weighted centroids,
+   a = sum m p.q, b = sum m p x q, D = sum m |p|^2, s R = [[a, -b], [b, a]] / D (the scale
+   held to [1/4, 4]; s R = I when D <= 2^-20 sum m), G = qbar - s R pbar.  Sets frame_c,
+   frame_s (Q.28) and frame_gx, frame_gy (Q.32).  (The set changes at almost every spring
+   update, so nothing of its rest side is kept from one fit to the next.) */
+static void fit_frame(fx_state *s, uint64_t fit)
+{
+    int n = s->n, i, sh;
+    uint64_t all = n == 64 ? ~(uint64_t)0 : ((uint64_t)1 << n) - 1, k2;
+    int32_t qx16[FX_MAX_TRACKERS], qy16[FX_MAX_TRACKERS], w[FX_MAX_TRACKERS];
+    int64_t W = 0, spx = 0, spy = 0, sqx = 0, sqy = 0, a = 0, b = 0, d = 0, big;
+    int32_t px, py, qx, qy, an, bn, dn, c, sn;
+    fit &= all;
+    if ((fit & (fit - 1)) == 0)                       /* fewer than 2: all of them */
+        fit = all;
+    for (i = 0; i < n; i++) {                         /* weighted centroids, Q.16 */
+        w[i] = (int32_t)s->mq[i] & -(int32_t)((fit >> i) & 1);   /* mass / largest, Q.24 */
+        qx16[i] = (int32_t)rshr(s->mx[i], 16);
+        qy16[i] = (int32_t)rshr(s->my[i], 16);
+        W += w[i];                                    /* <= 2^30 */
+        spx += frame_mul(w[i], s->gx16[i]);           /* < 2^53 each */
+        spy += frame_mul(w[i], s->gy16[i]);
+        sqx += frame_mul(w[i], qx16[i]);
+        sqy += frame_mul(w[i], qy16[i]);
+    }
+    px = (int32_t)div_round(spx, W);                  /* pbar, about G0 */
+    py = (int32_t)div_round(spy, W);
+    qx = (int32_t)div_round(sqx, W);                  /* qbar */
+    qy = (int32_t)div_round(sqy, W);
+    for (i = 0; i < n; i++) {
+        int32_t ux = s->gx16[i] - px, uy = s->gy16[i] - py;   /* rest offset p, |.| < 2^30 */
+        int32_t vx = qx16[i] - qx, vy = qy16[i] - qy;         /* current offset q */
+        int32_t mux, muy;                                      /* m p, Q.16 */
+        if (s->equal_mass) {                          /* m = 1 (mq = 2^24) or 0: no product */
+            mux = ux & -(w[i] != 0);
+            muy = uy & -(w[i] != 0);
+        } else {
+            mux = (int32_t)rshr(frame_mul(w[i], ux), 24);
+            muy = (int32_t)rshr(frame_mul(w[i], uy), 24);
+        }
+        /* products < 2^60, pairs < 2^61: a 2^-8 of each keeps 64 of them in int64 */
+        a += (frame_mul(mux, vx) + frame_mul(muy, vy)) >> 8;   /* a = sum m p.q, Q.24 */
+        b += (frame_mul(mux, vy) - frame_mul(muy, vx)) >> 8;   /* b = sum m p x q */
+        d += (frame_mul(mux, ux) + frame_mul(muy, uy)) >> 8;   /* D = sum m |p|^2 */
+    }
+    if (d <= W >> FRAME_SPREAD_SHIFT) {               /* no rotation to tell */
+        c = FRAME_ONE;
+        sn = 0;
+    } else {
+        /* a, b, D to 30 bits with one shift: s R = [[a, -b], [b, a]] / D unchanged */
+        big = d;
+        if ((a < 0 ? -a : a) > big)
+            big = a < 0 ? -a : a;
+        if ((b < 0 ? -b : b) > big)
+            big = b < 0 ? -b : b;
+        sh = bitlen64((uint64_t)big) - 30;
+        if (sh < 0)
+            sh = 0;
+        an = (int32_t)(a >> sh);
+        bn = (int32_t)(b >> sh);
+        dn = (int32_t)(d >> sh);
+        k2 = (uint64_t)(frame_mul(an, an) + frame_mul(bn, bn));    /* s^2 D^2, < 2^61 */
+        if (dn > 0 && k2 <= (uint64_t)frame_mul(dn, dn) << 4) {    /* s <= 4 */
+            if (k2 >= ((uint64_t)1 << 60) || k2 << 4 >= (uint64_t)frame_mul(dn, dn)) {
+                c = (int32_t)div_round(frame_mul(an, FRAME_ONE), dn);   /* s R = [[a, -b], */
+                sn = (int32_t)div_round(frame_mul(bn, FRAME_ONE), dn);  /*     [b, a]] / D */
+            } else if (k2 > 0) {                                    /* s < 1/4: held */
+                frame_to_length(s, an, bn, FRAME_SCALE_MIN_Q, &c, &sn);
+            } else {                                                /* no rotation to keep */
+                c = FRAME_SCALE_MIN_Q;
+                sn = 0;
+            }
+        } else {                                                    /* s > 4: held */
+            frame_to_length(s, an, bn, FRAME_SCALE_MAX_Q, &c, &sn);
+        }
+    }
+    s->frame_c = c;
+    s->frame_s = sn;
+    /* G = qbar - s R pbar (Q.16 -> Q.32) */
+    s->frame_gx = frame_q32(qx - rshr(frame_mul(c, px) - frame_mul(sn, py), 28));
+    s->frame_gy = frame_q32(qy - rshr(frame_mul(sn, px) + frame_mul(c, py), 28));
+}
+
+/* eq. (22)'s target of tracker i in the frame: G + s R dG0_i, Q.32 */
+static inline void frame_target(const fx_state *s, int i, int64_t *tx, int64_t *ty)
+{
+    int32_t gx = s->gx16[i], gy = s->gy16[i];
+    *tx = s->frame_gx + rshr(frame_mul(s->frame_c, gx) - frame_mul(s->frame_s, gy), 12);
+    *ty = s->frame_gy + rshr(frame_mul(s->frame_s, gx) + frame_mul(s->frame_c, gy), 12);
+}
+
+/* eq. (18)'s rest offset of connection k in the frame the Cartesian springs use (car_c,
+   car_s: the frame fitted at the update before): s R (dx0, dy0), Q.16 */
+static inline void frame_offset(const fx_state *s, int k, int64_t *ox, int64_t *oy)
+{
+    *ox = rshr(frame_mul(s->car_c, s->dx0[k]) - frame_mul(s->car_s, s->dy0[k]), 28);
+    *oy = rshr(frame_mul(s->car_s, s->dx0[k]) + frame_mul(s->car_c, s->dy0[k]), 28);
+}
+
 /* [ref] springs: displacements from the same positions, applied together (Jacobi).  The
    forces of eqs. (11), (16), (19) are summed per tracker (Q.32 px, |sum| < 2^55) and
    divided by the mass once: the same sums as the reference's per-connection f / m_i.
@@ -1017,6 +1157,9 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
     uint64_t pulled = 0, calm = ~(uint64_t)0, bad = 0;
     const int64_t *e = s->energy[s->ekind];
     s->n_spring_updates++;
+    s->car_turned = s->car_sim;                          /* eq. (18) in the last fit's frame */
+    s->car_c = s->frame_c;
+    s->car_s = s->frame_s;
     for (i = 0; i < n; i++)
         ddx[i] = ddy[i] = 0;
     total = spring_passes_of[used & 7](s, ddx, ddy);
@@ -1055,10 +1198,14 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
             }
         }
     }
-    /* centre of mass G = x0 + sum m_i (x_i - x0) / sum m_i, rounded half up */
     if (n == 0)
         return;
-    if (s->equal_mass) {                                  /* = x0 + round(sum (x_i - x0) / n) */
+    if (nc > 0 && (s->pull_sim || s->car_sim))          /* [ref] fit_frame, the calm ones */
+        fit_frame(s, ~pulled);
+    /* centre of mass G = x0 + sum m_i (x_i - x0) / sum m_i, rounded half up */
+    if (s->pull_sim) {
+        gx = gy = 0;                                      /* eq. (22) uses the frame's G */
+    } else if (s->equal_mass) {                                  /* = x0 + round(sum (x_i - x0) / n) */
         gx = s->mx[0] + floor_div(2 * (sx - n * s->mx[0]) + n, 2 * (int64_t)n);
         gy = s->my[0] + floor_div(2 * (sy - n * s->my[0]) + n, 2 * (int64_t)n);
     } else {
@@ -1069,9 +1216,16 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
         gy = centre(s, s->my, msum);
     }
     for (uint64_t p = pulled; p; p &= p - 1) {            /* eq. (22) */
+        int64_t tx, ty;                                   /* G + dG0, or G + s R dG0 */
         i = __builtin_ctzll(p);
-        s->mx[i] = sat_pos(s, s->mx[i] + mul62(gx + s->gdx0[i] - s->mx[i], s->energy_gain));
-        s->my[i] = sat_pos(s, s->my[i] + mul62(gy + s->gdy0[i] - s->my[i], s->energy_gain));
+        if (s->pull_sim) {
+            frame_target(s, i, &tx, &ty);
+        } else {
+            tx = gx + s->gdx0[i];
+            ty = gy + s->gdy0[i];
+        }
+        s->mx[i] = sat_pos(s, s->mx[i] + mul62(tx - s->mx[i], s->energy_gain));
+        s->my[i] = sat_pos(s, s->my[i] + mul62(ty - s->my[i], s->energy_gain));
     }
     for (i = 0; i < n; i++)
         bad |= (uint64_t)!box_kept(s, i) << i;
@@ -1129,6 +1283,10 @@ void fx_prepare(fx_state *s)
             s->unit_mass = 0;
         if (s->mq[i] != s->mq[0])
             s->equal_mass = 0;
+    }
+    for (i = 0; i < s->n; i++) {                           /* the frame's rest offsets */
+        s->gx16[i] = (int32_t)rshr(s->gdx0[i], 16);
+        s->gy16[i] = (int32_t)rshr(s->gdy0[i], 16);
     }
     s->gate_q20 = (s->gate + ((int64_t)1 << 20) - 1) >> 20;   /* the gate is Q.40 */
     s->decay_span = s->dt_max < ((int64_t)1 << (2 * FX_DECAY_BITS)) ? s->dt_max

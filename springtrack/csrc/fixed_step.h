@@ -62,6 +62,7 @@ typedef struct {
     int32_t escale_never;                     /* 1: energy_scale >= nc, nothing is ever over */
     int64_t smin2, smax2;                     /* Q.40 px^2 */
     int32_t period, ekind, need_torsion;
+    int32_t pull_sim, car_sim;                /* eq. (22) / eqs. (18)-(20) in the similarity frame */
     /* derived by fx_prepare() from the model and parameters above */
     int32_t used_kinds;                       /* bit q: a spring or the criterion is of kind q */
     int32_t unit_mass;                        /* every 1/mass is exactly 1 (no division) */
@@ -88,6 +89,13 @@ typedef struct {
     int32_t c0x[FX_MAX_CONNECTIONS], c0y[FX_MAX_CONNECTIONS];    /* cos, sin th0, Q.30 */
     int64_t energy[3][FX_MAX_CONNECTIONS];   /* read them through fx_energies() */
     int64_t mean_energy;
+    /* the similarity frame of the last fit (fit_frame): s R = [[frame_c, -frame_s],
+       [frame_s, frame_c]] Q.28 and frame_g, the image of the rest centre of mass (Q.32);
+       car_c, car_s: the frame the Cartesian springs of the last update used (the one
+       fitted before it), in force for its energies if car_turned */
+    int32_t frame_c, frame_s, car_c, car_s, car_turned;
+    int64_t frame_gx, frame_gy;
+    int32_t gx16[FX_MAX_TRACKERS], gy16[FX_MAX_TRACKERS];   /* gdx0, gdy0 in Q.16 */
     /* the spring vectors r = x_j - x_i of the last spring update (Q.16 px, |.| < 2^30): the
        energies of the kinds the criterion does not use are computed from them only when
        they are read (fx_energies) */
