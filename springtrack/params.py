@@ -1,8 +1,11 @@
 """Tracker parameters: names, units, defaults and valid ranges.
 
 Defaults reproduce the paper's face experiment (section IV-B): alpha1 = 0.2,
-alpha2 = 2e-4, delta_p = 0.1, s = 2.5, springs every 55 events, Euclidean energy.
-See docs/algorithm.md for how each parameter enters the equations.
+alpha2 = 2e-4, delta_p = 0.1, s = 2.5, springs every 55 events, Euclidean energy; eq. (22)
+and the Cartesian springs work in the structure's own (similarity) frame, which holds
+under turns and changes of scale (docs/tuning.md); pull_frame = cartesian_frame = "image"
+is the paper's exact rule.  See docs/algorithm.md for how each parameter enters the
+equations.
 """
 from __future__ import annotations
 
@@ -48,12 +51,12 @@ SPECS: dict[str, ParamSpec] = {s.name: s for s in [
               "springs and energy criteria are applied every this many events"),
     ParamSpec("energy_kind", str, "euclidean", None, None, "",
               "energy feeding eqs. (21)-(22): euclidean | torsional | cartesian", ENERGY_KINDS),
-    ParamSpec("pull_frame", str, "image", None, None, "",
-              "frame of eq. (22)'s rest offsets: image (paper) | similarity (fitted to the "
-              "trackers)", FRAMES),
-    ParamSpec("cartesian_frame", str, "image", None, None, "",
-              "frame of the Cartesian springs' rest offsets, eqs. (18)-(20): image (paper) | "
-              "similarity", FRAMES),
+    ParamSpec("pull_frame", str, "similarity", None, None, "",
+              "frame of eq. (22)'s rest offsets: similarity (fitted to the trackers at each "
+              "spring update) | image (the paper)", FRAMES),
+    ParamSpec("cartesian_frame", str, "similarity", None, None, "",
+              "frame of the Cartesian springs' rest offsets, eqs. (18)-(20): similarity | "
+              "image (the paper)", FRAMES),
     ParamSpec("sigma_min_px", float, 0.5, 0.05, 64.0, "px",
               "lower bound on a tracker's standard deviation along x and y"),
     ParamSpec("sigma_max_px", float, 64.0, 0.5, 1024.0, "px",

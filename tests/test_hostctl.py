@@ -43,12 +43,12 @@ def test_cli_info_set_get_stats(served, capsys):
     served.engine.step()
     rc, out, _ = run(capsys, "--port", p, "get", "alpha_position", "spring_period")
     assert rc == 0 and out.splitlines() == ["alpha_position=0.05", "spring_period=40"]
-    rc, out, _ = run(capsys, "--port", p, "set", "pull_frame=similarity")   # a string value
-    assert rc == 0 and "pull_frame='similarity': generation 4" in out
+    rc, out, _ = run(capsys, "--port", p, "set", "pull_frame=image")   # a string value
+    assert rc == 0 and "pull_frame='image': generation 4" in out
     served.engine.step()
     rc, out, _ = run(capsys, "--port", p, "get", "pull_frame", "cartesian_frame")
-    assert rc == 0 and out.splitlines() == ["pull_frame='similarity'", "cartesian_frame='image'"]
-    assert served.engine.tracker.params.pull_similarity
+    assert rc == 0 and out.splitlines() == ["pull_frame='image'", "cartesian_frame='similarity'"]
+    assert not served.engine.tracker.params.pull_similarity
     rc, out, _ = run(capsys, "--port", p, "stats")
     assert rc == 0 and "updates_applied: 2" in out and "host.lost: 0" in out
     rc, out, _ = run(capsys, "--port", p, "ping", "-n", "3")
