@@ -180,6 +180,21 @@ def test_degenerate_fits():
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
+def test_coincident_rest_points_give_the_identity_frame(backend):
+    """Rest points that coincide leave no rotation to fit: s R = I and G the trackers'
+    weighted centroid, in every backend."""
+    same = ShapeModel("two", 304, 240, [TrackerSpec("a", 50.0, 60.0, (4.0, 0.0, 4.0)),
+                                        TrackerSpec("b", 50.0, 60.0, (4.0, 0.0, 4.0), 3.0)],
+                      [Connection("a", "b", ("euclidean",), 0.0)])
+    run = Springs(backend, same, dict(SIMILARITY, energy_scale=1e12))
+    run.update([70.0, 74.0], [61.0, 65.0])
+    f = run.tr.frame()
+    tol = BACKENDS[backend]
+    assert (f["scale"], f["angle"], f["gx"], f["gy"]) == pytest.approx((1.0, 0.0, 73.0, 64.0),
+                                                                       abs=tol)
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
 def test_backends_agree_on_degenerate_and_held_frames(backend):
     """The kernels take the reference's degenerate branches: a collapsed structure (scale
     held at 1/4) and an exploded one (held at 4).  (Collapsed onto one point exactly, the

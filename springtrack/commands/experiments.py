@@ -9,7 +9,9 @@ Experiments (paper figure -> scene, what is swept):
   Euclidean+torsional;
 * Fig. 16   grid_inplane: the same;
 * Figs. 20-21  face_occlusion: error over time, normalised Euclidean / torsional energy;
-* Fig. 24   face_occlusion: error and computation time vs spring period.
+* Fig. 24   face_occlusion: error and computation time vs spring period;
+* Figs. 14-16 in both frames of eq. (22) and the Cartesian springs, and every scene with
+  the paper's per-experiment values in both (experiments_frames).
 
 Every tracker run is a task on dask.distributed: a ``LocalCluster`` by default, or the
 scheduler at ``--scheduler ADDRESS``; the scenes are simulated once and scattered to the
@@ -182,9 +184,16 @@ def simulate_scenes(plan: Plan, keys) -> dict:
     return data
 
 
+def all_cases(plan: Plan) -> list[dict]:
+    """The figures' cases and those of the frames' comparison (experiments_frames)."""
+    from . import experiments_frames
+    base = cases(plan)
+    return base + experiments_frames.cases(plan, base)
+
+
 def run_all(plan: Plan, client) -> list[dict]:
     from dask.distributed import as_completed
-    todo = cases(plan)
+    todo = all_cases(plan)
     data = simulate_scenes(plan, sorted({(c["scene"], c["seed"]) for c in todo}))
     shared = {key: (client.scatter(ev, broadcast=True), client.scatter(tr, broadcast=True))
               for key, (ev, tr) in data.items()}
@@ -581,6 +590,9 @@ def write_report(results, plan: Plan, docs: Path, quick: bool, elapsed: float, w
           "Times here are wall times of one dask task (Cython backend) on a shared 2-core "
           "machine with other tasks running at once, so read them as an upper bound.", "",
           "![Fig. 24](img/fig24_spring_period.png)", ""]
+
+    from . import experiments_frames
+    L += experiments_frames.section(results, plan, img, plt)
 
     out = docs / "experiments.md"
     out.write_text("\n".join(L + _DIFFERENCES) + "\n")

@@ -987,22 +987,30 @@ static int64_t (*const spring_passes_of[8])(fx_state *, int64_t *, int64_t *) = 
 /* x0 + sum m_i (x_i - x0) / sum m_i for Q.32 positions, rounded half up: the offsets are
    split into a Q.16 high part and 16 low bits so that no sum exceeds 2^61, then
    recombined exactly. */
+static int64_t centre_finish(int64_t x0, int64_t hi, int64_t lo, int64_t msum);
+
 static int64_t centre(const fx_state *s, const int64_t *x, int64_t msum)
 {
-    int64_t hi = 0, lo = 0, q, r;
+    int64_t hi = 0, lo = 0;
     int i;
     for (i = 0; i < s->n; i++) {
         int64_t d = x[i] - x[0];                          /* |.| < 2^46 */
         hi += (int64_t)s->mq[i] * (d >> 16);              /* < 2^54 each */
         lo += (int64_t)s->mq[i] * (d & 0xffff);           /* < 2^40 each */
     }
-    q = hi / msum;                                        /* floor division */
-    r = hi % msum;
+    return centre_finish(x[0], hi, lo, msum);
+}
+
+/* x0 + (hi 2^16 + lo) / msum, rounded half up: centre()'s sums of the offsets from x0
+   (weight times their Q.16 high part, weight times their 16 low bits) recombined exactly */
+static int64_t centre_finish(int64_t x0, int64_t hi, int64_t lo, int64_t msum)
+{
+    int64_t q = hi / msum, r = hi % msum;                 /* floor division */
     if (r < 0) {
         q -= 1;
         r += msum;
     }
-    return x[0] + q * 65536 + div_round(r * 65536 + lo, msum);
+    return x0 + q * 65536 + div_round(r * 65536 + lo, msum);
 }
 
 /* floor(a / b), b > 0 */
@@ -1013,11 +1021,12 @@ static inline int64_t floor_div(int64_t a, int64_t b)
 }
 
 /* ---- the similarity frame (pull_frame, cartesian_frame = "similarity") --------------
-   [ref] fit_frame.  32-bit clean: every product is a 32 x 32 -> 64-bit one (smul), every
-   division an int64 by a divisor below 2^31 (div_round), no __int128.  Formats: the fit's
-   positions and offsets Q.16 px (|.| < 2^30: positions and rest offsets within +-8192
-   px), its sums Q.24 px^2 in units of the largest mass, s R = [[c, -sn], [sn, c]] Q.28
-   (|c|, |sn| <= 4 < 8), G Q.32. */
+   [ref] fit_frame.  32-bit clean: every product is a 32 x 32 -> 64-bit one (frame_mul),
+   every division an int64 by a divisor below 2^31, no __int128.  Formats: centroids and
+   G Q.32 px (as positions, from Q.16 high parts and 16 low bits summed apart), the
+   offsets about the centroids in 30 bits with one shift for the whole fit (Q.23 for a
+   structure of +-128 px), the fit's sums in that Q doubled less 8, masses in units of the
+   largest, s R = [[c, -sn], [sn, c]] Q.28 (|c|, |sn| <= 4 < 8). */
 #define FRAME_ONE ((int32_t)1 << 28)                  /* 1.0 in Q.28 */
 #define FRAME_SCALE_MIN_Q ((int32_t)1 << 26)          /* [ref] FRAME_SCALE_MIN = 1/4, Q.28 */
 #define FRAME_SCALE_MAX_Q ((int32_t)1 << 30)          /* [ref] FRAME_SCALE_MAX = 4, Q.28 */
@@ -1029,10 +1038,11 @@ static inline int64_t frame_mul(int32_t a, int32_t b)
     return (int64_t)a * b;
 }
 
-/* v 2^16 for any sign: Q.16 -> Q.32 (a shift, not a multiplication) */
-static inline int64_t frame_q32(int64_t v)
+/* c v for c in Q.28 and v in Q.32, |v| < 2^46: v = hi 2^16 + lo, two 32 x 32 products,
+   rounded to Q.32 (within 1 unit) */
+static inline int64_t frame_scale(int32_t c, int64_t v)
 {
-    return (int64_t)((uint64_t)v << 16);
+    return rshr(frame_mul(c, (int32_t)(v >> 16)), 12) + rshr(frame_mul(c, (int32_t)(v & 0xffff)), 28);
 }
 
 /* (x, y) scaled to the length len (Q.28): x len / |(x, y)|, |x|, |y| < 2^30, not both 0 */
@@ -1049,49 +1059,65 @@ static inline void frame_to_length(const fx_state *s, int32_t x, int32_t y, int3
    fewer than 2): with p = dG0 - pbar, q = mu - qbar about the set's weighted centroids,
    a = sum m p.q, b = sum m p x q, D = sum m |p|^2, s R = [[a, -b], [b, a]] / D (the scale
    held to [1/4, 4]; s R = I when D <= 2^-20 sum m), G = qbar - s R pbar.  Sets frame_c,
-   frame_s (Q.28) and frame_gx, frame_gy (Q.32).  (The set changes at almost every spring
-   update, so nothing of its rest side is kept from one fit to the next.) */
+   frame_s (Q.28) and frame_gx, frame_gy (Q.32). */
 static void fit_frame(fx_state *s, uint64_t fit)
 {
     int n = s->n, i, sh;
     uint64_t all = n == 64 ? ~(uint64_t)0 : ((uint64_t)1 << n) - 1, k2;
-    int32_t qx16[FX_MAX_TRACKERS], qy16[FX_MAX_TRACKERS], w[FX_MAX_TRACKERS];
-    int64_t W = 0, spx = 0, spy = 0, sqx = 0, sqy = 0, a = 0, b = 0, d = 0, big;
-    int32_t px, py, qx, qy, an, bn, dn, c, sn;
+    const int64_t *gdx = s->gdx0, *gdy = s->gdy0, *mx = s->mx, *my = s->my;
+    int32_t w[FX_MAX_TRACKERS], ux[FX_MAX_TRACKERS], uy[FX_MAX_TRACKERS];
+    int32_t vx[FX_MAX_TRACKERS], vy[FX_MAX_TRACKERS], an, bn, dn, c, sn;
+    int64_t W = 0, hi[4] = {0}, lo[4] = {0}, px, py, qx, qy, a = 0, b = 0, d = 0, big = 0, lim;
     fit &= all;
     if ((fit & (fit - 1)) == 0)                       /* fewer than 2: all of them */
         fit = all;
-    for (i = 0; i < n; i++) {                         /* weighted centroids, Q.16 */
+    for (i = 0; i < n; i++) {                         /* weighted centroids, as centre() */
+        int64_t o[4] = {gdx[i] - gdx[0], gdy[i] - gdy[0], mx[i] - mx[0], my[i] - my[0]};
+        int k;
         w[i] = (int32_t)s->mq[i] & -(int32_t)((fit >> i) & 1);   /* mass / largest, Q.24 */
-        qx16[i] = (int32_t)rshr(s->mx[i], 16);
-        qy16[i] = (int32_t)rshr(s->my[i], 16);
         W += w[i];                                    /* <= 2^30 */
-        spx += frame_mul(w[i], s->gx16[i]);           /* < 2^53 each */
-        spy += frame_mul(w[i], s->gy16[i]);
-        sqx += frame_mul(w[i], qx16[i]);
-        sqy += frame_mul(w[i], qy16[i]);
+        for (k = 0; k < 4; k++) {                     /* offsets |.| < 2^46 */
+            hi[k] += frame_mul(w[i], (int32_t)(o[k] >> 16));      /* < 2^54 each */
+            lo[k] += frame_mul(w[i], (int32_t)(o[k] & 0xffff));
+        }
     }
-    px = (int32_t)div_round(spx, W);                  /* pbar, about G0 */
-    py = (int32_t)div_round(spy, W);
-    qx = (int32_t)div_round(sqx, W);                  /* qbar */
-    qy = (int32_t)div_round(sqy, W);
+    px = centre_finish(gdx[0], hi[0], lo[0], W);      /* pbar, about G0, Q.32 */
+    py = centre_finish(gdy[0], hi[1], lo[1], W);
+    qx = centre_finish(mx[0], hi[2], lo[2], W);       /* qbar */
+    qy = centre_finish(my[0], hi[3], lo[3], W);
+    for (i = 0; i < n; i++) {                         /* the set's largest offset */
+        int64_t m = (int64_t)((fit >> i) & 1) - 1;    /* 0 in the set, -1 outside */
+        int64_t o[4] = {gdx[i] - px, gdy[i] - py, mx[i] - qx, my[i] - qy};
+        int k;
+        for (k = 0; k < 4; k++)
+            big |= (o[k] < 0 ? -o[k] : o[k]) & ~m;
+    }
+    sh = bitlen64((uint64_t)big) - 29;                /* offsets to < 2^30 */
+    if (sh < 0)
+        sh = 0;
+    for (i = 0; i < n; i++) {                         /* p, q, the fit set's in 30 bits */
+        int32_t in = -(int32_t)((fit >> i) & 1);
+        ux[i] = (int32_t)((gdx[i] - px) >> sh) & in;
+        uy[i] = (int32_t)((gdy[i] - py) >> sh) & in;
+        vx[i] = (int32_t)((mx[i] - qx) >> sh) & in;
+        vy[i] = (int32_t)((my[i] - qy) >> sh) & in;
+    }
     for (i = 0; i < n; i++) {
-        int32_t ux = s->gx16[i] - px, uy = s->gy16[i] - py;   /* rest offset p, |.| < 2^30 */
-        int32_t vx = qx16[i] - qx, vy = qy16[i] - qy;         /* current offset q */
-        int32_t mux, muy;                                      /* m p, Q.16 */
-        if (s->equal_mass) {                          /* m = 1 (mq = 2^24) or 0: no product */
-            mux = ux & -(w[i] != 0);
-            muy = uy & -(w[i] != 0);
-        } else {
-            mux = (int32_t)rshr(frame_mul(w[i], ux), 24);
-            muy = (int32_t)rshr(frame_mul(w[i], uy), 24);
+        int32_t mux = ux[i], muy = uy[i];             /* m p */
+        if (!s->equal_mass) {                         /* equal masses: m = 1 (mq = 2^24) */
+            mux = (int32_t)rshr(frame_mul(w[i], ux[i]), 24);
+            muy = (int32_t)rshr(frame_mul(w[i], uy[i]), 24);
         }
         /* products < 2^60, pairs < 2^61: a 2^-8 of each keeps 64 of them in int64 */
-        a += (frame_mul(mux, vx) + frame_mul(muy, vy)) >> 8;   /* a = sum m p.q, Q.24 */
-        b += (frame_mul(mux, vy) - frame_mul(muy, vx)) >> 8;   /* b = sum m p x q */
-        d += (frame_mul(mux, ux) + frame_mul(muy, uy)) >> 8;   /* D = sum m |p|^2 */
+        a += (frame_mul(mux, vx[i]) + frame_mul(muy, vy[i])) >> 8;    /* a = sum m p.q */
+        b += (frame_mul(mux, vy[i]) - frame_mul(muy, vx[i])) >> 8;    /* b = sum m p x q */
+        d += (frame_mul(mux, ux[i]) + frame_mul(muy, uy[i])) >> 8;    /* D = sum m |p|^2 */
     }
-    if (d <= W >> FRAME_SPREAD_SHIFT) {               /* no rotation to tell */
+    /* D <= 2^-20 sum m, with D in Q.(56 - 2 sh) px^2 and sum m (W) in Q.24:
+       D <= W 2^(56 - 2 sh - 24 - 20) */
+    sh = 32 - FRAME_SPREAD_SHIFT - 2 * sh;
+    lim = sh >= 0 ? W << sh : W >> -sh;
+    if (d <= lim) {                                   /* no rotation to tell */
         c = FRAME_ONE;
         sn = 0;
     } else {
@@ -1124,17 +1150,15 @@ static void fit_frame(fx_state *s, uint64_t fit)
     }
     s->frame_c = c;
     s->frame_s = sn;
-    /* G = qbar - s R pbar (Q.16 -> Q.32) */
-    s->frame_gx = frame_q32(qx - rshr(frame_mul(c, px) - frame_mul(sn, py), 28));
-    s->frame_gy = frame_q32(qy - rshr(frame_mul(sn, px) + frame_mul(c, py), 28));
+    s->frame_gx = qx - (frame_scale(c, px) - frame_scale(sn, py));   /* G = qbar - s R pbar */
+    s->frame_gy = qy - (frame_scale(sn, px) + frame_scale(c, py));
 }
 
 /* eq. (22)'s target of tracker i in the frame: G + s R dG0_i, Q.32 */
 static inline void frame_target(const fx_state *s, int i, int64_t *tx, int64_t *ty)
 {
-    int32_t gx = s->gx16[i], gy = s->gy16[i];
-    *tx = s->frame_gx + rshr(frame_mul(s->frame_c, gx) - frame_mul(s->frame_s, gy), 12);
-    *ty = s->frame_gy + rshr(frame_mul(s->frame_s, gx) + frame_mul(s->frame_c, gy), 12);
+    *tx = s->frame_gx + (frame_scale(s->frame_c, s->gdx0[i]) - frame_scale(s->frame_s, s->gdy0[i]));
+    *ty = s->frame_gy + (frame_scale(s->frame_s, s->gdx0[i]) + frame_scale(s->frame_c, s->gdy0[i]));
 }
 
 /* eq. (18)'s rest offset of connection k in the frame the Cartesian springs use (car_c,
@@ -1283,10 +1307,6 @@ void fx_prepare(fx_state *s)
             s->unit_mass = 0;
         if (s->mq[i] != s->mq[0])
             s->equal_mass = 0;
-    }
-    for (i = 0; i < s->n; i++) {                           /* the frame's rest offsets */
-        s->gx16[i] = (int32_t)rshr(s->gdx0[i], 16);
-        s->gy16[i] = (int32_t)rshr(s->gdy0[i], 16);
     }
     s->gate_q20 = (s->gate + ((int64_t)1 << 20) - 1) >> 20;   /* the gate is Q.40 */
     s->decay_span = s->dt_max < ((int64_t)1 << (2 * FX_DECAY_BITS)) ? s->dt_max

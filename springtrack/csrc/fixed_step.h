@@ -95,7 +95,6 @@ typedef struct {
        fitted before it), in force for its energies if car_turned */
     int32_t frame_c, frame_s, car_c, car_s, car_turned;
     int64_t frame_gx, frame_gy;
-    int32_t gx16[FX_MAX_TRACKERS], gy16[FX_MAX_TRACKERS];   /* gdx0, gdy0 in Q.16 */
     /* the spring vectors r = x_j - x_i of the last spring update (Q.16 px, |.| < 2^30): the
        energies of the kinds the criterion does not use are computed from them only when
        they are read (fx_energies) */
