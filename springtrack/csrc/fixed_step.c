@@ -987,30 +987,22 @@ static int64_t (*const spring_passes_of[8])(fx_state *, int64_t *, int64_t *) = 
 /* x0 + sum m_i (x_i - x0) / sum m_i for Q.32 positions, rounded half up: the offsets are
    split into a Q.16 high part and 16 low bits so that no sum exceeds 2^61, then
    recombined exactly. */
-static int64_t centre_finish(int64_t x0, int64_t hi, int64_t lo, int64_t msum);
-
 static int64_t centre(const fx_state *s, const int64_t *x, int64_t msum)
 {
-    int64_t hi = 0, lo = 0;
+    int64_t hi = 0, lo = 0, q, r;
     int i;
     for (i = 0; i < s->n; i++) {
         int64_t d = x[i] - x[0];                          /* |.| < 2^46 */
         hi += (int64_t)s->mq[i] * (d >> 16);              /* < 2^54 each */
         lo += (int64_t)s->mq[i] * (d & 0xffff);           /* < 2^40 each */
     }
-    return centre_finish(x[0], hi, lo, msum);
-}
-
-/* x0 + (hi 2^16 + lo) / msum, rounded half up: centre()'s sums of the offsets from x0
-   (weight times their Q.16 high part, weight times their 16 low bits) recombined exactly */
-static int64_t centre_finish(int64_t x0, int64_t hi, int64_t lo, int64_t msum)
-{
-    int64_t q = hi / msum, r = hi % msum;                 /* floor division */
+    q = hi / msum;                                        /* floor division */
+    r = hi % msum;
     if (r < 0) {
         q -= 1;
         r += msum;
     }
-    return x0 + q * 65536 + div_round(r * 65536 + lo, msum);
+    return x[0] + q * 65536 + div_round(r * 65536 + lo, msum);
 }
 
 /* floor(a / b), b > 0 */
@@ -1022,11 +1014,11 @@ static inline int64_t floor_div(int64_t a, int64_t b)
 
 /* ---- the similarity frame (pull_frame, cartesian_frame = "similarity") --------------
    [ref] fit_frame.  32-bit clean: every product is a 32 x 32 -> 64-bit one (frame_mul),
-   every division an int64 by a divisor below 2^31, no __int128.  Formats: centroids and
-   G Q.32 px (as positions, from Q.16 high parts and 16 low bits summed apart), the
-   offsets about the centroids in 30 bits with one shift for the whole fit (Q.23 for a
-   structure of +-128 px), the fit's sums in that Q doubled less 8, masses in units of the
-   largest, s R = [[c, -sn], [sn, c]] Q.28 (|c|, |sn| <= 4 < 8). */
+   every division an int64 by a divisor below 2^31, no __int128.  Formats: the means'
+   offsets from the last frame's G and the rest offsets in 29 bits with one shift for the
+   whole fit (Q.(32 - sh): Q.23 for a structure within +-128 px), their centroids and the
+   offsets about those in the same Q, the fit's sums in that Q doubled less 8, masses in
+   units of the largest; s R = [[c, -sn], [sn, c]] Q.28 (|c|, |sn| <= 4 < 8); G Q.32. */
 #define FRAME_ONE ((int32_t)1 << 28)                  /* 1.0 in Q.28 */
 #define FRAME_SCALE_MIN_Q ((int32_t)1 << 26)          /* [ref] FRAME_SCALE_MIN = 1/4, Q.28 */
 #define FRAME_SCALE_MAX_Q ((int32_t)1 << 30)          /* [ref] FRAME_SCALE_MAX = 4, Q.28 */
@@ -1067,52 +1059,59 @@ static void fit_frame(fx_state *s, uint64_t fit)
     const int64_t *gdx = s->gdx0, *gdy = s->gdy0, *mx = s->mx, *my = s->my;
     int32_t w[FX_MAX_TRACKERS], ux[FX_MAX_TRACKERS], uy[FX_MAX_TRACKERS];
     int32_t vx[FX_MAX_TRACKERS], vy[FX_MAX_TRACKERS], an, bn, dn, c, sn;
-    int64_t W = 0, hi[4] = {0}, lo[4] = {0}, px, py, qx, qy, a = 0, b = 0, d = 0, big = 0, lim;
+    int64_t ox[FX_MAX_TRACKERS], oy[FX_MAX_TRACKERS], W = 0, spx = 0, spy = 0, sqx = 0, sqy = 0;
+    int64_t px, py, qx, qy, a = 0, b = 0, d = 0, big = 0, lim;
     fit &= all;
     if ((fit & (fit - 1)) == 0)                       /* fewer than 2: all of them */
         fit = all;
-    for (i = 0; i < n; i++) {                         /* weighted centroids, as centre() */
-        int64_t o[4] = {gdx[i] - gdx[0], gdy[i] - gdy[0], mx[i] - mx[0], my[i] - my[0]};
-        int k;
-        w[i] = (int32_t)s->mq[i] & -(int32_t)((fit >> i) & 1);   /* mass / largest, Q.24 */
-        W += w[i];                                    /* <= 2^30 */
-        for (k = 0; k < 4; k++) {                     /* offsets |.| < 2^46 */
-            hi[k] += frame_mul(w[i], (int32_t)(o[k] >> 16));      /* < 2^54 each */
-            lo[k] += frame_mul(w[i], (int32_t)(o[k] & 0xffff));
-        }
+    for (i = 0; i < n; i++)                           /* mass / largest, Q.24; 0 outside */
+        w[i] = (int32_t)s->mq[i] & -(int32_t)((fit >> i) & 1);
+    /* the means' offsets from the last frame's G (near qbar), the rest offsets (from G0),
+       and one shift that puts the weighed trackers' largest below 2^29: their centroids
+       and the offsets about those are then below 2^30 */
+    for (i = 0; i < n; i++) {                         /* x ^ (x >> 63): |x| or |x| - 1 */
+        ox[i] = mx[i] - s->frame_gx;
+        oy[i] = my[i] - s->frame_gy;
+        big |= ((gdx[i] ^ (gdx[i] >> 63)) | (gdy[i] ^ (gdy[i] >> 63)) | (ox[i] ^ (ox[i] >> 63))
+                | (oy[i] ^ (oy[i] >> 63))) & -(int64_t)(w[i] > 0);
     }
-    px = centre_finish(gdx[0], hi[0], lo[0], W);      /* pbar, about G0, Q.32 */
-    py = centre_finish(gdy[0], hi[1], lo[1], W);
-    qx = centre_finish(mx[0], hi[2], lo[2], W);       /* qbar */
-    qy = centre_finish(my[0], hi[3], lo[3], W);
-    for (i = 0; i < n; i++) {                         /* the set's largest offset */
-        int64_t m = (int64_t)((fit >> i) & 1) - 1;    /* 0 in the set, -1 outside */
-        int64_t o[4] = {gdx[i] - px, gdy[i] - py, mx[i] - qx, my[i] - qy};
-        int k;
-        for (k = 0; k < 4; k++)
-            big |= (o[k] < 0 ? -o[k] : o[k]) & ~m;
-    }
-    sh = bitlen64((uint64_t)big) - 29;                /* offsets to < 2^30 */
+    sh = bitlen64((uint64_t)big) - 29;                /* |.| >> sh <= 2^29 */
     if (sh < 0)
         sh = 0;
-    for (i = 0; i < n; i++) {                         /* p, q, the fit set's in 30 bits */
-        int32_t in = -(int32_t)((fit >> i) & 1);
-        ux[i] = (int32_t)((gdx[i] - px) >> sh) & in;
-        uy[i] = (int32_t)((gdy[i] - py) >> sh) & in;
-        vx[i] = (int32_t)((mx[i] - qx) >> sh) & in;
-        vy[i] = (int32_t)((my[i] - qy) >> sh) & in;
+    for (i = 0; i < n; i++) {                         /* weighted centroids, Q.(32 - sh) */
+        int32_t in = -(int32_t)(w[i] > 0);
+        ux[i] = (int32_t)(gdx[i] >> sh) & in;
+        uy[i] = (int32_t)(gdy[i] >> sh) & in;
+        vx[i] = (int32_t)(ox[i] >> sh) & in;
+        vy[i] = (int32_t)(oy[i] >> sh) & in;
+        W += w[i];                                    /* <= 2^30 */
+        spx += frame_mul(w[i], ux[i]);                /* < 2^53 each */
+        spy += frame_mul(w[i], uy[i]);
+        sqx += frame_mul(w[i], vx[i]);
+        sqy += frame_mul(w[i], vy[i]);
     }
-    for (i = 0; i < n; i++) {
-        int32_t mux = ux[i], muy = uy[i];             /* m p */
-        if (!s->equal_mass) {                         /* equal masses: m = 1 (mq = 2^24) */
-            mux = (int32_t)rshr(frame_mul(w[i], ux[i]), 24);
-            muy = (int32_t)rshr(frame_mul(w[i], uy[i]), 24);
+    px = div_round(spx, W);                           /* pbar, about G0 */
+    py = div_round(spy, W);
+    qx = div_round(sqx, W);                           /* qbar, about the last G */
+    qy = div_round(sqy, W);
+    for (i = 0; i < n; i++) {                         /* p, q: below 2^30 */
+        int32_t in = -(int32_t)(w[i] > 0);
+        int32_t pux = (ux[i] - (int32_t)px) & in, puy = (uy[i] - (int32_t)py) & in;
+        int32_t qvx = (vx[i] - (int32_t)qx) & in, qvy = (vy[i] - (int32_t)qy) & in;
+        int32_t mux = pux, muy = puy;                 /* m p: m = 1 if the masses are equal */
+        if (!s->equal_mass) {
+            mux = (int32_t)rshr(frame_mul(w[i], pux), 24);
+            muy = (int32_t)rshr(frame_mul(w[i], puy), 24);
         }
         /* products < 2^60, pairs < 2^61: a 2^-8 of each keeps 64 of them in int64 */
-        a += (frame_mul(mux, vx[i]) + frame_mul(muy, vy[i])) >> 8;    /* a = sum m p.q */
-        b += (frame_mul(mux, vy[i]) - frame_mul(muy, vx[i])) >> 8;    /* b = sum m p x q */
-        d += (frame_mul(mux, ux[i]) + frame_mul(muy, uy[i])) >> 8;    /* D = sum m |p|^2 */
+        a += (frame_mul(mux, qvx) + frame_mul(muy, qvy)) >> 8;   /* a = sum m p.q */
+        b += (frame_mul(mux, qvy) - frame_mul(muy, qvx)) >> 8;   /* b = sum m p x q */
+        d += (frame_mul(mux, pux) + frame_mul(muy, puy)) >> 8;   /* D = sum m |p|^2 */
     }
+    px = (int64_t)((uint64_t)px << sh);               /* Q.32 */
+    py = (int64_t)((uint64_t)py << sh);
+    qx = s->frame_gx + (int64_t)((uint64_t)qx << sh);
+    qy = s->frame_gy + (int64_t)((uint64_t)qy << sh);
     /* D <= 2^-20 sum m, with D in Q.(56 - 2 sh) px^2 and sum m (W) in Q.24:
        D <= W 2^(56 - 2 sh - 24 - 20) */
     sh = 32 - FRAME_SPREAD_SHIFT - 2 * sh;
