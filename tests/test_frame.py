@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+import probes
 import springtrack
 from springtrack.model import Connection, ShapeModel, TrackerSpec, face26, grid3x3
 from springtrack.params import Params
@@ -43,9 +44,10 @@ class Springs:
             if self.backend == "reference":
                 b.ref.mx[i], b.ref.my[i] = float(x[i]), float(y[i])
             elif self.backend == "cython":
-                b.place(i, float(x[i]), float(y[i]))
+                probes.load("kernel_probe").place(b, i, float(x[i]), float(y[i]))
             else:
-                b.set_raw(i, x=int(round(x[i] * 2 ** 32)), y=int(round(y[i] * 2 ** 32)))
+                probes.load("fixed_probe").set_raw(b, i, x=int(round(x[i] * 2 ** 32)),
+                                                   y=int(round(y[i] * 2 ** 32)))
 
     def update(self, x=None, y=None, times=1):
         """Place the trackers (if given) and run a spring update, ``times`` times over;
