@@ -25,9 +25,9 @@ static inline uint16_t tele_pos(int64_t q32, int flag)
 }
 
 /* sigma in Q.20 px from a Q.40 px^2 variance (0 if it is not positive) */
-static inline uint64_t tele_sigma_q20(const fx_state *s, int64_t var_q40)
+static inline uint64_t tele_sigma_q20(int64_t var_q40)
 {
-    return var_q40 > 0 ? fx_isqrt64(s, (uint64_t)var_q40) : 0;
+    return var_q40 > 0 ? fx_isqrt64((uint64_t)var_q40) : 0;
 }
 
 static inline uint8_t tele_sigma(uint64_t sigma_q20)
@@ -71,7 +71,7 @@ void fx_tele_records(const fx_state *s, int64_t t, uint8_t *out)
     int i;
     for (i = 0; i < s->n; i++) {
         int64_t a = fx_activity(s, i, t);
-        uint64_t sx = tele_sigma_q20(s, s->sxx[i]), sy = tele_sigma_q20(s, s->syy[i]);
+        uint64_t sx = tele_sigma_q20(s->sxx[i]), sy = tele_sigma_q20(s->syy[i]);
         uint16_t x = tele_pos(s->mx[i], a > s->act_thr);
         uint16_t y = tele_pos(s->my[i], (int)((s->sensitive_mask >> i) & 1));
         uint8_t *r = out + (int64_t)i * FX_TELE_RECORD;
