@@ -1,0 +1,129 @@
+"""``McuBackend``: the tracker backend interface (``run``, ``set_params``, ``snapshot``,
+``energies``, ``mean_energy``, ``last_t``, ``counters``) over the microcontroller ELF in
+the emulator, so ``Tracker(model, backend="mcu")`` and ``springtrack track --backend mcu``
+run the very firmware image.  Results equal ``backend="fixed"`` bit for bit: the same C
+source, and the host converts the integer rows to float64 as ``_fixed.pyx`` does.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from .. import fixed_q
+from ..tracker import STATE_FIELDS
+from . import emulator as E
+from .build import Capacity, cached_build
+
+DEFAULT_TARGET = "cortex-m4"
+POS_UNIT = 1.0 / 4294967296.0        # Q.32 px (as _fixed.pyx)
+COV_UNIT = 1.0 / 1099511627776.0     # Q.40 px^2
+Q32_UNIT = 1.0 / 4294967296.0        # Q.32 (activity, energy)
+COUNTERS = ("events_valid", "events_assigned", "skipped_back_in_time", "skipped_outside_sensor",
+            "spring_updates", "index_updates", "saturated_position", "saturated_activity",
+            "saturated_energy", "saturated_inverse")
+
+
+class McuBackend:
+    """The fixed-point kernel as built for ``target``, run in the emulator."""
+
+    def __init__(self, model, params, target: str = DEFAULT_TARGET, count: bool = False):
+        self.model = model
+        self.build = cached_build(target, Capacity.of_model(model))
+        self.emu = E.Emulator(self.build, count=count)
+        self.n, self.nc = len(model.trackers), len(model.connections)
+        self._load("mcu_words", fixed_q.model_words(model.arrays(), model.width, model.height),
+                   E.MCU_LOAD_MODEL, "model")
+        self.set_params(params)
+
+    def _load(self, buf, words, cmd, what):
+        self.emu.write(buf, words)
+        st = self.emu.call(cmd, nwords=len(words))["status"]
+        if st != 0:
+            raise ValueError(f"mcu backend: the {what} does not load (status {st})")
+
+    def set_params(self, params) -> None:
+        self._load("mcu_words", fixed_q.params_words(params, self.nc), E.MCU_SET_PARAMS,
+                   "parameters")
+
+    # ---- events -------------------------------------------------------------------------
+    def run(self, events, sample_us, next_t, cap):
+        """As ``FixedKernel.run``: (consumed, next_t, samples) with at most ``cap`` rows."""
+        ev = np.ascontiguousarray(events)
+        if ev.dtype.itemsize != 16:
+            raise TypeError("events must be a C-contiguous EVENT_DTYPE array")
+        per = self.emu.layout["events"]
+        rows, k, n = [], 0, len(ev)
+        cap = cap if sample_us > 0 else 0
+        while k < n:
+            batch = ev[k:k + per]
+            self.emu.write("mcu_events", batch)
+            io = self.emu.call(E.MCU_RUN, nevents=len(batch), sample_us=int(sample_us),
+                               next_t=int(next_t), cap=max(cap - len(rows), 0))
+            next_t = io["next_t"]
+            if io["rows"]:
+                rows.append(self._rows(io["rows"]))
+            k += io["consumed"]
+            if io["consumed"] < len(batch):          # the rows are full
+                if sum(len(r) for r in rows) >= cap:
+                    break
+        if sample_us <= 0:
+            return n, next_t, None
+        return k, next_t, self._pack(np.concatenate(rows) if rows else
+                                     np.empty((0, self.emu.layout["row_words"]), np.int64))
+
+    def _rows(self, count: int) -> np.ndarray:
+        w = self.emu.layout["row_words"]
+        return self.emu.read_array("mcu_rows", np.int64, count * w).reshape(count, w)
+
+    def _pack(self, rows: np.ndarray) -> dict:
+        """Integer rows (entry.c) to the float64 sample dict of _samples.pyx, converted as
+        _fixed.pyx's snapshot_row converts its state."""
+        n = self.n
+        per = rows[:, 4:4 + 7 * n].reshape(len(rows), n, 7)
+        out = {"t": rows[:, 0].copy()}
+        out["x"] = per[:, :, 0].astype(np.float64) * POS_UNIT
+        out["y"] = per[:, :, 1].astype(np.float64) * POS_UNIT
+        out["sxx"] = per[:, :, 2].astype(np.float64) * COV_UNIT
+        out["sxy"] = per[:, :, 3].astype(np.float64) * COV_UNIT
+        out["syy"] = per[:, :, 4].astype(np.float64) * COV_UNIT
+        out["activity"] = per[:, :, 5].astype(np.float64) * Q32_UNIT
+        out["active"] = (per[:, :, 6] & 1).astype(np.uint8)
+        out["sensitive"] = ((per[:, :, 6] >> 1) & 1).astype(np.uint8)
+        out["energy"] = (rows[:, 1:4].astype(np.float64) * Q32_UNIT / self.nc if self.nc
+                         else np.zeros((len(rows), 3)))
+        return out
+
+    def step(self, t: int, x: int, y: int) -> int:
+        ev = np.zeros(1, [("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "u1")], align=True)
+        ev[0] = (t, x, y, 0)
+        self.emu.write("mcu_events", ev)
+        return self.emu.call(E.MCU_STEP)["status"]
+
+    # ---- observation --------------------------------------------------------------------
+    def snapshot(self, t: int) -> dict:
+        self.emu.call(E.MCU_SNAPSHOT, t=int(t))
+        s = self._pack(self._rows(1))
+        out = {f: s[f][0] for f in ("x", "y", "sxx", "sxy", "syy")}
+        out["activity"] = s["activity"][0]
+        out["active"] = s["active"][0].astype(bool)
+        out["sensitive"] = s["sensitive"][0].astype(bool)
+        return {f: out[f] for f in STATE_FIELDS}
+
+    def energies(self) -> np.ndarray:
+        self.emu.call(E.MCU_ENERGIES)
+        c = self.emu.layout["connections"]
+        e = self.emu.read_array("mcu_energy", np.int64, 3 * c).reshape(3, c)[:, :self.nc]
+        return e.astype(np.float64) * Q32_UNIT
+
+    def _counters(self) -> np.ndarray:
+        return self.emu.read_array("mcu_counters", np.int64)
+
+    @property
+    def mean_energy(self) -> float:
+        return float(self._counters()[11]) * Q32_UNIT
+
+    @property
+    def last_t(self) -> int:
+        return int(self._counters()[10])
+
+    def counters(self) -> dict:
+        return dict(zip(COUNTERS, (int(v) for v in self._counters()[:len(COUNTERS)])))
