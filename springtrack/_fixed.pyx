@@ -65,6 +65,7 @@ cdef extern from "csrc/fixed_step.h" nogil:
     int fx_check_index(const fx_state* s)
     int64_t fx_mulsh(int64_t v, uint32_t g, int sh)
     uint64_t fx_udiv64(uint64_t n, uint32_t d, uint32_t* rem)
+    uint32_t fx_divlu32(uint32_t u1, uint32_t u0, uint32_t v, uint32_t* rem)
     uint64_t fx_isqrt64(uint64_t v)
     uint32_t fx_exp2neg(int64_t w)
     int64_t fx_gauss(uint32_t d2)
@@ -303,6 +304,13 @@ cdef class FixedKernel:
         """(floor(n / d), n mod d) from 32-bit divisions."""
         cdef uint32_t r
         q = fx_udiv64(n, d, &r)
+        return q, r
+
+    def divlu32(self, unsigned int u1, unsigned int u0, unsigned int v):
+        """(floor((u1 2^32 + u0) / v), remainder) for u1 < v from 32-bit divisions only,
+        the path a 32-bit core takes (a 64-bit host divides natively, same integers)."""
+        cdef uint32_t r
+        q = fx_divlu32(u1, u0, v, &r)
         return q, r
 
     def isqrt(self, unsigned long long v):

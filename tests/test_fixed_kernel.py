@@ -82,6 +82,17 @@ def test_udiv64_from_32_bit_divisions(n, d):
     assert K.udiv64(n, d) == (n // d, n % d)
 
 
+@settings(max_examples=600, deadline=None)
+@given(st.integers(1, 2 ** 32 - 1), st.data())
+def test_divlu32_is_exact(v, data):
+    """The 32-bit cores' 64 / 32 division (two 32-bit divisions, Knuth's algorithm D),
+    including the correction steps' edge cases near powers of two."""
+    u1 = data.draw(st.integers(0, v - 1))
+    u0 = data.draw(st.one_of(st.integers(0, 2 ** 32 - 1), st.sampled_from([0, 2 ** 31, 2 ** 32 - 1])))
+    n = (u1 << 32) | u0
+    assert K.divlu32(u1, u0, v) == (n // v, n % v)
+
+
 @settings(max_examples=300, deadline=None)
 @given(st.integers(0, 8), st.integers(0, 319), st.integers(0, 239))
 def test_d2_matches_the_exact_quadratic_form(i, x, y):

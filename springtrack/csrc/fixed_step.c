@@ -92,8 +92,10 @@ static inline int bitlen64(uint64_t v)
 
 /* floor((u1 2^32 + u0) / v) for u1 < v, and the remainder: two 32-bit divisions by the
    normalised divisor's high half, each corrected by at most two steps (Knuth's algorithm
-   D with 16-bit digits, as Hacker's Delight's divlu) */
-static uint32_t divlu(uint32_t u1, uint32_t u0, uint32_t v, uint32_t *rem)
+   D with 16-bit digits, as Hacker's Delight's divlu).  A 64-bit host has this division
+   in one instruction; the quotient is exact either way, so both give the same integers
+   (fx_divlu32 keeps the 32-bit one testable there). */
+static uint32_t divlu32(uint32_t u1, uint32_t u0, uint32_t v, uint32_t *rem)
 {
     const uint32_t b = 65536;
     uint32_t vn1, vn0, un32, un21, un10, un1, un0, q1, q0, rhat;
@@ -126,12 +128,35 @@ static uint32_t divlu(uint32_t u1, uint32_t u0, uint32_t v, uint32_t *rem)
     return q1 * b + q0;
 }
 
+uint32_t fx_divlu32(uint32_t u1, uint32_t u0, uint32_t v, uint32_t *rem)
+{
+    return divlu32(u1, u0, v, rem);
+}
+
+static inline uint32_t divlu(uint32_t u1, uint32_t u0, uint32_t v, uint32_t *rem)
+{
+#if UINTPTR_MAX > 0xffffffffu
+    uint64_t n = ((uint64_t)u1 << 32) | u0;
+    uint32_t q = (uint32_t)(n / v);
+    *rem = u0 - q * v;                                    /* < v: exact modulo 2^32 */
+    return q;
+#else
+    return divlu32(u1, u0, v, rem);
+#endif
+}
+
 /* floor(n / d) and n mod d for any n < 2^64, 0 < d < 2^32: two divlu steps */
 static inline uint64_t udiv64(uint64_t n, uint32_t d, uint32_t *rem)
 {
+#if UINTPTR_MAX > 0xffffffffu
+    uint64_t q = n / d;                                   /* a 64-bit host: one instruction */
+    *rem = (uint32_t)n - (uint32_t)q * d;                 /* < d: exact modulo 2^32 */
+    return q;
+#else
     uint32_t hi = (uint32_t)(n >> 32), q1 = hi / d, q0;
-    q0 = divlu(hi - q1 * d, (uint32_t)n, d, rem);
+    q0 = divlu32(hi - q1 * d, (uint32_t)n, d, rem);
     return ((uint64_t)q1 << 32) | q0;
+#endif
 }
 
 uint64_t fx_udiv64(uint64_t n, uint32_t d, uint32_t *rem)
@@ -644,17 +669,19 @@ static inline int32_t mant(int64_t v, int k)
    so sigma_big^2 is in [2^(sh-10), 2^(sh-9)) px^2 and every product below is 32 x 32.
    det = ac - b^2 = m 2^e with m in [2^30, 2^31); r = floor(2^61 / m); then ia = syy / det
    = c r 2^(-21 - sh - e) px^-2 (Q.40 covariances), and likewise ic, ib.  The mantissas
-   ia_m = c r / 2^k (k = 31 or 32, so max(ia_m, ic_m) <= 2^30 and |ib2_m| < 2^31) carry
-   f = 21 + sh + e - k fraction bits.
+   are the high words ia_m = c r / 2^32 (max(a, c) r < 2^62, so max(ia_m, ic_m) <= 2^30
+   and |ib2_m| = |2 b r / 2^32| < 2^31), with f = sh + e - 11 fraction bits.
 
-   Offsets are taken as u = (Q.32 offset) >> osh, osh = ceil((sh - 1) / 2): |u| < 2^31
-   covers |offset| < 2^(osh-1) px >= 8 sigma_big, and an offset clamped to it has d^2 >=
-   2^(2 osh - 2) / (2 sigma_big^2) >= 32, beyond any gate (<= 31), so clamping decides
-   nothing.  d^2 (Q.27) = (sum of mantissa u u / 2^32 terms) >> dsh, dsh = f + 5 - 2 osh. */
+   Offsets are taken as u = (Q.32 offset) >> osh, osh = max(2, ceil((sh - 1) / 2) + 1):
+   |u| < 2^31 covers |offset| < 2^(osh-1) px >= 16 sigma_big (and >= 2 px), and an offset
+   whose whole pixels reach 2^(osh-1) is clamped: then |offset| > 2^(osh-1) - 1 px >= 8
+   sigma_big + 1 px and d^2 > 64 sigma_big^2 / (2 sigma_big^2) = 32, beyond any gate
+   (<= 31), so clamping decides nothing.  d^2 (Q.27) = (sum of mantissa u u / 2^32
+   terms) >> dsh, dsh = f + 5 - 2 osh. */
 static inline void refresh(fx_state *s, int i)
 {
     int64_t sxx = s->sxx[i], syy = s->syy[i], sxy = s->sxy[i], big, p, bb, det;
-    int32_t a, b, c, sh, e, k, osh, dsh, f;
+    int32_t a, b, c, sh, e, osh, dsh, f;
     uint32_t m, r, rem;
     sxx = sxx < s->smin2 ? s->smin2 : (sxx > s->smax2 ? s->smax2 : sxx);
     syy = syy < s->smin2 ? s->smin2 : (syy > s->smax2 ? s->smax2 : syy);
@@ -692,17 +719,19 @@ static inline void refresh(fx_state *s, int i)
     r = divlu((uint32_t)1 << 29, 0, m, &rem);            /* 2^61 / m in (2^30, 2^31] */
     if (r > 0x7fffffffu)
         r = 0x7fffffffu;
-    k = bitlen64(umul((uint32_t)(a > c ? a : c), r)) - 30;
-    f = 21 + sh + e - k;
-    osh = sh > 1 ? sh / 2 : 0;                            /* ceil((sh - 1) / 2) */
+    f = sh + e - 11;                                      /* 21 + sh + e - 32 */
+    osh = sh > 3 ? sh / 2 + 1 : 2;                        /* ceil((sh - 1) / 2) + 1, >= 2 */
     dsh = f + 5 - 2 * osh;
-    if (dsh < 0) {                                        /* extreme aspect ratios only */
-        k -= dsh;
+    if (dsh >= 0) {                                       /* mantissas: the products' high words */
+        s->ia[i] = (int32_t)((umul((uint32_t)c, r) + 0x80000000u) >> 32);
+        s->ic[i] = (int32_t)((umul((uint32_t)a, r) + 0x80000000u) >> 32);
+        s->ib2[i] = -(int32_t)((smul(b, (int32_t)r) + 0x40000000) >> 31);
+    } else {                                              /* extreme aspect ratios only */
+        s->ia[i] = mant((int64_t)umul((uint32_t)c, r), 32 - dsh);
+        s->ic[i] = mant((int64_t)umul((uint32_t)a, r), 32 - dsh);
+        s->ib2[i] = -mant(smul(b, (int32_t)r), 31 - dsh);
         dsh = 0;
     }
-    s->ia[i] = mant((int64_t)umul((uint32_t)c, r), k);
-    s->ic[i] = mant((int64_t)umul((uint32_t)a, r), k);
-    s->ib2[i] = -mant(smul(b, (int32_t)r), k - 1);
     s->osh[i] = (uint8_t)osh;
     s->dsh[i] = (uint8_t)dsh;
 }
@@ -712,20 +741,25 @@ void fx_refresh(fx_state *s, int i)
     refresh(s, i);
 }
 
-/* (Q.32 offset) >> sh clamped to int32 (the clamp decides nothing, see refresh) */
-static inline int32_t offset32(int64_t d, int sh)
+/* floor((v 2^32 - m) / 2^sh) for a pixel v and a Q.32 position m, 2 <= sh <= 31, in 32-bit
+   arithmetic: with m = h 2^32 + l and d = v - h, it is d 2^(32-sh) - ceil(l / 2^sh); when
+   |d| >= 2^(sh-1) it is clamped to +-(2^31 - 1) (the clamp decides nothing, see refresh) */
+static inline int32_t offset32(int32_t v, int64_t m, int sh)
 {
-    int64_t u = d >> sh;
-    return u > 0x7fffffff ? 0x7fffffff : (u < -0x7fffffff ? -0x7fffffff : (int32_t)u);
+    int32_t d = v - (int32_t)(m >> 32);
+    uint32_t l = (uint32_t)m, lim = 1u << (sh - 1);
+    if ((uint32_t)d + lim >= 2 * lim)
+        return d < 0 ? -0x7fffffff : 0x7fffffff;
+    return (int32_t)((uint32_t)d << (32 - sh)) - (int32_t)((l >> sh) + ((l & ((1u << sh) - 1)) != 0));
 }
 
 /* Mahalanobis d^2 = ia dx^2 + ib2 dx dy + ic dy^2 (eq. 2), Q.27, saturated at 2^32 - 1,
-   of the Q.32 offsets dx, dy from tracker i: five 32 x 32 products (|pa|, |pc| < 2^29,
-   |pb| < 2^30, |q| < 2^62); the relative rounding is ~2^-26 of d^2 at the gate */
-static inline uint32_t qform(const fx_state *s, int i, int64_t dx, int64_t dy)
+   of pixel (x, y) from tracker i: five 32 x 32 products (|pa|, |pc| <= 2^29, |pb| <= 2^30,
+   |q| < 2^62); the relative rounding is ~2^-25 of d^2 at the gate */
+static inline uint32_t qform(const fx_state *s, int i, int32_t x, int32_t y)
 {
     int sh = s->osh[i];
-    int32_t u = offset32(dx, sh), v = offset32(dy, sh);
+    int32_t u = offset32(x, s->mx[i], sh), v = offset32(y, s->my[i], sh);
     int32_t pa = (int32_t)(smul(s->ia[i], u) >> 32);
     int32_t pb = (int32_t)(smul(s->ib2[i], u) >> 32);
     int32_t pc = (int32_t)(smul(s->ic[i], v) >> 32);
@@ -738,7 +772,7 @@ static inline uint32_t qform(const fx_state *s, int i, int64_t dx, int64_t dy)
 
 uint32_t fx_d2(const fx_state *s, int i, int32_t x, int32_t y)
 {
-    return qform(s, i, shl64(x, FX_POS_FRAC) - s->mx[i], shl64(y, FX_POS_FRAC) - s->my[i]);
+    return qform(s, i, x, y);
 }
 
 /* [ref] _update: eqs. (2)-(6) for the winning tracker i; dx, dy Q.32 from the pre-update
@@ -782,7 +816,7 @@ static inline __attribute__((always_inline)) int assign(fx_state *s, uint64_t ma
         int i = lo ? __builtin_ctz(lo) : 32 + __builtin_ctz((uint32_t)(m >> 32));
         uint32_t d2;
         m &= m - 1;
-        d2 = qform(s, i, fx - s->mx[i], fy - s->my[i]);
+        d2 = qform(s, i, x, y);
         if (d2 < best_d2) {
             best_d2 = d2;
             best = i;
@@ -931,7 +965,8 @@ typedef struct {
     int32_t u, v;                                         /* u <= 0: polar form, octant -u */
 } spring_ratio;
 
-static inline spring_ratio geom_ratio(const fx_state *s, int k, int32_t rx, int32_t ry)
+static inline __attribute__((always_inline)) spring_ratio geom_ratio(const fx_state *s, int k,
+                                                                     int32_t rx, int32_t ry)
 {
     spring_ratio g;
     int64_t u = rshr(smul(s->c0x[k], rx) + smul(s->c0y[k], ry), 28);   /* Q.18, < 2^33 */
@@ -951,8 +986,9 @@ static inline spring_ratio geom_ratio(const fx_state *s, int k, int32_t rx, int3
 }
 
 /* the angle from rest (binary angle, [-pi, pi)), the length (Q.16) and direction (Q.30) */
-static inline int32_t geom_finish(const fx_state *s, int k, spring_ratio g, int32_t *l,
-                                  int32_t *cx, int32_t *cy)
+static inline __attribute__((always_inline)) int32_t geom_finish(const fx_state *s, int k,
+                                                                 spring_ratio g, int32_t *l,
+                                                                 int32_t *cx, int32_t *cy)
 {
     if (g.u > 0) {
         int32_t a = unit_interp(FX_ATAN_TAB, g.t);

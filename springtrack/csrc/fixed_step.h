@@ -175,6 +175,7 @@ int fx_check_index(const fx_state *s);
 /* building blocks, exported for tests */
 int64_t fx_mulsh(int64_t v, uint32_t g, int sh);
 uint64_t fx_udiv64(uint64_t n, uint32_t d, uint32_t *rem);
+uint32_t fx_divlu32(uint32_t u1, uint32_t u0, uint32_t v, uint32_t *rem);
 uint64_t fx_isqrt64(uint64_t v);
 uint32_t fx_exp2neg(int64_t w);
 int64_t fx_gauss(uint32_t d2);

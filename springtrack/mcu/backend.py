@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from .. import fixed_q
+from ..events import EVENT_DTYPE
 from ..tracker import STATE_FIELDS
 from . import emulator as E
 from .build import Capacity, cached_build
@@ -93,7 +94,7 @@ class McuBackend:
         return out
 
     def step(self, t: int, x: int, y: int) -> int:
-        ev = np.zeros(1, [("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "u1")], align=True)
+        ev = np.zeros(1, EVENT_DTYPE)
         ev[0] = (t, x, y, 0)
         self.emu.write("mcu_events", ev)
         return self.emu.call(E.MCU_STEP)["status"]

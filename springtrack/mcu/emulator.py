@@ -59,6 +59,7 @@ class Emulator:
             self.uc.ctl_set_cpu_model(getattr(C, tgt.uc_cpu))
             self.reg_sp, self.reg_ra = C.UC_RISCV_REG_SP, C.UC_RISCV_REG_RA
         self.sym = {}
+        self._func_names = set()
         flash_end, ram_end, progbits = FLASH_BASE, RAM_BASE, []
         with open(build_result.elf, "rb") as f:
             e = ELFFile(f)
@@ -75,6 +76,8 @@ class Emulator:
             for s in e.get_section_by_name(".symtab").iter_symbols():
                 if s.name:
                     self.sym[s.name] = (s["st_value"], s["st_size"])
+                    if s["st_info"]["type"] == "STT_FUNC":
+                        self._func_names.add(s.name)
         self.uc.mem_map(FLASH_BASE, _round_up(flash_end - FLASH_BASE))
         self.uc.mem_map(RAM_BASE, _round_up(ram_end - RAM_BASE))
         for a, data in progbits:
@@ -136,17 +139,29 @@ class Emulator:
             self._cs = cs.Cs(cs.CS_ARCH_ARM, cs.CS_MODE_THUMB | cs.CS_MODE_MCLASS)
         else:
             self._cs = cs.Cs(cs.CS_ARCH_RISCV, cs.CS_MODE_RISCV32 | cs.CS_MODE_RISCVC)
-        self._blocks: dict[tuple[int, int], int] = {}
+        self._blocks: dict[tuple[int, int], tuple[int, str]] = {}
+        self.by_function: dict[str, int] = {}
+        self._funcs = sorted((a & ~1, a + size, name) for name, (a, size) in self.sym.items()
+                             if size and FLASH_BASE <= a < RAM_BASE and name in self._func_names)
         self._springs = self.addr("fx_springs")
         self._spring_exit = None
         self.uc.hook_add(uc.UC_HOOK_BLOCK, self._on_block)
 
+    def _function_of(self, address: int) -> str:
+        for lo, hi, name in self._funcs:
+            if lo <= address < hi:
+                return name
+        return "?"
+
     def _on_block(self, uc, address, size, _user):
         key = (address, size)
-        n = self._blocks.get(key)
-        if n is None:
+        hit = self._blocks.get(key)
+        if hit is None:
             code = bytes(uc.mem_read(address, size))
-            n = self._blocks[key] = sum(1 for _ in self._cs.disasm_lite(code, address))
+            hit = self._blocks[key] = (sum(1 for _ in self._cs.disasm_lite(code, address)),
+                                       self._function_of(address))
+        n, fn = hit
+        self.by_function[fn] = self.by_function.get(fn, 0) + n
         if address == self._springs and self._spring_exit is None:
             self._spring_exit = uc.reg_read(self.reg_ra) & ~1
         elif self._spring_exit is not None and address == self._spring_exit:
