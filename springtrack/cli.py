@@ -19,6 +19,7 @@ COMMANDS = {
     "simulate": ("springtrack.commands.simulate", "simulate an ATIS sensor on a scene, with ground truth"),
     "score": ("springtrack.commands.score", "the paper's tracking error of a track CSV against ground truth"),
     "experiments": ("springtrack.commands.experiments", "reproduce the paper's section IV experiments on the simulated sensor (dask)"),
+    "mcu": ("springtrack.commands.mcu", "the fixed-point kernel as microcontroller firmware: build it, profile it in an emulator"),
 }
 
 

@@ -26,9 +26,13 @@ def add_arguments(p):
     p.add_argument("--model", required=True,
                    help="shape model: TOML file or preset name (grid3x3, face26)")
     p.add_argument("--params", help="TOML file of parameter overrides (see docs/algorithm.md)")
-    p.add_argument("--backend", default="cython", choices=["cython", "reference", "fixed"],
+    p.add_argument("--backend", default="cython", choices=["cython", "reference", "fixed", "mcu"],
                    help="cython: fast float64 kernel (default); reference: the pure-Python "
-                        "specification (slow); fixed: integer-only kernel")
+                        "specification (slow); fixed: integer-only kernel; mcu: that kernel's "
+                        "microcontroller build run in an emulator (same output as fixed, "
+                        "slowly; needs pip install 'springtrack[mcu]')")
+    p.add_argument("--mcu-target", default="cortex-m4", metavar="CORE",
+                   help="with --backend mcu: cortex-m4 (default), cortex-m7 or rv32imac")
     p.add_argument("--sample-us", type=int, default=1000, metavar="US",
                    help="state sampling period in µs of event time (default 1000)")
     p.add_argument("--out", required=True, help="output track CSV")
@@ -84,7 +88,8 @@ def run(args) -> int:
     from ..tracker import Tracker
     if args.sample_us <= 0:
         raise ValueError(f"--sample-us must be a positive number of µs, got {args.sample_us}")
-    tr = Tracker(args.model, params=args.params, backend=args.backend)
+    backend = f"mcu:{args.mcu_target}" if args.backend == "mcu" else args.backend
+    tr = Tracker(args.model, params=args.params, backend=backend)
     tr.record(args.sample_us)
     prog = Progress(not args.no_progress)
     start = time.perf_counter()

@@ -26,9 +26,12 @@ COUNTERS = ("events_valid", "events_assigned", "skipped_back_in_time", "skipped_
 class McuBackend:
     """The fixed-point kernel as built for ``target``, run in the emulator."""
 
-    def __init__(self, model, params, target: str = DEFAULT_TARGET, count: bool = False):
+    def __init__(self, model, params, target: str = DEFAULT_TARGET, count: bool = False,
+                 capacity: Capacity | None = None):
+        """``capacity``: what the ELF is built for (default: exactly this model); builds
+        are cached per source and capacity (build.cached_build)."""
         self.model = model
-        self.build = cached_build(target, Capacity.of_model(model))
+        self.build = cached_build(target, capacity or Capacity.of_model(model))
         self.emu = E.Emulator(self.build, count=count)
         self.n, self.nc = len(model.trackers), len(model.connections)
         self._load("mcu_words", fixed_q.model_words(model.arrays(), model.width, model.height),
