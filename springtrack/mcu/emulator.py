@@ -13,6 +13,7 @@ instruction.
 """
 from __future__ import annotations
 
+import re
 import struct
 
 import numpy as np
@@ -35,6 +36,11 @@ IO_FIELDS = ("sample_us", "next_t", "t", "cmd", "status", "nwords", "nevents", "
 # mcu_layout (entry.c)
 LAYOUT_FIELDS = ("trackers", "connections", "events", "rows", "cells", "words", "row_words",
                  "counters")
+
+
+# loads (each may take a second cycle) and divisions (multi-cycle) in the mix
+LOAD = re.compile(r"^(ldr|ldm|pop|lw|lh|lb|c\.lw|c\.lwsp)")
+DIV = re.compile(r"^(udiv|sdiv|div|rem)")
 
 
 def _round_up(v: int, a: int = PAGE) -> int:
@@ -89,6 +95,7 @@ class Emulator:
         self.uc.mem_write(self.stack[0], bytes([STACK_FILL]) * (self.stack[1] - self.stack[0]))
         self.instructions = 0
         self.spring_instructions = 0
+        self.loads = self.divides = self.blocks = 0   # the mix, for a cycle estimate
         if count:
             self._count_setup()
 
@@ -157,11 +164,16 @@ class Emulator:
         key = (address, size)
         hit = self._blocks.get(key)
         if hit is None:
-            code = bytes(uc.mem_read(address, size))
-            hit = self._blocks[key] = (sum(1 for _ in self._cs.disasm_lite(code, address)),
-                                       self._function_of(address))
-        n, fn = hit
+            mn = [m for _, _, m, _ in self._cs.disasm_lite(bytes(uc.mem_read(address, size)),
+                                                           address)]
+            loads = sum(1 for m in mn if LOAD.match(m))
+            divs = sum(1 for m in mn if DIV.match(m))
+            hit = self._blocks[key] = (len(mn), self._function_of(address), loads, divs)
+        n, fn, loads, divs = hit
         self.by_function[fn] = self.by_function.get(fn, 0) + n
+        self.loads += loads
+        self.divides += divs
+        self.blocks += 1
         if address == self._springs and self._spring_exit is None:
             self._spring_exit = uc.reg_read(self.reg_ra) & ~1
         elif self._spring_exit is not None and address == self._spring_exit:

@@ -27,6 +27,7 @@ def profile_events(model, params, events, target: str, limit: int | None = None,
     emu.call(E.MCU_NOP)
     overhead = emu.instructions
     emu.by_function.clear()
+    emu.loads = emu.divides = emu.blocks = 0
     counts = np.empty(len(ev), np.int64)
     spring = np.empty(len(ev), np.int64)
     for k, (t, x, y) in enumerate(zip(ev["t"].tolist(), ev["x"].tolist(), ev["y"].tolist())):
@@ -44,5 +45,6 @@ def profile_events(model, params, events, target: str, limit: int | None = None,
                 max=int(counts.max()) if len(ev) else 0,
                 spring_share=float(spring.sum() / max(counts.sum(), 1)),
                 stack_bytes=emu.stack_used(), counters=be.counters(),
+                mix=dict(loads=emu.loads / n, divides=emu.divides / n, blocks=emu.blocks / n),
                 by_function={k: v / n for k, v in sorted(emu.by_function.items(),
                                                          key=lambda kv: -kv[1])})
