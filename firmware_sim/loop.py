@@ -34,7 +34,9 @@ from .engine import UpdateRejected
 from .reader import Reader
 
 FIRMWARE = "firmware-sim 0.1 (fused CCam loop)"
-BACKENDS = ("cython", "fixed")     # the tracker kernels a firmware can run (springtrack.tracker)
+# the tracker kernels a firmware can run (springtrack.tracker); "mcu" is the fixed kernel's
+# microcontroller build in its emulator (slow: for correctness tests of the whole chain)
+BACKENDS = ("cython", "fixed", "mcu")
 TRACKER_DTYPE = TRACK_DTYPE      # per-tracker telemetry record, defined once in springtrack.wire
 BIAS_PREFIX = "bias."     # camera biases are parameters "bias.<name>" on the host link
 WINDOW_US = 10_000        # processing time is reported per 10 ms of events (paper Figs. 22-23)
@@ -148,16 +150,16 @@ class FirmwareLoop:
                  backend: str = "cython", energy_period_us: int = 100_000):
         if telemetry_period_us <= 0:
             raise ValueError(f"telemetry_period_us must be positive, got {telemetry_period_us}")
-        if backend not in BACKENDS:
+        if backend.partition(":")[0] not in BACKENDS:
             raise ValueError(f"backend {backend!r}: the firmware runs one of {', '.join(BACKENDS)}")
         self.backend = backend
         self.model = _model.load_model(model)
         self.params = resolve_params(self.model, params)
         self.kernel = self._new_kernel(self.model, self.params)
         self.profile = camusb.PROFILES[profile] if isinstance(profile, str) else profile
-        if self.profile.fmt == "ccam":
+        if self.profile.fmt == "ccam" and not backend.startswith("mcu"):
             self.fused = Fused(self.kernel, telemetry_period_us, 512)
-        else:                                 # EVT boards: springtrack.io decoder + kernel
+        else:            # EVT boards, or a kernel in an emulator: springtrack.io decoder + run
             self.fused = DecodedFeed(self.kernel, telemetry_period_us, self.profile)
         self.period = int(telemetry_period_us)
         self.reader = Reader(open_camera, nbuf=nbuf, shed=not lossless,
@@ -197,8 +199,9 @@ class FirmwareLoop:
         self.snap_wall: deque | None = None         # (t_us, wall) when a benchmark asks
 
     def _new_kernel(self, model, params):
-        """A tracker state for ``model`` on this firmware's backend: float64 ("cython") or
-        integer-only ("fixed", docs/fixed_point.md)."""
+        """A tracker state for ``model`` on this firmware's backend: float64 ("cython"),
+        integer-only ("fixed", docs/fixed_point.md) or that kernel's microcontroller build
+        in an emulator ("mcu", docs/mcu.md)."""
         return make_backend(self.backend, model, params)
 
     # ---- Engine: lifecycle ---------------------------------------------------------------

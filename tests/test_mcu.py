@@ -238,3 +238,85 @@ def test_missing_extra_names_the_install_command(tmp_path, monkeypatch, capsys):
     assert "pip install 'springtrack[mcu]'" in err and "ziglang" in err
     with pytest.raises(ValueError, match=r"pip install 'springtrack\[mcu\]'"):
         Tracker("grid3x3", backend="mcu")
+
+
+# ---- the firmware loop with the microcontroller build in the middle ---------------------
+def run_firmware(ev, backend, model="face26"):
+    import threading
+    import time
+    from firmware_sim import usb as camusb
+    from firmware_sim.loop import FirmwareLoop
+    from firmware_sim.simusb import SimBackend, SimCamera, events_source
+    cam = SimCamera(events_source(ev, 2048), realtime=False)
+    be = SimBackend(cam)
+    eng = FirmwareLoop(lambda: camusb.Camera.open("ccam_atis", backend=be), model,
+                       telemetry_period_us=1000, nbuf=256, transfer_bytes=16384, lossless=True,
+                       record=True, backend=backend)
+    eng.start()
+    t0, quiet = time.monotonic(), 0
+    while quiet < 3:
+        assert time.monotonic() - t0 < 120, eng.stats_line()
+        time.sleep(0.02)
+        quiet = quiet + 1 if cam.finished and eng.caught_up() else 0
+    eng.stop()
+    assert not any(t.name in ("usb-reader", "fused-loop") for t in threading.enumerate())
+    return eng
+
+
+def test_firmware_loop_with_the_mcu_build_equals_the_fixed_kernel():
+    """Simulated camera -> USB words -> CCam decoding -> the emulated Cortex-M4 kernel ->
+    telemetry: the same samples and the same TELEMETRY records, byte for byte, as the
+    fixed kernel in the fused loop (whose records the host's C packer makes)."""
+    ev, _ = simulate_all("face_occlusion", 0.1, seed=5)
+    got = {}
+    for b in ("fixed", "mcu"):
+        eng = run_firmware(ev, b)
+        s = eng.stats()
+        assert s["events_tracked"] == len(ev) and s["transfers_dropped"] == 0
+        assert s["kernel"]["backend"] == b
+        got[b] = (eng.poll_telemetry(10 ** 6), s["kernel"])
+    (fa, ka), (fb, kb) = got["fixed"], got["mcu"]
+    assert len(fa) == len(fb) > 50
+    for a, b in zip(fa, fb):
+        assert a["t_us"] == b["t_us"] and a["records"] == b["records"]
+        assert a["trackers"].tobytes() == b["trackers"].tobytes()
+    assert {k: v for k, v in ka.items() if k != "backend"} == {k: v for k, v in kb.items()
+                                                                 if k != "backend"}
+
+
+def test_hil_chain_with_the_mcu_build_records_what_the_fixed_kernel_does(tmp_path):
+    """The whole hardware-in-the-loop chain as separate processes: firmware-sim (simulated
+    camera, USB words, decoding, the emulated Cortex-M4 kernel, telemetry) on a pty, hostctl
+    recording the telemetry; the recording equals, byte for byte, the one of the same chain
+    with --backend fixed."""
+    from hostctl import Device
+    from hostctl.record import save
+    from firmware_sim import transport
+    from test_hostctl_hil import Firmware
+    recs = {}
+    for b in ("fixed", "mcu"):
+        pty = transport.PtyPort()
+        try:
+            fw = Firmware("--source", "sim:face_occlusion", "--max-speed", "--seconds", "0.15",
+                          "--backend", b, "--port", pty.path, "--wait-start", announce=False)
+            try:
+                snaps = []
+                with Device(pty, timeout=0.05, retries=400) as dev:
+                    dev.timeout = 0.5
+                    info = dev.info
+                    dev.start()
+                    while True:
+                        got = list(dev.telemetry(seconds=0.3))
+                        snaps += got
+                        if fw.proc.poll() is not None and not got:
+                            break
+                    lost = dev.link_counters()["lost"]
+            finally:
+                fw.close()
+        finally:
+            pty.close()
+        assert fw.proc.returncode == 0, fw.err[-2000:]
+        assert lost == 0 and len(snaps) == 149
+        save(tmp_path / f"{b}.csv", snaps, info)
+        recs[b] = (tmp_path / f"{b}.csv").read_bytes()
+    assert recs["mcu"] == recs["fixed"]

@@ -11,6 +11,7 @@ import numpy as np
 from .. import fixed_q
 from ..events import EVENT_DTYPE
 from ..tracker import STATE_FIELDS
+from ..wire import TELE_TRACKER
 from . import emulator as E
 from .build import Capacity, cached_build
 
@@ -18,6 +19,7 @@ DEFAULT_TARGET = "cortex-m4"
 POS_UNIT = 1.0 / 4294967296.0        # Q.32 px (as _fixed.pyx)
 COV_UNIT = 1.0 / 1099511627776.0     # Q.40 px^2
 Q32_UNIT = 1.0 / 4294967296.0        # Q.32 (activity, energy)
+TELE_RECORD = TELE_TRACKER.itemsize    # bytes per tracker record
 COUNTERS = ("events_valid", "events_assigned", "skipped_back_in_time", "skipped_outside_sensor",
             "spring_updates", "index_updates", "saturated_position", "saturated_activity",
             "saturated_energy", "saturated_inverse")
@@ -55,32 +57,41 @@ class McuBackend:
         if ev.dtype.itemsize != 16:
             raise TypeError("events must be a C-contiguous EVENT_DTYPE array")
         per = self.emu.layout["events"]
-        rows, k, n = [], 0, len(ev)
+        rows, wires, k, n, got = [], [], 0, len(ev), 0
         cap = cap if sample_us > 0 else 0
         while k < n:
             batch = ev[k:k + per]
             self.emu.write("mcu_events", batch)
             io = self.emu.call(E.MCU_RUN, nevents=len(batch), sample_us=int(sample_us),
-                               next_t=int(next_t), cap=max(cap - len(rows), 0))
+                               next_t=int(next_t), cap=max(cap - got, 0))
             next_t = io["next_t"]
             if io["rows"]:
-                rows.append(self._rows(io["rows"]))
+                r, w = self._rows(io["rows"])
+                rows.append(r)
+                wires.append(w)
+                got += io["rows"]
             k += io["consumed"]
-            if io["consumed"] < len(batch):          # the rows are full
-                if sum(len(r) for r in rows) >= cap:
-                    break
+            if io["consumed"] < len(batch) and got >= cap:     # the rows are full
+                break
         if sample_us <= 0:
             return n, next_t, None
-        return k, next_t, self._pack(np.concatenate(rows) if rows else
-                                     np.empty((0, self.emu.layout["row_words"]), np.int64))
+        if not rows:
+            rows = [np.empty((0, self.emu.layout["row_words"]), np.int64)]
+            wires = [np.empty((0, self.n * TELE_RECORD), np.uint8)]
+        return k, next_t, self._pack(np.concatenate(rows), np.concatenate(wires))
 
-    def _rows(self, count: int) -> np.ndarray:
+    def _rows(self, count: int) -> tuple[np.ndarray, np.ndarray]:
+        """The first ``count`` integer rows (entry.c) and their TELEMETRY records."""
         w = self.emu.layout["row_words"]
-        return self.emu.read_array("mcu_rows", np.int64, count * w).reshape(count, w)
+        rows = self.emu.read_array("mcu_rows", np.int64, count * w).reshape(count, w)
+        per = self.emu.layout["trackers"] * TELE_RECORD
+        wire = self.emu.read_array("mcu_wire", np.uint8, count * per).reshape(count, per)
+        return rows, wire[:, :self.n * TELE_RECORD]
 
-    def _pack(self, rows: np.ndarray) -> dict:
+    def _pack(self, rows: np.ndarray, wire: np.ndarray) -> dict:
         """Integer rows (entry.c) to the float64 sample dict of _samples.pyx, converted as
-        _fixed.pyx's snapshot_row converts its state."""
+        _fixed.pyx's snapshot_row converts its state; ``wire``: the rows' TELEMETRY
+        records, packed by the firmware itself."""
         n = self.n
         per = rows[:, 4:4 + 7 * n].reshape(len(rows), n, 7)
         out = {"t": rows[:, 0].copy()}
@@ -94,7 +105,13 @@ class McuBackend:
         out["sensitive"] = ((per[:, :, 6] >> 1) & 1).astype(np.uint8)
         out["energy"] = (rows[:, 1:4].astype(np.float64) * Q32_UNIT / self.nc if self.nc
                          else np.zeros((len(rows), 3)))
+        out["wire"] = wire
         return out
+
+    def telemetry_records(self, t: int) -> bytes:
+        """The TELEMETRY tracker records at event time t, packed by the firmware."""
+        self.emu.call(E.MCU_SNAPSHOT, t=int(t))
+        return self._rows(1)[1][0].tobytes()
 
     def step(self, t: int, x: int, y: int) -> int:
         ev = np.zeros(1, EVENT_DTYPE)
@@ -105,7 +122,7 @@ class McuBackend:
     # ---- observation --------------------------------------------------------------------
     def snapshot(self, t: int) -> dict:
         self.emu.call(E.MCU_SNAPSHOT, t=int(t))
-        s = self._pack(self._rows(1))
+        s = self._pack(*self._rows(1))
         out = {f: s[f][0] for f in ("x", "y", "sxx", "sxy", "syy")}
         out["activity"] = s["activity"][0]
         out["active"] = s["active"][0].astype(bool)

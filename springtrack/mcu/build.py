@@ -1,4 +1,5 @@
-"""Cross-compile the fixed-point kernel and its entry point (entry.c) into a freestanding
+"""Cross-compile the fixed-point kernel, its telemetry packer and its entry point
+(entry.c) into a freestanding
 ELF with the clang of the ``ziglang`` package, and measure its flash and static RAM.
 
     >>> res = build("cortex-m4", "out/")                      # doctest: +SKIP
@@ -24,8 +25,9 @@ from .targets import Target, target as get_target
 
 HERE = Path(__file__).resolve().parent
 CSRC = HERE.parent / "csrc"
-SOURCES = [HERE / "entry.c", CSRC / "fixed_step.c"]
-HEADERS = [CSRC / "fixed_step.h", CSRC / "fixed_tables.h", HERE / "link.ld"]
+SOURCES = [HERE / "entry.c", CSRC / "fixed_step.c", CSRC / "fixed_telemetry.c"]
+HEADERS = [CSRC / "fixed_step.h", CSRC / "fixed_tables.h", CSRC / "fixed_telemetry.h",
+           HERE / "link.ld"]
 CFLAGS = ["-std=c11", "-O2", "-ffreestanding", "-fno-builtin", "-nostdlib",
           "-ffunction-sections", "-fdata-sections", "-fno-unwind-tables",
           "-fno-asynchronous-unwind-tables", "-Wall", "-Wextra", "-Werror"]
