@@ -677,7 +677,8 @@ static inline int32_t mant(int64_t v, int k)
    whose whole pixels reach 2^(osh-1) is clamped: then |offset| > 2^(osh-1) - 1 px >= 8
    sigma_big + 1 px and d^2 > 64 sigma_big^2 / (2 sigma_big^2) = 32, beyond any gate
    (<= 31), so clamping decides nothing.  d^2 (Q.27) = (sum of mantissa u u / 2^32
-   terms) >> dsh, dsh = f + 5 - 2 osh. */
+   terms) >> dsh, dsh = f + 5 - 2 osh, which is e - 8 or e - 7 <= 24; kept >= 1 so that the
+   shift works on 32-bit words. */
 static inline void refresh(fx_state *s, int i)
 {
     int64_t sxx = s->sxx[i], syy = s->syy[i], sxy = s->sxy[i], big, p, bb, det;
@@ -721,16 +722,16 @@ static inline void refresh(fx_state *s, int i)
         r = 0x7fffffffu;
     f = sh + e - 11;                                      /* 21 + sh + e - 32 */
     osh = sh > 3 ? sh / 2 + 1 : 2;                        /* ceil((sh - 1) / 2) + 1, >= 2 */
-    dsh = f + 5 - 2 * osh;
-    if (dsh >= 0) {                                       /* mantissas: the products' high words */
+    dsh = f + 5 - 2 * osh;                                /* <= 24 (e <= 31) */
+    if (dsh >= 1) {                                       /* mantissas: the products' high words */
         s->ia[i] = (int32_t)((umul((uint32_t)c, r) + 0x80000000u) >> 32);
         s->ic[i] = (int32_t)((umul((uint32_t)a, r) + 0x80000000u) >> 32);
         s->ib2[i] = -(int32_t)((smul(b, (int32_t)r) + 0x40000000) >> 31);
-    } else {                                              /* extreme aspect ratios only */
-        s->ia[i] = mant((int64_t)umul((uint32_t)c, r), 32 - dsh);
-        s->ic[i] = mant((int64_t)umul((uint32_t)a, r), 32 - dsh);
-        s->ib2[i] = -mant(smul(b, (int32_t)r), 31 - dsh);
-        dsh = 0;
+    } else {                      /* sigma_x / sigma_y beyond ~290 only: fewer bits, dsh = 1 */
+        s->ia[i] = mant((int64_t)umul((uint32_t)c, r), 33 - dsh);
+        s->ic[i] = mant((int64_t)umul((uint32_t)a, r), 33 - dsh);
+        s->ib2[i] = -mant(smul(b, (int32_t)r), 32 - dsh);
+        dsh = 1;
     }
     s->osh[i] = (uint8_t)osh;
     s->dsh[i] = (uint8_t)dsh;
@@ -764,10 +765,13 @@ static inline uint32_t qform(const fx_state *s, int i, int32_t x, int32_t y)
     int32_t pb = (int32_t)(smul(s->ib2[i], u) >> 32);
     int32_t pc = (int32_t)(smul(s->ic[i], v) >> 32);
     int64_t q = smul(pa, u) + smul(pb + pc, v);
+    uint32_t hi = (uint32_t)((uint64_t)q >> 32), lo = (uint32_t)q;
+    int k = s->dsh[i];                                    /* 1 .. 31 */
     if (q <= 0)
         return 0;
-    q >>= s->dsh[i];
-    return q > (int64_t)D2_SAT ? D2_SAT : (uint32_t)q;
+    if (hi >> k)                                          /* q >> k >= 2^32 */
+        return D2_SAT;
+    return (lo >> k) | (hi << (32 - k));                  /* q >> k in 32-bit words */
 }
 
 uint32_t fx_d2(const fx_state *s, int i, int32_t x, int32_t y)
@@ -810,16 +814,20 @@ static inline __attribute__((always_inline)) int assign(fx_state *s, uint64_t ma
     int64_t fx = shl64(x, FX_POS_FRAC), fy = shl64(y, FX_POS_FRAC);
     uint32_t best_d2 = s->gate;
     uint64_t m = s->cells[(y >> FX_CELL_SHIFT) * s->gw + (x >> FX_CELL_SHIFT)] & mask;
-    int best = FX_NO_TRACKER;
-    while (m) {
-        uint32_t lo = (uint32_t)m;
-        int i = lo ? __builtin_ctz(lo) : 32 + __builtin_ctz((uint32_t)(m >> 32));
-        uint32_t d2;
-        m &= m - 1;
-        d2 = qform(s, i, x, y);
-        if (d2 < best_d2) {
-            best_d2 = d2;
-            best = i;
+    int best = FX_NO_TRACKER, half;
+    /* the mask's 32-bit halves in turn (low bits first, the same order): 32-bit operations,
+       and a build for at most 32 trackers has only the first */
+    for (half = 0; half < (FX_MAX_TRACKERS > 32 ? 2 : 1); half++) {
+        uint32_t w = (uint32_t)(m >> (32 * half));
+        while (w) {
+            int i = __builtin_ctz(w) + 32 * half;
+            uint32_t d2;
+            w &= w - 1;
+            d2 = qform(s, i, x, y);
+            if (d2 < best_d2) {
+                best_d2 = d2;
+                best = i;
+            }
         }
     }
     if (best >= 0)
