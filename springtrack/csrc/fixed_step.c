@@ -19,6 +19,10 @@
 #define ACT_MAX ((int64_t)1 << 61) /* activity saturates at 2^29 */
 #define E_MAX ((int64_t)1 << 61)   /* an energy saturates at 2^29 px^2 */
 #define D2_SAT 0xffffffffu         /* d^2 >= 32: beyond any gate */
+/* A 64-bit host does a few steps in 64-bit words, where a 32-bit core uses two 32-bit ones
+   (the candidate mask, d^2's final shift, the 64 / 32 divisions): the same integers
+   either way, each in the target's natural word. */
+#define FX_WORD64 (UINTPTR_MAX > 0xffffffffu)
 
 /* ---- arithmetic building blocks ----------------------------------------------------- */
 
@@ -135,7 +139,7 @@ uint32_t fx_divlu32(uint32_t u1, uint32_t u0, uint32_t v, uint32_t *rem)
 
 static inline uint32_t divlu(uint32_t u1, uint32_t u0, uint32_t v, uint32_t *rem)
 {
-#if UINTPTR_MAX > 0xffffffffu
+#if FX_WORD64
     uint64_t n = ((uint64_t)u1 << 32) | u0;
     uint32_t q = (uint32_t)(n / v);
     *rem = u0 - q * v;                                    /* < v: exact modulo 2^32 */
@@ -148,7 +152,7 @@ static inline uint32_t divlu(uint32_t u1, uint32_t u0, uint32_t v, uint32_t *rem
 /* floor(n / d) and n mod d for any n < 2^64, 0 < d < 2^32: two divlu steps */
 static inline uint64_t udiv64(uint64_t n, uint32_t d, uint32_t *rem)
 {
-#if UINTPTR_MAX > 0xffffffffu
+#if FX_WORD64
     uint64_t q = n / d;                                   /* a 64-bit host: one instruction */
     *rem = (uint32_t)n - (uint32_t)q * d;                 /* < d: exact modulo 2^32 */
     return q;
@@ -765,13 +769,20 @@ static inline uint32_t qform(const fx_state *s, int i, int32_t x, int32_t y)
     int32_t pb = (int32_t)(smul(s->ib2[i], u) >> 32);
     int32_t pc = (int32_t)(smul(s->ic[i], v) >> 32);
     int64_t q = smul(pa, u) + smul(pb + pc, v);
-    uint32_t hi = (uint32_t)((uint64_t)q >> 32), lo = (uint32_t)q;
-    int k = s->dsh[i];                                    /* 1 .. 31 */
+    int k = s->dsh[i];                                    /* 1 .. 24 */
     if (q <= 0)
         return 0;
-    if (hi >> k)                                          /* q >> k >= 2^32 */
-        return D2_SAT;
-    return (lo >> k) | (hi << (32 - k));                  /* q >> k in 32-bit words */
+#if FX_WORD64
+    q >>= k;
+    return q > (int64_t)D2_SAT ? D2_SAT : (uint32_t)q;
+#else
+    {                                                     /* the same in 32-bit words */
+        uint32_t hi = (uint32_t)((uint64_t)q >> 32), lo = (uint32_t)q;
+        if (hi >> k)                                      /* q >> k >= 2^32 */
+            return D2_SAT;
+        return (lo >> k) | (hi << (32 - k));
+    }
+#endif
 }
 
 uint32_t fx_d2(const fx_state *s, int i, int32_t x, int32_t y)
@@ -805,6 +816,18 @@ static __attribute__((noinline)) void update_tracker(fx_state *s, int i, int64_t
     check_index(s, i);
 }
 
+/* eq. (2) for candidate i: it becomes the best if its d^2 is below the best so far */
+static inline __attribute__((always_inline)) void candidate(const fx_state *s, int i, int32_t x,
+                                                            int32_t y, uint32_t *best_d2,
+                                                            int *best)
+{
+    uint32_t d2 = qform(s, i, x, y);
+    if (d2 < *best_d2) {
+        *best_d2 = d2;
+        *best = i;
+    }
+}
+
 /* eq. (2) and eqs. (3)-(6) for one valid event at pixel (x, y): the sensitive trackers
    indexed in the event's cell (mask), in index order, so ties resolve as in the reference's
    full scan; the winner is updated.  Returns the winner or FX_NO_TRACKER. */
@@ -814,22 +837,26 @@ static inline __attribute__((always_inline)) int assign(fx_state *s, uint64_t ma
     int64_t fx = shl64(x, FX_POS_FRAC), fy = shl64(y, FX_POS_FRAC);
     uint32_t best_d2 = s->gate;
     uint64_t m = s->cells[(y >> FX_CELL_SHIFT) * s->gw + (x >> FX_CELL_SHIFT)] & mask;
-    int best = FX_NO_TRACKER, half;
-    /* the mask's 32-bit halves in turn (low bits first, the same order): 32-bit operations,
-       and a build for at most 32 trackers has only the first */
+    int best = FX_NO_TRACKER;
+#if FX_WORD64
+    while (m) {                                           /* index order: ties as the reference */
+        int i = __builtin_ctzll(m);
+        m &= m - 1;
+        candidate(s, i, x, y, &best_d2, &best);
+    }
+#else
+    /* the mask's 32-bit halves in turn (low bits first: the same order), and a build for
+       at most 32 trackers has only the first */
+    int half;
     for (half = 0; half < (FX_MAX_TRACKERS > 32 ? 2 : 1); half++) {
         uint32_t w = (uint32_t)(m >> (32 * half));
         while (w) {
             int i = __builtin_ctz(w) + 32 * half;
-            uint32_t d2;
             w &= w - 1;
-            d2 = qform(s, i, x, y);
-            if (d2 < best_d2) {
-                best_d2 = d2;
-                best = i;
-            }
+            candidate(s, i, x, y, &best_d2, &best);
         }
     }
+#endif
     if (best >= 0)
         update_tracker(s, best, t, fx - s->mx[best], fy - s->my[best], best_d2);
     return best;
