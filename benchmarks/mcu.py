@@ -85,6 +85,17 @@ def main():
     verdict = (f"Target of <= {TARGET_INSTR} Thumb-2 instructions per event on the face scene: "
                + ("**met**" if face["mean"] <= TARGET_INSTR else "**not met**")
                + f" ({face['mean']:.0f} on face_occlusion, Cortex-M4).")
+    c = face["counters"]
+    assigned = c["events_assigned"] / max(c["events_valid"], 1)
+    where = ("Where they go (face_occlusion, Cortex-M4, instructions per event; inlined code "
+             "counts in its caller): "
+             + ", ".join(f"{k} {v:.0f} ({100 * v / face['mean']:.0f} %)"
+                         for k, v in list(face["by_function"].items())[:7])
+             + f".  {100 * assigned:.0f} % of the events are assigned, so eqs. (3)-(6) and the "
+             "inverse covariance (update_tracker, refresh) cost about "
+             f"{(face['by_function'].get('update_tracker', 0) + face['by_function'].get('refresh', 0)) / max(assigned, 1e-9):.0f}"
+             " per assigned event; the spring update (every 55 events, 40 connections) "
+             f"{face['spring_share'] * face['mean'] * 55:,.0f} per update.")
     text = "\n".join([
         f"Command: `.venv/bin/python benchmarks/mcu.py --events {args.events}`  ",
         f"Machine: {machine()} (the counts do not depend on it: they are instructions the "
@@ -96,7 +107,7 @@ def main():
         "What the face counts mean in time, with the clocks and cycles per instruction of "
         "docs/mcu.md (Cortex-M4: the TRM's cycle counts applied to the measured mix; "
         "Cortex-M7: dual issue from TCM taken as 1 instruction per cycle), against the "
-        "paper's face scene at 300 k events/s:", "", *rate_lines, "", verdict])
+        "paper's face scene at 300 k events/s:", "", *rate_lines, "", verdict, "", where])
     if not args.no_write:
         write_section("Microcontroller build", text)
 
