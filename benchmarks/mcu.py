@@ -3,7 +3,7 @@ on face26 and grid3x3 for every core, and what they mean in events/s.
 
 Run: .venv/bin/python benchmarks/mcu.py [--events N] [--no-write]
 Streams: the simulator's face_occlusion and grid_inplane scenes (springtrack.sim, seed 1),
-and the blob_stream scenes of benchmarks/kernel.py; the first N events of each.
+and the blob_stream scenes of benchmarks/_streams.py; the first N events of each.
 Writes the "Microcontroller build" section of docs/benchmarks.md.
 """
 from __future__ import annotations
@@ -24,7 +24,7 @@ from springtrack.synthetic import blob_stream  # noqa: E402
 from springtrack.tracker import resolve_params  # noqa: E402
 
 from _report import machine, write_section  # noqa: E402
-from kernel import SCENES as BLOB  # noqa: E402
+from _streams import SCENES as BLOB  # noqa: E402
 
 PAPER_RATE = 300_000          # events/s of the paper's face scene (Valeiras et al. 2015)
 TARGET_INSTR = 800            # the issue's target on the face scene, Thumb-2

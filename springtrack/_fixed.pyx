@@ -62,18 +62,6 @@ cdef extern from "csrc/fixed_step.h" nogil:
     void fx_energies(fx_state* s)
     void fx_reindex(fx_state* s, int i)
     int64_t fx_activity(const fx_state* s, int i, int64_t t)
-    int fx_check_index(const fx_state* s)
-    int64_t fx_mulsh(int64_t v, uint32_t g, int sh)
-    uint64_t fx_udiv64(uint64_t n, uint32_t d, uint32_t* rem)
-    uint32_t fx_divlu32(uint32_t u1, uint32_t u0, uint32_t v, uint32_t* rem)
-    uint64_t fx_isqrt64(uint64_t v)
-    uint32_t fx_exp2neg(int64_t w)
-    int64_t fx_gauss(uint32_t d2)
-    uint32_t fx_decay(const fx_state* s, int64_t dt)
-    uint32_t fx_atan2(int64_t y, int64_t x)
-    void fx_cossin(int64_t angle, int64_t* c, int64_t* sn)
-    void fx_polar(int32_t x, int32_t y, uint32_t* ang, int32_t* len, int32_t* cx, int32_t* cy)
-    uint32_t fx_d2(const fx_state* s, int i, int32_t x, int32_t y)
 
 cdef extern from "csrc/fixed_step.c":
     pass
@@ -255,20 +243,6 @@ cdef class FixedKernel:
                     syy=np.array([s.syy[i] for i in range(n)], np.int64),
                     activity=np.array([s.act[i] for i in range(n)], np.int64))
 
-    def set_raw(self, int i, x=None, y=None, act=None):
-        """Overwrite tracker i's raw integer state (tests: drive it to a range limit).
-        x, y Q.32 (int64), act Q.32; the spatial index is refreshed."""
-        cdef fx_state* s = <fx_state*>self.state
-        if not 0 <= i < s.n:
-            raise IndexError(f"tracker index {i} out of range 0..{s.n - 1}")
-        if x is not None:
-            s.mx[i] = x
-        if y is not None:
-            s.my[i] = y
-        if act is not None:
-            s.act[i] = act
-        fx_reindex(s, i)
-
     def energies(self):
         """(3, nc) array of the last spring update's energies: euclidean, torsional, cartesian."""
         cdef fx_state* s = <fx_state*>self.state
@@ -291,68 +265,3 @@ cdef class FixedKernel:
                     spring_updates=s.n_spring_updates, index_updates=s.n_reindex,
                     saturated_position=s.sat_position, saturated_activity=s.sat_activity,
                     saturated_energy=s.sat_energy, saturated_inverse=s.sat_inverse)
-
-    def check_index(self):
-        """Verify the spatial index invariant (tests)."""
-        return bool(fx_check_index(<fx_state*>self.state))
-
-    # ---- integer building blocks, for tests ----
-    def mulsh(self, long long v, unsigned int g, int sh):
-        return fx_mulsh(v, g, sh)
-
-    def udiv64(self, unsigned long long n, unsigned int d):
-        """(floor(n / d), n mod d) from 32-bit divisions."""
-        cdef uint32_t r
-        q = fx_udiv64(n, d, &r)
-        return q, r
-
-    def divlu32(self, unsigned int u1, unsigned int u0, unsigned int v):
-        """(floor((u1 2^32 + u0) / v), remainder) for u1 < v from 32-bit divisions only,
-        the path a 32-bit core takes (a 64-bit host divides natively, same integers)."""
-        cdef uint32_t r
-        q = fx_divlu32(u1, u0, v, &r)
-        return q, r
-
-    def isqrt(self, unsigned long long v):
-        return fx_isqrt64(v)
-
-    def exp2neg(self, long long w):
-        return fx_exp2neg(w)
-
-    def gauss(self, unsigned int d2):
-        """exp(-d2 / 2) for d2 in Q.27 (0 <= d2 < 32), Q.30: the kernel value of eq. (2)."""
-        return fx_gauss(d2)
-
-    def decay(self, long long dt):
-        """exp(-dt / tau) for dt in us, Q.30: the activity decay of eq. (6)."""
-        return fx_decay(<fx_state*>self.state, dt)
-
-    def d2(self, int i, int x, int y):
-        """Tracker i's Mahalanobis d^2 (eq. 2) of pixel (x, y), Q.27, saturated at 2^32 - 1."""
-        cdef fx_state* s = <fx_state*>self.state
-        if not 0 <= i < s.n:
-            raise IndexError(f"tracker index {i} out of range 0..{s.n - 1}")
-        return fx_d2(s, i, x, y)
-
-    def recompute_energies(self):
-        """Recompute every kind of the last spring update's energies from the spring
-        vectors it kept, the criterion's kind too (tests: the lazily computed kinds must
-        be what the spring update would have computed)."""
-        cdef fx_state* s = <fx_state*>self.state
-        s.energy_stale = 7 | (s.energy_stale & 8)
-        fx_energies(s)
-
-    def atan2(self, long long y, long long x):
-        return fx_atan2(y, x)
-
-    def polar(self, int x, int y):
-        """(binary angle, length, cos Q.30, sin Q.30) of the vector (x, y) (tests)."""
-        cdef uint32_t a
-        cdef int32_t l, cx, cy
-        fx_polar(x, y, &a, &l, &cx, &cy)
-        return a, l, cx, cy
-
-    def cossin(self, long long angle):
-        cdef int64_t c, sn
-        fx_cossin(angle, &c, &sn)
-        return c, sn
