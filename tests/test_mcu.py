@@ -246,7 +246,8 @@ def run_firmware(ev, backend, model="face26"):
     import time
     from firmware_sim import usb as camusb
     from firmware_sim.loop import FirmwareLoop
-    from firmware_sim.simusb import SimBackend, SimCamera, events_source
+    from firmware_sim.simcam import SimBackend, SimCamera
+    from firmware_sim.sources import events_source
     cam = SimCamera(events_source(ev, 2048), realtime=False)
     be = SimBackend(cam)
     eng = FirmwareLoop(lambda: camusb.Camera.open("ccam_atis", backend=be), model,
