@@ -10,7 +10,6 @@ integer state to float64 only when a sample is taken.  Same interface as
 ``springtrack._kernel.Kernel``; docs/fixed_point.md has the formats and error bounds.
 """
 from libc.stdlib cimport calloc, free
-from libc.string cimport memset
 from libc.stdint cimport int64_t, uint64_t, int32_t, uint32_t, uint16_t, uint8_t
 
 import numpy as np
