@@ -91,7 +91,7 @@ def test_unreadable_files(tmp_path):
 
 @pytest.mark.parametrize("content,match", [
     (b"% date today\n\x00\x00", "names no encoding"),
-    (b"% evt 4.0\n", "EVT 2.0 and EVT 3.0"),
+    (b"% evt 4.0\n", "EVT 2.0, EVT 2.1 and EVT 3.0"),
     (b"% evt 2.0\n% format EVT2;height=abc;width=10\n", "not an integer"),
     (b"% evt 2.0\n% geometry 0x10\n", "out of range"),
     (b"% evt 2.0\n% unterminated", "no end of line"),
@@ -157,7 +157,7 @@ def test_backwards_time_in_a_file_is_counted(tmp_path):
     (tmp_path / "b.raw").write_bytes(b"% evt 2.0\n" + words.tobytes())
     r = sio.open(tmp_path / "b.raw")
     ev = r.read()
-    assert list(ev["t"]) == [0x100 * 64, 0x100 * 64]
+    assert list(ev["t"]) == [0x100 * 64, 0x101 * 64]     # rebased one unit past 0x100
     assert r.stats.anomalies["time_backwards"] == 1
 
 
