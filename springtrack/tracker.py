@@ -115,7 +115,7 @@ def _mcu_backend(model, params, option):
     try:
         from .mcu.backend import DEFAULT_TARGET, McuBackend
         return McuBackend(model, params, target=option or DEFAULT_TARGET)
-    except MissingExtra as e:
+    except (MissingExtra, RuntimeError) as e:      # no toolchain, a failed build or run
         raise ValueError(f"backend 'mcu': {e}") from None
 
 

@@ -321,3 +321,15 @@ def test_hil_chain_with_the_mcu_build_records_what_the_fixed_kernel_does(tmp_pat
         save(tmp_path / f"{b}.csv", snaps, info)
         recs[b] = (tmp_path / f"{b}.csv").read_bytes()
     assert recs["mcu"] == recs["fixed"]
+
+
+def test_a_faulting_firmware_is_a_clear_error():
+    """A fault in the emulated core (here: a jump to unmapped memory) is a RuntimeError
+    naming the core and the command, and the backend turns it into a ValueError."""
+    from springtrack.mcu import emulator as E
+    from springtrack.mcu.backend import McuBackend
+    m = springtrack.load_model("grid3x3")
+    be = McuBackend(m, Tracker(m).params)
+    be.emu.main = E.FLASH_BASE - 0x100                    # no code there
+    with pytest.raises(RuntimeError, match=r"cortex-m4 firmware faulted in command 4"):
+        be.emu.call(E.MCU_STEP)

@@ -58,10 +58,9 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    from ..mcu import MissingExtra
     try:
         return _build(args) if args.action == "build" else _profile(args)
-    except MissingExtra as e:
+    except RuntimeError as e:        # the [mcu] extra missing, a failed build, a faulted run
         print(f"springtrack mcu {args.action}: error: {e}", file=sys.stderr)
         return 2
 

@@ -58,12 +58,13 @@ class Emulator:
             from unicorn import arm_const as C
             self.uc = uc.Uc(uc.UC_ARCH_ARM, uc.UC_MODE_THUMB | uc.UC_MODE_MCLASS)
             self.uc.ctl_set_cpu_model(getattr(C, tgt.uc_cpu))
-            self.reg_sp, self.reg_ra = C.UC_ARM_REG_SP, C.UC_ARM_REG_LR
+            self.reg_sp, self.reg_ra, self.reg_pc = C.UC_ARM_REG_SP, C.UC_ARM_REG_LR, C.UC_ARM_REG_PC
         else:
             from unicorn import riscv_const as C
             self.uc = uc.Uc(uc.UC_ARCH_RISCV, uc.UC_MODE_RISCV32)
             self.uc.ctl_set_cpu_model(getattr(C, tgt.uc_cpu))
-            self.reg_sp, self.reg_ra = C.UC_RISCV_REG_SP, C.UC_RISCV_REG_RA
+            self.reg_sp, self.reg_ra, self.reg_pc = (C.UC_RISCV_REG_SP, C.UC_RISCV_REG_RA,
+                                                     C.UC_RISCV_REG_PC)
         self.sym = {}
         self._func_names = set()
         flash_end, ram_end, progbits = FLASH_BASE, RAM_BASE, []
@@ -89,6 +90,8 @@ class Emulator:
         for a, data in progbits:
             self.uc.mem_write(a, data)
         self.layout = dict(zip(LAYOUT_FIELDS, self.read_array("mcu_layout", np.int32).tolist()))
+        self._funcs = sorted((a & ~1, a + size, name) for name, (a, size) in self.sym.items()
+                             if size and FLASH_BASE <= a < RAM_BASE and name in self._func_names)
         self.main = self.addr("mcu_main")
         self.halt = self.addr("mcu_halt")
         self.stack = (self.sym["__stack_bottom"][0], self.sym["__stack_top"][0])
@@ -135,7 +138,12 @@ class Emulator:
         self.write("mcu_io", IO.pack(*(cur[f] for f in IO_FIELDS)))
         self.uc.reg_write(self.reg_sp, self.stack[1])
         self.uc.reg_write(self.reg_ra, self.halt | (1 if self.arm else 0))
-        self.uc.emu_start(self.main | (1 if self.arm else 0), self.halt)
+        try:
+            self.uc.emu_start(self.main | (1 if self.arm else 0), self.halt)
+        except need("unicorn").UcError as e:
+            pc = self.uc.reg_read(self.reg_pc)
+            raise RuntimeError(f"the {self.res.target.name} firmware faulted in command {cmd} "
+                               f"at pc={pc:#x} ({self._function_of(pc & ~1)}): {e}") from None
         return dict(zip(IO_FIELDS, IO.unpack(self.read("mcu_io", IO.size))))
 
     # ---- instruction counting -----------------------------------------------------------
@@ -148,8 +156,6 @@ class Emulator:
             self._cs = cs.Cs(cs.CS_ARCH_RISCV, cs.CS_MODE_RISCV32 | cs.CS_MODE_RISCVC)
         self._blocks: dict[tuple[int, int], tuple[int, str]] = {}
         self.by_function: dict[str, int] = {}
-        self._funcs = sorted((a & ~1, a + size, name) for name, (a, size) in self.sym.items()
-                             if size and FLASH_BASE <= a < RAM_BASE and name in self._func_names)
         self._springs = self.addr("fx_springs")
         self._spring_exit = None
         self.uc.hook_add(uc.UC_HOOK_BLOCK, self._on_block)
