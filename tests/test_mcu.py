@@ -325,7 +325,7 @@ def test_hil_chain_with_the_mcu_build_records_what_the_fixed_kernel_does(tmp_pat
 
 def test_a_faulting_firmware_is_a_clear_error():
     """A fault in the emulated core (here: a jump to unmapped memory) is a RuntimeError
-    naming the core and the command, and the backend turns it into a ValueError."""
+    naming the core and the command."""
     from springtrack.mcu import emulator as E
     from springtrack.mcu.backend import McuBackend
     m = springtrack.load_model("grid3x3")
