@@ -333,3 +333,14 @@ def test_a_faulting_firmware_is_a_clear_error():
     be.emu.main = E.FLASH_BASE - 0x100                    # no code there
     with pytest.raises(RuntimeError, match=r"cortex-m4 firmware faulted in command 4"):
         be.emu.call(E.MCU_STEP)
+
+
+@pytest.mark.parametrize("preset", ["grid3x3", "face26"])
+def test_the_firmware_stays_within_the_bound_of_the_float_kernel(preset):
+    """The bound of docs/fixed_point.md, checked on the firmware itself (RV32IMAC here; the
+    other cores equal it bit for bit): positions, covariances, flags, no saturation."""
+    from fixed_bound import compare, scene_stream, violations
+    model, ev = scene_stream(preset, 20_000, seed=7)
+    res = compare(model, ev, sample_us=1000, backend="mcu:rv32imac")
+    assert res["samples"] > 60 and not violations(res), violations(res)
+    assert sum(v for k, v in res["counters_fixed"].items() if k.startswith("saturated_")) == 0
