@@ -1071,7 +1071,8 @@ static inline void spring_vector(const fx_state *s, int k, int32_t *rx, int32_t 
    returned.  `used` = the kinds whose geometry the model needs (its springs' kinds and the
    criterion's); each instantiation below contains only that geometry.
    Structure of arrays, one short step per pass: the connections are independent, and a
-   pass whose iterations are short lets an out-of-order processor overlap many of them. */
+   pass whose iterations are short lets an out-of-order processor overlap many of them (a
+   32-bit in-order core does the first two passes as one). */
 static inline __attribute__((always_inline)) int64_t spring_passes(fx_state *s, const int used,
                                                                    int64_t *ddx, int64_t *ddy)
 {
@@ -1084,12 +1085,20 @@ static inline __attribute__((always_inline)) int64_t spring_passes(fx_state *s, 
     if (used & 3) {
         int64_t sum = 0;
         spring_ratio g[FX_MAX_CONNECTIONS];
-        for (k = 0; k < nc; k++) {                        /* r, and the divisions */
+#if FX_WORD64
+        /* an out-of-order host: r and all the divisions first, so that they overlap */
+        for (k = 0; k < nc; k++) {
             spring_vector(s, k, &grx[k], &gry[k]);
             g[k] = geom_ratio(s, k, grx[k], gry[k]);
         }
+#endif
         for (k = 0; k < nc; k++) {
             int32_t l, cx, cy;
+#if !FX_WORD64
+            /* an in-order core: one pass (the same operations per connection) */
+            spring_vector(s, k, &grx[k], &gry[k]);
+            g[k] = geom_ratio(s, k, grx[k], gry[k]);
+#endif
             dth[k] = geom_finish(s, k, g[k], &l, &cx, &cy);   /* eq. (14) */
             sum += dth[k];
             fx[k] = fy[k] = 0;
