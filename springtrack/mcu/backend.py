@@ -10,7 +10,7 @@ import numpy as np
 
 from .. import fixed_q
 from ..events import EVENT_DTYPE
-from ..tracker import STATE_FIELDS
+from ..track import TRACK_DTYPE, TRACK_FIELDS
 from ..wire import TELE_TRACKER
 from . import emulator as E
 from .build import Capacity, cached_build
@@ -27,6 +27,8 @@ COUNTERS = ("events_valid", "events_assigned", "skipped_back_in_time", "skipped_
 
 class McuBackend:
     """The fixed-point kernel as built for ``target``, run in the emulator."""
+
+    native_records = True        # its sample rows carry the TELEMETRY records it packs
 
     def __init__(self, model, params, target: str = DEFAULT_TARGET, count: bool = False,
                  capacity: Capacity | None = None):
@@ -89,24 +91,23 @@ class McuBackend:
         return rows, wire[:, :self.n * TELE_RECORD]
 
     def _pack(self, rows: np.ndarray, wire: np.ndarray) -> dict:
-        """Integer rows (entry.c) to the float64 sample dict of _samples.pyx, converted as
-        _fixed.pyx's snapshot_row converts its state; ``wire``: the rows' TELEMETRY
-        records, packed by the firmware itself."""
+        """Integer rows (entry.c) to the sample dict of springtrack._samples (``t``,
+        ``trackers`` of TRACK_DTYPE, ``energy``), converted as _fixed.pyx's snapshot_row
+        converts its state; ``wire``: the rows' TELEMETRY records, packed by the firmware."""
         n = self.n
         per = rows[:, 4:4 + 7 * n].reshape(len(rows), n, 7)
-        out = {"t": rows[:, 0].copy()}
-        out["x"] = per[:, :, 0].astype(np.float64) * POS_UNIT
-        out["y"] = per[:, :, 1].astype(np.float64) * POS_UNIT
-        out["sxx"] = per[:, :, 2].astype(np.float64) * COV_UNIT
-        out["sxy"] = per[:, :, 3].astype(np.float64) * COV_UNIT
-        out["syy"] = per[:, :, 4].astype(np.float64) * COV_UNIT
-        out["activity"] = per[:, :, 5].astype(np.float64) * Q32_UNIT
-        out["active"] = (per[:, :, 6] & 1).astype(np.uint8)
-        out["sensitive"] = ((per[:, :, 6] >> 1) & 1).astype(np.uint8)
-        out["energy"] = (rows[:, 1:4].astype(np.float64) * Q32_UNIT / self.nc if self.nc
-                         else np.zeros((len(rows), 3)))
-        out["wire"] = wire
-        return out
+        tr = np.empty((len(rows), n), TRACK_DTYPE)
+        tr["x"] = per[:, :, 0].astype(np.float64) * POS_UNIT
+        tr["y"] = per[:, :, 1].astype(np.float64) * POS_UNIT
+        tr["sxx"] = per[:, :, 2].astype(np.float64) * COV_UNIT
+        tr["sxy"] = per[:, :, 3].astype(np.float64) * COV_UNIT
+        tr["syy"] = per[:, :, 4].astype(np.float64) * COV_UNIT
+        tr["activity"] = per[:, :, 5].astype(np.float64) * Q32_UNIT
+        tr["active"] = (per[:, :, 6] & 1).astype(bool)
+        tr["sensitive"] = ((per[:, :, 6] >> 1) & 1).astype(bool)
+        energy = (rows[:, 1:4].astype(np.float64) * Q32_UNIT / self.nc if self.nc
+                  else np.zeros((len(rows), 3)))
+        return {"t": rows[:, 0].copy(), "trackers": tr, "energy": energy, "wire": wire}
 
     def telemetry_records(self, t: int) -> bytes:
         """The TELEMETRY tracker records at event time t, packed by the firmware."""
@@ -122,12 +123,8 @@ class McuBackend:
     # ---- observation --------------------------------------------------------------------
     def snapshot(self, t: int) -> dict:
         self.emu.call(E.MCU_SNAPSHOT, t=int(t))
-        s = self._pack(*self._rows(1))
-        out = {f: s[f][0] for f in ("x", "y", "sxx", "sxy", "syy")}
-        out["activity"] = s["activity"][0]
-        out["active"] = s["active"][0].astype(bool)
-        out["sensitive"] = s["sensitive"][0].astype(bool)
-        return {f: out[f] for f in STATE_FIELDS}
+        tr = self._pack(*self._rows(1))["trackers"][0]
+        return {f: tr[f].copy() for f in TRACK_FIELDS}
 
     def energies(self) -> np.ndarray:
         self.emu.call(E.MCU_ENERGIES)

@@ -27,7 +27,7 @@ HERE = Path(__file__).resolve().parent
 CSRC = HERE.parent / "csrc"
 SOURCES = [HERE / "entry.c", CSRC / "fixed_step.c", CSRC / "fixed_telemetry.c"]
 HEADERS = [CSRC / "fixed_step.h", CSRC / "fixed_tables.h", CSRC / "fixed_telemetry.h",
-           HERE / "link.ld"]
+           CSRC / "sampling.h", HERE / "link.ld"]
 CFLAGS = ["-std=c11", "-O2", "-ffreestanding", "-fno-builtin", "-nostdlib",
           "-ffunction-sections", "-fdata-sections", "-fno-unwind-tables",
           "-fno-asynchronous-unwind-tables", "-Wall", "-Wextra", "-Werror"]
