@@ -66,6 +66,9 @@ class McuBackend:
             self.emu.write("mcu_events", batch)
             io = self.emu.call(E.MCU_RUN, nevents=len(batch), sample_us=int(sample_us),
                                next_t=int(next_t), cap=max(cap - got, 0))
+            if io["status"] != 0:
+                raise ValueError(f"mcu backend: sample period {sample_us} us is beyond the "
+                                 f"firmware's 32-bit range")
             next_t = io["next_t"]
             if io["rows"]:
                 r, w = self._rows(io["rows"])
