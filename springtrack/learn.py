@@ -1,0 +1,773 @@
+"""Learning a shape model from events: free trackers, then springs from co-activation.
+
+    >>> import springtrack
+    >>> model = springtrack.learn(events)                  # doctest: +SKIP
+    >>> model = springtrack.learn(events, trackers=9)      # exactly 9 parts  # doctest: +SKIP
+
+The paper's closing proposal ("the pool of trackers would then connect based on their
+temporal coactivations"), in three passes over the learning window (docs/learning.md):
+
+1. **Discovery.** A pool of free Gaussian trackers (eqs. 2-6, no springs) runs over the
+   window with a lifecycle checked every ``batch_us``:
+
+   * *birth*: events no tracker takes (outside every gate, eq. 2) are counted, decayed
+     with ``activity_tau_us``, in cells of ``birth_cell_px``; where a 3x3 block of cells
+     holds ``birth_events`` of them and ``birth_contrast`` times the background (the
+     median block), a tracker is born at their mean with their covariance;
+   * *merge*: two trackers follow the same cloud when a fraction ``merge_overlap`` of the
+     smaller one's recent events also fell inside the other's gate; they merge into the
+     moment-matched Gaussian, unless it would be wider than ``sigma_max_px`` (the largest
+     part);
+   * *death*: a tracker older than ``life_tau_us`` dies when its recent event count falls
+     below ``death_share`` of the pool's median, or its event density below
+     ``birth_contrast`` times the background's (a tracker of noise).
+
+   ``trackers=N`` then merges (most overlapping first) or splits (widest first) to N.
+2. **Settling.** The surviving set, fixed, runs backwards in time to the window's start.
+3. **Observation.** The set runs forwards again over the window, sampled every
+   ``batch_us``: activities (eq. 6), positions and event counts.
+
+Springs link neighbours (the relative neighbourhood graph of the final positions) that
+were co-active (normalised inner product of their activity traces at least
+``min_coactivation``) and kept their relative position in the object's frame (rigidity,
+see :func:`rigidity`).  A connection is Cartesian where its direction turned less than
+``cartesian_turn_deg`` over the window, Euclidean + torsional otherwise.  Rest lengths
+and angles are those of the final positions (the model derives them from the initial
+positions, which are the positions at the window's end); stiffness is
+``stiffness_gain * alpha_position * rigidity``, with the tracking parameter alpha_1;
+masses are the trackers' event shares (median 1, bounded to [0.5, 2]).
+
+Deterministic: the same events and parameters give the same model.  Input without an
+object raises :class:`NoObjectFound`.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field, fields, asdict
+
+import numpy as np
+
+from . import _learn
+from .events import as_events
+from .model import Connection, ShapeModel, TrackerSpec
+from .params import Params
+from .reference import covariance_bias
+
+POOL_CAPACITY = 128           # trackers alive at once during discovery
+COVERED_MIN_LEVEL = 2.0       # Pool.update_level: the least level (contrast thresholds)
+LEVEL_EVERY = 10              # Pool.update_level runs every this many batches
+CONTRAST_MARGIN = 0.05        # contrast_sign: ON-first fraction this far from 1/2 decides
+F = {name: k for k, name in enumerate(_learn.FIELDS)}
+
+
+class NoObjectFound(ValueError):
+    """The events hold no object the learner could model (noise, or too few events)."""
+
+
+@dataclass(frozen=True)
+class LearnParams:
+    """The learner's parameters (docs/learning.md); units in the names."""
+    # the free pool, eqs. (2)-(6)
+    alpha_position: float = 0.03       # alpha_1 of the pool: weight of an event in the mean
+    alpha_covariance: float = 0.01     # alpha_2 of the pool: weight in the covariance
+    p_threshold: float = 0.1           # delta_p: the gate exp(-d^2/2) > delta_p
+    activity_tau_us: float = 10_000.0  # tau of eq. (6); also the decay of birth counts
+    sigma_min_px: float = 1.0          # bounds on a part's standard deviations
+    sigma_max_px: float = 16.0
+    batch_us: int = 1000               # lifecycle and sampling period
+    # lifecycle
+    birth_cell_px: int = 4
+    birth_events: float = 8.0          # unassigned events in a 3x3 block of cells ...
+    birth_contrast: float = 5.0        # ... and this many times the background block
+    merge_overlap: float = 0.25        # shared fraction of the smaller tracker's events
+    merge_gap_px: float = 1.5          # neighbours joined by covered pixels, no gap this long
+    death_share: float = 0.05          # of the pool's median recent event count
+    life_tau_us: float = 50_000.0      # memory of recent counts; grace period after birth
+    # springs
+    min_coactivation: float = 0.5
+    min_rigidity: float = 0.2
+    rigidity_scale: float = 0.5        # deformation (in part sizes) of rigidity 1/2
+    cartesian_turn_deg: float = 5.0
+    stiffness_gain: float = 0.1        # stiffness = gain * alpha_1 (tracking) * rigidity
+    smooth_us: int = 20_000            # averaging of directions for the turn measure
+
+    def __post_init__(self):
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ValueError(f"learn: {f.name} must be a finite number, got {v!r}")
+            if v < 0:
+                raise ValueError(f"learn: {f.name} must not be negative, got {v!r}")
+        if not 0 < self.alpha_position <= 1 or not 0 < self.alpha_covariance <= 1:
+            raise ValueError("learn: alpha_position and alpha_covariance must be in (0, 1]")
+        if not 0 < self.p_threshold < 1:
+            raise ValueError("learn: p_threshold must be in (0, 1)")
+        if not 0 < self.sigma_min_px < self.sigma_max_px:
+            raise ValueError("learn: need 0 < sigma_min_px < sigma_max_px")
+        for name in ("batch_us", "birth_cell_px", "activity_tau_us", "life_tau_us", "smooth_us"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"learn: {name} must be positive")
+
+    @property
+    def gate_d2(self) -> float:
+        return -2.0 * math.log(self.p_threshold)
+
+
+@dataclass
+class LearnedSpring:
+    a: int
+    b: int
+    coactivation: float
+    rigidity: float
+    turn_deg: float
+    kinds: tuple
+
+
+@dataclass
+class LearnResult:
+    """What :func:`learn_model` found: the model and the evidence behind it."""
+    model: ShapeModel
+    events: int                        # events in the window
+    assigned: int                      # of them taken by a tracker in the last pass
+    t_start_us: int
+    t_end_us: int
+    counts: np.ndarray                 # (N,) events per tracker, last pass
+    springs: list                      # LearnedSpring per connection (model order)
+    candidates: list                   # every LearnedSpring considered, kept or not
+    lifecycle: dict = field(default_factory=dict)
+    wall_s: float = 0.0
+
+
+# ---- the pool ---------------------------------------------------------------------------
+# per-tracker bookkeeping next to the state array (all of length POOL_CAPACITY)
+BOOK = ("recent", "total", "born", "uid")
+
+
+class Pool:
+    """Free Gaussian trackers (eqs. 2-6) in a state array, with their bookkeeping (``book``:
+    ``recent`` event counts decayed with ``life_tau_us``, ``total`` events since birth,
+    ``born`` (µs) and ``uid`` (birth order)), the events shared by pairs of gates
+    (``overlap``, decayed like ``recent``) and each pixel's ON minus OFF events (``net``,
+    see :meth:`covered`)."""
+
+    def __init__(self, lp: LearnParams, width: int, height: int, capacity: int = POOL_CAPACITY):
+        self.lp, self.width, self.height = lp, width, height
+        self.cap = capacity
+        self.st = np.zeros((len(_learn.FIELDS), capacity))
+        self.n = 0
+        self.book = {k: np.zeros(capacity) for k in BOOK}
+        self.overlap = np.zeros((capacity, capacity))
+        self.net = np.zeros((height, width), np.int32)
+        self.level = 0.0                  # the parts' level in ``net``: covered_level()
+        self.contrast = 0                 # +1 bright parts, -1 dark, 0 unknown: contrast_sign
+        self.next_uid = 0
+        self.smin2, self.smax2 = lp.sigma_min_px ** 2, lp.sigma_max_px ** 2
+        self.winner = np.empty(0, np.int32)
+        self.alpha_covariance = lp.alpha_covariance   # 0 freezes the sizes (fixed passes)
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.st[F["mx"], :self.n]
+
+    @property
+    def y(self) -> np.ndarray:
+        return self.st[F["my"], :self.n]
+
+    @property
+    def recent(self) -> np.ndarray:
+        return self.book["recent"]
+
+    def run(self, ev: np.ndarray) -> np.ndarray:
+        """Eqs. (2)-(6) over a batch; returns each event's winner (-1 none, -2 outside).
+
+        The covariance takes the spread of the events the tracker takes, as eqs. (4)-(5)
+        print it (without the tracker's gate correction, see docs/learning.md): event
+        clouds are edges, rings and bars, which their gate holds whole."""
+        if len(self.winner) < len(ev):
+            self.winner = np.empty(max(len(ev), 2 * len(self.winner)), np.int32)
+        w = self.winner[:len(ev)]
+        lp, n = self.lp, self.n
+        a2 = self.alpha_covariance
+        _learn.pool_batch(ev, self.st, n, lp.alpha_position, a2, a2, lp.gate_d2, lp.activity_tau_us, self.smin2,
+                          self.smax2, self.width, self.height, w, self.overlap, self.net)
+        got = np.bincount(w[w >= 0], minlength=n)[:n]
+        self.recent[:n] += got
+        self.book["total"][:n] += got
+        return w
+
+    def decay(self, dt_us: float) -> None:
+        """Age the recent counts and the shared events by ``dt_us``."""
+        n = self.n
+        f = math.exp(-dt_us / self.lp.life_tau_us)
+        self.recent[:n] *= f
+        self.overlap[:n, :n] *= f
+
+    def activity(self, t: int) -> np.ndarray:
+        """eq. (6) evaluated at time t for every tracker."""
+        st = self.st
+        return st[F["act"], :self.n] * np.exp(-(t - st[F["tlast"], :self.n])
+                                               / self.lp.activity_tau_us)
+
+    def add(self, mu, cov, t, act=0.0, book=None) -> bool:
+        """A new tracker N(mu, cov) at time t; ``book`` overrides its bookkeeping."""
+        if self.n >= self.cap:
+            return False
+        i = self.n
+        self.n += 1
+        self.st[:, i] = 0.0
+        self.set_gaussian(i, mu, cov)
+        self.st[F["act"], i], self.st[F["tlast"], i] = act, t
+        for k in BOOK:
+            self.book[k][i] = 0.0
+        self.book["born"][i], self.book["uid"][i] = t, self.next_uid
+        for k, v in (book or {}).items():
+            self.book[k][i] = v
+        self.next_uid += 1
+        self.overlap[i, :] = 0.0
+        self.overlap[:, i] = 0.0
+        return True
+
+    def keep(self, mask: np.ndarray) -> None:
+        """Keep the trackers where ``mask`` (n,) is true, in their order."""
+        idx = np.flatnonzero(mask)
+        k = len(idx)
+        self.st[:, :k] = self.st[:, idx]
+        for a in self.book.values():
+            a[:k] = a[idx]
+        self.overlap[:k, :k] = self.overlap[np.ix_(idx, idx)]
+        self.overlap[k:, :] = 0.0
+        self.overlap[:, k:] = 0.0
+        self.n = k
+
+    def gaussian(self, i: int):
+        st = self.st
+        mu = np.array([st[F["mx"], i], st[F["my"], i]])
+        cov = np.array([[st[F["sxx"], i], st[F["sxy"], i]], [st[F["sxy"], i], st[F["syy"], i]]])
+        return mu, cov
+
+    def set_gaussian(self, i: int, mu, cov) -> None:
+        st = self.st
+        st[F["mx"], i], st[F["my"], i] = mu
+        st[F["sxx"], i], st[F["sxy"], i], st[F["syy"], i] = cov[0, 0], cov[0, 1], cov[1, 1]
+        _learn.refresh(st, i, self.smin2, self.smax2)
+
+    def union(self, i: int, j: int):
+        """The moment-matched Gaussian of i and j, weighted by their recent counts."""
+        mi, ci = self.gaussian(i)
+        mj, cj = self.gaussian(j)
+        return moment_match(mi, ci, self.recent[i] + 1e-9, mj, cj, self.recent[j] + 1e-9)
+
+    def union_fits(self, i: int, j: int) -> bool:
+        """Whether the union of i and j is no wider than a part may be (sigma_max_px)."""
+        return float(np.linalg.eigvalsh(self.union(i, j)[1])[-1]) <= self.smax2
+
+    def merge(self, i: int, j: int, t: int) -> None:
+        """Tracker i becomes the union of i and j; j is dropped."""
+        mu, cov = self.union(i, j)
+        act = self.activity(t)
+        self.set_gaussian(i, mu, cov)
+        self.st[F["act"], i], self.st[F["tlast"], i] = act[i] + act[j], t
+        for k in ("recent", "total"):
+            self.book[k][i] += self.book[k][j]
+        self.book["born"][i] = min(self.book["born"][i], self.book["born"][j])
+        n = self.n
+        self.overlap[i, :n] += self.overlap[j, :n]
+        self.overlap[:n, i] += self.overlap[:n, j]
+        self.overlap[i, i] = 0.0
+        mask = np.ones(n, bool)
+        mask[j] = False
+        self.keep(mask)
+
+    def split(self, i: int, t: int) -> bool:
+        """Replace tracker i by two halves along its major axis (moment-preserving)."""
+        if self.n >= self.cap:
+            return False
+        mu, cov = self.gaussian(i)
+        vals, vecs = np.linalg.eigh(cov)
+        lam, v = vals[-1], vecs[:, -1]
+        off = 0.5 * math.sqrt(lam) * v
+        half = cov - 0.25 * lam * np.outer(v, v)
+        act = 0.5 * self.activity(t)[i]
+        book = {k: 0.5 * self.book[k][i] for k in ("recent", "total")}
+        self.set_gaussian(i, mu - off, half)
+        self.st[F["act"], i], self.st[F["tlast"], i] = act, t
+        for k, v in book.items():
+            self.book[k][i] = v
+        return self.add(mu + off, half, t, act, book)
+
+    def nested(self) -> np.ndarray:
+        """(n, n): one tracker's mean lies within the other's one-sigma ellipse."""
+        n = self.n
+        st = self.st
+        dx = self.x[:, None] - self.x[None, :]
+        dy = self.y[:, None] - self.y[None, :]
+        ia, ib, ic = st[F["ia"], :n], st[F["ib"], :n], st[F["ic"], :n]
+        d2_in_i = ia[:, None] * dx * dx + ic[:, None] * dy * dy + 2.0 * ib[:, None] * dx * dy
+        d2_in_j = ia[None, :] * dx * dx + ic[None, :] * dy * dy + 2.0 * ib[None, :] * dx * dy
+        return np.minimum(d2_in_i, d2_in_j) < 1.0
+
+    def overlap_score(self) -> np.ndarray:
+        """(n, n) upper-triangular: shared events over the smaller recent count."""
+        n = self.n
+        r = np.maximum(self.recent[:n], 1e-9)
+        return np.triu(self.overlap[:n, :n] / np.minimum.outer(r, r), 1)
+
+    def update_level(self) -> None:
+        """The parts' level in ``net``: half the 90th percentile of the contrast-signed
+        counts above zero (at least COVERED_MIN_LEVEL), the threshold of :meth:`gap`."""
+        if not self.contrast:
+            return
+        v = self.contrast * self.net
+        v = v[v > 0]
+        if len(v):
+            self.level = max(COVERED_MIN_LEVEL, 0.75 * float(np.percentile(v, 90)))
+
+    def gap(self, i: int, j: int) -> float:
+        """The longest stretch (px) of the segment between the means of i and j that no
+        part covers.
+
+        ``net`` is each pixel's change of log intensity since the window's start (ON
+        minus OFF events, in contrast thresholds).  A part entering a pixel moves it by
+        the part's contrast (``contrast``: up for bright parts) and leaving brings it
+        back: the pixels inside a part stand near the part's contrast, those of a gap
+        between parts near zero.  The leading and trailing edges of one part, which the
+        free trackers follow apart, are joined by covered pixels (at least ``level`` in
+        the parts' sign); two parts are not.  (Where a part sat at the window's start
+        the pixels show nothing or the other sign: it must have moved by its own size.)"""
+        if not self.contrast or self.level <= 0:
+            return math.inf
+        d = math.hypot(self.x[j] - self.x[i], self.y[j] - self.y[i])
+        k = max(2, int(math.ceil(d)) + 1)
+        u = np.linspace(0.0, 1.0, k)
+        px = np.rint(self.x[i] + u * (self.x[j] - self.x[i])).astype(np.int64)
+        py = np.rint(self.y[i] + u * (self.y[j] - self.y[i])).astype(np.int64)
+        inside = (px >= 0) & (px < self.width) & (py >= 0) & (py < self.height)
+        cov = np.zeros(k, bool)
+        cov[inside] = self.contrast * self.net[py[inside], px[inside]] >= self.level
+        return longest_run(~cov) * d / (k - 1)
+
+
+def longest_run(flags: np.ndarray) -> int:
+    """The length of the longest run of True in a 1-D boolean array."""
+    if not flags.any():
+        return 0
+    edges = np.diff(np.concatenate(([0], flags.astype(np.int8), [0])))
+    return int(np.max(np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)))
+
+
+def moment_match(m1, c1, w1, m2, c2, w2):
+    """The Gaussian with the mean and covariance of the mixture w1 N(m1, c1) + w2 N(m2, c2)."""
+    w = w1 + w2
+    mu = (w1 * m1 + w2 * m2) / w
+    d1, d2 = m1 - mu, m2 - mu
+    cov = (w1 * (c1 + np.outer(d1, d1)) + w2 * (c2 + np.outer(d2, d2))) / w
+    return mu, cov
+
+
+def contrast_sign(ev: np.ndarray, width: int, height: int) -> int:
+    """+1 if the parts are brighter than their background, -1 if darker, 0 if unclear.
+
+    A part entering a pixel makes it fire first with the part's contrast (ON for a
+    bright part) and leaving it with the opposite one; over a window in which the parts
+    moved, most pixels they touched have entered before they left.  The sign is that of
+    the fraction of pixels (with two events or more) whose first event is ON, minus 1/2."""
+    pix = ev["y"].astype(np.int64) * width + ev["x"]
+    ok = (ev["x"] < width) & (ev["y"] < height)
+    pix = pix[ok]
+    u, first = np.unique(pix, return_index=True)
+    busy = np.bincount(pix, minlength=width * height)[u] >= 2
+    if not busy.any():
+        return 0
+    f = float(np.mean(ev["p"][ok][first[busy]] > 0))
+    if abs(f - 0.5) < CONTRAST_MARGIN:
+        return 0
+    return 1 if f > 0.5 else -1
+
+
+# ---- births -----------------------------------------------------------------------------
+class BirthField:
+    """Unassigned events counted in cells, decayed with tau; births where they pile up."""
+
+    def __init__(self, lp: LearnParams, width: int, height: int):
+        self.lp = lp
+        c = lp.birth_cell_px
+        self.c = c
+        self.shape = (-(-height // c), -(-width // c))
+        self.m = np.zeros((6,) + self.shape)        # count, sx, sy, sxx, sxy, syy
+
+    def decay(self, dt_us: float) -> None:
+        self.m *= math.exp(-dt_us / self.lp.activity_tau_us)
+
+    def add(self, ev: np.ndarray) -> None:
+        if not len(ev):
+            return
+        x = ev["x"].astype(np.float64)
+        y = ev["y"].astype(np.float64)
+        cell = (ev["y"] // self.c).astype(np.int64) * self.shape[1] + ev["x"] // self.c
+        size = self.shape[0] * self.shape[1]
+        for k, wts in enumerate((None, x, y, x * x, x * y, y * y)):
+            self.m[k] += np.bincount(cell, wts, size).reshape(self.shape)
+
+    def block(self) -> np.ndarray:
+        """3x3 block sums of every moment."""
+        p = np.pad(self.m, ((0, 0), (1, 1), (1, 1)))
+        h, w = self.shape
+        return sum(p[:, dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3))
+
+    def background_px(self) -> float:
+        """Unassigned events per pixel (decayed count): the median block's, the noise floor."""
+        return float(np.median(self.block()[0])) / (9.0 * self.c ** 2)
+
+    def births(self):
+        """Births due now: list of (mean, covariance); their cells are cleared."""
+        lp = self.lp
+        b = self.block()
+        cnt = b[0]
+        thr = max(lp.birth_events, lp.birth_contrast * float(np.median(cnt)))
+        if cnt.max() < thr:
+            return []
+        p = np.pad(cnt, 1, constant_values=-1.0)
+        h, w = self.shape
+        neigh = np.max([p[dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3)
+                        if (dy, dx) != (1, 1)], axis=0)
+        peaks = np.argwhere((cnt >= thr) & (cnt > neigh) & (self.m[0] > 0))
+        out = []
+        for cy, cx in peaks:                       # row-major: deterministic
+            n = cnt[cy, cx]
+            mx, my = b[1, cy, cx] / n, b[2, cy, cx] / n
+            sxx = b[3, cy, cx] / n - mx * mx
+            sxy = b[4, cy, cx] / n - mx * my
+            syy = b[5, cy, cx] / n - my * my
+            out.append((np.array([mx, my]), np.array([[sxx, sxy], [sxy, syy]])))
+            self.m[:, max(cy - 1, 0):cy + 2, max(cx - 1, 0):cx + 2] = 0.0
+        return out
+
+
+# ---- the passes -------------------------------------------------------------------------
+def _batches(ev: np.ndarray, t0: int, t1: int, step: int):
+    """(t_end, slice) per batch of ``step`` µs covering [t0, t1]."""
+    edges = np.arange(t0 + step, t1 + step + 1, step, dtype=np.int64)
+    idx = np.searchsorted(ev["t"], edges, side="left")
+    lo = 0
+    for te, hi in zip(edges.tolist(), idx.tolist()):
+        yield te, slice(lo, hi)
+        lo = hi
+
+
+def _discover(pool: Pool, ev: np.ndarray, t0: int, t1: int, stats: dict) -> None:
+    """Pass 1: the pool with births, merges and deaths, every ``batch_us``."""
+    lp = pool.lp
+    births = BirthField(lp, pool.width, pool.height)
+    pool.contrast = contrast_sign(ev, pool.width, pool.height)
+    prev = t0
+    for k, (te, sl) in enumerate(_batches(ev, t0, t1, lp.batch_us)):
+        batch = ev[sl]
+        pool.decay(te - prev)
+        births.decay(te - prev)
+        prev = te
+        if len(batch):
+            w = pool.run(batch)
+            births.add(batch[w == -1])
+        if k % LEVEL_EVERY == 0:
+            pool.update_level()
+        while pool.n > 1:
+            pair = _merge_candidate(pool)
+            if pair is None:
+                break
+            pool.merge(*pair, te)
+            stats["merged"] += 1
+        dead = _dying(pool, births, te)
+        if dead.any():
+            stats["died"] += int(dead.sum())
+            pool.keep(~dead)
+        for mu, cov in births.births():
+            if pool.add(mu, cov, te):
+                stats["born"] += 1
+            else:
+                stats["birth_refused_full"] += 1
+
+
+def _merge_candidate(pool: Pool):
+    """The pair to merge now, or None, with its union no wider than a part may be:
+    trackers that share their events and one holds the other's mean (duplicates on one
+    cloud), the most sharing first; or neighbours joined by covered pixels (two edges,
+    or two pieces, of one part: Pool.gap)."""
+    lp = pool.lp
+    n = pool.n
+    share = pool.overlap_score()
+    dup = (share >= lp.merge_overlap) & pool.nested()
+    for flat in np.argsort(-share, axis=None, kind="stable"):
+        i, j = divmod(int(flat), n)
+        if not dup[i, j]:
+            break
+        if pool.union_fits(i, j):
+            return i, j
+    if pool.contrast and n > 1:
+        d = np.hypot(pool.x[:, None] - pool.x[None, :], pool.y[:, None] - pool.y[None, :])
+        near = np.triu(relative_neighbours(d), 1) & (d <= 2.0 * lp.sigma_max_px)
+        for i, j in np.argwhere(near):
+            if pool.gap(i, j) < lp.merge_gap_px and pool.union_fits(i, j):
+                return int(i), int(j)
+    return None
+
+
+def _dying(pool: Pool, births: "BirthField", t: int) -> np.ndarray:
+    """(n,) trackers older than life_tau_us whose recent count is below death_share of
+    the pool's median, or below birth_contrast times what the background would give."""
+    lp = pool.lp
+    n = pool.n
+    dead = np.zeros(n, bool)
+    old = (t - pool.book["born"][:n]) > lp.life_tau_us
+    if not old.any():
+        return dead
+    recent = pool.recent[:n]
+    med = float(np.median(recent[old]))
+    st = pool.st
+    det = st[F["sxx"], :n] * st[F["syy"], :n] - st[F["sxy"], :n] ** 2
+    gate_area = math.pi * lp.gate_d2 * np.sqrt(det)
+    noise = births.background_px() * gate_area * lp.life_tau_us / lp.activity_tau_us
+    return old & ((recent < lp.death_share * med) | (recent < lp.birth_contrast * noise))
+
+
+def _fixed_pass(pool: Pool, ev: np.ndarray, t0: int, t1: int, record: bool):
+    """Run the pool (no lifecycle) over [t0, t1]; optionally sample every batch."""
+    lp = pool.lp
+    rows = {"t": [], "act": [], "x": [], "y": [], "cnt": []}
+    for te, sl in _batches(ev, t0, t1, lp.batch_us):
+        batch = ev[sl]
+        cnt = np.zeros(pool.n)
+        if len(batch):
+            w = pool.run(batch)
+            cnt = np.bincount(w[w >= 0], minlength=pool.n)[:pool.n].astype(float)
+        if record:
+            rows["t"].append(te)
+            rows["act"].append(pool.activity(te))
+            rows["x"].append(pool.st[F["mx"], :pool.n].copy())
+            rows["y"].append(pool.st[F["my"], :pool.n].copy())
+            rows["cnt"].append(cnt)
+    if not record:
+        return None
+    return {k: np.array(v) for k, v in rows.items()}
+
+
+def _reversed(ev: np.ndarray, t0: int, t1: int) -> np.ndarray:
+    """The events of [t0, t1] in reverse time order, with t -> t0 + t1 - t."""
+    out = ev[::-1].copy()
+    out["t"] = t0 + t1 - out["t"]
+    return out
+
+
+def _to_count(pool: Pool, n_target: int, t: int, stats: dict) -> None:
+    """Merge (the nearest pair, Bhattacharyya) or split (the widest) until n_target."""
+    while pool.n > n_target:
+        pool.merge(*_closest_pair(pool), t)
+        stats["merged_to_n"] += 1
+    while pool.n < n_target:
+        st = pool.st
+        n = pool.n
+        if not pool.split(int(np.argmax(st[F["sxx"], :n] + st[F["syy"], :n])), t):
+            break
+        stats["split_to_n"] += 1
+
+
+def _closest_pair(pool: Pool):
+    """The pair with the smallest Bhattacharyya distance."""
+    best, pair = math.inf, (0, 1)
+    for i in range(pool.n):
+        mi, ci = pool.gaussian(i)
+        for j in range(i + 1, pool.n):
+            mj, cj = pool.gaussian(j)
+            c = 0.5 * (ci + cj)
+            d = mj - mi
+            db = 0.125 * d @ np.linalg.solve(c, d) + 0.5 * math.log(
+                np.linalg.det(c) / math.sqrt(np.linalg.det(ci) * np.linalg.det(cj)))
+            if db < best:
+                best, pair = db, (i, j)
+    return pair
+
+
+# ---- springs ----------------------------------------------------------------------------
+def relative_neighbours(d: np.ndarray, slack: float = 0.0) -> np.ndarray:
+    """(n, n) edges of the relative neighbourhood graph of points with distances ``d``:
+    i-j unless some k is nearer to both (max(d_ik, d_jk) < (1 - slack) d_ij).  Local,
+    planar, connected, without a square's diagonals."""
+    far = np.maximum(d[:, None, :], d[None, :, :])          # [i, j, k] = max(d_ik, d_jk)
+    out = ~(far < (1.0 - slack) * d[:, :, None]).any(axis=2)
+    np.fill_diagonal(out, False)
+    return out
+
+
+def neighbour_pairs(x: np.ndarray, y: np.ndarray, slack: float = 0.05) -> list:
+    """Pairs (i < j) of the relative neighbourhood graph of the points (x, y)."""
+    d = np.hypot(x[:, None] - x[None, :], y[:, None] - y[None, :])
+    return [tuple(p) for p in np.argwhere(np.triu(relative_neighbours(d, slack), 1))]
+
+
+def coactivation(act: np.ndarray) -> np.ndarray:
+    """(N, N) normalised inner products of the activity traces ``act`` (T, N): 1 for two
+    trackers active in proportion at the same times, 0 for never at the same time."""
+    norm = np.sqrt((act * act).sum(axis=0))
+    norm = np.where(norm > 0, norm, 1.0)
+    return (act.T @ act) / np.outer(norm, norm)
+
+
+def object_rotation(x: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(T,) rotation (rad) of the point set at each sample relative to its last sample:
+    the weighted 2-D Procrustes angle about the weighted centroid."""
+    z = x + 1j * y
+    ws = w.sum(axis=1, keepdims=True)
+    ws = np.where(ws > 0, ws, 1.0)
+    c = (w * z).sum(axis=1, keepdims=True) / ws
+    zc = z - c
+    ref = zc[-1]
+    return np.angle((w * zc * np.conj(ref)[None, :]).sum(axis=1))
+
+
+def rigidity(deform_px: float, size_px: float, scale: float) -> float:
+    """1 / (1 + (e / scale)^2) with e the pair's deformation in part sizes."""
+    e = deform_px / max(size_px, 1e-9)
+    return 1.0 / (1.0 + (e / scale) ** 2)
+
+
+def _springs(rec: dict, sig: np.ndarray, lp: LearnParams, x_end, y_end):
+    """Candidates (neighbour pairs) with their scores; ``sig`` (N,) part sizes, px."""
+    act, X, Y, T = rec["act"], rec["x"], rec["y"], rec["t"]
+    co = coactivation(act)
+    w = act / np.maximum(act.max(axis=0, keepdims=True), 1e-12)
+    phi = object_rotation(X, Y, w)
+    c, s = np.cos(-phi)[:, None], np.sin(-phi)[:, None]
+    nsm = max(1, int(round(lp.smooth_us / lp.batch_us)))
+    out = []
+    for i, j in neighbour_pairs(x_end, y_end):
+        rx, ry = X[:, j] - X[:, i], Y[:, j] - Y[:, i]
+        # in the object's frame: undo the rotation of each sample relative to the last
+        ox, oy = c[:, 0] * rx - s[:, 0] * ry, s[:, 0] * rx + c[:, 0] * ry
+        wk = np.minimum(w[:, i], w[:, j])
+        if wk.sum() <= 0:
+            out.append(LearnedSpring(i, j, float(co[i, j]), 0.0, 0.0, ()))
+            continue
+        mx, my = np.average(ox, weights=wk), np.average(oy, weights=wk)
+        deform = math.sqrt(np.average((ox - mx) ** 2 + (oy - my) ** 2, weights=wk))
+        rig = rigidity(deform, 0.5 * (sig[i] + sig[j]), lp.rigidity_scale)
+        # turn: range of the direction of the smoothed relative position
+        m = len(rx) // nsm * nsm
+        if m >= nsm:
+            wb = wk[:m].reshape(-1, nsm).sum(axis=1)
+            bx = (rx[:m] * wk[:m]).reshape(-1, nsm).sum(axis=1)
+            by = (ry[:m] * wk[:m]).reshape(-1, nsm).sum(axis=1)
+            ang = np.unwrap(np.arctan2(by[wb > 0], bx[wb > 0]))
+            turn = float(np.degrees(ang.max() - ang.min())) if len(ang) else 0.0
+        else:
+            turn = 0.0
+        kinds = ("cartesian",) if turn < lp.cartesian_turn_deg else ("euclidean", "torsional")
+        out.append(LearnedSpring(i, j, float(co[i, j]), rig, turn, kinds))
+    return out
+
+
+# ---- the learner ------------------------------------------------------------------------
+def learn_model(events, trackers: int | None = None, width: int | None = None,
+                height: int | None = None, names=None, name: str = "learned",
+                params: LearnParams | dict | None = None,
+                track_params: Params | dict | None = None) -> LearnResult:
+    """Learn a shape model from ``events`` (structured t µs, x, y, p; time order).
+
+    ``trackers``: exactly this many parts (default: the learner's choice); ``width`` x
+    ``height``: the sensor (default: the events' extent); ``names``: tracker ids (default
+    p00, p01, ... in reading order: top to bottom, left to right); ``params``: learner
+    parameters (:class:`LearnParams` or a dict of overrides); ``track_params``: the
+    tracking parameters the model will be used with (the stiffness scales with their
+    alpha_position), written into the model's ``[params]`` with the energy kind.
+    Raises :class:`NoObjectFound` when no part survives.
+    """
+    wall0 = time.perf_counter()
+    lp = params if isinstance(params, LearnParams) else LearnParams(**(params or {}))
+    tp = track_params if isinstance(track_params, Params) else Params(**(track_params or {}))
+    ev = as_events(events)
+    if trackers is not None and not 1 <= int(trackers) <= 64:
+        raise ValueError(f"learn: trackers must be in [1, 64], got {trackers}")
+    if len(ev) == 0:
+        raise NoObjectFound("no object found: the learning window holds no events")
+    if np.any(np.diff(ev["t"]) < 0):
+        raise ValueError("learn: events must be in time order")
+    width = int(width) if width else int(ev["x"].max()) + 1
+    height = int(height) if height else int(ev["y"].max()) + 1
+    t0, t1 = int(ev["t"][0]), int(ev["t"][-1])
+    stats = {"born": 0, "merged": 0, "died": 0, "birth_refused_full": 0,
+             "merged_to_n": 0, "split_to_n": 0, "lost": 0}
+    pool = Pool(lp, width, height)
+    _discover(pool, ev, t0, t1, stats)
+    # the candidates still in their grace period and too weak to live are not parts
+    n = pool.n
+    if n:
+        med = float(np.median(pool.recent[:n]))
+        pool.keep(pool.recent[:n] >= lp.death_share * med)
+    if pool.n == 0:
+        raise NoObjectFound(f"no object found: no tracker survived on {len(ev)} events "
+                            f"({stats['born']} born, {stats['died']} died)")
+    if trackers is not None:
+        _to_count(pool, int(trackers), t1, stats)
+    # settle: carry the set back to the window's start, then observe it forwards, with
+    # the sizes found
+    pool.alpha_covariance = 0.0
+    _fixed_pass(pool, _reversed(ev, t0, t1), t0, t1, record=False)
+    pool.recent[:] = 0.0
+    rec = _fixed_pass(pool, ev, t0, t1, record=True)
+    counts = rec["cnt"].sum(axis=0)
+    if trackers is None:
+        med = float(np.median(counts))
+        ok = counts >= lp.death_share * med
+        stats["lost"] = int((~ok).sum())
+        if not ok.all():
+            pool.keep(ok)
+            for k in ("act", "x", "y", "cnt"):
+                rec[k] = rec[k][:, ok]
+            counts = counts[ok]
+    if pool.n == 0 or counts.sum() == 0:
+        raise NoObjectFound("no object found: the learned trackers took no events")
+    model, springs, cands = _build_model(pool, rec, counts, lp, tp, width, height, names, name)
+    return LearnResult(model, len(ev), int(counts.sum()), t0, t1, counts, springs, cands,
+                       stats, time.perf_counter() - wall0)
+
+
+def _build_model(pool, rec, counts, lp, tp, width, height, names, name):
+    n = pool.n
+    st = pool.st
+    x, y = st[F["mx"], :n].copy(), st[F["my"], :n].copy()
+    order = np.lexsort((x, np.round(y / 4.0)))          # reading order, 4-px rows
+    if names is not None:
+        names = list(names)
+        if len(names) != n:
+            raise ValueError(f"learn: {len(names)} names for {n} trackers")
+    ids = names or [f"p{k:02d}" for k in range(n)]
+    new_of = np.empty(n, int)
+    new_of[order] = np.arange(n)
+    sig = np.sqrt(0.5 * (st[F["sxx"], :n] + st[F["syy"], :n]))
+    med = float(np.median(counts)) or 1.0
+    mass = np.clip(counts / med, 0.5, 2.0)
+    trackers = [None] * n
+    for i in range(n):
+        trackers[new_of[i]] = TrackerSpec(ids[new_of[i]], float(x[i]), float(y[i]),
+                                          (float(st[F["sxx"], i]), float(st[F["sxy"], i]),
+                                           float(st[F["syy"], i])), float(mass[i]))
+    cands = _springs(rec, sig, lp, x, y)
+    for c in cands:
+        c.a, c.b = int(new_of[c.a]), int(new_of[c.b])
+        if c.a > c.b:
+            c.a, c.b = c.b, c.a
+    cands.sort(key=lambda c: (c.a, c.b))
+    kept = [c for c in cands if c.kinds and c.coactivation >= lp.min_coactivation
+            and c.rigidity >= lp.min_rigidity]
+    kept.sort(key=lambda c: -c.rigidity * c.coactivation)
+    kept = sorted(kept[:128], key=lambda c: (c.a, c.b))
+    conns = [Connection(ids[c.a], ids[c.b], c.kinds,
+                        lp.stiffness_gain * tp.alpha_position * c.rigidity) for c in kept]
+    all_cart = bool(kept) and all(c.kinds == ("cartesian",) for c in kept)
+    params = {"energy_kind": "cartesian" if all_cart else "euclidean"}
+    model = ShapeModel(name, width, height, trackers, conns, params, source="learned")
+    return model, kept, cands
+
+
+def learn(events, trackers: int | None = None, **kw) -> ShapeModel:
+    """The learned :class:`ShapeModel` (see :func:`learn_model` for the arguments)."""
+    return learn_model(events, trackers, **kw).model
