@@ -13,7 +13,7 @@ The update is the reference tracker's (springtrack/reference.py): eq. (3) with a
 weighting the event, eqs. (4)-(5) about the pre-update mean divided by the gate's bias,
 sigma and rho bounded, eq. (6) decaying the winner's activity since its last event.
 """
-from libc.math cimport exp, sqrt
+from libc.math cimport exp, sqrt, ceil, lround
 from libc.stdint cimport int64_t, int32_t
 
 import numpy as np
@@ -134,3 +134,34 @@ def pool_batch(events, double[:, ::1] st, int n, double a1, double cov_gain, dou
             st[F_SYY, i] = keep * st[F_SYY, i] + cov_gain * (dy * dy)
             clamp_invert(st, i, smin2, smax2)
     return m
+
+
+def segment_gaps(int32_t[:, ::1] net, double[::1] xa, double[::1] ya, double[::1] xb,
+                 double[::1] yb, double level, int sign, double[::1] out):
+    """For each segment (xa, ya) -> (xb, yb): the longest stretch (px) of it whose pixels
+    stand below ``level`` in ``sign`` * ``net`` (or lie outside the map), sampled every
+    pixel or less along the segment, both ends included."""
+    cdef Py_ssize_t p, s, k, run, longest
+    cdef Py_ssize_t h = net.shape[0], w = net.shape[1]
+    cdef double d, u
+    cdef long ix, iy
+    cdef bint covered
+    for p in range(xa.shape[0]):
+        d = sqrt((xb[p] - xa[p]) * (xb[p] - xa[p]) + (yb[p] - ya[p]) * (yb[p] - ya[p]))
+        k = <Py_ssize_t>ceil(d) + 1
+        if k < 2:
+            k = 2
+        run = 0
+        longest = 0
+        for s in range(k):
+            u = <double>s / (k - 1)
+            ix = lround(xa[p] + u * (xb[p] - xa[p]))
+            iy = lround(ya[p] + u * (yb[p] - ya[p]))
+            covered = 0 <= ix < w and 0 <= iy < h and sign * net[iy, ix] >= level
+            if covered:
+                run = 0
+            else:
+                run += 1
+                if run > longest:
+                    longest = run
+        out[p] = longest * d / (k - 1)

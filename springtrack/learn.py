@@ -50,13 +50,16 @@ import numpy as np
 
 from . import _learn
 from .events import as_events
+from .limits import MAX_CONNECTIONS
 from .model import Connection, ShapeModel, TrackerSpec
 from .params import Params
 from .reference import covariance_bias
 
 POOL_CAPACITY = 128           # trackers alive at once during discovery
 COVERED_MIN_LEVEL = 2.0       # Pool.update_level: the least level (contrast thresholds)
-LEVEL_EVERY = 10              # Pool.update_level runs every this many batches
+LEVEL_EVERY = 10              # levels (Pool.update_level, BirthField.update_noise) are
+                              # measured every this many batches
+MASS_RANGE = (0.5, 2.0)       # masses: event share over the median, bounded
 CONTRAST_MARGIN = 0.05        # contrast_sign: ON-first fraction this far from 1/2 decides
 F = {name: k for k, name in enumerate(_learn.FIELDS)}
 
@@ -83,13 +86,15 @@ class LearnParams:
     merge_overlap: float = 0.25        # shared fraction of the smaller tracker's events
     merge_gap_px: float = 1.5          # neighbours joined by covered pixels, no gap this long
     death_share: float = 0.05          # of the pool's median recent event count
+    keep_share: float = 0.5            # a part takes this share of the median's events
     life_tau_us: float = 50_000.0      # memory of recent counts; grace period after birth
     # springs
     min_coactivation: float = 0.5
     min_rigidity: float = 0.2
     rigidity_scale: float = 0.5        # deformation (in part sizes) of rigidity 1/2
-    cartesian_turn_deg: float = 5.0
+    cartesian_turn_deg: float = 10.0
     stiffness_gain: float = 0.1        # stiffness = gain * alpha_1 (tracking) * rigidity
+    energy_quantile: float = 0.99      # s of eqs. (21)-(22): this quantile of E_ij / mean E
     smooth_us: int = 20_000            # averaging of directions for the turn measure
 
     def __post_init__(self):
@@ -323,9 +328,9 @@ class Pool:
         if len(v):
             self.level = max(COVERED_MIN_LEVEL, 0.75 * float(np.percentile(v, 90)))
 
-    def gap(self, i: int, j: int) -> float:
-        """The longest stretch (px) of the segment between the means of i and j that no
-        part covers.
+    def gaps(self, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+        """For pairs (i, j): the longest stretch (px) of the segment between their means
+        that no part covers.
 
         ``net`` is each pixel's change of log intensity since the window's start (ON
         minus OFF events, in contrast thresholds).  A part entering a pixel moves it by
@@ -335,25 +340,11 @@ class Pool:
         free trackers follow apart, are joined by covered pixels (at least ``level`` in
         the parts' sign); two parts are not.  (Where a part sat at the window's start
         the pixels show nothing or the other sign: it must have moved by its own size.)"""
-        if not self.contrast or self.level <= 0:
-            return math.inf
-        d = math.hypot(self.x[j] - self.x[i], self.y[j] - self.y[i])
-        k = max(2, int(math.ceil(d)) + 1)
-        u = np.linspace(0.0, 1.0, k)
-        px = np.rint(self.x[i] + u * (self.x[j] - self.x[i])).astype(np.int64)
-        py = np.rint(self.y[i] + u * (self.y[j] - self.y[i])).astype(np.int64)
-        inside = (px >= 0) & (px < self.width) & (py >= 0) & (py < self.height)
-        cov = np.zeros(k, bool)
-        cov[inside] = self.contrast * self.net[py[inside], px[inside]] >= self.level
-        return longest_run(~cov) * d / (k - 1)
-
-
-def longest_run(flags: np.ndarray) -> int:
-    """The length of the longest run of True in a 1-D boolean array."""
-    if not flags.any():
-        return 0
-    edges = np.diff(np.concatenate(([0], flags.astype(np.int8), [0])))
-    return int(np.max(np.flatnonzero(edges == -1) - np.flatnonzero(edges == 1)))
+        out = np.full(len(i), math.inf)
+        if self.contrast and self.level > 0 and len(i):
+            x, y = self.x, self.y
+            _learn.segment_gaps(self.net, x[i], y[i], x[j], y[j], self.level, self.contrast, out)
+        return out
 
 
 def moment_match(m1, c1, w1, m2, c2, w2):
@@ -395,6 +386,7 @@ class BirthField:
         self.c = c
         self.shape = (-(-height // c), -(-width // c))
         self.m = np.zeros((6,) + self.shape)        # count, sx, sy, sxx, sxy, syy
+        self.noise_px = 0.0                          # see update_noise
 
     def decay(self, dt_us: float) -> None:
         self.m *= math.exp(-dt_us / self.lp.activity_tau_us)
@@ -409,38 +401,38 @@ class BirthField:
         for k, wts in enumerate((None, x, y, x * x, x * y, y * y)):
             self.m[k] += np.bincount(cell, wts, size).reshape(self.shape)
 
-    def block(self) -> np.ndarray:
-        """3x3 block sums of every moment."""
-        p = np.pad(self.m, ((0, 0), (1, 1), (1, 1)))
+    def block(self, m: np.ndarray) -> np.ndarray:
+        """3x3 block sums of the cell array ``m``."""
+        p = np.pad(m, 1)
         h, w = self.shape
-        return sum(p[:, dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3))
+        return sum(p[dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3))
 
-    def background_px(self) -> float:
-        """Unassigned events per pixel (decayed count): the median block's, the noise floor."""
-        return float(np.median(self.block()[0])) / (9.0 * self.c ** 2)
+    def update_noise(self) -> None:
+        """Unassigned events per pixel (decayed count) of the median block: the noise."""
+        self.noise_px = float(np.median(self.block(self.m[0]))) / (9.0 * self.c ** 2)
 
     def births(self):
-        """Births due now: list of (mean, covariance); their cells are cleared."""
+        """Births due now: list of (mean, covariance); their cells are cleared.  A birth
+        needs ``birth_events`` unassigned events in a 3x3 block of cells, and
+        ``birth_contrast`` times the noise, at a local maximum."""
         lp = self.lp
-        b = self.block()
-        cnt = b[0]
-        thr = max(lp.birth_events, lp.birth_contrast * float(np.median(cnt)))
+        cnt = self.block(self.m[0])
+        thr = max(lp.birth_events, lp.birth_contrast * self.noise_px * 9.0 * self.c ** 2)
         if cnt.max() < thr:
             return []
         p = np.pad(cnt, 1, constant_values=-1.0)
         h, w = self.shape
         neigh = np.max([p[dy:dy + h, dx:dx + w] for dy in range(3) for dx in range(3)
                         if (dy, dx) != (1, 1)], axis=0)
-        peaks = np.argwhere((cnt >= thr) & (cnt > neigh) & (self.m[0] > 0))
         out = []
-        for cy, cx in peaks:                       # row-major: deterministic
-            n = cnt[cy, cx]
-            mx, my = b[1, cy, cx] / n, b[2, cy, cx] / n
-            sxx = b[3, cy, cx] / n - mx * mx
-            sxy = b[4, cy, cx] / n - mx * my
-            syy = b[5, cy, cx] / n - my * my
-            out.append((np.array([mx, my]), np.array([[sxx, sxy], [sxy, syy]])))
-            self.m[:, max(cy - 1, 0):cy + 2, max(cx - 1, 0):cx + 2] = 0.0
+        for cy, cx in np.argwhere((cnt >= thr) & (cnt > neigh) & (self.m[0] > 0)):
+            sl = (slice(None), slice(max(cy - 1, 0), cy + 2), slice(max(cx - 1, 0), cx + 2))
+            n, sx, sy, sxx, sxy, syy = self.m[sl].sum(axis=(1, 2))
+            mx, my = sx / n, sy / n
+            cov = np.array([[sxx / n - mx * mx, sxy / n - mx * my],
+                            [sxy / n - mx * my, syy / n - my * my]])
+            out.append((np.array([mx, my]), cov))
+            self.m[sl] = 0.0
         return out
 
 
@@ -471,6 +463,7 @@ def _discover(pool: Pool, ev: np.ndarray, t0: int, t1: int, stats: dict) -> None
             births.add(batch[w == -1])
         if k % LEVEL_EVERY == 0:
             pool.update_level()
+            births.update_noise()
         while pool.n > 1:
             pair = _merge_candidate(pool)
             if pair is None:
@@ -492,7 +485,7 @@ def _merge_candidate(pool: Pool):
     """The pair to merge now, or None, with its union no wider than a part may be:
     trackers that share their events and one holds the other's mean (duplicates on one
     cloud), the most sharing first; or neighbours joined by covered pixels (two edges,
-    or two pieces, of one part: Pool.gap)."""
+    or two pieces, of one part: Pool.gaps), the nearest first."""
     lp = pool.lp
     n = pool.n
     share = pool.overlap_score()
@@ -505,10 +498,12 @@ def _merge_candidate(pool: Pool):
             return i, j
     if pool.contrast and n > 1:
         d = np.hypot(pool.x[:, None] - pool.x[None, :], pool.y[:, None] - pool.y[None, :])
-        near = np.triu(relative_neighbours(d), 1) & (d <= 2.0 * lp.sigma_max_px)
-        for i, j in np.argwhere(near):
-            if pool.gap(i, j) < lp.merge_gap_px and pool.union_fits(i, j):
-                return int(i), int(j)
+        i, j = relative_neighbours(d, within=2.0 * lp.sigma_max_px)
+        joined = pool.gaps(i, j) < lp.merge_gap_px
+        i, j = i[joined], j[joined]
+        for k in np.argsort(d[i, j], kind="stable"):
+            if pool.union_fits(i[k], j[k]):
+                return int(i[k]), int(j[k])
     return None
 
 
@@ -526,14 +521,14 @@ def _dying(pool: Pool, births: "BirthField", t: int) -> np.ndarray:
     st = pool.st
     det = st[F["sxx"], :n] * st[F["syy"], :n] - st[F["sxy"], :n] ** 2
     gate_area = math.pi * lp.gate_d2 * np.sqrt(det)
-    noise = births.background_px() * gate_area * lp.life_tau_us / lp.activity_tau_us
+    noise = births.noise_px * gate_area * lp.life_tau_us / lp.activity_tau_us
     return old & ((recent < lp.death_share * med) | (recent < lp.birth_contrast * noise))
 
 
 def _fixed_pass(pool: Pool, ev: np.ndarray, t0: int, t1: int, record: bool):
     """Run the pool (no lifecycle) over [t0, t1]; optionally sample every batch."""
     lp = pool.lp
-    rows = {"t": [], "act": [], "x": [], "y": [], "cnt": []}
+    rows = {k: [] for k in REC}
     for te, sl in _batches(ev, t0, t1, lp.batch_us):
         batch = ev[sl]
         cnt = np.zeros(pool.n)
@@ -543,12 +538,28 @@ def _fixed_pass(pool: Pool, ev: np.ndarray, t0: int, t1: int, record: bool):
         if record:
             rows["t"].append(te)
             rows["act"].append(pool.activity(te))
-            rows["x"].append(pool.st[F["mx"], :pool.n].copy())
-            rows["y"].append(pool.st[F["my"], :pool.n].copy())
+            rows["x"].append(pool.x.copy())
+            rows["y"].append(pool.y.copy())
             rows["cnt"].append(cnt)
     if not record:
         return None
     return {k: np.array(v) for k, v in rows.items()}
+
+
+REC = ("t", "act", "x", "y", "cnt")      # the observation's samples: _fixed_pass
+
+
+def _keep_rows(rec: dict, mask: np.ndarray) -> dict:
+    """The observation ``rec`` restricted to the trackers where ``mask`` is true."""
+    return {k: (v if k == "t" else v[:, mask]) for k, v in rec.items()}
+
+
+def _observe(pool: Pool, ev: np.ndarray, t0: int, t1: int) -> dict:
+    """Passes 2 and 3: the set, fixed and with its sizes frozen, runs backwards in time to
+    the window's start, then forwards again, sampled every batch (see REC)."""
+    pool.alpha_covariance = 0.0
+    _fixed_pass(pool, _reversed(ev, t0, t1), t0, t1, record=False)
+    return _fixed_pass(pool, ev, t0, t1, record=True)
 
 
 def _reversed(ev: np.ndarray, t0: int, t1: int) -> np.ndarray:
@@ -558,10 +569,23 @@ def _reversed(ev: np.ndarray, t0: int, t1: int) -> np.ndarray:
     return out
 
 
-def _to_count(pool: Pool, n_target: int, t: int, stats: dict) -> None:
-    """Merge (the nearest pair, Bhattacharyya) or split (the widest) until n_target."""
+def _to_count(pool: Pool, counts: np.ndarray, n_target: int, t: int, stats: dict) -> None:
+    """Drop the weakest tracker while it takes less than ``keep_share`` of the median's
+    events (``counts``, per tracker), else merge the nearest pair (Bhattacharyya), until
+    n_target; split the widest until n_target."""
+    counts = counts.astype(float)
     while pool.n > n_target:
-        pool.merge(*_closest_pair(pool), t)
+        k = int(np.argmin(counts))
+        if counts[k] < pool.lp.keep_share * float(np.median(counts)):
+            mask = np.arange(pool.n) != k
+            pool.keep(mask)
+            counts = counts[mask]
+            stats["dropped_to_n"] += 1
+            continue
+        i, j = _closest_pair(pool)
+        pool.merge(i, j, t)
+        counts[i] += counts[j]
+        counts = np.delete(counts, j)
         stats["merged_to_n"] += 1
     while pool.n < n_target:
         st = pool.st
@@ -588,20 +612,22 @@ def _closest_pair(pool: Pool):
 
 
 # ---- springs ----------------------------------------------------------------------------
-def relative_neighbours(d: np.ndarray, slack: float = 0.0) -> np.ndarray:
-    """(n, n) edges of the relative neighbourhood graph of points with distances ``d``:
-    i-j unless some k is nearer to both (max(d_ik, d_jk) < (1 - slack) d_ij).  Local,
-    planar, connected, without a square's diagonals."""
-    far = np.maximum(d[:, None, :], d[None, :, :])          # [i, j, k] = max(d_ik, d_jk)
-    out = ~(far < (1.0 - slack) * d[:, :, None]).any(axis=2)
-    np.fill_diagonal(out, False)
-    return out
+def relative_neighbours(d: np.ndarray, within: float = math.inf, slack: float = 0.0):
+    """Pairs (i, j), i < j, of the relative neighbourhood graph of points with distances
+    ``d`` (n, n) that are nearer than ``within``: i-j unless some k is nearer to both
+    (max(d_ik, d_jk) < (1 - slack) d_ij).  Local, planar, connected (without ``within``),
+    and without a square's diagonals.  Returns two index arrays."""
+    i, j = np.nonzero(np.triu(d < within, 1))
+    far = np.maximum(d[i], d[j])                           # [pair, k] = max(d_ik, d_jk)
+    keep = ~(far < (1.0 - slack) * d[i, j][:, None]).any(axis=1)
+    return i[keep], j[keep]
 
 
 def neighbour_pairs(x: np.ndarray, y: np.ndarray, slack: float = 0.05) -> list:
     """Pairs (i < j) of the relative neighbourhood graph of the points (x, y)."""
     d = np.hypot(x[:, None] - x[None, :], y[:, None] - y[None, :])
-    return [tuple(p) for p in np.argwhere(np.triu(relative_neighbours(d, slack), 1))]
+    i, j = relative_neighbours(d, slack=slack)
+    return list(zip(i.tolist(), j.tolist()))
 
 
 def coactivation(act: np.ndarray) -> np.ndarray:
@@ -669,20 +695,22 @@ def _springs(rec: dict, sig: np.ndarray, lp: LearnParams, x_end, y_end):
 def learn_model(events, trackers: int | None = None, width: int | None = None,
                 height: int | None = None, names=None, name: str = "learned",
                 params: LearnParams | dict | None = None,
-                track_params: Params | dict | None = None) -> LearnResult:
+                track_params: dict | None = None) -> LearnResult:
     """Learn a shape model from ``events`` (structured t µs, x, y, p; time order).
 
     ``trackers``: exactly this many parts (default: the learner's choice); ``width`` x
     ``height``: the sensor (default: the events' extent); ``names``: tracker ids (default
     p00, p01, ... in reading order: top to bottom, left to right); ``params``: learner
-    parameters (:class:`LearnParams` or a dict of overrides); ``track_params``: the
-    tracking parameters the model will be used with (the stiffness scales with their
-    alpha_position), written into the model's ``[params]`` with the energy kind.
+    parameters (:class:`LearnParams` or a dict of overrides); ``track_params``: tracking
+    parameters (springtrack.params names) to write into the model's ``[params]`` as
+    given; alpha_position, energy_scale and energy_kind are learned unless given there
+    (the stiffness scales with alpha_position).
     Raises :class:`NoObjectFound` when no part survives.
     """
     wall0 = time.perf_counter()
     lp = params if isinstance(params, LearnParams) else LearnParams(**(params or {}))
-    tp = track_params if isinstance(track_params, Params) else Params(**(track_params or {}))
+    tp = Params(**(track_params or {})).as_dict()             # validated
+    tp = {k: tp[k] for k in (track_params or {})}
     ev = as_events(events)
     if trackers is not None and not 1 <= int(trackers) <= 64:
         raise ValueError(f"learn: trackers must be in [1, 64], got {trackers}")
@@ -693,48 +721,113 @@ def learn_model(events, trackers: int | None = None, width: int | None = None,
     width = int(width) if width else int(ev["x"].max()) + 1
     height = int(height) if height else int(ev["y"].max()) + 1
     t0, t1 = int(ev["t"][0]), int(ev["t"][-1])
-    stats = {"born": 0, "merged": 0, "died": 0, "birth_refused_full": 0,
-             "merged_to_n": 0, "split_to_n": 0, "lost": 0}
+    stats = {"born": 0, "merged": 0, "died": 0, "birth_refused_full": 0, "weak": 0,
+             "dropped_to_n": 0, "merged_to_n": 0, "split_to_n": 0}
     pool = Pool(lp, width, height)
     _discover(pool, ev, t0, t1, stats)
-    # the candidates still in their grace period and too weak to live are not parts
-    n = pool.n
-    if n:
-        med = float(np.median(pool.recent[:n]))
-        pool.keep(pool.recent[:n] >= lp.death_share * med)
+    # trackers still in their grace period are not parts yet
+    pool.keep((t1 - pool.book["born"][:pool.n]) > lp.life_tau_us)
     if pool.n == 0:
-        raise NoObjectFound(f"no object found: no tracker survived on {len(ev)} events "
+        raise NoObjectFound(f"no object found: no tracker lived through {len(ev)} events "
                             f"({stats['born']} born, {stats['died']} died)")
-    if trackers is not None:
-        _to_count(pool, int(trackers), t1, stats)
-    # settle: carry the set back to the window's start, then observe it forwards, with
-    # the sizes found
-    pool.alpha_covariance = 0.0
-    _fixed_pass(pool, _reversed(ev, t0, t1), t0, t1, record=False)
-    pool.recent[:] = 0.0
-    rec = _fixed_pass(pool, ev, t0, t1, record=True)
+    rec = _observe(pool, ev, t0, t1)
     counts = rec["cnt"].sum(axis=0)
     if trackers is None:
-        med = float(np.median(counts))
-        ok = counts >= lp.death_share * med
-        stats["lost"] = int((~ok).sum())
-        if not ok.all():
-            pool.keep(ok)
-            for k in ("act", "x", "y", "cnt"):
-                rec[k] = rec[k][:, ok]
-            counts = counts[ok]
+        # pieces of parts that no merge joined take a small share of the events
+        weak = counts < lp.keep_share * float(np.median(counts))
+        stats["weak"] = int(weak.sum())
+        if weak.any():
+            pool.keep(~weak)
+            rec = _keep_rows(rec, ~weak)
+            counts = counts[~weak]
+    elif pool.n != int(trackers):
+        _to_count(pool, counts, int(trackers), t1, stats)
+        rec = _observe(pool, ev, t0, t1)
+        counts = rec["cnt"].sum(axis=0)
     if pool.n == 0 or counts.sum() == 0:
         raise NoObjectFound("no object found: the learned trackers took no events")
-    model, springs, cands = _build_model(pool, rec, counts, lp, tp, width, height, names, name)
+    model, springs, cands, counts = _build_model(pool, rec, counts, lp, tp, width, height,
+                                                 names, name)
     return LearnResult(model, len(ev), int(counts.sum()), t0, t1, counts, springs, cands,
                        stats, time.perf_counter() - wall0)
 
 
-def _build_model(pool, rec, counts, lp, tp, width, height, names, name):
+def reading_order(x: np.ndarray, y: np.ndarray, row_px: float) -> np.ndarray:
+    """Indices of the points in reading order: rows top to bottom (a new row starts
+    ``row_px`` below the first point of the current one), left to right in a row."""
+    by_y = np.argsort(y, kind="stable")
+    row = np.zeros(len(y), int)
+    start = y[by_y[0]] if len(y) else 0.0
+    for k in range(1, len(by_y)):
+        row[k] = row[k - 1]
+        if y[by_y[k]] - start > row_px:
+            row[k] += 1
+            start = y[by_y[k]]
+    rows = np.empty(len(y), int)
+    rows[by_y] = row
+    return np.lexsort((x, rows))
+
+
+def spring_energies(rec: dict, kept: list, stiffness: np.ndarray, kind: str) -> np.ndarray:
+    """(T, C) energies of the connections ``kept`` (LearnedSpring, pool indices) along the
+    observation, the rest geometry being the last sample: eq. (12) (euclidean) or
+    eq. (20) (cartesian)."""
+    a = np.array([c.a for c in kept])
+    b = np.array([c.b for c in kept])
+    rx, ry = rec["x"][:, b] - rec["x"][:, a], rec["y"][:, b] - rec["y"][:, a]
+    if kind == "cartesian":
+        return 0.5 * stiffness * ((rx - rx[-1]) ** 2 + (ry - ry[-1]) ** 2)     # eq. (20)
+    dl = np.hypot(rx, ry) - np.hypot(rx[-1], ry[-1])                           # eq. (10)
+    return 0.5 * stiffness * dl * dl                                            # eq. (12)
+
+
+def motion_alpha(rec: dict, counts: np.ndarray, sig: np.ndarray, smooth_us: int,
+                 bounds=(0.005, 0.5)) -> float:
+    """alpha_1 of eq. (3) for the motion seen while learning.
+
+    The running mean of eq. (3) lags 1/alpha_1 events behind a part moving at v px/s
+    and taking r events/s, i.e. v / (alpha_1 r) px, and jitters by sigma sqrt(alpha_1)
+    (both axes, sigma the part's size): the sum of squares is least at
+    alpha_1 = (2 v^2 / (r^2 sigma^2))^(1/3).  v: the trackers' RMS speed over the
+    observation (positions averaged over ``smooth_us``), r and sigma their medians."""
+    t = rec["t"]
+    dur_us = max(float(t[-1] - t[0]), 1.0) if len(t) else 1.0
+    step = max(1, int(round(smooth_us / max(float(np.median(np.diff(t))), 1.0)))) if len(t) > 1 else 1
+    m = len(t) // step * step
+    if m < 2 * step:
+        return Params().alpha_position
+    n = rec["x"].shape[1]
+    bx = rec["x"][:m].reshape(-1, step, n).mean(axis=1)
+    by = rec["y"][:m].reshape(-1, step, n).mean(axis=1)
+    dt_s = step * dur_us / max(len(t) - 1, 1) * 1e-6
+    v = float(np.median(np.sqrt(np.mean(np.diff(bx, axis=0) ** 2 + np.diff(by, axis=0) ** 2,
+                                        axis=0)))) / dt_s
+    r = float(np.median(counts)) / (dur_us * 1e-6)
+    sg = float(np.median(sig))
+    if r <= 0 or sg <= 0:
+        return Params().alpha_position
+    return float(np.clip((2.0 * v * v / (r * r * sg * sg)) ** (1.0 / 3.0), *bounds))
+
+
+def energy_scale(energies: np.ndarray, quantile: float, floor: float) -> float:
+    """s of eqs. (21)-(22) such that the deformations seen while learning stay below it:
+    the ``quantile`` of E_ij / mean(E) over the samples, at least ``floor``."""
+    mean = energies.mean(axis=1, keepdims=True)
+    ok = mean[:, 0] > 0
+    if not ok.any():
+        return floor
+    return max(floor, float(np.quantile(energies[ok] / mean[ok], quantile)))
+
+
+def _build_model(pool, rec, counts, lp, track_params, width, height, names, name):
+    """The ShapeModel of the pool's trackers, with springs and tracking parameters:
+    ``track_params`` (a dict) as given, the others learned (alpha_position: motion_alpha;
+    energy_scale: energy_scale; energy_kind: cartesian if every spring is)."""
     n = pool.n
     st = pool.st
-    x, y = st[F["mx"], :n].copy(), st[F["my"], :n].copy()
-    order = np.lexsort((x, np.round(y / 4.0)))          # reading order, 4-px rows
+    x, y = pool.x.copy(), pool.y.copy()
+    sig = np.sqrt(0.5 * (st[F["sxx"], :n] + st[F["syy"], :n]))
+    order = reading_order(x, y, float(np.median(sig)))
     if names is not None:
         names = list(names)
         if len(names) != n:
@@ -742,30 +835,37 @@ def _build_model(pool, rec, counts, lp, tp, width, height, names, name):
     ids = names or [f"p{k:02d}" for k in range(n)]
     new_of = np.empty(n, int)
     new_of[order] = np.arange(n)
-    sig = np.sqrt(0.5 * (st[F["sxx"], :n] + st[F["syy"], :n]))
     med = float(np.median(counts)) or 1.0
-    mass = np.clip(counts / med, 0.5, 2.0)
+    mass = np.clip(counts / med, MASS_RANGE[0], MASS_RANGE[1])
     trackers = [None] * n
     for i in range(n):
         trackers[new_of[i]] = TrackerSpec(ids[new_of[i]], float(x[i]), float(y[i]),
                                           (float(st[F["sxx"], i]), float(st[F["sxy"], i]),
                                            float(st[F["syy"], i])), float(mass[i]))
     cands = _springs(rec, sig, lp, x, y)
-    for c in cands:
-        c.a, c.b = int(new_of[c.a]), int(new_of[c.b])
-        if c.a > c.b:
-            c.a, c.b = c.b, c.a
-    cands.sort(key=lambda c: (c.a, c.b))
     kept = [c for c in cands if c.kinds and c.coactivation >= lp.min_coactivation
             and c.rigidity >= lp.min_rigidity]
-    kept.sort(key=lambda c: -c.rigidity * c.coactivation)
-    kept = sorted(kept[:128], key=lambda c: (c.a, c.b))
-    conns = [Connection(ids[c.a], ids[c.b], c.kinds,
-                        lp.stiffness_gain * tp.alpha_position * c.rigidity) for c in kept]
-    all_cart = bool(kept) and all(c.kinds == ("cartesian",) for c in kept)
-    params = {"energy_kind": "cartesian" if all_cart else "euclidean"}
-    model = ShapeModel(name, width, height, trackers, conns, params, source="learned")
-    return model, kept, cands
+    kept = sorted(kept, key=lambda c: -c.rigidity * c.coactivation)[:MAX_CONNECTIONS]
+    params = dict(track_params)
+    if "alpha_position" not in params:
+        params["alpha_position"] = round(motion_alpha(rec, counts, sig, lp.smooth_us), 4)
+    stiff = np.array([lp.stiffness_gain * params["alpha_position"] * c.rigidity for c in kept])
+    if kept:
+        kind = params.setdefault("energy_kind", "cartesian" if all(
+            c.kinds == ("cartesian",) for c in kept) else "euclidean")
+        if "energy_scale" not in params:
+            s = energy_scale(spring_energies(rec, kept, stiff, kind), lp.energy_quantile,
+                             Params().energy_scale)
+            params["energy_scale"] = round(s, 3)
+    for c in cands:                       # model order from here on
+        c.a, c.b = sorted((int(new_of[c.a]), int(new_of[c.b])))
+    pairs = sorted(zip(kept, stiff), key=lambda p: (p[0].a, p[0].b))
+    kept = [c for c, _ in pairs]
+    conns = [Connection(ids[c.a], ids[c.b], c.kinds, float(k)) for c, k in pairs]
+    cands.sort(key=lambda c: (c.a, c.b))
+    model = ShapeModel(name, width, height, sorted(trackers, key=lambda t: ids.index(t.id)),
+                       conns, params, source="learned")
+    return model, kept, cands, counts[order]
 
 
 def learn(events, trackers: int | None = None, **kw) -> ShapeModel:
