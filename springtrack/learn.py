@@ -60,6 +60,7 @@ COVERED_MIN_LEVEL = 2.0       # Pool.update_level: the least level (contrast thr
 LEVEL_EVERY = 10              # levels (Pool.update_level, BirthField.update_noise) are
                               # measured every this many batches
 MASS_RANGE = (0.5, 2.0)       # masses: event share over the median, bounded
+MIN_SAMPLES = 10              # batches a pair must share for a spring
 CONTRAST_MARGIN = 0.05        # contrast_sign: ON-first fraction this far from 1/2 decides
 F = {name: k for k, name in enumerate(_learn.FIELDS)}
 
@@ -86,7 +87,7 @@ class LearnParams:
     merge_overlap: float = 0.25        # shared fraction of the smaller tracker's events
     merge_gap_px: float = 1.5          # neighbours joined by covered pixels, no gap this long
     death_share: float = 0.05          # of the pool's median recent event count
-    keep_share: float = 0.5            # a part takes this share of the median's events
+    keep_share: float = 0.4            # a part takes this share of the median's events
     life_tau_us: float = 50_000.0      # memory of recent counts; grace period after birth
     # springs
     min_coactivation: float = 0.5
@@ -146,13 +147,14 @@ class LearnResult:
 
 # ---- the pool ---------------------------------------------------------------------------
 # per-tracker bookkeeping next to the state array (all of length POOL_CAPACITY)
-BOOK = ("recent", "total", "born", "uid")
+BOOK = ("recent", "total", "born", "since", "uid")
 
 
 class Pool:
     """Free Gaussian trackers (eqs. 2-6) in a state array, with their bookkeeping (``book``:
     ``recent`` event counts decayed with ``life_tau_us``, ``total`` events since birth,
-    ``born`` (µs) and ``uid`` (birth order)), the events shared by pairs of gates
+    ``born`` and ``since`` (µs: birth, last change of identity by a merge or a split)
+    and ``uid`` (birth order, or the identity after a change)), the events shared by pairs of gates
     (``overlap``, decayed like ``recent``) and each pixel's ON minus OFF events (``net``,
     see :meth:`covered`)."""
 
@@ -225,13 +227,17 @@ class Pool:
         self.st[F["act"], i], self.st[F["tlast"], i] = act, t
         for k in BOOK:
             self.book[k][i] = 0.0
-        self.book["born"][i], self.book["uid"][i] = t, self.next_uid
+        self.book["born"][i] = self.book["since"][i] = t
+        self.book["uid"][i] = self.new_uid()
         for k, v in (book or {}).items():
             self.book[k][i] = v
-        self.next_uid += 1
         self.overlap[i, :] = 0.0
         self.overlap[:, i] = 0.0
         return True
+
+    def new_uid(self) -> int:
+        self.next_uid += 1
+        return self.next_uid - 1
 
     def keep(self, mask: np.ndarray) -> None:
         """Keep the trackers where ``mask`` (n,) is true, in their order."""
@@ -276,6 +282,7 @@ class Pool:
         for k in ("recent", "total"):
             self.book[k][i] += self.book[k][j]
         self.book["born"][i] = min(self.book["born"][i], self.book["born"][j])
+        self.book["since"][i], self.book["uid"][i] = t, self.new_uid()
         n = self.n
         self.overlap[i, :n] += self.overlap[j, :n]
         self.overlap[:n, i] += self.overlap[:n, j]
@@ -299,6 +306,7 @@ class Pool:
         self.st[F["act"], i], self.st[F["tlast"], i] = act, t
         for k, v in book.items():
             self.book[k][i] = v
+        self.book["since"][i], self.book["uid"][i] = t, self.new_uid()
         return self.add(mu + off, half, t, act, book)
 
     def nested(self) -> np.ndarray:
@@ -447,20 +455,57 @@ def _batches(ev: np.ndarray, t0: int, t1: int, step: int):
         lo = hi
 
 
-def _discover(pool: Pool, ev: np.ndarray, t0: int, t1: int, stats: dict) -> None:
-    """Pass 1: the pool with births, merges and deaths, every ``batch_us``."""
+class History:
+    """What the pool did, batch by batch: each tracker's identity (uid), position,
+    activity (eq. 6) and events taken, sampled after the batch ran and before the
+    lifecycle acted on it."""
+
+    def __init__(self):
+        self.rows = []
+
+    def record(self, t: int, pool: Pool, cnt: np.ndarray) -> None:
+        n = pool.n
+        self.rows.append((t, pool.book["uid"][:n].astype(np.int64), pool.x.copy(),
+                          pool.y.copy(), pool.activity(t), cnt[:n].astype(float)))
+
+    def series(self, uids: np.ndarray, since: np.ndarray) -> dict:
+        """The samples of the trackers ``uids`` (N,), each from after ``since`` (µs):
+        ``t`` (T,), ``x``, ``y``, ``act``, ``cnt`` (T, N) and ``valid`` (T, N) where the
+        tracker had its present identity (elsewhere x, y are NaN, act and cnt 0)."""
+        T, N = len(self.rows), len(uids)
+        out = {"t": np.array([r[0] for r in self.rows], np.int64),
+               "x": np.full((T, N), np.nan), "y": np.full((T, N), np.nan),
+               "act": np.zeros((T, N)), "cnt": np.zeros((T, N)), "valid": np.zeros((T, N), bool)}
+        col = {int(u): k for k, u in enumerate(uids)}
+        for r, (t, uid, x, y, act, cnt) in enumerate(self.rows):
+            for i, u in enumerate(uid.tolist()):
+                k = col.get(u)
+                if k is not None and t > since[k]:
+                    out["x"][r, k], out["y"][r, k] = x[i], y[i]
+                    out["act"][r, k], out["cnt"][r, k] = act[i], cnt[i]
+                    out["valid"][r, k] = True
+        return out
+
+
+def _discover(pool: Pool, ev: np.ndarray, t0: int, t1: int, stats: dict) -> History:
+    """Pass 1: the pool with births, merges and deaths, every ``batch_us``; returns its
+    history."""
     lp = pool.lp
     births = BirthField(lp, pool.width, pool.height)
     pool.contrast = contrast_sign(ev, pool.width, pool.height)
     prev = t0
+    history = History()
     for k, (te, sl) in enumerate(_batches(ev, t0, t1, lp.batch_us)):
         batch = ev[sl]
         pool.decay(te - prev)
         births.decay(te - prev)
         prev = te
+        cnt = np.zeros(pool.n)
         if len(batch):
             w = pool.run(batch)
             births.add(batch[w == -1])
+            cnt = np.bincount(w[w >= 0], minlength=pool.n)
+        history.record(te, pool, cnt)
         if k % LEVEL_EVERY == 0:
             pool.update_level()
             births.update_noise()
@@ -479,6 +524,7 @@ def _discover(pool: Pool, ev: np.ndarray, t0: int, t1: int, stats: dict) -> None
                 stats["born"] += 1
             else:
                 stats["birth_refused_full"] += 1
+    return history
 
 
 def _merge_candidate(pool: Pool):
@@ -525,74 +571,73 @@ def _dying(pool: Pool, births: "BirthField", t: int) -> np.ndarray:
     return old & ((recent < lp.death_share * med) | (recent < lp.birth_contrast * noise))
 
 
-def _fixed_pass(pool: Pool, ev: np.ndarray, t0: int, t1: int, record: bool):
-    """Run the pool (no lifecycle) over [t0, t1]; optionally sample every batch."""
-    lp = pool.lp
-    rows = {k: [] for k in REC}
-    for te, sl in _batches(ev, t0, t1, lp.batch_us):
-        batch = ev[sl]
-        cnt = np.zeros(pool.n)
-        if len(batch):
-            w = pool.run(batch)
-            cnt = np.bincount(w[w >= 0], minlength=pool.n)[:pool.n].astype(float)
-        if record:
-            rows["t"].append(te)
-            rows["act"].append(pool.activity(te))
-            rows["x"].append(pool.x.copy())
-            rows["y"].append(pool.y.copy())
-            rows["cnt"].append(cnt)
-    if not record:
-        return None
-    return {k: np.array(v) for k, v in rows.items()}
+def event_rates(rec: dict) -> np.ndarray:
+    """(N,) events per batch of each tracker while it had its present identity."""
+    return rec["cnt"].sum(axis=0) / np.maximum(rec["valid"].sum(axis=0), 1)
 
 
-REC = ("t", "act", "x", "y", "cnt")      # the observation's samples: _fixed_pass
+def event_shares(rec: dict) -> np.ndarray:
+    """(N,) each tracker's events over the median tracker's in the same batches (while
+    it had its present identity): rates compared at the same times, as the parts'
+    speed, hence their event rate, changes over the window."""
+    cnt = np.where(rec["valid"], rec["cnt"], np.nan)
+    with np.errstate(invalid="ignore"):
+        med = np.nanmedian(cnt, axis=1, keepdims=True)
+    ref = np.where(rec["valid"] & (med > 0), med, 0.0)
+    return rec["cnt"].sum(axis=0) / np.maximum(ref.sum(axis=0), 1e-12)
 
 
-def _keep_rows(rec: dict, mask: np.ndarray) -> dict:
-    """The observation ``rec`` restricted to the trackers where ``mask`` is true."""
+def _keep_cols(rec: dict, mask: np.ndarray) -> dict:
+    """The samples ``rec`` of the trackers where ``mask`` is true."""
     return {k: (v if k == "t" else v[:, mask]) for k, v in rec.items()}
 
 
-def _observe(pool: Pool, ev: np.ndarray, t0: int, t1: int) -> dict:
-    """Passes 2 and 3: the set, fixed and with its sizes frozen, runs backwards in time to
-    the window's start, then forwards again, sampled every batch (see REC)."""
-    pool.alpha_covariance = 0.0
-    _fixed_pass(pool, _reversed(ev, t0, t1), t0, t1, record=False)
-    return _fixed_pass(pool, ev, t0, t1, record=True)
-
-
-def _reversed(ev: np.ndarray, t0: int, t1: int) -> np.ndarray:
-    """The events of [t0, t1] in reverse time order, with t -> t0 + t1 - t."""
-    out = ev[::-1].copy()
-    out["t"] = t0 + t1 - out["t"]
-    return out
-
-
-def _to_count(pool: Pool, counts: np.ndarray, n_target: int, t: int, stats: dict) -> None:
+def _to_count(pool: Pool, rec: dict, n_target: int, t: int, stats: dict) -> dict:
     """Drop the weakest tracker while it takes less than ``keep_share`` of the median's
-    events (``counts``, per tracker), else merge the nearest pair (Bhattacharyya), until
-    n_target; split the widest until n_target."""
-    counts = counts.astype(float)
+    events, else merge the nearest pair (Bhattacharyya), until n_target; split the widest
+    until n_target.  Returns the samples ``rec`` of the new set: a merged pair's are the
+    weighted mean of both (where both exist), a split tracker's its parent's, shifted."""
+    rec = dict(rec)
     while pool.n > n_target:
-        k = int(np.argmin(counts))
-        if counts[k] < pool.lp.keep_share * float(np.median(counts)):
+        share = event_shares(rec)
+        k = int(np.argmin(share))
+        if share[k] < pool.lp.keep_share:
             mask = np.arange(pool.n) != k
             pool.keep(mask)
-            counts = counts[mask]
+            rec = _keep_cols(rec, mask)
             stats["dropped_to_n"] += 1
             continue
         i, j = _closest_pair(pool)
+        wi, wj = pool.recent[i] + 1e-9, pool.recent[j] + 1e-9
         pool.merge(i, j, t)
-        counts[i] += counts[j]
-        counts = np.delete(counts, j)
+        both = rec["valid"][:, i] & rec["valid"][:, j]
+        for f in ("x", "y"):
+            rec[f][:, i] = np.where(both, (wi * rec[f][:, i] + wj * rec[f][:, j]) / (wi + wj),
+                                    np.nan)
+        for f in ("act", "cnt"):
+            rec[f][:, i] = np.where(both, rec[f][:, i] + rec[f][:, j], 0.0)
+        rec["valid"][:, i] = both
+        rec = _keep_cols(rec, np.arange(pool.n + 1) != j)
         stats["merged_to_n"] += 1
     while pool.n < n_target:
         st = pool.st
         n = pool.n
-        if not pool.split(int(np.argmax(st[F["sxx"], :n] + st[F["syy"], :n])), t):
+        i = int(np.argmax(st[F["sxx"], :n] + st[F["syy"], :n]))
+        before = pool.gaussian(i)[0]
+        if not pool.split(i, t):
             break
+        off = pool.gaussian(i)[0] - before
+        new = {f: rec[f][:, i:i + 1].copy() for f in ("x", "y", "act", "cnt", "valid")}
+        for f, sign in (("x", 1), ("y", 1)):
+            k = 0 if f == "x" else 1
+            rec[f][:, i] += off[k]
+            new[f] -= off[k]
+        for f in ("act", "cnt"):
+            rec[f][:, i] *= 0.5
+            new[f] *= 0.5
+        rec = {k: (v if k == "t" else np.concatenate([v, new[k]], axis=1)) for k, v in rec.items()}
         stats["split_to_n"] += 1
+    return rec
 
 
 def _closest_pair(pool: Pool):
@@ -630,24 +675,23 @@ def neighbour_pairs(x: np.ndarray, y: np.ndarray, slack: float = 0.05) -> list:
     return list(zip(i.tolist(), j.tolist()))
 
 
-def coactivation(act: np.ndarray) -> np.ndarray:
-    """(N, N) normalised inner products of the activity traces ``act`` (T, N): 1 for two
+def coactivation(a: np.ndarray, b: np.ndarray) -> float:
+    """Normalised inner product of two activity traces (eq. 6, sampled together): 1 for
     trackers active in proportion at the same times, 0 for never at the same time."""
-    norm = np.sqrt((act * act).sum(axis=0))
-    norm = np.where(norm > 0, norm, 1.0)
-    return (act.T @ act) / np.outer(norm, norm)
+    norm = math.sqrt(float(a @ a) * float(b @ b))
+    return float(a @ b) / norm if norm > 0 else 0.0
 
 
-def object_rotation(x: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
-    """(T,) rotation (rad) of the point set at each sample relative to its last sample:
-    the weighted 2-D Procrustes angle about the weighted centroid."""
-    z = x + 1j * y
-    ws = w.sum(axis=1, keepdims=True)
-    ws = np.where(ws > 0, ws, 1.0)
-    c = (w * z).sum(axis=1, keepdims=True) / ws
-    zc = z - c
-    ref = zc[-1]
-    return np.angle((w * zc * np.conj(ref)[None, :]).sum(axis=1))
+def object_rotation(x: np.ndarray, y: np.ndarray, w: np.ndarray, x_ref, y_ref) -> np.ndarray:
+    """(T,) rotation (rad) of the point set at each sample from the reference positions
+    (N,): the 2-D Procrustes angle about the centroids, with weights ``w`` (T, N) (0 where
+    a point is missing; x, y are ignored there)."""
+    z = np.where(w > 0, x + 1j * y, 0.0)
+    ref = x_ref + 1j * y_ref
+    ws = np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
+    zc = z - (w * z).sum(axis=1, keepdims=True) / ws
+    rc = ref[None, :] - (w * ref[None, :]).sum(axis=1, keepdims=True) / ws
+    return np.angle((w * zc * np.conj(rc)).sum(axis=1))
 
 
 def rigidity(deform_px: float, size_px: float, scale: float) -> float:
@@ -657,37 +701,42 @@ def rigidity(deform_px: float, size_px: float, scale: float) -> float:
 
 
 def _springs(rec: dict, sig: np.ndarray, lp: LearnParams, x_end, y_end):
-    """Candidates (neighbour pairs) with their scores; ``sig`` (N,) part sizes, px."""
-    act, X, Y, T = rec["act"], rec["x"], rec["y"], rec["t"]
-    co = coactivation(act)
-    w = act / np.maximum(act.max(axis=0, keepdims=True), 1e-12)
-    phi = object_rotation(X, Y, w)
-    c, s = np.cos(-phi)[:, None], np.sin(-phi)[:, None]
+    """The candidate springs, neighbours of the relative neighbourhood graph of the final
+    positions, each with its evidence over the samples where both ends existed:
+    co-activation, rigidity (the spread of the relative position in the object's frame,
+    in part sizes ``sig``) and turn (the range of the direction of the relative position,
+    averaged over ``smooth_us``), hence its kinds."""
+    act, X, Y, valid = rec["act"], rec["x"], rec["y"], rec["valid"]
+    w = np.where(valid, act / np.maximum(act.max(axis=0, keepdims=True), 1e-12), 0.0)
+    phi = object_rotation(X, Y, w, x_end, y_end)
+    c, s = np.cos(-phi), np.sin(-phi)
     nsm = max(1, int(round(lp.smooth_us / lp.batch_us)))
     out = []
     for i, j in neighbour_pairs(x_end, y_end):
-        rx, ry = X[:, j] - X[:, i], Y[:, j] - Y[:, i]
-        # in the object's frame: undo the rotation of each sample relative to the last
-        ox, oy = c[:, 0] * rx - s[:, 0] * ry, s[:, 0] * rx + c[:, 0] * ry
-        wk = np.minimum(w[:, i], w[:, j])
-        if wk.sum() <= 0:
-            out.append(LearnedSpring(i, j, float(co[i, j]), 0.0, 0.0, ()))
+        both = valid[:, i] & valid[:, j]
+        wk = np.minimum(w[:, i], w[:, j])[both]
+        if len(wk) < MIN_SAMPLES or wk.sum() <= 0:
+            out.append(LearnedSpring(i, j, 0.0, 0.0, 0.0, ()))
             continue
+        co = coactivation(act[both, i], act[both, j])
+        rx, ry = (X[:, j] - X[:, i])[both], (Y[:, j] - Y[:, i])[both]
+        # in the object's frame: undo each sample's rotation from the final positions
+        ox, oy = c[both] * rx - s[both] * ry, s[both] * rx + c[both] * ry
         mx, my = np.average(ox, weights=wk), np.average(oy, weights=wk)
         deform = math.sqrt(np.average((ox - mx) ** 2 + (oy - my) ** 2, weights=wk))
         rig = rigidity(deform, 0.5 * (sig[i] + sig[j]), lp.rigidity_scale)
         # turn: range of the direction of the smoothed relative position
         m = len(rx) // nsm * nsm
+        turn = 0.0
         if m >= nsm:
             wb = wk[:m].reshape(-1, nsm).sum(axis=1)
             bx = (rx[:m] * wk[:m]).reshape(-1, nsm).sum(axis=1)
             by = (ry[:m] * wk[:m]).reshape(-1, nsm).sum(axis=1)
             ang = np.unwrap(np.arctan2(by[wb > 0], bx[wb > 0]))
-            turn = float(np.degrees(ang.max() - ang.min())) if len(ang) else 0.0
-        else:
-            turn = 0.0
+            if len(ang):
+                turn = float(np.degrees(ang.max() - ang.min()))
         kinds = ("cartesian",) if turn < lp.cartesian_turn_deg else ("euclidean", "torsional")
-        out.append(LearnedSpring(i, j, float(co[i, j]), rig, turn, kinds))
+        out.append(LearnedSpring(i, j, co, rig, turn, kinds))
     return out
 
 
@@ -724,26 +773,23 @@ def learn_model(events, trackers: int | None = None, width: int | None = None,
     stats = {"born": 0, "merged": 0, "died": 0, "birth_refused_full": 0, "weak": 0,
              "dropped_to_n": 0, "merged_to_n": 0, "split_to_n": 0}
     pool = Pool(lp, width, height)
-    _discover(pool, ev, t0, t1, stats)
+    history = _discover(pool, ev, t0, t1, stats)
     # trackers still in their grace period are not parts yet
     pool.keep((t1 - pool.book["born"][:pool.n]) > lp.life_tau_us)
     if pool.n == 0:
         raise NoObjectFound(f"no object found: no tracker lived through {len(ev)} events "
                             f"({stats['born']} born, {stats['died']} died)")
-    rec = _observe(pool, ev, t0, t1)
-    counts = rec["cnt"].sum(axis=0)
+    rec = history.series(pool.book["uid"][:pool.n], pool.book["since"][:pool.n])
     if trackers is None:
         # pieces of parts that no merge joined take a small share of the events
-        weak = counts < lp.keep_share * float(np.median(counts))
+        weak = event_shares(rec) < lp.keep_share
         stats["weak"] = int(weak.sum())
-        if weak.any():
+        if weak.any() and not weak.all():
             pool.keep(~weak)
-            rec = _keep_rows(rec, ~weak)
-            counts = counts[~weak]
+            rec = _keep_cols(rec, ~weak)
     elif pool.n != int(trackers):
-        _to_count(pool, counts, int(trackers), t1, stats)
-        rec = _observe(pool, ev, t0, t1)
-        counts = rec["cnt"].sum(axis=0)
+        rec = _to_count(pool, rec, int(trackers), t1, stats)
+    counts = rec["cnt"].sum(axis=0)
     if pool.n == 0 or counts.sum() == 0:
         raise NoObjectFound("no object found: the learned trackers took no events")
     model, springs, cands, counts = _build_model(pool, rec, counts, lp, tp, width, height,
@@ -768,55 +814,58 @@ def reading_order(x: np.ndarray, y: np.ndarray, row_px: float) -> np.ndarray:
     return np.lexsort((x, rows))
 
 
-def spring_energies(rec: dict, kept: list, stiffness: np.ndarray, kind: str) -> np.ndarray:
+def spring_energies(rec: dict, kept: list, stiffness: np.ndarray, kind: str, x_end,
+                    y_end) -> np.ndarray:
     """(T, C) energies of the connections ``kept`` (LearnedSpring, pool indices) along the
-    observation, the rest geometry being the last sample: eq. (12) (euclidean) or
-    eq. (20) (cartesian)."""
+    samples, the rest geometry being the final positions: eq. (12) (euclidean) or
+    eq. (20) (cartesian); NaN where an end is missing."""
     a = np.array([c.a for c in kept])
     b = np.array([c.b for c in kept])
     rx, ry = rec["x"][:, b] - rec["x"][:, a], rec["y"][:, b] - rec["y"][:, a]
+    rx0, ry0 = x_end[b] - x_end[a], y_end[b] - y_end[a]
     if kind == "cartesian":
-        return 0.5 * stiffness * ((rx - rx[-1]) ** 2 + (ry - ry[-1]) ** 2)     # eq. (20)
-    dl = np.hypot(rx, ry) - np.hypot(rx[-1], ry[-1])                           # eq. (10)
-    return 0.5 * stiffness * dl * dl                                            # eq. (12)
+        return 0.5 * stiffness * ((rx - rx0) ** 2 + (ry - ry0) ** 2)         # eq. (20)
+    dl = np.hypot(rx, ry) - np.hypot(rx0, ry0)                             # eq. (10)
+    return 0.5 * stiffness * dl * dl                                        # eq. (12)
 
 
-def motion_alpha(rec: dict, counts: np.ndarray, sig: np.ndarray, smooth_us: int,
+def motion_alpha(rec: dict, sig: np.ndarray, batch_us: int, smooth_us: int,
                  bounds=(0.005, 0.5)) -> float:
     """alpha_1 of eq. (3) for the motion seen while learning.
 
     The running mean of eq. (3) lags 1/alpha_1 events behind a part moving at v px/s
     and taking r events/s, i.e. v / (alpha_1 r) px, and jitters by sigma sqrt(alpha_1)
     (both axes, sigma the part's size): the sum of squares is least at
-    alpha_1 = (2 v^2 / (r^2 sigma^2))^(1/3).  v: the trackers' RMS speed over the
-    observation (positions averaged over ``smooth_us``), r and sigma their medians."""
-    t = rec["t"]
-    dur_us = max(float(t[-1] - t[0]), 1.0) if len(t) else 1.0
-    step = max(1, int(round(smooth_us / max(float(np.median(np.diff(t))), 1.0)))) if len(t) > 1 else 1
-    m = len(t) // step * step
+    alpha_1 = (2 v^2 / (r^2 sigma^2))^(1/3).  v: the trackers' RMS speed (positions
+    averaged over ``smooth_us``), r and sigma their medians."""
+    step = max(1, int(round(smooth_us / batch_us)))
+    T, n = rec["x"].shape
+    m = T // step * step
     if m < 2 * step:
         return Params().alpha_position
-    n = rec["x"].shape[1]
-    bx = rec["x"][:m].reshape(-1, step, n).mean(axis=1)
-    by = rec["y"][:m].reshape(-1, step, n).mean(axis=1)
-    dt_s = step * dur_us / max(len(t) - 1, 1) * 1e-6
-    v = float(np.median(np.sqrt(np.mean(np.diff(bx, axis=0) ** 2 + np.diff(by, axis=0) ** 2,
-                                        axis=0)))) / dt_s
-    r = float(np.median(counts)) / (dur_us * 1e-6)
+    with np.errstate(invalid="ignore"):
+        bx = np.nanmean(rec["x"][:m].reshape(-1, step, n), axis=1)     # NaN: no sample
+        by = np.nanmean(rec["y"][:m].reshape(-1, step, n), axis=1)
+        v2 = np.nanmean(np.diff(bx, axis=0) ** 2 + np.diff(by, axis=0) ** 2, axis=0)
+    v2 = v2[np.isfinite(v2)]
+    r = float(np.median(event_rates(rec))) / (batch_us * 1e-6)
     sg = float(np.median(sig))
-    if r <= 0 or sg <= 0:
+    if not len(v2) or r <= 0 or sg <= 0:
         return Params().alpha_position
+    v = math.sqrt(float(np.median(v2))) / (step * batch_us * 1e-6)
     return float(np.clip((2.0 * v * v / (r * r * sg * sg)) ** (1.0 / 3.0), *bounds))
 
 
 def energy_scale(energies: np.ndarray, quantile: float, floor: float) -> float:
     """s of eqs. (21)-(22) such that the deformations seen while learning stay below it:
-    the ``quantile`` of E_ij / mean(E) over the samples, at least ``floor``."""
-    mean = energies.mean(axis=1, keepdims=True)
-    ok = mean[:, 0] > 0
-    if not ok.any():
+    the ``quantile`` of E_ij / mean(E) over the samples (NaN: missing), at least ``floor``."""
+    with np.errstate(invalid="ignore"):
+        mean = np.nanmean(energies, axis=1, keepdims=True)
+        ratio = energies / mean
+    ratio = ratio[np.isfinite(ratio)]
+    if not len(ratio):
         return floor
-    return max(floor, float(np.quantile(energies[ok] / mean[ok], quantile)))
+    return max(floor, float(np.quantile(ratio, quantile)))
 
 
 def _build_model(pool, rec, counts, lp, track_params, width, height, names, name):
@@ -835,8 +884,7 @@ def _build_model(pool, rec, counts, lp, track_params, width, height, names, name
     ids = names or [f"p{k:02d}" for k in range(n)]
     new_of = np.empty(n, int)
     new_of[order] = np.arange(n)
-    med = float(np.median(counts)) or 1.0
-    mass = np.clip(counts / med, MASS_RANGE[0], MASS_RANGE[1])
+    mass = np.clip(event_shares(rec), MASS_RANGE[0], MASS_RANGE[1])
     trackers = [None] * n
     for i in range(n):
         trackers[new_of[i]] = TrackerSpec(ids[new_of[i]], float(x[i]), float(y[i]),
@@ -848,14 +896,14 @@ def _build_model(pool, rec, counts, lp, track_params, width, height, names, name
     kept = sorted(kept, key=lambda c: -c.rigidity * c.coactivation)[:MAX_CONNECTIONS]
     params = dict(track_params)
     if "alpha_position" not in params:
-        params["alpha_position"] = round(motion_alpha(rec, counts, sig, lp.smooth_us), 4)
+        params["alpha_position"] = round(motion_alpha(rec, sig, lp.batch_us, lp.smooth_us), 4)
     stiff = np.array([lp.stiffness_gain * params["alpha_position"] * c.rigidity for c in kept])
     if kept:
         kind = params.setdefault("energy_kind", "cartesian" if all(
             c.kinds == ("cartesian",) for c in kept) else "euclidean")
         if "energy_scale" not in params:
-            s = energy_scale(spring_energies(rec, kept, stiff, kind), lp.energy_quantile,
-                             Params().energy_scale)
+            s = energy_scale(spring_energies(rec, kept, stiff, kind, x, y),
+                             lp.energy_quantile, Params().energy_scale)
             params["energy_scale"] = round(s, 3)
     for c in cands:                       # model order from here on
         c.a, c.b = sorted((int(new_of[c.a]), int(new_of[c.b])))
