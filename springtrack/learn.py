@@ -59,6 +59,7 @@ POOL_CAPACITY = 128           # trackers alive at once during discovery
 COVERED_MIN_LEVEL = 2.0       # Pool.update_level: the least level (contrast thresholds)
 LEVEL_EVERY = 10              # levels (Pool.update_level, BirthField.update_noise) are
                               # measured every this many batches
+POINT_SIGMA = 1.5             # a tracker narrower than this sigma_min_px both ways: a point
 MASS_RANGE = (0.5, 2.0)       # masses: event share over the median, bounded
 MIN_SAMPLES = 10              # batches a pair must share for a spring
 CONTRAST_MARGIN = 0.05        # contrast_sign: ON-first fraction this far from 1/2 decides
@@ -88,6 +89,8 @@ class LearnParams:
     merge_gap_px: float = 1.5          # neighbours joined by covered pixels, no gap this long
     death_share: float = 0.05          # of the pool's median recent event count
     keep_share: float = 0.4            # a part takes this share of the median's events
+    idle_share: float = 0.1            # ... and is awake (awake()) at the end: this share
+                                       #     of the pool's median
     life_tau_us: float = 50_000.0      # memory of recent counts; grace period after birth
     # springs
     min_coactivation: float = 0.5
@@ -587,6 +590,18 @@ def event_shares(rec: dict) -> np.ndarray:
     return rec["cnt"].sum(axis=0) / np.maximum(ref.sum(axis=0), 1e-12)
 
 
+def awake(rec: dict, tau_us: float, batch_us: int) -> np.ndarray:
+    """(N,) each tracker's activity (eq. 6) over the last ``tau_us`` of the samples, over
+    its mean activity: near 1 while it follows its part, near 0 once the part has left
+    it behind."""
+    k = max(1, int(round(tau_us / batch_us)))
+    act = np.where(rec["valid"], rec["act"], np.nan)
+    with np.errstate(invalid="ignore"):
+        now = np.nan_to_num(np.nanmean(act[-k:], axis=0))
+        usual = np.nan_to_num(np.nanmean(act, axis=0))
+    return now / np.maximum(usual, 1e-12)
+
+
 def _keep_cols(rec: dict, mask: np.ndarray) -> dict:
     """The samples ``rec`` of the trackers where ``mask`` is true."""
     return {k: (v if k == "t" else v[:, mask]) for k, v in rec.items()}
@@ -774,15 +789,20 @@ def learn_model(events, trackers: int | None = None, width: int | None = None,
              "dropped_to_n": 0, "merged_to_n": 0, "split_to_n": 0}
     pool = Pool(lp, width, height)
     history = _discover(pool, ev, t0, t1, stats)
-    # trackers still in their grace period are not parts yet
-    pool.keep((t1 - pool.book["born"][:pool.n]) > lp.life_tau_us)
+    # trackers still in their grace period are not parts yet, and a part has an extent
+    # (a hot pixel makes a tracker as narrow as sigma_min_px both ways)
+    st = pool.st[:, :pool.n]
+    point = np.maximum(st[F["sxx"]], st[F["syy"]]) <= (POINT_SIGMA * lp.sigma_min_px) ** 2
+    pool.keep(((t1 - pool.book["born"][:pool.n]) > lp.life_tau_us) & ~point)
     if pool.n == 0:
         raise NoObjectFound(f"no object found: no tracker lived through {len(ev)} events "
                             f"({stats['born']} born, {stats['died']} died)")
     rec = history.series(pool.book["uid"][:pool.n], pool.book["since"][:pool.n])
     if trackers is None:
-        # pieces of parts that no merge joined take a small share of the events
-        weak = event_shares(rec) < lp.keep_share
+        # pieces of parts that no merge joined take a small share of the events, and
+        # trackers left behind by their part take none at the end
+        wake = awake(rec, lp.activity_tau_us, lp.batch_us)
+        weak = (event_shares(rec) < lp.keep_share) | (wake < lp.idle_share * np.median(wake))
         stats["weak"] = int(weak.sum())
         if weak.any() and not weak.all():
             pool.keep(~weak)
