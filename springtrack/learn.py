@@ -42,8 +42,10 @@ object raises :class:`NoObjectFound`.
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import time
+import warnings
 from dataclasses import dataclass, field, fields, asdict
 
 import numpy as np
@@ -59,7 +61,7 @@ POOL_CAPACITY = 128           # trackers alive at once during discovery
 COVERED_MIN_LEVEL = 2.0       # Pool.update_level: the least level (contrast thresholds)
 LEVEL_EVERY = 10              # levels (Pool.update_level, BirthField.update_noise) are
                               # measured every this many batches
-POINT_SIGMA = 1.5             # a tracker narrower than this sigma_min_px both ways: a point
+POINT_SIGMA = 1.05            # a tracker narrower than this sigma_min_px both ways: a point
 MASS_RANGE = (0.5, 2.0)       # masses: event share over the median, bounded
 MIN_SAMPLES = 10              # batches a pair must share for a spring
 CONTRAST_MARGIN = 0.05        # contrast_sign: ON-first fraction this far from 1/2 decides
@@ -68,6 +70,7 @@ F = {name: k for k, name in enumerate(_learn.FIELDS)}
 
 class NoObjectFound(ValueError):
     """The events hold no object the learner could model (noise, or too few events)."""
+    exit_code = 3                     # ``springtrack learn``'s exit status for it
 
 
 @dataclass(frozen=True)
@@ -78,7 +81,7 @@ class LearnParams:
     alpha_covariance: float = 0.01     # alpha_2 of the pool: weight in the covariance
     p_threshold: float = 0.1           # delta_p: the gate exp(-d^2/2) > delta_p
     activity_tau_us: float = 10_000.0  # tau of eq. (6); also the decay of birth counts
-    sigma_min_px: float = 1.0          # bounds on a part's standard deviations
+    sigma_min_px: float = 2.0          # bounds on a part's standard deviations
     sigma_max_px: float = 16.0
     batch_us: int = 1000               # lifecycle and sampling period
     # lifecycle
@@ -574,6 +577,15 @@ def _dying(pool: Pool, births: "BirthField", t: int) -> np.ndarray:
     return old & ((recent < lp.death_share * med) | (recent < lp.birth_contrast * noise))
 
 
+@contextlib.contextmanager
+def quiet_nan():
+    """numpy's nan-statistics without their warnings on all-NaN slices (a tracker with no
+    sample there: the result is NaN, which the callers handle)."""
+    with warnings.catch_warnings(), np.errstate(invalid="ignore", divide="ignore"):
+        warnings.simplefilter("ignore", RuntimeWarning)
+        yield
+
+
 def event_rates(rec: dict) -> np.ndarray:
     """(N,) events per batch of each tracker while it had its present identity."""
     return rec["cnt"].sum(axis=0) / np.maximum(rec["valid"].sum(axis=0), 1)
@@ -584,7 +596,7 @@ def event_shares(rec: dict) -> np.ndarray:
     it had its present identity): rates compared at the same times, as the parts'
     speed, hence their event rate, changes over the window."""
     cnt = np.where(rec["valid"], rec["cnt"], np.nan)
-    with np.errstate(invalid="ignore"):
+    with quiet_nan():
         med = np.nanmedian(cnt, axis=1, keepdims=True)
     ref = np.where(rec["valid"] & (med > 0), med, 0.0)
     return rec["cnt"].sum(axis=0) / np.maximum(ref.sum(axis=0), 1e-12)
@@ -596,7 +608,7 @@ def awake(rec: dict, tau_us: float, batch_us: int) -> np.ndarray:
     it behind."""
     k = max(1, int(round(tau_us / batch_us)))
     act = np.where(rec["valid"], rec["act"], np.nan)
-    with np.errstate(invalid="ignore"):
+    with quiet_nan():
         now = np.nan_to_num(np.nanmean(act[-k:], axis=0))
         usual = np.nan_to_num(np.nanmean(act, axis=0))
     return now / np.maximum(usual, 1e-12)
@@ -720,12 +732,18 @@ def _springs(rec: dict, sig: np.ndarray, lp: LearnParams, x_end, y_end):
     positions, each with its evidence over the samples where both ends existed:
     co-activation, rigidity (the spread of the relative position in the object's frame,
     in part sizes ``sig``) and turn (the range of the direction of the relative position,
-    averaged over ``smooth_us``), hence its kinds."""
+    averaged over ``smooth_us``, or of the object's rotation if larger: a short history
+    does not prove that nothing turned), hence its kinds."""
     act, X, Y, valid = rec["act"], rec["x"], rec["y"], rec["valid"]
     w = np.where(valid, act / np.maximum(act.max(axis=0, keepdims=True), 1e-12), 0.0)
     phi = object_rotation(X, Y, w, x_end, y_end)
     c, s = np.cos(-phi), np.sin(-phi)
     nsm = max(1, int(round(lp.smooth_us / lp.batch_us)))
+    m = len(phi) // nsm * nsm
+    turned = 0.0                          # the object's own turn over the window, deg
+    if m >= nsm:
+        sm = np.angle(np.exp(1j * phi[:m]).reshape(-1, nsm).mean(axis=1))
+        turned = float(np.degrees(np.ptp(np.unwrap(sm))))
     out = []
     for i, j in neighbour_pairs(x_end, y_end):
         both = valid[:, i] & valid[:, j]
@@ -750,6 +768,7 @@ def _springs(rec: dict, sig: np.ndarray, lp: LearnParams, x_end, y_end):
             ang = np.unwrap(np.arctan2(by[wb > 0], bx[wb > 0]))
             if len(ang):
                 turn = float(np.degrees(ang.max() - ang.min()))
+        turn = max(turn, turned)
         kinds = ("cartesian",) if turn < lp.cartesian_turn_deg else ("euclidean", "torsional")
         out.append(LearnedSpring(i, j, co, rig, turn, kinds))
     return out
@@ -863,7 +882,7 @@ def motion_alpha(rec: dict, sig: np.ndarray, batch_us: int, smooth_us: int,
     m = T // step * step
     if m < 2 * step:
         return Params().alpha_position
-    with np.errstate(invalid="ignore"):
+    with quiet_nan():
         bx = np.nanmean(rec["x"][:m].reshape(-1, step, n), axis=1)     # NaN: no sample
         by = np.nanmean(rec["y"][:m].reshape(-1, step, n), axis=1)
         v2 = np.nanmean(np.diff(bx, axis=0) ** 2 + np.diff(by, axis=0) ** 2, axis=0)
@@ -879,7 +898,7 @@ def motion_alpha(rec: dict, sig: np.ndarray, batch_us: int, smooth_us: int,
 def energy_scale(energies: np.ndarray, quantile: float, floor: float) -> float:
     """s of eqs. (21)-(22) such that the deformations seen while learning stay below it:
     the ``quantile`` of E_ij / mean(E) over the samples (NaN: missing), at least ``floor``."""
-    with np.errstate(invalid="ignore"):
+    with quiet_nan():
         mean = np.nanmean(energies, axis=1, keepdims=True)
         ratio = energies / mean
     ratio = ratio[np.isfinite(ratio)]

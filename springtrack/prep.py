@@ -25,8 +25,8 @@ Definitions:
   ``seed`` and the tick's own time (a hash, so the result does not depend on how the
   stream is cut into chunks), instead of their row order.
 
-Events must come in time order (each chunk is sorted stably if it is not, and counted).
-:class:`Preparer` holds back the events until it has seen ``DETECT_MIN_TIMES`` distinct
+The preparation never reorders events across timestamps: events that come back in time
+stay where they are (a tracker skips and counts them).  :class:`Preparer` holds back the events until it has seen ``DETECT_MIN_TIMES`` distinct
 timestamps (to detect the tick), then the last, possibly incomplete, tick (or burst
 bin) of each chunk until the next chunk or :meth:`Preparer.finish`.
 """
@@ -74,7 +74,6 @@ class PrepStats:
     outside_window: int = 0
     burst_events: int = 0
     burst_bins: int = 0
-    reordered_chunks: int = 0           # chunks that came out of time order and were sorted
     tick_us: int = 0                    # 0 until detected
     dequantized: bool = False
 
@@ -84,8 +83,6 @@ class PrepStats:
             parts.append(f"outside window {self.outside_window:,}")
         if self.burst_events:
             parts.append(f"burst {self.burst_events:,} in {self.burst_bins} bin(s)")
-        if self.reordered_chunks:
-            parts.append(f"{self.reordered_chunks} chunk(s) re-sorted")
         return ", ".join(parts)
 
 
@@ -115,9 +112,6 @@ class Preparer:
     def feed(self, chunk) -> np.ndarray:
         ev = as_events(chunk)
         self.stats.events_in += len(ev)
-        if len(ev) > 1 and np.any(np.diff(ev["t"]) < 0):
-            ev = ev[np.argsort(ev["t"], kind="stable")]
-            self.stats.reordered_chunks += 1
         ev = self._window(ev)
         ev = np.concatenate([self._held, ev]) if len(self._held) else ev
         if not self.stats.tick_us:
@@ -130,7 +124,7 @@ class Preparer:
             return ev
         # hold back the last bin: the next chunk may add to it
         b = self._bins(ev["t"])
-        cut = int(np.searchsorted(b, b[-1], side="left"))
+        cut = len(b) - int(np.argmin(b[::-1] == b[-1])) if not np.all(b == b[-1]) else 0
         self._held = ev[cut:]
         return self._process(ev[:cut])
 
@@ -188,10 +182,10 @@ class Preparer:
 
 
 def dequantize(ev: np.ndarray, tick: int, seed: int = 0) -> np.ndarray:
-    """Spread the events of each timestamp T (a tick of ``tick`` µs covering [T, T +
-    tick)) evenly over the tick, in a random order drawn from ``seed``, T and the events'
-    places in the tick (so chunking does not change it).  ``ev`` in time order; returns
-    a new array in time order."""
+    """Spread the events of each run of one timestamp T (a tick of ``tick`` µs covering
+    [T, T + tick)) evenly over the tick, in a random order drawn from ``seed``, T and the
+    events' places in the run (so chunking does not change it).  Returns a new array;
+    runs keep their order (in time order if ``ev`` was)."""
     ev = as_events(ev)
     n = len(ev)
     if n == 0 or tick <= 1:
@@ -207,8 +201,6 @@ def dequantize(ev: np.ndarray, tick: int, seed: int = 0) -> np.ndarray:
     rank = np.arange(n) - starts[group]                # position within the group, shuffled
     out = ev[order]
     out["t"] = t[order] + (rank * tick) // sizes[group]
-    if np.any(np.diff(out["t"]) < 0):                   # ticks closer than ``tick``
-        out = out[np.argsort(out["t"], kind="stable")]
     return out
 
 
