@@ -153,14 +153,14 @@ class LearnResult:
 
 # ---- the pool ---------------------------------------------------------------------------
 # per-tracker bookkeeping next to the state array (all of length POOL_CAPACITY)
-BOOK = ("recent", "total", "born", "since", "uid")
+BOOK = ("recent", "total", "born", "uid")
 
 
 class Pool:
     """Free Gaussian trackers (eqs. 2-6) in a state array, with their bookkeeping (``book``:
     ``recent`` event counts decayed with ``life_tau_us``, ``total`` events since birth,
-    ``born`` and ``since`` (µs: birth, last change of identity by a merge or a split)
-    and ``uid`` (birth order, or the identity after a change)), the events shared by pairs of gates
+    ``born`` (µs) and ``uid`` (a new one at each birth, merge or split; ``lineage``
+    records the pieces of a merge)), the events shared by pairs of gates
     (``overlap``, decayed like ``recent``) and each pixel's ON minus OFF events (``net``,
     see :meth:`covered`)."""
 
@@ -175,6 +175,7 @@ class Pool:
         self.level = 0.0                  # the parts' level in ``net``: covered_level()
         self.contrast = 0                 # +1 bright parts, -1 dark, 0 unknown: contrast_sign
         self.next_uid = 0
+        self.lineage = {}                 # merged uid -> (uid_a, w_a, uid_b, w_b)
         self.smin2, self.smax2 = lp.sigma_min_px ** 2, lp.sigma_max_px ** 2
         self.winner = np.empty(0, np.int32)
         self.alpha_covariance = lp.alpha_covariance   # 0 freezes the sizes (fixed passes)
@@ -233,7 +234,7 @@ class Pool:
         self.st[F["act"], i], self.st[F["tlast"], i] = act, t
         for k in BOOK:
             self.book[k][i] = 0.0
-        self.book["born"][i] = self.book["since"][i] = t
+        self.book["born"][i] = t
         self.book["uid"][i] = self.new_uid()
         for k, v in (book or {}).items():
             self.book[k][i] = v
@@ -280,7 +281,9 @@ class Pool:
         return float(np.linalg.eigvalsh(self.union(i, j)[1])[-1]) <= self.smax2
 
     def merge(self, i: int, j: int, t: int) -> None:
-        """Tracker i becomes the union of i and j; j is dropped."""
+        """Tracker i becomes the union of i and j, under a new uid whose pieces the
+        ``lineage`` records; j is dropped."""
+        wi, wj = self.recent[i] + 1e-9, self.recent[j] + 1e-9
         mu, cov = self.union(i, j)
         act = self.activity(t)
         self.set_gaussian(i, mu, cov)
@@ -288,7 +291,9 @@ class Pool:
         for k in ("recent", "total"):
             self.book[k][i] += self.book[k][j]
         self.book["born"][i] = min(self.book["born"][i], self.book["born"][j])
-        self.book["since"][i], self.book["uid"][i] = t, self.new_uid()
+        parents = (int(self.book["uid"][i]), float(wi), int(self.book["uid"][j]), float(wj))
+        self.book["uid"][i] = self.new_uid()
+        self.lineage[int(self.book["uid"][i])] = parents
         n = self.n
         self.overlap[i, :n] += self.overlap[j, :n]
         self.overlap[:n, i] += self.overlap[:n, j]
@@ -312,7 +317,7 @@ class Pool:
         self.st[F["act"], i], self.st[F["tlast"], i] = act, t
         for k, v in book.items():
             self.book[k][i] = v
-        self.book["since"][i], self.book["uid"][i] = t, self.new_uid()
+        self.book["uid"][i] = self.new_uid()
         return self.add(mu + off, half, t, act, book)
 
     def nested(self) -> np.ndarray:
@@ -464,7 +469,8 @@ def _batches(ev: np.ndarray, t0: int, t1: int, step: int):
 class History:
     """What the pool did, batch by batch: each tracker's identity (uid), position,
     activity (eq. 6) and events taken, sampled after the batch ran and before the
-    lifecycle acted on it."""
+    lifecycle acted on it; with the pool's ``lineage`` (merges), a merged tracker's past
+    is its pieces' (see :meth:`series`)."""
 
     def __init__(self):
         self.rows = []
@@ -474,22 +480,52 @@ class History:
         self.rows.append((t, pool.book["uid"][:n].astype(np.int64), pool.x.copy(),
                           pool.y.copy(), pool.activity(t), cnt[:n].astype(float)))
 
-    def series(self, uids: np.ndarray, since: np.ndarray) -> dict:
-        """The samples of the trackers ``uids`` (N,), each from after ``since`` (µs):
-        ``t`` (T,), ``x``, ``y``, ``act``, ``cnt`` (T, N) and ``valid`` (T, N) where the
-        tracker had its present identity (elsewhere x, y are NaN, act and cnt 0)."""
-        T, N = len(self.rows), len(uids)
-        out = {"t": np.array([r[0] for r in self.rows], np.int64),
-               "x": np.full((T, N), np.nan), "y": np.full((T, N), np.nan),
-               "act": np.zeros((T, N)), "cnt": np.zeros((T, N)), "valid": np.zeros((T, N), bool)}
-        col = {int(u): k for k, u in enumerate(uids)}
-        for r, (t, uid, x, y, act, cnt) in enumerate(self.rows):
-            for i, u in enumerate(uid.tolist()):
-                k = col.get(u)
-                if k is not None and t > since[k]:
-                    out["x"][r, k], out["y"][r, k] = x[i], y[i]
-                    out["act"][r, k], out["cnt"][r, k] = act[i], cnt[i]
-                    out["valid"][r, k] = True
+    def series(self, uids, lineage: dict) -> dict:
+        """The samples of the trackers ``uids`` (N,): ``t`` (T,), ``x``, ``y``, ``act``,
+        ``cnt`` (T, N) and ``valid`` (T, N) (elsewhere x, y are NaN, act and cnt 0).
+        Before a tracker got its identity by merging two (``lineage``: uid -> (uid_a,
+        w_a, uid_b, w_b)), its samples are those of the union of both pieces: positions
+        weighted by w, activities and events summed, where both existed."""
+        T = len(self.rows)
+        where = {}                                    # uid -> (rows, places in them)
+        for r, row in enumerate(self.rows):
+            for i, u in enumerate(row[1].tolist()):
+                where.setdefault(u, ([], []))
+                where[u][0].append(r)
+                where[u][1].append(i)
+        done = {}
+
+        def own(u):
+            x, y = np.full(T, np.nan), np.full(T, np.nan)
+            act, cnt, ok = np.zeros(T), np.zeros(T), np.zeros(T, bool)
+            for r, i in zip(*where.get(u, ((), ()))):
+                row = self.rows[r]
+                x[r], y[r], act[r], cnt[r], ok[r] = row[2][i], row[3][i], row[4][i], row[5][i], True
+            return x, y, act, cnt, ok
+
+        def get(u):
+            if u in done:
+                return done[u]
+            x, y, act, cnt, ok = own(u)
+            if u in lineage:
+                ua, wa, ub, wb = lineage[u]
+                xa, ya, aa, ca, oa = get(ua)
+                xb, yb, ab, cb, ob = get(ub)
+                first = np.argmax(ok) if ok.any() else T
+                both = oa & ob & (np.arange(T) < first)
+                x = np.where(both, (wa * xa + wb * xb) / (wa + wb), x)
+                y = np.where(both, (wa * ya + wb * yb) / (wa + wb), y)
+                act = np.where(both, aa + ab, act)
+                cnt = np.where(both, ca + cb, cnt)
+                ok = ok | both
+            done[u] = (x, y, act, cnt, ok)
+            return done[u]
+
+        cols = [get(int(u)) for u in uids]
+        out = {"t": np.array([r[0] for r in self.rows], np.int64)}
+        for k, name in enumerate(("x", "y", "act", "cnt", "valid")):
+            out[name] = (np.stack([c[k] for c in cols], axis=1) if cols else
+                         np.zeros((T, 0), bool if name == "valid" else float))
         return out
 
 
@@ -816,7 +852,7 @@ def learn_model(events, trackers: int | None = None, width: int | None = None,
     if pool.n == 0:
         raise NoObjectFound(f"no object found: no tracker lived through {len(ev)} events "
                             f"({stats['born']} born, {stats['died']} died)")
-    rec = history.series(pool.book["uid"][:pool.n], pool.book["since"][:pool.n])
+    rec = history.series(pool.book["uid"][:pool.n], pool.lineage)
     if trackers is None:
         # pieces of parts that no merge joined take a small share of the events, and
         # trackers left behind by their part take none at the end
@@ -869,14 +905,16 @@ def spring_energies(rec: dict, kept: list, stiffness: np.ndarray, kind: str, x_e
 
 
 def motion_alpha(rec: dict, sig: np.ndarray, batch_us: int, smooth_us: int,
-                 bounds=(0.005, 0.5)) -> float:
+                 quantile: float = 0.9, bounds=(0.005, 0.5)) -> float:
     """alpha_1 of eq. (3) for the motion seen while learning.
 
     The running mean of eq. (3) lags 1/alpha_1 events behind a part moving at v px/s
     and taking r events/s, i.e. v / (alpha_1 r) px, and jitters by sigma sqrt(alpha_1)
     (both axes, sigma the part's size): the sum of squares is least at
-    alpha_1 = (2 v^2 / (r^2 sigma^2))^(1/3).  v: the trackers' RMS speed (positions
-    averaged over ``smooth_us``), r and sigma their medians."""
+    alpha_1 = (2 v^2 / (r^2 sigma^2))^(1/3).  Each tracker's own v (RMS speed, positions
+    averaged over ``smooth_us``), r and sigma give its alpha_1; the model takes their
+    ``quantile``, so that the parts that move fastest for their events (the tips of a
+    turning object) are followed too."""
     step = max(1, int(round(smooth_us / batch_us)))
     T, n = rec["x"].shape
     m = T // step * step
@@ -886,13 +924,13 @@ def motion_alpha(rec: dict, sig: np.ndarray, batch_us: int, smooth_us: int,
         bx = np.nanmean(rec["x"][:m].reshape(-1, step, n), axis=1)     # NaN: no sample
         by = np.nanmean(rec["y"][:m].reshape(-1, step, n), axis=1)
         v2 = np.nanmean(np.diff(bx, axis=0) ** 2 + np.diff(by, axis=0) ** 2, axis=0)
-    v2 = v2[np.isfinite(v2)]
-    r = float(np.median(event_rates(rec))) / (batch_us * 1e-6)
-    sg = float(np.median(sig))
-    if not len(v2) or r <= 0 or sg <= 0:
+    v2 = v2 / (step * batch_us * 1e-6) ** 2
+    r = event_rates(rec) / (batch_us * 1e-6)
+    ok = np.isfinite(v2) & (r > 0) & (sig > 0)
+    if not ok.any():
         return Params().alpha_position
-    v = math.sqrt(float(np.median(v2))) / (step * batch_us * 1e-6)
-    return float(np.clip((2.0 * v * v / (r * r * sg * sg)) ** (1.0 / 3.0), *bounds))
+    alpha = (2.0 * v2[ok] / (r[ok] ** 2 * sig[ok] ** 2)) ** (1.0 / 3.0)
+    return float(np.clip(np.quantile(alpha, quantile), *bounds))
 
 
 def energy_scale(energies: np.ndarray, quantile: float, floor: float) -> float:
@@ -930,8 +968,17 @@ def _build_model(pool, rec, counts, lp, track_params, width, height, names, name
                                           (float(st[F["sxx"], i]), float(st[F["sxy"], i]),
                                            float(st[F["syy"], i])), float(mass[i]))
     cands = _springs(rec, sig, lp, x, y)
-    kept = [c for c in cands if c.kinds and c.coactivation >= lp.min_coactivation
-            and c.rigidity >= lp.min_rigidity]
+    coactive = [c for c in cands if c.kinds and c.coactivation >= lp.min_coactivation]
+    kept = [c for c in coactive if c.rigidity >= lp.min_rigidity]
+    # a tracker no rigid pair holds is tied by its most rigid co-active neighbour
+    held = {e for c in kept for e in (c.a, c.b)}
+    for i in range(n):
+        if i not in held:
+            mine = [c for c in coactive if i in (c.a, c.b) and c not in kept]
+            if mine:
+                best = max(mine, key=lambda c: c.rigidity * c.coactivation)
+                kept.append(best)
+                held.update((best.a, best.b))
     kept = sorted(kept, key=lambda c: -c.rigidity * c.coactivation)[:MAX_CONNECTIONS]
     params = dict(track_params)
     if "alpha_position" not in params:

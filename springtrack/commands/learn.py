@@ -103,3 +103,38 @@ def report(res) -> None:
     for c, s in zip(m.connections, res.springs):
         print(f"{c.a + '-' + c.b:>17} {'+'.join(c.springs):<20} {c.stiffness:9.5f} "
               f"{s.coactivation:8.3f} {s.rigidity:8.3f} {s.turn_deg:8.1f}")
+
+
+def learn_first(source, ms: float, width: int, height: int, name: str = "learned",
+                params=None):
+    """Learn a model from the first ``ms`` milliseconds of a stream of (chunk, total)
+    pairs; returns the model and the stream of the events after that window (the
+    tracking starts where the learning ended).  Prints what was learned to stderr."""
+    from ..learn import learn_model
+    if not ms > 0:
+        raise ValueError(f"--learn-first-ms must be positive, got {ms}")
+    held, rest, total, t_end = [], None, None, None
+    source = iter(source)
+    for chunk, total in source:
+        if not len(chunk):
+            continue
+        if t_end is None:
+            t_end = int(chunk["t"][0]) + int(round(ms * 1000))
+        k = int(np.searchsorted(chunk["t"], t_end, side="left"))
+        held.append(chunk[:k])
+        if k < len(chunk):
+            rest = chunk[k:]
+            break
+    events = np.concatenate(held) if held else np.empty(0, reader_dtype())
+    res = learn_model(events, width=width, height=height, name=name,
+                      track_params=read_params(params) if params else None)
+    m = res.model
+    print(f"learned {len(m.trackers)} trackers, {len(m.connections)} springs from the first "
+          f"{ms:g} ms ({res.events:,} events, {res.wall_s:.2f} s); "
+          + ", ".join(f"{k}={v}" for k, v in m.params.items()), file=sys.stderr)
+
+    def after():
+        if rest is not None:
+            yield rest, total
+        yield from source
+    return m, after()
