@@ -79,9 +79,10 @@ def open_stream(args):
         from .. import io as stio
         reader = stio.open(args.input)
         width, height = reader.width, reader.height
-        if not width or not height:
-            raise ValueError(f"{args.input}: the sensor size is unknown; learn a model with "
-                             f"springtrack learn and pass it with --model")
+        if not width or not height:                 # .npy, .csv: the events' extent
+            ev = reader.read()
+            width = int(ev["x"].max()) + 1 if len(ev) else 1
+            height = int(ev["y"].max()) + 1 if len(ev) else 1
     prep = prepargs.preparer(args, width, height)
     if prep is not None:
         source = _prepared(source, prep)
