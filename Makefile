@@ -31,4 +31,4 @@ bench: build
 	$(PY) benchmarks/kernel.py
 
 clean:
-	rm -rf $(VENV) build springtrack/*.so springtrack/*/*.so firmware_sim/*.so
+	rm -rf $(VENV) build springtrack/*.so springtrack/*/*.so firmware_sim/*.so tests/*.so tests/*.c

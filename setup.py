@@ -3,6 +3,10 @@
 Every ``*.pyx`` below ``springtrack/`` and ``firmware_sim/`` is compiled, so adding a
 kernel or a decoder needs no edit here.  ``-ffp-contract=off`` keeps the float64
 kernel bit-compatible with the pure-Python reference (no fused multiply-add).
+
+With ``SPRINGTRACK_TEST_EXTENSIONS=1`` the test-only modules ``tests/*.pyx`` (kernel
+internals exposed to the tests, never installed) are compiled too, with the same flags;
+the tests do this themselves on first use (tests/probes.py).
 """
 import glob
 import os
@@ -19,8 +23,10 @@ if os.environ.get("SPRINGTRACK_NATIVE", "0") == "1":
 
 def extensions():
     exts = []
-    for pyx in sorted(glob.glob("springtrack/**/*.pyx", recursive=True)
-                      + glob.glob("firmware_sim/**/*.pyx", recursive=True)):
+    roots = ["springtrack", "firmware_sim"]
+    if os.environ.get("SPRINGTRACK_TEST_EXTENSIONS", "0") == "1":
+        roots.append("tests")
+    for pyx in sorted(p for root in roots for p in glob.glob(f"{root}/**/*.pyx", recursive=True)):
         module = os.path.splitext(pyx)[0].replace(os.sep, ".")
         only = os.environ.get("SPRINGTRACK_ONLY")      # developer convenience: build a subset
         if only and not any(module.startswith(o) for o in only.split(",")):

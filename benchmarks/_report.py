@@ -1,4 +1,4 @@
-"""Helpers for benchmarks: machine description and docs/benchmarks.md section updates."""
+"""Helpers for benchmarks: machine description and docs section updates."""
 from __future__ import annotations
 
 import os
@@ -32,14 +32,21 @@ def machine() -> str:
             f"{platform.system()}")
 
 
-def write_section(title: str, body: str) -> None:
-    """Replace (or append) the ``## title`` section of docs/benchmarks.md."""
-    DOC.parent.mkdir(exist_ok=True)
-    text = DOC.read_text() if DOC.exists() else "# Benchmarks\n\nNumbers written by the scripts in `benchmarks/`.\n"
+def replace_section(path: Path, title: str, body: str, new_doc: str = "") -> None:
+    """Replace (or append) the ``## title`` section of the markdown file ``path`` (made
+    from ``new_doc`` if it does not exist)."""
+    text = path.read_text() if path.exists() else new_doc
     block = f"## {title}\n\n{body.strip()}\n"
     pat = re.compile(rf"^## {re.escape(title)}\n.*?(?=^## |\Z)", re.S | re.M)
     if pat.search(text):
         text = pat.sub(block + "\n", text)
     else:
         text = text.rstrip() + "\n\n" + block
-    DOC.write_text(text.rstrip() + "\n")
+    path.write_text(text.rstrip() + "\n")
+
+
+def write_section(title: str, body: str) -> None:
+    """Replace (or append) the ``## title`` section of docs/benchmarks.md."""
+    DOC.parent.mkdir(exist_ok=True)
+    replace_section(DOC, title, body,
+                    "# Benchmarks\n\nNumbers written by the scripts in `benchmarks/`.\n")

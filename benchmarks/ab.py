@@ -100,7 +100,7 @@ def main():
     import numpy as np
     import springtrack
     from springtrack.synthetic import blob_stream
-    from kernel import SCENES
+    from _streams import SCENES
     if args.scene:
         from springtrack.sim.sensor import simulate_all
         ev, _ = simulate_all(args.scene, 5.0, seed=0)

@@ -16,7 +16,6 @@ from __future__ import annotations
 import argparse
 import os
 import shutil
-import statistics
 import sys
 import tempfile
 import time
@@ -155,10 +154,10 @@ def main(argv=None):
             "dominate).  decode_into: the payload fed in 256 KiB transfers into one reused "
             "output array (state carried across transfers; what a streaming loop does).  "
             "open().read(): `springtrack.io.open(path).read()` of the same /dev/shm file "
-            "that expelliarmus reads (includes reading the file).  Targets (issue 3): 2x "
+            "that expelliarmus reads (includes reading the file).  Targets: 2x "
             "expelliarmus on EVT 2.0 and 3.0, CCam >= 300 M events/s.  expelliarmus runs "
             "several times faster here than the 55-63 (EVT 2.0) / 25 (EVT 3.0) M events/s "
-            "quoted in the issue for another machine, so the ratio column is the comparison; "
+            "that set those targets on another machine, so the ratio column is the comparison; "
             "with 2 shared cores, single runs vary by up to 2x.")
     print(body)
     if not args.no_write:

@@ -1,4 +1,4 @@
-"""Firmware loop benchmarks (issue 6, item 7); writes the "Firmware loop" section of
+"""Firmware loop benchmarks; writes the "Firmware loop" section of
 docs/benchmarks.md.
 
 Run: .venv/bin/python benchmarks/firmware.py [--seconds S] [--realtime-seconds S] [--realtime-runs N]
@@ -37,7 +37,8 @@ from firmware_sim._fused import Fused  # noqa: E402
 from firmware_sim.faults import Faults  # noqa: E402
 from firmware_sim.loop import FirmwareLoop  # noqa: E402
 from springtrack.sim.sensor import simulate_all  # noqa: E402
-from firmware_sim.simusb import SimBackend, SimCamera, events_source  # noqa: E402
+from firmware_sim.simcam import SimBackend, SimCamera  # noqa: E402
+from firmware_sim.sources import events_source  # noqa: E402
 
 from _report import machine, write_section  # noqa: E402
 

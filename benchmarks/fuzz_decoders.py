@@ -1,14 +1,7 @@
-"""Fuzz the streaming decoders and the file-format detection.
-
-For every decoder (ccam, evt2, evt3, es dvs/atis, dat) run --inputs random and mutated
-inputs (default 1,000,000 each): random byte strings, and windows of valid streams (the
-real recordings where available, else our encoders' output) with bytes flipped,
-replaced, inserted, deleted or truncated.  Each input is decoded with a fresh decoder,
-split at 0-3 random points; every 50th input is also decoded whole and compared.  Checks:
-no exception, no crash (a segfault kills the run: faulthandler prints where), events
-inside the geometry, counters consistent (words, events, pending bytes).
-Then --header-inputs mutated file headers go through springtrack.io.open(): only
-DecodeError (or success) is allowed.
+"""Fuzz the streaming decoders and the file-format detection (tests/decoder_fuzz.py) with
+--inputs random and mutated inputs per decoder (default 1,000,000) and --header-inputs
+mutated file headers; prints one line per decoder, optionally records them in
+docs/formats.md (section "Fuzzing").
 
     .venv/bin/python benchmarks/fuzz_decoders.py [--inputs 1000000] [--write-docs]
 """
@@ -16,145 +9,18 @@ from __future__ import annotations
 
 import argparse
 import faulthandler
-import os
-import re
 import sys
-import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 
-import springtrack.io as sio
-from springtrack.events import make
-from springtrack.io import ccam, dat, es, evt2, evt3
-
 REPO = Path(__file__).resolve().parents[1]
-DATA = Path(os.environ.get("SPRINGTRACK_DATA", REPO.parent / "shared" / "data"))
+sys.path.insert(0, str(REPO / "tests"))
+from decoder_fuzz import DECODERS, fuzz_decoder, fuzz_headers, seeds  # noqa: E402
+
+from _report import replace_section  # noqa: E402
+
 DOC = REPO / "docs" / "formats.md"
-
-DECODERS = {
-    "ccam": {"keep_exposure": True},
-    "evt2": {"width": 640, "height": 480},
-    "evt3": {"width": 1280, "height": 720},
-    "es-dvs": {"event_type": "dvs", "width": 320, "height": 240},
-    "es-atis": {"event_type": "atis", "width": 304, "height": 240, "keep_exposure": True},
-    "dat": {"width": 640, "height": 480},
-}
-
-
-def seeds(rng) -> dict:
-    """A valid byte stream per decoder to mutate."""
-    n = 20_000
-    ev = make(np.sort(rng.integers(0, 50_000_000, n)), rng.integers(0, 304, n),
-              rng.integers(0, 240, n), rng.integers(0, 2, n))
-    flags = rng.random(n) < 0.2
-    out = {"ccam": ccam.encode(ev, flags), "evt2": evt2.encode(ev), "evt3": evt3.encode(ev),
-           "es-dvs": es.encode(ev, "dvs"), "es-atis": es.encode(ev, "atis", flags),
-           "dat": dat.encode(ev)}
-    for key, name in (("evt2", "evt2_sample.raw"), ("evt3", "evt3_sample.raw"),
-                      ("es-dvs", "dvs.es")):
-        path = DATA / name
-        if path.is_file():
-            info = sio.sniff(path)
-            out[key] = path.read_bytes()[info.offset:]
-    return out
-
-
-def mutate(rng, base: bytes) -> bytes:
-    n = int(rng.integers(1, 600))
-    start = int(rng.integers(0, max(1, len(base) - n)))
-    buf = bytearray(base[start:start + n])
-    for _ in range(int(rng.integers(1, 6))):
-        op = int(rng.integers(0, 5))
-        if not buf:
-            break
-        i = int(rng.integers(0, len(buf)))
-        if op == 0:
-            buf[i] ^= 1 << int(rng.integers(0, 8))
-        elif op == 1:
-            buf[i] = int(rng.integers(0, 256))
-        elif op == 2:
-            buf[i:i] = bytes(rng.integers(0, 256, int(rng.integers(1, 8)), dtype=np.uint8))
-        elif op == 3:
-            del buf[i:i + int(rng.integers(1, 8))]
-        else:
-            del buf[i:]
-    return bytes(buf)
-
-
-def check(name, opts, data, cuts, compare):
-    fmt = "es" if name.startswith("es") else name
-    dec = sio.decoder(fmt, **opts)
-    parts, prev = [], 0
-    for c in cuts:
-        parts.append(dec.decode(data[prev:c]))
-        prev = c
-    parts.append(dec.decode(data[prev:]))
-    pending = dec.finish()
-    ev = np.concatenate(parts)
-    s = dec.stats
-    w = opts.get("width") or (304 if fmt == "ccam" else 0)
-    if w and len(ev) and (ev["x"].max() >= w or ev["y"].max() >= (opts.get("height") or 240)):
-        raise AssertionError("event outside the geometry")
-    if s.events != len(ev) or s.words != len(data) // dec.word_size:
-        raise AssertionError(f"counters: {s}")
-    if (pending > 0) != (s.anomalies["truncated"] > 0):
-        raise AssertionError("pending bytes not counted as truncated")
-    if compare:
-        ref = sio.decoder(fmt, **opts).decode(data)
-        if not np.array_equal(ref, ev):
-            raise AssertionError("split decode differs from whole decode")
-
-
-def fuzz_decoder(name, opts, base, n, rng):
-    t0 = time.perf_counter()
-    pool = rng.integers(0, 256, 1 << 22, dtype=np.uint8).tobytes()
-    failures = 0
-    first = None
-    for i in range(n):
-        if i & 1:
-            data = mutate(rng, base)
-        else:
-            size = int(rng.integers(0, 400))
-            off = int(rng.integers(0, len(pool) - size))
-            data = pool[off:off + size]
-        k = int(rng.integers(0, 4))
-        cuts = sorted(rng.integers(0, len(data) + 1, k).tolist()) if k else []
-        try:
-            check(name, opts, data, cuts, i % 50 == 0)
-        except Exception as e:      # noqa: BLE001 - every failure is recorded
-            failures += 1
-            if first is None:
-                first = f"{type(e).__name__}: {e} (input {data[:40]!r}..., cuts {cuts})"
-    return failures, first, time.perf_counter() - t0
-
-
-HEADERS = [b"% evt 2.0\n% format EVT2;height=480;width=640\n% end\n",
-           b"% evt 3.0\n% geometry 1280x720\n",
-           b"Event Stream\x02\x00\x00\x01\x40\x01\xf0\x00",
-           b"Event Stream\x02\x00\x00\x02\x30\x01\xf0\x00",
-           b"% Version 2\n% Width 640\n% Height 480\n\x0c\x08",
-           b"t,x,y,p\n1,2,3,1\n"]
-
-
-def fuzz_headers(n, rng):
-    failures, first = 0, None
-    with tempfile.TemporaryDirectory(dir="/dev/shm" if os.path.isdir("/dev/shm") else None) as d:
-        path = Path(d) / "f.bin"
-        for i in range(n):
-            base = HEADERS[i % len(HEADERS)] + bytes(rng.integers(0, 256, 64, dtype=np.uint8))
-            path.write_bytes(mutate(rng, base) if i % 4 else base[:int(rng.integers(0, 40))])
-            try:
-                r = sio.open(path)
-                r.read()
-            except sio.DecodeError:
-                pass
-            except Exception as e:  # noqa: BLE001
-                failures += 1
-                if first is None:
-                    first = f"{type(e).__name__}: {e} (file {path.read_bytes()[:60]!r})"
-    return failures, first
 
 
 def main(argv=None) -> int:
@@ -184,18 +50,14 @@ def main(argv=None) -> int:
     print(hline)
     lines.append(hline)
     if args.write_docs:
-        body = ("## Fuzzing\n\n"
-                f"`.venv/bin/python benchmarks/fuzz_decoders.py --inputs {args.inputs} "
+        body = (f"`.venv/bin/python benchmarks/fuzz_decoders.py --inputs {args.inputs} "
                 f"--seed {args.seed} --write-docs` (half random byte strings, half "
                 "mutated windows of valid streams; 0-3 split points each; every 50th also "
                 "compared with a whole decode):\n\n"
                 "| decoder | inputs | failures | time |\n|---|---|---|---|\n"
                 + "\n".join(lines) + "\n\nNo crash: the run finished (a segfault would "
                 "have aborted it).\n")
-        text = DOC.read_text() if DOC.exists() else "# Event file formats\n"
-        pat = re.compile(r"^## Fuzzing\n.*?(?=^## |\Z)", re.S | re.M)
-        text = pat.sub(body + "\n", text) if pat.search(text) else text.rstrip() + "\n\n" + body
-        DOC.write_text(text.rstrip() + "\n")
+        replace_section(DOC, "Fuzzing", body, "# Event file formats\n")
     print(f"total failures: {total_fail}")
     return 1 if total_fail else 0
 

@@ -23,7 +23,6 @@ Every 20,000 frames a HELLO probe must be answered within 2 s.
 from __future__ import annotations
 
 import argparse
-import math
 import random
 import struct
 import sys

@@ -33,12 +33,7 @@ import springtrack  # noqa: E402
 from springtrack.synthetic import blob_stream  # noqa: E402
 
 from _report import machine, write_section  # noqa: E402
-
-SCENES = {
-    # preset: (noise fraction, motion)
-    "face26": (0.62, dict(speed_px_s=(10, -5), rot_deg_s=-8, wobble_px=4)),
-    "grid3x3": (0.62, dict(speed_px_s=(15, 8), rot_deg_s=10)),
-}
+from _streams import SCENES  # noqa: E402
 
 
 REPEATS = 7
@@ -116,20 +111,18 @@ def main():
         "the backends of a stream alternating run by run. "
         "Paper (C++, i7 laptop): 2.26 µs/event = 0.44 M events/s.",
         "", *lines, "",
-        f"Target (issue 2: face26 >= 30 M events/s on one core, blob_stream): "
+        f"Target (face26 >= 30 M events/s on one core, blob_stream): "
         f"**{'met' if face >= 30e6 else 'not met'}** in CPU time ({face / 1e6:.1f} M events/s, "
         "best run).", "",
         *([("Fixed-point kernel / float kernel, events/s in CPU time: "
-            + ", ".join(f"{lab} {r:.2f}" for lab, r in ratios) + ".  Issue 4's target, at "
+            + ", ".join(f"{lab} {r:.2f}" for lab, r in ratios) + ".  Target, at "
             "least 0.7 on the face26 and grid3x3 blob streams: "
             + ("**met**." if min(r for lab, r in ratios if "blob" in lab) >= 0.7 else
                "**not met**.") + "  (`benchmarks/fixed_speed.py` measures the same ratio "
             "with the two kernels in alternating processes; docs/fixed_point.md.)")]
           if ratios else []), "",
         "This virtual machine's speed drifts by tens of percent within minutes even when it "
-        "is idle (the same binary, best of 5 in CPU time on the face26 blob_stream: "
-        "31.3 M events/s at 07:40, 29.3, 21.5 and 19.9 in three runs a minute apart at "
-        "09:05), so compare rows of one run, not runs."])
+        "is idle (see the top of this page), so compare rows of one run, not runs."])
     if not args.no_write:
         write_section("Kernel", text)
 

@@ -4,7 +4,7 @@ Writes the "Simulated sensor" section of docs/benchmarks.md: events/s produced, 
 factor (simulated seconds per wall second, best of --repeat runs so background load on a
 shared machine counts less), and the slowest chunk relative to its duration (< 1 means the
 generator keeps up with real-time streaming chunk by chunk, as the firmware's simulated
-camera needs).  Target (issue 5): >= 5x real time on face_occlusion (~300 k events/s).
+camera needs).  Target: >= 5x real time on face_occlusion (~300 k events/s).
 
 Run: .venv/bin/python benchmarks/sensor.py [--seconds S] [--repeat N] [--no-write]
 """
@@ -60,7 +60,7 @@ def main(argv=None) -> int:
             "|---|---:|---:|---:|---:|---:|"]
     body += [f"| {s} | {n:,} | {n / args.seconds:,.0f} | {args.seconds / w:.1f} | "
              f"{args.seconds / wmax:.1f} | {worst:.2f} |" for s, n, w, worst, wmax in rows]
-    body += ["", "Target (issue 5): face_occlusion at >= 5x real time on one core."]
+    body += ["", "Target: face_occlusion at >= 5x real time on one core."]
     if not args.no_write:
         write_section("Simulated sensor", "\n".join(body))
     print("\n".join(body))

@@ -1,29 +1,31 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
-"""Decode CCam ATIS USB words and track them in one nogil pass (issue 6, "the loop").
+"""Decode CCam ATIS USB words and track them in one nogil pass.
 
-Per 4-byte word: ``springtrack.io.ccam.ccam_decode_word`` (layout in ccam.pxd), or 32
-words at once while they are all plain change-detection events (``ccam_decode_block``,
-springtrack/io/ccam_block.h, vectorised: time-high and special words go word by word); the
-change-detection events go into a batch of at most BATCH events (a C array in the object,
-4 KiB, stays in L1), and each batch runs through ``springtrack._stepper.run_events``, the
-sampled event loop of ``springtrack track``, on the tracker backend's :c:type:`Stepper`
-(springtrack/_stepper.pxd): the float64 kernel (``springtrack._kernel.Kernel``) or the
-integer-only fixed-point kernel (``springtrack._fixed.FixedKernel``).  No Python object,
-allocation or GIL per event; the only output is a preallocated snapshot buffer that the
-caller drains.  When that buffer fills mid-batch, the rest of the batch waits in the
-object for the next call.
+Per 4-byte word: ``springtrack.io.ccam.ccam_decode_word`` (word types in
+springtrack/io/ccam_types.h), or 32 words at once while they are all plain change-detection
+events (``ccam_decode_block``, springtrack/io/ccam_block.h, vectorised: time-high and
+special words go word by word); the change-detection events go into a batch of at most
+BATCH events (a C array in the object, 4 KiB, stays in L1), and each batch runs through
+``springtrack._stepper.run_events``, the sampled event loop of ``springtrack track``, on
+the tracker backend's :c:type:`Stepper` (springtrack/_stepper.pxd): the float64 kernel
+(``springtrack._kernel.Kernel``) or the integer-only fixed-point kernel
+(``springtrack._fixed.FixedKernel``).  No Python object, allocation or GIL per event; the
+only output is a preallocated snapshot buffer that the caller drains.  When that buffer
+fills mid-batch, the rest of the batch waits in the object for the next call.
 
 Sampling (identical to ``springtrack track``): the first tracked event at t0 sets the
 first sample time to the smallest multiple of the period >= t0; before an event at t
 with t >= next sample and t >= the kernel's last time, one snapshot per sample time
 <= t is taken (state after all events with t < sample time).
 
-Gaps: after a dropped transfer or a reconnect (:meth:`Fused.gap`) and at stream start,
-events are discarded (counted, ``gap_skipped``) until the next time-high word, so no event
-gets a stale time base; the tracker then simply continues (the kernel needs no reset).
-Words split across transfers (odd lengths) are completed from a 3-byte carry.  A time
-base that goes back (a camera counter restarted after a reconnect) is rebased by the word
-decoder and moved one time-high period further here, so timestamps never go back.
+Time: the decoder's own time base, unchanged (springtrack/io/timebase.pxd: wraps
+unwrapped, a counter that goes back, e.g. a camera restarted after a reconnect, rebased so
+that time never goes back), so the loop stamps every event exactly as decoding the same
+bytes from a file does.  Gaps: after a dropped transfer or a reconnect (:meth:`Fused.gap`)
+and at stream start, events are discarded (counted, ``gap_skipped``) until the next
+time-high word, so no event gets a stale time base; the tracker then simply continues
+(the kernel needs no reset).  Words split across transfers (odd lengths) are completed
+from a 3-byte carry.
 """
 from libc.stdint cimport uint8_t, uint16_t, int64_t, uint64_t
 from libc.string cimport memcpy
@@ -35,8 +37,11 @@ from springtrack._fixed cimport FixedKernel
 from springtrack._samples cimport SampleOut, sample_buffers
 from springtrack._stepper cimport Stepper, run_events
 from springtrack.events cimport Event
+from springtrack.io.base cimport (DecodeCounts, AN_UNKNOWN_TYPE, AN_OUT_OF_GEOMETRY,
+                                  AN_TIME_BACKWARDS, IN_TIME_HIGH, IN_TIME_WRAPS, IN_EXPOSURE,
+                                  IN_BEFORE_TIME_HIGH)
 from springtrack.io.ccam cimport (CCamState, ccam_init, ccam_decode_word, ccam_decode_block,
-                                  CCAM_BLOCK, CCAM_CD, CCAM_EXPOSURE, CCAM_NONE)
+                                  CCAM_BLOCK, CCAM_CD, CCAM_TIME_BASE)
 
 cnp.import_array()
 
@@ -82,7 +87,9 @@ cdef class Fused:
     """
     cdef object kernel                      # owns the state sp points into
     cdef Stepper sp
-    cdef CCamState cs
+    cdef CCamState cs                       # the CCam decoder's state machine
+    cdef DecodeCounts dn                    # and its counters
+    cdef uint64_t decoded                   # change-detection events decoded
     cdef uint8_t carry[4]
     cdef int ncarry
     cdef bint await_th
@@ -164,18 +171,12 @@ cdef class Fused:
         cdef int64_t t
         cdef uint16_t x, y
         cdef uint8_t p
-        cdef uint64_t th_before = self.cs.time_high, back_before = self.cs.backwards
-        cdef int kind = ccam_decode_word(&self.cs, w, &t, &x, &y, &p)
+        cdef int kind = ccam_decode_word(&self.cs, &self.dn, w, &t, &x, &y, &p)
         if kind != CCAM_CD:
-            if self.cs.time_high != th_before:
+            if kind == CCAM_TIME_BASE:
                 self.await_th = False
-                if self.cs.backwards != back_before:
-                    # the counter went back (a camera restarted after a reconnect): the
-                    # decoder rebased it onto the last time base; start one period later so
-                    # the low bits cannot go back either and no event is skipped
-                    self.cs.epoch += 1
-                    self.cs.t_offset = (self.cs.epoch + self.cs.last_th) * 0x800
             return
+        self.decoded += 1
         if self.await_th:
             self.gap_skipped += 1
             return
@@ -207,7 +208,8 @@ cdef class Fused:
             # worth word by word
             if (pos + 4 * CCAM_BLOCK <= n and self.bn + CCAM_BLOCK <= BATCH
                     and not self.await_th
-                    and ccam_decode_block(&self.cs, p + pos, &self.batch[self.bn])):
+                    and ccam_decode_block(&self.cs, &self.dn, p + pos, &self.batch[self.bn])):
+                self.decoded += CCAM_BLOCK
                 self.bn += CCAM_BLOCK
                 pos += 4 * CCAM_BLOCK
                 continue
@@ -262,14 +264,15 @@ cdef class Fused:
         return out
 
     def counters(self) -> dict:
-        cs = self.cs
-        return dict(words=cs.words, time_high_words=cs.time_high, events_decoded=cs.cd,
-                    exposure_events=cs.exposure, events_tracked=self.tracked,
-                    time_wraps=cs.wraps, gaps=self.gaps, bytes=self.bytes_in,
-                    pending_bytes=self.ncarry,
-                    anomalies=dict(unknown_type=cs.unknown, out_of_geometry=cs.out_of_geometry,
-                                   time_backwards=cs.backwards,
-                                   before_time_high=cs.before_time_high,
+        cdef DecodeCounts* n = &self.dn
+        return dict(words=n.words, time_high_words=n.info[<int>IN_TIME_HIGH],
+                    events_decoded=self.decoded, exposure_events=n.info[<int>IN_EXPOSURE],
+                    events_tracked=self.tracked, time_wraps=n.info[<int>IN_TIME_WRAPS],
+                    gaps=self.gaps, bytes=self.bytes_in, pending_bytes=self.ncarry,
+                    anomalies=dict(unknown_type=n.anomalies[<int>AN_UNKNOWN_TYPE],
+                                   out_of_geometry=n.anomalies[<int>AN_OUT_OF_GEOMETRY],
+                                   time_backwards=n.anomalies[<int>AN_TIME_BACKWARDS],
+                                   before_time_high=n.info[<int>IN_BEFORE_TIME_HIGH],
                                    skipped_after_gap=self.gap_skipped,
                                    tracker_back_in_time=self.sp.n_back[0],
                                    tracker_outside_sensor=self.sp.n_outside[0]))

@@ -8,7 +8,8 @@
 Without a host link it prints a statistics line every ``--stats-every`` s on stderr and a
 final one on stdout; ``--record`` writes every telemetry snapshot in the CSV schema of
 ``springtrack track`` (``t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive``).
-Exit status: 0 done, 1 the camera never opened (10 s), 2 bad arguments / no camera found.
+Exit status: 0 done, 1 the camera never opened (10 s) or a simulated source failed,
+2 bad arguments / no camera found.
 """
 from __future__ import annotations
 
@@ -19,15 +20,13 @@ import threading
 import time
 
 from . import faults as _faults
+from . import sources as _sources
 from . import usb as camusb
 
 NEVER_OPENED_S = 10.0      # give up if the camera never delivered a transfer this long
 
 EPILOG = """\
-sources:  sim:SCENE (springtrack.sim.scenes: face_occlusion, grid_pull, ...) through the
-          simulated USB camera; replay:FILE (any format springtrack.io reads, re-encoded
-          as CCam words, events outside 304x240 dropped and counted); usb (a real CCam ATIS
-          through pyusb/libusb, docs/hardware.md).
+sources:  """ + _sources.describe(indent=10) + """
 faults:   """ + ", ".join(_faults.FAULT_NAMES) + """ (simulated camera only; docs/firmware.md)
 units:    event time in µs; --seconds is event time for sim/replay, wall time for usb.
 """
@@ -40,7 +39,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     r = sub.add_parser("run", help="run the loop on a camera or a simulated camera",
                        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
-    r.add_argument("--source", required=True, help="sim:SCENE | replay:FILE | usb")
+    r.add_argument("--source", required=True, metavar="URL", help=_sources.usage())
     r.add_argument("--serial", type=int, help="usb: the camera's serial (default: the first)")
     r.add_argument("--profile", default="ccam_atis", choices=list(camusb.PROFILES),
                    help="usb: device profile; ccam_atis is decoded in the fused loop, the EVT "
@@ -97,55 +96,22 @@ def parse_biases(items) -> dict:
     return out
 
 
-def make_source(args, biases: dict):
-    """-> (open_camera callable, SimCamera or None, default model).  ``biases`` is read at
-    every (re)connection, so the engine's updates survive a reconnect."""
-    faults = _faults.Faults(_faults.parse(args.faults), seed=args.seed)
-    kind, _, arg = args.source.partition(":")
-    if kind == "usb":
-        if args.faults:
-            raise ValueError("--faults needs a simulated source (sim:SCENE or replay:FILE)")
-        prof = camusb.PROFILES[args.profile]
-        def open_usb():
-            return camusb.Camera.open(prof, args.serial, biases=biases)
-        open_usb().close()                     # fail now, clearly, if there is no camera
-        return open_usb, None, None
-    from . import simusb
-    if kind == "sim":
-        from springtrack.sim.scenes import make_scene
-        scene = make_scene(arg, seed=args.seed)
-        source = simusb.scene_source(arg, args.seconds, seed=args.seed)
-        default_model = None
-        if not (args.model or args.preset):    # a scene's own model only when none is given
-            try:
-                default_model = scene.initial_model()
-            except ValueError as e:
-                raise ValueError(f"{e}; give --model or --preset") from None
-    elif kind == "replay":
-        source = simusb.file_source(arg, stats=args.replay_stats)
-        if args.seconds is not None:
-            source = _limit_seconds(source, args.seconds)
-        default_model = None
-    else:
-        raise ValueError(f"--source {args.source!r}: use sim:SCENE, replay:FILE or usb")
-    cam = simusb.SimCamera(source, realtime=not args.max_speed, faults=faults)
-    backend = simusb.SimBackend(cam)
-    return (lambda: camusb.Camera.open("ccam_atis", args.serial, backend=backend,
-                                       biases=biases)), cam, default_model
+def open_source(args, biases: dict) -> _sources.CameraSource:
+    """The camera ``--source`` names.  ``biases`` is read at every (re)connection, so the
+    engine's updates survive a reconnect."""
+    return _sources.open_source(args.source, _sources.SourceOptions(
+        seconds=args.seconds, seed=args.seed, realtime=not args.max_speed, faults=args.faults,
+        serial=args.serial, profile=args.profile, biases=biases))
 
 
-def _limit_seconds(source, seconds):
-    t0 = None
-    for ev in source:
-        if len(ev) == 0:
-            continue
-        t0 = int(ev["t"][0]) if t0 is None else t0
-        end = t0 + int(seconds * 1e6)
-        keep = ev[ev["t"] < end]
-        if len(keep):
-            yield keep
-        if len(keep) < len(ev):
-            return
+def default_model(args, source: _sources.CameraSource):
+    """--model or --preset; else the source's own model (a scene's); else face26."""
+    if args.model or args.preset:
+        return args.model or args.preset
+    try:
+        return source.default_model() or "face26"
+    except ValueError as e:
+        raise ValueError(f"{e}; give --model or --preset") from None
 
 
 def read_key(path):
@@ -198,14 +164,13 @@ def run(args) -> int:
     # SIGTERM ends the run like Ctrl-C: threads stopped, --record written, stats printed
     signal.signal(signal.SIGTERM, _terminate)
     biases = parse_biases(args.bias)
-    args.replay_stats = {}
-    open_camera, cam, default_model = make_source(args, biases)
-    model = args.model or args.preset or default_model or "face26"
-    engine = FirmwareLoop(open_camera, model=model, params=args.params,
-                          telemetry_period_us=args.telemetry_us, nbuf=args.buffers,
-                          record=bool(args.record), lossless=cam is not None and args.max_speed,
-                          biases=biases, profile=args.profile if cam is None else "ccam_atis",
-                          backend=args.backend)
+    source = open_source(args, biases)
+    cam = source.device
+    engine = FirmwareLoop(source.open_camera, model=default_model(args, source),
+                          params=args.params, telemetry_period_us=args.telemetry_us,
+                          nbuf=args.buffers, record=bool(args.record),
+                          lossless=cam is not None and args.max_speed, biases=biases,
+                          profile=source.profile, backend=args.backend)
     stop = threading.Event()
     link_thread, port = start_link(args, engine, stop)
     if args.wait_start and link_thread is None:
@@ -252,10 +217,10 @@ def run(args) -> int:
     if args.record:
         rows = engine.write_record(args.record)
         print(f"record: {rows} rows -> {args.record}", file=sys.stderr)
-    s = engine.stats()
-    if args.replay_stats.get("outside"):
-        print(f"replay: {args.replay_stats['outside']} events outside the 304x240 sensor "
-              f"dropped before encoding", file=sys.stderr)
+    for line in source.report():
+        print(line, file=sys.stderr)
+    if failed is None and _sources.failure(source):
+        failed = f"the source {args.source} failed: {_sources.failure(source)}"
     print("stats: " + engine.stats_line(), flush=True)
     if failed:
         print(f"firmware-sim run: error: {failed}", file=sys.stderr)

@@ -57,7 +57,7 @@ def parse(names) -> tuple[str, ...]:
 
 
 class Faults:
-    """The active faults of one simulated device (consulted by simusb on every read)."""
+    """The active faults of one simulated device (consulted by the simulated camera on every read)."""
 
     def __init__(self, names=(), plan: FaultPlan | None = None, **overrides):
         self.names = parse(names)

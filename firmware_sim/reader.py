@@ -249,8 +249,8 @@ class Reader:
                         c["queue_hwm"] = len(self.filled)
                     self.cond.notify()
                 # yield the GIL to the processing thread just notified, before this thread's
-                # next read runs its Python set-up: the hand-off then takes ~0.04 ms instead
-                # of ~0.1 ms (median, real time), most of the loop's latency after the USB's
+                # next read runs its Python set-up: otherwise the hand-off waits for that
+                # set-up, most of the loop's latency after the USB's (docs/firmware.md)
                 time.sleep(0)
         finally:
             self._run_commands()

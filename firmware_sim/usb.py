@@ -15,7 +15,7 @@ The CCam ATIS sequence follows the public ``neuromorphic-paris/ccam_atis_sepia``
 6. bulk IN endpoint 0x81 in 128 KiB transfers, each with a finite timeout.
 
 :class:`Camera` works on any ``usb.core.Device``: the libusb backend on real hardware or
-``firmware_sim.simusb.SimBackend`` (same code path).  A :class:`DeviceProfile` selects
+``firmware_sim.simcam.SimBackend`` (same code path).  A :class:`DeviceProfile` selects
 IDs, geometry and the word decoder; the Prophesee EVT 2.0 / EVT 3.0 profiles only read
 the bulk stream (no register control of those boards: out of scope, docs/firmware.md).
 """

@@ -112,16 +112,6 @@ cdef extern from "csrc/fixed_step.h" nogil:
     void fx_reindex(fx_state* s, int i)
     void fx_clamp_positions(fx_state* s)
     int64_t fx_activity(const fx_state* s, int i, int64_t t)
-    int fx_check_index(const fx_state* s)
-    int64_t fx_mulsh(int64_t v, uint32_t g, int sh)
-    uint64_t fx_isqrt64(const fx_state* s, uint64_t v)
-    uint32_t fx_exp2neg(const fx_state* s, int64_t w)
-    int64_t fx_gauss(const fx_state* s, int64_t d2)
-    uint32_t fx_decay(const fx_state* s, int64_t dt)
-    uint32_t fx_atan2(const fx_state* s, int64_t y, int64_t x)
-    void fx_cossin(const fx_state* s, int64_t angle, int64_t* c, int64_t* sn)
-    void fx_polar(const fx_state* s, int64_t x, int64_t y, uint32_t* ang, int64_t* len,
-                  int64_t* cx, int64_t* cy)
 
 cdef extern from "csrc/fixed_step.c":
     pass
@@ -385,20 +375,6 @@ cdef class FixedKernel:
                     syy=np.array([s.syy[i] for i in range(n)], np.int64),
                     activity=np.array([s.act[i] for i in range(n)], np.int64))
 
-    def set_raw(self, int i, x=None, y=None, act=None):
-        """Overwrite tracker i's raw integer state (tests: drive it to a range limit).
-        x, y Q.32 (int64), act Q.32; the spatial index is refreshed."""
-        cdef fx_state* s = <fx_state*>self.state
-        if not 0 <= i < s.n:
-            raise IndexError(f"tracker index {i} out of range 0..{s.n - 1}")
-        if x is not None:
-            s.mx[i] = x
-        if y is not None:
-            s.my[i] = y
-        if act is not None:
-            s.act[i] = act
-        fx_reindex(s, i)
-
     def energies(self):
         """(3, nc) array of the last spring update's energies: euclidean, torsional, cartesian."""
         cdef fx_state* s = <fx_state*>self.state
@@ -421,48 +397,3 @@ cdef class FixedKernel:
                     spring_updates=s.n_spring_updates, index_updates=s.n_reindex,
                     saturated_position=s.sat_position, saturated_activity=s.sat_activity,
                     saturated_energy=s.sat_energy, saturated_inverse=s.sat_inverse)
-
-    def check_index(self):
-        """Verify the spatial index invariant (tests)."""
-        return bool(fx_check_index(<fx_state*>self.state))
-
-    # ---- integer building blocks, for tests ----
-    def mulsh(self, long long v, unsigned int g, int sh):
-        return fx_mulsh(v, g, sh)
-
-    def isqrt(self, unsigned long long v):
-        return fx_isqrt64(<fx_state*>self.state, v)
-
-    def exp2neg(self, long long w):
-        return fx_exp2neg(<fx_state*>self.state, w)
-
-    def gauss(self, long long d2):
-        """exp(-d2 / 2) for d2 in Q.40 (0 <= d2 < 32), Q.30: the kernel value of eq. (2)."""
-        return fx_gauss(<fx_state*>self.state, d2)
-
-    def decay(self, long long dt):
-        """exp(-dt / tau) for dt in us, Q.30: the activity decay of eq. (6)."""
-        return fx_decay(<fx_state*>self.state, dt)
-
-    def recompute_energies(self):
-        """Recompute every kind of the last spring update's energies from the spring
-        vectors it kept, the criterion's kind too (tests: the lazily computed kinds must
-        be what the spring update would have computed)."""
-        cdef fx_state* s = <fx_state*>self.state
-        s.energy_stale = 7 | (s.energy_stale & 8)
-        fx_energies(s)
-
-    def atan2(self, long long y, long long x):
-        return fx_atan2(<fx_state*>self.state, y, x)
-
-    def polar(self, long long x, long long y):
-        """(binary angle, length, cos Q.30, sin Q.30) of the vector (x, y) (tests)."""
-        cdef uint32_t a
-        cdef int64_t l, cx, cy
-        fx_polar(<fx_state*>self.state, x, y, &a, &l, &cx, &cy)
-        return a, l, cx, cy
-
-    def cossin(self, long long angle):
-        cdef int64_t c, sn
-        fx_cossin(<fx_state*>self.state, angle, &c, &sn)
-        return c, sn

@@ -117,6 +117,7 @@ ctypedef struct KState:
 cdef int kstep(KState* s, int64_t t, int x, int y) noexcept nogil
 cdef Py_ssize_t ksteps(KState* s, const Event* ev, Py_ssize_t n, int64_t t_stop) noexcept nogil
 cdef void ksprings(KState* s) noexcept nogil
+cdef void reindex(KState* s, int i) noexcept nogil
 cdef double kactivity(const KState* s, int i, int64_t t) noexcept nogil
 cdef void ksnapshot(const KState* s, int64_t t, SampleOut* o) noexcept nogil
 

@@ -51,12 +51,12 @@ cdef double RHO_MAX2 = _RHO_MAX * _RHO_MAX * (1.0 - 1e-12)   # slightly low: nev
 cdef double TWO_PI = 2.0 * M_PI
 # A gate box is (re)indexed enlarged by INDEX_GROW of itself plus INDEX_MARGIN px, so that a
 # mean jittering by a fraction of sigma (alpha_position = 0.2 moves it ~0.3 sigma) does not
-# re-index at every few events (face26: 0.14 -> 0.01 re-index per event; candidates +~5 %).
-# Any enlargement keeps the scan exact; these only trade re-indexing against candidates.
+# re-index every few events.  Any enlargement keeps the scan exact; these only trade
+# re-indexing against candidates (docs/benchmarks.md, "Where the time goes").
 # After each update a cheap sufficient test (st_box_left) re-indexes a tracker once its
 # sigmas have grown by INDEX_SIGMA_SLACK or its mean has moved by what that growth leaves
-# of the enlargement (the exact test took ~28 instructions per assigned event, this ~10; it
-# re-indexes face26 0.0065 -> 0.0095 times per event).
+# of the enlargement: four comparisons instead of the exact gate box, for re-indexing a
+# little earlier than needed.
 cdef double INDEX_MARGIN = 3.0
 cdef double INDEX_GROW = 0.25
 cdef double INDEX_SIGMA_SLACK = 0.05
@@ -75,7 +75,6 @@ cdef extern from *:
     int st_ctz64(unsigned long long v) nogil
 
 cdef extern from "csrc/fastmath.h" nogil:
-    double st_exp(double x)
     void st_exp_batch(const double* x, double* out, int n)
     void st_atan2_batch(const double* y, const double* x, double* out, int n)
     void st_sincos_batch(const double* e, double* sn, double* cm1, int n)
@@ -654,14 +653,6 @@ cdef class Kernel:
     def springs(self):
         ksprings(&self.st)
 
-    def place(self, int i, double x, double y):
-        """Move tracker i's mean to (x, y) px (tests: set up a configuration for springs())."""
-        if not 0 <= i < self.st.n:
-            raise IndexError(f"tracker {i} out of range [0, {self.st.n})")
-        self.st.mx[i] = x
-        self.st.my[i] = y
-        reindex(&self.st, i)
-
     def snapshot(self, long long t):
         """Dict of per-tracker arrays at event time t."""
         cdef KState* s = &self.st
@@ -699,83 +690,3 @@ cdef class Kernel:
         the full atan2 (a connection more than 3 pi/8 from its frame direction), and
         frame moves (the mean angle drifted by more than FRAME_SLACK)."""
         return dict(frame_misses=self.st.n_frame_misses, frame_moves=self.st.n_frame_moves)
-
-    def check_index(self):
-        """Verify the spatial index invariant (tests): each tracker's exact gate box lies
-        inside its indexed box and its bit is set in every cell of that box."""
-        cdef KState* s = &self.st
-        cdef int i, cx, cy
-        for i in range(s.n):
-            hx = sqrt(s.gate * s.sxx[i])
-            hy = sqrt(s.gate * s.syy[i])
-            if (s.mx[i] - hx < s.bx_lo[i] or s.mx[i] + hx > s.bx_hi[i]
-                    or s.my[i] - hy < s.by_lo[i] or s.my[i] + hy > s.by_hi[i]):
-                return False
-            for cy in range(s.box_y0[i], s.box_y1[i] + 1):
-                for cx in range(s.box_x0[i], s.box_x1[i] + 1):
-                    if not (s.cells[cy * s.gw + cx] >> i) & 1:
-                        return False
-        return True
-
-
-# ---- csrc/fastmath.h, exposed for tests/test_fastmath.py -------------------------------
-def fastmath_atan2(y, x):
-    """st_atan2_batch over two float64 arrays (the kernel's eq. 14 atan2)."""
-    cdef double[::1] vy = np.ascontiguousarray(y, np.float64)
-    cdef double[::1] vx = np.ascontiguousarray(x, np.float64)
-    if vy.shape[0] != vx.shape[0]:
-        raise ValueError("y and x must have the same length")
-    out = np.empty(vy.shape[0])
-    cdef double[::1] vo = out
-    if vy.shape[0]:
-        st_atan2_batch(&vy[0], &vx[0], &vo[0], <int>vy.shape[0])
-    return out
-
-
-def torsion_angles_framed(rx, ry, qdx, qdy, double phi):
-    """st_torsion_angles_framed over float64 arrays: (th, far), the kernel's fast eq. (14)."""
-    cdef double[::1] vrx = np.ascontiguousarray(rx, np.float64)
-    cdef double[::1] vry = np.ascontiguousarray(ry, np.float64)
-    cdef double[::1] vqx = np.ascontiguousarray(qdx, np.float64)
-    cdef double[::1] vqy = np.ascontiguousarray(qdy, np.float64)
-    cdef Py_ssize_t n = vrx.shape[0]
-    if not (vry.shape[0] == vqx.shape[0] == vqy.shape[0] == n):
-        raise ValueError("rx, ry, qdx and qdy must have the same length")
-    th = np.empty(n)
-    cdef double[::1] vo = th
-    cdef int64_t far = 0
-    if n:
-        far = st_torsion_angles_framed(<int>n, &vrx[0], &vry[0], &vqx[0], &vqy[0], phi, &vo[0])
-    return th, bool(far)
-
-
-def fastmath_sincos(e):
-    """st_sincos_batch: (sin e, cos e - 1) over a float64 array (the kernel's eq. 16)."""
-    cdef double[::1] ve = np.ascontiguousarray(e, np.float64)
-    sn = np.empty(ve.shape[0])
-    cm1 = np.empty(ve.shape[0])
-    cdef double[::1] vs = sn, vc = cm1
-    if ve.shape[0]:
-        st_sincos_batch(&ve[0], &vs[0], &vc[0], <int>ve.shape[0])
-    return sn, cm1
-
-
-def fastmath_exp(x):
-    """st_exp elementwise over a float64 array (the kernel's eqs. 2 and 6)."""
-    cdef double[::1] vx = np.ascontiguousarray(x, np.float64)
-    out = np.empty(vx.shape[0])
-    cdef double[::1] vo = out
-    cdef Py_ssize_t k
-    for k in range(vx.shape[0]):
-        vo[k] = st_exp(vx[k])
-    return out
-
-
-def fastmath_exp_batch(x):
-    """st_exp_batch over a float64 array (the kernel's activity log, eq. 6)."""
-    cdef double[::1] vx = np.ascontiguousarray(x, np.float64)
-    out = np.empty(vx.shape[0])
-    cdef double[::1] vo = out
-    if vx.shape[0]:
-        st_exp_batch(&vx[0], &vo[0], <int>vx.shape[0])
-    return out

@@ -135,9 +135,17 @@ class Tracker:
     overrides, a TOML path, or None (defaults < model [params] < these).
     Events that go back in time or fall outside the sensor are skipped and counted
     (:attr:`counters`), never raised.
+
+    ``acquire=True``: the model's positions are not trusted; the first ``acquire_ms`` of
+    events are buffered and the model is found in them (:mod:`springtrack.acquire`;
+    ``acquire_bounds``: its region, angle_deg, scale), placed there, and tracked from
+    the window's first event.  While it is not found the window slides by half its
+    length (:attr:`acquisition` counts the attempts and the events dropped); call
+    :meth:`flush` at the end of the input to try on a last, shorter window.
     """
 
-    def __init__(self, model, params=None, backend: str = "cython"):
+    def __init__(self, model, params=None, backend: str = "cython", acquire: bool = False,
+                 acquire_ms: float = 50.0, acquire_bounds: dict | None = None):
         self.model = load_model(model)
         self.params = resolve_params(self.model, params)
         self.backend_name = backend
@@ -145,6 +153,11 @@ class Tracker:
         self._sample_us = 0
         self._next_t = None
         self._recorded: list[Track] = []
+        self.acquisition = None
+        if acquire:
+            from .acquire import Acquisition
+            self.acquisition = Acquisition(self.model, int(round(acquire_ms * 1000)),
+                                           **(acquire_bounds or {}))
 
     @property
     def ids(self) -> list[str]:
@@ -164,7 +177,27 @@ class Tracker:
     def process(self, events) -> None:
         """Consume an event array (fields t µs, x, y, p), in time order."""
         ev = as_events(events)
-        if len(ev) == 0:
+        if self.acquisition is not None and not self.acquisition.done:
+            ev = self._placed(self.acquisition.feed(ev))
+        self._track(ev)
+
+    def flush(self) -> None:
+        """End of input: if the acquisition is still looking, try on what it buffered."""
+        if self.acquisition is not None and not self.acquisition.done:
+            self._track(self._placed(self.acquisition.finish()))
+
+    def _placed(self, ready):
+        """The events to track: none while acquiring; once found, the model placed at the
+        pose found and the buffered events."""
+        if ready is None:
+            return ready
+        from .acquire import place
+        self.model = place(self.model, self.acquisition.pose)
+        self._b = make_backend(self.backend_name, self.model, self.params)
+        return ready
+
+    def _track(self, ev) -> None:
+        if ev is None or len(ev) == 0:
             return
         if self._sample_us and self._next_t is None:
             t0 = int(ev["t"][0])
@@ -233,7 +266,11 @@ class Tracker:
 
     @property
     def counters(self) -> dict:
-        return dict(self._b.counters())
+        c = dict(self._b.counters())
+        if self.acquisition is not None:
+            c.update(acquire_attempts=self.acquisition.attempts,
+                     acquire_events_dropped=self.acquisition.events_dropped)
+        return c
 
 
 def profile(tracker: Tracker, events, bin_us: int = 10_000) -> dict:

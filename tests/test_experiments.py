@@ -8,7 +8,8 @@ import pytest
 
 from springtrack.sim.scenes import make_scene
 from springtrack.sim.sensor import truth_between
-from springtrack.commands import experiments as ex
+from springtrack.commands.experiments import plan as xp
+from springtrack.commands.experiments import report, runs
 from springtrack.metrics import ErrorSeries, truth_from_array
 
 
@@ -21,16 +22,16 @@ def test_max_tracking_angle_is_the_angle_reached_before_the_first_loss():
     es = ErrorSeries("grid", t, list(truth.ids), err, np.full(len(t), 100.0),
                      np.zeros(len(t)))
     # 15 deg/s from 0: the last sample before the loss is t = 3.99 s
-    assert ex.max_tracking_angle(sc, truth, es) == pytest.approx(15.0 * 3.99, abs=1e-6)
+    assert runs.max_tracking_angle(sc, truth, es) == pytest.approx(15.0 * 3.99, abs=1e-6)
     # a small error that stays below half the neighbour distance is not a loss
     err[:] = 0.0
     err[:, 0] = 5.0
-    assert ex.max_tracking_angle(sc, truth, es) == pytest.approx(75.0)
+    assert runs.max_tracking_angle(sc, truth, es) == pytest.approx(75.0)
 
 
 def test_plan_covers_every_experiment():
-    plan = ex.Plan.quick()
-    cs = ex.cases(plan)
+    plan = xp.Plan.quick()
+    cs = xp.cases(plan)
     by = {e: [c for c in cs if c["exp"] == e] for e in ("fig11b", "fig14", "table1", "fig16",
                                                           "face", "fig24")}
     assert len(by["fig11b"]) == len(plan.rot_alphas)
@@ -42,18 +43,18 @@ def test_plan_covers_every_experiment():
 
 def test_tiny_plan_end_to_end_with_dask(tmp_path):
     distributed = pytest.importorskip("dask.distributed")
-    plan = ex.Plan(grid_seconds=1.0, face_seconds=1.0, rot_alphas=(0.004,), s_values=(4.5, 1e6),
+    plan = xp.Plan(grid_seconds=1.0, face_seconds=1.0, rot_alphas=(0.004,), s_values=(4.5, 1e6),
                    alphas=(0.001,), table_s=(4.5, 1e6), face_s=(2.5,), spring_periods=(55,),
                    face_seeds=(0,), hand_sizes=(0.12,))
     with distributed.Client(processes=False, n_workers=1, threads_per_worker=2,
                             dashboard_address=None) as client:
-        results = ex.run_all(plan, client)
-    assert len(results) == len(ex.cases(plan)) + 2 * len(ex.hand_cases(plan))
+        results = runs.run_all(plan, client)
+    assert len(results) == len(xp.cases(plan)) + 2 * len(xp.hand_cases(plan))
     for r in results:
         assert math.isfinite(r["mean_pct"]) and r["wall_s"] > 0
     g = [r for r in results if r["exp"] == "fig14"]
     assert all(r["mean_pct"] < 5.0 for r in g)             # 1 s of grid_pull, before the pull
-    out = ex.write_report(results, plan, tmp_path, quick=True, elapsed=1.0, where="test")
+    out = report.write_report(results, plan, tmp_path, quick=True, elapsed=1.0, where="test")
     text = out.read_text()
     for title in ("Fig. 11b", "Fig. 13", "Fig. 14", "Table I", "Fig. 16", "Figs. 20-21",
                   "Fig. 24", "size of the hand"):

@@ -6,8 +6,12 @@ import math
 import numpy as np
 import pytest
 
-from springtrack._kernel import (fastmath_atan2, fastmath_exp, fastmath_exp_batch,
-                                fastmath_sincos, torsion_angles_framed)
+import probes
+
+kp = probes.load("kernel_probe")
+fastmath_atan2, fastmath_exp, fastmath_exp_batch = (kp.fastmath_atan2, kp.fastmath_exp,
+                                                    kp.fastmath_exp_batch)
+fastmath_sincos, torsion_angles_framed = kp.fastmath_sincos, kp.torsion_angles_framed
 
 ULP1 = 2.0 ** -52
 

@@ -1,4 +1,4 @@
-"""Every injected fault is survived, counted and recovered from (issue 6, items 2-3, 8)."""
+"""Every injected fault is survived, counted and recovered from."""
 from __future__ import annotations
 
 import threading
@@ -12,7 +12,8 @@ from firmware_sim import usb as camusb
 from firmware_sim.faults import FAULT_NAMES, Faults, parse
 from firmware_sim.loop import FirmwareLoop
 from springtrack.sim.sensor import simulate_all
-from firmware_sim.simusb import SimBackend, SimCamera, events_source
+from firmware_sim.simcam import SimBackend, SimCamera
+from firmware_sim.sources import events_source
 
 SAMPLE = 1000
 

@@ -150,6 +150,36 @@ def test_a_camera_counter_restart_is_rebased_so_time_never_goes_back():
     assert f.last_t == 101 * 2048 + 20
 
 
+def test_the_fused_loop_stamps_events_as_the_file_decoder_does():
+    """The same bytes, with a wrap of the time-high counter and a backward jump, through the
+    file decoder and through the fused loop: the same timestamps event by event, and the
+    same track as the offline tracker on the decoded events (one time base for both)."""
+    import springtrack.io as sio
+    rng = np.random.default_rng(11)
+    data = b""
+    for th in (0xFFFFFE, 0xFFFFFF, 0, 1, 0, 1, 3, 2, 5):     # a wrap, two steps back
+        data += word_th(th)
+        for lo in np.sort(rng.integers(0, 2048, 40)):
+            data += word_ev(int(lo), int(rng.integers(120, 180)), int(rng.integers(90, 150)))
+    dec = sio.decoder("ccam")
+    ev = dec.decode(data)
+    assert dec.stats.info["time_wraps"] == 1 and dec.stats.anomalies["time_backwards"] == 2
+
+    f = fused(period=0)
+    stamped = []
+    for i in range(0, len(data), 4):
+        f.feed(data[i:i + 4])
+        if data[i + 3] != 0x80:                           # an event word
+            stamped.append(f.last_t)
+    assert stamped == list(ev["t"])
+    c = f.counters()
+    assert (c["time_wraps"], c["anomalies"]["time_backwards"]) == (1, 2)
+    assert c["anomalies"]["tracker_back_in_time"] == 0
+
+    ref = Tracker("face26").run(ev, SAMPLE)
+    assert_same(ref, collect(fused(), [data]))
+
+
 def test_block_decoding_equals_word_by_word_in_the_fused_loop():
     """The fused loop decodes runs of plain event words 32 at a time (io/ccam_block.h);
     fed one word per call it never does, and tracks, samples and counts the same."""

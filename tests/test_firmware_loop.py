@@ -20,7 +20,8 @@ from firmware_sim import usb as camusb
 from firmware_sim.engine import UpdateRejected
 from firmware_sim.loop import FirmwareLoop
 from springtrack.sim.sensor import simulate_all
-from firmware_sim.simusb import SimBackend, SimCamera, events_source
+from firmware_sim.simcam import SimBackend, SimCamera
+from firmware_sim.sources import events_source
 
 SAMPLE = 1000
 

@@ -11,7 +11,8 @@ from firmware_sim import usb as camusb
 from firmware_sim._fused import Fused
 from firmware_sim.reader import Reader
 from springtrack.sim.sensor import simulate_all
-from firmware_sim.simusb import SimBackend, SimCamera, events_source
+from firmware_sim.simcam import SimBackend, SimCamera
+from firmware_sim.sources import events_source
 
 
 def drain(reader, f):

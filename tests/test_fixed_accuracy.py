@@ -1,9 +1,9 @@
-"""Issue 4, deliverable 4 (reduced): the fixed-point kernel stays within the documented
-bound of the float64 kernel on structured synthetic grid and face streams.  The full
+"""The fixed-point kernel stays within the documented bound of the float64 kernel
+(tests/fixed_bound.py) on reduced structured synthetic grid and face streams.  The full
 >= 1 M event figures come from benchmarks/fixed_accuracy.py (docs/fixed_point.md)."""
 import pytest
 
-from springtrack.fixed_accuracy import BOUNDS, compare, scene_stream, truth_for, violations
+from fixed_bound import BOUNDS, compare, scene_stream, truth_for, violations
 
 pytest.importorskip("springtrack._fixed")
 

@@ -1,4 +1,4 @@
-"""Issue 4, deliverable 2: the fixed-point step is integer-only by construction.
+"""The fixed-point step is integer-only by construction.
 
 springtrack/csrc/fixed_step.c (the per-event step, the springs and every arithmetic
 helper they use) and fixed_telemetry.c (telemetry records from that state) must compile

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
+import probes
 import springtrack
 from springtrack import events as E
 from springtrack import wire
@@ -16,6 +17,7 @@ from springtrack.tracker import Tracker, resolve_params
 
 fixed = pytest.importorskip("springtrack._fixed")
 FixedKernel = fixed.FixedKernel
+fx = probes.load("fixed_probe")      # csrc/fixed_step.c's building blocks, raw state
 PX = 1 << 32                 # positions are Q.32 px
 
 
@@ -35,29 +37,29 @@ def test_mulsh_is_exact_round_half_up(v, g, sh):
     want = (v * g + (1 << (sh - 1))) >> sh            # Python ints: exact floor
     if not -(2 ** 63) <= want < 2 ** 63:
         return                                        # outside the documented domain
-    assert K.mulsh(v, g, sh) == want
+    assert fx.mulsh(v, g, sh) == want
 
 
 @settings(max_examples=300, deadline=None)
 @given(st.integers(0, 2 ** 64 - 1))
 def test_isqrt_is_floor_sqrt(v):
-    assert K.isqrt(v) == math.isqrt(v)
+    assert fx.isqrt(K, v) == math.isqrt(v)
 
 
 @settings(max_examples=300, deadline=None)
 @given(st.integers(0, 33 << 40))
 def test_exp2neg_relative_error(w):
-    got = K.exp2neg(w) / (1 << 30)
+    got = fx.exp2neg(K, w) / (1 << 30)
     want = 2.0 ** (-w / 2 ** 40)
     # table interpolation < 6e-8 relative, plus a unit of Q.30 after the shift
     assert abs(got - want) <= 1e-7 * want + 2 ** -30
 
 
 def test_exp2neg_edges():
-    assert K.exp2neg(0) == 1 << 30
-    assert K.exp2neg(-5) == 1 << 30
-    assert K.exp2neg(32 << 40) == 0
-    assert K.exp2neg(1 << 40) == 1 << 29
+    assert fx.exp2neg(K, 0) == 1 << 30
+    assert fx.exp2neg(K, -5) == 1 << 30
+    assert fx.exp2neg(K, 32 << 40) == 0
+    assert fx.exp2neg(K, 1 << 40) == 1 << 29
 
 
 @settings(max_examples=400, deadline=None)
@@ -65,12 +67,12 @@ def test_exp2neg_edges():
 def test_gauss_is_exp_to_two_units(d2):
     """exp(-d2 / 2) of eq. (2) from two tables and a linear rest: <= 2.1 units of Q.30."""
     want = math.exp(-d2 / 2 ** 41) * 2 ** 30
-    assert abs(K.gauss(d2) - want) <= 2.1
+    assert abs(fx.gauss(K, d2) - want) <= 2.1
 
 
 def test_gauss_edges():
-    assert K.gauss(0) == 1 << 30
-    assert abs(K.gauss(2 << 40) - math.exp(-1.0) * 2 ** 30) <= 2.1
+    assert fx.gauss(K, 0) == 1 << 30
+    assert abs(fx.gauss(K, 2 << 40) - math.exp(-1.0) * 2 ** 30) <= 2.1
 
 
 @settings(max_examples=400, deadline=None)
@@ -80,24 +82,24 @@ def test_decay_is_exp_to_two_units(dt):
     them the exp2 table (6e-8 relative), 0 from dt_max on."""
     tau = resolve_params(springtrack.load_model("grid3x3")).activity_tau_us
     want = math.exp(-max(dt, 0) / tau) * 2 ** 30
-    got = K.decay(dt)
+    got = fx.decay(K, dt)
     assert abs(got - want) <= (1.5 if dt < 1 << 18 else 1e-7 * want + 1)
 
 
 def test_decay_edges():
-    assert K.decay(0) == K.decay(-7) == 1 << 30
-    assert K.decay(10 ** 9) == 0
+    assert fx.decay(K, 0) == fx.decay(K, -7) == 1 << 30
+    assert fx.decay(K, 10 ** 9) == 0
     k = kernel("grid3x3", activity_tau_us=1e9)          # table span 2^18 us < dt_max
-    assert abs(k.decay((1 << 18) - 1) - math.exp(-((1 << 18) - 1) / 1e9) * 2 ** 30) <= 1.5
+    assert abs(fx.decay(k, (1 << 18) - 1) - math.exp(-((1 << 18) - 1) / 1e9) * 2 ** 30) <= 1.5
     for dt in (1 << 18, 10 ** 7):                        # exp2 table, log2(e) / tau in Q.40
         want = math.exp(-dt / 1e9) * 2 ** 30
-        assert abs(k.decay(dt) - want) <= (1e-7 + math.log(2) * dt * 2 ** -41) * want + 1
+        assert abs(fx.decay(k, dt) - want) <= (1e-7 + math.log(2) * dt * 2 ** -41) * want + 1
 
 
 @settings(max_examples=400, deadline=None)
 @given(st.integers(-(2 ** 31), 2 ** 31), st.integers(-(2 ** 31), 2 ** 31))
 def test_atan2_matches_math(y, x):
-    got = K.atan2(y, x)
+    got = fx.atan2(K, y, x)
     if x == 0 and y == 0:
         assert got == 0
         return
@@ -111,7 +113,7 @@ def test_atan2_matches_math(y, x):
 @given(st.integers(-(2 ** 30), 2 ** 30), st.integers(-(2 ** 30), 2 ** 30))
 def test_polar_matches_math(x, y):
     """Angle, length and direction of a spring vector (springs of eqs. 11, 14, 16)."""
-    a, l, cx, cy = K.polar(x, y)
+    a, l, cx, cy = fx.polar(K, x, y)
     if x == 0 and y == 0:
         assert (a, l, cx, cy) == (0, 0, 0, 0)
         return
@@ -127,7 +129,7 @@ def test_polar_matches_math(x, y):
 @given(st.one_of(st.integers(-(2 ** 31), 2 ** 31 - 1),          # any angle (CORDIC)
                  st.integers(-42722829, 42722829)))            # |a| < 2^-4 rad (series)
 def test_cossin_matches_math(a):
-    c, s = K.cossin(a)
+    c, s = fx.cossin(K, a)
     rad = a * 2 * math.pi / 2 ** 32
     assert abs(c / 2 ** 30 - math.cos(rad)) < 1e-8
     assert abs(s / 2 ** 30 - math.sin(rad)) < 1e-8
@@ -188,7 +190,7 @@ def test_sigma_bounds_and_correlation_clamp():
         rho_max = max(rho_max, s["sxy"][0] / math.sqrt(s["sxx"][0] * s["syy"][0]))
     assert 0.99 - 1e-6 <= rho_max <= 0.99 + 1e-6
     assert s["sxx"][0] == pytest.approx(0.25, abs=1e-9) and s["syy"][0] == pytest.approx(0.25, abs=1e-9)
-    assert kf.check_index()
+    assert fx.check_index(kf)
     assert kf.counters()["saturated_inverse"] == 0
 
 
@@ -200,7 +202,7 @@ def test_position_saturates_and_counts():
     k = kernel("grid3x3")
     lim = 8192 * PX - 1
     for i in range(9):
-        k.set_raw(i, x=lim)
+        fx.set_raw(k, i, x=lim)
     k.springs()
     assert k.counters()["saturated_position"] == 3    # r0c2, r1c2, r2c2
     x = k.raw_state()["x"]
@@ -210,8 +212,8 @@ def test_position_saturates_and_counts():
 
 def test_energy_offset_saturates_and_counts():
     k = kernel("grid3x3")
-    k.set_raw(0, x=8191 * PX)
-    k.set_raw(1, x=-8191 * PX)                       # 0->1 offset -16382 px, rest +50
+    fx.set_raw(k, 0, x=8191 * PX)
+    fx.set_raw(k, 1, x=-8191 * PX)                   # 0->1 offset -16382 px, rest +50
     k.springs()
     assert k.counters()["saturated_energy"] > 0
     e = k.energies()
@@ -222,7 +224,7 @@ def test_activity_saturates_and_counts():
     m, p = one_tracker()
     k = FixedKernel(m, p)
     k.step(1, 20, 30)
-    k.set_raw(0, act=(1 << 61) - 1)
+    fx.set_raw(k, 0, act=(1 << 61) - 1)
     k.step(1, 20, 30)                                  # dt = 0: no decay, + p > limit
     assert k.counters()["saturated_activity"] == 1
     assert k.raw_state()["activity"][0] == 1 << 61
@@ -244,7 +246,7 @@ def test_rejects_what_its_formats_cannot_hold():
 
 
 def stream(preset, n, seed=2):
-    from springtrack.fixed_accuracy import scene_stream
+    from fixed_bound import scene_stream
     return scene_stream(preset, n, seed)[1]
 
 
@@ -266,7 +268,7 @@ def test_chunked_equals_whole_and_set_params():
         t.set_params(alpha_position=0.1, p_threshold=0.05)
     ta, tb = a.run(ev[15_000:], sample_us=1000), b.run(ev[15_000:], sample_us=1000)
     d = np.hypot(ta.x - tb.x, ta.y - tb.y)
-    assert float(np.sqrt(np.mean(d ** 2))) < 0.05 and float(d.max()) < 0.25   # issue 4 bound
+    assert float(np.sqrt(np.mean(d ** 2))) < 0.05 and float(d.max()) < 0.25   # fixed_bound.py
     assert set(b.counters) >= {"saturated_position", "saturated_activity", "saturated_energy",
                                "saturated_inverse", "events_valid", "events_assigned"}
     assert b.state()["x"].shape == (26,)
@@ -285,7 +287,7 @@ def test_energies_computed_when_read(preset):
     c.process(ev)
     first = f._b.energies()
     assert np.array_equal(f._b.energies(), first)           # reading twice: the same
-    f._b.recompute_energies()
+    fx.recompute_energies(f._b)
     assert np.array_equal(f._b.energies(), first)
     want = c._b.energies()
     assert np.allclose(first, want, rtol=1e-4, atol=1e-6)
@@ -301,8 +303,8 @@ def test_index_follows_moves(moves):
     change: the index invariant holds after any sequence of moves (also off the sensor)."""
     k = kernel("grid3x3")
     for i, x, y in moves:
-        k.set_raw(i, x=x * PX, y=y * PX)
-        assert k.check_index()
+        fx.set_raw(k, i, x=x * PX, y=y * PX)
+        assert fx.check_index(k)
 
 
 def test_extreme_parameters_stay_in_range():
@@ -314,7 +316,7 @@ def test_extreme_parameters_stay_in_range():
     a = Tracker("grid3x3", params=changes, backend="cython").run(ev, sample_us=1000)
     trb = Tracker("grid3x3", params=changes, backend="fixed")
     b = trb.run(ev, sample_us=1000)
-    assert trb._b.check_index()
+    assert fx.check_index(trb._b)
     assert trb.counters["saturated_inverse"] == 0
     d = np.hypot(a.x - b.x, a.y - b.y)
     assert float(np.sqrt(np.mean(d ** 2))) < 0.05 and float(d.max()) < 0.25
@@ -370,5 +372,5 @@ def test_index_invariant_holds_throughout_a_stream(changes):
     tr = Tracker(m, params=changes, backend="fixed")
     for k in range(0, len(ev), 500):
         tr.process(ev[k:k + 500])
-        assert tr._b.check_index(), k
+        assert fx.check_index(tr._b), k
     assert tr.counters["index_updates"] > 100

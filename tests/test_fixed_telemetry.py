@@ -1,9 +1,9 @@
-"""Issue 4, deliverable 6: the fixed-point kernel's telemetry records come straight from its
-integer state (csrc/fixed_telemetry.c), in springtrack.wire's TELE_TRACKER layout, and
+"""The fixed-point kernel's telemetry records come straight from its integer state (csrc/fixed_telemetry.c), in springtrack.wire's TELE_TRACKER layout, and
 agree with wire.encode_telemetry of the float view of the same state."""
 import numpy as np
 import pytest
 
+import probes
 from springtrack import wire
 from springtrack.tracker import Tracker, make_backend
 from springtrack.sim.sensor import simulate_all
@@ -76,7 +76,8 @@ mass = 1.0
 """)
     tr = Tracker(m)
     k = make_backend("fixed", tr.model, tr.params)
-    k.set_raw(0, act=3 << 32)                           # Q.32; no event yet: no decay at t=0
+    fx = probes.load("fixed_probe")
+    fx.set_raw(k, 0, act=3 << 32)                       # Q.32; no event yet: no decay at t=0
     r = codes(k.telemetry_records(0))[0]
     assert (r["x"] & 0x7FFF, r["y"] & 0x7FFF, r["sx"], r["sy"], r["rho"], r["act"]) == (
         168, 324, 8, 12, -64, 32)

@@ -63,9 +63,9 @@ class Firmware:
 
 
 # The firmware runs the scene in real time and closes its link when the scene ends; the
-# tests stop it (SIGTERM) when done.  The scene is far longer than any test needs: with 6 s
-# the link closed 6.4 s after 'pty:' on an idle machine and 7.8 s with 8 busy loops, while
-# test_hil_monitor_cli (a hostctl process importing numpy and filterpy) took up to 7.4 s.
+# tests stop it (SIGTERM) when done.  The scene is far longer than any test needs: the
+# firmware's start-up and a hostctl process importing numpy and filterpy take seconds on a
+# loaded machine, and a scene that ends first closes the link under the test.
 SCENE_S = "60"
 
 

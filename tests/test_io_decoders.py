@@ -46,7 +46,8 @@ def test_evt2_wrap_and_backwards():
     ev = dec.decode(u32(0x8000_0000 | top, evt2_cd(1, 1, 0, 0),
                         0x8000_0002, evt2_cd(1, 2, 0, 0),          # wrap: +2**28
                         0x8000_0001, evt2_cd(1, 3, 0, 0)))         # back by 1: rebased
-    assert list(ev["t"]) == [top * 64 + 1, ((1 << 28) + 2) * 64 + 2, ((1 << 28) + 2) * 64 + 3]
+    # rebased one time-high unit past the last one (timebase.pxd)
+    assert list(ev["t"]) == [top * 64 + 1, ((1 << 28) + 2) * 64 + 2, ((1 << 28) + 3) * 64 + 3]
     assert dec.stats.info["time_wraps"] == 1
     assert dec.stats.anomalies["time_backwards"] == 1
 
@@ -104,7 +105,7 @@ def test_evt3_wrap_vs_backwards():
     t = list(ev["t"])
     assert t[0] == 4095 * 4096 + 16 and t[1] == (1 << 24) + 1
     assert t[2] == (1 << 24) + 3000 * 4096 + 1
-    assert t[3] == (1 << 24) + 3000 * 4096 + 2                # time base kept at 3000
+    assert t[3] == (1 << 24) + 3001 * 4096 + 2                # rebased to 3000 + 1
     assert dec.stats.info["time_wraps"] == 1 and dec.stats.anomalies["time_backwards"] == 1
 
 
@@ -138,7 +139,7 @@ def test_ccam_wrap_backwards_garbage():
                            240, 0, 0, 0, 0, 0x30, 1, 0,            # y out, x = 304 out
                            0, 0, 0, 0xC1]))                        # bits 7..6: unknown
     assert list(ev["t"]) == [((1 << 24) - 1) * 2048, ((1 << 24) + 1) * 2048,
-                             ((1 << 24) + 1) * 2048]
+                             ((1 << 24) + 2) * 2048]
     a = dec.stats.anomalies
     assert (a["time_backwards"], a["out_of_geometry"], a["unknown_type"]) == (1, 2, 1)
     assert dec.stats.info["time_wraps"] == 1
@@ -188,11 +189,66 @@ def test_dat_records_and_wrap():
     rec = lambda t, x, y, p: struct.pack("<II", t, x | y << 14 | p << 28)
     ev = dec.decode(rec(0xFFFF_FFF0, 639, 479, 1) + rec(5, 1, 2, 0)      # wrap
                     + rec(3, 1, 2, 0)                                     # back by 2
+                    + rec(4, 1, 3, 1)                                     # goes on from there
                     + rec(6, 640, 0, 0) + rec(7, 0, 0, 3))                # x out; p=3
     assert rows(ev) == [(0xFFFF_FFF0, 639, 479, 1), ((1 << 32) + 5, 1, 2, 0),
-                        ((1 << 32) + 3, 1, 2, 0)]
+                        ((1 << 32) + 6, 1, 2, 0), ((1 << 32) + 7, 1, 3, 1)]
     a = dec.stats.anomalies
     assert (a["time_backwards"], a["out_of_geometry"], a["unknown_type"]) == (1, 1, 1)
+
+
+# ---- the time base, one policy for every format ------------------------------------------
+
+def policy_counts(raws, bits):
+    """The documented rule (docs/formats.md#time-base), written out independently: a drop
+    of more than half the range is a wrap, a smaller one is rebased one unit past the last
+    count.  Returns the counts and the numbers of wraps and backward jumps."""
+    counts, epoch, last, wraps, back = [], 0, None, 0, 0
+    for r in raws:
+        if last is not None and r < last:
+            if last - r > 1 << (bits - 1):
+                epoch, wraps = epoch + (1 << bits), wraps + 1
+            else:
+                epoch, back = epoch + last - r + 1, back + 1
+        last = r
+        counts.append(epoch + r)
+    return counts, wraps, back
+
+
+def time_base_stream(fmt, raws):
+    """One time-base counter value then one event (x 1, y 2, p 1; low time bits 5) per
+    value, in ``fmt``'s words; returns (bytes, bits, shift) of the format's counter."""
+    if fmt == "ccam":
+        w = b"".join(bytes([r & 0xFF, (r >> 8) & 0xFF, r >> 16, 0x80])
+                     + bytes([239 - 2, 1, 5 << 1, 1 << 4]) for r in raws)
+        return w, 24, 11
+    if fmt == "evt2":
+        return u32(*[w for r in raws for w in (0x8000_0000 | r, evt2_cd(1, 5, 1, 2))]), 28, 6
+    if fmt == "evt3":
+        return u16(0x0002, 0x6005, *[w for r in raws for w in (0x8000 | r, 0x2801)]), 12, 12
+    rec = b"".join(struct.pack("<II", r, 1 | 2 << 14 | 1 << 28) for r in raws)
+    return rec, 32, 0
+
+
+@pytest.mark.parametrize("fmt", ["ccam", "evt2", "evt3", "dat"])
+def test_every_decoder_keeps_the_one_time_base_policy(fmt):
+    """Wraps, backward jumps (small and by almost half the range) and forward jumps of the
+    time counter give the same counts in every format: the one time-base helper."""
+    bits = {"ccam": 24, "evt2": 28, "evt3": 12, "dat": 32}[fmt]
+    top, half = (1 << bits) - 1, 1 << (bits - 1)
+    # wraps: top -> 1, top -> 2, half + 3 -> 1; backward jumps: 4 -> 2, 3 -> 0, half -> 1
+    # and half + 2 -> 2 (a drop of exactly half the range is not a wrap)
+    raws = [top - 2, top, 1, 4, 2, 3, 3, 0, half, 1, top, 2, half + 2, 2, half + 3, 1]
+    data, bits, shift = time_base_stream(fmt, raws)
+    counts, wraps, back = policy_counts(raws, bits)
+    dec = sio.decoder(fmt)
+    ev = dec.decode(data)
+    low = 0 if fmt == "dat" else 5
+    assert list(ev["t"]) == [(c << shift) | low for c in counts]
+    assert np.all(np.diff(ev["t"]) >= 0)                  # time never goes back
+    assert (wraps, back) == (3, 4)
+    assert dec.stats.info["time_wraps"] == wraps
+    assert dec.stats.anomalies["time_backwards"] == back
 
 
 def test_unknown_decoder_name():

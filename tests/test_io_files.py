@@ -157,7 +157,7 @@ def test_backwards_time_in_a_file_is_counted(tmp_path):
     (tmp_path / "b.raw").write_bytes(b"% evt 2.0\n" + words.tobytes())
     r = sio.open(tmp_path / "b.raw")
     ev = r.read()
-    assert list(ev["t"]) == [0x100 * 64, 0x100 * 64]
+    assert list(ev["t"]) == [0x100 * 64, 0x101 * 64]     # rebased one unit past 0x100
     assert r.stats.anomalies["time_backwards"] == 1
 
 

@@ -1,4 +1,4 @@
-"""The pyusb path end to end against the simulated CCam ATIS backend (issue 6, items 1-2).
+"""The pyusb path end to end against the simulated CCam ATIS backend.
 
 Everything goes through ``usb.core.find(..., backend=SimBackend(...))`` and pyusb's own
 Device/ctrl_transfer/read code, as it would against libusb and a real camera.
@@ -15,7 +15,8 @@ import usb.core
 import usb.util
 
 from firmware_sim import usb as camusb
-from firmware_sim.simusb import SimBackend, SimCamera, events_source
+from firmware_sim.simcam import SimBackend, SimCamera
+from firmware_sim.sources import events_source
 from springtrack.events import make
 from springtrack.io.ccam import CCamDecoder
 

@@ -19,6 +19,10 @@ camera format springtrack.io reads (EVT 2.0/3.0 RAW, Event Stream .es, DAT).
 output CSV header: t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive — one row per
 tracker at every multiple of --sample-us between the first and the last event, holding the
 state after all events with t < t_us.
+--acquire: the model's positions are not used; the model is found (translation, rotation,
+isotropic scale within the --acquire-* bounds) in the first --acquire-ms of events, placed
+there and tracked from that window's first event; while it is not found the window slides
+by half its length (rows start once it is found).  See docs/acquisition.md.
 """
 
 
@@ -38,6 +42,14 @@ def add_arguments(p):
     p.add_argument("--sample-us", type=int, default=1000, metavar="US",
                    help="state sampling period in µs of event time (default 1000)")
     p.add_argument("--out", required=True, help="output track CSV")
+    p.add_argument("--acquire", action="store_true",
+                   help="find the model in the first events instead of trusting its positions")
+    p.add_argument("--acquire-ms", type=float, default=50.0, metavar="MS",
+                   help="acquisition window in ms of event time (default 50)")
+    p.add_argument("--acquire-angle", type=float, default=45.0, metavar="DEG",
+                   help="acquisition searches rotations within +-DEG degrees (default 45)")
+    p.add_argument("--acquire-scale", default="0.6,1.6", metavar="LO,HI",
+                   help="acquisition searches sizes LO..HI times the model's (default 0.6,1.6)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--profile", metavar="OUT.csv|OUT.png",
                    help="time the kernel per 10 ms bin of events (paper Figs. 22-23): a CSV "
@@ -133,7 +145,8 @@ def run(args) -> int:
     if args.sample_us <= 0:
         raise ValueError(f"--sample-us must be a positive number of µs, got {args.sample_us}")
     model, stream = open_stream(args)
-    tr = Tracker(model, params=args.params, backend=args.backend)
+    tr = Tracker(model, params=args.params, backend=args.backend, acquire=args.acquire,
+                 acquire_ms=args.acquire_ms, acquire_bounds=_acquire_bounds(args))
     tr.record(args.sample_us)
     prog = Progress(not args.no_progress)
     start = time.perf_counter()
@@ -156,6 +169,11 @@ def run(args) -> int:
             if len(samples):
                 _write_rows(samples, out)
             prog.update(n, total, t_last)
+        if args.acquire:
+            tr.flush()
+            samples = tr.samples()
+            if len(samples):
+                _write_rows(samples, out)
     prog.close()
     wall = time.perf_counter() - start
     if args.profile:
@@ -168,7 +186,25 @@ def run(args) -> int:
     print(f"events={n} assigned={c['events_assigned']} skipped={skipped} "
           f"(back_in_time={c['skipped_back_in_time']} outside={c['skipped_outside_sensor']}) "
           f"wall_s={wall:.3f} events_per_s={rate:.3g} realtime_factor={rtf:.1f} out={args.out}")
+    if args.acquire:
+        acq = tr.acquisition
+        print(f"acquisition: {acq.pose} after {acq.attempts} window(s) of {args.acquire_ms:g} ms, "
+              f"{acq.events_dropped} events dropped before it")
+        if not acq.done:
+            print(f"springtrack track: the model was not found in {args.input}; no track rows "
+                  f"written", file=sys.stderr)
+            return 1
     return 0
+
+
+def _acquire_bounds(args) -> dict:
+    """The acquisition's bounds from --acquire-angle and --acquire-scale."""
+    try:
+        lo, hi = (float(v) for v in args.acquire_scale.split(","))
+    except ValueError:
+        raise ValueError(f"--acquire-scale must be LO,HI (e.g. 0.6,1.6), "
+                         f"got {args.acquire_scale!r}") from None
+    return {"angle_deg": (-abs(args.acquire_angle), abs(args.acquire_angle)), "scale": (lo, hi)}
 
 
 PROFILE_BIN_US = 10_000

@@ -61,8 +61,8 @@ static inline double st_sel(int64_t c, double a, double b)
 static inline double st_atan_reduced(double t)
 {
     /* Estrin's scheme: the same polynomial as Horner's rule in a dependency chain of 7
-     * operations instead of 22, so that the batch's few iterations overlap (the spring
-     * update's atan2 batch was bound by that chain's latency, not by its operations) */
+     * operations instead of 22, so that the batch's few iterations overlap (with Horner's
+     * chain the spring update's atan2 batch is bound by its latency, not its operations) */
     double s = t * t, s2 = s * s, s4 = s2 * s2, s8 = s4 * s4, ts = t * s;
     double q0 = -0.3333333333333333 + 0.1999999999999552 * s;
     double q1 = -0.14285714284666542 + 0.11111111015256361 * s;

@@ -23,6 +23,7 @@ cnp.import_array()
 ANOMALY_NAMES = ("unknown_type", "out_of_geometry", "time_backwards", "orphan", "truncated")
 INFO_NAMES = ("time_high_words", "time_wraps", "triggers", "other_words", "exposure_events",
               "overflow_bytes", "reset_bytes", "before_time_high", "time_low_backwards")
+assert len(ANOMALY_NAMES) == N_ANOMALY and len(INFO_NAMES) == N_INFO, "names of base.pxd's enums"
 
 
 cdef inline Event* _ptr(object arr):
@@ -152,7 +153,7 @@ cdef class Decoder:
         """End of stream: count a partial trailing word as 'truncated'; return its byte count."""
         pending = self.pending_bytes
         if pending:
-            self.anomalies[<int>AN_TRUNCATED] += 1
+            self.n.anomalies[<int>AN_TRUNCATED] += 1
         self.ncarry = 0
         self._reset_state()
         return pending
@@ -165,16 +166,21 @@ cdef class Decoder:
         return np.concatenate(parts)
 
     @property
+    def words(self):
+        """Words consumed (bytes for Event Stream)."""
+        return self.n.words
+
+    @property
     def pending_bytes(self):
         return self.ncarry + self._pending_state()
 
     @property
     def stats(self):
         return DecodeStats(
-            format=self.format, words=self.words, events=self.events_out,
+            format=self.format, words=self.n.words, events=self.events_out,
             pending_bytes=self.pending_bytes,
-            anomalies={ANOMALY_NAMES[i]: int(self.anomalies[i]) for i in range(<int>N_ANOMALY)},
-            info={INFO_NAMES[i]: int(self.info[i]) for i in range(<int>N_INFO) if self.info[i]})
+            anomalies={ANOMALY_NAMES[i]: int(self.n.anomalies[i]) for i in range(<int>N_ANOMALY)},
+            info={INFO_NAMES[i]: int(self.n.info[i]) for i in range(<int>N_INFO) if self.n.info[i]})
 
 
 def encoder_input(events, str fmt, int width, int height):

@@ -1,4 +1,4 @@
-"""CCam ATIS USB words: streaming decoder and encoder (layout in ccam.pxd, docs/formats.md).
+"""CCam ATIS USB words: streaming decoder and encoder (layout in ccam_types.h, docs/formats.md).
 
 The per-word decoding lives in ``ccam.pxd`` as an inline nogil function so the firmware
 simulator can fuse it into its own loop; this module wraps it as a :class:`Decoder` and
@@ -16,7 +16,7 @@ cnp.import_array()
 
 WIDTH = CCAM_WIDTH
 HEIGHT = CCAM_HEIGHT
-TIME_HIGH_US = 0x800
+TIME_HIGH_US = 1 << CCAM_TH_SHIFT
 
 
 cdef class CCamDecoder(Decoder):
@@ -43,12 +43,12 @@ cdef class CCamDecoder(Decoder):
         while i < nw:
             # a block of plain change-detection words at once (ccam_block.h), else word
             # by word; the block never writes past out[cap): k <= k0 + i, nw <= cap - k0
-            if i + CCAM_BLOCK <= nw and ccam_decode_block(&st, p + 4 * i, &out[k]):
+            if i + CCAM_BLOCK <= nw and ccam_decode_block(&st, &self.n, p + 4 * i, &out[k]):
                 k += CCAM_BLOCK
                 i += CCAM_BLOCK
                 continue
             for j in range(i, min(i + CCAM_BLOCK, nw)):
-                kind = ccam_decode_word(&st, p + 4 * j, &e.t, &e.x, &e.y, &e.p)
+                kind = ccam_decode_word(&st, &self.n, p + 4 * j, &e.t, &e.x, &e.y, &e.p)
                 if kind == CCAM_CD:
                     out[k] = e
                     k += 1
@@ -57,14 +57,6 @@ cdef class CCamDecoder(Decoder):
                     ks += 1
             i += CCAM_BLOCK
         self.st = st
-        self.words = st.words
-        self.anomalies[<int>AN_UNKNOWN_TYPE] = st.unknown
-        self.anomalies[<int>AN_OUT_OF_GEOMETRY] = st.out_of_geometry
-        self.anomalies[<int>AN_TIME_BACKWARDS] = st.backwards
-        self.info[<int>IN_TIME_HIGH] = st.time_high
-        self.info[<int>IN_TIME_WRAPS] = st.wraps
-        self.info[<int>IN_EXPOSURE] = st.exposure
-        self.info[<int>IN_BEFORE_TIME_HIGH] = st.before_time_high
         nout[0] = k
         nside[0] = ks
         return nw * 4
@@ -73,21 +65,21 @@ cdef class CCamDecoder(Decoder):
 def encode(events, exposure=None) -> bytes:
     """CCam ATIS words for time-sorted events (exact inverse of the decoder).
 
-    A time-high word starts the stream and precedes every event whose t // 0x800
+    A time-high word starts the stream and precedes every event whose t // 2048 us
     differs from the previous one.  ``exposure``: optional bool array marking
-    exposure-measurement events (flag bit 5).  Raises ValueError for negative or
-    decreasing t, gaps of 2**23 * 0x800 us or more, x >= 304 or y >= 240.
+    exposure-measurement events (EM_OFF / EM_ON words).  Raises ValueError for negative or
+    decreasing t, gaps of 2**23 time-high periods or more, x >= 304 or y >= 240.
     """
     ev = encoder_input(events, "ccam", CCAM_WIDTH, CCAM_HEIGHT)
     cdef Py_ssize_t n = ev.shape[0], i, j = 0
     if n == 0:
         return b""
     t = ev["t"]
-    th = t // TIME_HIGH_US
-    if th[0] >= (1 << 24):
-        raise ValueError("ccam encode: the first timestamp must be below 2**24 * 0x800 us "
+    th = t >> CCAM_TH_SHIFT
+    if th[0] >= (1 << CCAM_TH_BITS):
+        raise ValueError("ccam encode: the first timestamp must be below 2**24 * 2048 us "
                          "(the decoder starts from time-high 0)")
-    if n > 1 and np.any(np.diff(th) >= (1 << 23)):
+    if n > 1 and np.any(np.diff(th) >= (1 << (CCAM_TH_BITS - 1))):
         raise ValueError("ccam encode: a time gap of 2**23 time-high periods or more "
                          "cannot be represented (the decoder would see a wrap)")
     if exposure is None:
@@ -98,26 +90,23 @@ def encode(events, exposure=None) -> bytes:
             raise ValueError(f"ccam encode: exposure has {flags.shape[0]} flags for {n} events")
     new_th = np.ones(n, dtype=bool)
     new_th[1:] = th[1:] != th[:n - 1]
-    words = np.empty((n + int(new_th.sum())) * 4, dtype=np.uint8)
-    cdef uint8_t[::1] w = words
+    words = np.empty(n + int(new_th.sum()), dtype="<u4")
+    cdef uint32_t[::1] w = words
     cdef const uint8_t[::1] fl = flags
     cdef const uint8_t[::1] raw = ev.view(np.uint8)
     cdef const Event* e = <const Event*>&raw[0]
-    cdef int64_t cur = -1, h, lo
+    cdef int64_t cur = -1, h
+    cdef uint32_t typ
     with nogil:
         for i in range(n):
-            h = e[i].t >> 11
+            h = e[i].t >> CCAM_TH_SHIFT
             if h != cur:
-                w[j] = h & 0xFF
-                w[j + 1] = (h >> 8) & 0xFF
-                w[j + 2] = (h >> 16) & 0xFF
-                w[j + 3] = 0x80
-                j += 4
+                w[j] = ccam_time_high_word(<uint32_t>h)
+                j += 1
                 cur = h
-            lo = e[i].t & 0x7FF
-            w[j] = <uint8_t>(CCAM_HEIGHT - 1 - e[i].y)
-            w[j + 1] = e[i].x & 0xFF
-            w[j + 2] = <uint8_t>(((lo & 0x7F) << 1) | (e[i].x >> 8))
-            w[j + 3] = <uint8_t>((lo >> 7) | ((e[i].p != 0) << 4) | ((fl[i] != 0) << 5))
-            j += 4
+            typ = CCAM_EM_OFF if fl[i] else CCAM_CD_OFF
+            if e[i].p:
+                typ |= CCAM_POLARITY_FLAG
+            w[j] = ccam_event_word(typ, <uint32_t>e[i].t, e[i].x, CCAM_HEIGHT - 1 - e[i].y)
+            j += 1
     return words.tobytes()

@@ -1,16 +1,17 @@
 """Event Stream 2.x (.es), DVS and ATIS types: streaming decoder and encoder.
 
-Spec: the neuromorphic-paris/event_stream README (docs/formats.md#event-stream).  After
-the header (handled by springtrack.io.detect) the payload is a byte state machine;
-every event is 5 bytes: a time/flags byte, x (2 bytes LE), y (2 bytes LE).
+Spec: the neuromorphic-paris/event_stream README (docs/formats.md#event-stream-2x).  After
+the header (handled by springtrack.io.detect) the payload is a byte state machine; every
+event is 5 bytes: a time/flags byte, x (2 bytes LE), y (2 bytes LE).
 
-DVS   0xFF: overflow, t += 127;  0xFE: reset (no-op at an event boundary);
+DVS   OVERFLOW 0xFF: t += 127;  RESET 0xFE: no-op at an event boundary;
       else t += b >> 1, p = b & 1.
-ATIS  (b & 0xFC) == 0xFC: t += 63 * (b & 3)  (b == 0xFC is the reset byte);
+ATIS  (b & 0xFC) == 0xFC: t += 63 * (b & 3)  (b == 0xFC is the RESET byte);
       else t += b >> 2, exposure = b & 1, p = (b >> 1) & 1.
-y is stored as in the file (the format's origin is the bottom-left corner).  Events with
-x >= width or y >= height are dropped and counted ('out_of_geometry'); ATIS exposure
-events are counted and optionally kept apart.
+Time is a sum of non-negative steps from 0: it cannot wrap or go back, so this format needs
+no time base (timebase.pxd).  y is stored as in the file (the format's origin is the
+bottom-left corner).  Events with x >= width or y >= height are dropped and counted
+('out_of_geometry'); ATIS exposure events are counted and optionally kept apart.
 """
 from libc.stdint cimport uint8_t, uint16_t, uint32_t, int64_t, uint64_t
 cimport numpy as cnp
@@ -23,12 +24,37 @@ from springtrack.events import as_events
 cnp.import_array()
 
 TYPES = {"generic": 0, "dvs": 1, "atis": 2, "color": 4}
+
+cdef enum EsDvsBytes:           # time/flags byte, DVS
+    DVS_OVERFLOW = 0xFF         # t += DVS_OVERFLOW_US
+    DVS_RESET = 0xFE
+    DVS_OVERFLOW_US = 127       # the largest step an event byte holds (7 bits)
+    DVS_T_SHIFT = 1             # event byte: t step in bits 7..1, p in bit 0
+    DVS_POL_BIT = 0x1
+
+cdef enum EsAtisBytes:          # time/flags byte, ATIS
+    ATIS_OVERFLOW_MASK = 0xFC   # (b & MASK) == MASK: t += ATIS_OVERFLOW_US * (b & 3)
+    ATIS_RESET = 0xFC
+    ATIS_OVERFLOW_COUNT = 0x3
+    ATIS_OVERFLOW_US = 63       # the largest step an event byte holds (6 bits)
+    ATIS_MAX_OVERFLOW_US = 189  # 0xFF: three overflows
+    ATIS_T_SHIFT = 2            # event byte: t step in bits 7..2, p in bit 1, exposure bit 0
+    ATIS_POL_BIT = 0x2
+    ATIS_EXPOSURE_BIT = 0x1
+
+cdef enum EsEventBytes:         # read state: bytes of the current event seen so far
+    ES_AT_BOUNDARY = 0          # next byte: time/flags
+    ES_X_LOW = 1
+    ES_X_HIGH = 2
+    ES_Y_LOW = 3
+    ES_Y_HIGH = 4
+    ES_EVENT_BYTES = 5
 MAX_BYTES = 1 << 31      # refuse to write absurd streams (e.g. absolute epoch timestamps)
 
 
 cdef class EsDecoder(Decoder):
     cdef bint atis
-    cdef int st            # bytes of the current event read so far (0 = at a boundary)
+    cdef int st            # bytes of the current event read so far (EsEventBytes)
     cdef int64_t t
     cdef uint32_t x, y
     cdef uint8_t p, exposure
@@ -37,7 +63,7 @@ cdef class EsDecoder(Decoder):
         if event_type not in ("dvs", "atis"):
             raise ValueError(f"es decoder: event type {event_type!r} not supported "
                              "(dvs or atis)")
-        self._setup("es", 1, 1, 5, width, height, keep_exposure)
+        self._setup("es", 1, 1, ES_EVENT_BYTES, width, height, keep_exposure)
         self.atis = event_type == "atis"
 
     @property
@@ -48,7 +74,7 @@ cdef class EsDecoder(Decoder):
         return self.st
 
     cdef void _reset_state(self) noexcept:
-        self.st = 0
+        self.st = ES_AT_BOUNDARY
 
     cdef Py_ssize_t _run(self, const uint8_t* p, Py_ssize_t n, Event* out, Py_ssize_t cap,
                          Py_ssize_t* nout, Event* side, Py_ssize_t* nside) noexcept nogil:
@@ -58,52 +84,52 @@ cdef class EsDecoder(Decoder):
         cdef int64_t t = self.t
         cdef uint32_t x = self.x, y = self.y
         cdef uint8_t pol = self.p, expo = self.exposure
-        cdef uint32_t W = self.width if self.width else 0x10000
-        cdef uint32_t H = self.height if self.height else 0x10000
+        cdef uint32_t W = geometry_bound(self.width)
+        cdef uint32_t H = geometry_bound(self.height)
         cdef bint atis = self.atis
         while i < n and k < cap:
             b = p[i]
             i += 1
-            if st == 0:
+            if st == ES_AT_BOUNDARY:
                 if atis:
-                    if (b & 0xFC) == 0xFC:
-                        if b & 3:
-                            t += 63 * (b & 3)
-                            self.info[<int>IN_OVERFLOW] += 1
+                    if (b & ATIS_OVERFLOW_MASK) == ATIS_OVERFLOW_MASK:
+                        if b & ATIS_OVERFLOW_COUNT:
+                            t += ATIS_OVERFLOW_US * (b & ATIS_OVERFLOW_COUNT)
+                            self.n.info[<int>IN_OVERFLOW] += 1
                         else:
-                            self.info[<int>IN_RESET] += 1
+                            self.n.info[<int>IN_RESET] += 1
                         continue
-                    t += b >> 2
-                    expo = b & 1
-                    pol = (b >> 1) & 1
+                    t += b >> ATIS_T_SHIFT
+                    expo = b & ATIS_EXPOSURE_BIT
+                    pol = (b & ATIS_POL_BIT) != 0
                 else:
-                    if b == 0xFF:
-                        t += 127
-                        self.info[<int>IN_OVERFLOW] += 1
+                    if b == DVS_OVERFLOW:
+                        t += DVS_OVERFLOW_US
+                        self.n.info[<int>IN_OVERFLOW] += 1
                         continue
-                    if b == 0xFE:
-                        self.info[<int>IN_RESET] += 1
+                    if b == DVS_RESET:
+                        self.n.info[<int>IN_RESET] += 1
                         continue
-                    t += b >> 1
-                    pol = b & 1
+                    t += b >> DVS_T_SHIFT
+                    pol = b & DVS_POL_BIT
                     expo = 0
-                st = 1
-            elif st == 1:
+                st = ES_X_LOW
+            elif st == ES_X_LOW:
                 x = b
-                st = 2
-            elif st == 2:
+                st = ES_X_HIGH
+            elif st == ES_X_HIGH:
                 x |= <uint32_t>b << 8
-                st = 3
-            elif st == 3:
+                st = ES_Y_LOW
+            elif st == ES_Y_LOW:
                 y = b
-                st = 4
+                st = ES_Y_HIGH
             else:
                 y |= <uint32_t>b << 8
-                st = 0
+                st = ES_AT_BOUNDARY
                 if x >= W or y >= H:
-                    self.anomalies[<int>AN_OUT_OF_GEOMETRY] += 1
+                    self.n.anomalies[<int>AN_OUT_OF_GEOMETRY] += 1
                 elif expo:
-                    self.info[<int>IN_EXPOSURE] += 1
+                    self.n.info[<int>IN_EXPOSURE] += 1
                     if side != NULL:
                         side[ks].t = t
                         side[ks].x = <uint16_t>x
@@ -119,7 +145,7 @@ cdef class EsDecoder(Decoder):
         self.y = y
         self.p = pol
         self.exposure = expo
-        self.words += i
+        self.n.words += i
         nout[0] = k
         nside[0] = ks
         return i
@@ -160,12 +186,13 @@ def encode(events, event_type="dvs", exposure=None) -> bytes:
         if flags.shape[0] != n:
             raise ValueError(f"es encode: exposure has {flags.shape[0]} flags for {n} events")
     dt = np.diff(t, prepend=0)
-    # DVS: one 0xFF per 127 us; ATIS: one 0xFF per 189 us plus one 0xFD/0xFE for the rest.
+    # DVS: one OVERFLOW byte per 127 us; ATIS: one 0xFF (3 x 63 us) per 189 us plus one
+    # 0xFD / 0xFE for the rest.
     if atis:
-        extra = dt // 189 + ((dt % 189) // 63 > 0)
+        extra = dt // ATIS_MAX_OVERFLOW_US + ((dt % ATIS_MAX_OVERFLOW_US) // ATIS_OVERFLOW_US > 0)
     else:
-        extra = dt // 127
-    size = 5 * n + int(extra.sum())
+        extra = dt // DVS_OVERFLOW_US
+    size = ES_EVENT_BYTES * n + int(extra.sum())
     if size > MAX_BYTES:
         raise ValueError(f"es encode: the stream would take {size:,} bytes, mostly overflow "
                          f"bytes for the time from 0 to {int(t[0]):,} us and the gaps; "
@@ -181,25 +208,26 @@ def encode(events, event_type="dvs", exposure=None) -> bytes:
             d = e[i].t - prev
             prev = e[i].t
             if atis:
-                while d >= 189:
-                    w[j] = 0xFF
+                while d >= ATIS_MAX_OVERFLOW_US:
+                    w[j] = ATIS_OVERFLOW_MASK | ATIS_OVERFLOW_COUNT
                     j += 1
-                    d -= 189
-                if d >= 63:
-                    q = d // 63
-                    w[j] = <uint8_t>(0xFC | q)
+                    d -= ATIS_MAX_OVERFLOW_US
+                if d >= ATIS_OVERFLOW_US:
+                    q = d // ATIS_OVERFLOW_US
+                    w[j] = <uint8_t>(ATIS_OVERFLOW_MASK | q)
                     j += 1
-                    d -= 63 * q
-                w[j] = <uint8_t>((d << 2) | ((e[i].p != 0) << 1) | (fl[i] != 0))
+                    d -= ATIS_OVERFLOW_US * q
+                w[j] = <uint8_t>((d << ATIS_T_SHIFT) | (ATIS_POL_BIT if e[i].p else 0)
+                                 | (ATIS_EXPOSURE_BIT if fl[i] else 0))
             else:
-                while d >= 127:
-                    w[j] = 0xFF
+                while d >= DVS_OVERFLOW_US:
+                    w[j] = DVS_OVERFLOW
                     j += 1
-                    d -= 127
-                w[j] = <uint8_t>((d << 1) | (e[i].p != 0))
-            w[j + 1] = e[i].x & 0xFF
-            w[j + 2] = e[i].x >> 8
-            w[j + 3] = e[i].y & 0xFF
-            w[j + 4] = e[i].y >> 8
-            j += 5
+                    d -= DVS_OVERFLOW_US
+                w[j] = <uint8_t>((d << DVS_T_SHIFT) | (DVS_POL_BIT if e[i].p else 0))
+            w[j + ES_X_LOW] = e[i].x & 0xFF
+            w[j + ES_X_HIGH] = e[i].x >> 8
+            w[j + ES_Y_LOW] = e[i].y & 0xFF
+            w[j + ES_Y_HIGH] = e[i].y >> 8
+            j += ES_EVENT_BYTES
     return buf.tobytes()

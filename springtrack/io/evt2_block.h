@@ -1,9 +1,9 @@
 /* The fast path of the EVT 2.0 word decoder (springtrack/io/evt2.pyx): a block of words
  * that are all change-detection events (CD_OFF, CD_ON) inside the sensor, decoded without
- * a branch so that GCC vectorises it (an AVX2 clone picked at load time: clones.h).  The
- * fields and checks are those of the word loop in evt2.pyx; the caller falls back to it,
- * word by word, for a block with any other word (time high, trigger, ...), and counts the
- * words itself. */
+ * a branch so that GCC vectorises it (an AVX2 clone picked at load time: clones.h).  Word
+ * types and fields are those of evt2_types.h, the checks those of the word loop in
+ * evt2.pyx; the caller falls back to it, word by word, for a block with any other word
+ * (time high, trigger, ...), and counts the words itself. */
 #ifndef SPRINGTRACK_EVT2_BLOCK_H
 #define SPRINGTRACK_EVT2_BLOCK_H
 
@@ -11,6 +11,7 @@
 #include <string.h>
 
 #include "springtrack/io/clones.h"
+#include "springtrack/io/evt2_types.h"
 
 #define EVT2_BLOCK 32        /* words per block: a time-high word every 64 us sends about
                                 one block in several to the word-by-word path */
@@ -29,13 +30,13 @@ IO_CLONES static int evt2_decode_plain(const uint8_t *restrict p, int n, int64_t
     if (!IO_BLOCKS_LITTLE_ENDIAN)
         return 0;                   /* the loads and records below are little-endian */
     for (size_t k = 0; k < (size_t)n; k++) {
-        uint32_t v;                 /* type 31..28, t 27..22, x 21..11, y 10..0 */
+        uint32_t v;
         memcpy(&v, p + 4 * k, 4);
-        uint32_t x = (v >> 11) & 0x7FF, y = v & 0x7FF;
-        other |= (uint32_t)(v >= 0x20000000u) | (uint32_t)(x >= width)
+        uint32_t x = evt2_x(v), y = evt2_y(v);
+        other |= (uint32_t)(evt2_type(v) > EVT2_CD_ON) | (uint32_t)(x >= width)
                  | (uint32_t)(y >= height);
-        out[2 * k] = (uint64_t)(th | (int64_t)((v >> 22) & 0x3F));
-        out[2 * k + 1] = (uint64_t)x | ((uint64_t)y << 16) | ((uint64_t)(v >> 28) << 32);
+        out[2 * k] = (uint64_t)(th | (int64_t)evt2_t_low(v));
+        out[2 * k + 1] = (uint64_t)x | ((uint64_t)y << 16) | ((uint64_t)evt2_type(v) << 32);
     }
     return other == 0;
 }

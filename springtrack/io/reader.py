@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import builtins
+import importlib
 import os
 import warnings
 
@@ -15,21 +16,23 @@ from .stats import DecodeStats
 DEFAULT_CHUNK = 1 << 20
 
 
+# format name -> (module of springtrack.io, decoder class): one module per format
+DECODERS = {
+    "ccam": ("ccam", "CCamDecoder"),
+    "evt2": ("evt2", "Evt2Decoder"),
+    "evt3": ("evt3", "Evt3Decoder"),
+    "es": ("es", "EsDecoder"),
+    "dat": ("dat", "DatDecoder"),
+}
+
+
 def make_decoder(fmt: str, **opts):
-    """A fresh streaming decoder for ``fmt`` (ccam, evt2, evt3, es, dat)."""
-    if fmt == "evt2":
-        from .evt2 import Evt2Decoder as cls
-    elif fmt == "evt3":
-        from .evt3 import Evt3Decoder as cls
-    elif fmt == "ccam":
-        from .ccam import CCamDecoder as cls
-    elif fmt == "es":
-        from .es import EsDecoder as cls
-    elif fmt == "dat":
-        from .dat import DatDecoder as cls
-    else:
-        raise ValueError(f"unknown decoder format {fmt!r}; known: ccam, evt2, evt3, es, dat")
-    return cls(**opts)
+    """A fresh streaming decoder for ``fmt`` (a key of :data:`DECODERS`)."""
+    try:
+        module, name = DECODERS[fmt]
+    except KeyError:
+        raise ValueError(f"unknown decoder format {fmt!r}; known: {', '.join(DECODERS)}") from None
+    return getattr(importlib.import_module(f"{__package__}.{module}"), name)(**opts)
 
 
 class Reader:

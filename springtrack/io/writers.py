@@ -11,43 +11,61 @@ from .detect import EXTENSIONS
 WRITE_FORMATS = ("evt2", "evt3", "es", "es-dvs", "es-atis", "dat", "ccam", "npy", "csv")
 
 
-def _raw_header(enc: str, width: int, height: int) -> bytes:
-    name = {"evt2": ("2.0", "EVT2"), "evt3": ("3.0", "EVT3")}[enc]
-    return (f"% evt {name[0]}\n% format {name[1]};height={height};width={width}\n"
+DAT_EVENT_TYPE = 0x0C     # the two bytes after a DAT header: event type, event size
+DAT_EVENT_SIZE = 8
+
+
+def _raw_header(version: str, name: str, width: int, height: int) -> bytes:
+    return (f"% evt {version}\n% format {name};height={height};width={width}\n"
             f"% geometry {width}x{height}\n% generator springtrack\n% end\n").encode()
 
 
-def _dat_header(width: int, height: int) -> bytes:
+def _evt2(ev, width, height):
+    from . import evt2
+    return _raw_header("2.0", "EVT2", width, height) + evt2.encode(ev)
+
+
+def _evt3(ev, width, height):
+    from . import evt3
+    return _raw_header("3.0", "EVT3", width, height) + evt3.encode(ev)
+
+
+def _es(kind):
+    def enc(ev, width, height):
+        from . import es
+        return es.header(kind, width, height) + es.encode(ev, kind)
+    return enc
+
+
+def _dat(ev, width, height):
+    from . import dat
     return (f"% Data file containing CD events.\n% Version 2\n% Width {width}\n"
-            f"% Height {height}\n% end\n").encode() + bytes([0x0C, 8])
+            f"% Height {height}\n% end\n").encode() + bytes([DAT_EVENT_TYPE, DAT_EVENT_SIZE]) \
+        + dat.encode(ev)
+
+
+def _ccam(ev, width, height):
+    from . import ccam
+    if (width, height) != (ccam.WIDTH, ccam.HEIGHT):
+        raise ValueError(f"ccam files are {ccam.WIDTH}x{ccam.HEIGHT}, got {width}x{height}")
+    return ccam.encode(ev)
+
+
+# binary format -> encoder(events, width, height) -> file bytes
+ENCODERS = {"evt2": _evt2, "evt3": _evt3, "es": _es("dvs"), "es-dvs": _es("dvs"),
+            "es-atis": _es("atis"), "dat": _dat, "ccam": _ccam}
 
 
 def encode_file(events, width: int, height: int, format: str) -> bytes:
     """The complete file content (header + payload) for ``format``."""
     ev = as_events(events)
-    if format not in WRITE_FORMATS or format in ("npy", "csv"):
+    if format not in ENCODERS:
         raise ValueError(f"cannot encode {format!r} to bytes; binary formats: "
-                         f"{', '.join(f for f in WRITE_FORMATS if f not in ('npy', 'csv'))}")
+                         f"{', '.join(ENCODERS)}")
     if len(ev) and (ev["x"].max() >= width or ev["y"].max() >= height):
         raise ValueError(f"events outside the {width}x{height} geometry "
                          f"(max x {ev['x'].max()}, max y {ev['y'].max()})")
-    if format == "evt2":
-        from . import evt2
-        return _raw_header("evt2", width, height) + evt2.encode(ev)
-    if format == "evt3":
-        from . import evt3
-        return _raw_header("evt3", width, height) + evt3.encode(ev)
-    if format in ("es", "es-dvs", "es-atis"):
-        from . import es
-        kind = "atis" if format == "es-atis" else "dvs"
-        return es.header(kind, width, height) + es.encode(ev, kind)
-    if format == "dat":
-        from . import dat
-        return _dat_header(width, height) + dat.encode(ev)
-    from . import ccam
-    if (width, height) != (ccam.WIDTH, ccam.HEIGHT):
-        raise ValueError(f"ccam files are {ccam.WIDTH}x{ccam.HEIGHT}, got {width}x{height}")
-    return ccam.encode(ev)
+    return ENCODERS[format](ev, width, height)
 
 
 def write(path, events, width: int | None = None, height: int | None = None,

@@ -318,6 +318,69 @@ class FaceOcclusion(Scene):
         return face26(self.cx0, self.cy0, self.scale0, **kw)
 
 
+# ---- any scene placed elsewhere -----------------------------------------------------
+class Placed(Scene):
+    """Another scene seen through a similarity about the sensor centre: rotated by
+    ``angle_deg`` (clockwise on screen, image y pointing down), scaled by ``scale``, then
+    shifted by (``dx``, ``dy``) px -- for acquisition from any start pose.  ``freeze``
+    keeps the base scene at its t = 0 frame (a static object); ``jitter_px`` moves the
+    whole image on a circle of that radius at ``jitter_hz`` (zero at t = 0), as a camera
+    on a vibrating mount or a fixating eye does, so that a static object still fires
+    events.  Blob and occluder edges keep their sharpness in px."""
+
+    def __init__(self, base: Scene, angle_deg=0.0, scale=1.0, dx=0.0, dy=0.0, freeze=False,
+                 jitter_px=0.0, jitter_hz=8.0):
+        super().__init__(base.seed)
+        if not scale > 0:
+            raise ValueError(f"Placed: scale must be positive, got {scale}")
+        self.base = base
+        self.name = f"{base.name}+placed"
+        self.preset, self.part_ids = base.preset, base.part_ids
+        self.default_seconds, self.background = base.default_seconds, base.background
+        th = math.radians(angle_deg)
+        self.rot = np.array([[math.cos(th), -math.sin(th)], [math.sin(th), math.cos(th)]])
+        self.scale, self.shift = float(scale), np.array([dx, dy], float)
+        self.freeze, self.jitter_px, self.jitter_hz = bool(freeze), float(jitter_px), float(jitter_hz)
+        self.centre = np.array([CX, CY])
+
+    def _t(self, t):
+        return 0.0 if self.freeze else t
+
+    def _offset(self, t):
+        w = 2 * math.pi * self.jitter_hz * t
+        return self.shift + self.jitter_px * np.array([math.sin(w), 1.0 - math.cos(w)])
+
+    def _points(self, xy, t):
+        return self.centre + self.scale * (xy - self.centre) @ self.rot.T + self._offset(t)
+
+    def _rows(self, rows, t):
+        """Transform rows (x, y, sxx, sxy, syy, value, edge)."""
+        if not len(rows):
+            return rows
+        out = rows.copy()
+        out[:, :2] = self._points(rows[:, :2], t)
+        cov = np.stack([np.stack([rows[:, 2], rows[:, 3]], -1),
+                        np.stack([rows[:, 3], rows[:, 4]], -1)], -2)
+        cov = self.scale ** 2 * (self.rot @ cov @ self.rot.T)
+        out[:, 2], out[:, 3], out[:, 4] = cov[:, 0, 0], cov[:, 0, 1], cov[:, 1, 1]
+        out[:, 6] = rows[:, 6] * self.scale          # edge sharpness is in sigma units
+        return out
+
+    def truth(self, t):
+        return self._points(self.base.truth(self._t(t)), t)
+
+    def frame(self, t):
+        f = self.base.frame(self._t(t))
+        return Frame(self._rows(f.blobs, t), self._rows(f.occluders, t))
+
+    def initial_model(self, **kw):
+        """The base scene's initial model, placed as the scene is at t = 0."""
+        from springtrack.acquire import fit_pose, place
+        model = self.base.initial_model(**kw)
+        xy = self.truth(0.0)
+        return place(model, fit_pose(model, xy[:, 0], xy[:, 1]))
+
+
 SCENES: dict[str, type[Scene]] = {cls.name: cls for cls in
                                    (GridRotY, GridPull, GridInplane, FaceOcclusion, MovingBlob)}
 

@@ -1,7 +1,8 @@
-"""Accuracy of the fixed-point kernel against the float64 kernel on the same stream.
+"""The fixed-point kernel's documented bound against the float64 kernel, and the streams
+it is checked on (docs/fixed_point.md).
 
-Issue 4's bound: tracker positions within 0.05 px RMS and 0.25 px max, covariances within
-1 %, the same trackers active / sensitive at >= 99.9 % of the samples, and the paper's
+The bound: tracker positions within 0.05 px RMS and 0.25 px max, covariances within 1 %,
+the same trackers active / sensitive at >= 99.9 % of the samples, and the paper's
 tracking error (springtrack.metrics) within 0.1 percentage point.  :func:`compare` runs
 both backends on one event array and returns those figures; tests/test_fixed_accuracy.py
 checks a reduced stream on every run, benchmarks/fixed_accuracy.py the >= 1 M event
@@ -11,18 +12,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from .metrics import Truth, tracking_error
-from .model import ShapeModel, load_model
-from .synthetic import blob_stream, part_positions
-from .tracker import Tracker
+from springtrack.metrics import Truth, tracking_error
+from springtrack.model import ShapeModel, load_model
+from springtrack.synthetic import blob_stream, part_positions
+from springtrack.tracker import Tracker
 
 BOUNDS = dict(pos_rms_px=0.05, pos_max_px=0.25, cov_rel_max=0.01, active_agree_min=0.999,
               sensitive_agree_min=0.999, metric_diff_pp=0.1)
 
-# structured synthetic scenes (stand-ins until the simulator's grid and face scenes are used):
-# name -> (preset, blob_stream motion).  The plain scenes drift and turn fast enough that
-# after a few seconds the float tracker itself starts to lose the shape; the "steady" ones
-# move slowly enough to stay tracked for millions of events.
+# structured synthetic scenes: name -> (preset, blob_stream motion).  The plain scenes
+# drift and turn fast enough that after a few seconds the float tracker itself starts to
+# lose the shape; the "steady" ones move slowly enough to stay tracked for millions of events.
 SCENES = {
     "grid3x3": ("grid3x3", dict(noise=0.3, speed_px_s=(15.0, 8.0), rot_deg_s=10.0)),
     "face26": ("face26", dict(noise=0.3, speed_px_s=(10.0, -5.0), rot_deg_s=-8.0, wobble_px=4.0)),

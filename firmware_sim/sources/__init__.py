@@ -1,0 +1,122 @@
+"""Camera sources by URL, as pyserial maps port URLs to handler modules.
+
+    src = open_source("sim:face_occlusion", SourceOptions(seconds=5, realtime=False))
+    cam = src.open_camera()          # a firmware_sim.usb.Camera, simulated or real
+
+A URL is ``SCHEME:TARGET``.  :data:`SCHEMES` maps each scheme to the module that handles
+it, imported only when a URL names it.  A handler module defines ``USAGE`` (``"sim:SCENE"``),
+``HELP`` (one line for ``firmware-sim run --help``) and ``open(target, opts, url) ->
+CameraSource``; :func:`register` adds one without editing any caller.
+
+Simulated sources are generators of event arrays (``t`` µs ascending, ``x``, ``y``, ``p``)
+served by a :class:`firmware_sim.simcam.SimCamera` (:func:`simulated`); a Python program
+can serve an array it holds with :func:`events_source`.
+"""
+from __future__ import annotations
+
+import importlib
+import textwrap
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Callable
+
+from springtrack.events import as_events
+
+from .. import faults as _faults
+from .. import usb as camusb
+
+if TYPE_CHECKING:
+    from ..simcam import SimCamera
+
+# scheme -> handler module
+SCHEMES: dict[str, str] = {
+    "sim": "firmware_sim.sources.scene",
+    "replay": "firmware_sim.sources.replay",
+    "usb": "firmware_sim.sources.hardware",
+}
+
+
+@dataclass
+class SourceOptions:
+    """What ``firmware-sim run`` tells every source; each handler uses what applies to it."""
+    seconds: float | None = None      # simulated: event time to serve (None: all of it)
+    seed: int = 0                     # scene and fault seed
+    realtime: bool = True             # simulated: release events at their timestamps
+    faults: str | tuple = ()          # fault names (firmware_sim.faults), simulated only
+    serial: int | None = None         # the camera's serial (None: the first found)
+    profile: str = "ccam_atis"        # usb: device profile (firmware_sim.usb.PROFILES)
+    biases: dict = field(default_factory=dict)    # read at every (re)connection
+
+
+@dataclass
+class CameraSource:
+    """An opened source: how to (re)open its camera and what is known about it."""
+    url: str
+    open_camera: Callable[[], camusb.Camera]   # called at every (re)connection
+    profile: str = "ccam_atis"                 # how the loop decodes its transfers
+    device: SimCamera | None = None            # the simulated camera, None for hardware
+    default_model: Callable[[], object] = lambda: None    # the scene's own model, if any
+    report: Callable[[], list[str]] = lambda: []         # end-of-run lines (what was dropped)
+
+
+def register(scheme: str, module: str) -> None:
+    """Serve ``scheme:TARGET`` URLs with handler ``module`` (an importable module name)."""
+    SCHEMES[scheme] = module
+
+
+def handler(scheme: str):
+    if scheme not in SCHEMES:
+        raise ValueError(f"unknown source scheme {scheme!r}; use {usage()}")
+    return importlib.import_module(SCHEMES[scheme])
+
+
+def usage() -> str:
+    """The URL forms of every registered scheme: ``sim:SCENE | replay:FILE | usb``."""
+    return " | ".join(handler(s).USAGE for s in SCHEMES)
+
+
+def describe(indent: int = 0, width: int = 88) -> str:
+    """A help paragraph per registered scheme, ``indent`` spaces in from the second line."""
+    pad = " " * indent
+    return "\n".join(textwrap.fill(f"{handler(s).USAGE}: {handler(s).HELP}", width,
+                                   subsequent_indent=pad + "  ", initial_indent=pad
+                                   ).removeprefix(pad if i == 0 else "")
+                     for i, s in enumerate(SCHEMES))
+
+
+def open_source(url: str, opts: SourceOptions | None = None) -> CameraSource:
+    """The source ``url`` names; ValueError (or CameraError, FileNotFoundError) saying
+    what is wrong with it."""
+    opts = opts or SourceOptions()
+    _faults.parse(opts.faults)                 # unknown fault names first, for every source
+    scheme, _, target = url.partition(":")
+    try:
+        mod = handler(scheme)
+    except ValueError as e:
+        raise ValueError(f"--source {url!r}: {e}") from None
+    return mod.open(target, opts, url)
+
+
+def simulated(url: str, events, opts: SourceOptions, **known) -> CameraSource:
+    """A source whose ``events`` (an iterable of event arrays) are served as CCam ATIS
+    words by a simulated camera, with ``opts``' faults, clock and serial; ``known``:
+    further :class:`CameraSource` fields (default model, report)."""
+    from ..simcam import SimBackend, SimCamera
+    faults = _faults.Faults(_faults.parse(opts.faults), seed=opts.seed)
+    cam = SimCamera(events, realtime=opts.realtime, faults=faults)
+    backend = SimBackend(cam)
+
+    def open_camera():
+        return camusb.Camera.open("ccam_atis", opts.serial, backend=backend, biases=opts.biases)
+    return CameraSource(url, open_camera, profile="ccam_atis", device=cam, **known)
+
+
+def failure(source: CameraSource) -> str | None:
+    """Why a simulated source stopped before its end (its events raised), else None."""
+    return source.device.source_error if source.device is not None else None
+
+
+def events_source(events, chunk_events: int = 4096):
+    """An in-memory event array, in pieces of ``chunk_events``."""
+    ev = as_events(events)
+    for s in range(0, len(ev), chunk_events):
+        yield ev[s:s + chunk_events]

@@ -1,0 +1,121 @@
+# cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
+# distutils: depends = springtrack/csrc/fixed_step.c springtrack/csrc/fixed_step.h
+"""The fixed-point kernel's internals, for the tests (never installed; tests/probes.py
+builds it with setup.py's flags): the integer building blocks of csrc/fixed_step.c and a
+FixedKernel's raw state and spatial index.
+
+    fx = probes.load("fixed_probe")
+    fx.isqrt(kernel, v)                  # the kernel's tables, this module's copy of the code
+    fx.set_raw(kernel, i, x=8191 << 32)  # drive a tracker to a range limit
+
+csrc/fixed_step.c is compiled into this module as into springtrack._fixed (same source,
+same flags), and works on the FixedKernel's own state.
+"""
+from libc.stdint cimport int32_t, int64_t, uint32_t, uint64_t
+
+from springtrack._fixed cimport FixedKernel
+
+cdef extern from "springtrack/csrc/fixed_step.h" nogil:
+    enum:
+        FX_MAX_TRACKERS
+    ctypedef struct fx_state:            # the members used here (the header has them all)
+        int32_t n
+        int64_t mx[FX_MAX_TRACKERS]
+        int64_t my[FX_MAX_TRACKERS]
+        int64_t act[FX_MAX_TRACKERS]
+        int32_t energy_stale
+    void fx_energies(fx_state* s)
+    void fx_reindex(fx_state* s, int i)
+    int fx_check_index(const fx_state* s)
+    int64_t fx_mulsh(int64_t v, uint32_t g, int sh)
+    uint64_t fx_isqrt64(const fx_state* s, uint64_t v)
+    uint32_t fx_exp2neg(const fx_state* s, int64_t w)
+    int64_t fx_gauss(const fx_state* s, int64_t d2)
+    uint32_t fx_decay(const fx_state* s, int64_t dt)
+    uint32_t fx_atan2(const fx_state* s, int64_t y, int64_t x)
+    void fx_cossin(const fx_state* s, int64_t angle, int64_t* c, int64_t* sn)
+    void fx_polar(const fx_state* s, int64_t x, int64_t y, uint32_t* ang, int64_t* len,
+                  int64_t* cx, int64_t* cy)
+
+cdef extern from "springtrack/csrc/fixed_step.c":
+    pass
+
+
+cdef inline fx_state* state(FixedKernel k):
+    return <fx_state*>k.state
+
+
+# ---- a FixedKernel's state -----------------------------------------------------------
+def set_raw(FixedKernel k, int i, x=None, y=None, act=None):
+    """Overwrite tracker i's raw integer state (drive it to a range limit): x, y Q.32
+    (int64), act Q.32; the spatial index is refreshed."""
+    cdef fx_state* s = state(k)
+    if not 0 <= i < s.n:
+        raise IndexError(f"tracker index {i} out of range 0..{s.n - 1}")
+    if x is not None:
+        s.mx[i] = x
+    if y is not None:
+        s.my[i] = y
+    if act is not None:
+        s.act[i] = act
+    fx_reindex(s, i)
+
+
+def check_index(FixedKernel k):
+    """The spatial index invariant holds (csrc/fixed_step.c's fx_check_index)."""
+    return bool(fx_check_index(state(k)))
+
+
+def recompute_energies(FixedKernel k):
+    """Recompute every kind of the last spring update's energies from the spring vectors
+    it kept, the criterion's kind too (the lazily computed kinds must be what the spring
+    update would have computed)."""
+    cdef fx_state* s = state(k)
+    s.energy_stale = 7 | (s.energy_stale & 8)
+    fx_energies(s)
+
+
+# ---- integer building blocks (the kernel's lookup tables) ---------------------------
+def mulsh(long long v, unsigned int g, int sh):
+    """(v * g) >> sh, rounded half up."""
+    return fx_mulsh(v, g, sh)
+
+
+def isqrt(FixedKernel k, unsigned long long v):
+    """floor(sqrt(v))."""
+    return fx_isqrt64(state(k), v)
+
+
+def exp2neg(FixedKernel k, long long w):
+    """2^-w for w in Q.40, Q.30."""
+    return fx_exp2neg(state(k), w)
+
+
+def gauss(FixedKernel k, long long d2):
+    """exp(-d2 / 2) for d2 in Q.40 (0 <= d2 < 32), Q.30: the kernel value of eq. (2)."""
+    return fx_gauss(state(k), d2)
+
+
+def decay(FixedKernel k, long long dt):
+    """exp(-dt / tau) for dt in us, Q.30: the activity decay of eq. (6)."""
+    return fx_decay(state(k), dt)
+
+
+def atan2(FixedKernel k, long long y, long long x):
+    """atan2(y, x) as a binary angle (2^32 per turn)."""
+    return fx_atan2(state(k), y, x)
+
+
+def polar(FixedKernel k, long long x, long long y):
+    """(binary angle, length, cos Q.30, sin Q.30) of the vector (x, y)."""
+    cdef uint32_t a
+    cdef int64_t l, cx, cy
+    fx_polar(state(k), x, y, &a, &l, &cx, &cy)
+    return a, l, cx, cy
+
+
+def cossin(FixedKernel k, long long angle):
+    """(cos, sin) Q.30 of a binary angle."""
+    cdef int64_t c, sn
+    fx_cossin(state(k), angle, &c, &sn)
+    return c, sn
