@@ -27,7 +27,8 @@ temporal coactivations"), in three passes over the learning window (docs/learnin
 3. **Observation.** The set runs forwards again over the window, sampled every
    ``batch_us``: activities (eq. 6), positions and event counts.
 
-Springs link neighbours (the relative neighbourhood graph of the final positions) that
+Springs link neighbours (the relative neighbourhood graph of the final positions and
+each tracker's three nearest) that
 were co-active (normalised inner product of their activity traces at least
 ``min_coactivation``) and kept their relative position in the object's frame (rigidity,
 see :func:`rigidity`).  A connection is Cartesian where its direction turned less than
@@ -731,11 +732,17 @@ def relative_neighbours(d: np.ndarray, within: float = math.inf, slack: float = 
     return i[keep], j[keep]
 
 
-def neighbour_pairs(x: np.ndarray, y: np.ndarray, slack: float = 0.05) -> list:
-    """Pairs (i < j) of the relative neighbourhood graph of the points (x, y)."""
+def neighbour_pairs(x: np.ndarray, y: np.ndarray, k: int = 3, slack: float = 0.05) -> list:
+    """Pairs (i < j) of neighbours among the points (x, y): the relative neighbourhood
+    graph (connected, local), and each point's ``k`` nearest."""
     d = np.hypot(x[:, None] - x[None, :], y[:, None] - y[None, :])
     i, j = relative_neighbours(d, slack=slack)
-    return list(zip(i.tolist(), j.tolist()))
+    pairs = set(zip(i.tolist(), j.tolist()))
+    order = np.argsort(d, axis=1, kind="stable")[:, 1:k + 1]
+    for a in range(len(x)):
+        for b in order[a].tolist():
+            pairs.add((min(a, b), max(a, b)))
+    return sorted(pairs)
 
 
 def coactivation(a: np.ndarray, b: np.ndarray) -> float:

@@ -90,7 +90,12 @@ def test_grid_springs_join_neighbouring_blobs():
     assert m.connections
     for c in m.connections:
         (ra, ca), (rb, cb) = [(int(i[1]), int(i[3])) for i in (c.a, c.b)]
-        assert abs(ra - rb) + abs(ca - cb) == 1, (c.a, c.b)   # 4-neighbours only
+        assert max(abs(ra - rb), abs(ca - cb)) == 1, (c.a, c.b)   # neighbours only
+    pairs = {frozenset((c.a, c.b)) for c in m.connections}
+    for r in range(3):                                        # every row and column link
+        for k in range(2):
+            assert frozenset((f"r{r}c{k}", f"r{r}c{k + 1}")) in pairs
+            assert frozenset((f"r{k}c{r}", f"r{k + 1}c{r}")) in pairs
     # every blob is held, and the springs hold the grid together
     seen, todo = set(), [m.trackers[0].id]
     while todo:
