@@ -5,38 +5,35 @@
     >>> model = springtrack.learn(events, trackers=9)      # exactly 9 parts  # doctest: +SKIP
 
 The paper's closing proposal ("the pool of trackers would then connect based on their
-temporal coactivations"), in three passes over the learning window (docs/learning.md):
+temporal coactivations"), in one pass over the learning window (docs/learning.md):
 
-1. **Discovery.** A pool of free Gaussian trackers (eqs. 2-6, no springs) runs over the
-   window with a lifecycle checked every ``batch_us``:
+1. **A pool of free Gaussian trackers** (eqs. 2-6, no springs; per-event loop in
+   ``_learn.pyx``) with a lifecycle every ``batch_us``:
 
    * *birth*: events no tracker takes (outside every gate, eq. 2) are counted, decayed
      with ``activity_tau_us``, in cells of ``birth_cell_px``; where a 3x3 block of cells
-     holds ``birth_events`` of them and ``birth_contrast`` times the background (the
-     median block), a tracker is born at their mean with their covariance;
-   * *merge*: two trackers follow the same cloud when a fraction ``merge_overlap`` of the
-     smaller one's recent events also fell inside the other's gate; they merge into the
-     moment-matched Gaussian, unless it would be wider than ``sigma_max_px`` (the largest
-     part);
-   * *death*: a tracker older than ``life_tau_us`` dies when its recent event count falls
-     below ``death_share`` of the pool's median, or its event density below
-     ``birth_contrast`` times the background's (a tracker of noise).
+     holds ``birth_events`` of them and ``birth_contrast`` times the noise (the median
+     block), a tracker is born with their mean and covariance;
+   * *merge* (the union no wider than ``sigma_max_px``): duplicates (a share
+     ``merge_overlap`` of the smaller one's events in both gates, one holding the other's
+     mean), and the leading and trailing edges of one part, joined by pixels the part
+     covers (:meth:`Pool.gaps`);
+   * *death*: a tracker older than ``life_tau_us`` whose recent events fall below
+     ``death_share`` of the pool's median, or below ``birth_contrast`` times the noise.
 
-   ``trackers=N`` then merges (most overlapping first) or splits (widest first) to N.
-2. **Settling.** The surviving set, fixed, runs backwards in time to the window's start.
-3. **Observation.** The set runs forwards again over the window, sampled every
-   ``batch_us``: activities (eq. 6), positions and event counts.
-
-Springs link neighbours (the relative neighbourhood graph of the final positions and
-each tracker's three nearest) that
-were co-active (normalised inner product of their activity traces at least
-``min_coactivation``) and kept their relative position in the object's frame (rigidity,
-see :func:`rigidity`).  A connection is Cartesian where its direction turned less than
-``cartesian_turn_deg`` over the window, Euclidean + torsional otherwise.  Rest lengths
-and angles are those of the final positions (the model derives them from the initial
-positions, which are the positions at the window's end); stiffness is
-``stiffness_gain * alpha_position * rigidity``, with the tracking parameter alpha_1;
-masses are the trackers' event shares (median 1, bounded to [0.5, 2]).
+   The pass records each tracker's position, activity and events (:class:`History`).
+2. **The final set**: established trackers with an extent, without the weak pieces and
+   those their part left behind; ``trackers=N`` drops, merges or splits to N.
+3. **Springs** between neighbours (the relative neighbourhood graph of the final
+   positions and each tracker's three nearest) that were co-active (normalised inner
+   product of their activity traces at least ``min_coactivation``) and kept their
+   relative position in the object's frame (:func:`rigidity`); Cartesian where neither
+   the pair nor the object turned by ``cartesian_turn_deg``, Euclidean + torsional
+   otherwise.  Rest lengths and angles are those of the final positions (the model
+   derives them from its positions, which are the positions at the window's end);
+   stiffness ``stiffness_gain * alpha_1 * rigidity``; masses the trackers' event shares.
+4. **Tracking parameters** learned from the same record: alpha_position
+   (:func:`motion_alpha`), energy_scale (:func:`energy_scale`), energy_kind.
 
 Deterministic: the same events and parameters give the same model.  Input without an
 object raises :class:`NoObjectFound`.
@@ -47,7 +44,7 @@ import contextlib
 import math
 import time
 import warnings
-from dataclasses import dataclass, field, fields, asdict
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
@@ -56,7 +53,6 @@ from .events import as_events
 from .limits import MAX_CONNECTIONS
 from .model import Connection, ShapeModel, TrackerSpec
 from .params import Params
-from .reference import covariance_bias
 
 POOL_CAPACITY = 128           # trackers alive at once during discovery
 COVERED_MIN_LEVEL = 2.0       # Pool.update_level: the least level (contrast thresholds)
@@ -692,8 +688,7 @@ def _to_count(pool: Pool, rec: dict, n_target: int, t: int, stats: dict) -> dict
             break
         off = pool.gaussian(i)[0] - before
         new = {f: rec[f][:, i:i + 1].copy() for f in ("x", "y", "act", "cnt", "valid")}
-        for f, sign in (("x", 1), ("y", 1)):
-            k = 0 if f == "x" else 1
+        for k, f in enumerate(("x", "y")):         # i moved by off, the new half by -off
             rec[f][:, i] += off[k]
             new[f] -= off[k]
         for f in ("act", "cnt"):
