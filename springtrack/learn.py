@@ -759,6 +759,31 @@ def object_rotation(x: np.ndarray, y: np.ndarray, w: np.ndarray, x_ref, y_ref) -
     return np.angle((w * zc * np.conj(rc)).sum(axis=1))
 
 
+def object_turn(X, Y, valid, pairs, x_end, y_end, smooth: int) -> float:
+    """The object's in-plane turn over the samples (deg): the range of the mean change of
+    direction of the pairs (i, j) from their final direction (eq. 15's mean torsional
+    elongation), averaged over ``smooth`` samples.  A perspective change turns some
+    directions one way and others the other way, which the mean cancels."""
+    if not pairs:
+        return 0.0
+    a = np.array([p[0] for p in pairs])
+    b = np.array([p[1] for p in pairs])
+    ang = np.arctan2(Y[:, b] - Y[:, a], X[:, b] - X[:, a])
+    ang0 = np.arctan2(y_end[b] - y_end[a], x_end[b] - x_end[a])
+    both = valid[:, a] & valid[:, b]
+    d = np.where(both, np.exp(1j * (ang - ang0)), 0.0)          # unit changes of direction
+    mean = d.sum(axis=1)
+    ok = both.any(axis=1)
+    m = len(mean) // smooth * smooth
+    if m < smooth:
+        return 0.0
+    sm = (mean[:m] * ok[:m]).reshape(-1, smooth).sum(axis=1)
+    sm = sm[np.abs(sm) > 0]
+    if not len(sm):
+        return 0.0
+    return float(np.degrees(np.ptp(np.unwrap(np.angle(sm)))))
+
+
 def rigidity(deform_px: float, size_px: float, scale: float) -> float:
     """1 / (1 + (e / scale)^2) with e the pair's deformation in part sizes."""
     e = deform_px / max(size_px, 1e-9)
@@ -770,20 +795,17 @@ def _springs(rec: dict, sig: np.ndarray, lp: LearnParams, x_end, y_end):
     positions, each with its evidence over the samples where both ends existed:
     co-activation, rigidity (the spread of the relative position in the object's frame,
     in part sizes ``sig``) and turn (the range of the direction of the relative position,
-    averaged over ``smooth_us``, or of the object's rotation if larger: a short history
-    does not prove that nothing turned), hence its kinds."""
+    averaged over ``smooth_us``, or the object's (:func:`object_turn`) if larger: a short
+    history does not prove that nothing turned), hence its kinds."""
     act, X, Y, valid = rec["act"], rec["x"], rec["y"], rec["valid"]
     w = np.where(valid, act / np.maximum(act.max(axis=0, keepdims=True), 1e-12), 0.0)
     phi = object_rotation(X, Y, w, x_end, y_end)
     c, s = np.cos(-phi), np.sin(-phi)
     nsm = max(1, int(round(lp.smooth_us / lp.batch_us)))
-    m = len(phi) // nsm * nsm
-    turned = 0.0                          # the object's own turn over the window, deg
-    if m >= nsm:
-        sm = np.angle(np.exp(1j * phi[:m]).reshape(-1, nsm).mean(axis=1))
-        turned = float(np.degrees(np.ptp(np.unwrap(sm))))
+    pairs = neighbour_pairs(x_end, y_end)
+    turned = object_turn(X, Y, valid, pairs, x_end, y_end, nsm)
     out = []
-    for i, j in neighbour_pairs(x_end, y_end):
+    for i, j in pairs:
         both = valid[:, i] & valid[:, j]
         wk = np.minimum(w[:, i], w[:, j])[both]
         if len(wk) < MIN_SAMPLES or wk.sum() <= 0:
