@@ -1,13 +1,15 @@
-"""Decoder speed: ours against expelliarmus on the same bytes, in one run.
+"""Decoder speed: ours against expelliarmus, faery and aedat on the same bytes, in one run.
 
 Writes the "Decoders" section of docs/benchmarks.md.  EVT 2.0 / 3.0 use the real sample
 recordings ($SPRINGTRACK_DATA).  expelliarmus only reads files, so the recording is copied
 to /dev/shm (RAM) and both libraries read that same in-memory file; our decoder is also
 timed on the bytes object directly (decode() of the whole payload, a fresh output array
 each call) and fed in 256 KiB transfers into one reused output array (decode_into).  CCam ATIS, Event Stream and
-DAT use synthetic streams from our encoders.  Figures are the best of --repeat interleaved
-rounds (all contenders in each round) after a
-warm-up; events/s = events decoded / time.
+DAT use synthetic streams from our encoders.  A second table sets the newer formats beside
+every peer that reads them: EVT 2.1 (the two real recordings re-encoded: no EVT 2.1 recording
+is public), AEDAT 4 (the real DVXplorer sample) against the `aedat` package and faery, and
+EVT 2.0 / 3.0 against faery.  Figures are the best of --repeat interleaved rounds (all
+contenders in each round) after a warm-up; events/s = events decoded / time.
 
     .venv/bin/python benchmarks/decoders.py [--repeat 40] [--no-write]
 """
@@ -28,11 +30,13 @@ from _report import machine, write_section  # noqa: E402
 
 import springtrack.io as sio  # noqa: E402
 from springtrack.events import EVENT_DTYPE, make  # noqa: E402
-from springtrack.io import ccam, dat, es  # noqa: E402
+from springtrack.io import ccam, dat, es, evt21  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = Path(os.environ.get("SPRINGTRACK_DATA", REPO.parent / "shared" / "data"))
 TRANSFER = 256 * 1024   # bytes per simulated USB transfer
+# most events per word (decode_into's room): EVT 3.0 vectors, EVT 2.1 masks, AEDAT 4 bytes
+PER_WORD = {"evt3": 12, "evt21": 32, "aedat4": 16}
 
 
 def timeit(fn, repeat):
@@ -59,8 +63,8 @@ def timeit_many(fns, repeat):
 def streamed_into(fmt, data, size, **opts):
     """Feed ``data`` in ``size``-byte transfers into one reused output buffer."""
     dec = sio.decoder(fmt, **opts)
-    out = np.empty((size + 8) // dec.word_size * (12 if fmt == "evt3" else 1) + 16,
-                   EVENT_DTYPE)
+    pending = 1 << 20 if fmt == "aedat4" else 8      # AEDAT 4: a packet may wait whole
+    out = np.empty((size + pending) // dec.word_size * PER_WORD.get(fmt, 1) + 16, EVENT_DTYPE)
     mv = memoryview(data)
     n = 0
     for i in range(0, len(mv), size):
@@ -127,6 +131,85 @@ def bench_synthetic(repeat, rows):
                      "", "", ""))
 
 
+def shm_copy(name: str, data: bytes) -> Path:
+    shm = Path("/dev/shm") if Path("/dev/shm").is_dir() else Path(tempfile.gettempdir())
+    path = shm / f"springtrack_bench_{os.getpid()}_{name}"
+    path.write_bytes(data)
+    return path
+
+
+def faery_read(path, dims=None):
+    """faery's decoder (EVT: faery.extension.evt, AEDAT 4: faery.extension.aedat): all events."""
+    from faery.extension import aedat, evt
+    if str(path).endswith(".aedat4"):
+        with aedat.Decoder(path) as d:
+            return np.concatenate([a for track, a in d if track.data_type == "events"])
+    with evt.Decoder(path, dims, None) as d:
+        return np.concatenate([p["events"] for p in d if "events" in p])
+
+
+def aedat_read(path):
+    """The `aedat` package's decoder: all events."""
+    import aedat
+    return np.concatenate([p["events"] for p in aedat.Decoder(str(path)) if "events" in p])
+
+
+def peers(fmt):
+    """(name, reader(path, dims)) of the installed peers that read ``fmt``."""
+    out = []
+    try:
+        import faery  # noqa: F401
+        if fmt in ("evt2", "evt3", "aedat4"):    # faery 0.7 has no EVT 2.1 ('not yet implemented')
+            out.append(("faery", faery_read))
+    except ImportError:
+        pass
+    try:
+        import aedat  # noqa: F401
+        if fmt == "aedat4":
+            out.append(("aedat", lambda path, dims: aedat_read(path)))
+    except ImportError:
+        pass
+    return out
+
+
+def bench_newer(repeat, rows):
+    """EVT 2.1, AEDAT 4, and EVT 2.0 / 3.0 against faery: ours (decode_into, open().read())
+    beside each installed peer's read of the same /dev/shm file."""
+    cases = []
+    for fmt, name in (("evt2", "evt2_sample.raw"), ("evt3", "evt3_sample.raw")):
+        if (DATA / name).is_file():
+            r = sio.open(DATA / name)
+            cases.append((fmt, name, (DATA / name).read_bytes(), (r.width, r.height)))
+            ev = r.read()
+            cases.append(("evt21", f"{name} as EVT 2.1",
+                          sio.encode_file(ev, r.width, r.height, "evt21"), (r.width, r.height)))
+    if (DATA / "sample.aedat4").is_file():
+        cases.append(("aedat4", "sample.aedat4", (DATA / "sample.aedat4").read_bytes(),
+                      (320, 240)))
+    for fmt, name, data, dims in cases:
+        path = shm_copy(name.replace(" ", "_") + (".aedat4" if fmt == "aedat4" else ".raw"),
+                        data)
+        try:
+            r = sio.open(path)
+            payload = data[r.offset:]
+            n = len(r.read())
+            fns = [lambda: streamed_into(fmt, payload, TRANSFER, **r.options),
+                   lambda: sio.open(path).read()]
+            names = []
+            for peer, read in peers(fmt):
+                names.append((peer, len(read(path, dims))))
+                fns.append(lambda read=read: read(path, dims))
+            into, reader, *theirs = timeit_many(fns, repeat)
+            cols = [rate(n, into), rate(n, reader)]
+            if not names:
+                cols.append("none installed reads it")
+            for (peer, m), t in zip(names, theirs):
+                cols.append(f"{peer} {rate(m, t)} ({t / reader * n / m:.1f}x)")
+            rows.append((fmt, f"{name}, {n:,} ev", *cols[:2], "; ".join(cols[2:])))
+        finally:
+            path.unlink()
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--repeat", type=int, default=40)
@@ -136,6 +219,8 @@ def main(argv=None):
     bench_raw("evt2", "evt2_sample.raw", args.repeat, rows)
     bench_raw("evt3", "evt3_sample.raw", args.repeat, rows)
     bench_synthetic(max(5, args.repeat // 2), rows)
+    rows2 = []
+    bench_newer(args.repeat, rows2)
     try:
         import expelliarmus
         expv = expelliarmus.__version__ if hasattr(expelliarmus, "__version__") else "installed"
@@ -145,6 +230,16 @@ def main(argv=None):
             "open().read() | expelliarmus read() | ours/expelliarmus (decode / read) |\n"
             "|---|---|---|---|---|---|---|")
     table = "\n".join("| " + " | ".join(r) + " |" for r in rows)
+    versions = []
+    for mod in ("faery", "aedat"):
+        try:
+            from importlib.metadata import version
+            versions.append(f"{mod} {version(mod)}")
+        except Exception:       # noqa: BLE001 - not installed
+            versions.append(f"{mod} not installed")
+    table2 = ("| format | input | decode_into, 256 KiB transfers | open().read() | peers' read() "
+              "(ours open().read() / theirs) |\n|---|---|---|---|---|\n"
+              + "\n".join("| " + " | ".join(r) + " |" for r in rows2))
     body = (f"Machine: {machine()}.  expelliarmus {expv}.\n"
             f"Command: `.venv/bin/python benchmarks/decoders.py --repeat {args.repeat}` "
             f"(best of {args.repeat} interleaved rounds; other jobs shared the 2 cores: load "
@@ -158,7 +253,15 @@ def main(argv=None):
             "expelliarmus on EVT 2.0 and 3.0, CCam >= 300 M events/s.  expelliarmus runs "
             "several times faster here than the 55-63 (EVT 2.0) / 25 (EVT 3.0) M events/s "
             "that set those targets on another machine, so the ratio column is the comparison; "
-            "with 2 shared cores, single runs vary by up to 2x.")
+            "with 2 shared cores, single runs vary by up to 2x.\n\n"
+            f"Newer formats and other peers ({', '.join(versions)}), same run:\n\n{table2}\n\n"
+            "EVT 2.1: the real EVT 2.0 / 3.0 recordings written as EVT 2.1 by our encoder "
+            "(events of the same time, row and polarity in one 32-column group share a word, "
+            "as the sensor sends them); no installed peer reads EVT 2.1 (faery 0.7.1's EVT 2.1 "
+            "encoder and decoder are 'not yet implemented', expelliarmus reads EVT 2.0 / 3.0 / "
+            "DAT).  AEDAT 4: LZ4-compressed packets, decompression included; its decode_into "
+            "column decodes 256 KiB of packets at a time.  Peers build their own arrays "
+            "(faery and aedat: t uint64 and a bool polarity).")
     print(body)
     if not args.no_write:
         write_section("Decoders", body)

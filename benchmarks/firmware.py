@@ -88,12 +88,13 @@ def bench_realtime(seconds):
     ev, _ = simulate_all("face_occlusion", seconds, seed=0)
     cam = SimCamera(events_source(ev, 512), realtime=True)
     be = SimBackend(cam)
-    eng = FirmwareLoop(lambda: camusb.Camera.open("ccam_atis", backend=be), "face26")
-    eng.snap_wall = __import__("collections").deque()
+    eng = FirmwareLoop(lambda: camusb.Camera.open("ccam_atis", backend=be), "face26",
+                       record=True)
     eng.start()
     wait_end(cam, eng, seconds + 30)
     s = eng.stats()
-    lat = np.array([w - cam.wall_of(t) for t, w in eng.snap_wall]) * 1e3
+    lat = np.array([b.wall - cam.wall_of(t) for b in eng.recorder.blocks
+                    for t in b.samples["t"]]) * 1e3
     lat = lat[len(lat) // 20:]             # skip the first 5 %: the device clock's start-up
     return s, lat, s["events_tracked"] / seconds
 
@@ -127,7 +128,7 @@ def bench_overload(ev, fused_rate):
     s = eng.stats()
     done.set()
     sampler.join()
-    ts = np.concatenate([b["t"] for _, b in eng.recorded])
+    ts = np.concatenate([b.samples["t"] for b in eng.recorder.blocks])
     after = ts[ts >= 700_000]
     t_end = int(ev["t"][-1])
     inj = dict(faults.injected, device_overflow_events=cam.counts["device_overflow_events"],

@@ -13,10 +13,10 @@ the tracker backend's :c:type:`Stepper` (springtrack/_stepper.pxd): the float64 
 only output is a preallocated snapshot buffer that the caller drains.  When that buffer
 fills mid-batch, the rest of the batch waits in the object for the next call.
 
-Sampling (identical to ``springtrack track``): the first tracked event at t0 sets the
-first sample time to the smallest multiple of the period >= t0; before an event at t
-with t >= next sample and t >= the kernel's last time, one snapshot per sample time
-<= t is taken (state after all events with t < sample time).
+Sampling is ``springtrack track``'s, in run_events (the rule of springtrack/csrc/sampling.h):
+the first tracked event at t0 sets the first sample time to the smallest multiple of the
+period >= t0; before an event at t with t >= next sample and t >= the kernel's last time,
+one snapshot per sample time <= t is taken (state after all events with t < sample time).
 
 Time: the decoder's own time base, unchanged (springtrack/io/timebase.pxd: wraps
 unwrapped, a counter that goes back, e.g. a camera restarted after a reconnect, rebased so
@@ -34,8 +34,8 @@ import numpy as np
 
 from springtrack._kernel cimport Kernel
 from springtrack._fixed cimport FixedKernel
-from springtrack._samples cimport SampleOut, sample_buffers
-from springtrack._stepper cimport Stepper, run_events
+from springtrack._samples cimport SampleOut, sample_buffers, take_samples
+from springtrack._stepper cimport Stepper, ST_UNSET, run_array, run_events
 from springtrack.events cimport Event
 from springtrack.io.base cimport (DecodeCounts, AN_UNKNOWN_TYPE, AN_OUT_OF_GEOMETRY,
                                   AN_TIME_BACKWARDS, IN_TIME_HIGH, IN_TIME_WRAPS, IN_EXPOSURE,
@@ -55,17 +55,6 @@ cdef enum:
     # while a piece is tracked; real-time transfers, even coalesced, mostly stay below.
     NOGIL_MIN_BYTES = 16384
 
-SNAP_FIELDS = ("x", "y", "sxx", "sxy", "syy", "activity", "active", "sensitive")
-
-
-cdef inline int64_t ceil_mul(int64_t t, int64_t p) noexcept nogil:
-    # smallest multiple of p >= t (C division truncates toward zero: handle t < 0)
-    cdef int64_t q = t / p
-    if q * p < t:
-        q += 1
-    return q * p
-
-
 cdef Stepper stepper_of(kernel) except *:
     if isinstance(kernel, Kernel):
         return (<Kernel>kernel).stepper()
@@ -75,15 +64,28 @@ cdef Stepper stepper_of(kernel) except *:
                     f"springtrack._fixed.FixedKernel, not {type(kernel).__name__}")
 
 
+def packs_records(kernel) -> bool:
+    """Whether the kernel's snapshots pack TELEMETRY records themselves (the fixed-point
+    kernel, from its integer state): then the fused loop's sample rows carry them."""
+    return stepper_of(kernel).wire_records
+
+
+def track_events(kernel, events, long long period_us, long long next_t, Py_ssize_t cap):
+    """``kernel.run(events, period_us, next_t, cap)`` whose sample rows carry the TELEMETRY
+    records the kernel packs (``wire``, see :func:`packs_records`), like
+    :meth:`Fused.feed`'s: for a decoder other than the fused CCam one."""
+    return run_array(stepper_of(kernel), events, period_us, next_t, cap, True)
+
+
 cdef class Fused:
     """``Fused(kernel, period_us, cap)``: decoder + tracker state for one stream;
     ``kernel`` is a ``springtrack._kernel.Kernel`` or ``springtrack._fixed.FixedKernel``.
 
     ``feed(buf, n)`` processes the first ``n`` bytes of a buffer (bytes, bytearray,
     array('B'), numpy uint8) and returns the snapshots taken as a dict of arrays (rows
-    ``t``; ``x`` ... ``sensitive`` of shape (rows, trackers); ``energy`` (rows, 3); with the
-    fixed-point kernel also ``wire`` (rows, trackers * 8), the TELEMETRY tracker records it
-    packs from its integer state).
+    ``t``; ``trackers`` (rows, trackers) springtrack.track.TRACK_DTYPE; ``energy``
+    (rows, 3); for a kernel that packs them (:attr:`native_records`, the fixed-point kernel
+    from its integer state) ``wire`` (rows, trackers * 8), the TELEMETRY tracker records).
     """
     cdef object kernel                      # owns the state sp points into
     cdef Stepper sp
@@ -93,8 +95,7 @@ cdef class Fused:
     cdef uint8_t carry[4]
     cdef int ncarry
     cdef bint await_th
-    cdef int64_t period, next_t
-    cdef bint have_next
+    cdef int64_t period, next_t             # next_t: ST_UNSET before the first event
     # decoded events not yet tracked: batch[bpos:bn] (left over when the buffer filled)
     cdef Event batch[BATCH]
     cdef Py_ssize_t bpos, bn
@@ -111,7 +112,7 @@ cdef class Fused:
         self.ncarry = 0
         self.await_th = True
         self.period = period_us if period_us > 0 else 0
-        self.have_next = False
+        self.next_t = ST_UNSET
         self.bpos = 0
         self.bn = 0
         self.first_t = -1
@@ -144,6 +145,11 @@ cdef class Fused:
     def kernel_obj(self):
         return self.kernel
 
+    @property
+    def native_records(self):
+        """The sample rows carry the kernel's own TELEMETRY records (``wire``)."""
+        return self.sp.wire_records
+
     def gap(self):
         """Data was lost before the next buffer: wait for a fresh time base."""
         self.ncarry = 0            # a split word's tail is gone with the dropped transfer
@@ -158,9 +164,6 @@ cdef class Fused:
         if self.mark:
             self.mark = False
             self.first_t = self.batch[k].t
-        if self.period > 0 and not self.have_next:
-            self.next_t = ceil_mul(self.batch[k].t, self.period)
-            self.have_next = True
         c = run_events(&self.sp, &self.batch[k], self.bn - k, self.period, &self.next_t,
                        &self.o)
         self.tracked += c
@@ -258,10 +261,7 @@ cdef class Fused:
         return {k: np.concatenate([q[k] for q in parts]) for k in parts[0]}
 
     cdef object _take(self):
-        c = self.o.count
-        out = {k: v[:c].copy() for k, v in self.bufs.items()}
-        self.o.count = 0
-        return out
+        return take_samples(self.bufs, &self.o, True)
 
     def counters(self) -> dict:
         cdef DecodeCounts* n = &self.dn
@@ -283,4 +283,4 @@ cdef class Fused:
 
     @property
     def next_sample_t(self):
-        return self.next_t if self.have_next else None
+        return None if self.next_t == ST_UNSET else self.next_t

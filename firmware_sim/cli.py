@@ -233,7 +233,7 @@ def _wait_telemetry_sent(engine, link_thread, timeout: float = 30.0) -> None:
     (it holds snapshots until a host says HELLO) before shutting down."""
     end = time.monotonic() + timeout
     while time.monotonic() < end and link_thread.is_alive():
-        if engine.tele_rows == 0 and not engine.applied:
+        if not engine.has_output():
             time.sleep(0.2)                    # the link's last writes
             return
         time.sleep(0.02)

@@ -6,17 +6,31 @@ be thread-safe; updates are double-buffered and take effect between two events.
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
 
+from springtrack.wire import Nack
+
 
 class UpdateRejected(ValueError):
-    """An update was invalid; ``code`` is one of the wire protocol's NACK codes."""
+    """An update was invalid; ``code`` is the wire protocol's NACK code for the reason."""
 
-    def __init__(self, code: str, message: str):
+    def __init__(self, code: Nack, message: str):
         super().__init__(message)
-        self.code = code
+        self.code = Nack(code)
+
+
+@dataclass(frozen=True, slots=True)
+class Snapshot:
+    """One telemetry snapshot: the tracker states after all events with t < ``t_us``."""
+    t_us: int
+    generation: int                 # of the model and parameters it was computed with
+    mean_energy: float              # the energy feeding eqs. (21)-(22)
+    trackers: np.ndarray            # (trackers,) springtrack.track.TRACK_DTYPE, float state
+    records: bytes                  # the same in the TELEMETRY layout (wire.TELE_TRACKER)
+    energies: tuple | None = None   # (energy kind index, per-connection array) or None
 
 
 class Engine(Protocol):
@@ -25,11 +39,11 @@ class Engine(Protocol):
 
     def load_model(self, toml_text: str) -> int:
         """Validate and queue a model swap; returns the new model generation.
-        Raises UpdateRejected (code 'invalid_model') leaving the running model untouched."""
+        Raises UpdateRejected (Nack.INVALID_MODEL) leaving the running model untouched."""
 
     def set_param(self, name: str, value) -> int:
         """Validate and queue a parameter change; returns the generation it will carry.
-        Raises UpdateRejected ('unknown_name' | 'out_of_range' | 'wrong_type' | 'busy')."""
+        Raises UpdateRejected (Nack.UNKNOWN_NAME, OUT_OF_RANGE, WRONG_TYPE or BUSY)."""
 
     def get_params(self) -> dict: ...
 
@@ -42,10 +56,9 @@ class Engine(Protocol):
     def stats(self) -> dict:
         """Counters: transfers, bytes, events decoded/tracked, drops, anomalies, queue HWM, ..."""
 
-    def poll_telemetry(self, max_items: int = 64) -> list:
-        """Snapshots produced since the last call: each a dict with t_us, generation,
-        mean_energy, and a per-tracker structured array (x, y, sxx, sxy, syy, activity,
-        active, sensitive)."""
+    def poll_telemetry(self, max_items: int = 64) -> list[Snapshot]:
+        """Snapshots produced since the last call, oldest first.  Those carrying
+        ``energies`` are sent as ENERGIES too, at most once per wire.ENERGY_PERIOD_US."""
 
     def poll_applied(self) -> list:
         """(generation, t_us) pairs: the event time at which each queued update took effect."""

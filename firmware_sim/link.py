@@ -51,12 +51,12 @@ class LinkServer:
     """One host session over one port (see the module docstring)."""
 
     def __init__(self, port, engine, key: bytes | None = None, heartbeat_s: float = 1.0,
-                 energy_period_us: int = 100_000):
+                 energy_period_us: int = wire.ENERGY_PERIOD_US):
         self.port, self.engine = port, engine
         self.nonce = os.urandom(wire.NONCE_LEN)
         self.guard = wire.ReplayGuard(key, self.nonce) if key else None
         self.reader = wire.FrameReader()
-        self.rx_last: int | None = None
+        self.rx_seq = wire.SeqTracker()
         self.tx_seq = int.from_bytes(os.urandom(2), "little")
         self.txq = bytearray()
         self.replies: OrderedDict = OrderedDict()
@@ -174,25 +174,21 @@ class LinkServer:
         if room <= 0:                                          # wait in the engine's queue
             return
         for snap in self.engine.poll_telemetry(min(64, room)):
-            if "records" in snap:    # already in the wire layout (the fixed-point kernel)
-                payload = wire.encode_telemetry_records(snap["t_us"], snap["generation"],
-                                                        snap["mean_energy"], snap["records"])
-            else:
-                payload = wire.encode_telemetry(snap["t_us"], snap["generation"],
-                                                snap["mean_energy"], snap["trackers"])
+            payload = wire.encode_telemetry(snap.t_us, snap.generation, snap.mean_energy,
+                                            snap.records)
             if self.send(MsgType.TELEMETRY, payload, droppable=True) is not None:
                 self.counts["telemetry_sent"] += 1
-            if "energies" in snap:
+            if snap.energies is not None:
                 self._energies(snap)
 
     def _energies(self, snap) -> None:
-        """ENERGIES every ``energy_period_us`` of event time, for engines whose snapshots
-        carry ``energies = (kind index, per-connection array)``."""
-        t = int(snap["t_us"])
+        """ENERGIES at most once per ``energy_period_us`` of event time, from the snapshots
+        that carry ``energies = (kind index, per-connection array)``."""
+        t = int(snap.t_us)
         if self.next_energy_t is not None and t < self.next_energy_t:
             return
         self.next_energy_t = t + self.energy_period_us
-        kind, values = snap["energies"]
+        kind, values = snap.energies
         if self.send(MsgType.ENERGIES, wire.encode_energies(t, kind, values),
                      droppable=True) is not None:
             self.counts["energies_sent"] += 1
@@ -229,11 +225,14 @@ class LinkServer:
             for raw in self.replies[key]:
                 self._send_raw(raw)
             return
-        self._count_gap(frame)
+        if frame.type == MsgType.HELLO:              # a new session: expect anything next
+            self.rx_seq.restart(frame.seq)
+        else:
+            self.counts["rx_lost"] += self.rx_seq.update(frame.seq)
         try:
             self._dispatch(frame)
         except UpdateRejected as e:
-            self._nack(frame, wire.nack_code(e.code), str(e))
+            self._nack(frame, e.code, str(e))
         except wire.WireError as e:
             self._nack(frame, Nack.MALFORMED, str(e))
         except Exception as e:                       # noqa: BLE001 - never crash the firmware
@@ -242,15 +241,6 @@ class LinkServer:
         self.replies[key] = self._sent
         while len(self.replies) > REPLY_CACHE:
             self.replies.popitem(last=False)
-
-    def _count_gap(self, frame) -> None:
-        if frame.type == MsgType.HELLO or self.rx_last is None:
-            self.rx_last = frame.seq
-            return
-        gap = (frame.seq - self.rx_last - 1) & 0xFFFF
-        if gap < 0x8000:
-            self.counts["rx_lost"] += gap
-        self.rx_last = frame.seq
 
     def _reply(self, mtype, payload=b"") -> None:
         raw = self.send(mtype, payload)
@@ -261,7 +251,7 @@ class LinkServer:
         self.counts["acks"] += 1
         self._reply(MsgType.ACK, wire.encode_ack(frame.seq, frame.type, value))
 
-    def _nack(self, frame, code: int, reason: str) -> None:
+    def _nack(self, frame, code: Nack, reason: str) -> None:
         self.counts["nacks"] += 1
         raw = self.send(MsgType.NACK, wire.encode_nack(frame.seq, frame.type, code, reason))
         if raw is not None:
@@ -314,7 +304,7 @@ class LinkServer:
     def on_model_begin(self, f) -> None:
         total, crc = wire.decode_model_begin(f.payload)
         if not 0 < total <= MAX_MODEL_BYTES:
-            raise UpdateRejected("out_of_range", f"model of {total} bytes: must be 1..{MAX_MODEL_BYTES}")
+            raise UpdateRejected(Nack.OUT_OF_RANGE, f"model of {total} bytes: must be 1..{MAX_MODEL_BYTES}")
         self.upload = dict(total=total, crc=crc, buf=bytearray(total), have=np.zeros(total, bool))
         self._ack(f)
 
@@ -322,9 +312,9 @@ class LinkServer:
         offset, data = wire.decode_model_chunk(f.payload)
         up = self.upload
         if up is None:
-            raise UpdateRejected("bad_state", "MODEL_CHUNK without MODEL_BEGIN")
+            raise UpdateRejected(Nack.BAD_STATE, "MODEL_CHUNK without MODEL_BEGIN")
         if offset + len(data) > up["total"]:
-            raise UpdateRejected("out_of_range",
+            raise UpdateRejected(Nack.OUT_OF_RANGE,
                                  f"chunk {offset}+{len(data)} beyond the announced {up['total']} bytes")
         up["buf"][offset:offset + len(data)] = data
         up["have"][offset:offset + len(data)] = True
@@ -334,18 +324,18 @@ class LinkServer:
         total, crc = wire.decode_model_begin(f.payload)
         up, self.upload = self.upload, None
         if up is None:
-            raise UpdateRejected("bad_state", "MODEL_COMMIT without MODEL_BEGIN")
+            raise UpdateRejected(Nack.BAD_STATE, "MODEL_COMMIT without MODEL_BEGIN")
         if (total, crc) != (up["total"], up["crc"]):
-            raise UpdateRejected("invalid_model", "MODEL_COMMIT length/CRC differ from MODEL_BEGIN")
+            raise UpdateRejected(Nack.INVALID_MODEL, "MODEL_COMMIT length/CRC differ from MODEL_BEGIN")
         missing = int((~up["have"]).sum())
         if missing:
-            raise UpdateRejected("invalid_model", f"upload incomplete: {missing} of {total} bytes missing")
+            raise UpdateRejected(Nack.INVALID_MODEL, f"upload incomplete: {missing} of {total} bytes missing")
         if zlib.crc32(up["buf"]) != crc:
-            raise UpdateRejected("invalid_model", "model text CRC-32 mismatch after upload")
+            raise UpdateRejected(Nack.INVALID_MODEL, "model text CRC-32 mismatch after upload")
         try:
             text = up["buf"].decode("utf-8")
         except UnicodeDecodeError as e:
-            raise UpdateRejected("invalid_model", f"model text is not UTF-8: {e}") from None
+            raise UpdateRejected(Nack.INVALID_MODEL, f"model text is not UTF-8: {e}") from None
         self._ack(f, self.engine.load_model(text))
 
     def on_param_set(self, f) -> None:
@@ -357,7 +347,7 @@ class LinkServer:
         params = self.engine.get_params()
         unknown = [n for n in names if n not in params]
         if unknown:
-            raise UpdateRejected("unknown_name", f"unknown parameter(s) {', '.join(unknown)}; "
+            raise UpdateRejected(Nack.UNKNOWN_NAME, f"unknown parameter(s) {', '.join(unknown)}; "
                                                  f"known: {', '.join(params)}")
         items = {n: params[n] for n in (names or params)}
         self._reply_parts(MsgType.PARAM_VALUE, f, items)

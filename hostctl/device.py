@@ -51,10 +51,9 @@ class VersionMismatch(HostctlError):
 class Nacked(HostctlError):
     exit_code = 6
 
-    def __init__(self, command: str, code: int, reason: str):
-        name = Nack(code).name.lower() if code in Nack._value2member_map_ else f"code {code}"
-        super().__init__(f"{command} refused ({name}): {reason}")
-        self.command, self.code, self.reason = command, code, reason
+    def __init__(self, command: str, refusal: wire.Refusal):
+        super().__init__(f"{command} refused ({refusal.code_name}): {refusal.reason}")
+        self.command, self.code, self.reason = command, refusal.code, refusal.reason
 
 
 @dataclass
@@ -80,7 +79,7 @@ class Device:
         self.tx_seq = int.from_bytes(np.random.default_rng().bytes(2), "little")
         self.signer: wire.Signer | None = None
         self.snapshots: deque = deque()
-        self.replies: dict = {}            # acked seq -> list of frames (ACK/NACK/parts)
+        self.replies: dict = {}            # request seq -> [(frame, decoded reply), ...]
         self.info_reply: wire.Frame | None = None
         self.applied: dict[int, int] = {}  # generation -> event time it took effect
         self.firmware_link: dict = {}      # last HEARTBEAT counters of the firmware
@@ -196,8 +195,7 @@ class Device:
     # ---- request machinery --------------------------------------------------------------
     def _command(self, mtype, payload: bytes = b"") -> int:
         seq = self._request(mtype, payload, done=lambda s: s in self.replies)
-        frame = self.replies.pop(seq)[0]
-        return self._check_ack(mtype, frame)
+        return self._check_ack(mtype, self.replies.pop(seq)[0])
 
     def _pipelined(self, mtype, payloads, window: int = 8) -> None:
         """Send up to ``window`` commands before waiting for their ACKs (the firmware's
@@ -220,34 +218,36 @@ class Device:
                     self._request(mtype, p, done=lambda s: s in self.replies, seq=seq)
                 self._check_ack(mtype, self.replies.pop(seq)[0])
 
-    def _check_ack(self, mtype, frame) -> int:
-        if frame.type == MsgType.NACK:
-            _, _, code, reason = wire.decode_nack(frame.payload)
-            self._raise_nack(mtype, code, reason)
-        return wire.decode_ack(frame.payload)[2]
+    def _check_ack(self, mtype, reply) -> int:
+        """The ACK's value, or the NACK raised; ``reply`` is a (frame, decoded) pair."""
+        frame, msg = reply
+        if isinstance(msg, wire.Refusal):
+            self._raise_nack(mtype, frame, msg)
+        if not isinstance(msg, wire.Ack):
+            raise HostctlError(f"{self.url}: {MsgType(mtype).name} answered by "
+                               f"{MsgType(frame.type).name}, not ACK")
+        return msg.value
 
-    def _raise_nack(self, mtype, code, reason):
-        if code == Nack.VERSION_MISMATCH:
-            fw = _firmware_version(reason)
-            raise VersionMismatch(f"{self.url}: {reason}", self.version, fw)
-        raise Nacked(MsgType(mtype).name, code, reason)
+    def _raise_nack(self, mtype, frame, refusal: wire.Refusal):
+        if refusal.code == Nack.VERSION_MISMATCH:     # sent in the firmware's own version
+            raise VersionMismatch(f"{self.url}: {refusal.reason}", self.version, frame.version)
+        raise Nacked(MsgType(mtype).name, refusal)
 
     def _parts(self, mtype, payload: bytes, reply_type) -> dict:
         def complete(seq):
-            got = self.replies.get(seq, [])
-            if got and got[0].type == MsgType.NACK:
-                return True
-            if not got:
-                return False
-            parts = {f.payload[2] for f in got if len(f.payload) >= 4}
-            return parts >= set(range(got[0].payload[3])) if len(got[0].payload) >= 4 else True
+            got = [msg for _, msg in self.replies.get(seq, [])]
+            if not got or isinstance(got[0], wire.Refusal):
+                return bool(got)
+            parts = [m for m in got if isinstance(m, wire.ReplyPart)]
+            return bool(parts) and {m.part for m in parts} >= set(range(parts[0].parts))
         seq = self._request(mtype, payload, done=complete)
-        frames = self.replies.pop(seq)
-        if frames[0].type == MsgType.NACK:
-            self._check_ack(mtype, frames[0])
+        replies = self.replies.pop(seq)
+        if isinstance(replies[0][1], wire.Refusal):
+            self._check_ack(mtype, replies[0])
         out = {}
-        for f in {f.payload[2]: f for f in frames}.values():
-            out.update(wire.decode_reply_part(f.payload, MsgType(reply_type).name)[3])
+        for _, msg in replies:
+            if isinstance(msg, wire.ReplyPart):
+                out.update(msg.items)
         return out
 
     def _request(self, mtype, payload: bytes, done, signed: bool = True,
@@ -269,11 +269,11 @@ class Device:
             end = time.monotonic() + self.timeout
             while time.monotonic() < end:
                 self._read_once(end - time.monotonic())
-                nack = self.replies.get(seq)
-                if done(seq) or (nack and nack[0].type == MsgType.NACK):
-                    if mtype == MsgType.HELLO and nack and nack[0].type == MsgType.NACK:
-                        _, _, code, reason = wire.decode_nack(nack[0].payload)
-                        self._raise_nack(mtype, code, reason)
+                got = self.replies.get(seq)
+                refused = bool(got) and isinstance(got[0][1], wire.Refusal)
+                if done(seq) or refused:
+                    if mtype == MsgType.HELLO and refused:
+                        self._raise_nack(mtype, *got[0])
                     return seq
         raise NoAnswer(f"{self.url}: no answer to {MsgType(mtype).name} after "
                        f"{self.retries + 1} tries of {self.timeout:g} s each "
@@ -296,14 +296,17 @@ class Device:
 
     def _dispatch(self, f: wire.Frame) -> None:
         if f.type == MsgType.INFO:         # a new session: the firmware discarded what it
-            self.rx_seq.last = None        # had not written yet, that is not a loss, and
+            self.rx_seq.restart()          # had not written yet, that is not a loss, and
             self.counts["stale_snapshots"] += len(self.snapshots)     # what arrived before
             self.snapshots.clear()         # INFO belongs to an earlier session
         self.rx_seq.update(f.seq)
         if f.version != self.version:
             self.counts["foreign_version"] += 1
             if f.type == MsgType.NACK:          # frozen layout: readable across versions
-                self._store_reply(f)
+                try:
+                    self._store_reply(f)
+                except wire.WireError:
+                    self.reader.counts["malformed"] += 1
             return
         try:
             if f.type == MsgType.TELEMETRY:
@@ -313,7 +316,7 @@ class Device:
                     self.counts["telemetry_overflow"] += 1
                 self.snapshots.append(Snapshot(t, gen, me, tr, f.seq, time.time()))
                 self.counts["telemetry"] += 1
-            elif f.type in (MsgType.ACK, MsgType.NACK, MsgType.PARAM_VALUE, MsgType.STATS):
+            elif f.type in wire.REPLY_TYPES:
                 self._store_reply(f)
             elif f.type == MsgType.INFO:
                 self.info_reply = f
@@ -333,16 +336,9 @@ class Device:
             self.reader.counts["malformed"] += 1
 
     def _store_reply(self, f) -> None:
-        """ACK, NACK, PARAM_VALUE and STATS payloads all start with the request's u16 seq."""
-        if len(f.payload) >= 2:
-            self.replies.setdefault(int.from_bytes(f.payload[:2], "little"), []).append(f)
-
-
-def _firmware_version(reason: str) -> int:
-    try:
-        return int(reason.split("firmware=v", 1)[1].split()[0])
-    except (IndexError, ValueError):
-        return -1
+        """File an ACK, NACK, PARAM_VALUE or STATS part under the request's seq."""
+        msg = wire.decode_reply(f)
+        self.replies.setdefault(msg.seq, []).append((f, msg))
 
 
 def _open(url: str, baudrate: int):

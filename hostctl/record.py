@@ -1,6 +1,6 @@
 """Recording telemetry to files.
 
-* ``OUT.csv`` - the track CSV schema of ``springtrack track`` (springtrack/track.py:
+* ``OUT.csv`` - the track CSV schema of ``springtrack track`` (springtrack.track.CSV_HEADER:
   ``t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive``), so ``springtrack score``
   reads recordings.  With smoothing, the smoothed states go to a sidecar
   ``OUT.smooth.csv`` (``t_us,tracker,x_s,y_s,vx,vy``) so the main file keeps the schema.
@@ -17,11 +17,9 @@ from pathlib import Path
 
 import numpy as np
 
-from springtrack.track import Track
+from springtrack.track import TRACK_FIELDS, Track
 
 from .smooth import SMOOTH_FIELDS, smooth_track
-
-STATE = ("x", "y", "sxx", "sxy", "syy", "activity", "active", "sensitive")
 
 
 def tracker_ids(info: dict, n: int) -> list[str]:
@@ -40,7 +38,7 @@ def stack(snaps) -> dict:
     n = len(snaps[-1].trackers)
     keep = [s for s in snaps if len(s.trackers) == n]
     tr = np.stack([s.trackers for s in keep])
-    out = {f: tr[f] for f in STATE}
+    out = {f: tr[f] for f in TRACK_FIELDS}
     out.update(t_us=np.array([s.t_us for s in keep], np.int64),
                generation=np.array([s.generation for s in keep], np.int64),
                mean_energy=np.array([s.mean_energy for s in keep], np.float64),
@@ -51,7 +49,7 @@ def stack(snaps) -> dict:
 
 
 def to_track(arrs: dict, ids) -> Track:
-    return Track(arrs["t_us"], list(ids), *(arrs[f] for f in STATE))
+    return Track(arrs["t_us"], list(ids), **{f: arrs[f] for f in TRACK_FIELDS})
 
 
 def save(path, snaps, info: dict, smooth: dict | None = None) -> dict:

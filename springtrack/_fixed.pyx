@@ -1,5 +1,5 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
-# distutils: depends = springtrack/csrc/fixed_step.c springtrack/csrc/fixed_step.h springtrack/csrc/fixed_telemetry.c springtrack/csrc/fixed_telemetry.h
+# distutils: depends = springtrack/csrc/fixed_step.c springtrack/csrc/fixed_step.h springtrack/csrc/fixed_telemetry.c springtrack/csrc/fixed_telemetry.h springtrack/csrc/sampling.h
 """Fixed-point tracker backend (``Tracker(..., backend="fixed")``).
 
 The per-event step and the springs are the integer-only C unit
@@ -23,6 +23,7 @@ from springtrack import limits as _limits
 from springtrack import wire as _wire
 
 from springtrack._samples cimport SampleOut, sample_buffers
+from springtrack.track cimport TrackRow
 from springtrack._stepper cimport Stepper, run_array
 
 cnp.import_array()
@@ -148,17 +149,18 @@ cdef inline void snapshot_row(const fx_state* s, int64_t t, SampleOut* o) noexce
     cdef Py_ssize_t row = o.count, base = row * s.n
     cdef int i, k, q
     cdef int64_t a, tot
+    cdef TrackRow* r = o.trackers + base
     o.t[row] = t
     for i in range(s.n):
         a = fx_activity(s, i, t)
-        o.x[base + i] = s.mx[i] * POS_UNIT
-        o.y[base + i] = s.my[i] * POS_UNIT
-        o.sxx[base + i] = s.sxx[i] * COV_UNIT
-        o.sxy[base + i] = s.sxy[i] * COV_UNIT
-        o.syy[base + i] = s.syy[i] * COV_UNIT
-        o.act[base + i] = a * Q32_UNIT
-        o.active[base + i] = a > s.act_thr
-        o.sensitive[base + i] = (s.sensitive_mask >> i) & 1
+        r[i].x = s.mx[i] * POS_UNIT
+        r[i].y = s.my[i] * POS_UNIT
+        r[i].sxx = s.sxx[i] * COV_UNIT
+        r[i].sxy = s.sxy[i] * COV_UNIT
+        r[i].syy = s.syy[i] * COV_UNIT
+        r[i].activity = a * Q32_UNIT
+        r[i].active = a > s.act_thr
+        r[i].sensitive = (s.sensitive_mask >> i) & 1
     fx_energies(<fx_state*>s)     # the kinds the criterion does not use, computed when read
     for q in range(3):
         tot = 0

@@ -40,7 +40,8 @@ from springtrack import limits as _limits
 from springtrack.reference import covariance_bias, RHO_MAX as _RHO_MAX
 
 from springtrack._samples cimport SampleOut, sample_buffers
-from springtrack._stepper cimport Stepper, run_array
+from springtrack.track cimport TrackRow
+from springtrack._stepper cimport Stepper, run_array, st_sample_due
 
 cnp.import_array()
 
@@ -220,7 +221,8 @@ cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double f
 
 cdef Py_ssize_t ksteps(KState* s, const Event* ev, Py_ssize_t n, int64_t t_stop) noexcept nogil:
     """kstep() over ev[0..n), stopping before the first event with t >= t_stop that is not
-    back in time; returns the events processed (the Stepper's steps(), _stepper.pxd).
+    back in time (the sampling rule, csrc/sampling.h, with t_stop the next sample time);
+    returns the events processed (the Stepper's steps(), _stepper.pxd).
     The counters and the last time live in locals for the batch and are written back at
     its end (nothing the step calls reads them)."""
     cdef Py_ssize_t k
@@ -229,11 +231,11 @@ cdef Py_ssize_t ksteps(KState* s, const Event* ev, Py_ssize_t n, int64_t t_stop)
     cdef unsigned int x, y, width = s.width, height = s.height
     for k in range(n):
         t = ev[k].t
+        if st_sample_due(t, t_stop, last_t):
+            break
         if t < last_t:
             n_back += 1
             continue
-        if t >= t_stop:
-            break
         last_t = t
         x = ev[k].x
         y = ev[k].y
@@ -461,33 +463,26 @@ cdef void rescale_activity(KState* s, int64_t t) noexcept nogil:
 
 # ---- sampling -------------------------------------------------------------------------
 cdef void ksnapshot(const KState* s, int64_t t, SampleOut* o) noexcept nogil:
-    # the row's pointers in locals: stores through them could alias the SampleOut fields,
+    # the row's pointer in a local: stores through it could alias the SampleOut fields,
     # which the compiler would otherwise reload for every tracker
-    cdef Py_ssize_t row = o.count, base = row * s.n
+    cdef Py_ssize_t row = o.count
     cdef int i, q
     cdef double a
     cdef double decay = activity_decay(s, t)         # kactivity's factor, one exp for all
     cdef double thr = s.act_thr
     cdef uint64_t sensitive = s.sensitive_mask
-    cdef double* x = o.x + base
-    cdef double* y = o.y + base
-    cdef double* sxx = o.sxx + base
-    cdef double* sxy = o.sxy + base
-    cdef double* syy = o.syy + base
-    cdef double* act = o.act + base
-    cdef uint8_t* active = o.active + base
-    cdef uint8_t* sens = o.sensitive + base
+    cdef TrackRow* r = o.trackers + row * s.n
     o.t[row] = t
     for i in range(s.n):
         a = s.act[i] * decay
-        x[i] = s.mx[i]
-        y[i] = s.my[i]
-        sxx[i] = s.sxx[i]
-        sxy[i] = s.sxy[i]
-        syy[i] = s.syy[i]
-        act[i] = a
-        active[i] = a > thr
-        sens[i] = (sensitive >> i) & 1
+        r[i].x = s.mx[i]
+        r[i].y = s.my[i]
+        r[i].sxx = s.sxx[i]
+        r[i].sxy = s.sxy[i]
+        r[i].syy = s.syy[i]
+        r[i].activity = a
+        r[i].active = a > thr
+        r[i].sensitive = (sensitive >> i) & 1
     for q in range(3):                                # eq. (13) of each kind
         o.energy[row * 3 + q] = st_sum(s.nc, s.energy[q]) / s.nc if s.nc > 0 else 0.0
     o.count = row + 1

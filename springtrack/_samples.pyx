@@ -2,6 +2,8 @@
 """Snapshot buffers shared by the tracker kernels and the firmware's fused loop."""
 import numpy as np
 cimport numpy as cnp
+from springtrack.track import TRACK_DTYPE, TRACK_FIELDS
+from springtrack.track cimport TrackRow
 from springtrack.wire import TELE_TRACKER
 from libc.stdint cimport int64_t, uint8_t
 
@@ -10,28 +12,44 @@ cnp.import_array()
 TELE_RECORD = TELE_TRACKER.itemsize      # bytes per tracker record
 
 
+def _check_track_row():
+    """TrackRow (track.pxd) is TRACK_DTYPE (track.py): same size, and each field, set
+    alone in a numpy record, is read back under its own name at its own place."""
+    assert sizeof(TrackRow) == TRACK_DTYPE.itemsize, "TrackRow and TRACK_DTYPE differ in size"
+    cdef cnp.ndarray rec
+    for f in TRACK_FIELDS:
+        rec = np.zeros(1, TRACK_DTYPE)
+        rec[f] = 1
+        row = (<TrackRow*>cnp.PyArray_DATA(rec))[0]         # the struct as a dict
+        assert tuple(row) == TRACK_FIELDS, f"TrackRow fields {tuple(row)} != TRACK_FIELDS"
+        assert all(v == (g == f) for g, v in row.items()), f"TrackRow.{f} is not TRACK_DTYPE's"
+
+
+_check_track_row()
+
+
 cdef dict sample_buffers(Py_ssize_t cap, int n, SampleOut* o, bint wire=False):
-    """Arrays for ``cap`` snapshot rows of ``n`` trackers (keys as the Track fields, plus
-    ``t`` and ``energy``; with ``wire``, ``wire`` for the packed TELEMETRY records), bound
-    to ``o`` with ``o.count = 0``."""
-    b = dict(t=np.empty(cap, np.int64), x=np.empty((cap, n)), y=np.empty((cap, n)),
-             sxx=np.empty((cap, n)), sxy=np.empty((cap, n)), syy=np.empty((cap, n)),
-             activity=np.empty((cap, n)), active=np.empty((cap, n), np.uint8),
-             sensitive=np.empty((cap, n), np.uint8), energy=np.empty((cap, 3)))
+    """Arrays for ``cap`` snapshot rows of ``n`` trackers: ``t`` (cap,), ``trackers``
+    (cap, n) TRACK_DTYPE, ``energy`` (cap, 3), and with ``wire`` (for a kernel whose
+    snapshot packs them, the Stepper's wire_records) ``wire`` (cap, n * 8), the TELEMETRY
+    tracker records; bound to ``o`` with ``o.count = 0``."""
+    b = dict(t=np.empty(cap, np.int64), trackers=np.empty((cap, n), TRACK_DTYPE),
+             energy=np.empty((cap, 3)))
     o.cap = cap
     o.count = 0
     o.t = <int64_t*>cnp.PyArray_DATA(b["t"])
-    o.x = <double*>cnp.PyArray_DATA(b["x"])
-    o.y = <double*>cnp.PyArray_DATA(b["y"])
-    o.sxx = <double*>cnp.PyArray_DATA(b["sxx"])
-    o.sxy = <double*>cnp.PyArray_DATA(b["sxy"])
-    o.syy = <double*>cnp.PyArray_DATA(b["syy"])
-    o.act = <double*>cnp.PyArray_DATA(b["activity"])
-    o.active = <uint8_t*>cnp.PyArray_DATA(b["active"])
-    o.sensitive = <uint8_t*>cnp.PyArray_DATA(b["sensitive"])
+    o.trackers = <TrackRow*>cnp.PyArray_DATA(b["trackers"])
     o.energy = <double*>cnp.PyArray_DATA(b["energy"])
     o.wire = NULL
     if wire:
         b["wire"] = np.empty((cap, n * TELE_RECORD), np.uint8)
         o.wire = <uint8_t*>cnp.PyArray_DATA(b["wire"])
     return b
+
+
+cdef dict take_samples(dict bufs, SampleOut* o, bint copy):
+    """The ``o.count`` rows written so far (copies, or views of the buffers); ``o.count = 0``."""
+    c = o.count
+    out = {k: (v[:c].copy() if copy else v[:c]) for k, v in bufs.items()}
+    o.count = 0
+    return out

@@ -13,12 +13,19 @@
 # how many it processed.  It is step() in a loop, compiled inside the kernel so the step
 # is inlined: no call through a pointer per event.
 #
-# run_events() below is the loop with sampling built on steps() and snapshot().
+# run_events() below is the loop with sampling built on steps() and snapshot(); the
+# sampling rule itself is springtrack/csrc/sampling.h (mirrored by springtrack/sampling.py):
+# steps() stops before the event st_sample_due() names.
 #
 # The pointers stay valid while the kernel object is alive: hold a reference to it.
 from libc.stdint cimport int64_t
 from springtrack.events cimport Event
 from springtrack._samples cimport SampleOut
+
+cdef extern from "springtrack/csrc/sampling.h" nogil:
+    const int64_t ST_UNSET                   # next sample time before the first event
+    int64_t st_first_sample(int64_t t0, int64_t period)
+    bint st_sample_due(int64_t t, int64_t next_t, int64_t last_t)
 
 ctypedef int (*step_fn)(void* state, int64_t t, int x, int y) noexcept nogil
 ctypedef Py_ssize_t (*steps_fn)(void* state, const Event* ev, Py_ssize_t n,
@@ -36,7 +43,8 @@ cdef struct Stepper:
     const int64_t* n_outside      # events skipped: outside the sensor
     bint wire_records             # snapshot() also packs SampleOut.wire from the state
 
-# the event loop of Kernel.run and FixedKernel.run (springtrack/_stepper.pyx)
+# the event loop of Kernel.run, FixedKernel.run and the fused loop (springtrack/_stepper.pyx)
 cdef Py_ssize_t run_events(const Stepper* sp, const Event* ev, Py_ssize_t n, int64_t sample_us,
                            int64_t* next_t, SampleOut* o) noexcept nogil
-cdef tuple run_array(Stepper sp, events, int64_t sample_us, int64_t next_t, Py_ssize_t cap)
+cdef tuple run_array(Stepper sp, events, int64_t sample_us, int64_t next_t, Py_ssize_t cap,
+                     bint records=*)

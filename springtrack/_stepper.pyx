@@ -5,16 +5,20 @@ from libc.stdint cimport int64_t, INT64_MAX
 
 from springtrack.events cimport Event
 from springtrack.events import EVENT_DTYPE
-from springtrack._samples cimport SampleOut, sample_buffers
+from springtrack.sampling import UNSET
+from springtrack._samples cimport SampleOut, sample_buffers, take_samples
 
 cnp.import_array()
+
+assert ST_UNSET == UNSET, "csrc/sampling.h ST_UNSET disagrees with springtrack/sampling.py"
 
 
 cdef Py_ssize_t run_events(const Stepper* sp, const Event* ev, Py_ssize_t n, int64_t sample_us,
                            int64_t* next_t, SampleOut* o) noexcept nogil:
     """Process events until done or the sample buffer is full; returns events consumed.
-    Sampling rule: before an event at t with t >= the next sample time and t >= the last
-    event time, one snapshot per sample time <= t (the state after all earlier events)."""
+    The sampling rule (csrc/sampling.h): ``next_t`` ST_UNSET becomes the first sample time
+    after ev[0]; before an event at t for which st_sample_due(t, next_t, the last event
+    time), one snapshot per sample time <= t (the state after all earlier events)."""
     cdef Py_ssize_t k = 0
     cdef int64_t t
     if sample_us <= 0:
@@ -24,11 +28,13 @@ cdef Py_ssize_t run_events(const Stepper* sp, const Event* ev, Py_ssize_t n, int
                 sp.step(sp.state, ev[k].t, ev[k].x, ev[k].y)
                 k += 1
         return n
+    if n > 0 and next_t[0] == ST_UNSET:
+        next_t[0] = st_first_sample(ev[0].t, sample_us)
     while True:
         k += sp.steps(sp.state, ev + k, n - k, next_t[0])
         if k >= n:
             return n
-        t = ev[k].t                    # t >= next_t[0] and t >= the last event time
+        t = ev[k].t                    # st_sample_due(t, next_t[0], the last event time)
         while t >= next_t[0]:
             if o.count >= o.cap:
                 return k
@@ -36,9 +42,13 @@ cdef Py_ssize_t run_events(const Stepper* sp, const Event* ev, Py_ssize_t n, int
             next_t[0] += sample_us
 
 
-cdef tuple run_array(Stepper sp, events, int64_t sample_us, int64_t next_t, Py_ssize_t cap):
+cdef tuple run_array(Stepper sp, events, int64_t sample_us, int64_t next_t, Py_ssize_t cap,
+                     bint records=False):
     """``Kernel.run`` / ``FixedKernel.run``: (consumed, next_t, samples) where samples is a
-    dict of arrays with at most ``cap`` rows (None if sample_us <= 0)."""
+    dict of arrays with at most ``cap`` rows (None if sample_us <= 0; keys as
+    _samples.sample_buffers; ``next_t`` springtrack.sampling.UNSET before the first event
+    sets the first sample time); with ``records`` a kernel that packs TELEMETRY records
+    (the Stepper's wire_records) adds them (``wire``)."""
     cdef cnp.ndarray ev = events
     cdef Py_ssize_t n = ev.shape[0], consumed
     cdef SampleOut o
@@ -46,12 +56,10 @@ cdef tuple run_array(Stepper sp, events, int64_t sample_us, int64_t next_t, Py_s
         raise TypeError("events must be a C-contiguous EVENT_DTYPE array")
     if sample_us <= 0:
         cap = 0
-    out = sample_buffers(cap, sp.n, &o)
+    out = sample_buffers(cap, sp.n, &o, records and sp.wire_records)
     cdef const Event* p = <const Event*>cnp.PyArray_DATA(ev)
     with nogil:
         consumed = run_events(&sp, p, n, sample_us, &next_t, &o)
     if sample_us <= 0:
         return consumed, next_t, None
-    for key in out:
-        out[key] = out[key][:o.count]
-    return consumed, next_t, out
+    return consumed, next_t, take_samples(out, &o, False)

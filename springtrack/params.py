@@ -10,6 +10,8 @@ import math
 from dataclasses import dataclass, fields, asdict
 from typing import Mapping
 
+from .wire import Nack
+
 ENERGY_KINDS = ("euclidean", "torsional", "cartesian")
 
 
@@ -51,7 +53,20 @@ SPECS: dict[str, ParamSpec] = {s.name: s for s in [
 
 
 class ParamError(ValueError):
-    """A parameter has an unknown name, a wrong type or an out-of-range value."""
+    """A parameter has an unknown name, a wrong type or an out-of-range value; ``code`` is
+    the host link's NACK code for it (this class: a value out of range)."""
+    code = Nack.OUT_OF_RANGE
+
+
+class UnknownParamError(ParamError):
+    """No parameter has that name."""
+    code = Nack.UNKNOWN_NAME
+
+
+class ParamTypeError(ParamError):
+    """A value of the wrong type: not a number, not a whole number for a count, not a
+    string for a choice."""
+    code = Nack.WRONG_TYPE
 
 
 @dataclass(frozen=True)
@@ -96,13 +111,14 @@ def check(name: str, value, where: str = "") -> object:
     ctx = f"{where}: " if where else ""
     spec = SPECS.get(name)
     if spec is None:
-        raise ParamError(f"{ctx}unknown parameter {name!r}; known: {', '.join(SPECS)}")
+        raise UnknownParamError(f"{ctx}unknown parameter {name!r}; known: {', '.join(SPECS)}")
     if spec.kind is str:
         if not isinstance(value, str) or value not in ENERGY_KINDS:
-            raise ParamError(f"{ctx}{name} must be one of {', '.join(ENERGY_KINDS)}, got {value!r}")
+            err = ParamError if isinstance(value, str) else ParamTypeError
+            raise err(f"{ctx}{name} must be one of {', '.join(ENERGY_KINDS)}, got {value!r}")
         return value
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ParamError(f"{ctx}{name} must be a number, got {type(value).__name__} {value!r}")
+        raise ParamTypeError(f"{ctx}{name} must be a number, got {type(value).__name__} {value!r}")
     try:
         finite = math.isfinite(value)
     except OverflowError:                      # an int too large for a float
@@ -111,7 +127,7 @@ def check(name: str, value, where: str = "") -> object:
         raise ParamError(f"{ctx}{name} must be finite and in range, got {value!r}")
     if spec.kind is int:
         if float(value) != int(value):
-            raise ParamError(f"{ctx}{name} must be a whole number, got {value!r}")
+            raise ParamTypeError(f"{ctx}{name} must be a whole number, got {value!r}")
         value = int(value)
     else:
         value = float(value)
@@ -129,7 +145,7 @@ def from_mapping(values: Mapping, base: Params | None = None, where: str = "") -
     try:
         return Params(**merged)
     except ParamError as e:
-        raise ParamError(f"{where}: {e}" if where else str(e)) from None
+        raise type(e)(f"{where}: {e}" if where else str(e)) from None
 
 
 def load(path) -> Params:

@@ -1,5 +1,9 @@
 """A tracking result: tracker states sampled at regular event times, and its CSV form.
 
+The track record is defined here once: the per-tracker fields (:data:`TRACK_FIELDS`),
+their dtype (:data:`TRACK_DTYPE`) and the CSV header (:data:`CSV_HEADER`), used by the
+kernels' sample rows, the firmware, the wire protocol, ``hostctl record`` and the renderer.
+
 CSV schema (``springtrack track``, ``firmware-sim --record``, ``hostctl record``)::
 
     t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive
@@ -11,13 +15,22 @@ the state after all events with t < t_us; positions in px, covariances in px^2,
 from __future__ import annotations
 
 import csv
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 
-CSV_HEADER = ("t_us", "tracker", "x", "y", "sxx", "sxy", "syy", "activity", "active", "sensitive")
-FLOAT_FIELDS = ("x", "y", "sxx", "sxy", "syy", "activity")
-BOOL_FIELDS = ("active", "sensitive")
+FLOAT_FIELDS = ("x", "y",                 # position, px (eq. 3)
+                "sxx", "sxy", "syy",      # covariance, px^2 (eq. 4)
+                "activity")               # A, eq. (6), decayed to the sample time
+BOOL_FIELDS = ("active",                  # A > activity threshold
+               "sensitive")               # takes part in the energy criteria (eq. 21)
+TRACK_FIELDS = FLOAT_FIELDS + BOOL_FIELDS
+# one tracker's state; aligned: the C view is TrackRow in track.pxd (checked at import by
+# springtrack._samples, whose sample rows are arrays of it)
+TRACK_DTYPE = np.dtype([(f, "<f8") for f in FLOAT_FIELDS] + [(f, "?") for f in BOOL_FIELDS],
+                       align=True)
+CSV_HEADER = ("t_us", "tracker") + TRACK_FIELDS
+_FLAGS_AT = 2 + len(FLOAT_FIELDS)           # CSV column of the first flag
 
 
 @dataclass
@@ -58,6 +71,14 @@ class Track:
             en = np.concatenate([p.energy for p in parts])
         return cls(ids=list(ids), energy=en, **kw)
 
+    @classmethod
+    def from_samples(cls, samples: dict, ids) -> "Track":
+        """A Track from a tracker loop's sample rows: ``t`` (rows,), ``trackers`` (rows, K)
+        of TRACK_DTYPE, ``energy`` (rows, 3)."""
+        tr = samples["trackers"]
+        return cls(samples["t"], list(ids), energy=samples["energy"],
+                   **{f: tr[f] for f in TRACK_FIELDS})
+
     def tracker(self, tracker_id) -> dict:
         k = self.ids.index(tracker_id)
         return {f: getattr(self, f)[:, k] for f in FLOAT_FIELDS + BOOL_FIELDS} | {"t_us": self.t_us}
@@ -67,20 +88,28 @@ class Track:
         f = open(path_or_file, "w", newline="") if own else path_or_file
         try:
             f.write(",".join(CSV_HEADER) + "\n")
-            k = len(self.ids)
-            for s in range(0, len(self), 2000):            # format in blocks, not per row
-                e = min(s + 2000, len(self))
-                t = np.repeat(self.t_us[s:e], k)
-                ids = np.tile(np.array(self.ids, dtype=object), e - s)
-                cols = [getattr(self, c)[s:e].ravel() for c in FLOAT_FIELDS]
-                flags = [getattr(self, c)[s:e].ravel().astype(np.uint8) for c in BOOL_FIELDS]
-                f.writelines(
-                    f"{a},{b},{c:.6f},{d:.6f},{g:.6f},{h:.6f},{i:.6f},{j:.6g},{m},{n}\n"
-                    for a, b, c, d, g, h, i, j, m, n in zip(t.tolist(), ids, *(c.tolist() for c in cols),
-                                                           *(c.tolist() for c in flags)))
+            self.write_rows(f)
         finally:
             if own:
                 f.close()
+
+    def write_rows(self, f) -> None:
+        """The CSV rows (no header) to the text file ``f``."""
+        k = len(self.ids)
+        for s in range(0, len(self), 2000):            # format in blocks, not per row
+            e = min(s + 2000, len(self))
+            t = np.repeat(self.t_us[s:e], k)
+            ids = np.tile(np.array(self.ids, dtype=object), e - s)
+            cols = [getattr(self, c)[s:e].ravel() for c in FLOAT_FIELDS]
+            flags = [getattr(self, c)[s:e].ravel().astype(np.uint8) for c in BOOL_FIELDS]
+            f.writelines(
+                f"{a},{b},{c:.6f},{d:.6f},{g:.6f},{h:.6f},{i:.6f},{j:.6g},{m},{n}\n"
+                for a, b, c, d, g, h, i, j, m, n in zip(t.tolist(), ids, *(c.tolist() for c in cols),
+                                                       *(c.tolist() for c in flags)))
+
+
+# the dataclass spells the fields out for readers and type checkers: keep it the record
+assert tuple(f.name for f in fields(Track))[2:2 + len(TRACK_FIELDS)] == TRACK_FIELDS
 
 
 def read_csv(path) -> Track:
@@ -96,8 +125,8 @@ def read_csv(path) -> Track:
     try:
         t = np.array([int(r[0]) for r in rows], np.int64)
         names = [r[1] for r in rows]
-        vals = np.array([[float(v) for v in r[2:8]] for r in rows])
-        flags = np.array([[int(v) for v in r[8:10]] for r in rows], bool)
+        vals = np.array([[float(v) for v in r[2:_FLAGS_AT]] for r in rows])
+        flags = np.array([[int(v) for v in r[_FLAGS_AT:len(CSV_HEADER)]] for r in rows], bool)
     except (ValueError, IndexError) as e:
         raise ValueError(f"{path}: malformed track row: {e}") from None
     ids = list(dict.fromkeys(names))

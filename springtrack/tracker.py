@@ -26,15 +26,17 @@ from .events import as_events
 from .model import ShapeModel, load_model
 from .params import Params
 from .reference import ReferenceTracker
-from .track import Track
+from .sampling import UNSET, first_sample_time, sample_due
+from .track import TRACK_DTYPE, TRACK_FIELDS, Track
 
 BACKENDS = ("cython", "reference", "fixed")
-STATE_FIELDS = ("x", "y", "sxx", "sxy", "syy", "activity", "active", "sensitive")
 SAMPLE_CAP = 4096          # sample rows per kernel call; bounds memory for huge time gaps
 
 
 class ReferenceBackend:
-    """Adapts ReferenceTracker to the backend interface (same sampling rule as the kernel)."""
+    """Adapts ReferenceTracker to the backend interface; its ``run`` is the kernels'
+    ``run`` (springtrack/_stepper.pyx) in Python, with the same sampling rule
+    (springtrack.sampling)."""
 
     def __init__(self, model: ShapeModel, params: Params):
         self.ref = ReferenceTracker(model, params)
@@ -46,9 +48,11 @@ class ReferenceBackend:
         ref = self.ref
         rows = []
         ts, xs, ys = events["t"].tolist(), events["x"].tolist(), events["y"].tolist()
+        if sample_us > 0 and ts and next_t == UNSET:
+            next_t = first_sample_time(ts[0], sample_us)
         for k in range(len(ts)):
             t = ts[k]
-            if sample_us > 0 and t >= next_t and t >= ref.last_t:
+            if sample_us > 0 and sample_due(t, next_t, ref.last_t):
                 while t >= next_t:
                     if len(rows) >= cap:
                         return k, next_t, self._pack(rows)
@@ -62,18 +66,16 @@ class ReferenceBackend:
         return [sum(e) / nc if nc else 0.0 for e in self.ref.energy]
 
     def _pack(self, rows):
-        n = self.ref.n
-        out = {"t": np.array([r[0] for r in rows], np.int64)}
-        for j, f in enumerate(STATE_FIELDS):
-            dt = np.uint8 if f in ("active", "sensitive") else np.float64
-            out[f] = np.array([r[1][j] for r in rows], dt).reshape(len(rows), n)
-        out["energy"] = np.array([r[2] for r in rows], np.float64).reshape(len(rows), 3)
-        return out
+        """Sample rows as the C loops return them (springtrack._samples.sample_buffers)."""
+        tr = np.empty((len(rows), self.ref.n), TRACK_DTYPE)
+        for j, f in enumerate(TRACK_FIELDS):
+            tr[f] = np.array([r[1][j] for r in rows], TRACK_DTYPE[f]).reshape(tr.shape)
+        return {"t": np.array([r[0] for r in rows], np.int64), "trackers": tr,
+                "energy": np.array([r[2] for r in rows], np.float64).reshape(len(rows), 3)}
 
     def snapshot(self, t):
         snap = self.ref.snapshot(t)
-        return {f: np.array(v, bool if f in ("active", "sensitive") else float)
-                for f, v in zip(STATE_FIELDS, snap)}
+        return {f: np.array(v, TRACK_DTYPE[f]) for f, v in zip(TRACK_FIELDS, snap)}
 
     def energies(self):
         return np.array(self.ref.energy, dtype=float).reshape(3, self.ref.nc)
@@ -151,7 +153,7 @@ class Tracker:
         self.backend_name = backend
         self._b = make_backend(backend, self.model, self.params)
         self._sample_us = 0
-        self._next_t = None
+        self._next_t = UNSET
         self._recorded: list[Track] = []
         self.acquisition = None
         if acquire:
@@ -199,16 +201,13 @@ class Tracker:
     def _track(self, ev) -> None:
         if ev is None or len(ev) == 0:
             return
-        if self._sample_us and self._next_t is None:
-            t0 = int(ev["t"][0])
-            self._next_t = -(-t0 // self._sample_us) * self._sample_us
         pos = 0
         while pos < len(ev):
             consumed, self._next_t, out = self._b.run(
-                ev[pos:], self._sample_us, self._next_t or 0, SAMPLE_CAP)
+                ev[pos:], self._sample_us, self._next_t, SAMPLE_CAP)
             pos += consumed
             if out is not None and len(out["t"]):
-                self._recorded.append(self._to_track(out))
+                self._recorded.append(Track.from_samples(out, self.ids))
 
     def run(self, events, sample_us: int = 1000) -> Track:
         """Process events and return the samples taken during this call."""
@@ -223,11 +222,6 @@ class Tracker:
         if clear:
             self._recorded = []
         return tr
-
-    def _to_track(self, out: dict) -> Track:
-        return Track(out["t"], self.ids, out["x"], out["y"], out["sxx"], out["sxy"], out["syy"],
-                     out["activity"], out["active"].astype(bool), out["sensitive"].astype(bool),
-                     out["energy"])
 
     # ---- control ---------------------------------------------------------------------
     def set_params(self, params=None, **changes) -> Params:
@@ -250,10 +244,10 @@ class Tracker:
         t = self.last_t if t is None else int(t)
         snap = self._b.snapshot(max(t, 0) if t < -(1 << 60) else t)
         dt = np.dtype([("id", f"U{max(len(i) for i in self.ids)}")]
-                      + [(f, "f8") for f in STATE_FIELDS[:6]] + [("active", "?"), ("sensitive", "?")])
+                      + [(f, TRACK_DTYPE[f]) for f in TRACK_FIELDS])
         out = np.empty(len(self.ids), dt)
         out["id"] = self.ids
-        for f in STATE_FIELDS:
+        for f in TRACK_FIELDS:
             out[f] = snap[f]
         return out
 

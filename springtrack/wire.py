@@ -23,8 +23,11 @@ import time
 import zlib
 from dataclasses import dataclass
 from enum import IntEnum
+from typing import NamedTuple
 
 import numpy as np
+
+from .track import TRACK_DTYPE     # the decoded TELEMETRY trackers are track records
 
 PROTOCOL_VERSION = 1
 
@@ -71,24 +74,18 @@ HOST_COMMANDS = frozenset({MsgType.HELLO, MsgType.MODEL_BEGIN, MsgType.MODEL_CHU
 
 
 class Nack(IntEnum):
-    UNKNOWN_NAME = 1
-    OUT_OF_RANGE = 2
-    WRONG_TYPE = 3
-    BUSY = 4
-    INVALID_MODEL = 5
-    MALFORMED = 6
-    UNKNOWN_TYPE = 7
-    VERSION_MISMATCH = 8
-    BAD_STATE = 9
-    INTERNAL = 10
-
-
-def nack_code(name: str) -> Nack:
-    """The NACK code for an engine's ``UpdateRejected.code`` string ('out_of_range', ...)."""
-    try:
-        return Nack[name.upper()]
-    except KeyError:
-        return Nack.INTERNAL
+    """Why a command was refused.  The code that detects a problem raises an error carrying
+    its code (``springtrack.params`` errors, ``firmware_sim.engine.UpdateRejected``)."""
+    UNKNOWN_NAME = 1      # no parameter (or bias) of that name
+    OUT_OF_RANGE = 2      # a value the name does not accept
+    WRONG_TYPE = 3        # a value of the wrong type (a string for a number, 1.5 for a count)
+    BUSY = 4              # the device could not take it now
+    INVALID_MODEL = 5     # the model (or its upload) does not validate
+    MALFORMED = 6         # the payload does not decode
+    UNKNOWN_TYPE = 7      # not a host command
+    VERSION_MISMATCH = 8  # the frame's protocol version is not the firmware's
+    BAD_STATE = 9         # not now (e.g. MODEL_CHUNK without MODEL_BEGIN)
+    INTERNAL = 10         # an exception inside the firmware's handler
 
 
 class WireError(ValueError):
@@ -290,12 +287,17 @@ class FrameReader:
 
 
 class SeqTracker:
-    """Counts frames lost in one direction from gaps in the 16-bit sequence numbers."""
+    """Counts frames lost in one direction from gaps in the 16-bit sequence numbers: the gap
+    ``(seq - last - 1) mod 2^16``; gaps of 2^15 or more are reordering, not loss."""
 
     def __init__(self):
         self.last: int | None = None
         self.lost = 0
         self.duplicates = 0
+
+    def restart(self, seq: int | None = None) -> None:
+        """A new session: expect anything next (``seq``: the frame that opened it)."""
+        self.last = seq
 
     def update(self, seq: int) -> int:
         """Returns the number of frames missing before ``seq`` (0 if in order)."""
@@ -440,28 +442,48 @@ def decode_hello(payload: bytes) -> tuple[int, str]:
 ACK = struct.Struct("<HBI")
 
 
+class Ack(NamedTuple):
+    seq: int              # the acknowledged command's sequence number
+    type: int             # ... and message type
+    value: int            # model generation for MODEL_COMMIT / PARAM_SET, else 0
+
+
 def encode_ack(seq: int, mtype: int, value: int = 0) -> bytes:
     return ACK.pack(seq & 0xFFFF, int(mtype), int(value) & 0xFFFFFFFF)
 
 
-def decode_ack(payload: bytes) -> tuple[int, int, int]:
+def decode_ack(payload: bytes) -> Ack:
     if len(payload) != ACK.size:
         raise WireError(f"ACK: payload is {len(payload)} bytes, expected {ACK.size}")
-    return ACK.unpack(payload)
+    return Ack(*ACK.unpack(payload))
 
 
 # NACK (frozen across versions): u16 seq, u8 type, u8 code, u16-length UTF-8 reason
-def encode_nack(seq: int, mtype: int, code: int, reason: str) -> bytes:
+class Refusal(NamedTuple):
+    seq: int              # the refused command's sequence number
+    type: int             # ... and message type
+    code: int             # a Nack value (a newer firmware may send codes this host lacks)
+    reason: str
+
+    @property
+    def code_name(self) -> str:
+        return Nack(self.code).name.lower() if self.code in _NACK_VALUES else f"code {self.code}"
+
+
+_NACK_VALUES = frozenset(int(c) for c in Nack)
+
+
+def encode_nack(seq: int, mtype: int, code: Nack, reason: str) -> bytes:
     r = reason.encode("utf-8")[:MAX_PAYLOAD - 8].decode("utf-8", "ignore")
     return struct.pack("<HBB", seq & 0xFFFF, int(mtype) & 0xFF, int(code)) + _text(r, "H")
 
 
-def decode_nack(payload: bytes) -> tuple[int, int, int, str]:
+def decode_nack(payload: bytes) -> Refusal:
     c = _Cursor(payload, "NACK")
     seq, mtype, code = c.unpack("HBB", "header")
     reason = c.text("reason", "H")
     c.done()
-    return seq, mtype, code, reason
+    return Refusal(seq, mtype, code, reason)
 
 
 # VERSION_MISMATCH NACKs carry their reason as "firmware=N host=M: text"
@@ -564,15 +586,37 @@ def decode_param_get(payload: bytes) -> list[str]:
 REPLY_HDR = struct.Struct("<HBB")
 
 
+class ReplyPart(NamedTuple):
+    seq: int              # the request's sequence number
+    part: int             # 0 .. parts - 1
+    parts: int
+    items: dict
+
+
 def encode_reply_part(seq: int, part: int, parts: int, items: dict) -> bytes:
     return REPLY_HDR.pack(seq & 0xFFFF, part, parts) + encode_kv(items)
 
 
-def decode_reply_part(payload: bytes, what: str) -> tuple[int, int, int, dict]:
+def decode_reply_part(payload: bytes, what: str) -> ReplyPart:
     if len(payload) < REPLY_HDR.size:
         raise WireError(f"{what}: payload shorter than its 4-byte header")
     seq, part, parts = REPLY_HDR.unpack_from(payload)
-    return seq, part, parts, decode_kv(payload[REPLY_HDR.size:], what)
+    return ReplyPart(seq, part, parts, decode_kv(payload[REPLY_HDR.size:], what))
+
+
+REPLY_TYPES = (MsgType.ACK, MsgType.NACK, MsgType.PARAM_VALUE, MsgType.STATS)
+
+
+def decode_reply(frame: Frame) -> Ack | Refusal | ReplyPart:
+    """A reply to a host command (ACK, NACK, PARAM_VALUE or STATS part), each naming the
+    request's ``seq``; raises WireError on a malformed payload or another type."""
+    if frame.type == MsgType.ACK:
+        return decode_ack(frame.payload)
+    if frame.type == MsgType.NACK:
+        return decode_nack(frame.payload)
+    if frame.type in (MsgType.PARAM_VALUE, MsgType.STATS):
+        return decode_reply_part(frame.payload, MsgType(frame.type).name)
+    raise WireError(f"message type 0x{frame.type:02x} is not a reply")
 
 
 # APPLIED: u32 generation, i64 event time (µs) at which it took effect
@@ -630,9 +674,6 @@ def decode_log(payload: bytes) -> tuple[int, str]:
 TELE_HDR = struct.Struct("<QHfB")
 TELE_TRACKER = np.dtype([("x", "<u2"), ("y", "<u2"), ("sx", "u1"), ("sy", "u1"),
                          ("rho", "i1"), ("act", "u1")])
-TRACK_DTYPE = np.dtype([("x", "<f8"), ("y", "<f8"), ("sxx", "<f8"), ("sxy", "<f8"),
-                        ("syy", "<f8"), ("activity", "<f8"), ("active", "?"),
-                        ("sensitive", "?")])
 POS_SCALE = 16.0
 POS_MAX = 0x7FFF / POS_SCALE
 SIGMA_SCALE = 4.0
@@ -640,13 +681,16 @@ RHO_SCALE = 127
 ACT_SCALE = 16.0
 
 
-def encode_telemetry(t_us: int, generation: int, mean_energy: float, trackers) -> bytes:
-    """Pack one snapshot; ``trackers`` has fields x, y, sxx, sxy, syy, activity, active,
-    sensitive (any numeric dtypes).  NaNs encode as 0."""
-    tr = np.asarray(trackers)
-    n = len(tr)
-    if n > 255 or TELE_HDR.size + n * TELE_TRACKER.itemsize > MAX_PAYLOAD:
-        raise WireError(f"TELEMETRY: {n} trackers do not fit one frame")
+def quantise_trackers(trackers) -> np.ndarray:
+    """TELE_TRACKER records of tracker states given as fields x, y, sxx, sxy, syy,
+    activity, active, sensitive (a structured array or a dict of arrays, any numeric dtypes,
+    any shape: one snapshot or a block of them).  NaNs encode as 0.
+
+    The quantisation of docs/protocol.md from the float state; the integer-only kernel packs
+    the same layout from its fixed-point state (csrc/fixed_telemetry.c: its scales are
+    checked against these at import, its codes within one of these in
+    tests/test_fixed_telemetry.py)."""
+    tr = trackers
     with np.errstate(invalid="ignore"):
         x = np.nan_to_num(np.clip(tr["x"], 0.0, POS_MAX))
         y = np.nan_to_num(np.clip(tr["y"], 0.0, POS_MAX))
@@ -655,20 +699,21 @@ def encode_telemetry(t_us: int, generation: int, mean_energy: float, trackers) -
         den = sx * sy
         rho = np.where(den > 0, np.nan_to_num(tr["sxy"].astype(float)) / np.where(den > 0, den, 1), 0.0)
         act = np.maximum(np.nan_to_num(tr["activity"].astype(float)), 0.0)
-    rec = np.empty(n, TELE_TRACKER)
+    rec = np.empty(np.shape(tr["x"]), TELE_TRACKER)
     rec["x"] = np.rint(x * POS_SCALE).astype(np.uint16) | (np.asarray(tr["active"], bool).astype(np.uint16) << 15)
     rec["y"] = np.rint(y * POS_SCALE).astype(np.uint16) | (np.asarray(tr["sensitive"], bool).astype(np.uint16) << 15)
     rec["sx"] = np.minimum(np.rint(sx * SIGMA_SCALE), 255)
     rec["sy"] = np.minimum(np.rint(sy * SIGMA_SCALE), 255)
     rec["rho"] = np.rint(np.clip(rho, -1.0, 1.0) * RHO_SCALE)
     rec["act"] = np.minimum(np.rint(ACT_SCALE * np.log2(1.0 + act)), 255)
-    return encode_telemetry_records(t_us, generation, mean_energy, rec.tobytes())
+    return rec
 
 
-def encode_telemetry_records(t_us: int, generation: int, mean_energy: float,
-                             records: bytes) -> bytes:
-    """Pack one snapshot whose tracker records are already in the TELE_TRACKER layout
-    (e.g. written by the fixed-point kernel straight from its integer state)."""
+def encode_telemetry(t_us: int, generation: int, mean_energy: float, records) -> bytes:
+    """Pack one snapshot from its tracker records in the TELE_TRACKER layout (bytes, or an
+    array from :func:`quantise_trackers`).  A non-finite mean energy encodes as NaN."""
+    if isinstance(records, np.ndarray):
+        records = records.tobytes()
     n, rest = divmod(len(records), TELE_TRACKER.itemsize)
     if rest or n > 255 or TELE_HDR.size + len(records) > MAX_PAYLOAD:
         raise WireError(f"TELEMETRY: {len(records)} bytes of tracker records are not "
@@ -711,8 +756,10 @@ def set_read_timeout(port, seconds: float) -> None:
 
 # ---- ENERGIES (lower rate) --------------------------------------------------------------
 # u64 t_us, u8 energy kind (0 euclidean, 1 torsional, 2 cartesian: eqs. 12, 17, 20),
-# u16 connection count n, n x float32 energy of each connection
+# u16 connection count n, n x float32 energy of each connection; sent at most once per
+# ENERGY_PERIOD_US of event time
 ENERGY_HDR = struct.Struct("<QBH")
+ENERGY_PERIOD_US = 100_000
 
 
 def encode_energies(t_us: int, kind: int, energies) -> bytes:

@@ -50,8 +50,8 @@ def run(ev, names, realtime=False, nbuf=64, transfer_bytes=16384, timeout=30.0, 
 
 
 def recorded_x(eng):
-    return np.concatenate([b["x"] for _, b in eng.recorded]), \
-        np.concatenate([b["t"] for _, b in eng.recorded])
+    return np.concatenate([b.samples["trackers"]["x"] for b in eng.recorder.blocks]), \
+        np.concatenate([b.samples["t"] for b in eng.recorder.blocks])
 
 
 def test_fault_names_are_validated():

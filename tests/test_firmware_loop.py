@@ -14,11 +14,12 @@ import pytest
 
 from springtrack import model as _model
 from springtrack import wire
-from springtrack.track import read_csv
+from springtrack.track import TRACK_FIELDS, Track, read_csv
 from springtrack.tracker import Tracker
 from firmware_sim import usb as camusb
 from firmware_sim.engine import UpdateRejected
 from firmware_sim.loop import FirmwareLoop
+from springtrack.wire import Nack
 from springtrack.sim.sensor import simulate_all
 from firmware_sim.simcam import SimBackend, SimCamera
 from firmware_sim.sources import events_source
@@ -57,8 +58,9 @@ def run_to_end(cam, eng, timeout=30.0):
 
 
 def recorded(eng):
-    parts = [b for _, b in eng.recorded]
-    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    """Every snapshot the engine recorded, as a Track."""
+    return Track.concat([Track.from_samples(b.samples, b.ids) for b in eng.recorder.blocks],
+                        eng.recorder.blocks[0].ids)
 
 
 @pytest.mark.parametrize("backend", ["cython", "fixed"])
@@ -73,19 +75,18 @@ def test_tracking_through_the_usb_path_equals_the_offline_tracker(face, tmp_path
         assert {k: v for k, v in s["kernel"].items() if k.startswith("saturated_")} == dict(
             saturated_position=0, saturated_activity=0, saturated_energy=0, saturated_inverse=0)
     snaps = eng.poll_telemetry(10**6)
-    assert len(snaps) == len(recorded(eng)["t"])
-    if backend == "fixed":            # TELEMETRY records packed from the integer state
-        for snap in snaps:
-            _, _, _, dec = wire.decode_telemetry(wire.encode_telemetry_records(
-                snap["t_us"], 1, 0.0, snap["records"]))
-            assert np.all(np.abs(dec["x"] - np.clip(snap["trackers"]["x"], 0, None)) <= 1 / 32)
-    else:
-        assert not any("records" in snap for snap in snaps)
+    assert len(snaps) == len(recorded(eng))
+    for snap in snaps:                # packed from the integer state by the fixed kernel
+        if backend == "cython":
+            assert snap.records == wire.quantise_trackers(snap.trackers).tobytes()
+        _, _, _, dec = wire.decode_telemetry(wire.encode_telemetry(snap.t_us, 1, 0.0,
+                                                                   snap.records))
+        assert np.all(np.abs(dec["x"] - np.clip(snap.trackers["x"], 0, None)) <= 1 / 32)
     ref = Tracker("face26", backend=backend).run(face, SAMPLE)
     got = recorded(eng)
-    assert np.array_equal(got["t"], ref.t_us)
-    for k in ("x", "y", "sxx", "sxy", "syy", "activity"):
-        assert np.array_equal(got[k], getattr(ref, k)), k
+    assert np.array_equal(got.t_us, ref.t_us)
+    for k in TRACK_FIELDS:
+        assert np.array_equal(getattr(got, k), getattr(ref, k)), k
     out = tmp_path / "fw.csv"
     ref_csv = tmp_path / "ref.csv"
     eng.write_record(out)
@@ -111,35 +112,35 @@ def test_model_swap_under_a_stream_is_atomic(face, backend):
     time.sleep(0.1)
     eng.stop()
     snaps += eng.poll_telemetry(100000)
-    (g, n_before), = [x for x in eng.swaps if x[0] == gen]
+    (g, n_before), = [x for x in eng.applied.swaps if x[0] == gen]
     applied = dict(eng.poll_applied())
     assert 0 < n_before < len(face)
     assert applied[gen] == face["t"][n_before]          # the first event under the new model
-    a = [s for s in snaps if s["generation"] == 1]
-    b = [s for s in snaps if s["generation"] == gen]
+    a = [s for s in snaps if s.generation == 1]
+    b = [s for s in snaps if s.generation == gen]
     assert a and b and len(a) + len(b) == len(snaps)
-    assert all(len(s["trackers"]) == 26 for s in a) and all(len(s["trackers"]) == 9 for s in b)
+    assert all(len(s.trackers) == 26 for s in a) and all(len(s.trackers) == 9 for s in b)
     ref_a = Tracker("face26", backend=backend).run(face[:n_before], SAMPLE)
     for s in a:
-        k = np.searchsorted(ref_a.t_us, s["t_us"])
-        if k < len(ref_a) and ref_a.t_us[k] == s["t_us"]:
-            assert np.array_equal(s["trackers"]["x"], ref_a.x[k])
+        k = np.searchsorted(ref_a.t_us, s.t_us)
+        if k < len(ref_a) and ref_a.t_us[k] == s.t_us:
+            assert np.array_equal(s.trackers["x"], ref_a.x[k])
     ref_b = Tracker(grid, backend=backend).run(face[n_before:], SAMPLE)
     common = 0
     for s in b:
-        k = np.searchsorted(ref_b.t_us, s["t_us"])
-        if k < len(ref_b) and ref_b.t_us[k] == s["t_us"]:
-            assert np.array_equal(s["trackers"]["x"], ref_b.x[k])
-            assert np.array_equal(s["trackers"]["sxx"], ref_b.sxx[k])
+        k = np.searchsorted(ref_b.t_us, s.t_us)
+        if k < len(ref_b) and ref_b.t_us[k] == s.t_us:
+            assert np.array_equal(s.trackers["x"], ref_b.x[k])
+            assert np.array_equal(s.trackers["sxx"], ref_b.sxx[k])
             common += 1
     assert common > 10
 
 
 @pytest.mark.parametrize("name,value,code", [
-    ("nope", 1.0, "unknown_name"),
-    ("alpha_position", "fast", "wrong_type"),
-    ("alpha_position", 2.0, "out_of_range"),
-    ("spring_period", 1.5, "wrong_type"),
+    ("nope", 1.0, Nack.UNKNOWN_NAME),
+    ("alpha_position", "fast", Nack.WRONG_TYPE),
+    ("alpha_position", 2.0, Nack.OUT_OF_RANGE),
+    ("spring_period", 1.5, Nack.WRONG_TYPE),
 ])
 def test_invalid_parameter_updates_are_rejected_and_change_nothing(face, name, value, code):
     cam, eng = make_engine(face[:1000])
@@ -155,7 +156,7 @@ def test_invalid_model_is_rejected_and_the_running_model_kept(face):
     for text in ("name = ", _model.grid3x3().to_toml().replace("stiffness = 0.001", "stiffness = -1")):
         with pytest.raises(UpdateRejected) as e:
             eng.load_model(text)
-        assert e.value.code == "invalid_model"
+        assert e.value.code == Nack.INVALID_MODEL
     assert eng.info()["model"] == "face26" and eng.generation == 1
 
 
@@ -171,13 +172,13 @@ def test_parameter_change_applies_between_events_and_reports_its_time(face):
     time.sleep(0.05)
     eng.stop()
     applied = dict(eng.poll_applied())
-    (g, n_before), = [x for x in eng.swaps if x[0] == gen]
+    (g, n_before), = [x for x in eng.applied.swaps if x[0] == gen]
     assert eng.get_params()["alpha_position"] == 0.1
     assert eng.stats()["transfers_dropped"] == 0, eng.stats_line()
     assert applied[gen] == face["t"][n_before]
 
 
-def test_stats_expose_the_issue_counters(face):
+def test_stats_expose_the_loop_counters(face):
     cam, eng = make_engine(face)
     s = run_to_end(cam, eng)
     for key in ("transfers", "bytes", "events_decoded", "events_tracked", "transfers_dropped",
@@ -244,9 +245,9 @@ def test_camera_biases_are_host_parameters_sent_by_the_reader_thread(face):
         assert cam.registers[0x00A] == 0x40                              # flushed again
         assert eng.get_params()["bias.on_event_threshold"] == 70 and gen == 2
         assert eng.reader.counts["commands"] == 1
-        for name, value, code in (("bias.nope", 1, "unknown_name"),
-                                  ("bias.follower", 300, "out_of_range"),
-                                  ("bias.follower", "x", "wrong_type")):
+        for name, value, code in (("bias.nope", 1, Nack.UNKNOWN_NAME),
+                                  ("bias.follower", 300, Nack.OUT_OF_RANGE),
+                                  ("bias.follower", "x", Nack.WRONG_TYPE)):
             with pytest.raises(UpdateRejected) as e:
                 eng.set_param(name, value)
             assert e.value.code == code
@@ -302,22 +303,21 @@ def test_cli_serves_the_host_link_on_tcp():
         p.stderr.close()
 
 
-def test_per_connection_energies_ride_on_snapshots_every_100ms(face):
-    """The loop attaches the criterion's per-connection energies (the link's ENERGIES) to a
-    snapshot at most once per 100 ms of event time, from the running model."""
-    cam, eng = make_engine(face)
+def test_per_connection_energies_ride_on_the_last_snapshot_of_each_block(face):
+    """The loop attaches the criterion's per-connection energies of the running model to
+    the last snapshot of each block it tracked, within one telemetry period of the last
+    spring update (the link sends them as ENERGIES, at most 10 per second of event time)."""
+    cam, eng = make_engine(face, record=True)
     run_to_end(cam, eng)
     snaps = eng.poll_telemetry(100000)
-    with_e = [s for s in snaps if "energies" in s]
+    with_e = [s for s in snaps if s.energies is not None]
     nc = len(_model.load_model("face26").connections)
-    t = np.array([s["t_us"] for s in with_e])
-    span = snaps[-1]["t_us"] - snaps[0]["t_us"]
-    assert len(with_e) == pytest.approx(span / 100_000, abs=1.5) and np.all(np.diff(t) >= 100_000)
+    assert [s.t_us for s in with_e] == [int(b.samples["t"][-1]) for b in eng.recorder.blocks]
     for s in with_e:
-        kind, values = s["energies"]
+        kind, values = s.energies
         assert kind == eng.params.energy_kind_index and values.shape == (nc,)
         assert np.all(values >= 0) and np.all(np.isfinite(values))
-    assert max(float(s["energies"][1].max()) for s in with_e) > 0
+    assert max(float(s.energies[1].max()) for s in with_e) > 0
 
 
 def test_telemetry_queue_is_bounded_and_counts_what_it_drops(face):
@@ -327,7 +327,7 @@ def test_telemetry_queue_is_bounded_and_counts_what_it_drops(face):
     assert n_snap == 599
     assert s["loop"]["telemetry_dropped"] == n_snap - 100
     got = eng.poll_telemetry(1000)
-    assert [g["t_us"] for g in got] == list(range((n_snap - 99) * SAMPLE, (n_snap + 1) * SAMPLE, SAMPLE))
+    assert [g.t_us for g in got] == list(range((n_snap - 99) * SAMPLE, (n_snap + 1) * SAMPLE, SAMPLE))
     assert eng.poll_telemetry() == []
 
 
@@ -381,7 +381,7 @@ def test_evt_profiles_run_through_the_engine_like_the_offline_tracker(face, fmt)
     assert s["events_decoded"] == s["events_tracked"] == len(face)
     got = recorded(eng)
     ref = Tracker("face26").run(face, SAMPLE)
-    assert np.array_equal(got["t"], ref.t_us) and np.array_equal(got["x"], ref.x)
+    assert np.array_equal(got.t_us, ref.t_us) and np.array_equal(got.x, ref.x)
 
 
 def test_cli_sigterm_stops_cleanly_and_writes_the_record(tmp_path):

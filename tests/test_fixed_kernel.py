@@ -327,7 +327,7 @@ def test_telemetry_position_is_a_shift_of_the_state():
     tr = Tracker("face26", backend="fixed")
     tr.process(stream("face26", 5_000))
     raw = tr._b.raw_state()
-    payload = wire.encode_telemetry(tr.last_t, 1, 0.0, tr.state())
+    payload = wire.encode_telemetry(tr.last_t, 1, 0.0, wire.quantise_trackers(tr.state()))
     _, _, _, dec = wire.decode_telemetry(payload)
     x16 = (raw["x"] + (1 << 27)) >> 28                        # Q.32 -> 1/16 px, rounded
     y16 = (raw["y"] + (1 << 27)) >> 28

@@ -1,5 +1,6 @@
-"""The fixed-point kernel's telemetry records come straight from its integer state (csrc/fixed_telemetry.c), in springtrack.wire's TELE_TRACKER layout, and
-agree with wire.encode_telemetry of the float view of the same state."""
+"""The fixed-point kernel's telemetry records come straight from its integer state
+(csrc/fixed_telemetry.c), in springtrack.wire's TELE_TRACKER layout, and agree with
+wire.quantise_trackers of the float view of the same state."""
 import numpy as np
 import pytest
 
@@ -36,7 +37,7 @@ def codes(payload: bytes) -> np.ndarray:
 def test_integer_records_equal_the_float_encoder_within_one_code(states):
     exact = total = 0
     for rec, native in states:
-        want = codes(wire.encode_telemetry(0, 0, 0.0, rec)[wire.TELE_HDR.size:])
+        want = wire.quantise_trackers(rec)
         got = codes(native)
         for f in FIELDS:
             d = np.abs(got[f].astype(int) - want[f].astype(int))
@@ -50,7 +51,7 @@ def test_integer_records_equal_the_float_encoder_within_one_code(states):
 
 def test_records_decode_to_the_state_within_the_wire_resolution(states):
     rec, native = states[-1]
-    payload = wire.encode_telemetry_records(123, 4, 0.5, native)
+    payload = wire.encode_telemetry(123, 4, 0.5, native)
     t, gen, me, dec = wire.decode_telemetry(payload)
     assert (t, gen, me) == (123, 4, 0.5)
     assert np.all(np.abs(dec["x"] - rec["x"]) <= 1 / 32 + 1e-12)
@@ -85,4 +86,4 @@ mass = 1.0
 
 def test_telemetry_records_reject_a_payload_that_is_not_whole_records():
     with pytest.raises(wire.WireError, match="whole 8-byte records"):
-        wire.encode_telemetry_records(0, 0, 0.0, b"\x00" * 12)
+        wire.encode_telemetry(0, 0, 0.0, b"\x00" * 12)

@@ -91,7 +91,7 @@ def test_unreadable_files(tmp_path):
 
 @pytest.mark.parametrize("content,match", [
     (b"% date today\n\x00\x00", "names no encoding"),
-    (b"% evt 4.0\n", "EVT 2.0 and EVT 3.0"),
+    (b"% evt 4.0\n", "EVT 2.0, EVT 2.1 and EVT 3.0"),
     (b"% evt 2.0\n% format EVT2;height=abc;width=10\n", "not an integer"),
     (b"% evt 2.0\n% geometry 0x10\n", "out of range"),
     (b"% evt 2.0\n% unterminated", "no end of line"),

@@ -52,3 +52,25 @@ def test_info_real_file(data_file, capsys):
     assert main(["info", str(data_file("evt2_sample.raw"))]) == 0
     out = capsys.readouterr().out
     assert "events    539,481" in out and "1,317,888 .. 1,367,888 us" in out
+
+
+def test_info_aedat4_shows_streams_and_both_times(data_file, capsys):
+    assert main(["info", str(data_file("sample.aedat4"))]) == 0
+    out = capsys.readouterr().out
+    assert "format    aedat4" in out and "geometry  320x240 (from info node)" in out
+    assert "2 imu (IMUS" in out and "118 packets" in out
+    assert "1,605,537,493,718,345 .. 1,605,537,494,308,262 us" in out
+    assert "2020-11-16 14:38:13.718345 UTC .. 2020-11-16 14:38:14.308262 UTC" in out
+    assert "= 0 .. 589,917 us from the first event" in out
+    assert "imu_packets 59" in out and "anomalies none" in out
+
+
+def test_info_evt21_shows_word_order(tmp_path, capsys):
+    ev = make(np.arange(100), np.arange(100) % 320, np.arange(100) % 320, np.arange(100) % 2)
+    path = tmp_path / "g.raw"
+    sio.write(path, ev, 320, 320, format="evt21-legacy")
+    assert main(["info", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "format    evt21" in out and "geometry  320x320" in out
+    assert "endianness: legacy" in out and "events    100 (50 ON)" in out
+    assert "Unix-epoch" not in out

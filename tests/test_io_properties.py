@@ -91,7 +91,8 @@ def test_dat_round_trip(ev, cuts):
 DECODERS = [("evt2", {}), ("evt3", {}), ("ccam", {"keep_exposure": True}),
             ("es", {"event_type": "dvs"}), ("es", {"event_type": "atis", "width": 304,
                                                     "height": 240}),
-            ("dat", {"width": 640, "height": 480}), ("evt3", {"width": 64, "height": 64})]
+            ("dat", {"width": 640, "height": 480}), ("evt3", {"width": 64, "height": 64}),
+            ("evt21", {"width": 320, "height": 320}), ("evt21", {"legacy": True})]
 
 
 @settings(max_examples=150, deadline=None)
@@ -114,5 +115,5 @@ def test_any_bytes_decode_consistently(which, data, cuts):
         assert len(ref) <= s.words
     if whole.width:
         assert np.all(ref["x"] < whole.width) and np.all(ref["y"] < whole.height)
-    if fmt in ("evt2", "evt3", "ccam"):     # time-high formats: base never decreases
+    if fmt in ("evt2", "evt21", "evt3", "ccam"):     # time-high formats
         assert s.anomalies["truncated"] == (len(data) % ws != 0)

@@ -7,7 +7,7 @@ import pytest
 
 import springtrack.io as sio
 
-FILES = ["evt2_sample.raw", "evt3_sample.raw", "dvs.es"]
+FILES = ["evt2_sample.raw", "evt3_sample.raw", "dvs.es", "ncars_sample.dat", "sample.aedat4"]
 
 
 def payload(path):
@@ -24,6 +24,31 @@ def test_evt2_sample_facts(data_file):
     assert ev["x"].max() == 599 and ev["y"].max() == 475
     assert r.stats.total_anomalies == 0 and r.stats.pending_bytes == 0
     assert r.stats.events == 539_481
+
+
+def test_evt2_sample_equals_peers(data_file):
+    """Event for event against expelliarmus and faery, where installed (the bench extra)."""
+    path = data_file("evt2_sample.raw")
+    ev = sio.open(path).read()
+    refs = {}
+    try:
+        from expelliarmus import Wizard
+        refs["expelliarmus"] = Wizard(encoding="evt2").read(path)
+    except ImportError:
+        pass
+    try:
+        from faery.extension import evt
+        with evt.Decoder(path, (640, 480), None) as d:
+            refs["faery"] = np.concatenate([p["events"] for p in d if "events" in p])
+    except ImportError:
+        pass
+    if not refs:
+        pytest.skip("neither expelliarmus nor faery is installed (pip install .[bench])")
+    for name, ref in refs.items():
+        pol = ref["p"] if "p" in ref.dtype.names else ref["on"]
+        for f, theirs in (("t", ref["t"]), ("x", ref["x"]), ("y", ref["y"]), ("p", pol)):
+            np.testing.assert_array_equal(ev[f].astype(np.int64), theirs.astype(np.int64),
+                                          err_msg=f"{name} {f}")
 
 
 def _py_evt3(words):
@@ -91,6 +116,25 @@ def test_dvs_es_count(data_file):
     assert len(ev) == 473_225
     assert r.stats.total_anomalies == 0 and r.stats.pending_bytes == 0
     assert np.all(np.diff(ev["t"]) >= 0)
+
+
+def test_ncars_dat_facts(data_file):
+    r = sio.open(data_file("ncars_sample.dat"))
+    ev = r.read()
+    assert r.format == "dat" and r.header["event_type"] == "0"
+    assert len(ev) == 2_009 and int(ev["p"].sum()) == 1_350
+    assert ev["t"][0] == 0 and ev["t"][-1] == 99_952 and np.all(np.diff(ev["t"]) >= 0)
+    assert ev["x"].max() == 77 and ev["y"].max() == 41
+    assert r.stats.total_anomalies == 0 and r.stats.pending_bytes == 0
+
+
+def test_ncars_dat_equals_expelliarmus(data_file):
+    expelliarmus = pytest.importorskip("expelliarmus")
+    path = data_file("ncars_sample.dat")
+    ref = expelliarmus.Wizard(encoding="dat").read(path)
+    ev = sio.open(path).read()
+    for f in "txyp":
+        np.testing.assert_array_equal(ev[f].astype(np.int64), ref[f].astype(np.int64), err_msg=f)
 
 
 def _cuts(rng, n, lo=1, hi=1 << 20):

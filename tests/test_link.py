@@ -312,8 +312,7 @@ def test_hello_discards_snapshots_queued_for_nobody(served):
 
 def test_hello_finishes_the_frame_being_written_instead_of_cutting_it():
     """A host that attaches while a frame is half written must not see a CRC error: on HELLO
-    the firmware drops its unwritten frames but completes the one already started
-    (a cut frame made the HIL monitor test report 'link errors 1')."""
+    the firmware drops its unwritten frames but completes the one already started."""
     eng = SimEngine()
     port = transport.PtyPort()
     server = link.LinkServer(port, eng)

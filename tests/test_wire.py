@@ -140,6 +140,8 @@ def test_seq_tracker_counts_gaps_with_wraparound():
     s = wire.SeqTracker()
     assert [s.update(q) for q in (65533, 65534, 1, 2, 2, 5)] == [0, 0, 2, 0, 0, 2]
     assert (s.lost, s.duplicates) == (4, 1)
+    s.restart(100)                       # a new session: no gap from 5 to 100
+    assert [s.update(q) for q in (101, 103)] == [0, 1] and s.lost == 5
 
 
 # ---- payload codecs -------------------------------------------------------------------
@@ -181,8 +183,17 @@ def test_codecs_roundtrip_by_hand():
                                              b"12345678", True))
     assert info["model"] == "face26" and info["generation"] == 4 and info["running"]
     assert info["nonce"] == b"12345678" and info["auth_required"] and info["protocol_version"] == 1
-    assert wire.nack_code("out_of_range") == wire.Nack.OUT_OF_RANGE
-    assert wire.nack_code("no such thing") == wire.Nack.INTERNAL
+    # every reply names the request's seq through its decoder
+    def reply(mtype, payload):
+        return wire.decode_reply(wire.decode_body(wire.encode_body(mtype, 99, payload)))
+    assert reply(MsgType.ACK, wire.encode_ack(7, MsgType.PARAM_SET, 3)) == wire.Ack(7, 0x20, 3)
+    refusal = reply(MsgType.NACK, wire.encode_nack(8, 0x20, wire.Nack.OUT_OF_RANGE, "too big"))
+    assert refusal == wire.Refusal(8, 0x20, 2, "too big") and refusal.code_name == "out_of_range"
+    assert wire.Refusal(8, 0x20, 200, "").code_name == "code 200"     # from a newer firmware
+    part = reply(MsgType.STATS, wire.encode_reply_part(9, 1, 2, {"a": 1}))
+    assert part == wire.ReplyPart(9, 1, 2, {"a": 1})
+    with pytest.raises(wire.WireError, match="not a reply"):
+        reply(MsgType.TELEMETRY, b"")
 
 
 @pytest.mark.parametrize("decoder", [wire.decode_hello, wire.decode_ack, wire.decode_nack,
@@ -221,14 +232,15 @@ def face26_snapshot():
 
 
 def test_face26_snapshot_fits_256_bytes_framed():
-    p = wire.encode_telemetry(2**40 + 5, 70001, 123.25, face26_snapshot())
+    p = wire.encode_telemetry(2**40 + 5, 70001, 123.25, wire.quantise_trackers(face26_snapshot()))
     assert len(p) == 15 + 26 * 8 == 223
     assert len(wire.encode_frame(MsgType.TELEMETRY, 1, p)) <= wire.framed_size(223) == 234 <= 256
 
 
 def test_telemetry_quantisation_bounds():
     tr = face26_snapshot()
-    t, gen, me, out = wire.decode_telemetry(wire.encode_telemetry(2**40 + 5, 70001, 123.25, tr))
+    payload = wire.encode_telemetry(2**40 + 5, 70001, 123.25, wire.quantise_trackers(tr))
+    t, gen, me, out = wire.decode_telemetry(payload)
     assert (t, gen, me) == (2**40 + 5, 70001 & 0xFFFF, 123.25)
     assert np.all(np.abs(out["x"] - tr["x"]) <= 1 / 32 + 1e-12)
     assert np.all(np.abs(out["y"] - tr["y"]) <= 1 / 32 + 1e-12)
@@ -248,7 +260,7 @@ def test_telemetry_clamps_and_saturates():
     tr["sxx"] = [100.0 ** 2, 1.0, 0.0]
     tr["syy"] = [1.0, 1.0, 0.0]
     tr["activity"] = [0.0, 1e9, 1.0]
-    _, _, _, out = wire.decode_telemetry(wire.encode_telemetry(0, 0, 0.0, tr))
+    _, _, _, out = wire.decode_telemetry(wire.encode_telemetry(0, 0, 0.0, wire.quantise_trackers(tr)))
     assert list(out["x"]) == [0.0, wire.POS_MAX, 0.0]
     assert list(out["y"]) == [1.0625, 2047.9375, 0.0]
     assert out["sxx"][0] == (255 / 4) ** 2 and out["sxy"][2] == 0

@@ -4,14 +4,20 @@ from __future__ import annotations
 
 import json
 from collections import Counter
+from datetime import datetime, timedelta, timezone
 
 import numpy as np
 
 BIN_US = 10_000
+# timestamps from here on are taken for Unix-epoch microseconds (AEDAT 4 keeps them so):
+# 10**15 us is 2001-09-09, 4 * 10**15 us is 2096
+EPOCH_US = (10**15, 4 * 10**15)
+WORD_UNIT = {"es": "bytes", "aedat4": "packets"}
 
 
 def add_arguments(p):
-    p.add_argument("file", help="event file (.raw EVT 2.0/3.0, .es, .dat, .ccam, .npy, .csv)")
+    p.add_argument("file", help="event file (.raw EVT 2.0/2.1/3.0, .es, .dat, .aedat4, .ccam, "
+                                ".npy, .csv), or - for an event stream (e.g. RAW) on standard input")
     p.add_argument("--format", help="force the format (needed only for headerless files)")
     p.add_argument("--chunk", type=int, default=1 << 20, help="bytes decoded per step")
     p.add_argument("--json", action="store_true", help="print one JSON object")
@@ -43,9 +49,19 @@ def summarize(path, format=None, chunk=1 << 20) -> dict:
         "mean_rate_ev_s": (n / (span * 1e-6)) if span > 0 else None,
         "peak_rate_ev_s": peak / (BIN_US * 1e-6),
         "peak_bin_start_us": None if peak_bin is None else peak_bin * BIN_US,
+        "t_epoch_utc": (_utc(t_min), _utc(t_max)) if n and _is_epoch(t_min) else None,
         "words": s.words, "pending_bytes": s.pending_bytes,
         "anomalies": s.anomalies, "info": s.info,
     }
+
+
+def _is_epoch(t_us: int) -> bool:
+    return EPOCH_US[0] <= t_us < EPOCH_US[1]
+
+
+def _utc(t_us: int) -> str:
+    t = datetime.fromtimestamp(t_us // 1_000_000, timezone.utc)
+    return (t + timedelta(microseconds=t_us % 1_000_000)).strftime("%Y-%m-%d %H:%M:%S.%f UTC")
 
 
 def run(args) -> int:
@@ -66,12 +82,17 @@ def run(args) -> int:
     if facts["events"]:
         print(f"time      {facts['t_first_us']:,} .. {facts['t_last_us']:,} us "
               f"(span {facts['span_us'] / 1e6:.6f} s)")
+        if facts["t_epoch_utc"]:
+            print(f"          = {facts['t_epoch_utc'][0]} .. {facts['t_epoch_utc'][1]} "
+                  "(Unix-epoch us, kept as recorded)")
+            print(f"          = 0 .. {facts['span_us']:,} us from the first event")
         mean = facts["mean_rate_ev_s"]
         print(f"rate      mean {mean / 1e6:.3f} Mev/s" if mean else "rate      mean n/a",
               end="")
         print(f", peak {facts['peak_rate_ev_s'] / 1e6:.3f} Mev/s "
               f"(10 ms bin at {facts['peak_bin_start_us']:,} us)")
-    print(f"decoded   {facts['words']:,} words, {facts['pending_bytes']} bytes pending")
+    unit = WORD_UNIT.get(facts["format"], "words")
+    print(f"decoded   {facts['words']:,} {unit}, {facts['pending_bytes']} bytes pending")
     bad = {k: v for k, v in facts["anomalies"].items() if v}
     print("anomalies " + (", ".join(f"{k} {v:,}" for k, v in bad.items()) or "none"))
     if facts["info"]:

@@ -38,7 +38,7 @@ def load_events(path):
 def run(args) -> int:
     from ..model import load_model
     from ..render import render
-    from ..track import read_csv
+    from ..track import TRACK_FIELDS, read_csv
     from ..tracker import Tracker
     if args.window_us <= 0 or (args.every_us is not None and args.every_us <= 0):
         raise ValueError("--window-us and --every-us must be positive µs")
@@ -50,7 +50,7 @@ def run(args) -> int:
         if missing:
             raise ValueError(f"{args.track}: no rows for tracker(s) {', '.join(missing[:5])} of the model")
         order = [track.ids.index(i) for i in model.ids]
-        for f in ("x", "y", "sxx", "sxy", "syy", "activity", "active", "sensitive"):
+        for f in TRACK_FIELDS:
             setattr(track, f, getattr(track, f)[:, order])
         track.ids = list(model.ids)
     else:

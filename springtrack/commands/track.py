@@ -15,7 +15,9 @@ from . import prepargs
 EPILOG = """\
 units: event times are microseconds; positions px; covariances px^2.
 input: .npy structured arrays (fields t, x, y, p), CSV with header t,x,y,p, and every
-camera format springtrack.io reads (EVT 2.0/3.0 RAW, Event Stream .es, DAT).
+camera format springtrack.io reads (EVT 2.0/2.1/3.0 RAW, Event Stream .es, DAT, AEDAT 4);
+- reads an event stream (RAW EVT 2.0/2.1/3.0 with its % header, or .es, .dat, .aedat4) from
+standard input as it arrives, e.g. another stack's live output piped in.
 output CSV header: t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive — one row per
 tracker at every multiple of --sample-us between the first and the last event, holding the
 state after all events with t < t_us.
@@ -28,7 +30,8 @@ by half its length (rows start once it is found).  See docs/acquisition.md.
 
 def add_arguments(p):
     p.epilog = EPILOG
-    p.add_argument("input", help="event file (.npy, .csv, .raw, .es, .dat)")
+    p.add_argument("input", help="event file (.npy, .csv, .raw, .es, .dat, .aedat4), or - for "
+                                 "an event stream (e.g. RAW) on standard input")
     p.add_argument("--model",
                    help="shape model: TOML file or preset name (grid3x3, face26); "
                         "or --learn-first-ms")
@@ -84,17 +87,24 @@ def open_stream(args):
     if (args.model is None) == (args.learn_first_ms is None):
         raise ValueError("give either --model or --learn-first-ms")
     model = load_model(args.model) if args.model else None
-    source = read_events(args.input)
     if model is not None:
         width, height = model.width, model.height
+        source = read_events(args.input)
     else:
         from .. import io as stio
         reader = stio.open(args.input)
         width, height = reader.width, reader.height
-        if not width or not height:                 # .npy, .csv: the events' extent
-            ev = reader.read()
-            width = int(ev["x"].max()) + 1 if len(ev) else 1
-            height = int(ev["y"].max()) + 1 if len(ev) else 1
+        if args.input == "-":                       # one pass over standard input
+            if not width or not height:
+                raise ValueError("--learn-first-ms on standard input needs a stream whose "
+                                 "header gives the sensor size")
+            source = ((as_events(c), None) for c in reader)
+        else:
+            if not width or not height:             # .npy, .csv: the events' extent
+                ev = reader.read()
+                width = int(ev["x"].max()) + 1 if len(ev) else 1
+                height = int(ev["y"].max()) + 1 if len(ev) else 1
+            source = read_events(args.input)
     prep = prepargs.preparer(args, width, height)
     if prep is not None:
         source = _prepared(source, prep)

@@ -6,6 +6,7 @@
  * appears in this file: it compiles with `gcc -mgeneral-regs-only`.
  */
 #include "fixed_step.h"
+#include "sampling.h"
 
 #define ONE_Q30 ((int64_t)1 << 30)
 #define RHO_Q30 1063004406u        /* 0.99 (reference.RHO_MAX), Q.30 */
@@ -705,12 +706,12 @@ int64_t fx_steps(fx_state *s, const fx_event *ev, int64_t n, int64_t t_stop)
     for (k = 0; k < n; k++) {
         int64_t t = ev[k].t;
         uint32_t x = ev[k].x, y = ev[k].y;
+        if (st_sample_due(t, t_stop, last_t))
+            break;
         if (t < last_t) {
             n_back++;
             continue;
         }
-        if (t >= t_stop)
-            break;
         last_t = t;
         if (x >= width || y >= height) {
             n_skipped++;

@@ -134,7 +134,8 @@ typedef struct {
 
 int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y);
 /* fx_step over ev[0..n), stopping before the first event with t >= t_stop that is not
-   back in time; returns the events processed (the Stepper's steps(), _stepper.pxd) */
+   back in time (the sampling rule, sampling.h); returns the events processed (the
+   Stepper's steps(), _stepper.pxd) */
 int64_t fx_steps(fx_state *s, const fx_event *ev, int64_t n, int64_t t_stop);
 void fx_springs(fx_state *s);
 void fx_energies(fx_state *s);

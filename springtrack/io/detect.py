@@ -1,7 +1,8 @@
 """Format detection by content, and header parsing (docs/formats.md).
 
-RAW (EVT 2.0 / 3.0) and DAT files start with ``% `` text lines; Event Stream files with
-the ``Event Stream`` magic; ``.npy`` with the numpy magic; CSV with the line ``t,x,y,p``.
+RAW (EVT 2.0 / 2.1 / 3.0) and DAT files start with ``% `` text lines; Event Stream files with
+the ``Event Stream`` magic; AEDAT 4 with ``#!AER-DAT4.0``; ``.npy`` with the numpy magic;
+CSV with the line ``t,x,y,p``.
 Only headerless CCam word dumps need the extension (``.ccam``).
 """
 from __future__ import annotations
@@ -11,19 +12,26 @@ import os
 import re
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from .errors import DecodeError
 
 ES_MAGIC = b"Event Stream"
 NPY_MAGIC = b"\x93NUMPY"
+AEDAT4_MAGIC = b"#!AER-DAT4.0\r\n"
 ES_TYPES = {0: "generic", 1: "dvs", 2: "atis", 4: "color"}
 # Sensor geometry by Prophesee plugin name, used only when the header gives none.
 PLUGIN_GEOMETRY = {"gen3": (640, 480), "gen31": (640, 480), "gen41": (1280, 720),
                    "imx636": (1280, 720), "imx646": (1280, 720), "imx8": (1280, 720)}
-BINARY_FORMATS = ("evt2", "evt3", "es", "dat", "ccam")
+BINARY_FORMATS = ("evt2", "evt21", "evt3", "es", "dat", "ccam", "aedat4")
 FORMATS = BINARY_FORMATS + ("npy", "csv")
 EXTENSIONS = {".raw": "evt2", ".es": "es", ".dat": "dat", ".ccam": "ccam", ".npy": "npy",
-              ".csv": "csv"}
+              ".csv": "csv", ".aedat4": "aedat4"}
 MAX_HEADER = 1 << 20
+# RAW encodings by '% format NAME;...' and by '% evt VERSION'
+RAW_FORMAT_NAMES = {"EVT2": "evt2", "EVT21": "evt21", "EVT3": "evt3"}
+RAW_EVT_VERSIONS = {"2.0": "evt2", "2": "evt2", "2.1": "evt21", "3.0": "evt3", "3": "evt3"}
+EVT21_TYPES = np.array([0x0, 0x1, 0x8, 0xA, 0xE, 0xF], np.uint64)   # evt21.pxd's Evt21Type
 
 
 @dataclass
@@ -35,6 +43,7 @@ class FileInfo:
     height: int | None = None
     header: dict = field(default_factory=dict)
     event_type: str | None = None      # Event Stream: dvs | atis
+    options: dict = field(default_factory=dict)    # decoder options the header implies
 
 
 def _header_ends(head: bytes) -> bool:
@@ -104,26 +113,86 @@ def _raw_geometry(fields: dict, path):
 def _raw_format(fields: dict, path, ext: str) -> str:
     evt = fields.get("evt", "")
     fmt = fields.get("format", "").split(";")[0].strip().upper()
-    if evt in ("2.0", "2") or fmt == "EVT2":
-        return "evt2"
-    if evt in ("3.0", "3") or fmt == "EVT3":
-        return "evt3"
+    if fmt in RAW_FORMAT_NAMES:
+        return RAW_FORMAT_NAMES[fmt]
+    if not fmt and evt in RAW_EVT_VERSIONS:
+        return RAW_EVT_VERSIONS[evt]
     if evt or fmt:
-        raise DecodeError(f"{path}: RAW encoding {evt or fmt!r} not supported "
-                          "(EVT 2.0 and EVT 3.0 are)")
+        raise DecodeError(f"{path}: RAW encoding {fmt or evt!r} not supported "
+                          "(EVT 2.0, EVT 2.1 and EVT 3.0 are)")
     if "Version" in fields or ext == ".dat":
         return "dat"
     raise DecodeError(f"{path}: '% ' header names no encoding (no '% evt' or '% format' "
-                      "line); pass format='evt2' or 'evt3'")
+                      "line); pass format='evt2', 'evt21' or 'evt3'")
+
+
+def _evt21_order(fields: dict, payload: bytes) -> tuple[str, str]:
+    """EVT 2.1 word order: ('little' | 'legacy', where that came from).
+
+    '% format EVT21;...;endianness=legacy' is the IMX636's order, any other EVT21 format
+    line the 64-bit little-endian one (OpenEB's rule).  A file with only '% evt 2.1' does
+    not say: its first words decide.  Read in the right order, TIME_HIGH words have their
+    other 32 bits zero and every word type is defined; read in the wrong one, a TIME_HIGH
+    word shows as a change-detection word and vice versa.  The order with more such
+    TIME_HIGH words wins, then the one with fewer undefined types; a tie (no payload)
+    keeps the IMX636's, the only EVT 2.1 sensor of the Metavision versions that wrote
+    such headers."""
+    fmt = fields.get("format", "")
+    if fmt:
+        opts = dict(p.split("=", 1) for p in fmt.split(";")[1:] if "=" in p)
+        return ("legacy" if opts.get("endianness") == "legacy" else "little"), "format"
+    words = np.frombuffer(payload[:len(payload) // 8 * 8][:1 << 15], "<u8")
+    half = np.uint64(32)
+    keys = []
+    for v in (words, (words << half) | (words >> half)):
+        typ = v >> np.uint64(60)
+        clean_th = int(((typ == 0x8) & ((v & np.uint64(0xFFFFFFFF)) == 0)).sum())
+        undefined = int((~np.isin(typ, EVT21_TYPES)).sum())
+        keys.append((clean_th, -undefined))
+    return ("little" if keys[0] > keys[1] else "legacy"), "word types"
+
+
+def percent_info(head: bytes, path, ext: str = "", format: str | None = None) -> FileInfo:
+    """RAW (EVT 2.0 / 2.1 / 3.0) or DAT from ``head``: the ``%`` header lines and the first
+    payload bytes after them."""
+    fields, offset = _percent_header(head, path)
+    fmt = format or _raw_format(fields, path, ext)
+    w, h, src = _raw_geometry(fields, path)
+    if src:
+        fields["geometry_source"] = src
+    options = {}
+    if fmt == "evt21":
+        fields["endianness"], fields["endianness_source"] = _evt21_order(fields,
+                                                                        head[offset:])
+        options["legacy"] = fields["endianness"] == "legacy"
+    if fmt == "dat":
+        if len(head) < offset + 2:
+            raise DecodeError(f"{path}: DAT file ends before the event type/size bytes")
+        etype, esize = head[offset], head[offset + 1]
+        if esize != 8:
+            raise DecodeError(f"{path}: DAT event size {esize} not supported (8 is)")
+        fields["event_type"], fields["event_size"] = str(etype), str(esize)
+        offset += 2
+    return FileInfo(fmt, offset, w, h, fields, options=options)
 
 
 def sniff(path, format: str | None = None) -> FileInfo:
     """Detect the format of ``path`` from its first bytes (extension only for CCam)."""
-    ext = os.path.splitext(str(path))[1].lower()
     with builtins.open(path, "rb") as f:
         head = f.read(1 << 16)
         if head.startswith(b"%") and not _header_ends(head):
             head += f.read(MAX_HEADER - len(head))     # a long text header
+        if head.startswith(AEDAT4_MAGIC):
+            from .aedat4 import MAX_HEADER as AEDAT4_MAX, header_length
+            head += f.read(max(0, min(header_length(head), AEDAT4_MAX + 32) - len(head)))
+    return sniff_bytes(head, path, format)
+
+
+def sniff_bytes(head: bytes, path, format: str | None = None) -> FileInfo:
+    """Detect the format from ``head``, the first bytes of a file or stream (its whole
+    header and, for RAW/DAT, some payload); ``path`` names it in errors (its extension
+    matters only for CCam)."""
+    ext = os.path.splitext(str(path))[1].lower()
     if not head:
         raise DecodeError(f"{path}: empty file")
     if format is not None and format not in FORMATS:
@@ -132,21 +201,10 @@ def sniff(path, format: str | None = None) -> FileInfo:
         return _es_info(head, path)
     if head.startswith(NPY_MAGIC):
         return FileInfo("npy")
+    if head.startswith(AEDAT4_MAGIC):
+        return _aedat4_info(head, path)
     if head.startswith(b"%"):
-        fields, offset = _percent_header(head, path)
-        fmt = format or _raw_format(fields, path, ext)
-        w, h, src = _raw_geometry(fields, path)
-        if src:
-            fields["geometry_source"] = src
-        if fmt == "dat":
-            if len(head) < offset + 2:
-                raise DecodeError(f"{path}: DAT file ends before the event type/size bytes")
-            etype, esize = head[offset], head[offset + 1]
-            if esize != 8:
-                raise DecodeError(f"{path}: DAT event size {esize} not supported (8 is)")
-            fields["event_type"], fields["event_size"] = str(etype), str(esize)
-            offset += 2
-        return FileInfo(fmt, offset, w, h, fields)
+        return percent_info(head, path, ext, format)
     first = head.split(b"\n", 1)[0].strip().replace(b" ", b"")
     if first == b"t,x,y,p":
         return FileInfo("csv")
@@ -155,8 +213,8 @@ def sniff(path, format: str | None = None) -> FileInfo:
         return FileInfo(format, 0, w, h)
     if ext == ".ccam":
         return FileInfo("ccam", 0, 304, 240)
-    raise DecodeError(f"{path}: unknown format (no '% ' header, Event Stream magic, numpy "
-                      f"magic or 't,x,y,p' CSV header; first bytes {head[:16]!r})")
+    raise DecodeError(f"{path}: unknown format (no '% ' header, Event Stream, AEDAT 4 or "
+                      f"numpy magic, or 't,x,y,p' CSV header; first bytes {head[:16]!r})")
 
 
 def _es_info(head: bytes, path) -> FileInfo:
@@ -177,3 +235,23 @@ def _es_info(head: bytes, path) -> FileInfo:
     if w == 0 or h == 0:
         raise DecodeError(f"{path}: Event Stream geometry {w}x{h} is empty")
     return FileInfo("es", 20, w, h, {"version": version, "type": kind}, event_type=kind)
+
+
+def _aedat4_info(head: bytes, path) -> FileInfo:
+    """AEDAT 4: geometry from the first events stream's info node (aedat4.parse_header)."""
+    from .aedat4 import describe_streams, parse_header
+    h = parse_header(head, path)
+    streams = h["streams"]
+    events = sorted(i for i, s in streams.items() if s["type"] == "EVTS")
+    if not events:
+        raise DecodeError(f"{path}: AEDAT 4 file has no events (EVTS) stream: "
+                          f"{describe_streams(streams)}")
+    ev = streams[events[0]]
+    fields = {"version": "4.0", "compression": h["compression"],
+              "streams": describe_streams(streams), "event_stream": str(events[0]),
+              "source": ev["source"], "tsOffset": ev["ts_offset"],
+              "data_table": str(h["data_table"]), "geometry_source": "info node"}
+    options = {"streams": {i: s["type"] for i, s in streams.items()},
+               "event_stream": events[0], "compression": h["compression"],
+               "data_end": h["data_table"] - h["offset"] if h["data_table"] >= 0 else -1}
+    return FileInfo("aedat4", h["offset"], ev["width"], ev["height"], fields, options=options)

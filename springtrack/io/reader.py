@@ -23,6 +23,8 @@ DECODERS = {
     "evt3": ("evt3", "Evt3Decoder"),
     "es": ("es", "EsDecoder"),
     "dat": ("dat", "DatDecoder"),
+    "evt21": ("evt21", "Evt21Decoder"),
+    "aedat4": ("aedat4", "Aedat4Decoder"),
 }
 
 
@@ -51,6 +53,7 @@ class Reader:
         self.header = info.header
         self.offset = info.offset
         self.event_type = info.event_type
+        self.options = info.options
         self.keep_exposure = keep_exposure
         self.stats = DecodeStats(self.format)
         self.exposure = np.empty(0, EVENT_DTYPE)
@@ -62,10 +65,15 @@ class Reader:
     def __iter__(self):
         return self.chunks()
 
-    # fewest payload bytes per event (EVT 3.0 vectors can do better: the output then grows)
-    MIN_BYTES_PER_EVENT = {"evt2": 4, "evt3": 2, "es": 5, "dat": 8, "ccam": 4}
-    # typical payload bytes per event, for a progress estimate (EVT 3.0: the Gen4.1 sample)
-    BYTES_PER_EVENT = {"evt2": 4.0, "evt3": 2.8, "es": 5.0, "dat": 8.0, "ccam": 4.0}
+    # payload bytes per event for the first output array: the fewest, or a guess where words
+    # carry many (EVT 3.0 vectors, EVT 2.1 masks) or packets are compressed (AEDAT 4): the
+    # output then grows
+    MIN_BYTES_PER_EVENT = {"evt2": 4, "evt21": 4, "evt3": 2, "es": 5, "dat": 8, "ccam": 4,
+                           "aedat4": 8}
+    # typical payload bytes per event, for a progress estimate (EVT 3.0: the Gen4.1 sample,
+    # AEDAT 4: the DVXplorer sample with its IMU packets)
+    BYTES_PER_EVENT = {"evt2": 4.0, "evt21": 4.0, "evt3": 2.8, "es": 5.0, "dat": 8.0,
+                       "ccam": 4.0, "aedat4": 8.5}
 
     @property
     def size_hint(self) -> int:
@@ -81,8 +89,9 @@ class Reader:
 
     def decoder(self):
         opts = {}
-        if self.format in ("evt2", "evt3", "dat", "es"):
+        if self.format in ("evt2", "evt21", "evt3", "dat", "es", "aedat4"):
             opts = {"width": self.width or 0, "height": self.height or 0}
+        opts.update(self.options)
         if self.format == "es":
             opts["event_type"] = self.event_type
         if self.format in ("es", "ccam"):
@@ -203,7 +212,11 @@ def _load_csv(path) -> np.ndarray:
 
 
 def open_events(path, format: str | None = None, keep_exposure: bool = False) -> Reader:
-    """Open an event file of any supported format (detected by content)."""
+    """Open an event file of any supported format (detected by content); ``"-"``: the event
+    stream on standard input (springtrack.io.stream)."""
+    if isinstance(path, str) and path == "-":
+        from .stream import open_stream
+        return open_stream(format=format)
     info = sniff(path, format)
     if info.format in ("npy", "csv"):
         return ArrayReader(path, info)

@@ -1,4 +1,5 @@
-"""File writers: EVT 2.0 / 3.0 RAW, Event Stream (DVS, ATIS), DAT, CCam words, npy, CSV."""
+"""File writers: EVT 2.0 / 2.1 / 3.0 RAW, Event Stream (DVS, ATIS), DAT, AEDAT 4, CCam words,
+npy, CSV."""
 from __future__ import annotations
 
 import os
@@ -8,7 +9,8 @@ import numpy as np
 from ..events import as_events
 from .detect import EXTENSIONS
 
-WRITE_FORMATS = ("evt2", "evt3", "es", "es-dvs", "es-atis", "dat", "ccam", "npy", "csv")
+WRITE_FORMATS = ("evt2", "evt21", "evt21-legacy", "evt3", "es", "es-dvs", "es-atis", "dat",
+                 "aedat4", "ccam", "npy", "csv")
 
 
 DAT_EVENT_TYPE = 0x0C     # the two bytes after a DAT header: event type, event size
@@ -23,6 +25,14 @@ def _raw_header(version: str, name: str, width: int, height: int) -> bytes:
 def _evt2(ev, width, height):
     from . import evt2
     return _raw_header("2.0", "EVT2", width, height) + evt2.encode(ev)
+
+
+def _evt21(legacy):
+    def enc(ev, width, height):
+        from . import evt21
+        name = "EVT21;endianness=legacy" if legacy else "EVT21"
+        return _raw_header("2.1", name, width, height) + evt21.encode(ev, legacy)
+    return enc
 
 
 def _evt3(ev, width, height):
@@ -44,6 +54,11 @@ def _dat(ev, width, height):
         + dat.encode(ev)
 
 
+def _aedat4(ev, width, height):
+    from . import aedat4
+    return aedat4.encode(ev, width, height)
+
+
 def _ccam(ev, width, height):
     from . import ccam
     if (width, height) != (ccam.WIDTH, ccam.HEIGHT):
@@ -52,8 +67,9 @@ def _ccam(ev, width, height):
 
 
 # binary format -> encoder(events, width, height) -> file bytes
-ENCODERS = {"evt2": _evt2, "evt3": _evt3, "es": _es("dvs"), "es-dvs": _es("dvs"),
-            "es-atis": _es("atis"), "dat": _dat, "ccam": _ccam}
+ENCODERS = {"evt2": _evt2, "evt21": _evt21(False), "evt21-legacy": _evt21(True),
+            "evt3": _evt3, "es": _es("dvs"), "es-dvs": _es("dvs"), "es-atis": _es("atis"),
+            "dat": _dat, "aedat4": _aedat4, "ccam": _ccam}
 
 
 def encode_file(events, width: int, height: int, format: str) -> bytes:
@@ -71,7 +87,8 @@ def encode_file(events, width: int, height: int, format: str) -> bytes:
 def write(path, events, width: int | None = None, height: int | None = None,
           format: str | None = None) -> str:
     """Write ``events`` to ``path``; the format defaults from the extension
-    (.raw -> evt2, .es -> Event Stream DVS, .dat, .ccam, .npy, .csv)."""
+    (.raw -> evt2, .es -> Event Stream DVS, .dat, .aedat4, .ccam, .npy, .csv; format="evt21"
+    for EVT 2.1, "evt21-legacy" for the IMX636's EVT 2.1 word order)."""
     fmt = format or EXTENSIONS.get(os.path.splitext(str(path))[1].lower())
     if fmt not in WRITE_FORMATS:
         raise ValueError(f"{path}: cannot tell the output format from the extension; "

@@ -1,0 +1,188 @@
+"""The firmware's model slot: the running model, parameters and tracker kernel, and the
+update queued to replace them (a double buffer), numbered by generation.
+
+Updates are validated and built completely in the caller's thread (a new kernel for a
+model or a reset), queued, and swapped in by the processing thread between two events
+(:meth:`ModelSlot.apply`).  :class:`AppliedLog` reports the event time at which each
+generation took effect.
+"""
+from __future__ import annotations
+
+import threading
+from collections import deque
+from dataclasses import dataclass
+
+from springtrack import model as _model
+from springtrack import params as _params
+from springtrack.tracker import make_backend, resolve_params
+from springtrack.wire import Nack
+
+from .engine import UpdateRejected
+
+BACKENDS = ("cython", "fixed")     # the tracker kernels a firmware can run (springtrack.tracker)
+
+
+@dataclass(frozen=True, slots=True)
+class _Build:
+    """A model (or a reset) queued with the kernel built for it."""
+    model: _model.ShapeModel
+    params: _params.Params
+    kernel: object
+    generation: int
+
+
+@dataclass(frozen=True, slots=True)
+class Swap:
+    """What :meth:`ModelSlot.apply` put in effect."""
+    generation: int
+    new_kernel: bool          # a model load or reset (else parameters changed in place)
+
+
+class ModelSlot:
+    """``ModelSlot(backend, model, params)``: ``model``/``params`` as for
+    ``springtrack.Tracker``; ``backend`` "cython" (float64) or "fixed" (integer-only,
+    docs/fixed_point.md).  The queue_* methods are thread-safe and raise
+    :class:`UpdateRejected`; :meth:`apply` runs in the processing thread."""
+
+    def __init__(self, backend: str, model, params=None):
+        if backend not in BACKENDS:
+            raise ValueError(f"backend {backend!r}: the firmware runs one of {', '.join(BACKENDS)}")
+        self.backend = backend
+        self.model = _model.load_model(model)
+        self.params = resolve_params(self.model, params)
+        self.kernel = self.new_kernel(self.model, self.params)
+        self.generation = 1                  # in effect
+        self.lock = threading.Lock()
+        self._last_gen = 1                   # last handed out
+        self._build: _Build | None = None
+        self._params: dict = {}              # name -> (value, generation)
+        self._retired: dict = {}             # counters of the kernels swapped out
+
+    def new_kernel(self, model, params):
+        return make_backend(self.backend, model, params)
+
+    @property
+    def pending(self) -> bool:
+        return self._build is not None or bool(self._params)
+
+    def next_generation(self) -> int:
+        """A new generation number, for an update applied outside the slot (a bias)."""
+        with self.lock:
+            self._last_gen += 1
+            return self._last_gen
+
+    # ---- queueing (any thread) ---------------------------------------------------------
+    def queue_model(self, toml_text: str) -> int:
+        """Validate a model TOML, build its kernel and queue it; queued parameter changes
+        are dropped (the model brings its own).  Returns its generation."""
+        try:
+            m = _model.loads(toml_text, "uploaded model")
+            p = resolve_params(m)
+            k = self.new_kernel(m, p)
+        except (ValueError, TypeError) as e:       # ModelError, ParamError are ValueErrors
+            raise UpdateRejected(Nack.INVALID_MODEL, str(e)) from None
+        with self.lock:
+            self._last_gen += 1
+            self._build = _Build(m, p, k, self._last_gen)
+            self._params = {}
+            return self._last_gen
+
+    def queue_reset(self) -> int:
+        """A fresh kernel of the current (or queued) model and parameters."""
+        with self.lock:
+            m = self._build.model if self._build else self.model
+            p = self._build.params if self._build else self.params
+            self._last_gen += 1
+            self._build = _Build(m, p, self.new_kernel(m, p), self._last_gen)
+            return self._last_gen
+
+    def queue_param(self, name: str, value) -> int:
+        """Validate one parameter against the queued state and queue it; the
+        ``springtrack.params`` error's code becomes the NACK code."""
+        with self.lock:
+            base = self._build.params if self._build else self.params
+            merged = {k: v for k, (v, _) in self._params.items()}
+            merged[name] = value
+            try:
+                _params.from_mapping(merged, base)
+            except _params.ParamError as e:
+                raise UpdateRejected(e.code, str(e)) from None
+            self._last_gen += 1
+            self._params[name] = (_params.check(name, value), self._last_gen)
+            return self._last_gen
+
+    def params_dict(self) -> dict:
+        with self.lock:
+            return self.params.as_dict()
+
+    # ---- applying (processing thread, between two events) ----------------------------------
+    def apply(self) -> Swap | None:
+        """Put what is queued in effect; None if nothing was."""
+        with self.lock:
+            build, self._build = self._build, None
+            changes, self._params = self._params, {}
+        gen = None
+        if build is not None:
+            self._retire(self.kernel)
+            self.model, self.params, self.kernel = build.model, build.params, build.kernel
+            gen = build.generation
+        if changes:
+            new = _params.from_mapping({n: v for n, (v, _) in changes.items()}, self.params)
+            self.kernel.set_params(new)
+            self.params = new
+            gen = max([g for _, g in changes.values()] + [gen or 0])
+        if gen is None:
+            return None
+        self.generation = gen
+        return Swap(gen, build is not None)
+
+    # ---- counters ----------------------------------------------------------------------
+    def _retire(self, kernel) -> None:
+        for k, v in kernel.counters().items():
+            self._retired[k] = self._retired.get(k, 0) + int(v)
+
+    def kernel_counters(self) -> dict:
+        """The tracker kernel's counters summed over every kernel this run (a model load or
+        RESET starts a new one): events it skipped and, for the fixed backend, the values
+        it saturated (docs/fixed_point.md)."""
+        out = dict(self._retired)
+        for k, v in self.kernel.counters().items():
+            out[k] = out.get(k, 0) + int(v)
+        return dict(out, backend=self.backend)
+
+
+class AppliedLog:
+    """The event time at which each generation took effect, for ``Engine.poll_applied``:
+    that of the first event processed under it (or, for an update applied outside the
+    tracker, the last event time when it was applied)."""
+
+    def __init__(self):
+        self._reports: deque = deque()          # (generation, t_us) not yet polled
+        self._waiting: list = []                # generations awaiting their first event
+        self.swaps: deque = deque(maxlen=1024)  # (generation, events tracked before it)
+
+    def took_effect(self, generation: int, tracked: int) -> None:
+        """``generation`` is in effect from the next event; ``tracked`` events came before."""
+        self._waiting.append(generation)
+        self.swaps.append((generation, int(tracked)))
+
+    @property
+    def waiting(self) -> bool:
+        return bool(self._waiting)
+
+    def first_event(self, t_us: int) -> None:
+        """The first event under the waiting generations was at ``t_us``."""
+        self._reports.extend((g, int(t_us)) for g in self._waiting)
+        self._waiting = []
+
+    def report(self, generation: int, t_us: int) -> None:
+        self._reports.append((generation, int(t_us)))
+
+    def pending(self) -> bool:
+        return bool(self._reports)
+
+    def poll(self) -> list:
+        out = []
+        while self._reports:
+            out.append(self._reports.popleft())
+        return out
