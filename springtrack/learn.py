@@ -138,10 +138,10 @@ class LearnResult:
     """What :func:`learn_model` found: the model and the evidence behind it."""
     model: ShapeModel
     events: int                        # events in the window
-    assigned: int                      # of them taken by a tracker in the last pass
+    assigned: int                      # of them taken by the final trackers (their histories)
     t_start_us: int
     t_end_us: int
-    counts: np.ndarray                 # (N,) events per tracker, last pass
+    counts: np.ndarray                 # (N,) events each final tracker (or its pieces) took
     springs: list                      # LearnedSpring per connection (model order)
     candidates: list                   # every LearnedSpring considered, kept or not
     lifecycle: dict = field(default_factory=dict)

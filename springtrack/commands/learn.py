@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..events import EVENT_DTYPE
 from . import prepargs
 
 EPILOG = """\
@@ -125,7 +126,7 @@ def learn_first(source, ms: float, width: int, height: int, name: str = "learned
         if k < len(chunk):
             rest = chunk[k:]
             break
-    events = np.concatenate(held) if held else np.empty(0, reader_dtype())
+    events = np.concatenate(held) if held else np.empty(0, EVENT_DTYPE)
     res = learn_model(events, width=width, height=height, name=name,
                       track_params=read_params(params) if params else None)
     m = res.model
