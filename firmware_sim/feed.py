@@ -11,7 +11,8 @@ from . import usb as camusb
 
 
 class DecodedFeed:
-    """The non-fused path for the EVT 2.0 / 3.0 profiles, with the interface of
+    """The non-fused path for the EVT 2.0 / 3.0 profiles (and for a kernel the fused loop
+    cannot call: the microcontroller build in its emulator), with the interface of
     ``_fused.Fused``: a ``springtrack.io`` streaming decoder turns each piece into an event
     array, then the kernel tracks it with the same sampling rule (``_fused.track_events``:
     ``Kernel.run`` with the TELEMETRY records the kernel packs).  One Python call per piece, never per event."""
@@ -36,7 +37,8 @@ class DecodedFeed:
 
     @property
     def native_records(self):
-        return packs_records(self.kernel)
+        own = getattr(self.kernel, "native_records", None)   # a kernel with no C step (mcu)
+        return own if own is not None else packs_records(self.kernel)
 
     @property
     def last_t(self):
@@ -49,6 +51,14 @@ class DecodedFeed:
     def mark_next(self) -> None:
         self.mark = True
         self.first_t = -1
+
+    def _track(self, ev):
+        """The kernel's run with the records it packs: ``_fused.track_events`` through its
+        C step, or, for a kernel with none (the microcontroller build in its emulator), its
+        own run, whose rows carry them."""
+        if getattr(self.kernel, "native_records", None) is not None:
+            return self.kernel.run(ev, self.period, self.next_t, 512)
+        return track_events(self.kernel, ev, self.period, self.next_t, 512)
 
     def gap(self) -> None:
         """Data lost: restart the decoder (its time base and partial word are stale);
@@ -73,8 +83,7 @@ class DecodedFeed:
             self.first_t = int(ev["t"][0])
         parts, pos = [], 0
         while pos < len(ev):
-            consumed, self.next_t, out = track_events(self.kernel, ev[pos:], self.period,
-                                                      self.next_t, 512)
+            consumed, self.next_t, out = self._track(ev[pos:])
             pos += consumed
             if out is not None and len(out["t"]):
                 parts.append(out)

@@ -57,9 +57,9 @@ class FirmwareLoop:
         self.slot = ModelSlot(backend, model, params)
         self.applied = AppliedLog()
         self.profile = camusb.PROFILES[profile] if isinstance(profile, str) else profile
-        if self.profile.fmt == "ccam":
+        if self.profile.fmt == "ccam" and not backend.startswith("mcu"):
             self.fused = Fused(self.slot.kernel, telemetry_period_us, 512)
-        else:                                 # EVT boards: springtrack.io decoder + kernel
+        else:            # EVT boards, or a kernel in an emulator: springtrack.io decoder + run
             self.fused = DecodedFeed(self.slot.kernel, telemetry_period_us, self.profile)
         self.period = int(telemetry_period_us)
         self.piece = int(piece_bytes)

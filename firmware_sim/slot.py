@@ -19,7 +19,9 @@ from springtrack.wire import Nack
 
 from .engine import UpdateRejected
 
-BACKENDS = ("cython", "fixed")     # the tracker kernels a firmware can run (springtrack.tracker)
+# the tracker kernels a firmware can run (springtrack.tracker); "mcu" is the fixed kernel's
+# microcontroller build in its emulator (slow: for correctness tests of the whole chain)
+BACKENDS = ("cython", "fixed", "mcu")
 
 
 @dataclass(frozen=True, slots=True)
@@ -40,12 +42,13 @@ class Swap:
 
 class ModelSlot:
     """``ModelSlot(backend, model, params)``: ``model``/``params`` as for
-    ``springtrack.Tracker``; ``backend`` "cython" (float64) or "fixed" (integer-only,
-    docs/fixed_point.md).  The queue_* methods are thread-safe and raise
+    ``springtrack.Tracker``; ``backend`` "cython" (float64), "fixed" (integer-only,
+    docs/fixed_point.md) or "mcu" (that kernel's microcontroller build in an emulator,
+    docs/mcu.md; "mcu:cortex-m7" names the core).  The queue_* methods are thread-safe and raise
     :class:`UpdateRejected`; :meth:`apply` runs in the processing thread."""
 
     def __init__(self, backend: str, model, params=None):
-        if backend not in BACKENDS:
+        if backend.partition(":")[0] not in BACKENDS:
             raise ValueError(f"backend {backend!r}: the firmware runs one of {', '.join(BACKENDS)}")
         self.backend = backend
         self.model = _model.load_model(model)

@@ -156,7 +156,12 @@ PROFILES: dict[str, DeviceProfile] = {p.name: p for p in (
 
 
 def make_decoder(profile: DeviceProfile):
-    """A ``springtrack.io`` streaming decoder for the non-fused (EVT) profiles."""
+    """A ``springtrack.io`` streaming decoder for the non-fused path: the EVT profiles, and
+    the CCam words when the kernel has no C-level step for the fused loop (the
+    microcontroller build in its emulator)."""
+    if profile.fmt == "ccam":
+        from springtrack.io.ccam import CCamDecoder
+        return CCamDecoder()
     if profile.fmt == "evt2":
         from springtrack.io.evt2 import Evt2Decoder
         return Evt2Decoder(profile.width, profile.height)
@@ -166,7 +171,7 @@ def make_decoder(profile: DeviceProfile):
         except ImportError as e:
             raise CameraError(f"profile {profile.name}: EVT 3.0 decoder not available: {e}") from None
         return Evt3Decoder(profile.width, profile.height)
-    raise CameraError(f"profile {profile.name}: format {profile.fmt!r} is decoded by the fused loop")
+    raise CameraError(f"profile {profile.name}: format {profile.fmt!r} has no streaming decoder")
 
 
 def read_serial(dev) -> int:
