@@ -256,23 +256,42 @@ def test_camera_biases_are_host_parameters_sent_by_the_reader_thread(face):
         eng.stop()
 
 
-def test_cli_replays_a_real_recording_through_the_usb_path(tmp_path, data_file):
-    """replay:FILE re-encodes a real DVS recording (320 x 240) as CCam words; events outside
-    304 x 240 are dropped and counted; the track equals the offline tracker's on the rest."""
+def run_cli(*args, timeout=180):
+    return subprocess.run([sys.executable, "-m", "firmware_sim.cli", "run", *args,
+                           "--stats-every", "0"], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def test_cli_replays_a_real_recording_at_its_geometry_or_for_the_ccam(tmp_path, data_file):
+    """replay:FILE serves a real DVS recording (320 x 240) re-encoded for an EVK of its own
+    geometry: every event tracked; with --profile ccam_atis for the 304 x 240 ATIS: events
+    outside are dropped, counted and reported.  Both tracks equal the offline tracker's on
+    the events the camera sent."""
     from springtrack import io as stio
+    from springtrack.model import face26
     path = data_file("dvs.es")
     ev = np.concatenate([np.asarray(c) for c in stio.open(path)])
     ev = ev[ev["t"] < ev["t"][0] + 300_000]
-    keep = ev[(ev["x"] < 304) & (ev["y"] < 240)]
+    model = tmp_path / "face320.toml"
+    face26(width=320, height=240).save(model)
     out = tmp_path / "fw.csv"
-    r = subprocess.run([sys.executable, "-m", "firmware_sim.cli", "run", "--source",
-                        f"replay:{path}", "--max-speed", "--seconds", "0.3", "--preset",
-                        "face26", "--record", str(out), "--stats-every", "0"],
-                       capture_output=True, text=True, timeout=120)
+    r = run_cli("--source", f"replay:{path}", "--max-speed", "--seconds", "0.3", "--model",
+                str(model), "--record", str(out))
     assert r.returncode == 0, r.stderr
-    assert f"tracked={len(keep)}" in r.stdout
-    assert f"replay: {len(ev) - len(keep)} events outside" in r.stderr
+    assert f"tracked={len(ev)} geometry_drops=0 format=evt2 sensor=320x240" in r.stdout
     ref = tmp_path / "ref.csv"
+    Tracker(model).run(ev, SAMPLE).to_csv(ref)
+    assert out.read_text() == ref.read_text()
+
+    keep = ev[(ev["x"] < 304) & (ev["y"] < 240)]
+    r = run_cli("--source", f"replay:{path}", "--max-speed", "--seconds", "0.3", "--preset",
+                "face26", "--profile", "ccam_atis", "--record", str(out))
+    assert r.returncode == 0, r.stderr
+    drop = len(ev) - len(keep)
+    assert (f"tracked={len(keep)} geometry_drops={drop} ({drop / len(ev):.1%} of the events, "
+            f"outside the 304x240 sensor) format=ccam") in r.stdout
+    assert "does not fit the 304x240 sensor of --profile ccam_atis" in r.stderr
+    assert f"replay: warning: {drop} of {len(ev)} events" in r.stderr
     Tracker("face26").run(keep, SAMPLE).to_csv(ref)
     assert out.read_text() == ref.read_text()
 
