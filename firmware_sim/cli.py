@@ -56,6 +56,11 @@ def build_parser() -> argparse.ArgumentParser:
     m.add_argument("--model", help="shape model TOML file")
     m.add_argument("--preset", help="preset model name (face26, grid3x3)")
     r.add_argument("--params", help="TOML file of parameter overrides")
+    r.add_argument("--sensor-from", choices=["source", "model"],
+                   help="a model whose [sensor] is not the camera's is refused; 'source': "
+                        "use it on the camera's sensor (trackers where they are), 'model': "
+                        "keep its sensor (events outside it skipped and counted); applies "
+                        "to uploaded models too")
     r.add_argument("--backend", default="cython", choices=["cython", "fixed"],
                    help="tracker kernel: float64 'cython' (default) or the integer-only "
                         "'fixed' kernel of docs/fixed_point.md (positions Q.32 px)")
@@ -205,7 +210,7 @@ def run(args) -> int:
                           nbuf=args.buffers, record=bool(args.record),
                           lossless=cam is not None and args.max_speed, biases=biases,
                           profile=source.profile, backend=args.backend, roi=roi,
-                          source_counters=source.counters)
+                          source_counters=source.counters, sensor_from=args.sensor_from)
     stop = threading.Event()
     link_thread, port = start_link(args, engine, stop)
     if args.wait_start and link_thread is None:

@@ -45,8 +45,11 @@ class FirmwareLoop:
     ``lossless=True`` (simulated camera at max speed only) makes the reader wait instead of
     shedding; ``record=True`` keeps every snapshot for :meth:`write_record`.  ``profile``
     (``firmware_sim.usb.PROFILES`` name or DeviceProfile) names the word format and the
-    sensor's geometry (``width``/``height`` override it); ``roi`` ``(x, y, w, h)`` tracks
-    only that region; ``source_counters()`` (optional) returns what the source dropped
+    sensor's geometry (``width``/``height`` override it), which every model must fit
+    (``springtrack.geometry.fit_model``; ``sensor_from`` "source" or "model" takes a model
+    of another ``[sensor]``, None refuses it: ValueError here, NACK ``sensor_mismatch`` for
+    an upload); ``roi`` ``(x, y, w, h)`` tracks only that region; ``source_counters()``
+    (optional) returns what the source dropped
     before the camera (``events_in``, ``outside_sensor``), reported in the statistics."""
 
     def __init__(self, open_camera, model="face26", params=None, telemetry_period_us: int = 1000,
@@ -54,14 +57,15 @@ class FirmwareLoop:
                  transfer_bytes: int | None = None, lossless: bool = False,
                  biases: dict | None = None, profile="ccam_atis",
                  record: bool = False, width: int | None = None, height: int | None = None,
-                 backend: str = "cython", roi=None, source_counters=None):
+                 backend: str = "cython", roi=None, source_counters=None, sensor_from=None):
         if telemetry_period_us <= 0:
             raise ValueError(f"telemetry_period_us must be positive, got {telemetry_period_us}")
-        self.slot = ModelSlot(backend, model, params)
-        self.applied = AppliedLog()
         self.profile = camusb.PROFILES[profile] if isinstance(profile, str) else profile
         self.width = width or self.profile.width          # the sensor
         self.height = height or self.profile.height
+        # every model (this one, uploads) must fit the sensor: springtrack.geometry
+        self.slot = ModelSlot(backend, model, params, (self.width, self.height), sensor_from)
+        self.applied = AppliedLog()
         self.fused = Fused(self.slot.kernel, telemetry_period_us, 512, fmt=self.profile.fmt,
                            width=self.width, height=self.height, legacy=self.profile.legacy,
                            roi=roi)
