@@ -61,9 +61,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "use it on the camera's sensor (trackers where they are), 'model': "
                         "keep its sensor (events outside it skipped and counted); applies "
                         "to uploaded models too")
-    r.add_argument("--backend", default="cython", choices=["cython", "fixed"],
-                   help="tracker kernel: float64 'cython' (default) or the integer-only "
-                        "'fixed' kernel of docs/fixed_point.md (positions Q.32 px)")
+    r.add_argument("--backend", default="cython", choices=["cython", "fixed", "mcu"],
+                   help="tracker kernel: float64 'cython' (default), the integer-only "
+                        "'fixed' kernel of docs/fixed_point.md (positions Q.32 px), or 'mcu': "
+                        "that kernel's Cortex-M4 build run in an emulator (docs/mcu.md; slow, "
+                        "for correctness tests; needs pip install 'springtrack[mcu]')")
     sp = r.add_mutually_exclusive_group()
     sp.add_argument("--realtime", action="store_true",
                     help="simulated camera releases events at their timestamps (default)")

@@ -27,6 +27,7 @@ from springtrack.limits import MAX_CONNECTIONS, MAX_TRACKERS
 from springtrack.wire import Nack
 
 from ._fused import Fused
+from .feed import DecodedFeed
 from . import usb as camusb
 from .engine import UpdateRejected
 from .meter import LoadMeter, LoopCounters
@@ -66,9 +67,14 @@ class FirmwareLoop:
         # every model (this one, uploads) must fit the sensor: springtrack.geometry
         self.slot = ModelSlot(backend, model, params, (self.width, self.height), sensor_from)
         self.applied = AppliedLog()
-        self.fused = Fused(self.slot.kernel, telemetry_period_us, 512, fmt=self.profile.fmt,
-                           width=self.width, height=self.height, legacy=self.profile.legacy,
-                           roi=roi)
+        if not backend.startswith("mcu"):
+            self.fused = Fused(self.slot.kernel, telemetry_period_us, 512, fmt=self.profile.fmt,
+                               width=self.width, height=self.height,
+                               legacy=self.profile.legacy, roi=roi)
+        else:        # a kernel in an emulator, with no C step: springtrack.io decoder + run
+            if roi is not None:
+                raise ValueError("--roi needs a kernel the fused loop runs (cython, fixed)")
+            self.fused = DecodedFeed(self.slot.kernel, telemetry_period_us, self.profile)
         self.source_counters = source_counters or dict
         self.period = int(telemetry_period_us)
         self.piece = int(piece_bytes)

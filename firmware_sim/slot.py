@@ -20,7 +20,9 @@ from springtrack.wire import Nack
 
 from .engine import UpdateRejected
 
-BACKENDS = ("cython", "fixed")     # the tracker kernels a firmware can run (springtrack.tracker)
+# the tracker kernels a firmware can run (springtrack.tracker); "mcu" is the fixed kernel's
+# microcontroller build in its emulator (slow: for correctness tests of the whole chain)
+BACKENDS = ("cython", "fixed", "mcu")
 
 
 @dataclass(frozen=True, slots=True)
@@ -41,14 +43,15 @@ class Swap:
 
 class ModelSlot:
     """``ModelSlot(backend, model, params, sensor=None, sensor_from=None)``:
-    ``model``/``params`` as for ``springtrack.Tracker``; ``backend`` "cython" (float64) or
-    "fixed" (integer-only, docs/fixed_point.md); ``sensor``: the camera's (width, height),
-    which every model must fit (``springtrack.geometry.fit_model`` with ``sensor_from``:
-    None, "source" or "model").  The queue_* methods are thread-safe and raise
-    :class:`UpdateRejected`; :meth:`apply` runs in the processing thread."""
+    ``model``/``params`` as for ``springtrack.Tracker``; ``backend`` "cython" (float64),
+    "fixed" (integer-only, docs/fixed_point.md) or "mcu" (that kernel's microcontroller build
+    in an emulator, docs/mcu.md; "mcu:cortex-m7" names the core); ``sensor``: the camera's
+    (width, height), which every model must fit (``springtrack.geometry.fit_model`` with
+    ``sensor_from``: None, "source" or "model").  The queue_* methods are thread-safe and
+    raise :class:`UpdateRejected`; :meth:`apply` runs in the processing thread."""
 
     def __init__(self, backend: str, model, params=None, sensor=None, sensor_from=None):
-        if backend not in BACKENDS:
+        if backend.partition(":")[0] not in BACKENDS:
             raise ValueError(f"backend {backend!r}: the firmware runs one of {', '.join(BACKENDS)}")
         self.backend = backend
         self.sensor = sensor or (None, None)

@@ -162,6 +162,19 @@ PROFILES: dict[str, DeviceProfile] = {p.name: p for p in (
 )}
 
 
+def make_decoder(profile: DeviceProfile):
+    """A ``springtrack.io`` streaming decoder of the profile's words at its geometry, for
+    the non-fused path: a kernel with no C-level step for the fused loop (the
+    microcontroller build in its emulator)."""
+    from springtrack.io import decoder
+    if profile.fmt == "ccam":
+        return decoder("ccam")
+    if profile.fmt not in ("evt2", "evt21", "evt3"):
+        raise CameraError(f"profile {profile.name}: format {profile.fmt!r} has no streaming decoder")
+    opts = {"legacy": profile.legacy} if profile.fmt == "evt21" else {}
+    return decoder(profile.fmt, width=profile.width, height=profile.height, **opts)
+
+
 def read_serial(dev) -> int:
     data = dev.ctrl_transfer(REQ_SERIAL[0], REQ_SERIAL[1], SERIAL_WVALUE, 0, 8, CTRL_TIMEOUT_MS)
     if len(data) < 8:

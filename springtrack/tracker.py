@@ -9,7 +9,11 @@ Backends (same results, different speed):
 
 * ``"cython"``    float64 kernel (``_kernel.pyx``), equal to the reference to 1e-9 px;
 * ``"reference"`` the pure-Python executable specification (``reference.py``), slow;
-* ``"fixed"``     the integer-only kernel, when built (see docs/fixed_point.md).
+* ``"fixed"``     the integer-only kernel, when built (see docs/fixed_point.md);
+* ``"mcu"``       that kernel's microcontroller build (``"mcu:cortex-m7"``, ... names the
+                  core; default Cortex-M4) run in an instruction-set emulator: the same
+                  results as ``"fixed"``, bit for bit, slowly (springtrack/mcu/, the
+                  ``[mcu]`` extra).
 
 Each backend object offers ``run(events, sample_us, next_t, cap)``, ``set_params``,
 ``snapshot(t)``, ``energies()``, ``mean_energy``, ``last_t`` and ``counters()``.
@@ -29,7 +33,7 @@ from .reference import ReferenceTracker
 from .sampling import UNSET, first_sample_time, sample_due
 from .track import TRACK_DTYPE, TRACK_FIELDS, Track
 
-BACKENDS = ("cython", "reference", "fixed")
+BACKENDS = ("cython", "reference", "fixed", "mcu")
 SAMPLE_CAP = 4096          # sample rows per kernel call; bounds memory for huge time gaps
 
 
@@ -95,19 +99,39 @@ class ReferenceBackend:
                     spring_updates=r.n_spring_updates)
 
 
+def _cython_backend(model, params, option):
+    from ._kernel import Kernel
+    return Kernel(model, params)
+
+
+def _fixed_backend(model, params, option):
+    try:
+        mod = importlib.import_module("springtrack._fixed")
+    except ImportError as e:
+        raise ValueError(f"backend 'fixed' is not available in this build: {e}") from None
+    return mod.FixedKernel(model, params)
+
+
+def _mcu_backend(model, params, option):
+    from .mcu import MissingExtra
+    try:
+        from .mcu.backend import DEFAULT_TARGET, McuBackend
+        return McuBackend(model, params, target=option or DEFAULT_TARGET)
+    except (MissingExtra, RuntimeError) as e:      # no toolchain, a failed build or run
+        raise ValueError(f"backend 'mcu': {e}") from None
+
+
+# name -> factory(model, params, option); "name:option" passes the option (the mcu's core)
+_FACTORIES = {"reference": lambda m, p, o: ReferenceBackend(m, p), "cython": _cython_backend,
+              "fixed": _fixed_backend, "mcu": _mcu_backend}
+
+
 def make_backend(name: str, model: ShapeModel, params: Params):
-    if name == "reference":
-        return ReferenceBackend(model, params)
-    if name == "cython":
-        from ._kernel import Kernel
-        return Kernel(model, params)
-    if name == "fixed":
-        try:
-            mod = importlib.import_module("springtrack._fixed")
-        except ImportError as e:
-            raise ValueError(f"backend 'fixed' is not available in this build: {e}") from None
-        return mod.FixedKernel(model, params)
-    raise ValueError(f"unknown backend {name!r}; choose from {', '.join(BACKENDS)}")
+    base, _, option = name.partition(":")
+    if base not in _FACTORIES or (option and base != "mcu"):
+        raise ValueError(f"unknown backend {name!r}; choose from {', '.join(BACKENDS)} "
+                         f"(mcu:TARGET names a core)")
+    return _FACTORIES[base](model, params, option)
 
 
 def resolve_params(model: ShapeModel, params=None) -> Params:

@@ -386,21 +386,53 @@ def test_cli_usb_source_without_a_camera_fails_clearly():
     assert "Traceback" not in r.stderr
 
 
-@pytest.mark.parametrize("fmt", ["evt2", "evt3"])
+@pytest.mark.parametrize("fmt", ["evt2", "evt21", "evt3"])
 def test_evt_profiles_run_through_the_engine_like_the_offline_tracker(face, fmt):
-    """EVT 2.0 / 3.0 boards: same reader and engine, the springtrack.io decoder instead of
-    the fused CCam loop; the track equals the offline tracker's."""
+    """A Prophesee-style EVK streaming EVT 2.0 / 2.1 / 3.0 words of a 304 x 240 sensor:
+    the same reader, engine and fused loop, that format's decoder; the track equals the
+    offline tracker's."""
     prof = camusb.PROFILES[fmt]
-    cam = SimCamera([face], fmt=fmt)
+    cam = SimCamera(events_source(face, 2048), fmt=fmt)
     be = SimBackend(cam, pid=prof.pid)
     eng = FirmwareLoop(lambda: camusb.Camera.open(prof, backend=be), "face26",
                        telemetry_period_us=SAMPLE, profile=fmt, lossless=True, record=True,
-                       transfer_bytes=16384)
+                       transfer_bytes=16384, width=304, height=240)
     s = run_to_end(cam, eng)
     assert s["events_decoded"] == s["events_tracked"] == len(face)
+    assert s["decode"]["format"] == fmt and s["geometry_drops"]["events"] == 0
     got = recorded(eng)
     ref = Tracker("face26").run(face, SAMPLE)
     assert np.array_equal(got.t_us, ref.t_us) and np.array_equal(got.x, ref.x)
+
+
+def test_the_engine_refuses_a_model_that_does_not_fit_the_camera(face, tmp_path):
+    """Guard rails on the firmware: a model of another [sensor] (unless --sensor-from), or
+    with trackers outside its sensor, is refused at start and NACKed when uploaded
+    (sensor_mismatch); the running model stays."""
+    from springtrack.geometry import SensorMismatch, TrackersOutside
+    from springtrack.model import face26, grid3x3
+    prof = camusb.PROFILES["evt2"]
+    opener = lambda: None                               # noqa: E731 - never started here
+    with pytest.raises(SensorMismatch, match="304x240 but the camera's sensor is 640x480"):
+        FirmwareLoop(opener, "face26", profile=prof)
+    eng = FirmwareLoop(opener, "face26", profile=prof, sensor_from="model")
+    assert (eng.model.width, eng.width) == (304, 640)
+    eng = FirmwareLoop(opener, "face26", profile=prof, sensor_from="source")
+    assert (eng.model.width, eng.model.height) == (640, 480)
+    eng = FirmwareLoop(opener, face26(cx=320, cy=240, width=640, height=480), profile=prof)
+    gen = eng.generation
+    with pytest.raises(UpdateRejected) as e:
+        eng.load_model(grid3x3().to_toml())               # 304 x 240
+    assert e.value.code == Nack.SENSOR_MISMATCH and "640x480" in str(e.value)
+    off = grid3x3(width=640, height=480).to_toml().replace("x = 102.0", "x = 700.0", 1)
+    with pytest.raises(UpdateRejected) as e:
+        eng.load_model(off)
+    assert e.value.code == Nack.SENSOR_MISMATCH and "(700, " in str(e.value)
+    assert eng.generation == gen and eng.model.name == "face26"
+    with pytest.raises(TrackersOutside, match="outside the 640x480 sensor"):
+        bad = tmp_path / "bad.toml"
+        bad.write_text(off)
+        FirmwareLoop(opener, str(bad), profile=prof)
 
 
 def test_cli_sigterm_stops_cleanly_and_writes_the_record(tmp_path):

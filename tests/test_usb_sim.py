@@ -166,7 +166,15 @@ def test_evt_profiles_are_read_only_and_decoded_by_the_fused_loop():
     for name in ("evt2", "evt21", "evt3"):
         p = camusb.PROFILES[name]
         assert not p.configure and p.fmt == name and p.fmt in WORD_FORMATS
+        # and by springtrack.io's streaming decoder, at the profile's geometry, for a kernel
+        # the fused loop cannot call (the microcontroller build, docs/mcu.md)
+        d = camusb.make_decoder(p)
+        assert (d.format, d.width, d.height) == (name, p.width, p.height)
     assert camusb.PROFILES["ccam_atis"].fmt in WORD_FORMATS
+    assert camusb.make_decoder(camusb.PROFILES["ccam_atis"]).format == "ccam"
+    odd = camusb.DeviceProfile("odd", 1, 2, "evt9", 64, 64, False)
+    with pytest.raises(camusb.CameraError, match="no streaming decoder"):
+        camusb.make_decoder(odd)
 
 
 @pytest.mark.parametrize("fmt,legacy", [("evt2", False), ("evt21", False), ("evt21", True),
