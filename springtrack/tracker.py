@@ -27,6 +27,7 @@ import numpy as np
 
 from . import params as _params
 from .events import as_events
+from .geometry import check_inside
 from .model import ShapeModel, load_model
 from .params import Params
 from .reference import ReferenceTracker
@@ -157,7 +158,8 @@ def resolve_params(model: ShapeModel, params=None) -> Params:
 class Tracker:
     """Part-based shape tracker. Feed events in time order, in as many chunks as you like.
 
-    ``model``: a ShapeModel, a preset name or a TOML path; ``params``: Params, a dict of
+    ``model``: a ShapeModel, a preset name or a TOML path, its trackers on its sensor
+    (``springtrack.geometry.TrackersOutside`` otherwise); ``params``: Params, a dict of
     overrides, a TOML path, or None (defaults < model [params] < these).
     Events that go back in time or fall outside the sensor are skipped and counted
     (:attr:`counters`), never raised.
@@ -173,6 +175,8 @@ class Tracker:
     def __init__(self, model, params=None, backend: str = "cython", acquire: bool = False,
                  acquire_ms: float = 50.0, acquire_bounds: dict | None = None):
         self.model = load_model(model)
+        if not acquire:          # placed by the acquisition otherwise
+            check_inside(self.model)
         self.params = resolve_params(self.model, params)
         self.backend_name = backend
         self._b = make_backend(backend, self.model, self.params)
