@@ -205,11 +205,21 @@ class Tracker:
         self._sample_us = sample_us
 
     def process(self, events) -> None:
-        """Consume an event array (fields t µs, x, y, p), in time order."""
-        ev = as_events(events)
+        """Consume an event array (fields t µs, x, y, p), in time order.  The kernels read
+        the common layouts as they are (packed or aligned records, t int64 or uint64, x/y
+        int16 or uint16, p bool or int: ``springtrack._stepper.layout_of``), converting
+        them block by block inside their loop; anything else is converted first."""
         if self.acquisition is not None and not self.acquisition.done:
-            ev = self._placed(self.acquisition.feed(ev))
-        self._track(ev)
+            self._track(self._placed(self.acquisition.feed(as_events(events))))
+            return
+        self._track(events if self._reads_as_is(events) else as_events(events))
+
+    def _reads_as_is(self, events) -> bool:
+        """The backend's loop reads ``events`` without a conversion first."""
+        if self.backend_name not in ("cython", "fixed"):
+            return False
+        from ._stepper import layout_of
+        return layout_of(events) is not None
 
     def flush(self) -> None:
         """End of input: if the acquisition is still looking, try on what it buffered."""
