@@ -28,6 +28,7 @@ import numpy as np
 
 from . import params as _params
 from .events import as_events
+from .geometry import check_inside
 from .model import ShapeModel, load_model
 from .params import Params
 from .reference import ReferenceTracker
@@ -161,7 +162,8 @@ def resolve_params(model: ShapeModel, params=None) -> Params:
 class Tracker:
     """Part-based shape tracker. Feed events in time order, in as many chunks as you like.
 
-    ``model``: a ShapeModel, a preset name or a TOML path; ``params``: Params, a dict of
+    ``model``: a ShapeModel, a preset name or a TOML path, its trackers on its sensor
+    (``springtrack.geometry.TrackersOutside`` otherwise); ``params``: Params, a dict of
     overrides, a TOML path, or None (defaults < model [params] < these).
     Events that go back in time or fall outside the sensor are skipped and counted
     (:attr:`counters`), never raised.
@@ -177,6 +179,8 @@ class Tracker:
     def __init__(self, model, params=None, backend: str = "cython", acquire: bool = False,
                  acquire_ms: float = 50.0, acquire_bounds: dict | None = None):
         self.model = load_model(model)
+        if not acquire:          # placed by the acquisition otherwise
+            check_inside(self.model)
         self.params = resolve_params(self.model, params)
         self.backend_name = backend
         self._b = make_backend(backend, self.model, self.params)
@@ -205,11 +209,21 @@ class Tracker:
         self._sample_us = sample_us
 
     def process(self, events) -> None:
-        """Consume an event array (fields t µs, x, y, p), in time order."""
-        ev = as_events(events)
+        """Consume an event array (fields t µs, x, y, p), in time order.  The kernels read
+        the common layouts as they are (packed or aligned records, t int64 or uint64, x/y
+        int16 or uint16, p bool or int: ``springtrack._stepper.layout_of``), converting
+        them block by block inside their loop; anything else is converted first."""
         if self.acquisition is not None and not self.acquisition.done:
-            ev = self._placed(self.acquisition.feed(ev))
-        self._track(ev)
+            self._track(self._placed(self.acquisition.feed(as_events(events))))
+            return
+        self._track(events if self._reads_as_is(events) else as_events(events))
+
+    def _reads_as_is(self, events) -> bool:
+        """The backend's loop reads ``events`` without a conversion first."""
+        if self.backend_name not in ("cython", "fixed"):
+            return False
+        from ._stepper import layout_of
+        return layout_of(events) is not None
 
     def flush(self) -> None:
         """End of input: if the acquisition is still looking, try on what it buffered."""
