@@ -14,12 +14,15 @@ from dataclasses import dataclass
 
 from springtrack import model as _model
 from springtrack import params as _params
+from springtrack.geometry import SensorError, fit_model
 from springtrack.tracker import make_backend, resolve_params
 from springtrack.wire import MAX_NAME_BYTES, Nack
 
 from .engine import UpdateRejected
 
-BACKENDS = ("cython", "fixed")     # the tracker kernels a firmware can run (springtrack.tracker)
+# the tracker kernels a firmware can run (springtrack.tracker); "mcu" is the fixed kernel's
+# microcontroller build in its emulator (slow: for correctness tests of the whole chain)
+BACKENDS = ("cython", "fixed", "mcu")
 
 
 @dataclass(frozen=True, slots=True)
@@ -63,16 +66,21 @@ def _reason(e: BaseException) -> str:
 
 
 class ModelSlot:
-    """``ModelSlot(backend, model, params)``: ``model``/``params`` as for
-    ``springtrack.Tracker``; ``backend`` "cython" (float64) or "fixed" (integer-only,
-    docs/fixed_point.md).  The queue_* methods are thread-safe and raise
-    :class:`UpdateRejected`; :meth:`apply` runs in the processing thread."""
+    """``ModelSlot(backend, model, params, sensor=None, sensor_from=None)``:
+    ``model``/``params`` as for ``springtrack.Tracker``; ``backend`` "cython" (float64),
+    "fixed" (integer-only, docs/fixed_point.md) or "mcu" (that kernel's microcontroller build
+    in an emulator, docs/mcu.md; "mcu:cortex-m7" names the core); ``sensor``: the camera's
+    (width, height), which every model must fit (``springtrack.geometry.fit_model`` with
+    ``sensor_from``: None, "source" or "model").  The queue_* methods are thread-safe and
+    raise :class:`UpdateRejected`; :meth:`apply` runs in the processing thread."""
 
-    def __init__(self, backend: str, model, params=None):
-        if backend not in BACKENDS:
+    def __init__(self, backend: str, model, params=None, sensor=None, sensor_from=None):
+        if backend.partition(":")[0] not in BACKENDS:
             raise ValueError(f"backend {backend!r}: the firmware runs one of {', '.join(BACKENDS)}")
         self.backend = backend
-        self.model = _model.load_model(model)
+        self.sensor = sensor or (None, None)
+        self.sensor_from = sensor_from
+        self.model = self.fit(_model.load_model(model))
         check_name(self.model)
         self.params = resolve_params(self.model, params)
         self.kernel = self.new_kernel(self.model, self.params)
@@ -88,11 +96,19 @@ class ModelSlot:
 
     def check_kernel_params(self, model, params) -> None:
         """Raise ValueError if this backend's kernel would refuse ``params`` for ``model``:
-        the checks its ``set_params`` runs (the fixed kernel's Q formats,
-        ``springtrack.fixed_q.params_q``), so that an accepted update always applies."""
-        if self.backend == "fixed":
+        the checks its ``set_params`` runs before loading them (the fixed kernel's Q
+        formats, ``springtrack.fixed_q.params_words``, also the microcontroller build's), so
+        that an accepted update always applies."""
+        if self.backend.partition(":")[0] in ("fixed", "mcu"):
             from springtrack import fixed_q
-            fixed_q.params_q(params, len(model.connections))
+            fixed_q.params_words(params, len(model.connections))
+
+    def fit(self, model):
+        """``model`` checked against the camera's sensor (springtrack.geometry): a
+        ``SensorError`` (a ModelError) if it does not fit."""
+        w, h = self.sensor
+        return fit_model(model, w, h, self.sensor_from, what="the camera's sensor",
+                         source_word="source")
 
     @property
     def pending(self) -> bool:
@@ -114,10 +130,13 @@ class ModelSlot:
             raise UpdateRejected(Nack.INVALID_MODEL, _reason(e)) from None
         check_name(m)
         try:
+            m = self.fit(m)
             p = resolve_params(m)
             k = self.new_kernel(m, p)
         except (ValueError, TypeError, ArithmeticError) as e:  # ParamError is a ValueError
-            raise UpdateRejected(Nack.INVALID_MODEL, _reason(e)) from None
+            # a model that does not fit the sensor says so (springtrack.geometry's code)
+            code = e.code if isinstance(e, SensorError) else Nack.INVALID_MODEL
+            raise UpdateRejected(code, _reason(e)) from None
         with self.lock:
             self._last_gen += 1
             self._build = _Build(m, p, k, self._last_gen)

@@ -1,5 +1,5 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
-# distutils: depends = springtrack/csrc/fixed_step.c springtrack/csrc/fixed_step.h springtrack/csrc/fixed_telemetry.c springtrack/csrc/fixed_telemetry.h springtrack/csrc/sampling.h
+# distutils: depends = springtrack/csrc/fixed_step.c springtrack/csrc/fixed_step.h springtrack/csrc/fixed_tables.h springtrack/csrc/fixed_telemetry.c springtrack/csrc/fixed_telemetry.h springtrack/csrc/sampling.h
 """Fixed-point tracker backend (``Tracker(..., backend="fixed")``).
 
 The per-event step and the springs are the integer-only C unit
@@ -10,7 +10,6 @@ integer state to float64 only when a sample is taken.  Same interface as
 ``springtrack._kernel.Kernel``; docs/fixed_point.md has the formats and error bounds.
 """
 from libc.stdlib cimport calloc, free
-from libc.string cimport memset
 from libc.stdint cimport int64_t, uint64_t, int32_t, uint32_t, uint16_t, uint8_t
 
 import numpy as np
@@ -32,86 +31,38 @@ cdef extern from "csrc/fixed_step.h" nogil:
     enum:
         FX_MAX_TRACKERS
         FX_MAX_CONNECTIONS
-        FX_CELL_SHIFT
-        FX_EXP2_N
-        FX_CORDIC_N
-        FX_ATAN_BITS
-        FX_SQRT_N
-        FX_DECAY_N
-        FX_GAUSS_N
-    ctypedef struct fx_state:
+        FX_OK
+    ctypedef struct fx_state:          # the fields this wrapper reads (fixed_step.h)
         int32_t n, nc, width, height
-        int64_t a1, a2, cov_gain, energy_gain
-        int64_t gate
-        int64_t k_tau, dt_max, act_thr
-        uint32_t escale
-        int32_t escale_never
-        int64_t smin2, smax2
-        int32_t period, ekind, need_torsion
-        int32_t used_kinds, unit_mass, equal_mass
-        int64_t decay_span, gate_q20
+        int64_t act_thr
         int64_t mx[FX_MAX_TRACKERS]
         int64_t my[FX_MAX_TRACKERS]
         int64_t sxx[FX_MAX_TRACKERS]
         int64_t sxy[FX_MAX_TRACKERS]
         int64_t syy[FX_MAX_TRACKERS]
         int64_t act[FX_MAX_TRACKERS]
-        int64_t tlast[FX_MAX_TRACKERS]
-        uint32_t mq[FX_MAX_TRACKERS]
-        uint32_t invm[FX_MAX_TRACKERS]
-        int64_t gdx0[FX_MAX_TRACKERS]
-        int64_t gdy0[FX_MAX_TRACKERS]
-        uint64_t isolated
         uint64_t sensitive_mask
-        int32_t ca[FX_MAX_CONNECTIONS]
-        int32_t cb[FX_MAX_CONNECTIONS]
-        int32_t kinds[FX_MAX_CONNECTIONS]
-        uint64_t ends[FX_MAX_CONNECTIONS]
-        uint32_t stiff[FX_MAX_CONNECTIONS]
-        int32_t l0[FX_MAX_CONNECTIONS]
-        int32_t dx0[FX_MAX_CONNECTIONS]
-        int32_t dy0[FX_MAX_CONNECTIONS]
-        uint32_t th0[FX_MAX_CONNECTIONS]
-        int32_t c0x[FX_MAX_CONNECTIONS]
-        int32_t c0y[FX_MAX_CONNECTIONS]
         int64_t energy[3][FX_MAX_CONNECTIONS]
         int64_t mean_energy
-        int32_t grx[FX_MAX_CONNECTIONS]
-        int32_t gry[FX_MAX_CONNECTIONS]
+        int32_t frame_c, frame_s
+        int64_t frame_gx, frame_gy
         int32_t energy_stale
         uint64_t* cells
-        int32_t gw, gh
-        int32_t box_x0[FX_MAX_TRACKERS]
-        int32_t box_x1[FX_MAX_TRACKERS]
-        int32_t box_y0[FX_MAX_TRACKERS]
-        int32_t box_y1[FX_MAX_TRACKERS]
-        uint32_t exp2_lut[FX_EXP2_N + 1]
-        uint32_t atan_lut[FX_CORDIC_N]
-        uint32_t atan_tab[(1 << FX_ATAN_BITS) + 2]
-        uint32_t hyp_tab[(1 << FX_ATAN_BITS) + 2]
-        uint32_t ihyp_tab[(1 << FX_ATAN_BITS) + 2]
-        uint32_t sqrt_tab[FX_SQRT_N]
-        uint32_t decay_lo[FX_DECAY_N]
-        uint32_t decay_hi[FX_DECAY_N]
-        uint32_t gauss_hi[FX_GAUSS_N]
-        uint32_t gauss_lo[FX_GAUSS_N]
-        int64_t cordic_x0
         int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates, n_reindex
         int64_t sat_position, sat_activity, sat_energy, sat_inverse
-        int32_t since_spring
     ctypedef struct fx_event:
         int64_t t
         uint16_t x
         uint16_t y
         uint8_t p
+    int fx_load_model(fx_state* s, const int32_t* w, int32_t nw, uint64_t* cells, int32_t cap)
+    int fx_set_params(fx_state* s, const int32_t* w, int32_t nw)
+    int32_t fx_cells_needed(int32_t width, int32_t height)
     int fx_step(fx_state* s, int64_t t, int32_t x, int32_t y)
     int64_t fx_steps(fx_state* s, const fx_event* ev, int64_t n, int64_t t_stop)
     void fx_springs(fx_state* s)
     void fx_energies(fx_state* s)
-    void fx_prepare(fx_state* s)
-    void fx_refresh(fx_state* s, int i)
     void fx_reindex(fx_state* s, int i)
-    void fx_clamp_positions(fx_state* s)
     int64_t fx_activity(const fx_state* s, int i, int64_t t)
 
 cdef extern from "csrc/fixed_step.c":
@@ -211,82 +162,25 @@ cdef class FixedKernel:
 
     def __init__(self, model, params):
         cdef fx_state* s = <fx_state*>self.state
-        cdef int i, k
-        arr = model.arrays()
         n = len(model.trackers)
         nc = len(model.connections)
         if n > FX_MAX_TRACKERS or nc > FX_MAX_CONNECTIONS:
             raise ValueError(f"model exceeds kernel capacity ({FX_MAX_TRACKERS} trackers, "
                              f"{FX_MAX_CONNECTIONS} connections)")
-        mq = _q.model_q(arr, model.width, model.height)
+        cdef int32_t[::1] words = _q.model_words(model.arrays(), model.width, model.height)
+        cdef int32_t cap = fx_cells_needed(model.width, model.height)
         if s.cells != NULL:
             free(s.cells)
             s.cells = NULL
-        memset(s, 0, sizeof(fx_state))
-        self.model = model
-        s.n = n
-        s.nc = nc
-        s.width = model.width
-        s.height = model.height
-        s.gw = ((model.width - 1) >> FX_CELL_SHIFT) + 1
-        s.gh = ((model.height - 1) >> FX_CELL_SHIFT) + 1
-        s.cells = <uint64_t*>calloc(s.gw * s.gh, sizeof(uint64_t))
-        if s.cells == NULL:
+        cdef uint64_t* cells = <uint64_t*>calloc(cap, sizeof(uint64_t))
+        if cells == NULL:
             raise MemoryError()
-        for k, v in enumerate(_q.exp2_table()):
-            s.exp2_lut[k] = v
-        for k, v in enumerate(_q.atan_table()):
-            s.atan_lut[k] = v
-        for k, v in enumerate(_q.atan_unit_table()):
-            s.atan_tab[k] = v
-        hyp, ihyp = _q.hyp_tables()
-        for k in range(len(hyp)):
-            s.hyp_tab[k] = hyp[k]
-            s.ihyp_tab[k] = ihyp[k]
-        for k, v in enumerate(_q.sqrt_table()):
-            s.sqrt_tab[k] = v
-        ghi, glo = _q.gauss_tables()
-        for k in range(FX_GAUSS_N):
-            s.gauss_hi[k] = ghi[k]
-            s.gauss_lo[k] = glo[k]
-        s.cordic_x0 = _q.cordic_x0()
-        for i in range(n):
-            s.mx[i] = mq["mx"][i]
-            s.my[i] = mq["my"][i]
-            s.sxx[i] = mq["sxx"][i]
-            s.sxy[i] = mq["sxy"][i]
-            s.syy[i] = mq["syy"][i]
-            s.mq[i] = mq["mq"][i]
-            s.invm[i] = mq["invm"][i]
-            s.gdx0[i] = mq["gdx0"][i]
-            s.gdy0[i] = mq["gdy0"][i]
-        for k in range(nc):
-            s.ca[k] = arr["ca"][k]
-            s.cb[k] = arr["cb"][k]
-            s.kinds[k] = arr["kinds"][k]
-            s.stiff[k] = mq["stiff"][k]
-            s.l0[k] = mq["l0"][k]
-            s.dx0[k] = mq["dx0"][k]
-            s.dy0[k] = mq["dy0"][k]
-            s.th0[k] = mq["th0"][k]
-            s.c0x[k] = mq["c0x"][k]
-            s.c0y[k] = mq["c0y"][k]
-            s.ends[k] = ((<uint64_t>1) << s.ca[k]) | ((<uint64_t>1) << s.cb[k])
-        fx_clamp_positions(s)
-        s.sensitive_mask = 0
-        for i in range(n):
-            s.sensitive_mask |= (<uint64_t>1) << i
-        s.isolated = s.sensitive_mask
-        for k in range(nc):
-            s.isolated &= ~s.ends[k]
-        s.last_t = -(1 << 62)
-        for i in range(n):
-            s.box_x0[i] = 0
-            s.box_x1[i] = -1
-            s.box_y0[i] = 0
-            s.box_y1[i] = -1
+        rc = fx_load_model(s, &words[0], words.shape[0], cells, cap)
+        if rc != FX_OK:
+            free(cells)
+            raise ValueError(f"fixed kernel: the model does not load (fx_load_model {rc})")
+        self.model = model
         self.set_params(params)
-        s.n_reindex = 0
 
     def __dealloc__(self):
         cdef fx_state* s = <fx_state*>self.state
@@ -299,36 +193,11 @@ cdef class FixedKernel:
     def set_params(self, params):
         """Apply validated springtrack.params.Params (between two events)."""
         cdef fx_state* s = <fx_state*>self.state
-        cdef int i
-        pq = _q.params_q(params, s.nc)
-        if (self.params is not None and s.n_valid > 0
-                and params.activity_tau_us != self.params.activity_tau_us):
-            for i in range(s.n):         # [ref] eq. (6): a new tau decays from the change on
-                s.act[i] = fx_activity(s, i, s.last_t)
-                s.tlast[i] = s.last_t
+        cdef int32_t[::1] words = _q.params_words(params, s.nc)
+        rc = fx_set_params(s, &words[0], words.shape[0])
+        if rc != FX_OK:
+            raise ValueError(f"fixed kernel: the parameters do not load (fx_set_params {rc})")
         self.params = params
-        s.a1 = pq["a1"]
-        s.a2 = pq["a2"]
-        s.cov_gain = pq["cov_gain"]
-        s.energy_gain = pq["energy_gain"]
-        s.gate = pq["gate"]
-        s.k_tau = pq["k_tau"]
-        s.dt_max = pq["dt_max"]
-        s.act_thr = pq["act_thr"]
-        s.escale = pq["escale"]
-        s.escale_never = pq["escale_never"]
-        s.smin2 = pq["smin2"]
-        s.smax2 = pq["smax2"]
-        s.period = pq["period"]
-        s.ekind = pq["ekind"]
-        dlo, dhi = pq["decay"]
-        for i in range(FX_DECAY_N):
-            s.decay_lo[i] = dlo[i]
-            s.decay_hi[i] = dhi[i]
-        fx_prepare(s)
-        for i in range(s.n):
-            fx_refresh(s, i)
-            fx_reindex(s, i)
 
     def run(self, events, long long sample_us, long long next_t, Py_ssize_t cap):
         """Process ``events`` (EVENT_DTYPE, C-contiguous). Returns (consumed, next_t, samples)
@@ -387,6 +256,14 @@ cdef class FixedKernel:
     @property
     def mean_energy(self):
         return (<fx_state*>self.state).mean_energy * Q32_UNIT
+
+    def frame(self):
+        """The similarity frame of the last spring update: (c, sn, gx, gy) as floats, s R =
+        [[c, -sn], [sn, c]] (Q.28 in the state), (gx, gy) the image of the rest centre of
+        mass (Q.32)."""
+        cdef fx_state* s = <fx_state*>self.state
+        return (s.frame_c / 268435456.0, s.frame_s / 268435456.0, s.frame_gx * POS_UNIT,
+                s.frame_gy * POS_UNIT)
 
     @property
     def last_t(self):

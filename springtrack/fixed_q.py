@@ -1,6 +1,10 @@
-"""Q formats of the fixed-point kernel: conversions from float parameters/models and the
-lookup tables, computed once at load time and handed to the integer-only C step
-(springtrack/csrc/fixed_step.c).  docs/fixed_point.md gives the ranges and error bounds.
+"""Q formats of the fixed-point kernel: conversions from float parameters/models, done
+once at load time and handed to the integer-only C step (springtrack/csrc/fixed_step.c)
+as two streams of 32-bit words (:func:`model_words`, :func:`params_words`, read by
+``fx_load_model`` and ``fx_set_params``), and the constant lookup tables, written into
+``springtrack/csrc/fixed_tables.h`` by :func:`tables_header` (``python -m
+springtrack.fixed_q`` regenerates it; a test checks it is current).
+docs/fixed_point.md gives the ranges and error bounds.
 
 Every conversion rounds to nearest and raises ``ValueError`` naming the quantity when
 the value does not fit its format, instead of wrapping silently.
@@ -8,13 +12,19 @@ the value does not fit its format, instead of wrapping silently.
 from __future__ import annotations
 
 import math
+import struct
+import sys
+from pathlib import Path
+
+import numpy as np
 
 POS_FRAC = 32                 # positions Q.32 px (int64)
 GEOM_FRAC = 16                # spring geometry (rest lengths and offsets) Q.16 px
 POS_LIM_PX = 8192.0           # |position| < 8192 px (state saturates there)
 COV_FRAC = 40                 # covariances Q.40 px^2
-D2_FRAC = 40                  # Mahalanobis d^2, Q.40
-GAIN_FRAC = 30                # stiffness Q2.30, <= 1
+D2_FRAC = 27                  # Mahalanobis d^2 and the gate, Q.27 (uint32, < 32)
+KTAU_FRAC = 40                # log2(e) / tau per us, Q.40
+GAIN_FRAC = 30                # stiffness, a1, energy_gain: Q2.30, <= 1
 MASS_FRAC = 24                # 1 / mass, Q7.24
 ACT_FRAC = 32                 # activity Q.32
 ENERGY_FRAC = 32              # energies Q.32
@@ -22,6 +32,7 @@ ESCALE_FRAC = 14              # energy_scale Q17.14
 EXP2_BITS = 10                # exp2 table of 2^10 + 1 entries
 CORDIC_N = 30
 ATAN_BITS = 10                # atan table of 2^10 + 2 entries
+PARAMS_HEAD = 23              # fx_set_params: words before the two decay tables
 SIGMA_MAX_PX = 64.0           # covariance range of the fixed kernel: sigma <= 64 px
 MAX_SENSOR = 8192
 LOG2E = 1.0 / math.log(2.0)
@@ -42,11 +53,18 @@ def gain(value: float, name: str) -> int:
     return q(value, GAIN_FRAC, name, 0.0, 1.0)
 
 
-def gain62(value: float, name: str) -> int:
-    """A gain in [0, 1] as Q.62 (int64): absolute resolution 2.2e-19, so even a2 = 5e-5
-    keeps 47 significant bits."""
-    q(value, 0, name, 0.0, 1.0)                       # range check
-    return int(round(value * 2.0 ** 62))
+def gain_pair(g: float, a: float, names: str) -> tuple[int, int, int]:
+    """Two gains in [0, 1] as 32-bit mantissas over a shared 2^sh, sh in [31, 62], the
+    larger in [2^30, 2^31): the covariance gain and a2 of eq. (4), whose ratio sets the
+    covariance's fixed point, keep 30-31 significant bits each even for a2 = 5e-5."""
+    q(g, 0, names, 0.0, 1.0)                          # range checks
+    q(a, 0, names, 0.0, 1.0)
+    big = max(g, a)
+    sh = 62 if big <= 0 else max(31, min(62, 30 - math.floor(math.log2(big))))
+    while sh > 31 and max(round(g * 2.0 ** sh), round(a * 2.0 ** sh)) >= 1 << 31:
+        sh -= 1
+    gm, am = int(round(g * 2.0 ** sh)), int(round(a * 2.0 ** sh))
+    return min(gm, (1 << 31) - 1), min(am, (1 << 31) - 1), sh
 
 
 def exp2_table() -> list[int]:
@@ -120,19 +138,20 @@ def params_q(p, nc: int) -> dict:
     """The kernel's integer parameters for validated springtrack.params.Params ``p``."""
     if p.sigma_max_px > SIGMA_MAX_PX:
         raise ValueError(f"fixed kernel: sigma_max_px={p.sigma_max_px} exceeds {SIGMA_MAX_PX} px, "
-                         f"the covariance range of its Q.32 format (docs/fixed_point.md)")
+                         f"the covariance range of its Q.40 format (docs/fixed_point.md)")
     from .reference import covariance_bias
     gate = p.gate_d2
     tau = p.activity_tau_us
-    k_tau = int(round(LOG2E / tau * 2 ** D2_FRAC))
+    k_tau = int(round(LOG2E / tau * 2 ** KTAU_FRAC))
+    gm, am, sh = gain_pair(p.alpha_covariance / covariance_bias(p.alpha_position, gate),
+                           p.alpha_covariance, "alpha_covariance / its gain")
     return dict(
-        a1=gain62(p.alpha_position, "alpha_position"),
-        a2=gain62(p.alpha_covariance, "alpha_covariance"),
-        cov_gain=gain62(p.alpha_covariance / covariance_bias(p.alpha_position, gate), "cov_gain"),
-        energy_gain=gain62(p.energy_gain, "energy_gain"),
+        a1=gain(p.alpha_position, "alpha_position"),
+        cov_gm=gm, cov_am=am, cov_sh=sh,
+        energy_gain=gain(p.energy_gain, "energy_gain"),
         gate=q(gate, D2_FRAC, "gate_d2", 0.0, 31.0),
-        k_tau=k_tau,
-        dt_max=-(-(32 << D2_FRAC) // k_tau),       # 2^-32 and beyond: decay = 0 in Q.30
+        k_tau=min(k_tau, (1 << 32) - 1),           # used only while dt_max > 2^18 us: < 2^27
+        dt_max=-(-(32 << KTAU_FRAC) // k_tau),     # 2^-32 and beyond: decay = 0 in Q.30
         act_thr=q(min(p.activity_threshold, 2.0 ** 29), ACT_FRAC, "activity_threshold"),
         escale_never=1 if p.energy_scale >= max(nc, 1) else 0,
         escale=q(min(p.energy_scale, max(nc, 1)), ESCALE_FRAC, "energy_scale"),
@@ -141,7 +160,48 @@ def params_q(p, nc: int) -> dict:
         decay=decay_tables(tau),
         period=p.spring_period,
         ekind=p.energy_kind_index,
+        tau_bits=struct.unpack("<II", struct.pack("<d", float(tau))),
+        pull_sim=1 if p.pull_similarity else 0,
+        car_sim=1 if p.cartesian_similarity else 0,
     )
+
+
+def _w64(v: int) -> list[int]:
+    """An int64 as two 32-bit words, low first (fixed_step.c's word64)."""
+    v &= (1 << 64) - 1
+    return [v & 0xFFFFFFFF, v >> 32]
+
+
+def _int32_words(words: list[int]) -> np.ndarray:
+    return np.array([w & 0xFFFFFFFF for w in words], np.uint32).view(np.int32)
+
+
+def params_words(p, nc: int) -> np.ndarray:
+    """The word stream fx_set_params reads (csrc/fixed_step.c; FX_PARAMS_WORDS words)."""
+    pq = params_q(p, nc)
+    lo, hi = pq["decay"]
+    words = [pq["a1"], pq["cov_gm"], pq["cov_am"], pq["cov_sh"], pq["energy_gain"], pq["gate"],
+             pq["k_tau"], *_w64(pq["dt_max"]), *_w64(pq["act_thr"]), pq["escale"],
+             pq["escale_never"], *_w64(pq["smin2"]), *_w64(pq["smax2"]), pq["period"],
+             pq["ekind"], *pq["tau_bits"], pq["pull_sim"], pq["car_sim"], *lo, *hi]
+    assert len(words) == PARAMS_HEAD + 2 * (1 << DECAY_BITS)
+    return _int32_words(words)
+
+
+def model_words(arr: dict, width: int, height: int) -> np.ndarray:
+    """The word stream fx_load_model reads, from ShapeModel.arrays() (checked by model_q)."""
+    mq = model_q(arr, width, height)
+    n, nc = len(mq["mx"]), len(mq["stiff"])
+    words = [n, nc, width, height]
+    for i in range(n):
+        words += [*_w64(mq["mx"][i]), *_w64(mq["my"][i]), *_w64(mq["sxx"][i]),
+                  *_w64(mq["sxy"][i]), *_w64(mq["syy"][i]), mq["mq"][i], mq["invm"][i],
+                  *_w64(mq["gdx0"][i]), *_w64(mq["gdy0"][i])]
+    for k in range(nc):
+        words += [int(arr["ca"][k]), int(arr["cb"][k]), int(arr["kinds"][k]), mq["stiff"][k],
+                  mq["l0"][k], mq["dx0"][k], mq["dy0"][k], mq["th0"][k], mq["c0x"][k],
+                  mq["c0y"][k]]
+    return _int32_words(words)
 
 
 def model_q(arr: dict, width: int, height: int) -> dict:
@@ -180,3 +240,42 @@ def model_q(arr: dict, width: int, height: int) -> dict:
         out["c0x"].append(int(round(math.cos(th) * (1 << 30))))
         out["c0y"].append(int(round(math.sin(th) * (1 << 30))))
     return out
+
+
+TABLES_H = Path(__file__).resolve().parent / "csrc" / "fixed_tables.h"
+
+
+def _c_array(ctype: str, name: str, values: list[int], comment: str) -> str:
+    rows = [", ".join(f"{v}u" for v in values[i:i + 8]) for i in range(0, len(values), 8)]
+    body = ",\n    ".join(rows)
+    return f"/* {comment} */\nstatic const {ctype} {name}[{len(values)}] = {{\n    {body}}};\n"
+
+
+def tables_header() -> str:
+    """The text of csrc/fixed_tables.h: the kernel's constant tables (flash on a
+    microcontroller), generated from the functions above."""
+    hyp, ihyp = hyp_tables()
+    ghi, glo = gauss_tables()
+    parts = [
+        "/* Constant tables of the fixed-point kernel (csrc/fixed_step.c), generated by\n"
+        "   springtrack/fixed_q.py (python -m springtrack.fixed_q): do not edit.  They are\n"
+        "   `static const`, so a microcontroller build keeps them in flash. */\n"
+        "#ifndef SPRINGTRACK_FIXED_TABLES_H\n#define SPRINGTRACK_FIXED_TABLES_H\n\n"
+        "#include <stdint.h>\n",
+        _c_array("uint32_t", "FX_EXP2_LUT", exp2_table(), "2^(-k / 1024), Q.30, k = 0..1024"),
+        _c_array("uint32_t", "FX_ATAN_LUT", atan_table(), "atan(2^-i), binary angle (CORDIC)"),
+        _c_array("uint32_t", "FX_ATAN_TAB", atan_unit_table(), "atan(k / 1024), binary angle"),
+        _c_array("uint32_t", "FX_HYP_TAB", hyp, "sqrt(1 + (k / 1024)^2), Q.30"),
+        _c_array("uint32_t", "FX_IHYP_TAB", ihyp, "1 / sqrt(1 + (k / 1024)^2), Q.30"),
+        _c_array("uint32_t", "FX_SQRT_TAB", sqrt_table(), "floor(sqrt((j + 256) 2^54) / 2)"),
+        _c_array("uint32_t", "FX_GAUSS_HI", ghi, "exp(-j 2^-5 / 2), Q.30 (d2 < 32)"),
+        _c_array("uint32_t", "FX_GAUSS_LO", glo, "exp(-j 2^-15 / 2), Q.30"),
+        f"/* 1 / CORDIC gain, Q.60 */\n#define FX_CORDIC_X0 ((int64_t){cordic_x0()})\n",
+        "#endif\n",
+    ]
+    return "\n".join(parts)
+
+
+if __name__ == "__main__":
+    TABLES_H.write_text(tables_header())
+    print(f"wrote {TABLES_H}", file=sys.stderr)

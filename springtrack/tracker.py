@@ -9,10 +9,15 @@ Backends (same results, different speed):
 
 * ``"cython"``    float64 kernel (``_kernel.pyx``), equal to the reference to 1e-9 px;
 * ``"reference"`` the pure-Python executable specification (``reference.py``), slow;
-* ``"fixed"``     the integer-only kernel, when built (see docs/fixed_point.md).
+* ``"fixed"``     the integer-only kernel, when built (see docs/fixed_point.md);
+* ``"mcu"``       that kernel's microcontroller build (``"mcu:cortex-m7"``, ... names the
+                  core; default Cortex-M4) run in an instruction-set emulator: the same
+                  results as ``"fixed"``, bit for bit, slowly (springtrack/mcu/, the
+                  ``[mcu]`` extra).
 
 Each backend object offers ``run(events, sample_us, next_t, cap)``, ``set_params``,
-``snapshot(t)``, ``energies()``, ``mean_energy``, ``last_t`` and ``counters()``.
+``snapshot(t)``, ``energies()``, ``mean_energy``, ``frame()``, ``last_t`` and
+``counters()``.
 """
 from __future__ import annotations
 
@@ -23,13 +28,14 @@ import numpy as np
 
 from . import params as _params
 from .events import as_events
+from .geometry import check_inside
 from .model import ShapeModel, load_model
 from .params import Params
 from .reference import ReferenceTracker
 from .sampling import UNSET, first_sample_time, sample_due
 from .track import TRACK_DTYPE, TRACK_FIELDS, Track
 
-BACKENDS = ("cython", "reference", "fixed")
+BACKENDS = ("cython", "reference", "fixed", "mcu")
 SAMPLE_CAP = 4096          # sample rows per kernel call; bounds memory for huge time gaps
 
 
@@ -84,6 +90,9 @@ class ReferenceBackend:
     def mean_energy(self):
         return self.ref.mean_energy
 
+    def frame(self):
+        return self.ref.frame()
+
     @property
     def last_t(self):
         return self.ref.last_t
@@ -95,19 +104,39 @@ class ReferenceBackend:
                     spring_updates=r.n_spring_updates)
 
 
+def _cython_backend(model, params, option):
+    from ._kernel import Kernel
+    return Kernel(model, params)
+
+
+def _fixed_backend(model, params, option):
+    try:
+        mod = importlib.import_module("springtrack._fixed")
+    except ImportError as e:
+        raise ValueError(f"backend 'fixed' is not available in this build: {e}") from None
+    return mod.FixedKernel(model, params)
+
+
+def _mcu_backend(model, params, option):
+    from .mcu import MissingExtra
+    try:
+        from .mcu.backend import DEFAULT_TARGET, McuBackend
+        return McuBackend(model, params, target=option or DEFAULT_TARGET)
+    except (MissingExtra, RuntimeError) as e:      # no toolchain, a failed build or run
+        raise ValueError(f"backend 'mcu': {e}") from None
+
+
+# name -> factory(model, params, option); "name:option" passes the option (the mcu's core)
+_FACTORIES = {"reference": lambda m, p, o: ReferenceBackend(m, p), "cython": _cython_backend,
+              "fixed": _fixed_backend, "mcu": _mcu_backend}
+
+
 def make_backend(name: str, model: ShapeModel, params: Params):
-    if name == "reference":
-        return ReferenceBackend(model, params)
-    if name == "cython":
-        from ._kernel import Kernel
-        return Kernel(model, params)
-    if name == "fixed":
-        try:
-            mod = importlib.import_module("springtrack._fixed")
-        except ImportError as e:
-            raise ValueError(f"backend 'fixed' is not available in this build: {e}") from None
-        return mod.FixedKernel(model, params)
-    raise ValueError(f"unknown backend {name!r}; choose from {', '.join(BACKENDS)}")
+    base, _, option = name.partition(":")
+    if base not in _FACTORIES or (option and base != "mcu"):
+        raise ValueError(f"unknown backend {name!r}; choose from {', '.join(BACKENDS)} "
+                         f"(mcu:TARGET names a core)")
+    return _FACTORIES[base](model, params, option)
 
 
 def resolve_params(model: ShapeModel, params=None) -> Params:
@@ -133,7 +162,8 @@ def resolve_params(model: ShapeModel, params=None) -> Params:
 class Tracker:
     """Part-based shape tracker. Feed events in time order, in as many chunks as you like.
 
-    ``model``: a ShapeModel, a preset name or a TOML path; ``params``: Params, a dict of
+    ``model``: a ShapeModel, a preset name or a TOML path, its trackers on its sensor
+    (``springtrack.geometry.TrackersOutside`` otherwise); ``params``: Params, a dict of
     overrides, a TOML path, or None (defaults < model [params] < these).
     Events that go back in time or fall outside the sensor are skipped and counted
     (:attr:`counters`), never raised.
@@ -149,6 +179,8 @@ class Tracker:
     def __init__(self, model, params=None, backend: str = "cython", acquire: bool = False,
                  acquire_ms: float = 50.0, acquire_bounds: dict | None = None):
         self.model = load_model(model)
+        if not acquire:          # placed by the acquisition otherwise
+            check_inside(self.model)
         self.params = resolve_params(self.model, params)
         self.backend_name = backend
         self._b = make_backend(backend, self.model, self.params)
@@ -177,11 +209,21 @@ class Tracker:
         self._sample_us = sample_us
 
     def process(self, events) -> None:
-        """Consume an event array (fields t µs, x, y, p), in time order."""
-        ev = as_events(events)
+        """Consume an event array (fields t µs, x, y, p), in time order.  The kernels read
+        the common layouts as they are (packed or aligned records, t int64 or uint64, x/y
+        int16 or uint16, p bool or int: ``springtrack._stepper.layout_of``), converting
+        them block by block inside their loop; anything else is converted first."""
         if self.acquisition is not None and not self.acquisition.done:
-            ev = self._placed(self.acquisition.feed(ev))
-        self._track(ev)
+            self._track(self._placed(self.acquisition.feed(as_events(events))))
+            return
+        self._track(events if self._reads_as_is(events) else as_events(events))
+
+    def _reads_as_is(self, events) -> bool:
+        """The backend's loop reads ``events`` without a conversion first."""
+        if self.backend_name not in ("cython", "fixed"):
+            return False
+        from ._stepper import layout_of
+        return layout_of(events) is not None
 
     def flush(self) -> None:
         """End of input: if the acquisition is still looking, try on what it buffered."""
@@ -257,6 +299,15 @@ class Tracker:
         e = self._b.energies()
         return {"euclidean": e[0], "torsional": e[1], "cartesian": e[2],
                 "mean": float(self._b.mean_energy), "kind": self.params.energy_kind}
+
+    def frame(self) -> dict:
+        """The similarity frame of the last spring update (``pull_frame`` or
+        ``cartesian_frame`` = "similarity", docs/algorithm.md): ``scale`` s, ``angle`` of R
+        (rad), and ``gx``, ``gy``, where the rest centre of mass G0 maps to (px); scale 1,
+        angle 0 and G0 until a spring update fits one, or in the image frame."""
+        c, sn, gx, gy = (float(v) for v in self._b.frame())
+        return {"scale": float(np.hypot(c, sn)), "angle": float(np.arctan2(sn, c)),
+                "gx": gx, "gy": gy}
 
     @property
     def counters(self) -> dict:

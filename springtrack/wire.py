@@ -119,8 +119,9 @@ class Nack(IntEnum):
     VERSION_MISMATCH = 8  # the frame's protocol version is not the firmware's
     BAD_STATE = 9         # not now (e.g. MODEL_CHUNK without MODEL_BEGIN)
     INTERNAL = 10         # an exception inside the firmware's handler
-    TOO_LONG = 11         # a name longer than the protocol carries (MAX_NAME_BYTES)
-    FORBIDDEN = 12        # not allowed in this session's role (a monitor), or all sessions busy
+    SENSOR_MISMATCH = 11  # the model's [sensor] is not the camera's, or trackers lie outside it
+    TOO_LONG = 12         # a name longer than the protocol carries (MAX_NAME_BYTES)
+    FORBIDDEN = 13        # not allowed in this session's role (a monitor), or all sessions busy
 
 
 class WireError(ValueError):

@@ -50,12 +50,13 @@ def truth_for(model: ShapeModel, scene: str, t_us: np.ndarray) -> Truth:
 
 
 def compare(model: ShapeModel, events, sample_us: int = 1000, truth: Truth | None = None,
-            params=None) -> dict:
-    """Run the float64 ("cython") and the fixed backends on ``events``; return the figures
-    of the bound (and the raw counters) as a dict."""
+            params=None, backend: str = "fixed") -> dict:
+    """Run the float64 ("cython") and the fixed backends (or ``backend``: the
+    microcontroller build, "mcu:...") on ``events``; return the figures of the bound (and
+    the raw counters, under "counters_fixed") as a dict."""
     tracks, counters = {}, {}
-    for b in ("cython", "fixed"):
-        tr = Tracker(model, params=params, backend=b)
+    for b, name in (("cython", "cython"), ("fixed", backend)):
+        tr = Tracker(model, params=params, backend=name)
         tracks[b] = tr.run(events, sample_us=sample_us)
         counters[b] = tr.counters
     a, f = tracks["cython"], tracks["fixed"]

@@ -1,11 +1,12 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
-# distutils: depends = springtrack/csrc/fixed_step.c springtrack/csrc/fixed_step.h
+# distutils: depends = springtrack/csrc/fixed_step.c springtrack/csrc/fixed_step.h springtrack/csrc/fixed_tables.h
 """The fixed-point kernel's internals, for the tests (never installed; tests/probes.py
 builds it with setup.py's flags): the integer building blocks of csrc/fixed_step.c and a
 FixedKernel's raw state and spatial index.
 
     fx = probes.load("fixed_probe")
-    fx.isqrt(kernel, v)                  # the kernel's tables, this module's copy of the code
+    fx.isqrt(v)                          # a building block (constant tables: no state)
+    fx.decay(kernel, dt)                 # one that reads the kernel's parameters
     fx.set_raw(kernel, i, x=8191 << 32)  # drive a tracker to a range limit
 
 csrc/fixed_step.c is compiled into this module as into springtrack._fixed (same source,
@@ -28,14 +29,16 @@ cdef extern from "springtrack/csrc/fixed_step.h" nogil:
     void fx_reindex(fx_state* s, int i)
     int fx_check_index(const fx_state* s)
     int64_t fx_mulsh(int64_t v, uint32_t g, int sh)
-    uint64_t fx_isqrt64(const fx_state* s, uint64_t v)
-    uint32_t fx_exp2neg(const fx_state* s, int64_t w)
-    int64_t fx_gauss(const fx_state* s, int64_t d2)
+    uint64_t fx_udiv64(uint64_t n, uint32_t d, uint32_t* rem)
+    uint32_t fx_divlu32(uint32_t u1, uint32_t u0, uint32_t v, uint32_t* rem)
+    uint64_t fx_isqrt64(uint64_t v)
+    uint32_t fx_exp2neg(int64_t w)
+    int64_t fx_gauss(uint32_t d2)
     uint32_t fx_decay(const fx_state* s, int64_t dt)
-    uint32_t fx_atan2(const fx_state* s, int64_t y, int64_t x)
-    void fx_cossin(const fx_state* s, int64_t angle, int64_t* c, int64_t* sn)
-    void fx_polar(const fx_state* s, int64_t x, int64_t y, uint32_t* ang, int64_t* len,
-                  int64_t* cx, int64_t* cy)
+    uint32_t fx_atan2(int64_t y, int64_t x)
+    void fx_cossin(int64_t angle, int64_t* c, int64_t* sn)
+    void fx_polar(int32_t x, int32_t y, uint32_t* ang, int32_t* len, int32_t* cx, int32_t* cy)
+    uint32_t fx_d2(const fx_state* s, int i, int32_t x, int32_t y)
 
 cdef extern from "springtrack/csrc/fixed_step.c":
     pass
@@ -75,47 +78,70 @@ def recompute_energies(FixedKernel k):
     fx_energies(s)
 
 
-# ---- integer building blocks (the kernel's lookup tables) ---------------------------
+# ---- integer building blocks ------------------------------------------------------------
 def mulsh(long long v, unsigned int g, int sh):
-    """(v * g) >> sh, rounded half up."""
+    """(v * g) >> sh, rounded half up: two 32 x 32 products, exact."""
     return fx_mulsh(v, g, sh)
 
 
-def isqrt(FixedKernel k, unsigned long long v):
+def udiv64(unsigned long long n, unsigned int d):
+    """(floor(n / d), n mod d): what a 32-bit core builds from 32-bit divisions."""
+    cdef uint32_t r
+    q = fx_udiv64(n, d, &r)
+    return q, r
+
+
+def divlu32(unsigned int u1, unsigned int u0, unsigned int v):
+    """(floor((u1 2^32 + u0) / v), remainder) for u1 < v from 32-bit divisions only, the
+    path a 32-bit core takes (a 64-bit host divides natively: the same integers)."""
+    cdef uint32_t r
+    q = fx_divlu32(u1, u0, v, &r)
+    return q, r
+
+
+def isqrt(unsigned long long v):
     """floor(sqrt(v))."""
-    return fx_isqrt64(state(k), v)
+    return fx_isqrt64(v)
 
 
-def exp2neg(FixedKernel k, long long w):
+def exp2neg(long long w):
     """2^-w for w in Q.40, Q.30."""
-    return fx_exp2neg(state(k), w)
+    return fx_exp2neg(w)
 
 
-def gauss(FixedKernel k, long long d2):
-    """exp(-d2 / 2) for d2 in Q.40 (0 <= d2 < 32), Q.30: the kernel value of eq. (2)."""
-    return fx_gauss(state(k), d2)
+def gauss(unsigned int d2):
+    """exp(-d2 / 2) for d2 in Q.27 (0 <= d2 < 32), Q.30: the kernel value of eq. (2)."""
+    return fx_gauss(d2)
 
 
 def decay(FixedKernel k, long long dt):
-    """exp(-dt / tau) for dt in us, Q.30: the activity decay of eq. (6)."""
+    """exp(-dt / tau) for dt in us, Q.30: the activity decay of eq. (6) (the kernel's tau)."""
     return fx_decay(state(k), dt)
 
 
-def atan2(FixedKernel k, long long y, long long x):
+def d2(FixedKernel k, int i, int x, int y):
+    """Tracker i's Mahalanobis d^2 (eq. 2) of pixel (x, y), Q.27, saturated at 2^32 - 1."""
+    cdef fx_state* s = state(k)
+    if not 0 <= i < s.n:
+        raise IndexError(f"tracker index {i} out of range 0..{s.n - 1}")
+    return fx_d2(s, i, x, y)
+
+
+def atan2(long long y, long long x):
     """atan2(y, x) as a binary angle (2^32 per turn)."""
-    return fx_atan2(state(k), y, x)
+    return fx_atan2(y, x)
 
 
-def polar(FixedKernel k, long long x, long long y):
+def polar(int x, int y):
     """(binary angle, length, cos Q.30, sin Q.30) of the vector (x, y)."""
     cdef uint32_t a
-    cdef int64_t l, cx, cy
-    fx_polar(state(k), x, y, &a, &l, &cx, &cy)
+    cdef int32_t l, cx, cy
+    fx_polar(x, y, &a, &l, &cx, &cy)
     return a, l, cx, cy
 
 
-def cossin(FixedKernel k, long long angle):
+def cossin(long long angle):
     """(cos, sin) Q.30 of a binary angle."""
     cdef int64_t c, sn
-    fx_cossin(state(k), angle, &c, &sn)
+    fx_cossin(angle, &c, &sn)
     return c, sn

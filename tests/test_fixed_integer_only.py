@@ -3,7 +3,8 @@
 springtrack/csrc/fixed_step.c (the per-event step, the springs and every arithmetic
 helper they use) and fixed_telemetry.c (telemetry records from that state) must compile
 with ``gcc -mgeneral-regs-only``, which on x86-64 rejects any floating-point or SIMD
-operation.  A control case shows the check does fail when a
+operation, and contain no 128-bit integer (tests/test_mcu.py cross-compiles them for
+32-bit cores and inspects the linked symbols).  A control case shows the check does fail when a
 float slips in.
 """
 import re
@@ -44,8 +45,17 @@ def test_the_check_rejects_a_float(tmp_path):
     assert "general" in r.stderr or "SSE" in r.stderr or "float" in r.stderr
 
 
-def test_no_float_type_in_the_fixed_unit():
-    """A reader's check: no float/double/long double token in the C unit or its header."""
-    for f in UNITS + [u.with_suffix(".h") for u in UNITS]:
+def test_no_float_or_128_bit_type_in_the_fixed_unit():
+    """A reader's check: no float/double/long double token, and no 128-bit integer (which
+    32-bit cores do not have), in the C units or their headers."""
+    for f in UNITS + [u.with_suffix(".h") for u in UNITS] + [CSRC / "fixed_tables.h"]:
         code = re.sub(r"/\*.*?\*/", "", f.read_text(), flags=re.S)   # comments may say "float"
         assert not re.search(r"\b(float|double)\b", code), f"{f} mentions a floating-point type"
+        assert "__int128" not in code, f"{f} uses a 128-bit integer"
+
+
+def test_tables_header_is_generated_from_fixed_q():
+    """csrc/fixed_tables.h (constant tables, flash on a microcontroller) is what
+    springtrack.fixed_q generates: `python -m springtrack.fixed_q` rewrites it."""
+    from springtrack import fixed_q
+    assert (CSRC / "fixed_tables.h").read_text() == fixed_q.tables_header()

@@ -3,12 +3,15 @@ from __future__ import annotations
 
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
 from ..events import as_events
 from ..track import CSV_HEADER
 from ..tracker import profile
+from ..watch import TrackWatch
+from . import prepargs
 
 EPILOG = """\
 units: event times are microseconds; positions px; covariances px^2.
@@ -30,12 +33,20 @@ def add_arguments(p):
     p.epilog = EPILOG
     p.add_argument("input", help="event file (.npy, .csv, .raw, .es, .dat, .aedat4), or - for "
                                  "an event stream (e.g. RAW) on standard input")
-    p.add_argument("--model", required=True,
-                   help="shape model: TOML file or preset name (grid3x3, face26)")
+    p.add_argument("--model",
+                   help="shape model: TOML file or preset name (grid3x3, face26); "
+                        "or --learn-first-ms")
+    p.add_argument("--learn-first-ms", type=float, metavar="MS",
+                   help="learn the model from the stream's first MS ms (springtrack learn), "
+                        "then track the rest with it")
     p.add_argument("--params", help="TOML file of parameter overrides (see docs/algorithm.md)")
-    p.add_argument("--backend", default="cython", choices=["cython", "reference", "fixed"],
+    p.add_argument("--backend", default="cython", choices=["cython", "reference", "fixed", "mcu"],
                    help="cython: fast float64 kernel (default); reference: the pure-Python "
-                        "specification (slow); fixed: integer-only kernel")
+                        "specification (slow); fixed: integer-only kernel; mcu: that kernel's "
+                        "microcontroller build run in an emulator (same output as fixed, "
+                        "slowly; needs pip install 'springtrack[mcu]')")
+    p.add_argument("--mcu-target", default="cortex-m4", metavar="CORE",
+                   help="with --backend mcu: cortex-m4 (default), cortex-m7 or rv32imac")
     p.add_argument("--sample-us", type=int, default=1000, metavar="US",
                    help="state sampling period in µs of event time (default 1000)")
     p.add_argument("--out", required=True, help="output track CSV")
@@ -51,25 +62,72 @@ def add_arguments(p):
     p.add_argument("--profile", metavar="OUT.csv|OUT.png",
                    help="time the kernel per 10 ms bin of events (paper Figs. 22-23): a CSV "
                         "t_us,events,proc_us or a plot")
+    add_sensor_from(p)
+    prepargs.add_arguments(p)
 
 
-def read_events(path):
-    """Yield event chunks from any supported file (springtrack.io when available)."""
-    try:
-        from .. import io as stio
-    except ImportError:
-        stio = None
-    if stio is not None and hasattr(stio, "open"):
-        reader = stio.open(path)
-        total = getattr(reader, "size_hint", None)
-        yield from ((as_events(c), total) for c in reader)
-        return
-    if str(path).endswith(".npy"):
-        ev = np.load(path, mmap_mode="r")
-        for s in range(0, len(ev), 1 << 20):
-            yield as_events(np.ascontiguousarray(ev[s:s + (1 << 20)])), len(ev)
-        return
-    raise ValueError(f"{path}: unsupported input (springtrack.io is not available)")
+def read_events(reader):
+    """Yield (event chunk, estimated total events) from a ``springtrack.io`` reader."""
+    total = getattr(reader, "size_hint", None)
+    yield from ((as_events(c), total) for c in reader)
+
+
+def add_sensor_from(p) -> None:
+    """``--sensor-from``, shared by the commands that track a file with a model."""
+    p.add_argument("--sensor-from", choices=["file", "model"],
+                   help="a model whose [sensor] is not the input's is refused; 'file': track "
+                        "it on the input's sensor (trackers where they are), 'model': keep "
+                        "the model's sensor (events outside it skipped and counted)")
+
+
+def open_stream(args):
+    """The model and the stream of (chunk, total) to track: the input's events, prepared
+    when asked (springtrack.prep); the model --model, checked against the input's sensor
+    (springtrack.geometry: a mismatch or trackers off the sensor is an error, unless
+    --sensor-from), or learned from the stream's first --learn-first-ms (the tracking then
+    starts where the learning window ends)."""
+    from .. import io as stio
+    from ..geometry import fit_model
+    from ..model import load_model
+    if (args.model is None) == (args.learn_first_ms is None):
+        raise ValueError("give either --model or --learn-first-ms")
+    reader = stio.open(args.input)
+    width, height = reader.width, reader.height
+    if args.model:
+        model = fit_model(load_model(args.model), width, height, args.sensor_from,
+                          what=f"{args.input}'s sensor")
+        width, height = model.width, model.height
+    else:
+        model = None
+        if args.input == "-":                       # one pass over standard input
+            if not width or not height:
+                raise ValueError("--learn-first-ms on standard input needs a stream whose "
+                                 "header gives the sensor size")
+        elif not width or not height:               # .npy, .csv: the events' extent
+            ev = reader.read()
+            width = int(ev["x"].max()) + 1 if len(ev) else 1
+            height = int(ev["y"].max()) + 1 if len(ev) else 1
+    source = read_events(reader)
+    prep = prepargs.preparer(args, width, height)
+    if prep is not None:
+        source = _prepared(source, prep)
+    if model is None:
+        from .learn import learn_first
+        model, source = learn_first(source, args.learn_first_ms, width, height,
+                                    name=Path(args.input).stem, params=args.params)
+    return model, source
+
+
+def _prepared(source, prep):
+    """(chunk, total) pairs through ``prep``, with the source's total."""
+    total = None
+
+    def chunks():
+        nonlocal total
+        for chunk, total in source:
+            yield chunk
+    for out in prepargs.prepared(chunks(), prep):
+        yield out, total
 
 
 class Progress:
@@ -99,9 +157,12 @@ def run(args) -> int:
     from ..tracker import Tracker
     if args.sample_us <= 0:
         raise ValueError(f"--sample-us must be a positive number of µs, got {args.sample_us}")
-    tr = Tracker(args.model, params=args.params, backend=args.backend, acquire=args.acquire,
+    backend = f"mcu:{args.mcu_target}" if args.backend == "mcu" else args.backend
+    model, stream = open_stream(args)
+    tr = Tracker(model, params=args.params, backend=backend, acquire=args.acquire,
                  acquire_ms=args.acquire_ms, acquire_bounds=_acquire_bounds(args))
     tr.record(args.sample_us)
+    watch = TrackWatch(tr.model)
     prog = Progress(not args.no_progress)
     start = time.perf_counter()
     n = 0
@@ -109,7 +170,7 @@ def run(args) -> int:
     with open(args.out, "w", newline="") as out:
         out.write(",".join(CSV_HEADER) + "\n")
         bins = []
-        for chunk, total in read_events(args.input):
+        for chunk, total in stream:
             if len(chunk) == 0:
                 continue
             if args.profile:
@@ -119,15 +180,11 @@ def run(args) -> int:
             t_first = int(chunk["t"][0]) if t_first is None else t_first
             t_last = int(chunk["t"][-1])
             n += len(chunk)
-            samples = tr.samples()
-            if len(samples):
-                _write_rows(samples, out)
+            _write_rows(tr, watch, out)
             prog.update(n, total, t_last)
         if args.acquire:
             tr.flush()
-            samples = tr.samples()
-            if len(samples):
-                _write_rows(samples, out)
+            _write_rows(tr, watch, out)
     prog.close()
     wall = time.perf_counter() - start
     if args.profile:
@@ -148,6 +205,10 @@ def run(args) -> int:
             print(f"springtrack track: the model was not found in {args.input}; no track rows "
                   f"written", file=sys.stderr)
             return 1
+    if n:
+        watch.finish(tr.state())
+        for w in watch.warnings():
+            print(f"springtrack track: warning: {w}", file=sys.stderr)
     return 0
 
 
@@ -181,10 +242,13 @@ def write_profile(path, bins) -> None:
         f.writelines(f"{a},{b},{c:.3f}\n" for a, b, c in zip(keys.tolist(), ev.tolist(), pu.tolist()))
 
 
-def _write_rows(samples, f):
-    # header already written; Track.to_csv writes its own header, so strip it
-    import io as _io
-    buf = _io.StringIO()
-    samples.to_csv(buf)
-    text = buf.getvalue()
-    f.write(text[text.index("\n") + 1:])
+def _write_rows(tr, watch, f):
+    """The samples the tracker took since the last call, as CSV rows (the header is already
+    written) and into the end-of-run watch."""
+    samples = tr.samples()
+    if not len(samples):
+        return
+    if watch.model is not tr.model:            # placed by the acquisition
+        watch.use_model(tr.model)
+    watch.add(samples)
+    samples.write_rows(f)

@@ -1,49 +1,47 @@
-/* Integer-only tracker step: the fixed-point translation of springtrack/_kernel.pyx.
+/* Integer-only tracker step: the fixed-point translation of springtrack/_kernel.pyx, for
+ * 32-bit cores.
  *
  * Equations cite Valeiras et al. 2015; [ref] names the function of
  * springtrack/reference.py a block mirrors.  Q formats are listed in fixed_step.h and
  * justified, with their error bounds, in docs/fixed_point.md.  No floating-point type
- * appears in this file: it compiles with `gcc -mgeneral-regs-only`.
+ * appears in this file: it compiles with `gcc -mgeneral-regs-only`, and every product is
+ * a 32 x 32 -> 64-bit one (smul, umul below).
  */
 #include "fixed_step.h"
+#include "fixed_tables.h"
 #include "sampling.h"
 
 #define ONE_Q30 ((int64_t)1 << 30)
 #define RHO_Q30 1063004406u        /* 0.99 (reference.RHO_MAX), Q.30 */
 #define RHO2_Q30 1052374362u       /* 0.99^2, Q.30 */
 #define PI_Q28 843314857u          /* pi, Q.28 */
-#define PI_Q29 1686629713u         /* pi, Q.29: binary angle * PI_Q29 / 2^30 = rad Q.30 */
+#define PI_Q29 1686629713          /* pi, Q.29: binary angle * PI_Q29 / 2^30 = rad Q.30 */
 #define SMALL_ANGLE ((int64_t)42722830)   /* 2^-4 rad as a binary angle */
 #define ACT_MAX ((int64_t)1 << 61) /* activity saturates at 2^29 */
 #define E_MAX ((int64_t)1 << 61)   /* an energy saturates at 2^29 px^2 */
+#define D2_SAT 0xffffffffu         /* d^2 >= 32: beyond any gate */
+/* A 64-bit host does a few steps in 64-bit words, where a 32-bit core uses two 32-bit ones
+   (the candidate mask, d^2's final shift, the 64 / 32 divisions): the same integers
+   either way, each in the target's natural word. */
+#define FX_WORD64 (UINTPTR_MAX > 0xffffffffu)
 
 /* ---- arithmetic building blocks ----------------------------------------------------- */
 
-/* round(v * g / 2^sh), half up, exact for |v| < 2^62, g < 2^31, 1 <= sh <= 62, provided
-   the result fits int64 (callers' bounds). */
-static inline int64_t mulsh(int64_t v, uint32_t g, int sh)
+/* the only two multiplications of this unit: 32 x 32 -> 64 bits (SMULL, UMULL) */
+static inline int64_t smul(int32_t a, int32_t b)
 {
-    /* one 64 x 64 -> 128-bit product (integer registers); a core without it would split v
-       in two 32-bit halves (hi g 2^32 + lo g), which gives the same exact result */
-    return (int64_t)(((__int128)v * g + ((__int128)1 << (sh - 1))) >> sh);
+    return (int64_t)a * b;
 }
 
-/* round(v g / 2^62) for a gain g in [0, 2^62] (Q.62, i.e. [0, 1]); |v| < 2^63 */
-static inline int64_t mul62(int64_t v, int64_t g)
+static inline uint64_t umul(uint32_t a, uint32_t b)
 {
-    return (int64_t)(((__int128)v * g + ((__int128)1 << 61)) >> 62);
+    return (uint64_t)a * b;
 }
 
-/* v + round((inc g - v a2) / 2^62), half up: one rounding of eq. (4) (gains Q.62; |inc| <
-   2^58, |v| < 2^53, so both products and their difference fit 128 bits) */
-static inline int64_t ema62(int64_t v, int64_t inc, int64_t g, int64_t a2)
+/* v 2^k for 0 <= k < 64, also for v < 0 (a shift, not a multiplication) */
+static inline int64_t shl64(int64_t v, int k)
 {
-    return v + (int64_t)(((__int128)inc * g - (__int128)v * a2 + ((__int128)1 << 61)) >> 62);
-}
-
-int64_t fx_mulsh(int64_t v, uint32_t g, int sh)
-{
-    return mulsh(v, g, sh);
+    return (int64_t)((uint64_t)v << k);
 }
 
 /* round(v / 2^sh) half up; sh >= 1 */
@@ -52,29 +50,155 @@ static inline int64_t rshr(int64_t v, int sh)
     return (v + ((int64_t)1 << (sh - 1))) >> sh;
 }
 
-/* mulsh for |v| < 2^32 (the product v g < 2^63 needs no split) */
-static inline int64_t mul32sh(int64_t v, uint32_t g, int sh)
+/* round(v g / 2^sh), half up, exact for |v| < 2^62, g < 2^31, 1 <= sh <= 62, provided the
+   result fits int64 (callers' bounds): v = hi 2^32 + lo gives hi g 2^32 + lo g, two
+   32 x 32 -> 64-bit products, recombined without loss */
+static inline int64_t mulsh(int64_t v, uint32_t g, int sh)
 {
-    return rshr(v * (int64_t)g, sh);
+    int64_t hi = smul((int32_t)(v >> 32), (int32_t)g);
+    uint64_t lo = umul((uint32_t)v, g);
+    if (sh <= 32)
+        return shl64(hi, 32 - sh) + (int64_t)((lo + ((uint64_t)1 << (sh - 1))) >> sh);
+    /* floor((hi 2^32 + L) / 2^sh) = floor((hi + floor(L / 2^32)) / 2^(sh - 32)) */
+    return (hi + (int64_t)((lo + ((uint64_t)1 << (sh - 1))) >> 32)) >> (sh - 32);
 }
 
-/* n / d rounded half away from zero; d > 0 */
-static inline int64_t div_round(int64_t n, int64_t d)
+int64_t fx_mulsh(int64_t v, uint32_t g, int sh)
 {
-    return n >= 0 ? (n + d / 2) / d : -((-n + d / 2) / d);
+    return mulsh(v, g, sh);
+}
+
+/* v + round((inc gm - v am) / 2^sh), half up, 31 <= sh <= 62: eq. (4) with one rounding
+   (gm, am < 2^31; |inc| < 2^58, 0 <= |v| < 2^53).  Each product is split into its high and
+   low words as in mulsh; the 96-bit difference is hi 2^32 + lo. */
+static inline int64_t ema(int64_t v, int64_t inc, uint32_t gm, uint32_t am, int sh)
+{
+    int64_t hi = smul((int32_t)(inc >> 32), (int32_t)gm) - smul((int32_t)(v >> 32), (int32_t)am);
+    int64_t lo = (int64_t)umul((uint32_t)inc, gm) - (int64_t)umul((uint32_t)v, am);  /* < 2^63 each */
+    int64_t a = hi + (lo >> 32);                         /* difference = a 2^32 + r */
+    uint32_t r = (uint32_t)lo;
+    if (sh > 32)
+        return v + ((a + ((int64_t)1 << (sh - 33))) >> (sh - 32));
+    if (sh == 32)
+        return v + a + (r >> 31);
+    return v + shl64(a, 1) + ((r >> 30) + 1) / 2;       /* sh = 31: (2^32 a + r + 2^30) >> 31 */
+}
+
+static inline int bitlen32(uint32_t v)
+{
+    return v ? 32 - __builtin_clz(v) : 0;
 }
 
 static inline int bitlen64(uint64_t v)
 {
-    return v ? 64 - __builtin_clzll(v) : 0;
+    uint32_t hi = (uint32_t)(v >> 32);
+    return hi ? 32 + bitlen32(hi) : bitlen32((uint32_t)v);
+}
+
+/* floor((u1 2^32 + u0) / v) for u1 < v, and the remainder: two 32-bit divisions by the
+   normalised divisor's high half, each corrected by at most two steps (Knuth's algorithm
+   D with 16-bit digits, as Hacker's Delight's divlu).  A 64-bit host has this division
+   in one instruction; the quotient is exact either way, so both give the same integers
+   (fx_divlu32 keeps the 32-bit one testable there). */
+static uint32_t divlu32(uint32_t u1, uint32_t u0, uint32_t v, uint32_t *rem)
+{
+    const uint32_t b = 65536;
+    uint32_t vn1, vn0, un32, un21, un10, un1, un0, q1, q0, rhat;
+    int s = __builtin_clz(v);                            /* v != 0 */
+    v <<= s;
+    vn1 = v >> 16;
+    vn0 = v & 0xffff;
+    un32 = s ? (u1 << s) | (u0 >> (32 - s)) : u1;
+    un10 = u0 << s;
+    un1 = un10 >> 16;
+    un0 = un10 & 0xffff;
+    q1 = un32 / vn1;
+    rhat = un32 - q1 * vn1;
+    while (q1 >= b || q1 * vn0 > b * rhat + un1) {
+        q1--;
+        rhat += vn1;
+        if (rhat >= b)
+            break;
+    }
+    un21 = un32 * b + un1 - q1 * v;
+    q0 = un21 / vn1;
+    rhat = un21 - q0 * vn1;
+    while (q0 >= b || q0 * vn0 > b * rhat + un0) {
+        q0--;
+        rhat += vn1;
+        if (rhat >= b)
+            break;
+    }
+    *rem = (un21 * b + un0 - q0 * v) >> s;
+    return q1 * b + q0;
+}
+
+uint32_t fx_divlu32(uint32_t u1, uint32_t u0, uint32_t v, uint32_t *rem)
+{
+    return divlu32(u1, u0, v, rem);
+}
+
+static inline uint32_t divlu(uint32_t u1, uint32_t u0, uint32_t v, uint32_t *rem)
+{
+#if FX_WORD64
+    uint64_t n = ((uint64_t)u1 << 32) | u0;
+    uint32_t q = (uint32_t)(n / v);
+    *rem = u0 - q * v;                                    /* < v: exact modulo 2^32 */
+    return q;
+#else
+    return divlu32(u1, u0, v, rem);
+#endif
+}
+
+/* floor(n / d) and n mod d for any n < 2^64, 0 < d < 2^32: two divlu steps */
+static inline uint64_t udiv64(uint64_t n, uint32_t d, uint32_t *rem)
+{
+#if FX_WORD64
+    uint64_t q = n / d;                                   /* a 64-bit host: one instruction */
+    *rem = (uint32_t)n - (uint32_t)q * d;                 /* < d: exact modulo 2^32 */
+    return q;
+#else
+    uint32_t hi = (uint32_t)(n >> 32), q1 = hi / d, q0;
+    q0 = divlu32(hi - q1 * d, (uint32_t)n, d, rem);
+    return ((uint64_t)q1 << 32) | q0;
+#endif
+}
+
+uint64_t fx_udiv64(uint64_t n, uint32_t d, uint32_t *rem)
+{
+    return udiv64(n, d, rem);
+}
+
+/* floor(n / d), |n| < 2^63, 0 < d < 2^32; *rem = n - d floor(n / d) in [0, d) */
+static inline int64_t floor_div(int64_t n, uint32_t d, uint32_t *rem)
+{
+    uint64_t q;
+    if (n >= 0)
+        return (int64_t)udiv64((uint64_t)n, d, rem);
+    q = udiv64((uint64_t)-n, d, rem);                    /* -n = q d + r */
+    if (*rem) {
+        *rem = d - *rem;
+        return -(int64_t)q - 1;
+    }
+    return -(int64_t)q;
+}
+
+/* n / d rounded half away from zero; 0 < d < 2^31 */
+static inline int64_t div_round(int64_t n, uint32_t d)
+{
+    uint32_t r;
+    if (n >= 0)
+        return (int64_t)udiv64((uint64_t)n + d / 2, d, &r);
+    return -(int64_t)udiv64((uint64_t)-n + d / 2, d, &r);
 }
 
 /* floor(sqrt(v)): normalise v to m = v 4^k in [2^62, 2^64), seed from the table of
    sqrt(j 2^54) / 2 with linear interpolation (relative error < 5e-7), one Newton step
-   (error < 2^-40 relative), then an exact +-1 fix.  One division. */
-static inline uint64_t isqrt64(const fx_state *s, uint64_t v)
+   (error < 2^-40 relative), then an exact +-1 fix.  One 64 / 32 division. */
+static inline uint64_t isqrt64(uint64_t v)
 {
-    uint64_t m, x, r, j, f, t0, t1;
+    uint64_t m, x, j, f, t0, t1;
+    uint32_t r, rem;
     int k;
     if (v < 2)
         return v;
@@ -82,23 +206,24 @@ static inline uint64_t isqrt64(const fx_state *s, uint64_t v)
     m = v << (2 * k);
     j = (m >> FX_SQRT_SHIFT) - FX_SQRT_J0;                /* [0, 768) */
     f = (m >> (FX_SQRT_SHIFT - 24)) & 0xffffffu;          /* 24 bits of the fraction */
-    t0 = s->sqrt_tab[j];
-    t1 = s->sqrt_tab[j + 1];
-    x = 2 * (t0 + (((t1 - t0) * f) >> 24)) + 1;           /* ~ sqrt(m), in [2^31, 2^32] */
-    x = (x + m / x) >> 1;                                 /* m / x < 2^33 */
-    r = x >> k;
-    if (r > 0xffffffffu)
-        r = 0xffffffffu;
-    while (r * r > v)
+    t0 = FX_SQRT_TAB[j];
+    t1 = FX_SQRT_TAB[j + 1];
+    x = 2 * (t0 + (umul((uint32_t)(t1 - t0), (uint32_t)f) >> 24)) + 1;   /* ~ sqrt(m) */
+    if (x > 0xffffffffu)                                  /* sqrt(m) < 2^32 */
+        x = 0xffffffffu;
+    x = (x + udiv64(m, (uint32_t)x, &rem)) >> 1;          /* m / x < 2^33 */
+    x >>= k;
+    r = x > 0xffffffffu ? 0xffffffffu : (uint32_t)x;
+    while (umul(r, r) > v)
         r--;
-    while (r < 0xffffffffu && (r + 1) * (r + 1) <= v)
+    while (r < 0xffffffffu && umul(r + 1, r + 1) <= v)
         r++;
     return r;
 }
 
-uint64_t fx_isqrt64(const fx_state *s, uint64_t v)
+uint64_t fx_isqrt64(uint64_t v)
 {
-    return isqrt64(s, v);
+    return isqrt64(v);
 }
 
 static inline int64_t sat_pos(fx_state *s, int64_t v)
@@ -114,25 +239,10 @@ static inline int64_t sat_pos(fx_state *s, int64_t v)
     return v;
 }
 
-/* a position (Q.32) in Q.16, floor */
-static inline int64_t pos16(int64_t v)
+/* a position (Q.32) in Q.16, floor; |.| < 2^29 */
+static inline int32_t pos16(int64_t v)
 {
-    return v >> 16;
-}
-
-/* Mahalanobis d^2 = ia dx^2 + ib2 dx dy + ic dy^2 (eq. 2), Q.40, from the inverse
-   covariance (Q.32 px^-2: ia, ic < 2^47, |ib2| < 2^48) and the exact offsets (Q.32 px,
-   < 2^46).  64 x 64 -> 128-bit products (integer registers only): (ia dx) >> 32 < 2^61,
-   (ib2 dx) >> 32 < 2^62, and every term is < 2^109, so the sum needs no bound on the
-   offsets and is compared with the gate before it is narrowed. */
-static inline __int128 qform(int64_t ia, int64_t ib2, int64_t ic, int64_t dx, int64_t dy)
-{
-    int64_t tx = (int64_t)(((__int128)ia * dx) >> 32);     /* < 2^61: fits int64 */
-    int64_t ty = (int64_t)(((__int128)ic * dy) >> 32);
-    int64_t txy = (int64_t)(((__int128)ib2 * dx) >> 32);
-    /* ty dy + txy dy = (ty + txy) dy exactly (|ty + txy| < 2^61 + 2^62 < 2^63 fits int64):
-       two 128-bit products, not three */
-    return ((__int128)tx * dx + (__int128)(ty + txy) * dy) >> 24;
+    return (int32_t)(v >> 16);
 }
 
 static inline int64_t sat_add(fx_state *s, int64_t a, int64_t b, int64_t lim)
@@ -147,49 +257,42 @@ static inline int64_t sat_add(fx_state *s, int64_t a, int64_t b, int64_t lim)
 
 /* 2^(-w) for w >= 0 in Q.40, result Q.30: table of 2^(-k/1024) and linear interpolation
    (relative error < 6e-8 + 2^-30, docs/fixed_point.md). */
-static inline uint32_t exp2neg(const fx_state *s, int64_t w)
+static inline uint32_t exp2neg(int64_t w)
 {
-    int64_t ip = w >> 40;
-    uint64_t frac = (uint64_t)w & (((uint64_t)1 << 40) - 1);
-    uint32_t idx = (uint32_t)(frac >> (40 - FX_EXP2_BITS));
-    uint64_t rem = (frac >> (40 - FX_EXP2_BITS - 24)) & 0xffffffu;   /* 24 bits */
-    uint64_t v0 = s->exp2_lut[idx], v1 = s->exp2_lut[idx + 1];
-    uint64_t v;
+    int32_t ip;
+    uint32_t idx, rem, v0, v1, v;
     if (w < 0)
         return (uint32_t)ONE_Q30;
-    if (ip > 31)
+    if ((w >> 40) > 31)
         return 0;
-    v = v0 - (((v0 - v1) * rem + ((uint64_t)1 << 23)) >> 24);
+    ip = (int32_t)(w >> 40);
+    idx = (uint32_t)(w >> (40 - FX_EXP2_BITS)) & (FX_EXP2_N - 1);
+    rem = (uint32_t)(w >> (40 - FX_EXP2_BITS - 24)) & 0xffffffu;   /* 24 bits */
+    v0 = FX_EXP2_LUT[idx];
+    v1 = FX_EXP2_LUT[idx + 1];
+    v = v0 - (uint32_t)((umul(v0 - v1, rem) + ((uint64_t)1 << 23)) >> 24);
     /* rounded shift by ip in [0, 31] without a branch (ip is data): half = 2^(ip-1), or 0 */
-    v = (v + (((uint64_t)1 << ip) >> 1)) >> ip;
-    return (uint32_t)v;
+    return (uint32_t)(((uint64_t)v + ((1u << ip) >> 1)) >> ip);
 }
 
-uint32_t fx_exp2neg(const fx_state *s, int64_t w)
+uint32_t fx_exp2neg(int64_t w)
 {
-    return exp2neg(s, w);
+    return exp2neg(w);
 }
 
-/* exp(-d2 / 2), Q.30, for 0 <= d2 < 32 (Q.40; the gate is <= 31): d2 = hi 2^-5 + lo 2^-15
+/* exp(-d2 / 2), Q.30, for 0 <= d2 < 32 (Q.27; the gate is <= 31): d2 = hi 2^-5 + lo 2^-15
    + r, the product of two tables of exact roundings and 1 - r / 2 for the rest r < 2^-15
    (whose next term r^2 / 8 < 2^-33); error <= 2.1 units of Q.30 */
-static inline int64_t gauss(const fx_state *s, int64_t d2)
+static inline int64_t gauss(uint32_t d2)
 {
-    uint64_t q = ((uint64_t)s->gauss_hi[d2 >> 35] * s->gauss_lo[(d2 >> 25) & (FX_GAUSS_N - 1)]
-                  + ((uint64_t)1 << 29)) >> 30;
-    return (int64_t)(q - ((q * (uint64_t)(d2 & (((int64_t)1 << 25) - 1)) + ((uint64_t)1 << 40)) >> 41));
+    uint32_t q = (uint32_t)((umul(FX_GAUSS_HI[d2 >> 22], FX_GAUSS_LO[(d2 >> 12) & (FX_GAUSS_N - 1)])
+                             + ((uint64_t)1 << 29)) >> 30);
+    return (int64_t)q - (int64_t)((umul(q, d2 & 4095) + ((uint64_t)1 << 27)) >> 28);
 }
 
-int64_t fx_gauss(const fx_state *s, int64_t d2)
+int64_t fx_gauss(uint32_t d2)
 {
-    return gauss(s, d2);
-}
-
-/* round(act d / 2^30), half up, for an activity 0 <= act < 2^62 (Q.32) and a decay d <=
-   2^30 (Q.30): act = h 2^31 + l gives 2 h d + round(l d / 2^30), two 64-bit products */
-static inline int64_t decay_mul(int64_t act, uint32_t d)
-{
-    return (act >> 31) * d * 2 + (((act & 0x7fffffff) * d + (1 << 29)) >> 30);
+    return gauss(d2);
 }
 
 /* exp(-dt / tau), Q.30, for dt in us (eq. 6).  Below decay_span (2^18 us, or dt_max if
@@ -198,14 +301,21 @@ static inline int64_t decay_mul(int64_t act, uint32_t d)
    the exp2 table (which gives 0 from dt_max on). */
 static inline uint32_t decay(const fx_state *s, int64_t dt)
 {
+    uint64_t w;
     if ((uint64_t)dt < (uint64_t)s->decay_span)
-        return (uint32_t)(((uint64_t)s->decay_hi[dt >> FX_DECAY_BITS]
-                           * s->decay_lo[dt & (FX_DECAY_N - 1)] + ((uint64_t)1 << 29)) >> 30);
+        return (uint32_t)((umul(s->decay_hi[(uint32_t)dt >> FX_DECAY_BITS],
+                                s->decay_lo[(uint32_t)dt & (FX_DECAY_N - 1)]) + ((uint64_t)1 << 29)) >> 30);
     if (dt <= 0)
         return (uint32_t)ONE_Q30;
     if (dt >= s->dt_max)
         return 0;
-    return exp2neg(s, dt * s->k_tau);                  /* < 41 * 2^40 */
+    /* here dt_max > 2^18 us, so k_tau < 2^27 and dt k_tau < 2^46; dt >= 2^32 us (tau >
+       3.9 min) splits dt in 16-bit halves */
+    if ((uint64_t)dt >> 32)
+        w = (umul((uint32_t)(dt >> 16), s->k_tau) << 16) + umul((uint32_t)dt & 0xffff, s->k_tau);
+    else
+        w = umul((uint32_t)dt, s->k_tau);
+    return exp2neg((int64_t)w);
 }
 
 uint32_t fx_decay(const fx_state *s, int64_t dt)
@@ -213,26 +323,34 @@ uint32_t fx_decay(const fx_state *s, int64_t dt)
     return decay(s, dt);
 }
 
-/* atan(t) for t in [0, 1] Q.30, as a binary angle: table of atan(k / 1024) and linear
-   interpolation (error < 8e-8 rad, docs/fixed_point.md) */
-static inline int64_t atan_unit(const fx_state *s, int64_t t)
+/* table look-up with linear interpolation at t in [0, 1] (Q.30), tables of 1024 intervals */
+static inline int32_t unit_interp(const uint32_t *tab, uint32_t t)
 {
-    int64_t idx = t >> (30 - FX_ATAN_BITS), rem = t & ((1 << (30 - FX_ATAN_BITS)) - 1);
-    int64_t v0 = s->atan_tab[idx], v1 = s->atan_tab[idx + 1];
-    return v0 + (((v1 - v0) * rem + (1 << (29 - FX_ATAN_BITS))) >> (30 - FX_ATAN_BITS));
+    uint32_t idx = t >> (30 - FX_ATAN_BITS), rem = t & ((1 << (30 - FX_ATAN_BITS)) - 1);
+    int32_t v0 = (int32_t)tab[idx], v1 = (int32_t)tab[idx + 1];
+    return v0 + (int32_t)((smul(v1 - v0, (int32_t)rem) + (1 << (29 - FX_ATAN_BITS)))
+                          >> (30 - FX_ATAN_BITS));
 }
 
-/* atan2(y, x) as a binary angle (2^32 = 2 pi), |x|, |y| < 2^32: octant reduction, one
-   division, table.  atan2(0, 0) = 0 as in C. */
-static inline uint32_t atan2_bam(const fx_state *s, int64_t y, int64_t x)
+/* floor(a 2^30 / b) for 0 <= a <= b < 2^32, b > 0: in [0, 2^30] */
+static inline uint32_t ratio30(uint32_t a, uint32_t b)
 {
-    int64_t ax = x < 0 ? -x : x, ay = y < 0 ? -y : y, a;
+    uint32_t rem;
+    return divlu(a >> 2, a << 30, b, &rem);
+}
+
+/* atan2(y, x) as a binary angle (2^32 = 2 pi), |x|, |y| <= 2^31: octant reduction, one
+   division, table.  atan2(0, 0) = 0 as in C. */
+static inline uint32_t atan2_bam(int64_t y, int64_t x)
+{
+    uint32_t ax = (uint32_t)(x < 0 ? -x : x), ay = (uint32_t)(y < 0 ? -y : y);
+    int64_t a;
     if (ax == 0 && ay == 0)
         return 0;
     if (ay <= ax)
-        a = atan_unit(s, (ay << 30) / ax);                /* [0, pi/4] */
+        a = unit_interp(FX_ATAN_TAB, ratio30(ay, ax));    /* [0, pi/4] */
     else
-        a = ((int64_t)1 << 30) - atan_unit(s, (ax << 30) / ay);   /* pi/2 - atan(x/y) */
+        a = ((int64_t)1 << 30) - unit_interp(FX_ATAN_TAB, ratio30(ax, ay));   /* pi/2 - atan(x/y) */
     if (x < 0)
         a = ((int64_t)1 << 31) - a;                       /* pi - a */
     if (y < 0)
@@ -240,29 +358,44 @@ static inline uint32_t atan2_bam(const fx_state *s, int64_t y, int64_t x)
     return (uint32_t)((uint64_t)a & 0xffffffffu);
 }
 
-/* cos and sin of a binary angle, Q.30, CORDIC in rotation mode (Q.60 inside) */
-static inline void cossin(const fx_state *s, int64_t angle, int64_t *c, int64_t *sn)
+uint32_t fx_atan2(int64_t y, int64_t x)
+{
+    return atan2_bam(y, x);
+}
+
+/* sin r and cos r - 1 for r in radians, Q.30, |r| < 2^-4: Taylor series; below 2^-7 rad
+   (r < 2^23, the usual torsion step) r2 <= 2^16 and r4 <= 4, and every r4 term rounds to
+   exactly 0, so the short series is the same result */
+static inline void series(int32_t r, int32_t *cm1, int32_t *sn)
+{
+    int32_t r2 = (int32_t)rshr(smul(r, r), 30), r4;
+    if (r < (1 << 23) && r > -(1 << 23)) {
+        *sn = (int32_t)rshr(smul(r, (int32_t)(ONE_Q30 - rshr(smul(r2, 715827883), 32))), 30);
+        *cm1 = -(r2 >> 1);                                /* r2 >= 0 */
+        return;
+    }
+    r4 = (int32_t)rshr(smul(r2, r2), 30);
+    /* sin r = r (1 - r2/6 + r4/120), cos r = 1 - r2/2 + r4/24 - r2 r4/720: truncation
+       < r^7/5040 < 1e-12 for |r| < 2^-4; constants 2^32/6, 2^32/120, 2^32/24, 2^32/720 */
+    *sn = (int32_t)rshr(smul(r, (int32_t)(ONE_Q30 - rshr(smul(r2, 715827883), 32)
+                                          + rshr(smul(r4, 35791394), 32))), 30);
+    *cm1 = (int32_t)(-(r2 / 2) + rshr(smul(r4, 178956971), 32)
+                     - rshr(smul((int32_t)rshr(smul(r2, r4), 30), 5965232), 32));
+}
+
+/* cos and sin of a binary angle, Q.30: the series below 2^-4 rad, else CORDIC in rotation
+   mode (Q.60 inside: additions and shifts only) */
+static inline void cossin(int64_t angle, int64_t *c, int64_t *sn)
 {
     uint32_t u = (uint32_t)((uint64_t)angle & 0xffffffffu);
     int64_t z = (int64_t)u - ((int64_t)(u >> 31) << 32);  /* [-pi, pi), without a branch */
-    int64_t x = s->cordic_x0, y = 0;
+    int64_t x = FX_CORDIC_X0, y = 0;
     int neg = 0, i;
     if (z < SMALL_ANGLE && z > -SMALL_ANGLE) {            /* |z| < 2^-4 rad: Taylor series */
-        int64_t r = mul32sh(z, PI_Q29, 30);               /* radians, Q.30; |z| < 2^26 */
-        int64_t r2 = rshr(r * r, 30);
-        int64_t r4;
-        if (r < ((int64_t)1 << 23) && r > -((int64_t)1 << 23)) {
-            /* |r| < 2^-7 rad (the usual torsion step): r2 <= 2^16, r4 <= 4, and every r4
-               term below rounds to exactly 0, so this is the same result, shorter */
-            *sn = rshr(r * (ONE_Q30 - rshr(r2 * 715827883, 32)), 30);
-            *c = ONE_Q30 - (r2 >> 1);                     /* r2 >= 0 */
-            return;
-        }
-        r4 = rshr(r2 * r2, 30);
-        /* sin r = r (1 - r2/6 + r4/120), cos r = 1 - r2/2 + r4/24 - r2 r4/720: truncation
-           < r^7/5040 < 1e-12 for |r| < 2^-4; constants 2^32/6, 2^32/120, 2^32/24, 2^32/720 */
-        *sn = rshr(r * (ONE_Q30 - rshr(r2 * 715827883, 32) + rshr(r4 * 35791394, 32)), 30);
-        *c = ONE_Q30 - r2 / 2 + rshr(r4 * 178956971, 32) - rshr(rshr(r2 * r4, 30) * 5965232, 32);
+        int32_t cm1, s1;
+        series((int32_t)rshr(smul((int32_t)z, PI_Q29), 30), &cm1, &s1);   /* radians Q.30 */
+        *c = ONE_Q30 + cm1;
+        *sn = s1;
         return;
     }
     if (z > ((int64_t)1 << 30)) {                          /* |z| > pi/2: use z -+ pi */
@@ -277,11 +410,11 @@ static inline void cossin(const fx_state *s, int64_t angle, int64_t *c, int64_t 
         if (z >= 0) {
             xn = x - (y >> i);
             y = y + (x >> i);
-            z -= s->atan_lut[i];
+            z -= FX_ATAN_LUT[i];
         } else {
             xn = x + (y >> i);
             y = y - (x >> i);
-            z += s->atan_lut[i];
+            z += FX_ATAN_LUT[i];
         }
         x = xn;
     }
@@ -291,67 +424,60 @@ static inline void cossin(const fx_state *s, int64_t angle, int64_t *c, int64_t 
     *sn = neg ? -y : y;
 }
 
-/* cos(z) - 1 and sin(z), Q.30, of a binary angle z, |z| < 2^32: the short series of cossin
-   for the torsion's small rotation a dtheta (the same integers), cossin otherwise */
-static inline void rotation(const fx_state *s, int64_t z, int64_t *cm1, int64_t *sn)
+void fx_cossin(int64_t angle, int64_t *c, int64_t *sn)
 {
+    cossin(angle, c, sn);
+}
+
+/* cos(z) - 1 and sin(z), Q.30, of a binary angle z, |z| < 2^32: the short series for the
+   torsion's small rotation a dtheta (the same integers as cossin), cossin otherwise */
+static inline void rotation(int64_t z, int32_t *cm1, int32_t *sn)
+{
+    int64_t c, s1;
     if (z <= 5340353 && z >= -5340353) {                  /* |r| < 2^23 below, 0.0078 rad */
-        int64_t r = mul32sh(z, PI_Q29, 30);               /* radians, Q.30 */
-        int64_t r2 = rshr(r * r, 30);
-        *sn = rshr(r * (ONE_Q30 - rshr(r2 * 715827883, 32)), 30);
+        int32_t r = (int32_t)rshr(smul((int32_t)z, PI_Q29), 30), r2 = (int32_t)rshr(smul(r, r), 30);
+        *sn = (int32_t)rshr(smul(r, (int32_t)(ONE_Q30 - rshr(smul(r2, 715827883), 32))), 30);
         *cm1 = -(r2 >> 1);
         return;
     }
-    cossin(s, z, cm1, sn);
-    *cm1 -= ONE_Q30;
+    cossin(z, &c, &s1);
+    *cm1 = (int32_t)(c - ONE_Q30);
+    *sn = (int32_t)s1;
 }
 
-uint32_t fx_atan2(const fx_state *s, int64_t y, int64_t x)
-{
-    return atan2_bam(s, y, x);
-}
-
-/* table look-up with linear interpolation at t in [0, 1] (Q.30), tables of 1024 intervals */
-static inline int64_t unit_interp(const uint32_t *tab, int64_t t)
-{
-    int64_t idx = t >> (30 - FX_ATAN_BITS), rem = t & ((1 << (30 - FX_ATAN_BITS)) - 1);
-    int64_t v0 = tab[idx], v1 = tab[idx + 1];
-    return v0 + (((v1 - v0) * rem + (1 << (29 - FX_ATAN_BITS))) >> (30 - FX_ATAN_BITS));
-}
-
-/* Polar form of r = (x, y), |x|, |y| < 2^31: its angle (binary), its length (unit of x,
+/* Polar form of r = (x, y), |x|, |y| < 2^30: its angle (binary), its length (unit of x,
    rounded; relative error < 2e-7) and its direction r / |r| (Q.30).  One division, the
    octant ratio t = min / max, then tables of atan(t), sqrt(1 + t^2), 1 / sqrt(1 + t^2).
    In two steps, so that the spring pass can do all the divisions first (they overlap):
    polar_ratio gives t, max(|x|, |y|) and the octant (bit 0: |y| > |x|, bit 1: x < 0,
    bit 2: y < 0); polar_finish the rest. */
-static inline int64_t polar_ratio(int64_t x, int64_t y, int64_t *big, int *oct)
+static inline uint32_t polar_ratio(int32_t x, int32_t y, int32_t *big, int *oct)
 {
-    int64_t ax = x < 0 ? -x : x, ay = y < 0 ? -y : y;
+    int32_t ax = x < 0 ? -x : x, ay = y < 0 ? -y : y;
     int swap = ay > ax;
     *big = swap ? ay : ax;
     *oct = swap | (x < 0) << 1 | (y < 0) << 2;
     if (*big == 0)
         return 0;
-    return ((swap ? ax : ay) << 30) / *big;                /* [0, 2^30] */
+    return ratio30((uint32_t)(swap ? ax : ay), (uint32_t)*big);      /* [0, 2^30] */
 }
 
-static inline void polar_finish(const fx_state *s, int64_t t, int64_t big, int oct, uint32_t *ang,
-                                int64_t *len, int64_t *cx, int64_t *cy)
+static inline void polar_finish(uint32_t t, int32_t big, int oct, uint32_t *ang, int32_t *len,
+                                int32_t *cx, int32_t *cy)
 {
-    int64_t a, h, cbig, csmall;
+    int32_t a, h, cbig, csmall;
     if (big == 0) {
         *ang = 0;
         *len = *cx = *cy = 0;
         return;
     }
-    a = unit_interp(s->atan_tab, t);
-    *len = rshr(big * unit_interp(s->hyp_tab, t), 30);    /* big sqrt(1 + t^2) */
-    h = unit_interp(s->ihyp_tab, t);                      /* cos of the octant angle */
+    a = unit_interp(FX_ATAN_TAB, t);
+    *len = (int32_t)rshr(smul(big, unit_interp(FX_HYP_TAB, t)), 30);   /* big sqrt(1 + t^2) */
+    h = unit_interp(FX_IHYP_TAB, t);                      /* cos of the octant angle */
     cbig = h;
-    csmall = rshr(t * h, 30);
+    csmall = (int32_t)rshr((int64_t)umul(t, (uint32_t)h), 30);
     if (oct & 1) {
-        a = ((int64_t)1 << 30) - a;
+        a = (1 << 30) - a;
         *cx = csmall;
         *cy = cbig;
     } else {
@@ -359,35 +485,22 @@ static inline void polar_finish(const fx_state *s, int64_t t, int64_t big, int o
         *cy = csmall;
     }
     if (oct & 2) {
-        a = ((int64_t)1 << 31) - a;
+        a = (int32_t)((1u << 31) - (uint32_t)a);
         *cx = -*cx;
     }
     if (oct & 4) {
-        a = -a;
+        a = (int32_t)(0u - (uint32_t)a);
         *cy = -*cy;
     }
-    *ang = (uint32_t)((uint64_t)a & 0xffffffffu);
+    *ang = (uint32_t)a;
 }
 
-static inline void polar(const fx_state *s, int64_t x, int64_t y, uint32_t *ang, int64_t *len,
-                         int64_t *cx, int64_t *cy)
+void fx_polar(int32_t x, int32_t y, uint32_t *ang, int32_t *len, int32_t *cx, int32_t *cy)
 {
-    int64_t big, t;
+    int32_t big;
     int oct;
-    t = polar_ratio(x, y, &big, &oct);
-    polar_finish(s, t, big, oct, ang, len, cx, cy);
-}
-
-void fx_polar(const fx_state *s, int64_t x, int64_t y, uint32_t *ang, int64_t *len, int64_t *cx,
-              int64_t *cy)
-{
-    polar(s, x, y, ang, len, cx, cy);
-}
-
-
-void fx_cossin(const fx_state *s, int64_t angle, int64_t *c, int64_t *sn)
-{
-    cossin(s, angle, c, sn);
+    uint32_t t = polar_ratio(x, y, &big, &oct);
+    polar_finish(t, big, oct, ang, len, cx, cy);
 }
 
 /* ---- spatial index ------------------------------------------------------------------- */
@@ -412,7 +525,7 @@ static void index_move(fx_state *s, int i, int32_t x0, int32_t x1, int32_t y0, i
     if (ox0 > ox1 || oy0 > oy1)                           /* not indexed yet */
         ylo = y0, yhi = y1;
     for (y = ylo; y <= yhi; y++) {
-        uint64_t *row = s->cells + (int64_t)y * s->gw;
+        uint64_t *row = s->cells + y * s->gw;
         int old_row = y >= oy0 && y <= oy1 && ox0 <= ox1, new_row = y >= y0 && y <= y1;
         int32_t a0 = old_row ? ox0 : 0, a1 = old_row ? ox1 : -1;   /* old cells of the row */
         int32_t b0 = new_row ? x0 : 0, b1 = new_row ? x1 : -1;     /* new cells */
@@ -427,25 +540,25 @@ static void index_move(fx_state *s, int i, int32_t x0, int32_t x1, int32_t y0, i
     }
 }
 
-static inline int32_t cell_of(int64_t v, int32_t gmax)
+static inline int32_t cell_of(int32_t v, int32_t gmax)
 {
-    int64_t c = v >> (16 + FX_CELL_SHIFT);                /* v Q.16 px; floor */
-    return c < 0 ? 0 : (c > gmax ? gmax : (int32_t)c);
+    int32_t c = v >> (16 + FX_CELL_SHIFT);                /* v Q.16 px; floor */
+    return c < 0 ? 0 : (c > gmax ? gmax : c);
 }
 
-/* An upper bound of gate v (Q.32 px^2) for a variance v (Q.40, < 2^53): the square of the
+/* An upper bound of gate v (Q.32 px^2) for a variance v (Q.40, <= 2^52): the square of the
    gate box's half-width, for the spatial index (which needs a box that contains the gate
-   box, not an exact one).  One 64-bit product: (v / 2^16 + 1) ceil(gate 2^20) < 2^61,
-   rounded up; relative excess < 2^-22 for v >= 0.25 px^2. */
-static inline int64_t gate_box2(const fx_state *s, int64_t v)
+   box, not an exact one).  One 32 x 32 product: (v / 2^21 + 1) gate (Q.27) < 2^63, rounded
+   up; relative excess < 2^-17 for v >= 0.25 px^2. */
+static inline uint64_t gate_box2(const fx_state *s, int64_t v)
 {
-    return (((v >> 16) + 1) * s->gate_q20 + 4095) >> 12;
+    return (umul((uint32_t)(v >> 21) + 1, s->gate) + 16383) >> 14;
 }
 
 /* half-width of the gate box for a variance v (Q.40), Q.16, rounded up */
-static inline int64_t gate_half(const fx_state *s, int64_t v)
+static inline int32_t gate_half(const fx_state *s, int64_t v)
 {
-    return (int64_t)isqrt64(s, (uint64_t)gate_box2(s, v)) + 1;
+    return (int32_t)isqrt64(gate_box2(s, v)) + 1;
 }
 
 /* the variance up to which box_kept holds: 1/32 above v (sigma 1.5 % above), at most the
@@ -462,8 +575,8 @@ static inline int64_t var_lim(const fx_state *s, int64_t v)
    contains the gate box gives the same results). */
 void fx_reindex(fx_state *s, int i)
 {
-    int64_t hx = gate_half(s, s->sxx[i]), hy = gate_half(s, s->syy[i]);     /* Q.16 */
-    int64_t cx = pos16(s->mx[i]), cy = pos16(s->my[i]);
+    int32_t hx = gate_half(s, s->sxx[i]), hy = gate_half(s, s->syy[i]);     /* Q.16 */
+    int32_t cx = pos16(s->mx[i]), cy = pos16(s->my[i]);
     int32_t x0, x1, y0, y1;
     hx += (hx >> FX_INDEX_GROW_SHIFT) + FX_INDEX_MARGIN;
     hy += (hy >> FX_INDEX_GROW_SHIFT) + FX_INDEX_MARGIN;
@@ -478,12 +591,8 @@ void fx_reindex(fx_state *s, int i)
     s->syy_lim[i] = var_lim(s, s->syy[i]);
     s->bcx[i] = cx;
     s->bcy[i] = cy;
-    s->devx[i] = hx - gate_half(s, s->sxx_lim[i]);
-    s->devy[i] = hy - gate_half(s, s->syy_lim[i]);
-    if (s->devx[i] < 0)
-        s->devx[i] = 0;
-    if (s->devy[i] < 0)
-        s->devy[i] = 0;
+    s->devx[i] = max32(hx - gate_half(s, s->sxx_lim[i]), 0);
+    s->devy[i] = max32(hy - gate_half(s, s->syy_lim[i]), 0);
     x0 = cell_of(s->bx_lo[i], s->gw - 1);
     x1 = cell_of(s->bx_hi[i], s->gw - 1);
     y0 = cell_of(s->by_lo[i], s->gh - 1);
@@ -498,15 +607,10 @@ void fx_reindex(fx_state *s, int i)
     s->n_reindex++;
 }
 
-/* d >= h  <=>  d >= 0 and d^2 >= h^2 (h^2 = g2, Q.32); d is Q.16, |d| < 2^31 */
-static inline int inside(int64_t d, int64_t g2)
+/* d >= h  <=>  d >= 0 and d^2 >= h^2 (h^2 = g2, Q.32); d is Q.16 */
+static inline int inside(int32_t d, uint64_t g2)
 {
-    return d >= 0 && d * d >= g2;
-}
-
-static inline int64_t min64(int64_t a, int64_t b)
-{
-    return a < b ? a : b;
+    return d >= 0 && (uint64_t)smul(d, d) >= g2;
 }
 
 /* 1 if tracker i's gate box lies inside its indexed box (the exact test, for
@@ -515,9 +619,9 @@ static inline int box_ok(const fx_state *s, int i)
 {
     /* positions to Q.16 (floor): an error < 2^-16 px, far inside the 3 px index margin;
        both sides of an axis are inside iff the nearer one is (one square per axis) */
-    int64_t x = pos16(s->mx[i]), y = pos16(s->my[i]);
-    return inside(min64(x - s->bx_lo[i], s->bx_hi[i] - x), gate_box2(s, s->sxx[i]))
-        && inside(min64(y - s->by_lo[i], s->by_hi[i] - y), gate_box2(s, s->syy[i]));
+    int32_t x = pos16(s->mx[i]), y = pos16(s->my[i]);
+    return inside(min32(x - s->bx_lo[i], s->bx_hi[i] - x), gate_box2(s, s->sxx[i]))
+        && inside(min32(y - s->by_lo[i], s->by_hi[i] - y), gate_box2(s, s->syy[i]));
 }
 
 /* 1 if tracker i's mean and variances are still within the slack fx_reindex noted: a
@@ -525,7 +629,7 @@ static inline int box_ok(const fx_state *s, int i)
    current variances, two products and two squares) */
 static inline int box_kept(const fx_state *s, int i)
 {
-    int64_t dx = pos16(s->mx[i]) - s->bcx[i], dy = pos16(s->my[i]) - s->bcy[i];
+    int32_t dx = pos16(s->mx[i]) - s->bcx[i], dy = pos16(s->my[i]) - s->bcy[i];
     return (dx < 0 ? -dx : dx) <= s->devx[i] && (dy < 0 ? -dy : dy) <= s->devy[i]
         && s->sxx[i] <= s->sxx_lim[i] && s->syy[i] <= s->syy_lim[i];
 }
@@ -555,63 +659,87 @@ int fx_check_index(const fx_state *s)
 
 /* ---- per tracker --------------------------------------------------------------------- */
 
-/* round(v * 2^k): left shift with saturation (counted), or rounded right shift */
-static inline int64_t scale2(fx_state *s, int64_t v, int k)
+/* round(v / 2^k) of 0 < v < 2^62 into a mantissa, k >= 1 */
+static inline int32_t mant(int64_t v, int k)
 {
-    if (k <= 0)
-        return k == 0 ? v : rshr(v, -k);
-    if (v >= ((int64_t)1 << (62 - k)) || v <= -((int64_t)1 << (62 - k))) {
-        s->sat_inverse++;
-        return v < 0 ? -((int64_t)1 << 62) : ((int64_t)1 << 62);
-    }
-    return v * ((int64_t)1 << k);
+    return (int32_t)rshr(v, k);
 }
 
 /* [ref] _clamp_and_invert: sigma_x, sigma_y in [sigma_min, sigma_max], |rho| <= 0.99,
-   then the inverse covariance of eq. (2).  One division. */
+   then the inverse covariance of eq. (2) as three mantissas with the tracker's exponent,
+   and the shifts that put a candidate's offset and d^2 in 32 bits.  One 64 / 32
+   division (a reciprocal).
+
+   Block scaling: a, b, c = sxx, sxy, syy >> sh with the larger variance in [2^30, 2^31),
+   so sigma_big^2 is in [2^(sh-10), 2^(sh-9)) px^2 and every product below is 32 x 32.
+   det = ac - b^2 = m 2^e with m in [2^30, 2^31); r = floor(2^61 / m); then ia = syy / det
+   = c r 2^(-21 - sh - e) px^-2 (Q.40 covariances), and likewise ic, ib.  The mantissas
+   are the high words ia_m = c r / 2^32 (max(a, c) r < 2^62, so max(ia_m, ic_m) <= 2^30
+   and |ib2_m| = |2 b r / 2^32| < 2^31), with f = sh + e - 11 fraction bits.
+
+   Offsets are taken as u = (Q.32 offset) >> osh, osh = max(2, ceil((sh - 1) / 2) + 1):
+   |u| < 2^31 covers |offset| < 2^(osh-1) px >= 16 sigma_big (and >= 2 px), and an offset
+   whose whole pixels reach 2^(osh-1) is clamped: then |offset| > 2^(osh-1) - 1 px >= 8
+   sigma_big + 1 px and d^2 > 64 sigma_big^2 / (2 sigma_big^2) = 32, beyond any gate
+   (<= 31), so clamping decides nothing.  d^2 (Q.27) = (sum of mantissa u u / 2^32
+   terms) >> dsh, dsh = f + 5 - 2 osh, which is e - 8 or e - 7 <= 24; kept >= 1 so that the
+   shift works on 32-bit words. */
 static inline void refresh(fx_state *s, int i)
 {
-    int64_t sxx = s->sxx[i], syy = s->syy[i], sxy = s->sxy[i];
-    int64_t a, b, c, p, det, m, r, big;
-    int sh, e, k;
+    int64_t sxx = s->sxx[i], syy = s->syy[i], sxy = s->sxy[i], big, p, bb, det;
+    int32_t a, b, c, sh, e, osh, dsh, f;
+    uint32_t m, r, rem;
     sxx = sxx < s->smin2 ? s->smin2 : (sxx > s->smax2 ? s->smax2 : sxx);
     syy = syy < s->smin2 ? s->smin2 : (syy > s->smax2 ? s->smax2 : syy);
-    /* block scaling: a, c < 2^31 so that every product below fits int64 */
     big = sxx > syy ? sxx : syy;
     sh = bitlen64((uint64_t)big) - 31;
     if (sh < 0)
         sh = 0;
-    a = sxx >> sh;
-    c = syy >> sh;
+    a = (int32_t)(sxx >> sh);
+    c = (int32_t)(syy >> sh);
     if (sxy > big)                                        /* |sxy| <= max keeps b^2 < 2^62 */
         sxy = big;
     if (sxy < -big)
         sxy = -big;
-    b = sxy >> sh;
-    p = a * c;
+    b = (int32_t)(sxy >> sh);
+    p = smul(a, c);
+    bb = smul(b, b);
     /* |rho| > 0.99: clamp (b^2 <= p - p / 32 < 0.99^2 p: certainly not, without the product) */
-    if (b * b > p - (p >> 5) && b * b > mulsh(p, RHO2_Q30, 30)) {
+    if (bb > p - (p >> 5) && bb > mulsh(p, RHO2_Q30, 30)) {
         /* 0.99 sqrt(sxx syy) = 0.99 sqrt(a c) 2^sh, Q.40, 31 significant bits */
-        int64_t lim = mulsh((int64_t)isqrt64(s, (uint64_t)p) * ((int64_t)1 << sh), RHO_Q30, 30);
+        int64_t lim = mulsh(shl64((int64_t)isqrt64((uint64_t)p), sh), RHO_Q30, 30);
         sxy = sxy < 0 ? -lim : lim;
-        b = sxy >> sh;
+        b = (int32_t)(sxy >> sh);
+        bb = smul(b, b);
     }
     s->sxx[i] = sxx;
     s->sxy[i] = sxy;
     s->syy[i] = syy;
-    det = p - b * b;                                      /* > 0.0199 p */
-    if (det <= 0)
+    det = p - bb;                                         /* > 0.0199 p */
+    if (det <= 0) {                                       /* cannot happen: |rho| <= 0.99 */
         det = 1;
-    /* det = m 2^e with m in [2^30, 2^31); r = 2^61 / m in (2^30, 2^31] */
+        s->sat_inverse++;
+    }
     e = bitlen64((uint64_t)det) - 31;
-    m = e >= 0 ? det >> e : det * ((int64_t)1 << -e);
-    r = ((int64_t)1 << 61) / m;
-    /* ia = syy / det in Q.32 = c r 2^(11 - sh - e) for covariances in Q.40
-       (docs/fixed_point.md) */
-    k = 11 - sh - e;
-    s->ia[i] = scale2(s, c * r, k);
-    s->ic[i] = scale2(s, a * r, k);
-    s->ib2[i] = 2 * scale2(s, -b * r, k);
+    m = (uint32_t)(e >= 0 ? det >> e : shl64(det, -e));
+    r = divlu((uint32_t)1 << 29, 0, m, &rem);            /* 2^61 / m in (2^30, 2^31] */
+    if (r > 0x7fffffffu)
+        r = 0x7fffffffu;
+    f = sh + e - 11;                                      /* 21 + sh + e - 32 */
+    osh = sh > 3 ? sh / 2 + 1 : 2;                        /* ceil((sh - 1) / 2) + 1, >= 2 */
+    dsh = f + 5 - 2 * osh;                                /* <= 24 (e <= 31) */
+    if (dsh >= 1) {                                       /* mantissas: the products' high words */
+        s->ia[i] = (int32_t)((umul((uint32_t)c, r) + 0x80000000u) >> 32);
+        s->ic[i] = (int32_t)((umul((uint32_t)a, r) + 0x80000000u) >> 32);
+        s->ib2[i] = -(int32_t)((smul(b, (int32_t)r) + 0x40000000) >> 31);
+    } else {                      /* sigma_x / sigma_y beyond ~290 only: fewer bits, dsh = 1 */
+        s->ia[i] = mant((int64_t)umul((uint32_t)c, r), 33 - dsh);
+        s->ic[i] = mant((int64_t)umul((uint32_t)a, r), 33 - dsh);
+        s->ib2[i] = -mant(smul(b, (int32_t)r), 32 - dsh);
+        dsh = 1;
+    }
+    s->osh[i] = (uint8_t)osh;
+    s->dsh[i] = (uint8_t)dsh;
 }
 
 void fx_refresh(fx_state *s, int i)
@@ -619,30 +747,86 @@ void fx_refresh(fx_state *s, int i)
     refresh(s, i);
 }
 
-/* [ref] _update: eqs. (2)-(6) for the winning tracker i; dx, dy Q.32 from the pre-update
-   mean (|.| < 2^41 inside the gate), d2 Q.40. */
-static __attribute__((noinline)) void update_tracker(fx_state *s, int i, int64_t t, int64_t dx, int64_t dy,
-                                                   int64_t d2)
+/* floor((v 2^32 - m) / 2^sh) for a pixel v and a Q.32 position m, 2 <= sh <= 31, in 32-bit
+   arithmetic: with m = h 2^32 + l and d = v - h, it is d 2^(32-sh) - ceil(l / 2^sh); when
+   |d| >= 2^(sh-1) it is clamped to +-(2^31 - 1) (the clamp decides nothing, see refresh) */
+static inline int32_t offset32(int32_t v, int64_t m, int sh)
 {
-    int64_t p = gauss(s, d2);                             /* eq. (2), Q.30 */
-    int64_t act = decay_mul(s->act[i], decay(s, t - s->tlast[i])) + p * 4;  /* eq. (6) */
+    int32_t d = v - (int32_t)(m >> 32);
+    uint32_t l = (uint32_t)m, lim = 1u << (sh - 1);
+    if ((uint32_t)d + lim >= 2 * lim)
+        return d < 0 ? -0x7fffffff : 0x7fffffff;
+    return (int32_t)((uint32_t)d << (32 - sh)) - (int32_t)((l >> sh) + ((l & ((1u << sh) - 1)) != 0));
+}
+
+/* Mahalanobis d^2 = ia dx^2 + ib2 dx dy + ic dy^2 (eq. 2), Q.27, saturated at 2^32 - 1,
+   of pixel (x, y) from tracker i: five 32 x 32 products (|pa|, |pc| <= 2^29, |pb| <= 2^30,
+   |q| < 2^62); the relative rounding is ~2^-25 of d^2 at the gate */
+static inline uint32_t qform(const fx_state *s, int i, int32_t x, int32_t y)
+{
+    int sh = s->osh[i];
+    int32_t u = offset32(x, s->mx[i], sh), v = offset32(y, s->my[i], sh);
+    int32_t pa = (int32_t)(smul(s->ia[i], u) >> 32);
+    int32_t pb = (int32_t)(smul(s->ib2[i], u) >> 32);
+    int32_t pc = (int32_t)(smul(s->ic[i], v) >> 32);
+    int64_t q = smul(pa, u) + smul(pb + pc, v);
+    int k = s->dsh[i];                                    /* 1 .. 24 */
+    if (q <= 0)
+        return 0;
+#if FX_WORD64
+    q >>= k;
+    return q > (int64_t)D2_SAT ? D2_SAT : (uint32_t)q;
+#else
+    {                                                     /* the same in 32-bit words */
+        uint32_t hi = (uint32_t)((uint64_t)q >> 32), lo = (uint32_t)q;
+        if (hi >> k)                                      /* q >> k >= 2^32 */
+            return D2_SAT;
+        return (lo >> k) | (hi << (32 - k));
+    }
+#endif
+}
+
+uint32_t fx_d2(const fx_state *s, int i, int32_t x, int32_t y)
+{
+    return qform(s, i, x, y);
+}
+
+/* [ref] _update: eqs. (2)-(6) for the winning tracker i; dx, dy Q.32 from the pre-update
+   mean (|.| < 2^41 inside the gate), d2 Q.27. */
+static __attribute__((noinline)) void update_tracker(fx_state *s, int i, int64_t t, int64_t dx,
+                                                   int64_t dy, uint32_t d2)
+{
+    int64_t p = gauss(d2);                                /* eq. (2), Q.30 */
+    int64_t act = mulsh(s->act[i], decay(s, t - s->tlast[i]), 30) + p * 4;  /* eq. (6) */
+    int32_t ex = (int32_t)rshr(dx, 12), ey = (int32_t)rshr(dy, 12);    /* Q.20 px, < 2^29 */
     if (act > ACT_MAX) {
         act = ACT_MAX;
         s->sat_activity++;
     }
     s->act[i] = act;
     s->tlast[i] = t;
-    int64_t ex = rshr(dx, 12), ey = rshr(dy, 12);         /* Q.20 px, < 2^29 */
     /* eq. (3): m + round(a1 (u - m)) with 0 <= a1 <= 1 lies between m and the event u, both
        inside +-FX_POS_LIM: it cannot saturate */
-    s->mx[i] += mul62(dx, s->a1);
-    s->my[i] += mul62(dy, s->a1);
+    s->mx[i] += mulsh(dx, s->a1, 30);
+    s->my[i] += mulsh(dy, s->a1, 30);
     /* eq. (4)-(5): S <- (1 - a2) S + g e e^T, e = (dx, dy); ex ex is Q.40 px^2 */
-    s->sxx[i] = ema62(s->sxx[i], ex * ex, s->cov_gain, s->a2);
-    s->sxy[i] = ema62(s->sxy[i], ex * ey, s->cov_gain, s->a2);
-    s->syy[i] = ema62(s->syy[i], ey * ey, s->cov_gain, s->a2);
+    s->sxx[i] = ema(s->sxx[i], smul(ex, ex), s->cov_gm, s->cov_am, s->cov_sh);
+    s->sxy[i] = ema(s->sxy[i], smul(ex, ey), s->cov_gm, s->cov_am, s->cov_sh);
+    s->syy[i] = ema(s->syy[i], smul(ey, ey), s->cov_gm, s->cov_am, s->cov_sh);
     refresh(s, i);
     check_index(s, i);
+}
+
+/* eq. (2) for candidate i: it becomes the best if its d^2 is below the best so far */
+static inline __attribute__((always_inline)) void candidate(const fx_state *s, int i, int32_t x,
+                                                            int32_t y, uint32_t *best_d2,
+                                                            int *best)
+{
+    uint32_t d2 = qform(s, i, x, y);
+    if (d2 < *best_d2) {
+        *best_d2 = d2;
+        *best = i;
+    }
 }
 
 /* eq. (2) and eqs. (3)-(6) for one valid event at pixel (x, y): the sensitive trackers
@@ -651,23 +835,31 @@ static __attribute__((noinline)) void update_tracker(fx_state *s, int i, int64_t
 static inline __attribute__((always_inline)) int assign(fx_state *s, uint64_t mask, int64_t t,
                                                         int32_t x, int32_t y)
 {
-    int64_t fx = (int64_t)x << FX_POS_FRAC, fy = (int64_t)y << FX_POS_FRAC;
-    int64_t best_d2 = s->gate;
+    int64_t fx = shl64(x, FX_POS_FRAC), fy = shl64(y, FX_POS_FRAC);
+    uint32_t best_d2 = s->gate;
     uint64_t m = s->cells[(y >> FX_CELL_SHIFT) * s->gw + (x >> FX_CELL_SHIFT)] & mask;
     int best = FX_NO_TRACKER;
-    while (m) {
+#if FX_WORD64
+    while (m) {                                           /* index order: ties as the reference */
         int i = __builtin_ctzll(m);
-        __int128 d2;
         m &= m - 1;
-        /* offsets Q.32, |.| < 2^46 */
-        d2 = qform(s->ia[i], s->ib2[i], s->ic[i], fx - s->mx[i], fy - s->my[i]);
-        if (d2 < best_d2) {
-            best_d2 = (int64_t)d2;
-            best = i;
+        candidate(s, i, x, y, &best_d2, &best);
+    }
+#else
+    /* the mask's 32-bit halves in turn (low bits first: the same order), and a build for
+       at most 32 trackers has only the first */
+    int half;
+    for (half = 0; half < (FX_MAX_TRACKERS > 32 ? 2 : 1); half++) {
+        uint32_t w = (uint32_t)(m >> (32 * half));
+        while (w) {
+            int i = __builtin_ctz(w) + 32 * half;
+            w &= w - 1;
+            candidate(s, i, x, y, &best_d2, &best);
         }
     }
+#endif
     if (best >= 0)
-        update_tracker(s, best, t, fx - s->mx[best], fy - s->my[best], best_d2 < 0 ? 0 : best_d2);
+        update_tracker(s, best, t, fx - s->mx[best], fy - s->my[best], best_d2);
     return best;
 }
 
@@ -699,7 +891,8 @@ int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y)
    registers (the springs are the only other writer of the mask) */
 int64_t fx_steps(fx_state *s, const fx_event *ev, int64_t n, int64_t t_stop)
 {
-    int64_t k, last_t = s->last_t, n_assigned = 0, n_skipped = 0, n_back = 0;
+    int64_t k, last_t = s->last_t;
+    int32_t n_assigned = 0, n_skipped = 0, n_back = 0;
     uint32_t width = (uint32_t)s->width, height = (uint32_t)s->height;
     int32_t until = s->period - s->since_spring;          /* >= 1 */
     uint64_t mask = s->sensitive_mask;
@@ -736,119 +929,130 @@ int64_t fx_steps(fx_state *s, const fx_event *ev, int64_t n, int64_t t_stop)
 /* eq. (6) evaluated lazily at time t, Q.32 */
 int64_t fx_activity(const fx_state *s, int i, int64_t t)
 {
-    return decay_mul(s->act[i], decay(s, t - s->tlast[i]));
+    return mulsh(s->act[i], decay(s, t - s->tlast[i]), 30);
 }
 
 /* ---- springs and energy criteria (every `period` events) ----------------------------- */
-#define OFFSET_LIM ((int64_t)1 << 30)                     /* 16384 px: ex^2 + ey^2 < 2^61 */
+#define OFFSET_LIM ((int32_t)1 << 30)                     /* 16384 px: ex^2 + ey^2 < 2^61 */
 
-static inline int64_t clamp_offset(int64_t v)
+static inline int32_t clamp_offset(int64_t v)
 {
-    return v >= OFFSET_LIM ? OFFSET_LIM - 1 : (v <= -OFFSET_LIM ? -OFFSET_LIM + 1 : v);
+    return (int32_t)(v >= OFFSET_LIM ? OFFSET_LIM - 1 : (v <= -OFFSET_LIM ? -OFFSET_LIM + 1 : v));
 }
 
+static inline void frame_offset(const fx_state *s, int k, int64_t *ox, int64_t *oy);
+
 /* the offsets of eq. (18) of connection k, each clamped to +-16384 px; returns how many
-   were */
-static inline int offsets(const fx_state *s, int k, int64_t rx, int64_t ry, int64_t *ex, int64_t *ey)
+   were.  The rest offset is (dx0, dy0), or s R (dx0, dy0) (frame_offset) if the spring
+   update computing the energies used the similarity frame. */
+static inline int offsets(const fx_state *s, int k, int32_t rx, int32_t ry, int32_t *ex,
+                          int32_t *ey)
 {
-    int64_t x = rx - s->dx0[k], y = ry - s->dy0[k];      /* |.| < 2^31 */
+    int64_t ox = s->dx0[k], oy = s->dy0[k], x, y;
+    if (s->car_turned)
+        frame_offset(s, k, &ox, &oy);
+    x = (int64_t)rx - ox;                                 /* |.| < 2^34 */
+    y = (int64_t)ry - oy;
     *ex = clamp_offset(x);
     *ey = clamp_offset(y);
-    return ((uint64_t)(x + OFFSET_LIM - 1) > (uint64_t)(2 * OFFSET_LIM - 2))
-        + ((uint64_t)(y + OFFSET_LIM - 1) > (uint64_t)(2 * OFFSET_LIM - 2));
+    return (x >= OFFSET_LIM || x <= -OFFSET_LIM) + (y >= OFFSET_LIM || y <= -OFFSET_LIM);
 }
 
 /* a dl (Q.16 x Q.30 = Q.46, exact) rounded to Q.30 when |a dl| < 2 px (the usual case:
-   then the products of the Euclidean force and energy fit 64 bits), else ADL_WIDE */
-#define ADL_WIDE INT64_MIN
-static inline int64_t adl30(const fx_state *s, int k, int64_t dl)
+   then the Euclidean force and energy are single 32 x 32 products), else ADL_WIDE */
+#define ADL_WIDE INT32_MIN
+static inline int32_t adl30(const fx_state *s, int k, int32_t dl)
 {
-    int64_t adl = dl * (int64_t)s->stiff[k];              /* |dl| < 2^31, a <= 2^30 */
-    return adl < ((int64_t)1 << 47) && adl > -((int64_t)1 << 47) ? rshr(adl, 16) : ADL_WIDE;
+    int64_t adl = smul(dl, (int32_t)s->stiff[k]);        /* a <= 2^30 */
+    return adl < ((int64_t)1 << 47) && adl > -((int64_t)1 << 47) ? (int32_t)rshr(adl, 16)
+                                                                 : ADL_WIDE;
 }
 
 /* energies of connection k (Q.32): eq. (12) a dl^2 / 2 from dl (Q.16) and a dl, or from the
    length l (Q.16); eq. (17) a dtheta^2 / 2 from the corrected angle (binary); eq. (20)
    a |e|^2 / 2 from the offsets */
-static inline int64_t energy_euclid_dl(const fx_state *s, int k, int64_t dl, int64_t adl)
+static inline int64_t energy_euclid_dl(const fx_state *s, int k, int32_t dl, int32_t adl)
 {
     if (adl != ADL_WIDE)
-        return rshr(adl * dl, 15);                        /* Q.30 x Q.16 / 2 -> Q.32 */
-    return mulsh(dl * dl, s->stiff[k], 31);
+        return rshr(smul(adl, dl), 15);                   /* Q.30 x Q.16 / 2 -> Q.32 */
+    return mulsh(smul(dl, dl), s->stiff[k], 31);
 }
 
-static inline int64_t energy_euclid(const fx_state *s, int k, int64_t l)
+static inline int64_t energy_euclid(const fx_state *s, int k, int32_t l)
 {
-    int64_t dl = l - s->l0[k];                            /* eq. (10) */
+    int32_t dl = l - s->l0[k];                            /* eq. (10) */
     return energy_euclid_dl(s, k, dl, adl30(s, k, dl));
 }
 
 static inline int64_t energy_torsion(const fx_state *s, int k, int64_t dth)
 {
-    int64_t dq = mul32sh(dth, PI_Q28, 31);                /* radians, Q.28 */
-    return mulsh(dq * dq, s->stiff[k], 55);
+    int32_t dq = (int32_t)mulsh(dth, PI_Q28, 31);         /* radians, Q.28; |.| < 2^31 */
+    return mulsh(smul(dq, dq), s->stiff[k], 55);
 }
 
-static inline int64_t energy_cart(const fx_state *s, int k, int64_t ex, int64_t ey)
+static inline int64_t energy_cart(const fx_state *s, int k, int32_t ex, int32_t ey)
 {
-    return mulsh(ex * ex + ey * ey, s->stiff[k], 31);
+    return mulsh(smul(ex, ex) + smul(ey, ey), s->stiff[k], 31);
 }
 
 /* Eq. (14) and the polar form of a spring vector r (Q.16), in two steps so that the spring
    pass can issue all the divisions first (they then overlap).  In the connection's rest
    frame, (u, v) = (c0 . r, c0 x r) rounded to Q.18 (finer than r, so that this rotation
-   adds no error of note), with c0 = (cos th0, sin th0) (Q.30): when |v| <= u (r within 45
-   degrees of its rest direction, the usual case) the angle from rest is atan(t), t =
-   |v| / u (Q.28, 2 zero bits added), the direction r / |r| is c0 rotated by it, and |r| =
-   u cos + |v| sin of it, from the tables of atan and 1 / sqrt(1 + t^2); otherwise the
+   adds no error of note), with c0 = (cos th0, sin th0) (Q.30): when |v| <= u < 2^31 (r
+   within 45 degrees of its rest direction, the usual case) the angle from rest is atan(t),
+   t = |v| / u (Q.28, 2 zero bits added), the direction r / |r| is c0 rotated by it, and
+   |r| = u cos + |v| sin of it, from the tables of atan and 1 / sqrt(1 + t^2); otherwise the
    polar form of r itself minus th0, wrapped to [-pi, pi).  Both: one division. */
 typedef struct {
-    int64_t t, u, v;                                      /* u = 0: the polar form of r */
+    uint32_t t;
+    int32_t u, v;                                         /* u <= 0: polar form, octant -u */
 } spring_ratio;
 
-static inline spring_ratio geom_ratio(const fx_state *s, int k, int64_t rx, int64_t ry)
+static inline __attribute__((always_inline)) spring_ratio geom_ratio(const fx_state *s, int k,
+                                                                     int32_t rx, int32_t ry)
 {
     spring_ratio g;
-    int64_t av;
+    int64_t u = rshr(smul(s->c0x[k], rx) + smul(s->c0y[k], ry), 28);   /* Q.18, < 2^33 */
+    int64_t v = rshr(smul(s->c0x[k], ry) - smul(s->c0y[k], rx), 28);
+    int64_t av = v < 0 ? -v : v;
     int oct;
-    g.u = rshr(s->c0x[k] * rx + s->c0y[k] * ry, 28);     /* Q.18, |.| < 2^33 */
-    g.v = rshr(s->c0x[k] * ry - s->c0y[k] * rx, 28);
-    av = g.v < 0 ? -g.v : g.v;
-    if (g.u > 0 && av <= g.u) {
-        g.t = ((av << 28) / g.u) << 2;                    /* [0, 2^30] */
+    if (u > 0 && av <= u && u < ((int64_t)1 << 31)) {
+        uint32_t rem;
+        g.u = (int32_t)u;
+        g.v = (int32_t)v;
+        g.t = divlu((uint32_t)av >> 4, (uint32_t)av << 28, (uint32_t)u, &rem) << 2;  /* [0, 2^30] */
         return g;
     }
-    g.u = 0;
     g.t = polar_ratio(rx, ry, &g.v, &oct);                /* v = max(|x|, |y|) */
-    g.u = -oct - 1;                                       /* < 0: the octant */
+    g.u = -oct;                                           /* <= 0: the octant */
     return g;
 }
 
 /* the angle from rest (binary angle, [-pi, pi)), the length (Q.16) and direction (Q.30) */
-static inline int64_t geom_finish(const fx_state *s, int k, spring_ratio g, int64_t *l,
-                                  int64_t *cx, int64_t *cy)
+static inline __attribute__((always_inline)) int32_t geom_finish(const fx_state *s, int k,
+                                                                 spring_ratio g, int32_t *l,
+                                                                 int32_t *cx, int32_t *cy)
 {
     if (g.u > 0) {
-        int64_t a = unit_interp(s->atan_tab, g.t);
-        int64_t h = unit_interp(s->ihyp_tab, g.t);        /* cos of the angle */
-        int64_t sn = rshr(g.t * h, 30);                   /* |sin| */
-        int64_t sg = g.v >> 63;                           /* -1 if v < 0: a mask, the sign */
-        *l = rshr(g.u * h + ((g.v ^ sg) - sg) * sn, 32);  /* of a spring is data the branch */
-        a = (a ^ sg) - sg;                                /* predictor cannot learn */
-        sn = (sn ^ sg) - sg;
-        *cx = rshr(s->c0x[k] * h - s->c0y[k] * sn, 30);
-        *cy = rshr(s->c0y[k] * h + s->c0x[k] * sn, 30);
+        int32_t a = unit_interp(FX_ATAN_TAB, g.t);
+        int32_t h = unit_interp(FX_IHYP_TAB, g.t);        /* cos of the angle */
+        int32_t sn = (int32_t)rshr((int64_t)umul(g.t, (uint32_t)h), 30);   /* |sin| */
+        int32_t sg = g.v >> 31;                           /* -1 if v < 0: a mask, the sign */
+        *l = (int32_t)rshr(smul(g.u, h) + smul((g.v ^ sg) - sg, sn), 32);  /* of a spring is */
+        a = (a ^ sg) - sg;                                /* data the branch predictor */
+        sn = (sn ^ sg) - sg;                              /* cannot learn */
+        *cx = (int32_t)rshr(smul(s->c0x[k], h) - smul(s->c0y[k], sn), 30);
+        *cy = (int32_t)rshr(smul(s->c0y[k], h) + smul(s->c0x[k], sn), 30);
         return a;
     } else {
         uint32_t th;
-        polar_finish(s, g.t, g.v, (int)(-g.u - 1), &th, l, cx, cy);
-        th -= s->th0[k];                                  /* mod 2^32 = mod 2 pi */
-        return (int64_t)th - ((int64_t)(th >> 31) << 32);
+        polar_finish(g.t, g.v, -g.u, &th, l, cx, cy);
+        return (int32_t)(th - s->th0[k]);                 /* mod 2^32 = mod 2 pi */
     }
 }
 
-static inline int64_t spring_angle(const fx_state *s, int k, int64_t rx, int64_t ry, int64_t *l,
-                                   int64_t *cx, int64_t *cy)
+static inline int32_t spring_angle(const fx_state *s, int k, int32_t rx, int32_t ry, int32_t *l,
+                                   int32_t *cx, int32_t *cy)
 {
     return geom_finish(s, k, geom_ratio(s, k, rx, ry), l, cx, cy);
 }
@@ -862,52 +1066,64 @@ static inline int64_t sat_energy_of(fx_state *s, int64_t e)
     return e;
 }
 
+/* r = x_j - x_i of connection k, Q.16, |.| < 2^30 */
+static inline void spring_vector(const fx_state *s, int k, int32_t *rx, int32_t *ry)
+{
+    int i = s->ca[k], j = s->cb[k];
+    *rx = (int32_t)rshr(s->mx[j] - s->mx[i], 16);
+    *ry = (int32_t)rshr(s->my[j] - s->my[i], 16);
+}
+
 /* Eqs. (10)-(20) for every connection: the forces summed per tracker into ddx, ddy (Q.32)
    and the criterion's energy (eq. 13: each and their sum saturating at 2^29), which is
    returned.  `used` = the kinds whose geometry the model needs (its springs' kinds and the
    criterion's); each instantiation below contains only that geometry.
    Structure of arrays, one short step per pass: the connections are independent, and a
-   pass whose iterations are short lets the processor overlap many of them (one pass doing
-   everything per connection is bound by its dependency chain: division, table look-ups,
-   products, ~100 cycles). */
+   pass whose iterations are short lets an out-of-order processor overlap many of them (a
+   32-bit in-order core does the first two passes as one). */
 static inline __attribute__((always_inline)) int64_t spring_passes(fx_state *s, const int used,
                                                                    int64_t *ddx, int64_t *ddy)
 {
     int nc = s->nc, ek = s->ekind, k, sat = 0;
-    int64_t fx[FX_MAX_CONNECTIONS], fy[FX_MAX_CONNECTIONS], dth[FX_MAX_CONNECTIONS];
+    int64_t fx[FX_MAX_CONNECTIONS], fy[FX_MAX_CONNECTIONS];
+    int32_t dth[FX_MAX_CONNECTIONS];
     int64_t total = 0, mean_dth = 0;
     int64_t *en = s->energy[ek];
     int32_t *grx = s->grx, *gry = s->gry;
     if (used & 3) {
         int64_t sum = 0;
         spring_ratio g[FX_MAX_CONNECTIONS];
-        for (k = 0; k < nc; k++) {                        /* r, and the divisions */
-            int i = s->ca[k], j = s->cb[k];
-            int64_t rx = rshr(s->mx[j] - s->mx[i], 16);  /* Q.16, |.| < 2^30 */
-            int64_t ry = rshr(s->my[j] - s->my[i], 16);
-            grx[k] = (int32_t)rx;
-            gry[k] = (int32_t)ry;
-            g[k] = geom_ratio(s, k, rx, ry);
-        }
+#if FX_WORD64
+        /* an out-of-order host: r and all the divisions first, so that they overlap */
         for (k = 0; k < nc; k++) {
-            int64_t l, cx, cy;
+            spring_vector(s, k, &grx[k], &gry[k]);
+            g[k] = geom_ratio(s, k, grx[k], gry[k]);
+        }
+#endif
+        for (k = 0; k < nc; k++) {
+            int32_t l, cx, cy;
+#if !FX_WORD64
+            /* an in-order core: one pass (the same operations per connection) */
+            spring_vector(s, k, &grx[k], &gry[k]);
+            g[k] = geom_ratio(s, k, grx[k], gry[k]);
+#endif
             dth[k] = geom_finish(s, k, g[k], &l, &cx, &cy);   /* eq. (14) */
             sum += dth[k];
             fx[k] = fy[k] = 0;
             if (used & 1) {
-                int64_t dl = l - s->l0[k];                /* eq. (10) */
-                int64_t adl = adl30(s, k, dl);
+                int32_t dl = l - s->l0[k];                /* eq. (10) */
+                int32_t adl = adl30(s, k, dl);
                 if (s->kinds[k] & 1) {                    /* eq. (11): a dl (r / l) */
                     if (l <= 0) {
                         cx = s->c0x[k];
                         cy = s->c0y[k];
                     }
                     if (adl != ADL_WIDE) {                /* Q.30 x Q.30 -> Q.32 */
-                        fx[k] = rshr(adl * cx, 28);
-                        fy[k] = rshr(adl * cy, 28);
+                        fx[k] = rshr(smul(adl, cx), 28);
+                        fy[k] = rshr(smul(adl, cy), 28);
                     } else {                              /* dl r / l, Q.32, times a */
-                        fx[k] = mulsh(rshr(dl * cx, 14), s->stiff[k], 30);
-                        fy[k] = mulsh(rshr(dl * cy, 14), s->stiff[k], 30);
+                        fx[k] = mulsh(rshr(smul(dl, cx), 14), s->stiff[k], 30);
+                        fy[k] = mulsh(rshr(smul(dl, cy), 14), s->stiff[k], 30);
                     }
                 }
                 if (ek == 0) {                            /* eq. (12), the criterion's */
@@ -917,33 +1133,32 @@ static inline __attribute__((always_inline)) int64_t spring_passes(fx_state *s, 
             }
         }
         if ((used & 2) && nc > 0)
-            mean_dth = div_round(sum, nc);                /* eq. (15) */
+            mean_dth = div_round(sum, (uint32_t)nc);      /* eq. (15) */
     } else {
         for (k = 0; k < nc; k++) {                        /* r = x_j - x_i, Q.16 */
-            int i = s->ca[k], j = s->cb[k];
-            grx[k] = (int32_t)rshr(s->mx[j] - s->mx[i], 16);
-            gry[k] = (int32_t)rshr(s->my[j] - s->my[i], 16);
+            spring_vector(s, k, &grx[k], &gry[k]);
             fx[k] = fy[k] = 0;
         }
     }
     for (k = 0; k < nc; k++) {
         int i = s->ca[k], j = s->cb[k], kind = s->kinds[k];
-        int64_t rx = grx[k], ry = gry[k], d = 0, ex = 0, ey = 0, gx = fx[k], gy = fy[k];
+        int32_t rx = grx[k], ry = gry[k], ex = 0, ey = 0;
+        int64_t d = 0, gx = fx[k], gy = fy[k];
         uint32_t a = s->stiff[k];
         if (used & 2) {
             d = dth[k] - mean_dth;                        /* eq. (15), binary angle */
             if (kind & 2) {                               /* eq. (16): rotate r by a d */
-                int64_t c, sn;
-                rotation(s, mul32sh(d, a, 30), &c, &sn);  /* cos - 1, sin */
-                gx += rshr(rx * c - ry * sn, 14);         /* l (cos(th + a d) - cos th), Q.32 */
-                gy += rshr(rx * sn + ry * c, 14);
+                int32_t c, sn;
+                rotation(mulsh(d, a, 30), &c, &sn);       /* cos - 1, sin */
+                gx += rshr(smul(rx, c) - smul(ry, sn), 14);   /* l (cos(th + a d) - cos th), Q.32 */
+                gy += rshr(smul(rx, sn) + smul(ry, c), 14);
             }
         }
         if (used & 4) {
             sat += offsets(s, k, rx, ry, &ex, &ey);       /* eq. (18) */
             if (kind & 4) {                               /* eq. (19): a e, Q.16 x Q.30 -> Q.32 */
-                gx += mul32sh(ex, a, 14);
-                gy += mul32sh(ey, a, 14);
+                gx += rshr(smul(ex, (int32_t)a), 14);
+                gy += rshr(smul(ey, (int32_t)a), 14);
             }
         }
         ddx[i] += gx;                                     /* onto both ends */
@@ -979,31 +1194,169 @@ static int64_t (*const spring_passes_of[8])(fx_state *, int64_t *, int64_t *) = 
     spring_passes_4, spring_passes_5, spring_passes_6, spring_passes_7};
 
 /* x0 + sum m_i (x_i - x0) / sum m_i for Q.32 positions, rounded half up: the offsets are
-   split into a Q.16 high part and 16 low bits so that no sum exceeds 2^61, then
-   recombined exactly. */
-static int64_t centre(const fx_state *s, const int64_t *x, int64_t msum)
+   split into a Q.16 high part and 16 low bits so that every product is 32 x 32 and no sum
+   exceeds 2^61, then recombined exactly (msum < 2^31). */
+static int64_t centre(const fx_state *s, const int64_t *x, uint32_t msum)
 {
-    int64_t hi = 0, lo = 0, q, r;
+    int64_t hi = 0, lo = 0, q;
+    uint32_t r;
     int i;
     for (i = 0; i < s->n; i++) {
         int64_t d = x[i] - x[0];                          /* |.| < 2^46 */
-        hi += (int64_t)s->mq[i] * (d >> 16);              /* < 2^54 each */
-        lo += (int64_t)s->mq[i] * (d & 0xffff);           /* < 2^40 each */
+        hi += smul((int32_t)s->mq[i], (int32_t)(d >> 16)); /* < 2^55 each */
+        lo += (int64_t)umul(s->mq[i], (uint32_t)d & 0xffff);  /* < 2^41 each */
     }
-    q = hi / msum;                                        /* floor division */
-    r = hi % msum;
-    if (r < 0) {
-        q -= 1;
-        r += msum;
-    }
-    return x[0] + q * 65536 + div_round(r * 65536 + lo, msum);
+    q = floor_div(hi, msum, &r);
+    return x[0] + shl64(q, 16) + div_round(shl64(r, 16) + lo, msum);
 }
 
-/* floor(a / b), b > 0 */
-static inline int64_t floor_div(int64_t a, int64_t b)
+/* ---- the similarity frame (pull_frame, cartesian_frame = "similarity") --------------
+   [ref] fit_frame.  Every product is a 32 x 32 -> 64-bit one (smul), every division an
+   int64 by a divisor below 2^31 (div_round).  Formats: the means' offsets from the last
+   frame's G and the rest offsets in 29 bits with one shift for the whole fit (Q.(32 -
+   sh): Q.23 for a structure within +-128 px), their centroids and the offsets about those
+   in the same Q, the fit's sums in that Q doubled less 8, masses in units of the largest;
+   s R = [[c, -sn], [sn, c]] Q.28 (|c|, |sn| <= 4 < 8); G Q.32. */
+#define FRAME_ONE ((int32_t)1 << 28)                  /* 1.0 in Q.28 */
+#define FRAME_SCALE_MIN_Q ((int32_t)1 << 26)          /* [ref] FRAME_SCALE_MIN = 1/4, Q.28 */
+#define FRAME_SCALE_MAX_Q ((int32_t)1 << 30)          /* [ref] FRAME_SCALE_MAX = 4, Q.28 */
+#define FRAME_SPREAD_SHIFT 20                         /* [ref] FRAME_MIN_SPREAD = 2^-20 */
+
+/* c v for c in Q.28 and v in Q.32, |v| < 2^46: v = hi 2^16 + lo, two 32 x 32 products,
+   rounded to Q.32 (within 1 unit) */
+static inline int64_t frame_scale(int32_t c, int64_t v)
 {
-    int64_t q = a / b;
-    return q - (a % b < 0);
+    return rshr(smul(c, (int32_t)(v >> 16)), 12) + rshr(smul(c, (int32_t)(v & 0xffff)), 28);
+}
+
+/* (x, y) scaled to the length len (Q.28): x len / |(x, y)|, |x|, |y| < 2^30, not both 0 */
+static inline void frame_to_length(int32_t x, int32_t y, int32_t len, int32_t *c, int32_t *sn)
+{
+    uint32_t r = (uint32_t)isqrt64((uint64_t)(smul(x, x) + smul(y, y)));   /* < 2^31 */
+    *c = (int32_t)div_round(smul(x, len), r);
+    *sn = (int32_t)div_round(smul(y, len), r);
+}
+
+/* The similarity x -> G + s R (x - G0) that best maps the rest shape onto the means, in
+   the mass-weighted least-squares sense, over the trackers of `fit` (all if it holds
+   fewer than 2): with p = dG0 - pbar, q = mu - qbar about the set's weighted centroids,
+   a = sum m p.q, b = sum m p x q, D = sum m |p|^2, s R = [[a, -b], [b, a]] / D (the scale
+   held to [1/4, 4]; s R = I when D <= 2^-20 sum m), G = qbar - s R pbar.  Sets frame_c,
+   frame_s (Q.28) and frame_gx, frame_gy (Q.32). */
+static void fit_frame(fx_state *s, uint64_t fit)
+{
+    int n = s->n, i, sh;
+    uint64_t all = n == 64 ? ~(uint64_t)0 : ((uint64_t)1 << n) - 1, k2;
+    const int64_t *gdx = s->gdx0, *gdy = s->gdy0, *mx = s->mx, *my = s->my;
+    int32_t w[FX_MAX_TRACKERS], ux[FX_MAX_TRACKERS], uy[FX_MAX_TRACKERS];
+    int32_t vx[FX_MAX_TRACKERS], vy[FX_MAX_TRACKERS], an, bn, dn, c, sn;
+    int64_t ox[FX_MAX_TRACKERS], oy[FX_MAX_TRACKERS], W = 0, spx = 0, spy = 0, sqx = 0, sqy = 0;
+    int64_t px, py, qx, qy, a = 0, b = 0, d = 0, big = 0, lim;
+    fit &= all;
+    if ((fit & (fit - 1)) == 0)                       /* fewer than 2: all of them */
+        fit = all;
+    for (i = 0; i < n; i++)                           /* mass / largest, Q.24; 0 outside */
+        w[i] = (int32_t)s->mq[i] & -(int32_t)((fit >> i) & 1);
+    /* the means' offsets from the last frame's G (near qbar), the rest offsets (from G0),
+       and one shift that puts the weighed trackers' largest below 2^29: their centroids
+       and the offsets about those are then below 2^30 */
+    for (i = 0; i < n; i++) {                         /* x ^ (x >> 63): |x| or |x| - 1 */
+        ox[i] = mx[i] - s->frame_gx;
+        oy[i] = my[i] - s->frame_gy;
+        big |= ((gdx[i] ^ (gdx[i] >> 63)) | (gdy[i] ^ (gdy[i] >> 63)) | (ox[i] ^ (ox[i] >> 63))
+                | (oy[i] ^ (oy[i] >> 63))) & -(int64_t)(w[i] > 0);
+    }
+    sh = bitlen64((uint64_t)big) - 29;                /* |.| >> sh <= 2^29 */
+    if (sh < 0)
+        sh = 0;
+    for (i = 0; i < n; i++) {                         /* weighted centroids, Q.(32 - sh) */
+        int32_t in = -(int32_t)(w[i] > 0);
+        ux[i] = (int32_t)(gdx[i] >> sh) & in;
+        uy[i] = (int32_t)(gdy[i] >> sh) & in;
+        vx[i] = (int32_t)(ox[i] >> sh) & in;
+        vy[i] = (int32_t)(oy[i] >> sh) & in;
+        W += w[i];                                    /* <= 2^30 */
+        spx += smul(w[i], ux[i]);                     /* < 2^53 each */
+        spy += smul(w[i], uy[i]);
+        sqx += smul(w[i], vx[i]);
+        sqy += smul(w[i], vy[i]);
+    }
+    px = div_round(spx, (uint32_t)W);                 /* pbar, about G0 */
+    py = div_round(spy, (uint32_t)W);
+    qx = div_round(sqx, (uint32_t)W);                 /* qbar, about the last G */
+    qy = div_round(sqy, (uint32_t)W);
+    for (i = 0; i < n; i++) {                         /* p, q: below 2^30 */
+        int32_t in = -(int32_t)(w[i] > 0);
+        int32_t pux = (ux[i] - (int32_t)px) & in, puy = (uy[i] - (int32_t)py) & in;
+        int32_t qvx = (vx[i] - (int32_t)qx) & in, qvy = (vy[i] - (int32_t)qy) & in;
+        int32_t mux = pux, muy = puy;                 /* m p: m = 1 if the masses are equal */
+        if (!s->equal_mass) {
+            mux = (int32_t)rshr(smul(w[i], pux), 24);
+            muy = (int32_t)rshr(smul(w[i], puy), 24);
+        }
+        /* products < 2^60, pairs < 2^61: a 2^-8 of each keeps 64 of them in int64 */
+        a += (smul(mux, qvx) + smul(muy, qvy)) >> 8;  /* a = sum m p.q */
+        b += (smul(mux, qvy) - smul(muy, qvx)) >> 8;  /* b = sum m p x q */
+        d += (smul(mux, pux) + smul(muy, puy)) >> 8;  /* D = sum m |p|^2 */
+    }
+    px = shl64(px, sh);                               /* Q.32 */
+    py = shl64(py, sh);
+    qx = s->frame_gx + shl64(qx, sh);
+    qy = s->frame_gy + shl64(qy, sh);
+    /* D <= 2^-20 sum m, with D in Q.(56 - 2 sh) px^2 and sum m (W) in Q.24:
+       D <= W 2^(56 - 2 sh - 24 - 20) */
+    sh = 32 - FRAME_SPREAD_SHIFT - 2 * sh;
+    lim = sh >= 0 ? shl64(W, sh) : W >> -sh;
+    if (d <= lim) {                                   /* no rotation to tell */
+        c = FRAME_ONE;
+        sn = 0;
+    } else {
+        /* a, b, D to 30 bits with one shift: s R = [[a, -b], [b, a]] / D unchanged */
+        big = d;
+        if ((a < 0 ? -a : a) > big)
+            big = a < 0 ? -a : a;
+        if ((b < 0 ? -b : b) > big)
+            big = b < 0 ? -b : b;
+        sh = bitlen64((uint64_t)big) - 30;
+        if (sh < 0)
+            sh = 0;
+        an = (int32_t)(a >> sh);
+        bn = (int32_t)(b >> sh);
+        dn = (int32_t)(d >> sh);
+        k2 = (uint64_t)(smul(an, an) + smul(bn, bn));              /* s^2 D^2, < 2^61 */
+        if (dn > 0 && k2 <= (uint64_t)smul(dn, dn) << 4) {         /* s <= 4 */
+            if (k2 >= ((uint64_t)1 << 60) || k2 << 4 >= (uint64_t)smul(dn, dn)) {
+                c = (int32_t)div_round(smul(an, FRAME_ONE), (uint32_t)dn);   /* s R = [[a, -b], */
+                sn = (int32_t)div_round(smul(bn, FRAME_ONE), (uint32_t)dn);  /*     [b, a]] / D */
+            } else if (k2 > 0) {                                    /* s < 1/4: held */
+                frame_to_length(an, bn, FRAME_SCALE_MIN_Q, &c, &sn);
+            } else {                                                /* no rotation to keep */
+                c = FRAME_SCALE_MIN_Q;
+                sn = 0;
+            }
+        } else {                                                    /* s > 4: held */
+            frame_to_length(an, bn, FRAME_SCALE_MAX_Q, &c, &sn);
+        }
+    }
+    s->frame_c = c;
+    s->frame_s = sn;
+    s->frame_gx = qx - (frame_scale(c, px) - frame_scale(sn, py));   /* G = qbar - s R pbar */
+    s->frame_gy = qy - (frame_scale(sn, px) + frame_scale(c, py));
+}
+
+/* eq. (22)'s target of tracker i in the frame: G + s R dG0_i, Q.32 */
+static inline void frame_target(const fx_state *s, int i, int64_t *tx, int64_t *ty)
+{
+    *tx = s->frame_gx + (frame_scale(s->frame_c, s->gdx0[i]) - frame_scale(s->frame_s, s->gdy0[i]));
+    *ty = s->frame_gy + (frame_scale(s->frame_s, s->gdx0[i]) + frame_scale(s->frame_c, s->gdy0[i]));
+}
+
+/* eq. (18)'s rest offset of connection k in the frame the Cartesian springs use (car_c,
+   car_s: the frame fitted at the update before): s R (dx0, dy0), Q.16 */
+static inline void frame_offset(const fx_state *s, int k, int64_t *ox, int64_t *oy)
+{
+    *ox = rshr(smul(s->car_c, s->dx0[k]) - smul(s->car_s, s->dy0[k]), 28);
+    *oy = rshr(smul(s->car_s, s->dx0[k]) + smul(s->car_c, s->dy0[k]), 28);
 }
 
 /* [ref] springs: displacements from the same positions, applied together (Jacobi).  The
@@ -1017,7 +1370,11 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
     int64_t ddx[FX_MAX_TRACKERS], ddy[FX_MAX_TRACKERS], total, thr, gx, gy, sx = 0, sy = 0;
     uint64_t pulled = 0, calm = ~(uint64_t)0, bad = 0;
     const int64_t *e = s->energy[s->ekind];
+    uint32_t rem;
     s->n_spring_updates++;
+    s->car_turned = s->car_sim;                          /* eq. (18) in the last fit's frame */
+    s->car_c = s->frame_c;
+    s->car_s = s->frame_s;
     for (i = 0; i < n; i++)
         ddx[i] = ddy[i] = 0;
     total = spring_passes_of[used & 7](s, ddx, ddy);
@@ -1031,12 +1388,12 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
         }
         s->mx[i] = sat_pos(s, s->mx[i] + fx);
         s->my[i] = sat_pos(s, s->my[i] + fy);
-        sx += s->mx[i];                                   /* |sum| < 2^51 */
-        sy += s->my[i];
+        sx += s->mx[i] - s->mx[0];                        /* |sum| < 2^53 */
+        sy += s->my[i] - s->my[0];
     }
     /* [ref] _energy_criteria: eqs. (13), (21), (22) */
     if (nc > 0) {
-        s->mean_energy = total / nc;                      /* eq. (13) */
+        s->mean_energy = (int64_t)udiv64((uint64_t)total, (uint32_t)nc, &rem);   /* eq. (13) */
         /* e > s mean; with s >= nc no connection can exceed it (e <= total = nc mean) */
         if (s->escale_never)
             thr = E_MAX;
@@ -1056,30 +1413,43 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
             }
         }
     }
-    /* centre of mass G = x0 + sum m_i (x_i - x0) / sum m_i, rounded half up */
     if (n == 0)
         return;
-    if (s->equal_mass) {                                  /* = x0 + round(sum (x_i - x0) / n) */
-        gx = s->mx[0] + floor_div(2 * (sx - n * s->mx[0]) + n, 2 * (int64_t)n);
-        gy = s->my[0] + floor_div(2 * (sy - n * s->my[0]) + n, 2 * (int64_t)n);
+    if (nc > 0 && (s->pull_sim || s->car_sim))          /* [ref] fit_frame, the calm ones */
+        fit_frame(s, ~pulled);
+    /* centre of mass G = x0 + sum m_i (x_i - x0) / sum m_i, rounded half up */
+    if (s->pull_sim) {
+        gx = gy = 0;                                      /* eq. (22) uses the frame's G */
+    } else if (s->equal_mass) {                           /* = x0 + round(sum (x_i - x0) / n) */
+        gx = s->mx[0] + floor_div(2 * sx + n, 2 * (uint32_t)n, &rem);
+        gy = s->my[0] + floor_div(2 * sy + n, 2 * (uint32_t)n, &rem);
     } else {
-        int64_t msum = 0;
+        uint32_t msum = 0;
         for (i = 0; i < n; i++)
             msum += s->mq[i];
         gx = centre(s, s->mx, msum);
         gy = centre(s, s->my, msum);
     }
     for (uint64_t p = pulled; p; p &= p - 1) {            /* eq. (22) */
-        i = __builtin_ctzll(p);
-        s->mx[i] = sat_pos(s, s->mx[i] + mul62(gx + s->gdx0[i] - s->mx[i], s->energy_gain));
-        s->my[i] = sat_pos(s, s->my[i] + mul62(gy + s->gdy0[i] - s->my[i], s->energy_gain));
+        uint32_t lo = (uint32_t)p;
+        int64_t tx, ty;                                   /* G + dG0, or G + s R dG0 */
+        i = lo ? __builtin_ctz(lo) : 32 + __builtin_ctz((uint32_t)(p >> 32));
+        if (s->pull_sim) {
+            frame_target(s, i, &tx, &ty);
+        } else {
+            tx = gx + s->gdx0[i];
+            ty = gy + s->gdy0[i];
+        }
+        s->mx[i] = sat_pos(s, s->mx[i] + mulsh(tx - s->mx[i], s->energy_gain, 30));
+        s->my[i] = sat_pos(s, s->my[i] + mulsh(ty - s->my[i], s->energy_gain, 30));
     }
     for (i = 0; i < n; i++)
         bad |= (uint64_t)!box_kept(s, i) << i;
     /* eq. (21): insensitive when every connection of the tracker is over */
     s->sensitive_mask = calm & (n == 64 ? ~(uint64_t)0 : ((uint64_t)1 << n) - 1);
     while (bad) {                                         /* re-index who left its box */
-        fx_reindex(s, __builtin_ctzll(bad));
+        uint32_t lo = (uint32_t)bad;
+        fx_reindex(s, lo ? __builtin_ctz(lo) : 32 + __builtin_ctz((uint32_t)(bad >> 32)));
         bad &= bad - 1;
     }
 }
@@ -1091,7 +1461,8 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
 void fx_energies(fx_state *s)
 {
     int nc = s->nc, k, stale = s->energy_stale;
-    int64_t l[FX_MAX_CONNECTIONS], dth[FX_MAX_CONNECTIONS], mean_dth = 0, sum = 0, cx, cy;
+    int32_t l[FX_MAX_CONNECTIONS], dth[FX_MAX_CONNECTIONS], cx, cy;
+    int64_t mean_dth = 0, sum = 0;
     if (!(stale & 7))
         return;
     if (stale & 3) {
@@ -1100,10 +1471,10 @@ void fx_energies(fx_state *s)
             sum += dth[k];
         }
         if (nc > 0)
-            mean_dth = div_round(sum, nc);
+            mean_dth = div_round(sum, (uint32_t)nc);
     }
     for (k = 0; k < nc; k++) {
-        int64_t ex, ey;
+        int32_t ex, ey;
         if (stale & 1)
             s->energy[0][k] = energy_euclid(s, k, l[k]);
         if (stale & 2)
@@ -1131,7 +1502,6 @@ void fx_prepare(fx_state *s)
         if (s->mq[i] != s->mq[0])
             s->equal_mass = 0;
     }
-    s->gate_q20 = (s->gate + ((int64_t)1 << 20) - 1) >> 20;   /* the gate is Q.40 */
     s->decay_span = s->dt_max < ((int64_t)1 << (2 * FX_DECAY_BITS)) ? s->dt_max
                     : ((int64_t)1 << (2 * FX_DECAY_BITS));
 }
@@ -1144,4 +1514,140 @@ void fx_clamp_positions(fx_state *s)
         s->mx[i] = sat_pos(s, s->mx[i]);
         s->my[i] = sat_pos(s, s->my[i]);
     }
+}
+
+/* ---- loading (the word streams of springtrack/fixed_q.py) ----------------------------- */
+
+static inline int64_t word64(const int32_t *w)           /* low word first */
+{
+    return (int64_t)(((uint64_t)(uint32_t)w[1] << 32) | (uint32_t)w[0]);
+}
+
+int32_t fx_cells_needed(int32_t width, int32_t height)
+{
+    return (((width - 1) >> FX_CELL_SHIFT) + 1) * (((height - 1) >> FX_CELL_SHIFT) + 1);
+}
+
+int fx_load_model(fx_state *s, const int32_t *w, int32_t nw, uint64_t *cells, int32_t cell_cap)
+{
+    int32_t n, nc, width, height, i, k, need;
+    uint8_t *z = (uint8_t *)s;
+    uint32_t b;
+    if (nw < FX_MODEL_HEAD)
+        return FX_ERR_WORDS;
+    n = w[0];
+    nc = w[1];
+    width = w[2];
+    height = w[3];
+    if (n < 0 || nc < 0 || n > FX_MAX_TRACKERS || nc > FX_MAX_CONNECTIONS)
+        return FX_ERR_CAPACITY;
+    if (nw != FX_MODEL_HEAD + n * FX_MODEL_TRACKER + nc * FX_MODEL_CONNECTION)
+        return FX_ERR_WORDS;
+    if (width < 1 || height < 1 || width > 8192 || height > 8192)
+        return FX_ERR_RANGE;
+    need = fx_cells_needed(width, height);
+    if (need > cell_cap)
+        return FX_ERR_CELLS;
+    for (b = 0; b < sizeof(fx_state); b++)                /* no libc: memset by hand */
+        z[b] = 0;
+    for (k = 0; k < need; k++)
+        cells[k] = 0;
+    s->cells = cells;
+    s->n = n;
+    s->nc = nc;
+    s->width = width;
+    s->height = height;
+    s->gw = ((width - 1) >> FX_CELL_SHIFT) + 1;
+    s->gh = ((height - 1) >> FX_CELL_SHIFT) + 1;
+    w += FX_MODEL_HEAD;
+    for (i = 0; i < n; i++, w += FX_MODEL_TRACKER) {
+        s->mx[i] = word64(w);
+        s->my[i] = word64(w + 2);
+        s->sxx[i] = word64(w + 4);
+        s->sxy[i] = word64(w + 6);
+        s->syy[i] = word64(w + 8);
+        s->mq[i] = (uint32_t)w[10];
+        s->invm[i] = (uint32_t)w[11];
+        s->gdx0[i] = word64(w + 12);
+        s->gdy0[i] = word64(w + 14);
+        s->box_x0[i] = s->box_y0[i] = 0;                  /* not indexed yet */
+        s->box_x1[i] = s->box_y1[i] = -1;
+        s->sensitive_mask |= (uint64_t)1 << i;
+    }
+    s->isolated = s->sensitive_mask;
+    for (k = 0; k < nc; k++, w += FX_MODEL_CONNECTION) {
+        if (w[0] < 0 || w[0] >= n || w[1] < 0 || w[1] >= n)
+            return FX_ERR_RANGE;
+        s->ca[k] = w[0];
+        s->cb[k] = w[1];
+        s->kinds[k] = w[2];
+        s->stiff[k] = (uint32_t)w[3];
+        s->l0[k] = w[4];
+        s->dx0[k] = w[5];
+        s->dy0[k] = w[6];
+        s->th0[k] = (uint32_t)w[7];
+        s->c0x[k] = w[8];
+        s->c0y[k] = w[9];
+        s->ends[k] = ((uint64_t)1 << s->ca[k]) | ((uint64_t)1 << s->cb[k]);
+        s->isolated &= ~s->ends[k];
+    }
+    fx_clamp_positions(s);
+    s->frame_c = FRAME_ONE;                               /* [ref] the identity frame about */
+    s->frame_s = 0;                                       /* G0 until a fit */
+    if (s->n > 0) {
+        s->frame_gx = s->mx[0] - s->gdx0[0];
+        s->frame_gy = s->my[0] - s->gdy0[0];
+    }
+    s->last_t = -((int64_t)1 << 62);
+    return FX_OK;
+}
+
+int fx_set_params(fx_state *s, const int32_t *w, int32_t nw)
+{
+    int i;
+    if (nw != FX_PARAMS_WORDS)
+        return FX_ERR_WORDS;
+    if (w[3] < 31 || w[3] > 62 || w[17] < 1 || w[18] < 0 || w[18] > 2
+        || (uint32_t)w[21] > 1 || (uint32_t)w[22] > 1)
+        return FX_ERR_RANGE;
+    /* [ref] eq. (6): a new tau decays from the change on */
+    if (s->has_params && s->n_valid > 0
+        && ((uint32_t)w[19] != s->tau_bits[0] || (uint32_t)w[20] != s->tau_bits[1])) {
+        for (i = 0; i < s->n; i++) {
+            s->act[i] = fx_activity(s, i, s->last_t);
+            s->tlast[i] = s->last_t;
+        }
+    }
+    s->a1 = (uint32_t)w[0];
+    s->cov_gm = (uint32_t)w[1];
+    s->cov_am = (uint32_t)w[2];
+    s->cov_sh = w[3];
+    s->energy_gain = (uint32_t)w[4];
+    s->gate = (uint32_t)w[5];
+    s->k_tau = (uint32_t)w[6];
+    s->dt_max = word64(w + 7);
+    s->act_thr = word64(w + 9);
+    s->escale = (uint32_t)w[11];
+    s->escale_never = w[12];
+    s->smin2 = word64(w + 13);
+    s->smax2 = word64(w + 15);
+    s->period = w[17];
+    s->ekind = w[18];
+    s->tau_bits[0] = (uint32_t)w[19];
+    s->tau_bits[1] = (uint32_t)w[20];
+    s->pull_sim = w[21];
+    s->car_sim = w[22];
+    for (i = 0; i < FX_DECAY_N; i++) {
+        s->decay_lo[i] = (uint32_t)w[FX_PARAMS_HEAD + i];
+        s->decay_hi[i] = (uint32_t)w[FX_PARAMS_HEAD + FX_DECAY_N + i];
+    }
+    fx_prepare(s);
+    for (i = 0; i < s->n; i++) {
+        refresh(s, i);
+        fx_reindex(s, i);
+    }
+    if (!s->has_params)
+        s->n_reindex = 0;                                 /* the first indexing is no update */
+    s->has_params = 1;
+    return FX_OK;
 }

@@ -1,39 +1,53 @@
 /* Integer-only tracker step of springtrack (Valeiras et al. 2015, Algorithm 1).
  *
  * This unit is the fixed-point twin of springtrack/_kernel.pyx: the same algorithm and
- * interpretation choices (see springtrack/reference.py), on integers only.  It must
- * compile with `gcc -mgeneral-regs-only` (no floating-point register may be used);
- * tests/test_fixed_integer_only.py checks that.  Q formats (docs/fixed_point.md):
+ * interpretation choices (see springtrack/reference.py), on integers only, written for
+ * 32-bit cores: the host's `--backend fixed` and the microcontroller build
+ * (springtrack/mcu/) compile this same source.  It compiles with `gcc
+ * -mgeneral-regs-only` (no floating-point register) and, for Cortex-M4/M7 and RV32IMAC,
+ * links without any floating-point, 128-bit or 64-bit division helper
+ * (tests/test_fixed_integer_only.py, tests/test_mcu.py).  Q formats (docs/fixed_point.md):
  *
- *   positions mx, my, gdx0                int64  Q.32 px, clamped to +-FX_POS_LIM
- *   spring geometry l0, dx0, r, l ...     int32/int64  Q.16 px (rest-frame u, v: Q.18)
- *   covariances sxx, sxy, syy            int64  Q.40 px^2 (<= 4096 px^2)
- *   inverse covariance ia, ib2, ic        int64  Q.32 px^-2
- *   Mahalanobis d^2, gate                 int128 sums, narrowed to int64, Q.40
+ *   positions mx, my, gdx0                int64  Q.32 px accumulators, clamped to +-FX_POS_LIM
+ *   covariances sxx, sxy, syy            int64  Q.40 px^2 accumulators (<= 4096 px^2)
+ *   inverse covariance ia, ib2, ic        int32  mantissas, per-tracker exponent (ish)
+ *   candidate offsets                     int32  Q.32 px >> osh (per tracker: +-8 sigma)
+ *   Mahalanobis d^2, gate                 uint32 Q.27 (< 32)
+ *   spring geometry l0, dx0, r, l ...     int32  Q.16 px (rest-frame u, v: Q.18)
  *   activity                              int64  Q.32
  *   energies                              int64  Q.32 (px^2, or rad^2 for torsion)
- *   gains a1, a2, cov_gain, energy_gain   int64  Q.62 (<= 1.0)
- *   stiffness                             uint32 Q2.30 (<= 1.0)
+ *   gains a1, energy_gain, stiffness      uint32 Q.30 (<= 1.0)
+ *   cov_gain, a2                          uint32 mantissas over 2^cov_sh (< 2^31)
  *   1/mass                                uint32 Q7.24
  *   angles                                uint32 binary angle, 2^32 = 2 pi
- *   exp / exp2 / atan / hypot / sqrt /    uint32 tables, Q.30 / binary angle
- *   CORDIC
+ *   exp / exp2 / atan / hypot / sqrt      const uint32 tables in flash (fixed_tables.h)
+ *
+ * 32-bit discipline: every multiplication is a 32 x 32 -> 64-bit product (one
+ * SMULL/UMULL/SMLAL on Cortex-M, MUL + MULH on RV32); a 64-bit accumulator times a 32-bit
+ * gain is two of them (its high and low word), exactly.  64-bit values are timestamps,
+ * counters, the accumulators above and such products.  Divisions are 32-bit (UDIV/DIVU):
+ * the few 64 / 32 quotients are built from two of them (fx_udiv64).
  *
  * Arithmetic right shifts of negative values are floor divisions (GCC and Clang define
  * them so); no signed overflow can happen (bounds in docs/fixed_point.md), and the
- * places where a value could leave its range saturate and count.  64 x 64 -> 128-bit
- * products use GCC/Clang `__int128` (integer registers only).
+ * places where a value could leave its range saturate and count.
  */
 #ifndef SPRINGTRACK_FIXED_STEP_H
 #define SPRINGTRACK_FIXED_STEP_H
 
 #include <stdint.h>
 
+/* capacities: the host builds the largest; a microcontroller build may define less */
+#ifndef FX_MAX_TRACKERS
 #define FX_MAX_TRACKERS 64
+#endif
+#ifndef FX_MAX_CONNECTIONS
 #define FX_MAX_CONNECTIONS 128
+#endif
 #define FX_CELL_SHIFT 3                     /* spatial index cells of 8 x 8 px */
 #define FX_POS_FRAC 32                      /* positions Q.32 */
 #define FX_POS_LIM ((int64_t)8192 << 32)    /* |position| < 8192 px */
+#define FX_D2_FRAC 27                       /* Mahalanobis d^2 Q.27 */
 #define FX_EXP2_BITS 10                     /* exp2 table: 1024 intervals + 1 */
 #define FX_EXP2_N (1 << FX_EXP2_BITS)
 #define FX_CORDIC_N 30                      /* CORDIC iterations */
@@ -41,37 +55,53 @@
 #define FX_SQRT_SHIFT 54                    /* sqrt table: sqrt(j 2^54) / 2, j = 256..1024 */
 #define FX_SQRT_J0 256
 #define FX_SQRT_N 769
-#define FX_INDEX_MARGIN ((int64_t)3 << 16)  /* px added around an indexed gate box ... */
+#define FX_INDEX_MARGIN ((int32_t)3 << 16)  /* px added around an indexed gate box ... */
 #define FX_INDEX_GROW_SHIFT 3               /* ... after enlarging it by 2^-3 of itself */
 #define FX_DECAY_BITS 9                     /* activity decay: two tables of 2^9 entries ... */
 #define FX_DECAY_N (1 << FX_DECAY_BITS)     /* ... cover dt < 2^18 us exactly */
 #define FX_GAUSS_N 1024                     /* exp(-d2/2): d2 steps of 2^-5 and 2^-15 */
 
+/* the word streams of fx_load_model / fx_set_params (springtrack/fixed_q.py writes them) */
+#define FX_MODEL_HEAD 4                     /* n, nc, width, height */
+#define FX_MODEL_TRACKER 16                 /* words per tracker */
+#define FX_MODEL_CONNECTION 10              /* words per connection */
+#define FX_PARAMS_HEAD 23                   /* words before the two decay tables */
+#define FX_PARAMS_WORDS (FX_PARAMS_HEAD + 2 * FX_DECAY_N)
+
 enum { FX_NO_TRACKER = -1, FX_BACK_IN_TIME = -2, FX_OUT_OF_SENSOR = -3 };
+/* fx_load_model / fx_set_params results */
+enum { FX_OK = 0, FX_ERR_WORDS = -1, FX_ERR_CAPACITY = -2, FX_ERR_CELLS = -3, FX_ERR_RANGE = -4 };
 
 typedef struct {
     /* geometry and model size */
     int32_t n, nc, width, height;
     /* parameters, converted by springtrack/fixed_q.py */
-    int64_t a1, a2, cov_gain, energy_gain;    /* Q.62, <= 2^62 = 1.0 */
-    int64_t gate;                             /* d^2 gate, Q.40 */
-    int64_t k_tau;                            /* log2(e) / tau per us, Q.40 */
+    uint32_t a1, energy_gain;                 /* Q.30, <= 2^30 = 1.0 */
+    uint32_t cov_gm, cov_am;                  /* cov_gain, a2 = these / 2^cov_sh, < 2^31 */
+    int32_t cov_sh;                           /* 31 .. 62 */
+    uint32_t gate;                            /* d^2 gate, Q.27 (< 32) */
+    uint32_t k_tau;                           /* log2(e) / tau per us, Q.40 (used when < 2^27) */
     int64_t dt_max;                           /* us after which the decay is taken as 0 */
     int64_t act_thr;                          /* Q.32 */
     uint32_t escale;                          /* energy_scale, Q17.14 */
     int32_t escale_never;                     /* 1: energy_scale >= nc, nothing is ever over */
     int64_t smin2, smax2;                     /* Q.40 px^2 */
     int32_t period, ekind, need_torsion;
+    int32_t pull_sim, car_sim;                /* eq. (22) / eqs. (18)-(20) in the similarity frame */
+    uint32_t tau_bits[2];                     /* activity_tau_us's float64 bits: its identity */
+    int32_t has_params;
     /* derived by fx_prepare() from the model and parameters above */
     int32_t used_kinds;                       /* bit q: a spring or the criterion is of kind q */
     int32_t unit_mass;                        /* every 1/mass is exactly 1 (no division) */
     int32_t equal_mass;                       /* every centre-of-mass weight is the same */
     int64_t decay_span;                       /* min(dt_max, 2^(2 FX_DECAY_BITS)) us */
-    int64_t gate_q20;                         /* ceil(gate 2^20): gate boxes, rounded up */
     /* tracker state, structure of arrays */
     int64_t mx[FX_MAX_TRACKERS], my[FX_MAX_TRACKERS];
     int64_t sxx[FX_MAX_TRACKERS], sxy[FX_MAX_TRACKERS], syy[FX_MAX_TRACKERS];
-    int64_t ia[FX_MAX_TRACKERS], ib2[FX_MAX_TRACKERS], ic[FX_MAX_TRACKERS];
+    /* the inverse covariance for eq. (2): ia = ia_m 2^-f etc., refreshed after each update;
+       osh: candidate offsets are (Q.32 offset) >> osh, d2 = (quadratic form) >> dsh */
+    int32_t ia[FX_MAX_TRACKERS], ib2[FX_MAX_TRACKERS], ic[FX_MAX_TRACKERS];
+    uint8_t osh[FX_MAX_TRACKERS], dsh[FX_MAX_TRACKERS];
     int64_t act[FX_MAX_TRACKERS];
     int64_t tlast[FX_MAX_TRACKERS];
     uint32_t mq[FX_MAX_TRACKERS];             /* mass / max mass, Q.24 (centre of mass) */
@@ -88,6 +118,12 @@ typedef struct {
     int32_t c0x[FX_MAX_CONNECTIONS], c0y[FX_MAX_CONNECTIONS];    /* cos, sin th0, Q.30 */
     int64_t energy[3][FX_MAX_CONNECTIONS];   /* read them through fx_energies() */
     int64_t mean_energy;
+    /* the similarity frame of the last fit (fit_frame): s R = [[frame_c, -frame_s],
+       [frame_s, frame_c]] Q.28 and frame_g, the image of the rest centre of mass (Q.32);
+       car_c, car_s: the frame the Cartesian springs of the last update used (the one
+       fitted before it), in force for its energies if car_turned */
+    int32_t frame_c, frame_s, car_c, car_s, car_turned;
+    int64_t frame_gx, frame_gy;
     /* the spring vectors r = x_j - x_i of the last spring update (Q.16 px, |.| < 2^30): the
        energies of the kinds the criterion does not use are computed from them only when
        they are read (fx_energies) */
@@ -100,25 +136,16 @@ typedef struct {
     int32_t gw, gh;
     int32_t box_x0[FX_MAX_TRACKERS], box_x1[FX_MAX_TRACKERS];
     int32_t box_y0[FX_MAX_TRACKERS], box_y1[FX_MAX_TRACKERS];
-    int64_t bx_lo[FX_MAX_TRACKERS], bx_hi[FX_MAX_TRACKERS];
-    int64_t by_lo[FX_MAX_TRACKERS], by_hi[FX_MAX_TRACKERS];
+    int32_t bx_lo[FX_MAX_TRACKERS], bx_hi[FX_MAX_TRACKERS];
+    int32_t by_lo[FX_MAX_TRACKERS], by_hi[FX_MAX_TRACKERS];
     /* the per-update index check (box_kept): the box's centre (Q.16), the slack left
        there for the mean to move (Q.16), and the variances up to which it holds (Q.40) */
-    int64_t bcx[FX_MAX_TRACKERS], bcy[FX_MAX_TRACKERS];
-    int64_t devx[FX_MAX_TRACKERS], devy[FX_MAX_TRACKERS];
+    int32_t bcx[FX_MAX_TRACKERS], bcy[FX_MAX_TRACKERS];
+    int32_t devx[FX_MAX_TRACKERS], devy[FX_MAX_TRACKERS];
     int64_t sxx_lim[FX_MAX_TRACKERS], syy_lim[FX_MAX_TRACKERS];
-    /* tables, filled by springtrack/fixed_q.py */
-    uint32_t exp2_lut[FX_EXP2_N + 1];         /* 2^(-k / FX_EXP2_N), Q.30 */
-    uint32_t atan_lut[FX_CORDIC_N];           /* atan(2^-i), binary angle (CORDIC) */
-    uint32_t atan_tab[(1 << FX_ATAN_BITS) + 2];   /* atan(k / 1024), binary angle */
-    uint32_t hyp_tab[(1 << FX_ATAN_BITS) + 2];    /* sqrt(1 + (k / 1024)^2), Q.30 */
-    uint32_t ihyp_tab[(1 << FX_ATAN_BITS) + 2];   /* 1 / sqrt(1 + (k / 1024)^2), Q.30 */
-    uint32_t sqrt_tab[FX_SQRT_N];             /* floor(sqrt((j + 256) 2^54) / 2) */
-    uint32_t decay_lo[FX_DECAY_N];            /* exp(-j / tau), Q.30, j = 0..511 (us) */
-    uint32_t decay_hi[FX_DECAY_N];            /* exp(-512 j / tau), Q.30 */
-    uint32_t gauss_hi[FX_GAUSS_N];            /* exp(-j 2^-5 / 2), Q.30 (d2 < 32) */
-    uint32_t gauss_lo[FX_GAUSS_N];            /* exp(-j 2^-15 / 2), Q.30 */
-    int64_t cordic_x0;                        /* 1 / CORDIC gain, Q.60 */
+    /* activity decay tables of the current tau (parameters), Q.30 */
+    uint32_t decay_lo[FX_DECAY_N];            /* exp(-j / tau), j = 0..511 (us) */
+    uint32_t decay_hi[FX_DECAY_N];            /* exp(-512 j / tau) */
     /* counters */
     int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates, n_reindex;
     int64_t sat_position, sat_activity, sat_energy, sat_inverse;
@@ -131,6 +158,14 @@ typedef struct {
     uint16_t x, y;
     uint8_t p;
 } fx_event;
+
+/* Load a model (the word stream of fixed_q.model_words) into a zeroed-out state that uses
+   `cells` (cell_cap entries) as its spatial index; then fx_set_params must follow. */
+int fx_load_model(fx_state *s, const int32_t *w, int32_t nw, uint64_t *cells, int32_t cell_cap);
+/* Apply parameters (fixed_q.params_words) between two events; a new tau applies from the
+   last event on, as in the reference (eq. 6). */
+int fx_set_params(fx_state *s, const int32_t *w, int32_t nw);
+int32_t fx_cells_needed(int32_t width, int32_t height);
 
 int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y);
 /* fx_step over ev[0..n), stopping before the first event with t >= t_stop that is not
@@ -147,13 +182,15 @@ int64_t fx_activity(const fx_state *s, int i, int64_t t);
 int fx_check_index(const fx_state *s);
 /* building blocks, exported for tests */
 int64_t fx_mulsh(int64_t v, uint32_t g, int sh);
-uint64_t fx_isqrt64(const fx_state *s, uint64_t v);
-uint32_t fx_exp2neg(const fx_state *s, int64_t w);
-int64_t fx_gauss(const fx_state *s, int64_t d2);
+uint64_t fx_udiv64(uint64_t n, uint32_t d, uint32_t *rem);
+uint32_t fx_divlu32(uint32_t u1, uint32_t u0, uint32_t v, uint32_t *rem);
+uint64_t fx_isqrt64(uint64_t v);
+uint32_t fx_exp2neg(int64_t w);
+int64_t fx_gauss(uint32_t d2);
 uint32_t fx_decay(const fx_state *s, int64_t dt);
-uint32_t fx_atan2(const fx_state *s, int64_t y, int64_t x);
-void fx_cossin(const fx_state *s, int64_t angle, int64_t *c, int64_t *sn);
-void fx_polar(const fx_state *s, int64_t x, int64_t y, uint32_t *ang, int64_t *len, int64_t *cx,
-              int64_t *cy);
+uint32_t fx_atan2(int64_t y, int64_t x);
+void fx_cossin(int64_t angle, int64_t *c, int64_t *sn);
+void fx_polar(int32_t x, int32_t y, uint32_t *ang, int32_t *len, int32_t *cx, int32_t *cy);
+uint32_t fx_d2(const fx_state *s, int i, int32_t x, int32_t y);
 
 #endif

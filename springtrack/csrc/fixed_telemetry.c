@@ -25,9 +25,9 @@ static inline uint16_t tele_pos(int64_t q32, int flag)
 }
 
 /* sigma in Q.20 px from a Q.40 px^2 variance (0 if it is not positive) */
-static inline uint64_t tele_sigma_q20(const fx_state *s, int64_t var_q40)
+static inline uint64_t tele_sigma_q20(int64_t var_q40)
 {
-    return var_q40 > 0 ? fx_isqrt64(s, (uint64_t)var_q40) : 0;
+    return var_q40 > 0 ? fx_isqrt64((uint64_t)var_q40) : 0;
 }
 
 static inline uint8_t tele_sigma(uint64_t sigma_q20)
@@ -36,20 +36,29 @@ static inline uint8_t tele_sigma(uint64_t sigma_q20)
     return (uint8_t)(v > 255 ? 255 : v);
 }
 
-/* round(127 sxy / (sx sy)), clamped to [-127, 127]; 0 if a deviation is 0.  Covariances
-   are clamped to sigma_max^2 <= 4096 px^2 (Q.40: 2^52), so 2 * 127 |sxy| < 2^61 and
-   2 sx sy < 2^53 (sigma Q.20 <= 2^26) */
+/* round(127 sxy / (sx sy)), clamped to [-127, 127]; 0 if a deviation is 0.  32-bit
+   arithmetic: den = sx sy (Q.40, one 32 x 32 product; sigma Q.20 <= 2^26) and |sxy| are
+   scaled right together until den < 2^23, then (254 |sxy| + den) / (2 den) is one 32-bit
+   division (|sxy| <= den, as |rho| <= 0.99; a larger one is clamped first) */
 static inline int8_t tele_rho(int64_t sxy_q40, uint64_t sx_q20, uint64_t sy_q20)
 {
-    uint64_t den = sx_q20 * sy_q20, num;
-    int64_t r;
+    uint64_t den = (uint64_t)(uint32_t)sx_q20 * (uint32_t)sy_q20;
+    uint64_t a = (uint64_t)(sxy_q40 < 0 ? -sxy_q40 : sxy_q40);
+    uint32_t d, n, r;
+    int k;
     if (den == 0)
         return 0;
-    num = (uint64_t)(sxy_q40 < 0 ? -sxy_q40 : sxy_q40) * FX_TELE_RHO_SCALE;
-    r = (int64_t)((2 * num + den) / (2 * den));           /* round half up on |rho| */
-    if (r > FX_TELE_RHO_SCALE)
+    k = bitlen_u64(den) > 23 ? bitlen_u64(den) - 23 : 0;
+    d = (uint32_t)(den >> k);
+    if (a > den || d == 0)
         r = FX_TELE_RHO_SCALE;
-    return (int8_t)(sxy_q40 < 0 ? -r : r);
+    else {
+        n = (uint32_t)(a >> k);
+        r = (2 * FX_TELE_RHO_SCALE * n + d) / (2 * d);   /* round half up on |rho| */
+        if (r > FX_TELE_RHO_SCALE)
+            r = FX_TELE_RHO_SCALE;
+    }
+    return (int8_t)(sxy_q40 < 0 ? -(int32_t)r : (int32_t)r);
 }
 
 /* round(16 log2(1 + A)) for an activity A in Q.32, saturated at 255 */
@@ -71,7 +80,7 @@ void fx_tele_records(const fx_state *s, int64_t t, uint8_t *out)
     int i;
     for (i = 0; i < s->n; i++) {
         int64_t a = fx_activity(s, i, t);
-        uint64_t sx = tele_sigma_q20(s, s->sxx[i]), sy = tele_sigma_q20(s, s->syy[i]);
+        uint64_t sx = tele_sigma_q20(s->sxx[i]), sy = tele_sigma_q20(s->syy[i]);
         uint16_t x = tele_pos(s->mx[i], a > s->act_thr);
         uint16_t y = tele_pos(s->my[i], (int)((s->sensitive_mask >> i) & 1));
         uint8_t *r = out + (int64_t)i * FX_TELE_RECORD;
