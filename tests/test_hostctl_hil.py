@@ -223,6 +223,7 @@ def test_hil_monitor_cli(realtime_fw):
     assert "model face26" in last and "mouth" in last and "outline18" in last
     head = last.splitlines()[1]
     assert "lost frames " in head and "link errors 0" in head and "events " in head, head
+    assert last.splitlines()[2].startswith("state streaming   faults 0"), last
 
 
 def test_hil_tcp_listener_with_key(tmp_path):

@@ -394,6 +394,27 @@ def test_a_fault_in_one_tcp_session_closes_that_session_not_the_link():
         eng.close()
 
 
+@pytest.mark.parametrize("backend", ["cython", "fixed"])
+def test_hostile_models_get_their_nack_code_never_internal(scene, backend):
+    """A 20,000-deep TOML and sigma = 1e12: refused as invalid_model (or run) - never an
+    exception inside the handler (NACK internal)."""
+    cam, eng = make_engine(scene, backend=backend)
+    s = Served(eng)
+    try:
+        with Device(s.port.path) as dev:
+            with pytest.raises(Nacked) as e:
+                dev.load_model("a = " + "[" * 20_000 + "]" * 20_000 + "\n[[trackers]]\n")
+            assert e.value.code == Nack.INVALID_MODEL and "nested too deeply" in e.value.reason
+            wide = _model.face26().to_toml().replace("sigma = [", "sigma = [1e12, 0.0, 1e12] #", 1)
+            try:
+                dev.load_model(wide)
+            except Nacked as refused:
+                assert refused.code == Nack.INVALID_MODEL, refused
+            assert dev.stats()["link.handler_errors"] == 0
+    finally:
+        s.close()
+
+
 # ---- a model that drives the kernel to NaN, firmware and host as processes ----------------
 def test_hil_a_nan_model_does_not_make_the_device_deaf(tmp_path):
     """The reproduction: face26 with stiffness 0.5 uploaded to a running firmware over TCP.
