@@ -119,6 +119,7 @@ def test_a_signal_stops_every_thread_and_prints_the_statistics(sig):
     finally:
         fw.close()
     assert "interrupted" in fw.err and "shutdown: threads stopped in" in fw.err, fw.err
+    assert "did not stop" not in fw.err, fw.err       # every thread joined (1 s allowed each)
     assert "Traceback" not in fw.err and fw.out.startswith("stats: ")
 
 
