@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import random
 import socket
 import subprocess
@@ -174,7 +175,7 @@ class Soak:
                     if k < 3:
                         name, m = rng.choice(models)
                         dev.load_model(m)
-                        self.count(f"operator.model_{name}.acked")
+                        self.count(f"operator.model_accepted.{name}")
                     elif k < 8:
                         name, value = rng.choice(params)
                         dev.set(name, value())
@@ -361,6 +362,7 @@ class Soak:
             with Device(self.url, key=self.key, timeout=1.0) as dev:
                 final = dev.stats()
                 dev.shutdown()
+            (self.tmp / "final_stats.json").write_text(json.dumps(final, indent=1, default=str))
             self.fw.wait(30)
         else:
             self.problem(f"the firmware exited during the soak (status {self.fw.returncode})")
@@ -378,6 +380,15 @@ def report(soak: Soak, r: dict, ceiling: float) -> tuple[str, bool]:
     ok_answer = (r["alive"] and c["monitor.stats_unanswered"] == 0
                  and c["probe.unanswered"] == 0 and c["monitor.stats_answered"] > 0)
     ok_mem = rss_max <= ceiling
+    shown, zero, unexplained = counters(st)
+    for k in unexplained:
+        soak.problem(f"STATS counter `{k}` = {st[k]} is not explained (soak.py COUNTERS)")
+    for k in (k for k in MUST_BE_ZERO if st.get(k)):
+        soak.problem(f"STATS counter `{k}` = {st[k]}: must be 0")
+    if c["monitor.time_not_increasing"]:
+        soak.problem(f"{c['monitor.time_not_increasing']} snapshots did not advance in time")
+    for k in (k for k in c if explain(TRAFFIC_MEANING, k) is None):
+        soak.problem(f"soak count `{k}` is not explained (benchmarks/soak.py TRAFFIC_MEANING)")
     ok = ok_finite and ok_answer and ok_mem and r["exit"] == 0 and not soak.problems
     g = st.get
     lines = [
@@ -398,60 +409,192 @@ def report(soak: Soak, r: dict, ceiling: float) -> tuple[str, bool]:
         f"ceiling {ceiling:g} MB); exit status after SHUTDOWN {r['exit']} "
         f"({'; '.join(r['shutdown']) or 'no shutdown line'}).", "",
         "What the soak did (its own counts):", "",
-        "| traffic | count |", "|---|---:|",
-        *(f"| {k} | {v} |" for k, v in sorted(c.items())), "",
-        "The firmware's counters at the end (STATS), and what each says:", "",
+        "| traffic | count | meaning |", "|---|---:|---|",
+        *(f"| {k} | {v} | {explain(TRAFFIC_MEANING, k)} |" for k, v in sorted(c.items())), "",
+        f"The firmware's counters at the end (STATS after {r['wall'] / 60:.1f} min): every one "
+        f"that is not zero, and those that must be zero; `last_error`: "
+        f"{str(g('last_error', '')).replace('|', '/') or 'none'}.", "",
         "| counter | value | meaning |", "|---|---:|---|",
-        *(f"| `{k}` | {g(k, '?')} | {text} |" for k, text in COUNTERS), "",
+        *(f"| `{k}` | {g(k)} | {explain(COUNTERS, k)} |" for k in shown), "",
+        f"Zero: {', '.join(f'`{k}`' for k in zero)}.", "",
     ]
     if soak.problems:
         lines += ["Problems:", "", *(f"* {p}" for p in soak.problems), ""]
     return "\n".join(lines), ok
 
 
-COUNTERS = [
-    ("state", "device state at the end (`faulted` after a fault until RESET)"),
-    ("events_tracked", "events the kernel tracked over every replay"),
-    ("transfers_dropped", "USB transfers shed because the pool was full (the burst fault)"),
-    ("usb.disconnects", "simulated unplugs (one per replay), each followed by a reconnect"),
-    ("usb.reconnects", "reconnections after them"),
-    ("usb.stalls", "endpoint stalls cleared (one per replay)"),
-    ("usb.timeouts", "bulk reads that timed out (injected every 7th read, and idle reads)"),
-    ("anomalies.unknown_type", "corrupt words of an undefined type, counted and skipped"),
-    ("anomalies.out_of_geometry", "corrupt words outside the sensor, counted and skipped"),
-    ("anomalies.skipped_after_gap", "events discarded while waiting for a time base after a gap"),
-    ("anomalies.time_backwards", "time going back: each replay restarts the clock (rebased)"),
-    ("loop.updates_applied", "model, parameter and reset updates put in effect"),
-    ("loop.updates_rejected", "updates refused with a NACK (bad models, parameters)"),
-    ("loop.updates_failed", "accepted updates the kernel refused when applied (should be 0)"),
-    ("loop.nonfinite_snapshots", "snapshots of a non-finite state, dropped (the NaN model)"),
-    ("loop.nonfinite_resets", "trackers reset to the model because of them"),
-    ("loop.telemetry_dropped", "snapshots the engine's queue dropped (hosts behind)"),
-    ("loop.processing_errors", "transfers whose processing raised (skipped)"),
-    ("loop.watchdog_stalls", "stalls the watchdog saw (transfers waiting, nothing processed)"),
-    ("supervisor.faults", "unexpected exceptions caught in firmware threads"),
-    ("supervisor.restarts", "threads restarted after them"),
-    ("supervisor.threads_stopped", "threads stopped after failing too often"),
-    ("link.sessions_opened", "TCP connections accepted into a session slot"),
-    ("link.sessions_refused", "connections refused: every session slot held by authenticated hosts"),
-    ("link.pending_timeouts", "connections closed or evicted without an authenticated HELLO"),
-    ("link.idle_timeouts", "sessions closed after 30 s without a frame"),
-    ("link.operator_takeovers", "HELLOs as operator that took the role from another session"),
-    ("link.auth_unsigned", "unsigned frames dropped on the keyed link (lifetime)"),
-    ("link.auth_bad_tag", "frames with a wrong signature dropped (lifetime)"),
-    ("link.auth_replay", "replayed frames dropped (lifetime)"),
-    ("link.auth_disconnects", "connections closed after 8 failed authentications"),
-    ("link.auth_lockouts", "connections refused while their address was locked out"),
-    ("link.forbidden", "operator commands from monitors, NACKed forbidden"),
-    ("link.nacks", "NACKs sent (every refused command)"),
-    ("link.handler_errors", "exceptions inside command handlers (NACKed internal)"),
-    ("link.rx_crc_errors", "frames with a bad CRC dropped"),
-    ("link.rx_cobs_errors", "frames with bad COBS dropped"),
-    ("link.rx_malformed", "frames too short or inconsistent, dropped"),
-    ("link.tx_dropped", "frames not sent to a host that did not read (the slow consumer)"),
-    ("link.telemetry_errors", "snapshots that could not be encoded (must be 0)"),
-    ("link.session_faults", "sessions closed because their handling raised"),
-]
+def explain(table: dict, key: str) -> str | None:
+    """The meaning of ``key``: its own entry, else that of a listed suffix (``.reconnects``
+    for every traffic thread), else that of its longest listed prefix (``operator.nack.``
+    covers every NACK code)."""
+    if key in table:
+        return table[key]
+    suffix = next((x for x in table if x.startswith(".") and key.endswith(x)), None)
+    if suffix is not None:
+        return table[suffix]
+    prefixes = [p for p in table if p.endswith(".") or p.endswith("_")]
+    best = max((p for p in prefixes if key.startswith(p)), key=len, default=None)
+    return None if best is None else f"{table[best]}: {key[len(best):]}"
+
+
+def counters(st: dict) -> tuple[list, list, list]:
+    """The firmware's STATS split into counters shown (not zero, or must be zero), zero
+    ones, and counters nothing explains (a soak failure: every counter must be explained)."""
+    shown, zero, unexplained = [], [], []
+    for k, v in st.items():
+        if k in FIGURES or k.startswith("session.") or k.startswith("proc_us_per_10ms."):
+            continue
+        if explain(COUNTERS, k) is None:
+            unexplained.append(k)
+        elif v or k in MUST_BE_ZERO:
+            shown.append(k)
+        else:
+            zero.append(k)
+    return shown, zero, unexplained
+
+
+# values of STATS that are not counters (described in docs/firmware.md, "Statistics")
+FIGURES = {"state", "last_error", "queue_depth", "event_rate", "decode.format",
+           "decode.width", "decode.height", "decode.pending_bytes", "geometry_drops.fraction",
+           "loop.proc_ns", "loop.generation", "loop.last_t_us", "kernel.backend",
+           "link.sessions", "link.operator"}
+MUST_BE_ZERO = ("loop.updates_failed", "loop.processing_errors", "supervisor.faults",
+                "supervisor.threads_stopped", "link.handler_errors", "link.telemetry_errors",
+                "link.session_faults")
+
+TRAFFIC_MEANING = {
+    "fuzz.connections": "connections of the fuzzer (127.0.0.2, wrong key)",
+    "fuzz.connect_refused": "fuzzer connections refused by the operating system",
+    "fuzz.frames": "garbage, mutated, random, hostile and wrongly signed frames it sent",
+    "fuzz.closed_by_firmware": "fuzzer connections the firmware closed (8 failed "
+                               "authentications, pending timeout, address locked out)",
+    "signed_fuzz.frames": "signed hostile frames of an authenticated monitor",
+    "signed_fuzz.sessions": "its sessions that still answered a ping after 200 of them",
+    "storm.connections": "reconnect-storm connections (127.0.0.3; silent, HELLO only, closed)",
+    "storm.refused": "storm connections refused by the operating system",
+    "slow.bytes": "bytes the slow consumer read",
+    "slow.sessions": "its 60 s sessions that ended normally",
+    "monitor.snapshots": "snapshots the monitor checked (finite, on the sensor, time increasing)",
+    "monitor.bad_snapshots": "snapshots with a non-finite or off-sensor value (must be 0)",
+    "monitor.time_not_increasing": "snapshots whose time did not increase (must be 0)",
+    "monitor.stats_answered": "STATS the monitor asked every 5 s and got",
+    "monitor.stats_unanswered": "STATS without an answer (must be 0)",
+    "monitor.error.": "ERROR frames the monitor received (its last 200 kept), by code",
+    "probe.answered": "new connections (every 5 s) whose HELLO + STATS were answered",
+    "probe.answered_after_retry": "of those, answered only on the 2nd or 3rd try",
+    "probe.unanswered": "probes never answered (must be 0)",
+    "operator.model_accepted.": "models the operator uploaded and the firmware accepted, by model",
+    "operator.nack.": "operator commands NACKed (hostile on purpose), by code",
+    "operator.param.acked": "parameter changes ACKed",
+    "operator.reset": "RESETs",
+    "operator.stop_start": "STOP then START",
+    "operator.replays": "STARTs after NOTICE stream_ended (the scene replayed)",
+    "operator.taken_over": "times another session took the operator role (then taken back)",
+    ".connect_retries": "connection attempts retried (address locked out, sessions busy)",
+    ".reconnects": "sessions of this traffic that ended (a takeover, closed by the "
+                   "firmware) and were opened again",
+    ".link_errors": "of those, ended by a link error (no answer, closed) rather than a "
+                    "refusal",
+}
+
+COUNTERS = {
+    "transfers": "USB transfers read",
+    "bytes": "bytes read from the camera",
+    "transfers_dropped": "USB transfers shed because the pool was full (the burst fault)",
+    "bytes_dropped": "their bytes",
+    "events_decoded": "events decoded over every replay",
+    "events_tracked": "events the kernel tracked over every replay",
+    "queue_hwm": "most transfers ever waiting for the loop (pool of 16)",
+    "usb.timeouts": "bulk reads that timed out (injected every 7th read, and idle reads)",
+    "usb.stalls": "endpoint stalls cleared (one per replay)",
+    "usb.disconnects": "simulated unplugs (one per replay)",
+    "usb.reconnects": "reconnections after them",
+    "usb.open_failures": "attempts to reopen the camera while it was unplugged",
+    "usb.short_transfers": "transfers shorter than the buffer (the short fault, the scene's "
+                           "quiet stretches)",
+    "usb.odd_transfers": "transfers cut inside a word (the odd fault, not used)",
+    "usb.commands": "vendor control requests (biases)",
+    "usb.command_errors": "vendor control requests that failed",
+    "usb.coalesced": "short transfers merged into the buffer before them",
+    "decode.words": "words decoded",
+    "decode.time_high_words": "time-high words",
+    "decode.time_wraps": "time-counter wraps",
+    "decode.exposure_events": "exposure-measurement events (none on this camera)",
+    "decode.gaps": "gaps marked (shed transfers, reconnects, replays): a new time base",
+    "decode.triggers": "trigger events",
+    "decode.other_words": "other word types",
+    "decode.time_low_backwards": "time-low words going back within a time-high",
+    "decode.outside_roi": "events outside the region of interest",
+    "geometry_drops.events": "events outside the sensor, dropped (the corrupt fault)",
+    "geometry_drops.in_words": "of those, decoded from words",
+    "geometry_drops.before_encoding": "of those, dropped by the simulated sensor",
+    "anomalies.unknown_type": "corrupt words of an undefined type, counted and skipped",
+    "anomalies.out_of_geometry": "corrupt words outside the sensor, counted and skipped",
+    "anomalies.time_backwards": "time going back: each replay restarts the clock (rebased)",
+    "anomalies.orphan": "events before any time base",
+    "anomalies.before_time_high": "events before the first time-high word",
+    "anomalies.skipped_after_gap": "events discarded while waiting for a time base after a gap",
+    "anomalies.tracker_back_in_time": "events older than the tracker's last, refused",
+    "anomalies.tracker_outside_sensor": "events outside the model's sensor, refused",
+    "loop.pieces": "pieces of transfers handed to the kernel",
+    "loop.snapshots": "telemetry snapshots taken (1 kHz of event time)",
+    "loop.updates_applied": "model, parameter and reset updates put in effect",
+    "loop.updates_rejected": "updates refused with a NACK (bad models, parameters)",
+    "loop.updates_failed": "accepted updates the kernel refused when applied (must be 0)",
+    "loop.kernel_swaps": "models swapped in (double buffer)",
+    "loop.processing_errors": "transfers whose processing raised (must be 0)",
+    "loop.bytes_abandoned": "bytes of a transfer abandoned by a STOP in its middle",
+    "loop.nonfinite_snapshots": "snapshots of a non-finite state, dropped (the NaN model)",
+    "loop.nonfinite_resets": "trackers reset to the model because of them (once per generation)",
+    "loop.watchdog_stalls": "stalls the watchdog saw (transfers waiting, nothing processed)",
+    "loop.telemetry_dropped": "snapshots the engine's queue dropped (hosts behind)",
+    "kernel.events_valid": "events the kernel accepted",
+    "kernel.events_assigned": "events assigned to a tracker (eq. 3's update)",
+    "kernel.skipped_back_in_time": "events older than the kernel's clock (replay restarts, "
+                                   "corrupt time words), skipped",
+    "kernel.skipped_outside_sensor": "events outside the model's sensor, skipped",
+    "kernel.spring_updates": "spring updates (eqs. 7-20)",
+    "kernel.index_updates": "updates of the spatial index",
+    "supervisor.faults": "unexpected exceptions caught in firmware threads (must be 0)",
+    "supervisor.faults_": "of those, in the thread",
+    "supervisor.restarts": "threads restarted after them",
+    "supervisor.threads_stopped": "threads stopped after failing too often (must be 0)",
+    "supervisor.reported_": "ERROR frames sent, by code",
+    "link.rx_frames": "frames received from every host",
+    "link.rx_lost": "frames missing by sequence number (the fuzzers' random sequence numbers)",
+    "link.rx_retries": "repeated frames answered from the reply cache",
+    "link.rx_bytes": "bytes received",
+    "link.rx_crc_errors": "frames with a bad CRC dropped",
+    "link.rx_cobs_errors": "frames with bad COBS dropped",
+    "link.rx_malformed": "frames too short or inconsistent, dropped",
+    "link.rx_oversize": "frames over the size limit, dropped",
+    "link.version_refused": "frames of another protocol version, NACKed",
+    "link.acks": "ACKs sent",
+    "link.nacks": "NACKs sent (every refused command)",
+    "link.handler_errors": "exceptions inside command handlers, NACKed internal (must be 0)",
+    "link.forbidden": "operator commands from monitors, NACKed forbidden",
+    "link.tx_frames": "frames sent",
+    "link.tx_bytes": "bytes sent",
+    "link.tx_dropped": "frames not sent to a host that did not read (the slow consumer)",
+    "link.telemetry_sent": "TELEMETRY frames sent (over every session)",
+    "link.telemetry_stale": "snapshots queued while no session had a role, discarded",
+    "link.tx_stale_bytes": "bytes queued for a previous host, discarded at a new HELLO",
+    "link.energies_sent": "ENERGIES frames sent (10 Hz of event time)",
+    "link.sessions_opened": "TCP connections accepted into a session slot",
+    "link.sessions_closed": "connections closed (every reason)",
+    "link.sessions_refused": "connections refused: every session slot held by authenticated hosts",
+    "link.sessions_evicted": "sessions closed to let an operator in",
+    "link.pending_timeouts": "connections closed or evicted without an authenticated HELLO",
+    "link.idle_timeouts": "sessions closed after 30 s without a frame",
+    "link.operator_takeovers": "HELLOs as operator that took the role from another session",
+    "link.auth_unsigned": "unsigned frames dropped on the keyed link (lifetime)",
+    "link.auth_bad_tag": "frames with a wrong signature dropped (lifetime)",
+    "link.auth_replay": "replayed frames dropped (lifetime)",
+    "link.auth_disconnects": "connections closed after 8 failed authentications",
+    "link.auth_lockouts": "connections refused while their address was locked out",
+    "link.telemetry_errors": "snapshots that could not be encoded (must be 0)",
+    "link.session_faults": "sessions closed because their handling raised (must be 0)",
+}
 
 
 def main(argv=None) -> int:
