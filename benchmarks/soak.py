@@ -105,7 +105,9 @@ class Soak:
         self.lock = threading.Lock()
         self.c = Counter()                 # what the soak did and saw
         self.problems: list[str] = []
-        self.rss: list[float] = []
+        self.rss: list[float] = []         # the firmware's resident MB, every 5 s
+        self.t0 = time.monotonic()
+        self.rss_by_minute: dict[int, float] = {}   # minute -> highest resident MB in it
         self.last_stats: dict = {}
 
     def count(self, key: str, n: int = 1) -> None:
@@ -219,6 +221,9 @@ class Soak:
                     with self.lock:
                         self.last_stats = st
                         self.rss.append(rss_mb(self.fw.pid))
+                        minute = int((time.monotonic() - self.t0) // 60)
+                        self.rss_by_minute[minute] = max(self.rss[-1],
+                                                         self.rss_by_minute.get(minute, 0.0))
 
     def slow_consumer(self):
         with self.device(role=Role.MONITOR, name="slow") as dev:
@@ -341,7 +346,7 @@ class Soak:
 
     # ---- run -----------------------------------------------------------------------------
     def run(self) -> dict:
-        t0 = time.monotonic()
+        t0 = self.t0 = time.monotonic()
         load0 = load_average()
         threads = [self.run_thread(n, getattr(self, n)) for n in self.args.traffic.split(",")]
         end = t0 + self.args.minutes * 60
@@ -406,7 +411,9 @@ def report(soak: Soak, r: dict, ceiling: float) -> tuple[str, bool]:
         f"{g('loop.nonfinite_snapshots', '?')} non-finite snapshots dropped in the firmware, "
         f"{g('link.telemetry_errors', '?')} encode failures); memory: "
         f"{'yes' if ok_mem else 'NO'} (resident {min(soak.rss or [0]):.0f} .. {rss_max:.0f} MB, "
-        f"ceiling {ceiling:g} MB); exit status after SHUTDOWN {r['exit']} "
+        f"ceiling {ceiling:g} MB; the highest of each minute: "
+        f"{', '.join(f'{v:.0f}' for _, v in sorted(soak.rss_by_minute.items()))} MB); "
+        f"exit status after SHUTDOWN {r['exit']} "
         f"({'; '.join(r['shutdown']) or 'no shutdown line'}).", "",
         "What the soak did (its own counts):", "",
         "| traffic | count | meaning |", "|---|---:|---|",

@@ -29,6 +29,7 @@ from . import faults as _faults
 from . import sources as _sources
 from . import usb as camusb
 from .supervise import Supervisor
+from .throttle import Throttle
 
 NEVER_OPENED_S = 10.0      # give up if the camera never delivered a transfer this long
 SHUTDOWN_S = 1.0           # every thread is given this long to stop
@@ -266,6 +267,7 @@ def _run(args) -> int:
                           profile=source.profile, backend=args.backend, roi=roi,
                           source_counters=source.counters, sensor_from=args.sensor_from,
                           supervisor=Supervisor(), rewind=source.rewind)
+    throttle = Throttle()             # the program's own log lines
     stop = threading.Event()          # ends the link
     quit_now = threading.Event()      # a host sent SHUTDOWN
     link = Link(args, engine, key, stop, quit_now.set) if has_link else None
@@ -279,7 +281,7 @@ def _run(args) -> int:
         while not quit_now.is_set():
             time.sleep(0.02)
             now = time.monotonic()
-            _print_logs(engine)
+            _print_logs(engine, throttle)
             if now >= next_stats and link is None:
                 print(engine.stats_line(), file=sys.stderr, flush=True)
                 next_stats = now + args.stats_every
@@ -314,7 +316,10 @@ def _run(args) -> int:
             link.close(SHUTDOWN_S)
             if link.thread.is_alive():
                 slow.append(f"host-link thread did not stop within {SHUTDOWN_S:g} s")
-        _print_logs(engine)
+        _print_logs(engine, throttle)
+        for line in throttle.unshown() + ([] if link is None else
+                                           [f"link: {x}" for x in link.hub.throttle.unshown()]):
+            print(line, file=sys.stderr)
         print(f"shutdown: threads stopped in {(time.monotonic() - t_stop) * 1e3:.0f} ms"
               + (f" ({'; '.join(slow)})" if slow else ""), file=sys.stderr, flush=True)
     if args.record:
@@ -340,11 +345,15 @@ def _end_of_stream(engine, source) -> None:
         engine.supervisor.report(Fault.SOURCE_FAILED, f"the source {source.url} failed: {why}")
 
 
-def _print_logs(engine) -> None:
-    """USB state changes, supervision reports and link events, on stderr."""
+def _print_logs(engine, throttle) -> None:
+    """USB state changes and supervision reports on stderr, at most one line of a kind (its
+    first two words: ``error nonfinite_state``, ``open failed``) per second."""
     for prefix, log in (("usb", engine.reader.log), ("firmware", engine.supervisor.log)):
         while log:
-            print(f"{prefix}: {log.popleft()}", file=sys.stderr, flush=True)
+            text = log.popleft()
+            line = throttle(" ".join([prefix, *text.split()[:2]]), f"{prefix}: {text}")
+            if line is not None:
+                print(line, file=sys.stderr, flush=True)
 
 
 def _terminate(signum, frame):

@@ -56,6 +56,7 @@ from springtrack import wire
 from springtrack.wire import MsgType, Nack, Notice, Role
 
 from .engine import UpdateRejected
+from .throttle import Throttle
 
 MAX_MODEL_BYTES = 256 * 1024
 REPLY_CACHE = 16
@@ -70,7 +71,6 @@ IDLE_TIMEOUT_S = 30.0               # TCP: no frame from the host within this: c
 MAX_AUTH_FAILURES = 8               # failed authentications before a connection is closed
 LOCKOUT_S = (1.0, 2.0, 5.0, 10.0, 30.0, 60.0)   # address lock-out after closing k times
 LOCKOUT_FORGET_S = 600.0            # offences older than this are forgotten
-LOG_EVERY_S = 1.0                   # at most one log line of a kind per second
 POLL_S = 0.002                      # the link loop's wait for input
 
 
@@ -98,20 +98,15 @@ class Hub:
                            auth_lockouts=0, telemetry_errors=0, session_faults=0)
         self.closed: dict = {}
         self.peers: dict[str, dict] = {}     # address -> offences, locked_until
-        self._logged: dict[str, list] = {}   # kind -> [last time, suppressed]
+        self.throttle = Throttle()           # at most one log line of a kind per second
 
     # ---- logging ------------------------------------------------------------------------
     def log(self, kind: str, text: str) -> None:
-        """One line on the program's log, at most one of a ``kind`` per LOG_EVERY_S (the
-        suppressed ones are counted in the next)."""
-        now = time.monotonic()
-        last = self._logged.setdefault(kind, [-1e9, 0])
-        if now - last[0] < LOG_EVERY_S:
-            last[1] += 1
-            return
-        more = f" ({last[1]} more like it not shown)" if last[1] else ""
-        last[0], last[1] = now, 0
-        self.log_line(f"link: {text}{more}")
+        """One line on the program's log, at most one of a ``kind`` per
+        ``throttle.LOG_EVERY_S`` (the suppressed ones are counted in the next)."""
+        line = self.throttle(kind, f"link: {text}")
+        if line is not None:
+            self.log_line(line)
 
     # ---- sessions ------------------------------------------------------------------------
     @property

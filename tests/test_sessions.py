@@ -13,6 +13,7 @@ import time
 import pytest
 
 from firmware_sim import link, transport
+from firmware_sim.throttle import LOG_EVERY_S
 from hostctl import AuthFailed, Device, HostctlError, Nacked, Role
 from springtrack import model as _model
 from springtrack import wire
@@ -179,7 +180,7 @@ def test_auth_failures_are_counted_for_the_lifetime_logged_with_the_peer_and_lim
             assert st["link.auth_bad_tag"] == 4 and st["session.auth_bad_tag"] == 0
         auth = [line for line in s.lines if "authentication failure" in line]
         assert auth and all("127.0.0.1" in line and "bad_tag" in line for line in auth)
-        assert len(auth) <= 1 + (time.monotonic() - t0) / link.LOG_EVERY_S   # rate-limited
+        assert len(auth) <= 1 + (time.monotonic() - t0) / LOG_EVERY_S   # rate-limited
         # MAX_AUTH_FAILURES bad frames on one connection: closed, the address locked out
         sock = raw(s.url)
         sock.sendall(wire.encode_frame(MsgType.HELLO, 1, wire.encode_hello()))

@@ -336,6 +336,20 @@ class Served:
         self.port.close()
 
 
+def test_the_program_log_shows_one_line_of_a_kind_per_interval_and_counts_the_rest():
+    from firmware_sim.throttle import Throttle
+    th = Throttle(every_s=3600)
+    assert th("error nonfinite_state", "a") == "a"
+    assert th("error nonfinite_state", "b") is None and th("error nonfinite_state", "c") is None
+    assert th("error stalled", "d") == "d"                  # another kind: its own budget
+    assert th.unshown() == ["error nonfinite_state: 2 more line(s) not shown"]
+    assert th.unshown() == []
+    th = Throttle(every_s=0)
+    assert th("k", "x") == "x" and th("k", "y") == "y"
+    th._last["k"][1] = 3                                    # three were held back before
+    assert th("k", "z") == "z (3 more like it not shown)"
+
+
 def test_the_link_survives_snapshots_it_cannot_encode_and_forwards_errors():
     """An energy beyond float32 is sent as inf; a snapshot whose records do not encode is
     dropped and counted; the link thread goes on answering; ERROR reports reach the host."""
