@@ -144,12 +144,7 @@ def resolve_params(model: ShapeModel, params=None) -> Params:
     if isinstance(params, dict):
         return _params.from_mapping(params, base)
     if isinstance(params, (str, Path)):
-        import tomllib
-        with open(params, "rb") as f:
-            try:
-                data = tomllib.load(f)
-            except tomllib.TOMLDecodeError as e:
-                raise _params.ParamError(f"{params}: not valid TOML: {e}") from None
+        data = _params.read_toml(params)
         return _params.from_mapping(data.get("params", data), base, where=str(params))
     raise TypeError(f"params must be Params, dict, a TOML path or None, not {type(params).__name__}")
 

@@ -271,18 +271,35 @@ def test_activity_saturates_and_counts():
 
 
 # ---- backend interface ---------------------------------------------------------------------
-def test_rejects_what_its_formats_cannot_hold():
+def test_refuses_by_the_limits_every_backend_shares():
+    """The fixed kernel's conversion (fixed_q) checks a model and parameters with
+    springtrack.limits' functions, the ones ShapeModel and Params call when built: what a
+    format could not hold is refused with the same message either way."""
+    from springtrack import fixed_q, limits
     m = springtrack.load_model("grid3x3")
+    p = Params()
+    object.__setattr__(p, "sigma_max_px", 100.0)            # past Params' own check
+    with pytest.raises(limits.LimitError, match="sigma_max_px=100.0 exceeds 64"):
+        FixedKernel(m, p)
     with pytest.raises(ValueError, match="sigma_max_px"):
-        FixedKernel(m, Params(sigma_max_px=100.0))
-    big = ShapeModel("big", 10000, 10, [TrackerSpec("a", 1.0, 1.0, (1.0, 0.0, 1.0))], [])
-    with pytest.raises(ValueError, match="sensor"):
-        FixedKernel(big, Params())
-    stiff = ShapeModel("stiff", 64, 64, [TrackerSpec("a", 1.0, 1.0, (1.0, 0.0, 1.0)),
-                                         TrackerSpec("b", 9.0, 1.0, (1.0, 0.0, 1.0))],
-                       [Connection("a", "b", ("euclidean",), 2.0)])
-    with pytest.raises(ValueError, match="stiffness"):
-        FixedKernel(stiff, Params())
+        Params(sigma_max_px=100.0)
+    p = Params()
+    object.__setattr__(p, "alpha_covariance", 1.0)
+    with pytest.raises(limits.LimitError, match="alpha_covariance=1.0 is too large"):
+        FixedKernel(m, p)
+    with pytest.raises(ValueError, match="alpha_covariance=1.0 is too large"):
+        Params(alpha_covariance=1.0)
+    arr = m.arrays()
+    with pytest.raises(limits.LimitError, match=r"sensor.width .*\[1, 8192\], got 10000"):
+        fixed_q.model_q(arr, 10000, 240)
+    with pytest.raises(ValueError, match=r"sensor.width .*\[1, 8192\], got 10000"):
+        ShapeModel("big", 10000, 10, [TrackerSpec("a", 1.0, 1.0, (1.0, 0.0, 1.0))], [])
+    stiff = dict(arr, stiffness=np.full(len(arr["ca"]), 2.0))
+    with pytest.raises(limits.LimitError, match=r"stiffness 2.0 is outside \[0, 1\]"):
+        fixed_q.model_q(stiff, 304, 240)
+    huge = dict(arr, sxx=np.full(9, 1e12))
+    with pytest.raises(limits.LimitError, match="exceeds"):
+        fixed_q.model_q(huge, 304, 240)
 
 
 def stream(preset, n, seed=2):
