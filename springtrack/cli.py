@@ -18,6 +18,7 @@ COMMANDS = {
     "render": ("springtrack.commands.render", "draw trackers over the events (GIF/MP4/PNG)"),
     "simulate": ("springtrack.commands.simulate", "simulate an ATIS sensor on a scene, with ground truth"),
     "score": ("springtrack.commands.score", "the paper's tracking error of a track CSV against ground truth"),
+    "learn": ("springtrack.commands.learn", "learn a shape model (trackers and springs) from a recording's events"),
     "experiments": ("springtrack.commands.experiments", "reproduce the paper's section IV experiments on the simulated sensor (dask)"),
     "mcu": ("springtrack.commands.mcu", "the fixed-point kernel as microcontroller firmware: build it, profile it in an emulator"),
 }

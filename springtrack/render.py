@@ -243,3 +243,30 @@ def plot_load(bin_t_us, events_per_bin, proc_us_per_bin, out, bin_us: int = 10_0
     fig.tight_layout()
     fig.savefig(out, dpi=110)
     plt.close(fig)
+
+
+def plot_model(model: ShapeModel, events: np.ndarray, out, title: str = "",
+               scale: float = 2.0) -> None:
+    """A model over events (e.g. a learned one at the end of its window): 2-sigma ellipses
+    with their ids, springs as lines (solid: euclidean+torsional, dashed: cartesian)."""
+    plt = _mpl()
+    w, h = model.width, model.height
+    fig = plt.figure(figsize=(w * scale / 100, (h + 28) * scale / 100), dpi=100)
+    ax = fig.add_axes([0, 0, 1, h / (h + 28)])
+    ax.imshow(event_image(events, w, h), interpolation="nearest")
+    ax.set_xlim(-0.5, w - 0.5)
+    ax.set_ylim(h - 0.5, -0.5)
+    ax.set_axis_off()
+    at = {t.id: t for t in model.trackers}
+    for c in model.connections:
+        a, b = at[c.a], at[c.b]
+        ax.plot([a.x, b.x], [a.y, b.y], "--" if "cartesian" in c.springs else "-",
+                color="#555555", lw=0.9)
+    for t in model.trackers:
+        ex, ey = ellipse_xy(t.x, t.y, *t.sigma)
+        ax.plot(ex, ey, "-", color=ACTIVE, lw=1.3)
+        ax.text(t.x, t.y, t.id, fontsize=5 * scale / 2, ha="center", va="center")
+    fig.text(0.01, 1 - 14 / (h + 28), title or model.name, fontsize=8 * scale / 2,
+             family="monospace", va="center")
+    fig.savefig(out, dpi=100)
+    plt.close(fig)

@@ -3,12 +3,14 @@ from __future__ import annotations
 
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
 from ..events import as_events
 from ..track import CSV_HEADER
 from ..tracker import profile
+from . import prepargs
 
 EPILOG = """\
 units: event times are microseconds; positions px; covariances px^2.
@@ -30,8 +32,12 @@ def add_arguments(p):
     p.epilog = EPILOG
     p.add_argument("input", help="event file (.npy, .csv, .raw, .es, .dat, .aedat4), or - for "
                                  "an event stream (e.g. RAW) on standard input")
-    p.add_argument("--model", required=True,
-                   help="shape model: TOML file or preset name (grid3x3, face26)")
+    p.add_argument("--model",
+                   help="shape model: TOML file or preset name (grid3x3, face26); "
+                        "or --learn-first-ms")
+    p.add_argument("--learn-first-ms", type=float, metavar="MS",
+                   help="learn the model from the stream's first MS ms (springtrack learn), "
+                        "then track the rest with it")
     p.add_argument("--params", help="TOML file of parameter overrides (see docs/algorithm.md)")
     p.add_argument("--backend", default="cython", choices=["cython", "reference", "fixed", "mcu"],
                    help="cython: fast float64 kernel (default); reference: the pure-Python "
@@ -55,6 +61,7 @@ def add_arguments(p):
     p.add_argument("--profile", metavar="OUT.csv|OUT.png",
                    help="time the kernel per 10 ms bin of events (paper Figs. 22-23): a CSV "
                         "t_us,events,proc_us or a plot")
+    prepargs.add_arguments(p)
 
 
 def read_events(path):
@@ -74,6 +81,54 @@ def read_events(path):
             yield as_events(np.ascontiguousarray(ev[s:s + (1 << 20)])), len(ev)
         return
     raise ValueError(f"{path}: unsupported input (springtrack.io is not available)")
+
+
+def open_stream(args):
+    """The model and the stream of (chunk, total) to track: the input's events, prepared
+    when asked (springtrack.prep); the model --model, or learned from the stream's first
+    --learn-first-ms (the tracking then starts where the learning window ends)."""
+    from ..model import load_model
+    if (args.model is None) == (args.learn_first_ms is None):
+        raise ValueError("give either --model or --learn-first-ms")
+    model = load_model(args.model) if args.model else None
+    if model is not None:
+        width, height = model.width, model.height
+        source = read_events(args.input)
+    else:
+        from .. import io as stio
+        reader = stio.open(args.input)
+        width, height = reader.width, reader.height
+        if args.input == "-":                       # one pass over standard input
+            if not width or not height:
+                raise ValueError("--learn-first-ms on standard input needs a stream whose "
+                                 "header gives the sensor size")
+            source = ((as_events(c), None) for c in reader)
+        else:
+            if not width or not height:             # .npy, .csv: the events' extent
+                ev = reader.read()
+                width = int(ev["x"].max()) + 1 if len(ev) else 1
+                height = int(ev["y"].max()) + 1 if len(ev) else 1
+            source = read_events(args.input)
+    prep = prepargs.preparer(args, width, height)
+    if prep is not None:
+        source = _prepared(source, prep)
+    if model is None:
+        from .learn import learn_first
+        model, source = learn_first(source, args.learn_first_ms, width, height,
+                                    name=Path(args.input).stem, params=args.params)
+    return model, source
+
+
+def _prepared(source, prep):
+    """(chunk, total) pairs through ``prep``, with the source's total."""
+    total = None
+
+    def chunks():
+        nonlocal total
+        for chunk, total in source:
+            yield chunk
+    for out in prepargs.prepared(chunks(), prep):
+        yield out, total
 
 
 class Progress:
@@ -104,7 +159,8 @@ def run(args) -> int:
     if args.sample_us <= 0:
         raise ValueError(f"--sample-us must be a positive number of µs, got {args.sample_us}")
     backend = f"mcu:{args.mcu_target}" if args.backend == "mcu" else args.backend
-    tr = Tracker(args.model, params=args.params, backend=backend, acquire=args.acquire,
+    model, stream = open_stream(args)
+    tr = Tracker(model, params=args.params, backend=backend, acquire=args.acquire,
                  acquire_ms=args.acquire_ms, acquire_bounds=_acquire_bounds(args))
     tr.record(args.sample_us)
     prog = Progress(not args.no_progress)
@@ -114,7 +170,7 @@ def run(args) -> int:
     with open(args.out, "w", newline="") as out:
         out.write(",".join(CSV_HEADER) + "\n")
         bins = []
-        for chunk, total in read_events(args.input):
+        for chunk, total in stream:
             if len(chunk) == 0:
                 continue
             if args.profile:

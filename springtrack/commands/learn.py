@@ -1,0 +1,141 @@
+"""``springtrack learn INPUT --out MODEL.toml``: learn a shape model from a recording's
+events (springtrack.learn), print what it found and optionally draw it."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from ..events import EVENT_DTYPE
+from . import prepargs
+
+EPILOG = """\
+method (docs/learning.md): free Gaussian trackers spread over the event clouds (births
+where events go unassigned, merges of trackers on one part, deaths of idle ones); springs
+join neighbouring trackers that were co-active and kept their relative position. The model's
+trackers sit where the parts are at the end of the window; its [params] hold the learned
+alpha_position, energy_scale and energy_kind (override them with --params).
+units: times in µs of the recording's clock; positions px; covariances px^2.
+exit status: 0 model written, 2 bad input, 3 no object found (noise or too few events).
+"""
+
+
+def add_arguments(p):
+    p.epilog = EPILOG
+    p.add_argument("input", help="event file (.npy, .csv, .raw, .es, .dat)")
+    p.add_argument("--out", required=True, help="output model TOML")
+    p.add_argument("--trackers", type=int, metavar="N",
+                   help="exactly N trackers (default: as many as the learner finds parts)")
+    p.add_argument("--names", metavar="ID,ID,...",
+                   help="tracker ids, comma-separated, in reading order (default p00, p01, ...)")
+    p.add_argument("--name", help="model name (default: the input file's stem)")
+    p.add_argument("--params", help="TOML file of tracking parameters to write into the "
+                                    "model instead of the learned ones (see docs/algorithm.md)")
+    p.add_argument("--png", metavar="PICTURE.png",
+                   help="draw the learned model over the last --png-window-us of events")
+    p.add_argument("--png-window-us", type=int, default=20_000, metavar="US",
+                   help="events drawn under the model, µs before the window's end "
+                        "(default 20000)")
+    prepargs.add_arguments(p, always=True)
+
+
+def run(args) -> int:
+    from .. import io as stio
+    from ..learn import NoObjectFound, learn_model
+    if args.trackers is not None and not 1 <= args.trackers <= 64:
+        raise ValueError(f"--trackers must be in [1, 64], got {args.trackers}")
+    reader = stio.open(args.input)
+    raw = reader.read()
+    width = reader.width or (int(raw["x"].max()) + 1 if len(raw) else 1)
+    height = reader.height or (int(raw["y"].max()) + 1 if len(raw) else 1)
+    prep = prepargs.preparer(args, width, height, always=True)
+    events = np.concatenate([raw[:0]] + list(prepargs.prepared([raw], prep)))
+    print(f"input     {args.input}: {width}x{height}, {len(raw):,} events; "
+          f"{prep.stats.summary()}; learning on {len(events):,}")
+    names = [s.strip() for s in args.names.split(",")] if args.names else None
+    try:
+        res = learn_model(events, trackers=args.trackers, width=width, height=height,
+                          names=names, name=args.name or Path(args.input).stem,
+                          track_params=read_params(args.params) if args.params else None)
+    except NoObjectFound as e:
+        print(f"springtrack learn: {e}", file=sys.stderr)
+        return NoObjectFound.exit_code
+    res.model.save(args.out)
+    report(res)
+    if args.png:
+        from ..render import plot_model
+        t1 = res.t_end_us
+        plot_model(res.model, events[events["t"] >= t1 - args.png_window_us], args.png,
+                   title=f"{res.model.name}: learned from {(t1 - res.t_start_us) / 1e3:.0f} ms; "
+                         f"events of the last {args.png_window_us / 1e3:g} ms")
+    print(f"wrote {args.out}" + (f", {args.png}" if args.png else ""))
+    return 0
+
+
+def read_params(path) -> dict:
+    """The tracking parameters a TOML file sets (top level or [params]), validated."""
+    import tomllib
+    from ..params import ParamError, from_mapping
+    with open(path, "rb") as f:
+        try:
+            data = tomllib.load(f)
+        except tomllib.TOMLDecodeError as e:
+            raise ParamError(f"{path}: not valid TOML: {e}") from None
+    table = data.get("params", data)
+    valid = from_mapping(table, where=str(path)).as_dict()
+    return {k: valid[k] for k in table}
+
+
+def report(res) -> None:
+    """Print the trackers, the springs with their evidence, and the lifecycle."""
+    m = res.model
+    life = ", ".join(f"{k} {v}" for k, v in res.lifecycle.items() if v)
+    print(f"learned   {len(m.trackers)} trackers, {len(m.connections)} springs from "
+          f"{res.events:,} events over {(res.t_end_us - res.t_start_us) / 1e3:.1f} ms "
+          f"in {res.wall_s:.2f} s ({life})")
+    print("params    " + ", ".join(f"{k}={v}" for k, v in m.params.items()))
+    print(f"{'tracker':>8} {'x':>7} {'y':>7} {'sigma_x':>7} {'sigma_y':>7} {'mass':>5} {'events':>7}")
+    for t, n in zip(m.trackers, res.counts):
+        print(f"{t.id:>8} {t.x:7.1f} {t.y:7.1f} {t.sigma[0] ** 0.5:7.2f} {t.sigma[2] ** 0.5:7.2f} "
+              f"{t.mass:5.2f} {int(n):7d}")
+    print(f"{'spring':>17} {'kinds':<20} {'stiffness':>9} {'coactiv.':>8} {'rigidity':>8} "
+          f"{'turn deg':>8}")
+    for c, s in zip(m.connections, res.springs):
+        print(f"{c.a + '-' + c.b:>17} {'+'.join(c.springs):<20} {c.stiffness:9.5f} "
+              f"{s.coactivation:8.3f} {s.rigidity:8.3f} {s.turn_deg:8.1f}")
+
+
+def learn_first(source, ms: float, width: int, height: int, name: str = "learned",
+                params=None):
+    """Learn a model from the first ``ms`` milliseconds of a stream of (chunk, total)
+    pairs; returns the model and the stream of the events after that window (the
+    tracking starts where the learning ended).  Prints what was learned to stderr."""
+    from ..learn import learn_model
+    if not ms > 0:
+        raise ValueError(f"--learn-first-ms must be positive, got {ms}")
+    held, rest, total, t_end = [], None, None, None
+    source = iter(source)
+    for chunk, total in source:
+        if not len(chunk):
+            continue
+        if t_end is None:
+            t_end = int(chunk["t"][0]) + int(round(ms * 1000))
+        k = int(np.searchsorted(chunk["t"], t_end, side="left"))
+        held.append(chunk[:k])
+        if k < len(chunk):
+            rest = chunk[k:]
+            break
+    events = np.concatenate(held) if held else np.empty(0, EVENT_DTYPE)
+    res = learn_model(events, width=width, height=height, name=name,
+                      track_params=read_params(params) if params else None)
+    m = res.model
+    print(f"learned {len(m.trackers)} trackers, {len(m.connections)} springs from the first "
+          f"{ms:g} ms ({res.events:,} events, {res.wall_s:.2f} s); "
+          + ", ".join(f"{k}={v}" for k, v in m.params.items()), file=sys.stderr)
+
+    def after():
+        if rest is not None:
+            yield rest, total
+        yield from source
+    return m, after()

@@ -1,0 +1,249 @@
+"""The learner (springtrack.learn) on the simulated sensor and on the real biplane: parts
+found where they are, springs between neighbours, tracking of the rest of the scene
+compared with the hand-made models, determinism, noise, the CLI."""
+from __future__ import annotations
+
+import dataclasses
+import functools
+
+import numpy as np
+import pytest
+
+from springtrack import Tracker
+from springtrack.cli import main as cli
+from springtrack.events import make
+from springtrack.learn import NoObjectFound, learn, learn_model
+from springtrack.metrics import score_track, truth_from_array
+from springtrack.model import FACE_INTERNAL, ShapeModel, face_layout, load
+from springtrack.sim.scenes import make_scene
+from springtrack.sim.sensor import simulate_all
+
+GRID_LEARN_US = 1_000_000
+FACE_LEARN_US = 800_000
+SCENE_S = 3.0                      # learning window, then the rest is tracked
+
+
+@functools.lru_cache(maxsize=None)
+def scene(name: str):
+    """(events, Truth) of a simulated scene (seed 0), cached for the module."""
+    ev, tr = simulate_all(name, SCENE_S, seed=0)
+    return ev, truth_from_array(tr)
+
+
+@functools.lru_cache(maxsize=None)
+def learned(name: str, learn_us: int, trackers=None):
+    ev, _ = scene(name)
+    return learn_model(ev[ev["t"] < learn_us], trackers=trackers, width=304, height=240)
+
+
+def truth_at(truth, t_us):
+    k = min(int(np.searchsorted(truth.t_us, t_us)), len(truth.t_us) - 1)
+    return truth.xy[k]                                      # (parts, 2)
+
+
+def nearest_parts(model, truth, t_us):
+    """(part index, distance px) of each tracker's nearest true part at t_us."""
+    gt = truth_at(truth, t_us)
+    x = np.array([t.x for t in model.trackers])
+    y = np.array([t.y for t in model.trackers])
+    d = np.hypot(x[:, None] - gt[None, :, 0], y[:, None] - gt[None, :, 1])
+    return d.argmin(axis=1), d.min(axis=1)
+
+
+def renamed(model, truth, t_us) -> ShapeModel:
+    """The model with each tracker named after its nearest part (unnamed ones kept)."""
+    part, _ = nearest_parts(model, truth, t_us)
+    names, used = {}, set()
+    for t, k in zip(model.trackers, part):
+        if truth.ids[k] not in used:
+            names[t.id] = truth.ids[k]
+            used.add(truth.ids[k])
+    trackers = [dataclasses.replace(t, id=names.get(t.id, t.id)) for t in model.trackers]
+    conns = [dataclasses.replace(c, a=names.get(c.a, c.a), b=names.get(c.b, c.b))
+             for c in model.connections]
+    return ShapeModel(model.name, model.width, model.height, trackers, conns, model.params)
+
+
+def errors(name, model, learn_us):
+    """Mean error (% of the object's length) over the rest of the scene: the learned model
+    tracking from the end of its window, the hand-made one tracking the whole scene."""
+    ev, truth = scene(name)
+    track = Tracker(renamed(model, truth, learn_us)).run(ev[ev["t"] >= learn_us], 1000)
+    ours = score_track(truth, track).mean_pct
+    hand = score_track(truth, Tracker(make_scene(name).initial_model()).run(ev, 1000))
+    return ours, float(np.nanmean(hand.pct[hand.t_us >= learn_us]))
+
+
+# ---- the grid ----------------------------------------------------------------------------
+def test_grid_from_one_second_finds_the_nine_blobs():
+    res = learned("grid_pull", GRID_LEARN_US)
+    m = res.model
+    assert len(m.trackers) == 9
+    part, dist = nearest_parts(m, scene("grid_pull")[1], res.t_end_us)
+    assert len(set(part.tolist())) == 9                       # one tracker per blob
+    assert dist.max() < 3.0, dist
+
+
+def test_grid_springs_join_neighbouring_blobs():
+    res = learned("grid_pull", GRID_LEARN_US)
+    m = renamed(res.model, scene("grid_pull")[1], res.t_end_us)
+    assert m.connections
+    for c in m.connections:
+        (ra, ca), (rb, cb) = [(int(i[1]), int(i[3])) for i in (c.a, c.b)]
+        assert max(abs(ra - rb), abs(ca - cb)) == 1, (c.a, c.b)   # neighbours only
+    pairs = {frozenset((c.a, c.b)) for c in m.connections}
+    for r in range(3):                                        # every row and column link
+        for k in range(2):
+            assert frozenset((f"r{r}c{k}", f"r{r}c{k + 1}")) in pairs
+            assert frozenset((f"r{k}c{r}", f"r{k + 1}c{r}")) in pairs
+    # every blob is held, and the springs hold the grid together
+    seen, todo = set(), [m.trackers[0].id]
+    while todo:
+        a = todo.pop()
+        seen.add(a)
+        todo += [c.b if c.a == a else c.a for c in m.connections
+                 if a in (c.a, c.b) and (c.b if c.a == a else c.a) not in seen]
+    assert seen == set(m.ids)
+
+
+def test_grid_learned_model_tracks_within_1_5x_the_hand_model():
+    ours, hand = errors("grid_pull", learned("grid_pull", GRID_LEARN_US).model, GRID_LEARN_US)
+    assert ours <= 1.5 * hand, (ours, hand)
+
+
+def test_trackers_option_gives_exactly_n():
+    ev, _ = scene("grid_pull")
+    for n in (6, 12):
+        m = learn(ev[ev["t"] < GRID_LEARN_US], trackers=n, width=304, height=240)
+        assert len(m.trackers) == n
+
+
+# ---- the face ----------------------------------------------------------------------------
+def test_face_from_0_8_s_puts_26_trackers_on_the_parts():
+    res = learned("face_occlusion", FACE_LEARN_US, 26)
+    m = res.model
+    truth = scene("face_occlusion")[1]
+    assert len(m.trackers) == 26
+    part, dist = nearest_parts(m, truth, res.t_end_us)
+    lay = face_layout()
+    radius = np.array([max(3.0, 2 ** 0.5 * 120 * max(lay[p][2:])) for p in truth.ids])
+    on = {int(k) for k, d in zip(part, dist) if d <= radius[k]}
+    # measured on seeds 0-2: 24, 26 and 25 of the 26 parts, the 7 internal ones always
+    assert len(on) >= 24, sorted(truth.ids[k] for k in set(range(26)) - on)
+    assert {truth.ids.index(p) for p in FACE_INTERNAL} <= on
+
+
+def test_face_learned_model_tracks_within_2x_the_hand_model():
+    ours, hand = errors("face_occlusion", learned("face_occlusion", FACE_LEARN_US).model,
+                        FACE_LEARN_US)
+    assert ours <= 2.0 * hand, (ours, hand)
+
+
+# ---- behaviour ---------------------------------------------------------------------------
+def test_learning_is_deterministic():
+    ev, _ = scene("grid_pull")
+    ev = ev[ev["t"] < 500_000]
+    assert learn(ev, width=304, height=240).to_toml() == learn(ev, width=304, height=240).to_toml()
+
+
+def noise(rate_hz_px: float, seconds: float = 1.0, seed: int = 0):
+    rng = np.random.default_rng(seed)
+    n = int(304 * 240 * rate_hz_px * seconds)
+    t = np.sort(rng.integers(0, int(seconds * 1e6), n))
+    return make(t, rng.integers(0, 304, n), rng.integers(0, 240, n), rng.integers(0, 2, n))
+
+
+@pytest.mark.parametrize("rate", [0.1, 5.0])
+def test_noise_only_is_no_object(rate):
+    with pytest.raises(NoObjectFound, match="no object found"):
+        learn(noise(rate), width=304, height=240)
+
+
+def test_hot_pixels_are_no_object():
+    from springtrack.sim.sensor import SensorConfig
+    ev, _ = simulate_all("moving_blob", 0.5, seed=0, amplitude=0.0,
+                         config=SensorConfig(noise_rate_hz=1.0, hot_pixels=20))
+    with pytest.raises(NoObjectFound):
+        learn(ev, width=304, height=240)
+
+
+def test_names_and_model_file(tmp_path):
+    ev, _ = scene("grid_pull")
+    names = [f"blob{k}" for k in range(9)]
+    m = learn(ev[ev["t"] < GRID_LEARN_US], width=304, height=240, names=names)
+    assert m.ids == names
+    m.save(tmp_path / "m.toml")
+    again = load(tmp_path / "m.toml")
+    assert again.ids == names and again.params == m.params
+    assert set(m.params) >= {"alpha_position", "energy_scale", "energy_kind"}
+
+
+# ---- the command line --------------------------------------------------------------------
+def test_cli_learn_prints_writes_and_draws(tmp_path, capsys):
+    ev, _ = scene("grid_pull")
+    np.save(tmp_path / "grid.npy", ev[ev["t"] < 1_200_000])
+    out, png = tmp_path / "grid.toml", tmp_path / "grid.png"
+    assert cli(["learn", str(tmp_path / "grid.npy"), "--out", str(out), "--end-us",
+                str(GRID_LEARN_US), "--png", str(png)]) == 0
+    text = capsys.readouterr().out
+    assert "9 trackers" in text and "coactiv." in text and "p08" in text
+    assert len(load(out).trackers) == 9
+    assert png.stat().st_size > 10_000
+
+
+def test_cli_learn_on_noise_exits_3(tmp_path, capsys):
+    np.save(tmp_path / "noise.npy", noise(1.0))
+    assert cli(["learn", str(tmp_path / "noise.npy"), "--out", str(tmp_path / "m.toml")]) \
+        == NoObjectFound.exit_code == 3
+    assert "no object found" in capsys.readouterr().err
+    assert not (tmp_path / "m.toml").exists()
+
+
+def test_cli_track_learn_first_ms(tmp_path, capsys):
+    ev, _ = scene("grid_pull")
+    np.save(tmp_path / "grid.npy", ev[ev["t"] < 1_500_000])
+    csv = tmp_path / "track.csv"
+    assert cli(["track", str(tmp_path / "grid.npy"), "--learn-first-ms", "1000", "--out",
+                str(csv), "--no-progress"]) == 0
+    assert "learned 9 trackers" in capsys.readouterr().err
+    from springtrack.track import read_csv
+    track = read_csv(csv)
+    assert len(track.ids) == 9 and track.t_us[0] >= GRID_LEARN_US
+
+
+def test_cli_track_needs_a_model_or_learning(tmp_path, capsys):
+    np.save(tmp_path / "n.npy", noise(0.1))
+    assert cli(["track", str(tmp_path / "n.npy"), "--out", str(tmp_path / "t.csv")]) == 2
+    assert "--model or --learn-first-ms" in capsys.readouterr().err
+
+
+# ---- the real biplane --------------------------------------------------------------------
+def test_biplane_is_learned_on_the_plane(data_file):
+    import springtrack.io as stio
+    from springtrack.prep import prepare
+    ev, stats = prepare(stio.open(data_file("dvs.es")).read(), 320, 240, start_us=1000,
+                        end_us=200_000, dequantize=True)
+    assert stats.tick_us == 1000
+    m = learn(ev, width=320, height=240)
+    assert 5 <= len(m.trackers) <= 64
+    # every tracker sits on the plane's events of the window's last 10 ms
+    last = ev[ev["t"] >= 190_000]
+    x = np.array([t.x for t in m.trackers])
+    y = np.array([t.y for t in m.trackers])
+    d = np.hypot(x[:, None] - last["x"][None].astype(float), y[:, None] - last["y"][None])
+    assert np.all(d.min(axis=1) < 6.0)
+    assert m.connections and all("torsional" in c.springs for c in m.connections)
+
+
+def test_cli_biplane_learned_then_tracked_as_delivered(data_file, tmp_path, capsys):
+    es = str(data_file("dvs.es"))
+    model = tmp_path / "plane.toml"
+    assert cli(["learn", es, "--out", str(model), "--start-us", "1000", "--end-us", "200000",
+                "--dequantize"]) == 0
+    assert "tick=1000 us (dequantized)" in capsys.readouterr().out
+    csv = tmp_path / "plane.csv"
+    assert cli(["track", es, "--model", str(model), "--start-us", "200000", "--dequantize",
+                "--out", str(csv), "--no-progress"]) == 0
+    from springtrack.track import read_csv
+    track = read_csv(csv)
+    assert track.t_us[0] >= 200_000 and track.t_us[-1] >= 990_000
