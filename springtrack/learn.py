@@ -50,7 +50,7 @@ import numpy as np
 
 from . import _learn
 from .events import as_events
-from .limits import MAX_CONNECTIONS, SPRING_LOAD_MAX, spring_loads
+from .limits import MAX_CONNECTIONS, spring_scale
 from .model import SPRING_BIT, Connection, ShapeModel, TrackerSpec
 from .params import Params
 
@@ -1011,10 +1011,9 @@ def _build_model(pool, rec, counts, lp, track_params, width, height, names, name
     if kept:
         # the spring bound every model meets (springtrack.limits): all stiffnesses scaled
         # down together if a tracker's spring load would exceed it
-        load = spring_loads(n, [c.a for c in kept], [c.b for c in kept],
-                            [sum(SPRING_BIT[s] for s in c.kinds) for c in kept], stiff, mass)
-        if load.max() > SPRING_LOAD_MAX:
-            stiff = stiff * (SPRING_LOAD_MAX / load.max())
+        stiff = stiff * spring_scale(n, [c.a for c in kept], [c.b for c in kept],
+                                     [sum(SPRING_BIT[s] for s in c.kinds) for c in kept],
+                                     stiff, mass)
         kind = params.setdefault("energy_kind", "cartesian" if all(
             c.kinds == ("cartesian",) for c in kept) else "euclidean")
         if "energy_scale" not in params:

@@ -82,6 +82,13 @@ def spring_loads(n: int, ca, cb, kinds, stiffness, mass) -> np.ndarray:
     return s / np.asarray(mass, float)
 
 
+def spring_scale(n: int, ca, cb, kinds, stiffness, mass, load: float = SPRING_LOAD_MAX) -> float:
+    """The factor (<= 1) by which all stiffnesses must be multiplied so that no tracker's
+    spring load exceeds ``load``."""
+    top = spring_loads(n, ca, cb, kinds, stiffness, mass).max() if len(ca) else 0.0
+    return min(1.0, load / top) if top > 0 else 1.0
+
+
 def _first(bad) -> int:
     return int(np.flatnonzero(bad)[0])
 

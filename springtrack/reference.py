@@ -33,7 +33,7 @@ import numpy as np
 
 from .model import SPRING_BIT, ShapeModel
 from .params import ENERGY_KINDS, Params
-from .sampling import UNSET, first_sample_time, sample_due
+from .sampling import UNSET, first_sample_time, next_sample, sample_due
 
 EUCLIDEAN, TORSIONAL, CARTESIAN = SPRING_BIT["euclidean"], SPRING_BIT["torsional"], SPRING_BIT["cartesian"]
 RHO_MAX = 0.99           # |correlation| bound that keeps a covariance positive definite
@@ -318,8 +318,8 @@ class ReferenceTracker:
 
     def run(self, events: np.ndarray, sample_us: int | None = None):
         """Process an event array; with ``sample_us``, return [(t_us, snapshot), ...] taken at
-        every multiple of sample_us, each the state after all events with t < t_us (the
-        sampling rule of springtrack.sampling)."""
+        the multiples of sample_us the sampling rule of springtrack.sampling names, each the
+        state after all events with t < t_us."""
         samples = []
         next_t = UNSET
         for t, x, y in zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist()):
@@ -327,7 +327,10 @@ class ReferenceTracker:
                 if next_t == UNSET:
                     next_t = first_sample_time(t, sample_us)
                 if sample_due(t, next_t, self.last_t):
-                    while t >= next_t:
+                    while True:
+                        next_t = next_sample(t, next_t, self.last_t, sample_us)
+                        if t < next_t:
+                            break
                         samples.append((next_t, self.snapshot(next_t)))
                         next_t += sample_us
             self.step(t, x, y)

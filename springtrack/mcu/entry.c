@@ -96,7 +96,8 @@ static void snapshot_row(fx_state *s, int64_t t, int64_t *row, uint8_t *wire)
 /* springtrack/_stepper.pyx run_events, the sampling rule of csrc/sampling.h: next_t
    ST_UNSET becomes the first sample time after the first event; before an event for which
    st_sample_due(t, next_t, the last event time), one row per sample time <= t (the state
-   after all earlier events); stops when the rows are full */
+   after all earlier events), an empty stretch's past its ST_HOLD periods skipped
+   (st_next_sample); stops when the rows are full */
 /* st_first_sample (sampling.h) without its 64-bit division, which a 32-bit core does not
    have: with r = |t0| mod p (fx_udiv64: 32-bit divisions), the smallest multiple of p >=
    t0 is t0 - r (+ p if r) for t0 >= 0, t0 + r below; p < 2^32 */
@@ -142,7 +143,10 @@ static void run(fx_state *s, mcu_io_t *io)
             k = n;
             break;
         }
-        while (mcu_events[k].t >= next_t) {  /* st_sample_due: fx_steps stopped here */
+        for (;;) {                          /* st_sample_due: fx_steps stopped here */
+            next_t = st_next_sample(mcu_events[k].t, next_t, s->last_t, io->sample_us);
+            if (mcu_events[k].t < next_t)
+                break;
             if (rows >= io->cap || rows >= MCU_ROWS)
                 goto full;
             snapshot_row(s, next_t, mcu_rows[rows], mcu_wire[rows]);
