@@ -84,9 +84,10 @@ def spring_loads(n: int, ca, cb, kinds, stiffness, mass) -> np.ndarray:
 
 def spring_scale(n: int, ca, cb, kinds, stiffness, mass, load: float = SPRING_LOAD_MAX) -> float:
     """The factor (<= 1) by which all stiffnesses must be multiplied so that no tracker's
-    spring load exceeds ``load``."""
+    spring load exceeds ``load`` (a relative 1e-12 below it: the scaled loads, rounded,
+    stay within it)."""
     top = spring_loads(n, ca, cb, kinds, stiffness, mass).max() if len(ca) else 0.0
-    return min(1.0, load / top) if top > 0 else 1.0
+    return min(1.0, load / top * (1.0 - 1e-12)) if top > 0 else 1.0
 
 
 def _first(bad) -> int:
