@@ -41,13 +41,26 @@ def build_parser() -> argparse.ArgumentParser:
                        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     r.add_argument("--source", required=True, metavar="URL", help=_sources.usage())
     r.add_argument("--serial", type=int, help="usb: the camera's serial (default: the first)")
-    r.add_argument("--profile", default="ccam_atis", choices=list(camusb.PROFILES),
-                   help="usb: device profile; ccam_atis is decoded in the fused loop, the EVT "
-                        "profiles only read a running stream (docs/firmware.md)")
+    r.add_argument("--profile", choices=list(camusb.PROFILES),
+                   help="the camera's kind (word format): usb and sim: default ccam_atis; the "
+                        "EVT profiles are Prophesee-style EVKs whose stream the vendor tools "
+                        "started (docs/firmware.md); replay: default the file's own words, "
+                        "else the file re-encoded for this camera")
+    r.add_argument("--geometry", metavar="WxH",
+                   help="usb with an EVT profile: the sensor's size in px (default: the "
+                        "profile's, e.g. evt3 1280x720)")
+    r.add_argument("--roi", metavar="X,Y,W,H",
+                   help="track only the events of this region of the sensor (px); the others "
+                        "are counted (outside_roi)")
     m = r.add_mutually_exclusive_group()
     m.add_argument("--model", help="shape model TOML file")
     m.add_argument("--preset", help="preset model name (face26, grid3x3)")
     r.add_argument("--params", help="TOML file of parameter overrides")
+    r.add_argument("--sensor-from", choices=["source", "model"],
+                   help="a model whose [sensor] is not the camera's is refused; 'source': "
+                        "use it on the camera's sensor (trackers where they are), 'model': "
+                        "keep its sensor (events outside it skipped and counted); applies "
+                        "to uploaded models too")
     r.add_argument("--backend", default="cython", choices=["cython", "fixed", "mcu"],
                    help="tracker kernel: float64 'cython' (default), the integer-only "
                         "'fixed' kernel of docs/fixed_point.md (positions Q.32 px), or 'mcu': "
@@ -98,22 +111,45 @@ def parse_biases(items) -> dict:
     return out
 
 
+def parse_ints(text: str | None, n: int, sep: str, what: str) -> tuple[int, ...] | None:
+    """``text`` as ``n`` integers separated by ``sep`` (None stays None)."""
+    if text is None:
+        return None
+    parts = text.lower().split(sep)
+    try:
+        vals = tuple(int(v) for v in parts)
+    except ValueError:
+        vals = ()
+    if len(vals) != n:
+        raise ValueError(f"{what} {text!r}: expected {n} integers separated by {sep!r}")
+    return vals
+
+
 def open_source(args, biases: dict) -> _sources.CameraSource:
     """The camera ``--source`` names.  ``biases`` is read at every (re)connection, so the
     engine's updates survive a reconnect."""
     return _sources.open_source(args.source, _sources.SourceOptions(
         seconds=args.seconds, seed=args.seed, realtime=not args.max_speed, faults=args.faults,
-        serial=args.serial, profile=args.profile, biases=biases))
+        serial=args.serial, profile=args.profile, biases=biases,
+        geometry=parse_ints(args.geometry, 2, "x", "--geometry")))
 
 
 def default_model(args, source: _sources.CameraSource):
-    """--model or --preset; else the source's own model (a scene's); else face26."""
+    """--model or --preset; else the source's own model (a scene's); else face26, centred
+    on the source's sensor."""
     if args.model or args.preset:
         return args.model or args.preset
     try:
-        return source.default_model() or "face26"
+        own = source.default_model()
     except ValueError as e:
         raise ValueError(f"{e}; give --model or --preset") from None
+    if own is not None:
+        return own
+    from springtrack.model import face26
+    w, h = source.width, source.height
+    print(f"model: the face26 preset centred on the {w}x{h} sensor (no --model given)",
+          file=sys.stderr, flush=True)
+    return face26(cx=w / 2, cy=h / 2, width=w, height=h)
 
 
 def read_key(path):
@@ -166,13 +202,17 @@ def run(args) -> int:
     # SIGTERM ends the run like Ctrl-C: threads stopped, --record written, stats printed
     signal.signal(signal.SIGTERM, _terminate)
     biases = parse_biases(args.bias)
+    roi = parse_ints(args.roi, 4, ",", "--roi")
     source = open_source(args, biases)
+    for line in source.notes:
+        print(line, file=sys.stderr, flush=True)
     cam = source.device
     engine = FirmwareLoop(source.open_camera, model=default_model(args, source),
                           params=args.params, telemetry_period_us=args.telemetry_us,
                           nbuf=args.buffers, record=bool(args.record),
                           lossless=cam is not None and args.max_speed, biases=biases,
-                          profile=source.profile, backend=args.backend)
+                          profile=source.profile, backend=args.backend, roi=roi,
+                          source_counters=source.counters, sensor_from=args.sensor_from)
     stop = threading.Event()
     link_thread, port = start_link(args, engine, stop)
     if args.wait_start and link_thread is None:

@@ -1,21 +1,22 @@
-"""The tracking loop's feed for the EVT 2.0 / 3.0 camera profiles (the CCam one is the
-fused loop, ``firmware_sim._fused.Fused``, whose interface this mirrors)."""
+"""The tracking loop's feed for a kernel the fused loop cannot call (the microcontroller
+build in its emulator, which has no C-level step): ``firmware_sim._fused.Fused``'s
+interface over a ``springtrack.io`` streaming decoder and the kernel's own ``run``."""
 from __future__ import annotations
 
 import numpy as np
 
 from springtrack.sampling import UNSET
 
-from ._fused import packs_records, track_events
 from . import usb as camusb
 
 
 class DecodedFeed:
-    """The non-fused path for the EVT 2.0 / 3.0 profiles (and for a kernel the fused loop
-    cannot call: the microcontroller build in its emulator), with the interface of
-    ``_fused.Fused``: a ``springtrack.io`` streaming decoder turns each piece into an event
-    array, then the kernel tracks it with the same sampling rule (``_fused.track_events``:
-    ``Kernel.run`` with the TELEMETRY records the kernel packs).  One Python call per piece, never per event."""
+    """The non-fused path, for a kernel with no C-level step (the microcontroller build in
+    its emulator), with the interface of ``_fused.Fused``: a ``springtrack.io`` streaming
+    decoder of the profile's words (any format the fused loop decodes) turns each piece
+    into an event array, then the kernel's own ``run`` tracks it with the same sampling
+    rule, its rows carrying the TELEMETRY records it packs.  One Python call per piece,
+    never per event."""
 
     def __init__(self, kernel, period_us: int, profile):
         self.profile = profile
@@ -37,8 +38,7 @@ class DecodedFeed:
 
     @property
     def native_records(self):
-        own = getattr(self.kernel, "native_records", None)   # a kernel with no C step (mcu)
-        return own if own is not None else packs_records(self.kernel)
+        return self.kernel.native_records
 
     @property
     def last_t(self):
@@ -53,12 +53,7 @@ class DecodedFeed:
         self.first_t = -1
 
     def _track(self, ev):
-        """The kernel's run with the records it packs: ``_fused.track_events`` through its
-        C step, or, for a kernel with none (the microcontroller build in its emulator), its
-        own run, whose rows carry them."""
-        if getattr(self.kernel, "native_records", None) is not None:
-            return self.kernel.run(ev, self.period, self.next_t, 512)
-        return track_events(self.kernel, ev, self.period, self.next_t, 512)
+        return self.kernel.run(ev, self.period, self.next_t, 512)
 
     def gap(self) -> None:
         """Data lost: restart the decoder (its time base and partial word are stale);
@@ -104,8 +99,13 @@ class DecodedFeed:
         an = {k: int(v) for k, v in st.anomalies.items()}
         an.update(tracker_back_in_time=kc["skipped_back_in_time"],
                   tracker_outside_sensor=kc["skipped_outside_sensor"])
-        return dict(words=self.old_words + st.words, time_high_words=st.info.get("time_high_words", 0),
-                    events_decoded=self.old_events + st.events, exposure_events=0,
+        an.setdefault("skipped_after_gap", 0)
+        return dict(format=self.profile.fmt, words=self.old_words + st.words,
+                    time_high_words=st.info.get("time_high_words", 0),
+                    events_decoded=self.old_events + st.events,
+                    exposure_events=st.info.get("exposure_events", 0),
                     events_tracked=self.tracked, time_wraps=st.info.get("time_wraps", 0),
                     gaps=self.gaps, bytes=self.bytes_in, pending_bytes=st.pending_bytes,
+                    triggers=st.info.get("triggers", 0), other_words=st.info.get("other_words", 0),
+                    time_low_backwards=st.info.get("time_low_backwards", 0), outside_roi=0,
                     anomalies=an)

@@ -5,8 +5,8 @@ composes parts that each keep one job:
 
 * the reader thread (``firmware_sim.reader``) owns the camera and fills a buffer pool;
 * the processing thread feeds each transfer, in pieces of ``piece_bytes``, to the nogil
-  fused loop (``firmware_sim._fused``), which decodes CCam words and steps the kernel
-  (``firmware_sim.feed`` for the EVT profiles);
+  fused loop (``firmware_sim._fused``), which decodes the profile's words (CCam, EVT 2.0,
+  EVT 2.1 or EVT 3.0) at the sensor's geometry and steps the kernel;
 * the model slot (``firmware_sim.slot``) validates updates (model, parameters, reset) in
   the caller's thread, builds them completely (a new kernel for a model) and queues them;
   the processing thread applies them between two pieces, i.e. between two events, and
@@ -27,16 +27,16 @@ from springtrack.limits import MAX_CONNECTIONS, MAX_TRACKERS
 from springtrack.wire import Nack
 
 from ._fused import Fused
+from .feed import DecodedFeed
 from . import usb as camusb
 from .engine import UpdateRejected
-from .feed import DecodedFeed
 from .meter import LoadMeter, LoopCounters
 from .reader import Reader
 from .record import Recorder
 from .slot import AppliedLog, ModelSlot
 from .telemetry import Block, TelemetryQueue
 
-FIRMWARE = "firmware-sim 0.1 (fused CCam loop)"
+FIRMWARE = "firmware-sim 0.1 (fused decode+track loop)"
 BIAS_PREFIX = "bias."     # camera biases are parameters "bias.<name>" on the host link
 
 
@@ -44,29 +44,42 @@ class FirmwareLoop:
     """The Engine: ``FirmwareLoop(open_camera, model, params, ...)``; ``open_camera()``
     returns a started ``firmware_sim.usb.Camera`` (called again after a disconnect).
     ``lossless=True`` (simulated camera at max speed only) makes the reader wait instead of
-    shedding; ``record=True`` keeps every snapshot for :meth:`write_record`."""
+    shedding; ``record=True`` keeps every snapshot for :meth:`write_record`.  ``profile``
+    (``firmware_sim.usb.PROFILES`` name or DeviceProfile) names the word format and the
+    sensor's geometry (``width``/``height`` override it), which every model must fit
+    (``springtrack.geometry.fit_model``; ``sensor_from`` "source" or "model" takes a model
+    of another ``[sensor]``, None refuses it: ValueError here, NACK ``sensor_mismatch`` for
+    an upload); ``roi`` ``(x, y, w, h)`` tracks only that region; ``source_counters()``
+    (optional) returns what the source dropped
+    before the camera (``events_in``, ``outside_sensor``), reported in the statistics."""
 
     def __init__(self, open_camera, model="face26", params=None, telemetry_period_us: int = 1000,
                  nbuf: int = 64, piece_bytes: int = 16384, telemetry_queue: int = 4096,
                  transfer_bytes: int | None = None, lossless: bool = False,
                  biases: dict | None = None, profile="ccam_atis",
                  record: bool = False, width: int | None = None, height: int | None = None,
-                 backend: str = "cython"):
+                 backend: str = "cython", roi=None, source_counters=None, sensor_from=None):
         if telemetry_period_us <= 0:
             raise ValueError(f"telemetry_period_us must be positive, got {telemetry_period_us}")
-        self.slot = ModelSlot(backend, model, params)
-        self.applied = AppliedLog()
         self.profile = camusb.PROFILES[profile] if isinstance(profile, str) else profile
-        if self.profile.fmt == "ccam" and not backend.startswith("mcu"):
-            self.fused = Fused(self.slot.kernel, telemetry_period_us, 512)
-        else:            # EVT boards, or a kernel in an emulator: springtrack.io decoder + run
+        self.width = width or self.profile.width          # the sensor
+        self.height = height or self.profile.height
+        # every model (this one, uploads) must fit the sensor: springtrack.geometry
+        self.slot = ModelSlot(backend, model, params, (self.width, self.height), sensor_from)
+        self.applied = AppliedLog()
+        if not backend.startswith("mcu"):
+            self.fused = Fused(self.slot.kernel, telemetry_period_us, 512, fmt=self.profile.fmt,
+                               width=self.width, height=self.height,
+                               legacy=self.profile.legacy, roi=roi)
+        else:        # a kernel in an emulator, with no C step: springtrack.io decoder + run
+            if roi is not None:
+                raise ValueError("--roi needs a kernel the fused loop runs (cython, fixed)")
             self.fused = DecodedFeed(self.slot.kernel, telemetry_period_us, self.profile)
+        self.source_counters = source_counters or dict
         self.period = int(telemetry_period_us)
         self.piece = int(piece_bytes)
         self.reader = Reader(open_camera, nbuf=nbuf, shed=not lossless,
                              **({"transfer_bytes": transfer_bytes} if transfer_bytes else {}))
-        self.width = width or self.profile.width          # the sensor, for INFO
-        self.height = height or self.profile.height
         # shared with open_camera (the CLI passes the same dict) so a reconnect reloads the
         # biases the host set last
         self.biases = biases if biases is not None else {}
@@ -268,20 +281,44 @@ class FirmwareLoop:
                      short_transfers=rc["short_transfers"], odd_transfers=rc["odd_transfers"],
                      commands=rc["commands"], command_errors=rc["command_errors"],
                      coalesced=rc["coalesced"]),
-            decode=dict(words=fc["words"], time_high_words=fc["time_high_words"],
+            decode=dict(format=fc["format"], width=self.width, height=self.height,
+                        words=fc["words"], time_high_words=fc["time_high_words"],
                         time_wraps=fc["time_wraps"], exposure_events=fc["exposure_events"],
-                        gaps=fc["gaps"], pending_bytes=fc["pending_bytes"]),
+                        gaps=fc["gaps"], pending_bytes=fc["pending_bytes"],
+                        triggers=fc["triggers"], other_words=fc["other_words"],
+                        time_low_backwards=fc["time_low_backwards"],
+                        outside_roi=fc["outside_roi"]),
+            geometry_drops=self._geometry_drops(fc),
+            source=self.source_counters(),
             anomalies=fc["anomalies"],
             loop=dict(self.counters.as_dict(), telemetry_dropped=self.telemetry.dropped,
                       generation=self.generation, last_t_us=int(self.fused.last_t)),
             kernel=self.slot.kernel_counters())
 
+    def _geometry_drops(self, fc: dict) -> dict:
+        """Events lost because they lay outside the sensor: in the words (the decoder's
+        ``out_of_geometry``) and before them (a source that re-encoded a larger recording
+        for a smaller camera), with their share of all events."""
+        src = self.source_counters()
+        words = fc["anomalies"]["out_of_geometry"]
+        before = src.get("outside_sensor", 0)
+        seen = src.get("events_in", 0) or fc["events_decoded"] + words
+        total = words + before
+        return dict(events=total, in_words=words, before_encoding=before,
+                    fraction=total / seen if seen else 0.0)
+
     def stats_line(self) -> str:
         s = self.stats()
         an = {k: v for k, v in s["anomalies"].items() if v}
         usb = {k: v for k, v in s["usb"].items() if v}
+        g = s["geometry_drops"]
+        geo = (f"geometry_drops={g['events']} ({g['fraction']:.1%} of the events, outside "
+               f"the {self.width}x{self.height} sensor)" if g["events"] else "geometry_drops=0")
+        d = s["decode"]
+        roi = f" outside_roi={d['outside_roi']}" if d["outside_roi"] else ""
         return (f"transfers={s['transfers']} bytes={s['bytes']} dropped={s['transfers_dropped']} "
-                f"decoded={s['events_decoded']} tracked={s['events_tracked']} "
+                f"decoded={s['events_decoded']} tracked={s['events_tracked']} {geo}{roi} "
+                f"format={d['format']} sensor={self.width}x{self.height} "
                 f"queue_hwm={s['queue_hwm']} rate={s['event_rate']:.3g}/s "
                 f"proc_us_per_10ms(mean={s['proc_us_per_10ms']['mean']:.0f} "
                 f"max={s['proc_us_per_10ms']['max']:.0f}) state={s['state']} "

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 from springtrack import model as _model
 from springtrack import params as _params
+from springtrack.geometry import SensorError, fit_model
 from springtrack.tracker import make_backend, resolve_params
 from springtrack.wire import Nack
 
@@ -41,17 +42,21 @@ class Swap:
 
 
 class ModelSlot:
-    """``ModelSlot(backend, model, params)``: ``model``/``params`` as for
-    ``springtrack.Tracker``; ``backend`` "cython" (float64), "fixed" (integer-only,
-    docs/fixed_point.md) or "mcu" (that kernel's microcontroller build in an emulator,
-    docs/mcu.md; "mcu:cortex-m7" names the core).  The queue_* methods are thread-safe and raise
-    :class:`UpdateRejected`; :meth:`apply` runs in the processing thread."""
+    """``ModelSlot(backend, model, params, sensor=None, sensor_from=None)``:
+    ``model``/``params`` as for ``springtrack.Tracker``; ``backend`` "cython" (float64),
+    "fixed" (integer-only, docs/fixed_point.md) or "mcu" (that kernel's microcontroller build
+    in an emulator, docs/mcu.md; "mcu:cortex-m7" names the core); ``sensor``: the camera's
+    (width, height), which every model must fit (``springtrack.geometry.fit_model`` with
+    ``sensor_from``: None, "source" or "model").  The queue_* methods are thread-safe and
+    raise :class:`UpdateRejected`; :meth:`apply` runs in the processing thread."""
 
-    def __init__(self, backend: str, model, params=None):
+    def __init__(self, backend: str, model, params=None, sensor=None, sensor_from=None):
         if backend.partition(":")[0] not in BACKENDS:
             raise ValueError(f"backend {backend!r}: the firmware runs one of {', '.join(BACKENDS)}")
         self.backend = backend
-        self.model = _model.load_model(model)
+        self.sensor = sensor or (None, None)
+        self.sensor_from = sensor_from
+        self.model = self.fit(_model.load_model(model))
         self.params = resolve_params(self.model, params)
         self.kernel = self.new_kernel(self.model, self.params)
         self.generation = 1                  # in effect
@@ -63,6 +68,13 @@ class ModelSlot:
 
     def new_kernel(self, model, params):
         return make_backend(self.backend, model, params)
+
+    def fit(self, model):
+        """``model`` checked against the camera's sensor (springtrack.geometry): a
+        ``SensorError`` (a ModelError) if it does not fit."""
+        w, h = self.sensor
+        return fit_model(model, w, h, self.sensor_from, what="the camera's sensor",
+                         source_word="source")
 
     @property
     def pending(self) -> bool:
@@ -79,11 +91,13 @@ class ModelSlot:
         """Validate a model TOML, build its kernel and queue it; queued parameter changes
         are dropped (the model brings its own).  Returns its generation."""
         try:
-            m = _model.loads(toml_text, "uploaded model")
+            m = self.fit(_model.loads(toml_text, "uploaded model"))
             p = resolve_params(m)
             k = self.new_kernel(m, p)
         except (ValueError, TypeError) as e:       # ModelError, ParamError are ValueErrors
-            raise UpdateRejected(Nack.INVALID_MODEL, str(e)) from None
+            # a model that does not fit the sensor says so (springtrack.geometry's code)
+            code = e.code if isinstance(e, SensorError) else Nack.INVALID_MODEL
+            raise UpdateRejected(code, str(e)) from None
         with self.lock:
             self._last_gen += 1
             self._build = _Build(m, p, k, self._last_gen)

@@ -16,8 +16,9 @@ The CCam ATIS sequence follows the public ``neuromorphic-paris/ccam_atis_sepia``
 
 :class:`Camera` works on any ``usb.core.Device``: the libusb backend on real hardware or
 ``firmware_sim.simcam.SimBackend`` (same code path).  A :class:`DeviceProfile` selects
-IDs, geometry and the word decoder; the Prophesee EVT 2.0 / EVT 3.0 profiles only read
-the bulk stream (no register control of those boards: out of scope, docs/firmware.md).
+IDs, geometry and the word format the fused loop decodes; the Prophesee EVT 2.0 / 2.1 /
+3.0 profiles only read the bulk stream (no register control of those boards: out of scope,
+docs/firmware.md).
 """
 from __future__ import annotations
 
@@ -129,9 +130,12 @@ def parse_bias_payload(data: bytes) -> dict[int, tuple[int, int]]:
 class DeviceProfile:
     """How to find and read one kind of camera.
 
-    ``fmt``: the bulk word format (``ccam`` is decoded in the fused loop; ``evt2``/``evt3``
-    through ``springtrack.io`` decoders); ``configure``: whether the CCam register
-    sequence is sent (newer Prophesee boards: no, see docs/firmware.md).
+    ``fmt``: the bulk word format, decoded by the fused loop (``firmware_sim._fused``:
+    ``ccam``, ``evt2``, ``evt21``, ``evt3``); ``width`` x ``height``: the sensor (a default
+    for the EVT boards, whose sensors vary: ``dataclasses.replace`` it, as ``replay:``
+    does with a file's geometry); ``legacy``: EVT 2.1 words in the IMX636 order;
+    ``configure``: whether the CCam register sequence is sent (newer Prophesee boards: no,
+    see docs/firmware.md).
     """
     name: str
     vid: int
@@ -141,6 +145,7 @@ class DeviceProfile:
     height: int
     configure: bool
     ep_in: int = EP_IN
+    legacy: bool = False
     notes: str = ""
 
 
@@ -150,28 +155,24 @@ PROFILES: dict[str, DeviceProfile] = {p.name: p for p in (
     DeviceProfile("evt2", CCAM_VID, 0x00F5, "evt2", 640, 480, False,
                   notes="Prophesee Gen3 board streaming EVT 2.0; stream must be started by "
                         "the vendor tools (no register control here); set --vid/--pid"),
+    DeviceProfile("evt21", CCAM_VID, 0x00F5, "evt21", 320, 320, False,
+                  notes="Prophesee GENX320 board streaming EVT 2.1 (64-bit word order); as evt2"),
     DeviceProfile("evt3", CCAM_VID, 0x00F5, "evt3", 1280, 720, False,
                   notes="Prophesee Gen4 board streaming EVT 3.0; as evt2"),
 )}
 
 
 def make_decoder(profile: DeviceProfile):
-    """A ``springtrack.io`` streaming decoder for the non-fused path: the EVT profiles, and
-    the CCam words when the kernel has no C-level step for the fused loop (the
+    """A ``springtrack.io`` streaming decoder of the profile's words at its geometry, for
+    the non-fused path: a kernel with no C-level step for the fused loop (the
     microcontroller build in its emulator)."""
+    from springtrack.io import decoder
     if profile.fmt == "ccam":
-        from springtrack.io.ccam import CCamDecoder
-        return CCamDecoder()
-    if profile.fmt == "evt2":
-        from springtrack.io.evt2 import Evt2Decoder
-        return Evt2Decoder(profile.width, profile.height)
-    if profile.fmt == "evt3":
-        try:
-            from springtrack.io.evt3 import Evt3Decoder
-        except ImportError as e:
-            raise CameraError(f"profile {profile.name}: EVT 3.0 decoder not available: {e}") from None
-        return Evt3Decoder(profile.width, profile.height)
-    raise CameraError(f"profile {profile.name}: format {profile.fmt!r} has no streaming decoder")
+        return decoder("ccam")
+    if profile.fmt not in ("evt2", "evt21", "evt3"):
+        raise CameraError(f"profile {profile.name}: format {profile.fmt!r} has no streaming decoder")
+    opts = {"legacy": profile.legacy} if profile.fmt == "evt21" else {}
+    return decoder(profile.fmt, width=profile.width, height=profile.height, **opts)
 
 
 def read_serial(dev) -> int:

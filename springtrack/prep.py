@@ -33,7 +33,7 @@ bin) of each chunk until the next chunk or :meth:`Preparer.finish`.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -42,6 +42,7 @@ from .events import EVENT_DTYPE, as_events
 BURST_BIN_US = 1000            # burst bins when the tick is finer than this
 DEFAULT_BURST_FRACTION = 0.5   # of the sensor's pixels firing within one bin
 DETECT_MIN_TIMES = 16          # distinct timestamps seen before the tick is detected
+BURST_TIMES_KEPT = 16          # burst bins whose start time the stats keep
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _MIX1 = np.uint64(0xBF58476D1CE4E5B9)
@@ -76,6 +77,7 @@ class PrepStats:
     burst_bins: int = 0
     tick_us: int = 0                    # 0 until detected
     dequantized: bool = False
+    burst_at_us: list = field(default_factory=list)    # the first bursts' bin start times
 
     def summary(self) -> str:
         parts = [f"tick={self.tick_us} us" + (" (dequantized)" if self.dequantized else "")]
@@ -148,6 +150,11 @@ class Preparer:
         tick = self.stats.tick_us or 1
         return tick if tick >= BURST_BIN_US else BURST_BIN_US
 
+    @property
+    def burst_bin_us(self) -> int:
+        """The burst filter's bin (µs): the tick, or ``BURST_BIN_US`` when finer."""
+        return self._bin_us()
+
     def _bins(self, t: np.ndarray) -> np.ndarray:
         return t // self._bin_us()
 
@@ -177,6 +184,8 @@ class Preparer:
             if len(np.unique(pix)) >= need:
                 drop[s] = True
                 self.stats.burst_bins += 1
+                if len(self.stats.burst_at_us) < BURST_TIMES_KEPT:
+                    self.stats.burst_at_us.append(int(b[starts[k]]) * self._bin_us())
         self.stats.burst_events += int(drop.sum())
         return ev[~drop] if drop.any() else ev
 
@@ -211,3 +220,126 @@ def prepare(events, width: int, height: int, **options):
     tail = p.finish()
     return (np.concatenate([head, tail]) if len(head) and len(tail) else
             (head if len(head) else tail)), p.stats
+
+
+# ---- detection (springtrack info) -----------------------------------------------------
+ROW_ORDER_SHARE = 0.9          # of row changes inside ticks going down the sensor
+ROW_ORDER_MIN_PAIRS = 100      # row changes inside ticks needed to judge the order
+COARSE_TICK_US = 10            # a tick this long or longer is worth de-quantising
+
+
+@dataclass
+class Quirks:
+    """The recording quirks :class:`QuirkScan` found (events unless named otherwise)."""
+    events: int = 0
+    tick_us: int = 1                  # the timestamps' quantum over the whole stream
+    time_backwards: int = 0           # events earlier than the one before (unsorted)
+    row_steps: int = 0                # consecutive events of one timestamp on other rows
+    row_steps_down: int = 0           # ... of which the second is on a later row
+    row_steps_up: int = 0             # ... on an earlier row
+    bursts_checked: bool = True       # False when the sensor size is unknown
+    burst_bins: int = 0
+    burst_events: int = 0
+    burst_at_us: list = field(default_factory=list)
+    burst_bin_us: int = BURST_BIN_US
+    burst_fraction: float = DEFAULT_BURST_FRACTION
+
+    @property
+    def coarse(self) -> bool:
+        return self.tick_us >= COARSE_TICK_US
+
+    @property
+    def row_ordered(self) -> bool:
+        """The events of a tick come in row order (the sensor read out row by row and
+        stamped them with the tick's time), not in the order they happened."""
+        return (self.row_steps >= ROW_ORDER_MIN_PAIRS
+                and max(self.row_steps_down, self.row_steps_up)
+                >= ROW_ORDER_SHARE * self.row_steps)
+
+    def _order(self) -> str:
+        way, k = (("down", self.row_steps_down) if self.row_steps_down >= self.row_steps_up
+                  else ("up", self.row_steps_up))
+        return f"{k:,} of {self.row_steps:,} row changes go {way} the sensor"
+
+    def findings(self) -> list[tuple[str, str]]:
+        """(what was found, what to do) for each quirk, in the options' words."""
+        out = []
+        if self.coarse:
+            order = (f"; inside a tick the events come in row order ({self._order()}), so "
+                     f"a tracker sees each tick as a sweep across the rows"
+                     if self.row_ordered else "")
+            out.append((f"coarse timestamps: {self.tick_us} us ticks{order}",
+                        f"--dequantize spreads each tick's events evenly over it in a seeded "
+                        f"random order (track, render, learn; docs/learning.md)"))
+        elif self.row_ordered:
+            out.append((f"events of one timestamp in row order ({self._order()})",
+                        "harmless at this time resolution"))
+        if self.time_backwards:
+            out.append((f"unsorted: {self.time_backwards:,} events "
+                        f"({self.time_backwards / max(self.events, 1):.2%}) are earlier than the "
+                        f"one before",
+                        "the tracker skips and counts them (back_in_time); sort the events "
+                        "by time to keep them"))
+        if self.burst_bins:
+            at = ", ".join(f"{t:,}" for t in self.burst_at_us[:4])
+            more = " ..." if self.burst_bins > 4 else ""
+            out.append((f"full-frame bursts: {self.burst_bins} bin(s) of {self.burst_bin_us} us "
+                        f"in which >= {self.burst_fraction:.0%} of the pixels fire "
+                        f"({self.burst_events:,} events, at t = {at}{more} us)",
+                        "any of --dequantize, --start-us, --end-us or --burst-fraction drops "
+                        "them (track, render, learn); or start after them with --start-us"))
+        if not self.bursts_checked:
+            out.append(("full-frame bursts not checked: the sensor size is unknown",
+                        "give the events' file a header with its size (or see `springtrack "
+                        "render`)"))
+        return out
+
+
+class QuirkScan:
+    """Streaming detection of a recording's quirks (``springtrack info``): ``feed`` the
+    chunks of a ``width`` x ``height`` recording in order, then :meth:`finish` -> Quirks.
+    The bursts are the :class:`Preparer`'s own rule (it runs alongside, output unused);
+    with no sensor size (None) they are not checked."""
+
+    def __init__(self, width: int | None, height: int | None,
+                 burst_fraction: float = DEFAULT_BURST_FRACTION):
+        self.q = Quirks(burst_fraction=burst_fraction, bursts_checked=bool(width and height))
+        self._prep = (Preparer(width, height, burst_fraction=burst_fraction)
+                      if width and height else None)
+        self._gcd = 0
+        self._last = None           # the previous chunk's last event (t, y)
+
+    def feed(self, chunk) -> None:
+        ev = as_events(chunk)
+        if not len(ev):
+            return
+        self.q.events += len(ev)
+        t = ev["t"]
+        y = ev["y"].astype(np.int64)
+        if self._last is not None:
+            t = np.r_[self._last[0], t]
+            y = np.r_[self._last[1], y]
+        dt = np.diff(t)
+        self.q.time_backwards += int((dt < 0).sum())
+        gaps = np.abs(dt[dt != 0])
+        if len(gaps):
+            self._gcd = int(np.gcd.reduce(np.r_[self._gcd, gaps]))
+        same = dt == 0
+        dy = np.diff(y)[same]
+        self.q.row_steps += int((dy != 0).sum())
+        self.q.row_steps_down += int((dy > 0).sum())
+        self.q.row_steps_up += int((dy < 0).sum())
+        self._last = (int(t[-1]), int(y[-1]))
+        if self._prep is not None:
+            self._prep.feed(ev)
+
+    def finish(self) -> Quirks:
+        self.q.tick_us = max(1, self._gcd)
+        if self._prep is None:
+            return self.q
+        self._prep.finish()
+        st = self._prep.stats
+        self.q.burst_bins, self.q.burst_events = st.burst_bins, st.burst_events
+        self.q.burst_at_us = list(st.burst_at_us)
+        self.q.burst_bin_us = self._prep.burst_bin_us
+        return self.q

@@ -270,3 +270,48 @@ def plot_model(model: ShapeModel, events: np.ndarray, out, title: str = "",
              family="monospace", va="center")
     fig.savefig(out, dpi=100)
     plt.close(fig)
+
+
+GRID_STEPS = (5, 10, 20, 25, 50, 100, 200, 250, 500)      # px between labelled grid lines
+
+
+def grid_step(size: int, lines: int = 16) -> int:
+    """A round grid spacing (px) giving at most ``lines`` labelled lines over ``size`` px."""
+    return next((s for s in GRID_STEPS if size / s <= lines), GRID_STEPS[-1])
+
+
+def plot_events(events: np.ndarray, width: int, height: int, out, title: str = "",
+                scale: float = 2.0, grid: int | None = None) -> tuple:
+    """The events alone on the sensor (ON red, OFF blue: each pixel shows its last event),
+    with pixel axes and a grid (labelled lines every ``grid`` px, default at most 16 across,
+    minor lines every fifth of that), so positions for a model can be read off it.  ``out``:
+    any still image matplotlib writes (.png, .svg, .pdf, ...).  Returns where the sensor
+    lies in the picture: (left, top, right, bottom) in its pixels, from its top-left."""
+    from matplotlib.ticker import MultipleLocator
+    plt = _mpl()
+    step = grid or grid_step(max(width, height))
+    margin = 70                                     # px of the figure for axes and title
+    fig = plt.figure(figsize=((width + margin) * scale / 100, (height + margin) * scale / 100),
+                     dpi=100)
+    ax = fig.add_axes([margin * 0.6 / (width + margin), margin * 0.3 / (height + margin),
+                       width / (width + margin), height / (height + margin)])
+    ax.imshow(event_image(events, width, height), interpolation="nearest")
+    ax.set_xlim(-0.5, width - 0.5)
+    ax.set_ylim(height - 0.5, -0.5)                 # y down, as the sensor and the model
+    for axis in (ax.xaxis, ax.yaxis):
+        axis.set_major_locator(MultipleLocator(step))
+        axis.set_minor_locator(MultipleLocator(max(1, step // 5)))
+    ax.tick_params(labelsize=6 * scale / 2, which="both", top=True, right=True,
+                   labeltop=True, labelright=True)
+    ax.grid(which="major", color="#444444", lw=0.5, alpha=0.6)
+    ax.grid(which="minor", color="#888888", lw=0.3, alpha=0.35)
+    ax.set_xlabel("x (px)", fontsize=7 * scale / 2)
+    ax.set_ylabel("y (px)", fontsize=7 * scale / 2)
+    import textwrap
+    fig.text(0.01, 1 - 4 / (height + margin), textwrap.fill(title, int((width + margin) / 3.2)),
+             fontsize=7 * scale / 2, family="monospace", va="top")
+    fig.savefig(out, dpi=100)
+    x0, y0, x1, y1 = ax.get_window_extent().extents       # from the bottom-left
+    h_px = fig.get_size_inches()[1] * fig.dpi
+    plt.close(fig)
+    return x0, h_px - y1, x1, h_px - y0

@@ -26,7 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from . import params as _params
-from .events import as_events
+from .events import as_events, check as check_events
+from .geometry import check_inside
 from .model import ShapeModel, load_model
 from .params import Params
 from .reference import ReferenceTracker
@@ -155,7 +156,8 @@ def resolve_params(model: ShapeModel, params=None) -> Params:
 class Tracker:
     """Part-based shape tracker. Feed events in time order, in as many chunks as you like.
 
-    ``model``: a ShapeModel, a preset name or a TOML path; ``params``: Params, a dict of
+    ``model``: a ShapeModel, a preset name or a TOML path, its trackers on its sensor
+    (``springtrack.geometry.TrackersOutside`` otherwise); ``params``: Params, a dict of
     overrides, a TOML path, or None (defaults < model [params] < these).
     Events that go back in time or fall outside the sensor are skipped and counted
     (:attr:`counters`), never raised.
@@ -171,6 +173,8 @@ class Tracker:
     def __init__(self, model, params=None, backend: str = "cython", acquire: bool = False,
                  acquire_ms: float = 50.0, acquire_bounds: dict | None = None):
         self.model = load_model(model)
+        if not acquire:          # placed by the acquisition otherwise
+            check_inside(self.model)
         self.params = resolve_params(self.model, params)
         self.backend_name = backend
         self._b = make_backend(backend, self.model, self.params)
@@ -204,17 +208,32 @@ class Tracker:
 
     def process(self, events) -> None:
         """Consume an event array (fields t µs, x, y, p), in time order; the samples taken
-        wait for :meth:`samples`."""
+        wait for :meth:`samples`.  The kernels read the common layouts as they are (packed
+        or aligned records, t int64 or uint64, x/y int16 or uint16, p bool or int:
+        ``springtrack._stepper.layout_of``), converting them block by block inside their
+        loop; anything else is converted first.  Either way the values are checked
+        (``springtrack.events.check``: EventError for the first event out of range)."""
         self._recorded.extend(self.stream(events))
 
     def stream(self, events):
         """Consume an event array like :meth:`process`, yielding the samples as the kernel
         takes them: Tracks of at most ``SAMPLE_CAP`` rows, so memory stays bounded however
         many samples the events produce."""
-        ev = as_events(events)
         if self.acquisition is not None and not self.acquisition.done:
-            ev = self._placed(self.acquisition.feed(ev))
-        yield from self._track(ev)
+            yield from self._track(self._placed(self.acquisition.feed(as_events(events))))
+            return
+        if self._reads_as_is(events):
+            check_events(events)
+        else:
+            events = as_events(events)
+        yield from self._track(events)
+
+    def _reads_as_is(self, events) -> bool:
+        """The backend's loop reads ``events`` without a conversion first."""
+        if self.backend_name not in ("cython", "fixed"):
+            return False
+        from ._stepper import layout_of
+        return layout_of(events) is not None
 
     def flush(self) -> None:
         """End of input: if the acquisition is still looking, try on what it buffered."""

@@ -86,6 +86,7 @@ class Nack(IntEnum):
     VERSION_MISMATCH = 8  # the frame's protocol version is not the firmware's
     BAD_STATE = 9         # not now (e.g. MODEL_CHUNK without MODEL_BEGIN)
     INTERNAL = 10         # an exception inside the firmware's handler
+    SENSOR_MISMATCH = 11  # the model's [sensor] is not the camera's, or trackers lie outside it
 
 
 class WireError(ValueError):

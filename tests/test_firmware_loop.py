@@ -256,23 +256,42 @@ def test_camera_biases_are_host_parameters_sent_by_the_reader_thread(face):
         eng.stop()
 
 
-def test_cli_replays_a_real_recording_through_the_usb_path(tmp_path, data_file):
-    """replay:FILE re-encodes a real DVS recording (320 x 240) as CCam words; events outside
-    304 x 240 are dropped and counted; the track equals the offline tracker's on the rest."""
+def run_cli(*args, timeout=180):
+    return subprocess.run([sys.executable, "-m", "firmware_sim.cli", "run", *args,
+                           "--stats-every", "0"], capture_output=True, text=True,
+                          timeout=timeout)
+
+
+def test_cli_replays_a_real_recording_at_its_geometry_or_for_the_ccam(tmp_path, data_file):
+    """replay:FILE serves a real DVS recording (320 x 240) re-encoded for an EVK of its own
+    geometry: every event tracked; with --profile ccam_atis for the 304 x 240 ATIS: events
+    outside are dropped, counted and reported.  Both tracks equal the offline tracker's on
+    the events the camera sent."""
     from springtrack import io as stio
+    from springtrack.model import face26
     path = data_file("dvs.es")
     ev = np.concatenate([np.asarray(c) for c in stio.open(path)])
     ev = ev[ev["t"] < ev["t"][0] + 300_000]
-    keep = ev[(ev["x"] < 304) & (ev["y"] < 240)]
+    model = tmp_path / "face320.toml"
+    face26(width=320, height=240).save(model)
     out = tmp_path / "fw.csv"
-    r = subprocess.run([sys.executable, "-m", "firmware_sim.cli", "run", "--source",
-                        f"replay:{path}", "--max-speed", "--seconds", "0.3", "--preset",
-                        "face26", "--record", str(out), "--stats-every", "0"],
-                       capture_output=True, text=True, timeout=120)
+    r = run_cli("--source", f"replay:{path}", "--max-speed", "--seconds", "0.3", "--model",
+                str(model), "--record", str(out))
     assert r.returncode == 0, r.stderr
-    assert f"tracked={len(keep)}" in r.stdout
-    assert f"replay: {len(ev) - len(keep)} events outside" in r.stderr
+    assert f"tracked={len(ev)} geometry_drops=0 format=evt2 sensor=320x240" in r.stdout
     ref = tmp_path / "ref.csv"
+    Tracker(model).run(ev, SAMPLE).to_csv(ref)
+    assert out.read_text() == ref.read_text()
+
+    keep = ev[(ev["x"] < 304) & (ev["y"] < 240)]
+    r = run_cli("--source", f"replay:{path}", "--max-speed", "--seconds", "0.3", "--preset",
+                "face26", "--profile", "ccam_atis", "--record", str(out))
+    assert r.returncode == 0, r.stderr
+    drop = len(ev) - len(keep)
+    assert (f"tracked={len(keep)} geometry_drops={drop} ({drop / len(ev):.1%} of the events, "
+            f"outside the 304x240 sensor) format=ccam") in r.stdout
+    assert "does not fit the 304x240 sensor of --profile ccam_atis" in r.stderr
+    assert f"replay: warning: {drop} of {len(ev)} events" in r.stderr
     Tracker("face26").run(keep, SAMPLE).to_csv(ref)
     assert out.read_text() == ref.read_text()
 
@@ -367,21 +386,53 @@ def test_cli_usb_source_without_a_camera_fails_clearly():
     assert "Traceback" not in r.stderr
 
 
-@pytest.mark.parametrize("fmt", ["evt2", "evt3"])
+@pytest.mark.parametrize("fmt", ["evt2", "evt21", "evt3"])
 def test_evt_profiles_run_through_the_engine_like_the_offline_tracker(face, fmt):
-    """EVT 2.0 / 3.0 boards: same reader and engine, the springtrack.io decoder instead of
-    the fused CCam loop; the track equals the offline tracker's."""
+    """A Prophesee-style EVK streaming EVT 2.0 / 2.1 / 3.0 words of a 304 x 240 sensor:
+    the same reader, engine and fused loop, that format's decoder; the track equals the
+    offline tracker's."""
     prof = camusb.PROFILES[fmt]
-    cam = SimCamera([face], fmt=fmt)
+    cam = SimCamera(events_source(face, 2048), fmt=fmt)
     be = SimBackend(cam, pid=prof.pid)
     eng = FirmwareLoop(lambda: camusb.Camera.open(prof, backend=be), "face26",
                        telemetry_period_us=SAMPLE, profile=fmt, lossless=True, record=True,
-                       transfer_bytes=16384)
+                       transfer_bytes=16384, width=304, height=240)
     s = run_to_end(cam, eng)
     assert s["events_decoded"] == s["events_tracked"] == len(face)
+    assert s["decode"]["format"] == fmt and s["geometry_drops"]["events"] == 0
     got = recorded(eng)
     ref = Tracker("face26").run(face, SAMPLE)
     assert np.array_equal(got.t_us, ref.t_us) and np.array_equal(got.x, ref.x)
+
+
+def test_the_engine_refuses_a_model_that_does_not_fit_the_camera(face, tmp_path):
+    """Guard rails on the firmware: a model of another [sensor] (unless --sensor-from), or
+    with trackers outside its sensor, is refused at start and NACKed when uploaded
+    (sensor_mismatch); the running model stays."""
+    from springtrack.geometry import SensorMismatch, TrackersOutside
+    from springtrack.model import face26, grid3x3
+    prof = camusb.PROFILES["evt2"]
+    opener = lambda: None                               # noqa: E731 - never started here
+    with pytest.raises(SensorMismatch, match="304x240 but the camera's sensor is 640x480"):
+        FirmwareLoop(opener, "face26", profile=prof)
+    eng = FirmwareLoop(opener, "face26", profile=prof, sensor_from="model")
+    assert (eng.model.width, eng.width) == (304, 640)
+    eng = FirmwareLoop(opener, "face26", profile=prof, sensor_from="source")
+    assert (eng.model.width, eng.model.height) == (640, 480)
+    eng = FirmwareLoop(opener, face26(cx=320, cy=240, width=640, height=480), profile=prof)
+    gen = eng.generation
+    with pytest.raises(UpdateRejected) as e:
+        eng.load_model(grid3x3().to_toml())               # 304 x 240
+    assert e.value.code == Nack.SENSOR_MISMATCH and "640x480" in str(e.value)
+    off = grid3x3(width=640, height=480).to_toml().replace("x = 102.0", "x = 700.0", 1)
+    with pytest.raises(UpdateRejected) as e:
+        eng.load_model(off)
+    assert e.value.code == Nack.SENSOR_MISMATCH and "(700, " in str(e.value)
+    assert eng.generation == gen and eng.model.name == "face26"
+    with pytest.raises(TrackersOutside, match="outside the 640x480 sensor"):
+        bad = tmp_path / "bad.toml"
+        bad.write_text(off)
+        FirmwareLoop(opener, str(bad), profile=prof)
 
 
 def test_cli_sigterm_stops_cleanly_and_writes_the_record(tmp_path):

@@ -116,7 +116,8 @@ def test_the_firmware_replay_path(tmp_path):
     src.write_text("t,x,y,p\n0,10,10,1\n5,12,10,1\n10000000000,11,10,0\n")
     rec = tmp_path / "fw.csv"
     rc, peak, log = peak_rss("firmware-sim", "run", "--source", f"replay:{src}", "--preset",
-                             "grid3x3", "--max-speed", "--record", str(rec), "--stats-every", "0")
+                             "grid3x3", "--sensor-from", "model", "--max-speed", "--record",
+                             str(rec), "--stats-every", "0")
     assert rc == 0, log
     assert peak < CEILING_MIB
     _, out = track(tmp_path, src)

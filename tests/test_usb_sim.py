@@ -161,33 +161,48 @@ def test_realtime_mode_releases_events_at_their_timestamps():
     assert np.median(lag) < 0.01
 
 
-def test_evt_profiles_are_read_only_and_use_springtrack_io_decoders():
-    p = camusb.PROFILES["evt2"]
-    assert not p.configure and p.fmt == "evt2"
-    d = camusb.make_decoder(p)
-    assert d.format == "evt2"
-    # the CCam words are decoded in the fused loop, and by springtrack.io's streaming
-    # decoder for a kernel the fused loop cannot call (the microcontroller build, docs/mcu.md)
+def test_evt_profiles_are_read_only_and_decoded_by_the_fused_loop():
+    from firmware_sim._fused import WORD_FORMATS
+    for name in ("evt2", "evt21", "evt3"):
+        p = camusb.PROFILES[name]
+        assert not p.configure and p.fmt == name and p.fmt in WORD_FORMATS
+        # and by springtrack.io's streaming decoder, at the profile's geometry, for a kernel
+        # the fused loop cannot call (the microcontroller build, docs/mcu.md)
+        d = camusb.make_decoder(p)
+        assert (d.format, d.width, d.height) == (name, p.width, p.height)
+    assert camusb.PROFILES["ccam_atis"].fmt in WORD_FORMATS
     assert camusb.make_decoder(camusb.PROFILES["ccam_atis"]).format == "ccam"
     odd = camusb.DeviceProfile("odd", 1, 2, "evt9", 64, 64, False)
     with pytest.raises(camusb.CameraError, match="no streaming decoder"):
         camusb.make_decoder(odd)
 
 
-@pytest.mark.parametrize("fmt", ["evt2", "evt3"])
-def test_evt_profile_reads_a_prophesee_stream_through_the_same_pyusb_path(fmt):
-    prof = camusb.PROFILES[fmt]
+@pytest.mark.parametrize("fmt,legacy", [("evt2", False), ("evt21", False), ("evt21", True),
+                                        ("evt3", False)])
+def test_evt_profile_streams_chunk_by_chunk_through_the_same_pyusb_path(fmt, legacy):
+    """A simulated Prophesee-style EVK: the scene's chunks continue one stream (each
+    encoded from the previous one's time base), 512-byte packets on bulk IN 0x81."""
+    import dataclasses
+    import springtrack.io as sio
+    prof = dataclasses.replace(camusb.PROFILES[fmt], legacy=legacy)
     rng = np.random.default_rng(1)
     n = 5000
-    ev = make(np.sort(rng.integers(0, 300_000, n)), rng.integers(0, prof.width, n),
+    ev = make(np.sort(rng.integers(0, 30_000_000, n)), rng.integers(0, prof.width, n),
               rng.integers(0, prof.height, n), rng.integers(0, 2, n))
-    cam = SimCamera([ev], fmt=fmt)
+    cam = SimCamera(events_source(ev, 300), fmt=fmt, legacy=legacy)
     be = SimBackend(cam, pid=prof.pid)
     c = camusb.Camera.open(prof, backend=be)
     assert cam.counts["control_out"] == 0               # no CCam register control
-    dec = camusb.make_decoder(prof)
+    dec = sio.decoder(fmt, **({"legacy": legacy} if fmt == "evt21" else {}))
     buf = array.array("B", bytes(camusb.TRANSFER_BYTES))
     parts = []
     while not cam.finished:
         parts.append(dec.decode(buf[:c.read_into(buf, 5)].tobytes()))
     assert np.array_equal(np.concatenate(parts), ev)
+    assert not any(dec.stats.anomalies.values())
+
+
+def test_an_evk_refuses_faults_that_write_ccam_words():
+    from firmware_sim.faults import Faults
+    with pytest.raises(ValueError, match="corrupt inject CCam words"):
+        SimCamera([little_stream()], fmt="evt3", faults=Faults(["corrupt"]))

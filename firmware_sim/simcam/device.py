@@ -1,7 +1,10 @@
-"""The simulated CCam ATIS as a device: its clock, FIFO, vendor requests and faults.
+"""The simulated camera as a device: its clock, FIFO, vendor requests and faults.
 
-:class:`SimCamera` is what sits behind the USB cable: after the start command it serves
-words (``simcam.words``) made from a source of event arrays (``firmware_sim.sources``).
+:class:`SimCamera` is what sits behind the USB cable: a CCam ATIS (after the start command)
+or a Prophesee-style EVK streaming EVT 2.0 / 2.1 / 3.0 words.  It serves words
+(``simcam.words``) made from a source (``firmware_sim.sources``) of event arrays, or of
+ready :class:`~firmware_sim.simcam.words.Chunk` s (a recording's own words, replayed as
+they are).
 ``realtime=True`` releases each event only when the device clock (wall time since the
 first chunk) has reached its timestamp; otherwise data is served as fast as the host reads.
 Faults (``firmware_sim.faults``) are injected on the read path.  The pyusb side of the
@@ -27,6 +30,8 @@ from .. import usb as camusb
 from ..faults import Faults
 from .words import ENCODERS, Chunk, burst_chunks
 
+CCAM_ONLY_FAULTS = ("corrupt", "burst")     # they write CCam words
+
 MAX_PACKET = 512
 LOOKAHEAD_US = 20_000        # realtime: scene data generated this far ahead of the clock
 DEVICE_FIFO_BYTES = 16 << 20  # the simulated camera's own buffer; beyond it, it drops
@@ -41,24 +46,29 @@ def usb_error(code: int, text: str):
 
 
 class SimCamera:
-    """Device-side state of one simulated CCam ATIS."""
+    """Device-side state of one simulated camera."""
 
     def __init__(self, source, serial: int = SIM_SERIAL, realtime: bool = False,
                  faults: Faults | None = None, bus: int = 1, address: int = 4,
-                 commit_us: int = 250, fmt: str = "ccam"):
+                 commit_us: int = 250, fmt: str = "ccam", legacy: bool = False):
         """``fmt``: ``ccam`` (the CCam ATIS: set-up requests, start command) or ``evt2`` /
-        ``evt3`` (a Prophesee board already streaming: the source must be one array, served
-        as a single chunk; control requests other than the CCam ones are refused)."""
+        ``evt21`` / ``evt3`` (a Prophesee EVK already streaming those words, ``legacy``:
+        EVT 2.1 in the IMX636 order; control requests other than the CCam ones are
+        refused)."""
         if fmt not in ENCODERS:
             raise ValueError(f"simulated camera format must be one of {', '.join(ENCODERS)}, "
                              f"got {fmt!r}")
+        faults = faults or Faults()
+        if fmt != "ccam" and (bad := [f for f in CCAM_ONLY_FAULTS if f in faults]):
+            raise ValueError(f"fault(s) {', '.join(bad)} inject CCam words; the simulated "
+                             f"camera streams {fmt} (use them with the CCam ATIS)")
         self.fmt = fmt
-        self._encode = ENCODERS[fmt]
+        self._encode = ENCODERS[fmt](legacy=legacy)
         self.source = iter(source)
         self.serial = serial
         self.realtime = realtime
         self.commit_us = int(commit_us)    # realtime: longest wait before a short transfer
-        self.faults = faults or Faults()
+        self.faults = faults
         self.bus, self.address = bus, address
         self.lock = threading.RLock()
         self.connected = True
@@ -137,6 +147,11 @@ class SimCamera:
             if ev is None:
                 self.exhausted = True
                 return None
+            if isinstance(ev, Chunk):          # words as they are (a replayed recording)
+                c = self._ready_chunk(ev)
+                if c is None:
+                    continue
+                return c
             ev = as_events(ev)
             if self.skip_before is not None and len(ev):
                 ev = ev[ev["t"] >= self.skip_before]
@@ -162,6 +177,18 @@ class SimCamera:
             f.corrupt(c.data, self.words_out)
             self.words_out += len(c.data) // 4
             return c
+
+    def _ready_chunk(self, c: Chunk) -> Chunk | None:
+        """A chunk of words from the source: None if it lies before ``skip_before`` (lost
+        with a disconnect, whole chunks: the words cannot be cut by time)."""
+        if self.skip_before is not None and c.marks_t[-1] < self.skip_before:
+            return None
+        if self.t_origin is None:
+            self.t_origin = int(c.marks_t[0])
+            if self.realtime and self.t0_wall is None:
+                self.t0_wall = time.monotonic()
+        self.counts["events_generated"] += c.n_events
+        return c
 
     def _releasable(self, c: Chunk, now_t) -> int:
         """Bytes of chunk ``c`` (from its start) the device may send now."""

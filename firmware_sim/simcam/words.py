@@ -3,7 +3,13 @@
 A :class:`Chunk` is a piece of the device's output stream: its bytes, and for each prefix
 the event time from which the device may send it (``marks_t[i]``: bytes
 ``[0, marks_off[i])`` may go out once the device clock reaches ``marks_t[i]``).
-``ENCODERS`` maps the device's word format to the function that makes chunks of events.
+
+``ENCODERS`` maps the device's word format to a factory of its encoder (events -> Chunk):
+the CCam ATIS (each event's word released at its own time) or a Prophesee-style EVK
+streaming EVT 2.0, 2.1 or 3.0 (:class:`StreamEncoder`: the stream continued chunk by chunk,
+each 512-byte USB packet released when its last event is due, :func:`packet_chunk`).
+Bytes that are already words (a recording replayed as it is) become chunks through
+:func:`packet_chunk` as well.
 """
 from __future__ import annotations
 
@@ -13,9 +19,11 @@ from functools import partial
 import numpy as np
 
 from springtrack.events import as_events, make
+from springtrack.io import decoder as io_decoder
 from springtrack.io.ccam import encode as ccam_encode
 
 CCAM_PERIOD_SHIFT = 11       # one CCam time-high word per 2048 us period
+PACKET = 512                 # bytes of a high-speed bulk packet: the release unit of EVKs
 
 
 class Chunk:
@@ -47,23 +55,70 @@ def ccam_chunk(events) -> Chunk | None:
     return Chunk(data, ev["t"].copy(), off, len(ev))
 
 
-def stream_chunk(events, fmt: str) -> Chunk | None:
-    """A Prophesee EVT 2.0 / 3.0 stream as one chunk, released when its last event is due
-    (the springtrack.io encoders start every call from time-high 0, so a stream is encoded
-    in one piece)."""
-    ev = as_events(events)
-    if len(ev) == 0:
-        return None
-    enc = importlib.import_module(f"springtrack.io.{fmt}").encode
-    data = bytearray(enc(ev))
-    return Chunk(data, ev["t"][-1:].copy(), np.array([len(data)], np.int64), len(ev))
+def packet_chunk(data, decoder, t_floor: int | None = None) -> tuple[Chunk | None, int]:
+    """Words ``data`` (of a stream that ``decoder``, a springtrack.io streaming decoder,
+    has followed up to here) as a Chunk released packet by packet: each 512-byte packet once
+    the device clock reaches the latest event time completed so far (at least ``t_floor``,
+    the previous chunk's last mark).  Returns (chunk or None if ``data`` is empty, the last
+    mark)."""
+    data = bytearray(data)
+    n = len(data)
+    if n == 0:
+        return None, t_floor
+    npk = -(-n // PACKET)
+    marks_t = np.empty(npk, np.int64)
+    marks_off = np.minimum(np.arange(1, npk + 1, dtype=np.int64) * PACKET, n)
+    view = memoryview(data)
+    last = t_floor
+    events = 0
+    for i in range(npk):
+        ev = decoder.decode(view[i * PACKET:(i + 1) * PACKET])
+        if len(ev):
+            events += len(ev)
+            t = int(ev["t"].max())
+            last = t if last is None else max(last, t)
+        marks_t[i] = -(1 << 62) if last is None else last
+    if last is not None:
+        marks_t[marks_t < -(1 << 61)] = marks_t[marks_t >= -(1 << 61)].min()
+    return Chunk(data, marks_t, marks_off, events), last
 
 
-# device word format -> events -> Chunk | None
+class StreamEncoder:
+    """A Prophesee-style EVK's bulk stream: event arrays -> Chunks of ``fmt`` words
+    (``evt2``, ``evt21``, ``evt3``; ``legacy``: EVT 2.1 in the IMX636 order), each array
+    continuing the stream of the previous ones (``springtrack.io.<fmt>.encode(...,
+    prev_t=...)``)."""
+
+    def __init__(self, fmt: str, legacy: bool = False):
+        enc = importlib.import_module(f"springtrack.io.{fmt}").encode
+        self.encode = partial(enc, legacy=legacy) if fmt == "evt21" else enc
+        self.marks = io_decoder(fmt, **({"legacy": legacy} if fmt == "evt21" else {}))
+        self.prev_t = None
+        self.last_mark = None
+
+    def __call__(self, events) -> Chunk | None:
+        ev = as_events(events)
+        if len(ev) == 0:
+            return None
+        data = self.encode(ev, prev_t=self.prev_t)
+        self.prev_t = int(ev["t"][-1])
+        chunk, self.last_mark = packet_chunk(data, self.marks, self.last_mark)
+        chunk.n_events = len(ev)
+        return chunk
+
+
+def _ccam_encoder(legacy: bool = False):
+    if legacy:
+        raise ValueError("legacy word order applies to EVT 2.1, not to CCam words")
+    return ccam_chunk
+
+
+# device word format -> factory(legacy) of its encoder: events -> Chunk | None
 ENCODERS = {
-    "ccam": ccam_chunk,
-    "evt2": partial(stream_chunk, fmt="evt2"),
-    "evt3": partial(stream_chunk, fmt="evt3"),
+    "ccam": _ccam_encoder,
+    "evt2": partial(StreamEncoder, "evt2"),
+    "evt21": partial(StreamEncoder, "evt21"),
+    "evt3": partial(StreamEncoder, "evt3"),
 }
 
 

@@ -8,12 +8,16 @@ it, imported only when a URL names it.  A handler module defines ``USAGE`` (``"s
 ``HELP`` (one line for ``firmware-sim run --help``) and ``open(target, opts, url) ->
 CameraSource``; :func:`register` adds one without editing any caller.
 
-Simulated sources are generators of event arrays (``t`` µs ascending, ``x``, ``y``, ``p``)
-served by a :class:`firmware_sim.simcam.SimCamera` (:func:`simulated`); a Python program
-can serve an array it holds with :func:`events_source`.
+Simulated sources are generators of event arrays (``t`` µs ascending, ``x``, ``y``, ``p``),
+or of ready word chunks (a recording replayed as it is), served by a
+:class:`firmware_sim.simcam.SimCamera` that presents itself as the CCam ATIS or as a
+Prophesee-style EVK streaming EVT 2.0 / 2.1 / 3.0 (:func:`simulated`, ``--profile``); a
+Python program can serve an array it holds with :func:`events_source`.  Every source says
+what it serves: the device profile (word format and sensor geometry) the loop decodes.
 """
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import textwrap
 from dataclasses import dataclass, field
@@ -43,8 +47,10 @@ class SourceOptions:
     realtime: bool = True             # simulated: release events at their timestamps
     faults: str | tuple = ()          # fault names (firmware_sim.faults), simulated only
     serial: int | None = None         # the camera's serial (None: the first found)
-    profile: str = "ccam_atis"        # usb: device profile (firmware_sim.usb.PROFILES)
+    profile: str | None = None        # device profile (firmware_sim.usb.PROFILES); None:
+                                      # the source's own (replay: the file's format)
     biases: dict = field(default_factory=dict)    # read at every (re)connection
+    geometry: tuple[int, int] | None = None     # usb EVT boards: the sensor's width, height
 
 
 @dataclass
@@ -52,10 +58,22 @@ class CameraSource:
     """An opened source: how to (re)open its camera and what is known about it."""
     url: str
     open_camera: Callable[[], camusb.Camera]   # called at every (re)connection
-    profile: str = "ccam_atis"                 # how the loop decodes its transfers
+    # how the loop decodes its transfers: word format and sensor geometry
+    profile: camusb.DeviceProfile = camusb.PROFILES["ccam_atis"]
     device: SimCamera | None = None            # the simulated camera, None for hardware
     default_model: Callable[[], object] = lambda: None    # the scene's own model, if any
     report: Callable[[], list[str]] = lambda: []         # end-of-run lines (what was dropped)
+    # what the source dropped before the camera: events_in, outside_sensor (statistics)
+    counters: Callable[[], dict] = dict
+    notes: list[str] = field(default_factory=list)    # start-up lines (re-encoding, drops)
+
+    @property
+    def width(self) -> int:
+        return self.profile.width
+
+    @property
+    def height(self) -> int:
+        return self.profile.height
 
 
 def register(scheme: str, module: str) -> None:
@@ -96,18 +114,39 @@ def open_source(url: str, opts: SourceOptions | None = None) -> CameraSource:
     return mod.open(target, opts, url)
 
 
-def simulated(url: str, events, opts: SourceOptions, **known) -> CameraSource:
-    """A source whose ``events`` (an iterable of event arrays) are served as CCam ATIS
-    words by a simulated camera, with ``opts``' faults, clock and serial; ``known``:
-    further :class:`CameraSource` fields (default model, report)."""
+def profile(name: str | None, width: int | None = None, height: int | None = None,
+            legacy: bool | None = None) -> camusb.DeviceProfile:
+    """The device profile ``name`` (default ``ccam_atis``) for a sensor of ``width`` x
+    ``height`` (EVT boards: any size the words address; the CCam ATIS is 304 x 240)."""
+    name = name or "ccam_atis"
+    if name not in camusb.PROFILES:
+        raise ValueError(f"unknown device profile {name!r}; known: {', '.join(camusb.PROFILES)}")
+    p = camusb.PROFILES[name]
+    changes = {}
+    if p.fmt != "ccam" and width and height:
+        changes.update(width=int(width), height=int(height))
+    if legacy is not None and p.fmt == "evt21":
+        changes["legacy"] = bool(legacy)
+    return dataclasses.replace(p, **changes) if changes else p
+
+
+def simulated(url: str, events, opts: SourceOptions,
+              prof: camusb.DeviceProfile | None = None, **known) -> CameraSource:
+    """A source whose ``events`` (an iterable of event arrays, or of word chunks already
+    in ``prof``'s format) are served by a simulated camera presenting itself as ``prof``
+    (default: the CCam ATIS; an EVT profile: a Prophesee-style EVK), with ``opts``' faults,
+    clock and serial; ``known``: further :class:`CameraSource` fields (default model,
+    report, counters)."""
     from ..simcam import SimBackend, SimCamera
+    prof = prof or camusb.PROFILES["ccam_atis"]
     faults = _faults.Faults(_faults.parse(opts.faults), seed=opts.seed)
-    cam = SimCamera(events, realtime=opts.realtime, faults=faults)
-    backend = SimBackend(cam)
+    cam = SimCamera(events, realtime=opts.realtime, faults=faults, fmt=prof.fmt,
+                    legacy=prof.legacy)
+    backend = SimBackend(cam, vid=prof.vid, pid=prof.pid)
 
     def open_camera():
-        return camusb.Camera.open("ccam_atis", opts.serial, backend=backend, biases=opts.biases)
-    return CameraSource(url, open_camera, profile="ccam_atis", device=cam, **known)
+        return camusb.Camera.open(prof, opts.serial, backend=backend, biases=opts.biases)
+    return CameraSource(url, open_camera, profile=prof, device=cam, **known)
 
 
 def failure(source: CameraSource) -> str | None:

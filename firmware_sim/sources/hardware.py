@@ -2,10 +2,11 @@
 from __future__ import annotations
 
 from .. import usb as camusb
-from . import CameraSource, SourceOptions
+from . import CameraSource, SourceOptions, profile
 
 USAGE = "usb"
-HELP = "a real CCam ATIS (or --profile) through pyusb/libusb, docs/hardware.md"
+HELP = ("a real CCam ATIS (or an EVK streaming --profile's words, of --geometry) through "
+        "pyusb/libusb, docs/hardware.md")
 
 
 def open(target: str, opts: SourceOptions, url: str) -> CameraSource:
@@ -13,9 +14,9 @@ def open(target: str, opts: SourceOptions, url: str) -> CameraSource:
         raise ValueError(f"--source {url!r}: the usb source takes no target (use --serial)")
     if opts.faults:
         raise ValueError("--faults needs a simulated source (sim:SCENE or replay:FILE)")
-    prof = camusb.PROFILES[opts.profile]
+    prof = profile(opts.profile, *(opts.geometry or (None, None)))
 
     def open_camera():
         return camusb.Camera.open(prof, opts.serial, biases=opts.biases)
     open_camera().close()                      # fail now, clearly, if there is no camera
-    return CameraSource(url, open_camera, profile=prof.name)
+    return CameraSource(url, open_camera, profile=prof)

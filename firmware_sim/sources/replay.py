@@ -1,40 +1,100 @@
-"""``replay:FILE``: a recording re-encoded as CCam ATIS words by the simulated camera."""
+"""``replay:FILE``: a recording through the simulated camera, at the recording's geometry.
+
+* A file of camera words (Prophesee RAW EVT 2.0 / 2.1 / 3.0, CCam words) is served as it
+  is, by a simulated camera of that kind (an EVK streaming the file's format at the file's
+  sensor size, or the CCam ATIS), each 512-byte packet released when its last event is due
+  (``simcam.words.packet_chunk``): the loop decodes exactly the recorded bytes.
+* Any other file (Event Stream, DAT, AEDAT 4, npy, CSV) is re-encoded as the words of an
+  EVT 2.0 EVK of the file's geometry (:data:`REENCODE_PROFILE`).
+* ``--profile NAME`` re-encodes any file for that camera (e.g. ``ccam_atis``, the
+  304 x 240 ATIS): events outside its sensor are dropped before encoding, counted, and
+  reported at start, in every statistics line (``geometry_drops``) and at the end.
+"""
 from __future__ import annotations
 
+import builtins
 from pathlib import Path
+
+import numpy as np
 
 from springtrack.events import as_events
 
 from .. import usb as camusb
-from . import SourceOptions, simulated
+from . import SourceOptions, profile, simulated
 
 USAGE = "replay:FILE"
-CCAM = camusb.PROFILES["ccam_atis"]
-HELP = (f"any format springtrack.io reads, re-encoded as CCam words through the simulated "
-        f"USB camera; events outside {CCAM.width}x{CCAM.height} dropped and counted")
+HELP = ("a recording (any format springtrack.io reads) through the simulated camera at the "
+        "file's geometry: RAW EVT 2.0/2.1/3.0 and CCam words served as they are, other "
+        "formats re-encoded as EVT 2.0; --profile re-encodes for that camera (events "
+        "outside its sensor dropped and counted)")
+
+# the file's format -> the camera that streams it (its words replayed as they are)
+WORD_PROFILES = {"ccam": "ccam_atis", "evt2": "evt2", "evt21": "evt21", "evt3": "evt3"}
+REENCODE_PROFILE = "evt2"        # other files: an EVT 2.0 EVK of the file's geometry
+READ_BYTES = 1 << 18             # file bytes per chunk of words
+# re-encoded recordings that start later than this (the EVT 3.0 time counter's range,
+# 2**24 us) are re-based to start at 0, as a camera's counter does: else the words would
+# first count up to the recording's time (AEDAT 4 stamps Unix-epoch microseconds)
+REBASE_FROM_US = 1 << 24
 
 
-def file_source(path, width: int = CCAM.width, height: int = CCAM.height,
-                stats: dict | None = None):
-    """Events of any file ``springtrack.io`` reads, for a ``width x height`` sensor;
-    events outside it are dropped and counted in ``stats['outside']``.  The file is
-    opened (its format and header checked) now, so a bad path fails here with a clear
-    error rather than later in the simulated camera's reader thread."""
+def _reader(path):
     from springtrack import io as stio
-    stats = {} if stats is None else stats
-    stats.setdefault("outside", 0)
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: replay file not found")
-    return _inside(stio.open(path), width, height, stats)
+    return stio.open(path)
+
+
+def file_source(path, width: int, height: int, stats: dict | None = None):
+    """Events of any file ``springtrack.io`` reads, for a ``width x height`` sensor;
+    events outside it are dropped and counted in ``stats['outside_sensor']``, all in
+    ``stats['events_in']``.  The file is opened (its format and header checked) now, so
+    a bad path fails here with a clear error rather than later in the simulated camera's
+    reader thread."""
+    stats = {} if stats is None else stats
+    return _inside(_reader(path), width, height, stats)
 
 
 def _inside(chunks, width: int, height: int, stats: dict):
+    stats.setdefault("outside_sensor", 0)
+    stats.setdefault("events_in", 0)
     for chunk in chunks:
         ev = as_events(chunk)
         keep = (ev["x"] < width) & (ev["y"] < height)
-        stats["outside"] += int((~keep).sum())
+        stats["events_in"] += len(ev)
+        stats["outside_sensor"] += int((~keep).sum())
         yield ev[keep] if not keep.all() else ev
+
+
+def rebased(chunks, stats: dict):
+    """Events re-based to start at 0 (``stats['t_offset_us']``, subtracted) if the first
+    one is at ``REBASE_FROM_US`` or later, else as they are."""
+    offset = None
+    for ev in chunks:
+        if len(ev) == 0:
+            continue
+        if offset is None:
+            offset = int(ev["t"][0]) if ev["t"][0] >= REBASE_FROM_US else 0
+            stats["t_offset_us"] = offset
+        if offset:
+            ev = ev.copy()
+            ev["t"] -= offset
+        yield ev
+
+
+def word_chunks(reader, nbytes: int = READ_BYTES):
+    """The file's words as they are, in chunks of ``nbytes`` released packet by packet
+    (their event times from the file's own decoder)."""
+    from ..simcam.words import packet_chunk
+    dec = reader.decoder()
+    last = None
+    with builtins.open(reader.path, "rb") as f:
+        f.seek(reader.offset)
+        while data := f.read(nbytes):
+            chunk, last = packet_chunk(data, dec, last)
+            if chunk is not None:
+                yield chunk
 
 
 def limit_seconds(source, seconds: float):
@@ -52,15 +112,73 @@ def limit_seconds(source, seconds: float):
             return
 
 
+def limit_chunk_seconds(chunks, seconds: float):
+    """The word chunks of the first ``seconds`` of event time, in whole packets."""
+    t0 = None
+    for c in chunks:
+        t0 = int(c.marks_t[0]) if t0 is None else t0
+        end = t0 + int(seconds * 1e6)
+        k = int(np.searchsorted(c.marks_t, end, side="left"))
+        if k == len(c.marks_t):
+            yield c
+            continue
+        if k:
+            c.data = c.data[:int(c.marks_off[k - 1])]
+            c.marks_t, c.marks_off = c.marks_t[:k], c.marks_off[:k]
+            yield c
+        return
+
+
+def _geometry(reader, prof_name: str) -> tuple[int, int, str]:
+    """The file's sensor (width, height) and where it came from."""
+    if reader.width and reader.height:
+        return (reader.width, reader.height,
+                reader.header.get("geometry_source") or "the file's header")
+    if reader.format in ("npy", "csv"):
+        ev = reader.read()
+        if len(ev):
+            return int(ev["x"].max()) + 1, int(ev["y"].max()) + 1, "the events' extent"
+    p = camusb.PROFILES[prof_name]
+    return p.width, p.height, f"the {prof_name} profile's default"
+
+
 def open(target: str, opts: SourceOptions, url: str):
+    reader = _reader(target)
+    as_is = opts.profile is None and reader.format in WORD_PROFILES
+    name = (WORD_PROFILES[reader.format] if as_is
+            else opts.profile or REENCODE_PROFILE)
+    fw, fh, where = _geometry(reader, name)
+    prof = profile(name, fw, fh, reader.options.get("legacy") if as_is else None)
     stats: dict = {}
-    events = file_source(target, stats=stats)
-    if opts.seconds is not None:
-        events = limit_seconds(events, opts.seconds)
+    notes = []
+    if as_is:
+        notes.append(f"replay: {target}: {reader.format} words as recorded, {fw}x{fh} "
+                     f"(from {where}), through a simulated {prof.name} camera")
+        source = word_chunks(reader)
+        if opts.seconds is not None:
+            source = limit_chunk_seconds(source, opts.seconds)
+    else:
+        notes.append(f"replay: {target}: {reader.format} {fw}x{fh} (from {where}) "
+                     f"re-encoded as {prof.fmt} words of a {prof.width}x{prof.height} "
+                     f"{prof.name} camera")
+        if (fw, fh) != (prof.width, prof.height) and (fw > prof.width or fh > prof.height):
+            notes.append(f"replay: warning: the {fw}x{fh} recording does not fit the "
+                         f"{prof.width}x{prof.height} sensor of --profile {prof.name}: events "
+                         f"outside it are dropped (counted in geometry_drops); omit --profile "
+                         f"to replay at the recording's own geometry")
+        events = reader if opts.seconds is None else limit_seconds(reader, opts.seconds)
+        source = rebased(_inside(events, prof.width, prof.height, stats), stats)
 
     def report() -> list[str]:
-        if not stats.get("outside"):
-            return []
-        return [f"replay: {stats['outside']} events outside the {CCAM.width}x{CCAM.height} "
-                f"sensor dropped before encoding"]
-    return simulated(url, events, opts, report=report)
+        out = []
+        if stats.get("t_offset_us"):
+            out.append(f"replay: times re-based by -{stats['t_offset_us']} us (the recording "
+                       f"starts after the camera counter's {REBASE_FROM_US} us): tracks and "
+                       f"statistics count from its first event")
+        if not stats.get("outside_sensor"):
+            return out
+        return out + [f"replay: warning: {stats['outside_sensor']} of {stats['events_in']} events "
+                f"({stats['outside_sensor'] / max(stats['events_in'], 1):.1%}) lay outside the "
+                f"{prof.width}x{prof.height} sensor and were dropped before encoding"]
+    return simulated(url, source, opts, prof, report=report, counters=lambda: dict(stats),
+                     notes=notes)

@@ -1,11 +1,12 @@
 """``sim:SCENE``: a scene of ``springtrack.sim`` through the simulated camera."""
 from __future__ import annotations
 
-from . import SourceOptions, simulated
+from . import SourceOptions, profile, simulated
 
 USAGE = "sim:SCENE"
 HELP = ("a scene of springtrack.sim.scenes (face_occlusion, grid_pull, ...) through the "
-        "simulated USB camera; its own shape model unless one is given")
+        "simulated USB camera (the CCam ATIS, or an EVK in --profile's words); its own "
+        "shape model unless one is given")
 
 
 def scene_source(scene: str, seconds: float | None = None, seed: int = 0,
@@ -17,7 +18,7 @@ def scene_source(scene: str, seconds: float | None = None, seed: int = 0,
 
 
 def open(target: str, opts: SourceOptions, url: str):
-    from springtrack.sim.scenes import make_scene
+    from springtrack.sim.scenes import HEIGHT, WIDTH, make_scene
     scene = make_scene(target, seed=opts.seed)        # unknown scene: ValueError now
     return simulated(url, scene_source(target, opts.seconds, seed=opts.seed), opts,
-                     default_model=scene.initial_model)
+                     profile(opts.profile, WIDTH, HEIGHT), default_model=scene.initial_model)

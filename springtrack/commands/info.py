@@ -1,5 +1,7 @@
 """``springtrack info FILE``: format, geometry, header, event count, time span, mean and
-peak event rate (per 10 ms bin) and decode anomalies of an event file."""
+peak event rate (per 10 ms bin), decode anomalies and recording quirks (coarse timestamp
+ticks, events in row order or unsorted, full-frame bursts: springtrack.prep.QuirkScan,
+each with what to do) of an event file."""
 from __future__ import annotations
 
 import json
@@ -26,10 +28,18 @@ def add_arguments(p):
 def summarize(path, format=None, chunk=1 << 20) -> dict:
     """Stream the file once; return the facts ``info`` prints."""
     from .. import io
+    from ..prep import QuirkScan
     reader = io.open(path, format=format)
     n, t_min, t_max, p_on = 0, None, None, 0
     bins = Counter()
+    w, h = reader.width, reader.height
+    if not (w and h) and reader.format in ("npy", "csv"):      # in memory: their extent
+        ev = reader.read()
+        w = int(ev["x"].max()) + 1 if len(ev) else 1
+        h = int(ev["y"].max()) + 1 if len(ev) else 1
+    scan = QuirkScan(w, h)
     for ev in reader.chunks(chunk):
+        scan.feed(ev)
         t = ev["t"]
         n += len(ev)
         p_on += int(np.count_nonzero(ev["p"]))
@@ -41,6 +51,7 @@ def summarize(path, format=None, chunk=1 << 20) -> dict:
     span = (t_max - t_min) if n else 0
     peak_bin, peak = max(bins.items(), key=lambda kv: kv[1]) if bins else (None, 0)
     s = reader.stats
+    quirks = scan.finish()
     return {
         "file": str(path), "format": reader.format,
         "event_type": reader.event_type, "width": reader.width, "height": reader.height,
@@ -52,6 +63,13 @@ def summarize(path, format=None, chunk=1 << 20) -> dict:
         "t_epoch_utc": (_utc(t_min), _utc(t_max)) if n and _is_epoch(t_min) else None,
         "words": s.words, "pending_bytes": s.pending_bytes,
         "anomalies": s.anomalies, "info": s.info,
+        "quirks": {
+            "tick_us": quirks.tick_us, "time_backwards": quirks.time_backwards,
+            "row_steps": quirks.row_steps, "row_steps_down": quirks.row_steps_down,
+            "row_steps_up": quirks.row_steps_up, "row_ordered": quirks.row_ordered,
+            "bursts_checked": quirks.bursts_checked, "burst_bins": quirks.burst_bins,
+            "burst_events": quirks.burst_events, "burst_at_us": quirks.burst_at_us,
+            "findings": [{"found": f, "do": d} for f, d in quirks.findings()]},
     }
 
 
@@ -97,4 +115,11 @@ def run(args) -> int:
     print("anomalies " + (", ".join(f"{k} {v:,}" for k, v in bad.items()) or "none"))
     if facts["info"]:
         print("counts    " + ", ".join(f"{k} {v:,}" for k, v in facts["info"].items()))
+    q = facts["quirks"]
+    if facts["events"] and not q["findings"]:
+        print(f"quirks    none (timestamps in {q['tick_us']} us steps, in order, no "
+              f"full-frame burst)")
+    for f in q["findings"]:
+        print(f"quirk     {f['found']}")
+        print(f"  do      {f['do']}")
     return 0

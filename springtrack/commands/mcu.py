@@ -78,6 +78,7 @@ def _build(args) -> int:
 
 def _profile(args) -> int:
     import numpy as np
+    from .. import io as stio
     from ..mcu.profile import profile_events
     from ..tracker import Tracker
     from .track import read_events
@@ -85,7 +86,7 @@ def _profile(args) -> int:
         raise ValueError(f"--events must be a positive number, got {args.events}")
     tr = Tracker(args.model, params=args.params)
     chunks, n = [], 0
-    for chunk, _ in read_events(args.input):
+    for chunk, _ in read_events(stio.open(args.input)):
         chunks.append(chunk[:args.events - n])
         n += len(chunks[-1])
         if n >= args.events:

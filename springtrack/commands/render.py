@@ -1,8 +1,13 @@
-"""``springtrack render INPUT --model M.toml [--track T.csv] --out OUT``: events with the
-trackers drawn over them (2-sigma ellipses, springs, state colours, time stamp)."""
+"""``springtrack render INPUT [--model M.toml [--track T.csv]] --out OUT``: events with the
+trackers drawn over them (2-sigma ellipses, springs, state colours, time stamp); without a
+model, one picture of the events alone with pixel axes and a grid, to read positions off
+when writing a model."""
 from __future__ import annotations
 
 import sys
+
+from . import prepargs
+from .track import add_sensor_from
 
 EPILOG = """\
 colours: events ON red, OFF blue (last --window-us of events); ellipses are 2-sigma:
@@ -10,40 +15,93 @@ green = active, black = inactive, orange dashed = insensitive (eq. 21); grey lin
 springs; yellow + marks the ground truth when --truth is given.
 OUT: .gif or .mp4 (video, MP4 needs imageio-ffmpeg), .png (the middle frame), or a
 directory (one PNG per frame). Times in µs of event time.
+without --model: one picture (.png, .svg, .pdf, ...) of the events of --start-us .. --end-us
+(default: the whole recording) with axes in sensor pixels (x right, y down, as in a model's
+[[trackers]]) and a grid every --grid px.
 """
 
 
 def add_arguments(p):
     p.epilog = EPILOG
     p.add_argument("input", help="event file (any format springtrack reads)")
-    p.add_argument("--model", required=True, help="shape model TOML or preset name")
+    p.add_argument("--model", help="shape model TOML or preset name (default: events only)")
+    add_sensor_from(p)
     p.add_argument("--track", help="track CSV (springtrack track / hostctl record); "
                                    "default: track on the fly")
     p.add_argument("--params", help="parameter TOML for tracking on the fly")
     p.add_argument("--truth", help="ground truth CSV t_us,part,x,y to overlay")
-    p.add_argument("--out", required=True, help="output .gif, .mp4, .png or directory")
+    p.add_argument("--out", required=True, help="output .gif, .mp4, .png or directory; "
+                                                "without --model a picture (.png, .svg, ...)")
     p.add_argument("--window-us", type=int, default=10_000,
                    help="events accumulated per frame, µs (default 10000 = 10 ms)")
     p.add_argument("--every-us", type=int, default=None,
                    help="time between frames, µs (default: --window-us)")
     p.add_argument("--max-frames", type=int, default=2000, help="refuse to render more frames")
     p.add_argument("--scale", type=float, default=2.0, help="output pixels per sensor pixel")
+    p.add_argument("--grid", type=int, metavar="PX",
+                   help="without --model: labelled grid lines every PX pixels (default: at most "
+                        "16 across the sensor)")
+    prepargs.add_arguments(p)
 
 
 def load_events(path):
+    """(events, width, height) of a file; the size from its header, else the events'."""
     from .. import io as stio
-    return stio.open(path).read()
+    r = stio.open(path)
+    ev = r.read()
+    w = r.width or (int(ev["x"].max()) + 1 if len(ev) else 1)
+    h = r.height or (int(ev["y"].max()) + 1 if len(ev) else 1)
+    return ev, w, h, bool(r.width and r.height)
+
+
+def prepared(args, events, width, height):
+    """The events through the recording-quirk options, if any was given (springtrack.prep)."""
+    import numpy as np
+    prep = prepargs.preparer(args, width, height)
+    if prep is None:
+        return events, None
+    return np.concatenate([events[:0]] + list(prepargs.prepared([events], prep))), prep.stats
 
 
 def run(args) -> int:
+    if args.window_us <= 0 or (args.every_us is not None and args.every_us <= 0):
+        raise ValueError("--window-us and --every-us must be positive µs")
+    if args.grid is not None and args.grid < 1:
+        raise ValueError(f"--grid must be a positive number of px, got {args.grid}")
+    events, width, height, known = load_events(args.input)
+    events, stats = prepared(args, events, width, height)
+    if args.model is None:
+        return events_only(args, events, width, height, stats)
+    return overlay(args, events, width if known else None, height if known else None)
+
+
+def events_only(args, events, width, height, stats) -> int:
+    from pathlib import Path
+    from ..render import plot_events
+    for opt in ("track", "truth", "params"):
+        if getattr(args, opt):
+            raise ValueError(f"--{opt} needs --model")
+    if Path(args.out).suffix.lower() in (".gif", ".mp4", "") or Path(args.out).is_dir():
+        raise ValueError(f"{args.out}: without --model, render writes one picture "
+                         f"(.png, .svg, .pdf, ...)")
+    span = (f"t = {events['t'][0]:,} .. {events['t'][-1]:,} us" if len(events)
+            else "no events")
+    title = (f"{Path(args.input).name}: {width}x{height}, {len(events):,} events, {span}"
+             + (f" ({stats.summary()})" if stats is not None else ""))
+    plot_events(events, width, height, args.out, title=title, scale=args.scale, grid=args.grid)
+    print(f"wrote {args.out}: {len(events):,} events on the {width}x{height} sensor",
+          file=sys.stderr)
+    return 0
+
+
+def overlay(args, events, width, height) -> int:
+    from ..geometry import fit_model
     from ..model import load_model
     from ..render import render
     from ..track import TRACK_FIELDS, read_csv
     from ..tracker import Tracker
-    if args.window_us <= 0 or (args.every_us is not None and args.every_us <= 0):
-        raise ValueError("--window-us and --every-us must be positive µs")
-    model = load_model(args.model)
-    events = load_events(args.input)
+    model = fit_model(load_model(args.model), width, height, args.sensor_from,
+                      what=f"{args.input}'s sensor")
     if args.track:
         track = read_csv(args.track)
         missing = [i for i in model.ids if i not in track.ids]

@@ -10,6 +10,7 @@ import numpy as np
 from ..events import as_events
 from ..track import CSV_HEADER
 from ..tracker import profile
+from ..watch import TrackWatch
 from . import prepargs
 
 EPILOG = """\
@@ -63,54 +64,52 @@ def add_arguments(p):
     p.add_argument("--profile", metavar="OUT.csv|OUT.png",
                    help="time the kernel per 10 ms bin of events (paper Figs. 22-23): a CSV "
                         "t_us,events,proc_us or a plot")
+    add_sensor_from(p)
     prepargs.add_arguments(p)
 
 
-def read_events(path):
-    """Yield event chunks from any supported file (springtrack.io when available)."""
-    try:
-        from .. import io as stio
-    except ImportError:
-        stio = None
-    if stio is not None and hasattr(stio, "open"):
-        reader = stio.open(path)
-        total = getattr(reader, "size_hint", None)
-        yield from ((as_events(c), total) for c in reader)
-        return
-    if str(path).endswith(".npy"):
-        ev = np.load(path, mmap_mode="r")
-        for s in range(0, len(ev), 1 << 20):
-            yield as_events(np.ascontiguousarray(ev[s:s + (1 << 20)])), len(ev)
-        return
-    raise ValueError(f"{path}: unsupported input (springtrack.io is not available)")
+def read_events(reader):
+    """Yield (event chunk, estimated total events) from a ``springtrack.io`` reader."""
+    total = getattr(reader, "size_hint", None)
+    yield from ((as_events(c), total) for c in reader)
+
+
+def add_sensor_from(p) -> None:
+    """``--sensor-from``, shared by the commands that track a file with a model."""
+    p.add_argument("--sensor-from", choices=["file", "model"],
+                   help="a model whose [sensor] is not the input's is refused; 'file': track "
+                        "it on the input's sensor (trackers where they are), 'model': keep "
+                        "the model's sensor (events outside it skipped and counted)")
 
 
 def open_stream(args):
     """The model and the stream of (chunk, total) to track: the input's events, prepared
-    when asked (springtrack.prep); the model --model, or learned from the stream's first
-    --learn-first-ms (the tracking then starts where the learning window ends)."""
+    when asked (springtrack.prep); the model --model, checked against the input's sensor
+    (springtrack.geometry: a mismatch or trackers off the sensor is an error, unless
+    --sensor-from), or learned from the stream's first --learn-first-ms (the tracking then
+    starts where the learning window ends)."""
+    from .. import io as stio
+    from ..geometry import fit_model
     from ..model import load_model
     if (args.model is None) == (args.learn_first_ms is None):
         raise ValueError("give either --model or --learn-first-ms")
-    model = load_model(args.model) if args.model else None
-    if model is not None:
+    reader = stio.open(args.input)
+    width, height = reader.width, reader.height
+    if args.model:
+        model = fit_model(load_model(args.model), width, height, args.sensor_from,
+                          what=f"{args.input}'s sensor")
         width, height = model.width, model.height
-        source = read_events(args.input)
     else:
-        from .. import io as stio
-        reader = stio.open(args.input)
-        width, height = reader.width, reader.height
+        model = None
         if args.input == "-":                       # one pass over standard input
             if not width or not height:
                 raise ValueError("--learn-first-ms on standard input needs a stream whose "
                                  "header gives the sensor size")
-            source = ((as_events(c), None) for c in reader)
-        else:
-            if not width or not height:             # .npy, .csv: the events' extent
-                ev = reader.read()
-                width = int(ev["x"].max()) + 1 if len(ev) else 1
-                height = int(ev["y"].max()) + 1 if len(ev) else 1
-            source = read_events(args.input)
+        elif not width or not height:               # .npy, .csv: the events' extent
+            ev = reader.read()
+            width = int(ev["x"].max()) + 1 if len(ev) else 1
+            height = int(ev["y"].max()) + 1 if len(ev) else 1
+    source = read_events(reader)
     prep = prepargs.preparer(args, width, height)
     if prep is not None:
         source = _prepared(source, prep)
@@ -165,6 +164,7 @@ def run(args) -> int:
     tr = Tracker(model, params=args.params, backend=backend, acquire=args.acquire,
                  acquire_ms=args.acquire_ms, acquire_bounds=_acquire_bounds(args))
     tr.record(args.sample_us)
+    watch = TrackWatch(tr.model)
     prog = Progress(not args.no_progress)
     start = time.perf_counter()
     n = 0
@@ -178,17 +178,18 @@ def run(args) -> int:
             # the rows are written as the kernel takes them: memory bounded by one call's
             # SAMPLE_CAP rows, however many samples a chunk produces
             if args.profile:
-                bins.append(profile(tr, chunk, PROFILE_BIN_US, sink=lambda s: s.write_rows(out)))
+                bins.append(profile(tr, chunk, PROFILE_BIN_US,
+                                    sink=lambda rows: _write_rows(rows, tr, watch, out)))
             else:
                 for part in tr.stream(chunk):
-                    part.write_rows(out)
+                    _write_rows(part, tr, watch, out)
             t_first = int(chunk["t"][0]) if t_first is None else t_first
             t_last = int(chunk["t"][-1])
             n += len(chunk)
             prog.update(n, total, t_last)
         if args.acquire:
             tr.flush()
-            tr.samples().write_rows(out)
+            _write_rows(tr.samples(), tr, watch, out)
     prog.close()
     wall = time.perf_counter() - start
     if args.profile:
@@ -209,6 +210,10 @@ def run(args) -> int:
             print(f"springtrack track: the model was not found in {args.input}; no track rows "
                   f"written", file=sys.stderr)
             return 1
+    if n:
+        watch.finish(tr.state())
+        for w in watch.warnings():
+            print(f"springtrack track: warning: {w}", file=sys.stderr)
     return 0
 
 
@@ -240,3 +245,14 @@ def write_profile(path, bins) -> None:
     with open(path, "w") as f:
         f.write("t_us,events,proc_us\n")
         f.writelines(f"{a},{b},{c:.3f}\n" for a, b, c in zip(keys.tolist(), ev.tolist(), pu.tolist()))
+
+
+def _write_rows(samples, tr, watch, f):
+    """Samples the tracker took, as CSV rows (the header is already written) and into the
+    end-of-run watch."""
+    if not len(samples):
+        return
+    if watch.model is not tr.model:            # placed by the acquisition
+        watch.use_model(tr.model)
+    watch.add(samples)
+    samples.write_rows(f)

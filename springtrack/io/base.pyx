@@ -183,14 +183,18 @@ cdef class Decoder:
             info={INFO_NAMES[i]: int(self.n.info[i]) for i in range(<int>N_INFO) if self.n.info[i]})
 
 
-def encoder_input(events, str fmt, int width, int height):
-    """Events for an encoder: EVENT_DTYPE, t >= 0 and non-decreasing, x < width, y < height;
-    raises ValueError naming the format otherwise."""
+def encoder_input(events, str fmt, int width, int height, prev_t=None):
+    """Events for an encoder: EVENT_DTYPE, t >= 0 (>= ``prev_t``, the last event time of
+    the stream the events continue) and non-decreasing, x < width, y < height; raises
+    ValueError naming the format otherwise."""
     from springtrack.events import as_events
     ev = as_events(events)
     if len(ev) == 0:
         return ev
     t = ev["t"]
+    if prev_t is not None and t[0] < prev_t:
+        raise ValueError(f"{fmt} encode: the events start at {t[0]} us, before the stream's "
+                         f"last event at {prev_t} us")
     if t[0] < 0 or (len(t) > 1 and np.any(np.diff(t) < 0)):
         raise ValueError(f"{fmt} encode: timestamps must be >= 0 and non-decreasing")
     if ev["x"].max() >= width or ev["y"].max() >= height:

@@ -29,6 +29,7 @@ cdef extern from "springtrack/io/ccam_types.h" nogil:
         CCAM_EM_ON
         CCAM_TIME_HIGH
     enum:
+        CCAM_WORD_BYTES
         CCAM_EXPOSURE_FLAG
         CCAM_POLARITY_FLAG
         CCAM_TH_BITS

@@ -27,6 +27,7 @@ enum CCamWordTypes {
 };
 
 enum {
+    CCAM_WORD_BYTES    = 4,
     CCAM_TYPE_SHIFT    = 28,      /* type = w >> 28 */
     CCAM_EXPOSURE_FLAG = 0x2,     /* type bit: EM_OFF, EM_ON */
     CCAM_POLARITY_FLAG = 0x1,     /* type bit: CD_ON, EM_ON */

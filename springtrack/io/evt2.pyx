@@ -31,13 +31,16 @@ cdef class Evt2Decoder(Decoder):
         return evt2_decode_words(&self.st, &self.n, p, nw, out, nout) * EVT2_WORD_BYTES
 
 
-def encode(events) -> bytes:
+def encode(events, prev_t=None) -> bytes:
     """EVT 2.0 words (no header) for time-sorted events; exact inverse of the decoder.
 
     Emits an EVT_TIME_HIGH word whenever t >> 6 changes.  Raises ValueError for negative or
     decreasing timestamps or coordinates above 2047.
+    ``prev_t``: the time of the last event of a stream these words continue (its decoder's
+    time base is then that event's time-high, not 0), e.g. a camera's stream encoded chunk
+    by chunk; None: the stream starts here.
     """
-    ev = encoder_input(events, "evt2", MAX_COORD, MAX_COORD)
+    ev = encoder_input(events, "evt2", MAX_COORD, MAX_COORD, prev_t)
     cdef Py_ssize_t n = ev.shape[0], i, j = 0
     if n == 0:
         return b""
@@ -45,14 +48,15 @@ def encode(events) -> bytes:
     th = t >> EVT2_TH_SHIFT
     # An EVT_TIME_HIGH word per change of t >> 6; gaps of half the 28-bit range or more get
     # bridging EVT_TIME_HIGH words so the decoder never mistakes them for a wrap.
-    dth = np.diff(th, prepend=0)
+    cdef int64_t start = 0 if prev_t is None else prev_t >> EVT2_TH_SHIFT
+    dth = np.diff(th, prepend=start)
     cdef int64_t step = (1 << (EVT2_TH_BITS - 1)) - 1
     cdef Py_ssize_t total = n + 1 + int((dth > 0).sum()) + int(np.maximum(dth - 1, 0).__floordiv__(step).sum())
     words = np.empty(total, dtype="<u4")
     cdef uint32_t[::1] w = words
     cdef const uint8_t[::1] raw = ev.view(np.uint8)
     cdef const Event* e = <const Event*>&raw[0]
-    cdef int64_t cur = 0, h       # the decoder starts from time-high 0
+    cdef int64_t cur = start, h   # the decoder's time-high: 0 at the stream start
     cdef bint first = True
     with nogil:
         for i in range(n):

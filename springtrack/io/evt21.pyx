@@ -36,7 +36,7 @@ cdef class Evt21Decoder(Decoder):
                 * EVT21_WORD_BYTES)
 
 
-def encode(events, bint legacy=False) -> bytes:
+def encode(events, bint legacy=False, prev_t=None) -> bytes:
     """EVT 2.1 words (no header) for time-sorted events; decoding gives them back exactly.
 
     A TIME_HIGH word whenever t >> 6 changes.  Across a gap of half the 28-bit range or
@@ -46,13 +46,17 @@ def encode(events, bint legacy=False) -> bytes:
     increasing x inside one 32-column group [32 j, 32 j + 32) share a word (x base 32 j), as
     the sensor sends them.  ``legacy``: the IMX636 order.  Raises ValueError for negative or
     decreasing timestamps or coordinates above 2047.
+    ``prev_t``: the time of the last event of a stream these words continue (its decoder's
+    time base is then that event's time-high, not 0), e.g. a camera's stream encoded chunk
+    by chunk; None: the stream starts here.
     """
-    ev = encoder_input(events, "evt21", MAX_COORD, MAX_COORD)
+    ev = encoder_input(events, "evt21", MAX_COORD, MAX_COORD, prev_t)
     cdef Py_ssize_t n = ev.shape[0], i, j = 0
     if n == 0:
         return b""
     th = ev["t"] >> EVT21_TH_SHIFT
-    dth = np.diff(th, prepend=0)
+    cdef int64_t start = 0 if prev_t is None else prev_t >> EVT21_TH_SHIFT
+    dth = np.diff(th, prepend=start)
     cdef int64_t step = (1 << (EVT21_TH_BITS - 1)) - 1
     cdef Py_ssize_t total = (n + 1 + int((dth > 0).sum())
                              + int(np.maximum(dth - 1, 0).__floordiv__(step).sum())
@@ -61,7 +65,7 @@ def encode(events, bint legacy=False) -> bytes:
     cdef uint64_t[::1] w = words
     cdef const uint8_t[::1] raw = ev.view(np.uint8)
     cdef const Event* e = <const Event*>&raw[0]
-    cdef int64_t cur = 0, h, t = -1, wrap      # the decoder starts from time-high 0
+    cdef int64_t cur = start, h, t = -1, wrap   # the decoder's time-high: 0 at the start
     cdef uint32_t x, y = 0, group = 0, last_x = 0, pol = 0
     cdef bint first = True, open_word = False
     with nogil:

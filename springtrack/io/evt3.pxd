@@ -6,6 +6,7 @@
 #   cdef DecodeCounts n                            # springtrack.io.base: words, anomalies, info
 #   evt3_init(&st, width, height)                  # 0: geometry unknown, no check
 #   used = evt3_decode_words(&st, &n, words, nw, out, &k, cap)   # up to 12 events per word
+#   evt3_lost_data(&st)                            # words were lost: forget the addresses
 #
 # Word types and fields: evt3_types.h.  The state: the current row (EVT_ADDR_Y), vector
 # base and polarity (VECT_BASE_X) and time (EVT_TIME_HIGH through the time base of every
@@ -71,6 +72,18 @@ cdef inline void evt3_init(Evt3State* s, int width, int height) noexcept nogil:
     s.vec_p = 0
     s.width = geometry_bound(width)
     s.height = geometry_bound(height)
+
+cdef inline void evt3_lost_data(Evt3State* s) noexcept nogil:
+    """Words were lost (a dropped transfer, a reconnect): the row, the vector base and
+    the EVT_TIME_LOW bits are stale.  Events need a fresh EVT_ADDR_Y (VECT_BASE_X) again
+    (before it they are orphans), and until the next EVT_TIME_LOW the time is the start of
+    the time-high period, never ahead of the stream; the time base is kept (the next
+    EVT_TIME_HIGH continues it)."""
+    s.y = -1
+    s.base_x = -1
+    s.tl = 0
+    s.t_low_last = 0
+
 
 cdef inline Py_ssize_t evt3_decode_words(Evt3State* s, DecodeCounts* n, const uint8_t* p,
                                          Py_ssize_t nw, Event* out, Py_ssize_t* nout,

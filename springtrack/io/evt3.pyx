@@ -33,14 +33,17 @@ cdef class Evt3Decoder(Decoder):
                 * EVT3_WORD_BYTES)
 
 
-def encode(events) -> bytes:
+def encode(events, prev_t=None) -> bytes:
     """EVT 3.0 words (no header) for time-sorted events, one EVT_ADDR_X per event.
 
     Emits EVT_TIME_HIGH / EVT_TIME_LOW / EVT_ADDR_Y only when they change.  Timestamps must
     be >= 0 and non-decreasing; x, y <= 2047.  (No vectors: the decoder's vector path is
     tested with hand-built words and the real recording.)
+    ``prev_t``: the time of the last event of a stream these words continue (its decoder's
+    time base is then that event's time-high, not 0), e.g. a camera's stream encoded chunk
+    by chunk; None: the stream starts here.
     """
-    ev = encoder_input(events, "evt3", MAX_COORD, MAX_COORD)
+    ev = encoder_input(events, "evt3", MAX_COORD, MAX_COORD, prev_t)
     cdef Py_ssize_t n = ev.shape[0], i, j = 0
     if n == 0:
         return b""
@@ -48,13 +51,14 @@ def encode(events) -> bytes:
     # Gaps of half the 12-bit EVT_TIME_HIGH range or more get bridging EVT_TIME_HIGH words
     # so the decoder never mistakes them for a wrap.
     th_all = t >> EVT3_TH_SHIFT
-    dth = np.diff(th_all, prepend=0)
+    cdef int64_t start = 0 if prev_t is None else prev_t >> EVT3_TH_SHIFT
+    dth = np.diff(th_all, prepend=start)
     cdef int64_t step = (1 << (EVT3_TH_BITS - 1)) - 1
     words = np.empty(4 * n + int(np.maximum(dth - 1, 0).__floordiv__(step).sum()) + 1, dtype="<u2")
     cdef uint16_t[::1] w = words
     cdef const uint8_t[::1] raw = ev.view(np.uint8)
     cdef const Event* e = <const Event*>&raw[0]
-    cdef int64_t th = 0, tl = -1, y = -1, h, l     # the decoder starts from time-high 0
+    cdef int64_t th = start, tl = -1, y = -1, h, l  # the decoder's time-high: 0 at the start
     cdef bint first = True
     with nogil:
         for i in range(n):
