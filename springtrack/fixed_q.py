@@ -190,7 +190,8 @@ def model_words(arr: dict, width: int, height: int) -> np.ndarray:
     """The word stream fx_load_model reads, from ShapeModel.arrays() (checked by model_q)."""
     mq = model_q(arr, width, height)
     n, nc = len(mq["mx"]), len(mq["stiff"])
-    words = [n, nc, width, height]
+    box = _limits.position_box(width, height)       # the state guard's, whole px
+    words = [n, nc, width, height, *(int(v) for v in box)]
     for i in range(n):
         words += [*_w64(mq["mx"][i]), *_w64(mq["my"][i]), *_w64(mq["sxx"][i]),
                   *_w64(mq["sxy"][i]), *_w64(mq["syy"][i]), mq["mq"][i], mq["invm"][i],

@@ -104,7 +104,7 @@ class ReferenceBackend:
         r = self.ref
         return dict(events_valid=r.n_valid, events_assigned=r.n_assigned,
                     skipped_back_in_time=r.n_back, skipped_outside_sensor=r.n_outside,
-                    spring_updates=r.n_spring_updates)
+                    spring_updates=r.n_spring_updates, state_resets=r.n_resets)
 
 
 def _cython_backend(model, params, option):

@@ -152,7 +152,61 @@ def test_just_inside_the_spring_bound_stays_finite_on_an_adversarial_stream(shap
             assert np.all((st["x"] >= x_lo) & (st["x"] <= x_hi)), prm
             assert np.all((st["y"] >= y_lo) & (st["y"] <= y_hi)), prm
         assert np.all(np.isfinite(tr.energies()["mean"]))
-        assert tr.counters["spring_updates"] > 0
+        assert tr.counters["spring_updates"] > 0 and tr.counters["state_resets"] == 0
+
+
+# ---- the state guard: what would escape the limits anyway is reset, never sent out --------
+def fresh_state(model, backend):
+    return springtrack.Tracker(model, backend=backend).state()
+
+
+@pytest.mark.parametrize("backend", ["reference", "cython", "fixed"])
+def test_the_guard_resets_a_state_that_left_the_box(backend):
+    """A tracker thrown out of the position box (NaN for the float kernels, 5000 px for all)
+    is caught by the next spring update: counted, and the whole state reset to the model,
+    the same in the three kernels; tracking goes on from there."""
+    import probes
+    from springtrack.synthetic import blob_stream
+    m = grid3x3()
+    ev, _ = blob_stream(m, 6000, seed=3)
+    for bad in ([math.nan, 5000.0] if backend != "fixed" else [5000.0]):
+        tr = springtrack.Tracker(m, backend=backend)
+        tr.process(ev[:3000])
+        k = tr._b
+        if backend == "reference":
+            k.ref.mx[4] = bad
+        elif backend == "cython":
+            probes.load("kernel_probe").place(k, 4, bad, 120.0)
+        else:
+            probes.load("fixed_probe").set_raw(k, 4, x=int(bad) << 32)
+        (k.ref if backend == "reference" else k).springs()
+        assert tr.counters["state_resets"] == 1
+        st, want = tr.state(), fresh_state(m, backend)
+        for f in ("x", "y", "sxx", "sxy", "syy", "activity", "active", "sensitive"):
+            assert np.array_equal(st[f], want[f]), f
+        assert tr.energies()["mean"] == 0.0
+        tr.process(ev[3000:])
+        assert np.all(np.isfinite(tr.state()["x"])) and tr.counters["events_assigned"] > 0
+
+
+@pytest.mark.parametrize("backend", ["cython", "fixed"])
+def test_past_the_bound_the_guard_keeps_every_sample_finite(monkeypatch, backend):
+    """The lever at three times the spring bound (validation bypassed): its springs
+    overshoot and grow, the guard resets the state (counted) and every sample stays finite
+    and in the box; at the bound itself nothing is reset (above)."""
+    from springtrack import model as _model
+    m = at_load(lever(), limits.SPRING_LOAD_MAX)
+    ev = adversarial(m, 100_000, seed=6)
+    monkeypatch.setattr(_model, "validate", lambda m: None)
+    monkeypatch.setattr(limits, "check_model", lambda *a, **k: None)
+    unstable = at_load(lever(), 3 * limits.SPRING_LOAD_MAX)
+    tr = springtrack.Tracker(unstable, params=HARSH[0], backend=backend)
+    track = tr.run(ev, 100)
+    assert tr.counters["state_resets"] > 0
+    for f in ("x", "y", "sxx", "sxy", "syy", "activity", "energy"):
+        assert np.all(np.isfinite(getattr(track, f))), f
+    x_lo, x_hi, y_lo, y_hi = limits.position_box(m.width, m.height)
+    assert np.all((track.x >= x_lo) & (track.x <= x_hi) & (track.y >= y_lo) & (track.y <= y_hi))
 
 
 # ---- the firmware's path: NACKs, never a dead thread ------------------------------------

@@ -41,7 +41,7 @@
 #define MCU_MODEL_WORDS (FX_MODEL_HEAD + FX_MODEL_TRACKER * FX_MAX_TRACKERS \
                          + FX_MODEL_CONNECTION * FX_MAX_CONNECTIONS)
 #define MCU_WORDS (MCU_MODEL_WORDS > FX_PARAMS_WORDS ? MCU_MODEL_WORDS : FX_PARAMS_WORDS)
-#define MCU_N_COUNTERS 13
+#define MCU_N_COUNTERS 14
 
 enum { MCU_NOP = 0, MCU_LOAD_MODEL = 1, MCU_SET_PARAMS = 2, MCU_RUN = 3, MCU_STEP = 4,
        MCU_SNAPSHOT = 5, MCU_ENERGIES = 6, MCU_SPRINGS = 7 };
@@ -65,7 +65,7 @@ uint8_t mcu_wire[MCU_ROWS][FX_MAX_TRACKERS * FX_TELE_RECORD];
 int64_t mcu_energy[3][FX_MAX_CONNECTIONS];
 /* events_valid, events_assigned, skipped_back_in_time, skipped_outside_sensor,
    spring_updates, index_updates, saturated_position, saturated_activity, saturated_energy,
-   saturated_inverse, last_t, mean_energy, n */
+   saturated_inverse, last_t, mean_energy, n, state_resets */
 int64_t mcu_counters[MCU_N_COUNTERS];
 
 static void snapshot_row(fx_state *s, int64_t t, int64_t *row, uint8_t *wire)
@@ -206,6 +206,7 @@ void mcu_main(void)
     mcu_counters[10] = s->last_t;
     mcu_counters[11] = s->mean_energy;
     mcu_counters[12] = s->n;
+    mcu_counters[13] = s->n_resets;
 }
 
 /* where the host points the return address: mcu_main returns here, and the emulator
