@@ -403,8 +403,8 @@ cdef bint guard_state(KState* s) noexcept nogil:
     cdef int i
     cdef bint out = False
     for i in range(s.n):
-        out |= not (s.mx[i] >= s.pos_lo_x and s.mx[i] <= s.pos_hi_x
-                    and s.my[i] >= s.pos_lo_y and s.my[i] <= s.pos_hi_y)
+        out |= not (s.mx[i] >= s.pos_lo_x and s.mx[i] < s.pos_hi_x
+                    and s.my[i] >= s.pos_lo_y and s.my[i] < s.pos_hi_y)
     if out:
         s.n_resets += 1
         reset_state(s)

@@ -191,7 +191,7 @@ def model_words(arr: dict, width: int, height: int) -> np.ndarray:
     mq = model_q(arr, width, height)
     n, nc = len(mq["mx"]), len(mq["stiff"])
     box = _limits.position_box(width, height)       # the state guard's, whole px
-    words = [n, nc, width, height, *(int(v) for v in box)]
+    words = [n, nc, width, height, *box]
     for i in range(n):
         words += [*_w64(mq["mx"][i]), *_w64(mq["my"][i]), *_w64(mq["sxx"][i]),
                   *_w64(mq["sxy"][i]), *_w64(mq["syy"][i]), mq["mq"][i], mq["invm"][i],

@@ -52,14 +52,16 @@ class LimitError(ValueError):
     """A model or parameter value outside what every backend can run; the message names it."""
 
 
-def position_box(width: int, height: int) -> tuple[float, float, float, float]:
-    """(x_lo, x_hi, y_lo, y_hi), px: where a tracker may be, in a model and at every spring
-    update.  One sensor size beyond each border (a model half out of view, as acquisition
-    places one at the sensor's edge, is valid), within the kernels' range +-POS_LIMIT_PX - 1.
-    A kernel whose state leaves it resets the tracker state to the model (counted)."""
+def position_box(width: int, height: int) -> tuple[int, int, int, int]:
+    """(x_lo, x_hi, y_lo, y_hi), whole px: where a tracker may be, x_lo <= x < x_hi and
+    y_lo <= y < y_hi, in a model and after every spring update.  One sensor size beyond
+    each border (a model half out of view, as acquisition places one at the sensor's edge,
+    is valid), within the kernels' range: |x| < POS_LIMIT_PX - 1, so that a position the
+    fixed kernel saturated lies outside.  Whole px, so that the fixed kernel tests the
+    integer part of its Q.32 means only.  A kernel whose state leaves the box resets it
+    to the model (counted)."""
     lim = POS_LIMIT_PX - 1
-    return (-float(min(width, lim)), float(min(2 * width, POS_LIMIT_PX) - 1),
-            -float(min(height, lim)), float(min(2 * height, POS_LIMIT_PX) - 1))
+    return (-min(width, lim), min(2 * width, lim), -min(height, lim), min(2 * height, lim))
 
 
 def spring_kappa(kinds) -> np.ndarray:
@@ -127,10 +129,10 @@ def check_model(width: int, height: int, arr: dict, ids=None) -> None:
     x_lo, x_hi, y_lo, y_hi = position_box(width, height)
     for key, lo, hi in (("x", x_lo, x_hi), ("y", y_lo, y_hi)):
         v = np.asarray(arr[key], float)
-        bad = ~((v >= lo) & (v <= hi))                       # NaN is bad too
+        bad = ~((v >= lo) & (v < hi))                        # NaN is bad too
         if bad.any():
             i = _first(bad)
-            raise LimitError(f"{who(i)}: {key}={float(v[i])!r} px is outside [{lo:g}, {hi:g}], one "
+            raise LimitError(f"{who(i)}: {key}={float(v[i])!r} px is outside [{lo}, {hi}), one "
                              f"sensor size around the {width}x{height} sensor")
     m = np.asarray(arr["mass"], float)
     bad = ~((m >= MASS_MIN) & (m <= MASS_MAX))

@@ -372,7 +372,7 @@ class ReferenceTracker:
         (``n_resets``) and the whole tracker state is reset to the model, never reported."""
         x_lo, x_hi, y_lo, y_hi = self.box
         for i in range(self.n):
-            if not (x_lo <= self.mx[i] <= x_hi and y_lo <= self.my[i] <= y_hi):
+            if not (x_lo <= self.mx[i] < x_hi and y_lo <= self.my[i] < y_hi):
                 self.n_resets += 1
                 self._reset_state()
                 for k in range(self.n):

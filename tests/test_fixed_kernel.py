@@ -252,10 +252,10 @@ def test_position_saturates_and_counts():
 
 
 def test_energy_offset_saturates_and_counts():
-    # on a sensor 8192 px wide the position box reaches +-8191 px: no reset here
+    # on a sensor 8192 px wide the position box is [-8191, 8191) px: no reset here
     k = FixedKernel(springtrack.model.grid3x3(width=8192), resolve_params(springtrack.model.grid3x3()))
-    fx.set_raw(k, 0, x=8191 * PX)
-    fx.set_raw(k, 1, x=-8191 * PX)                   # 0->1 offset -16382 px, rest +50
+    fx.set_raw(k, 0, x=8190 * PX)
+    fx.set_raw(k, 1, x=-8190 * PX)                   # 0->1 offset -16380 px, rest +50
     k.springs()
     assert k.counters()["state_resets"] == 0
     assert k.counters()["saturated_energy"] > 0

@@ -62,11 +62,11 @@ def test_a_huge_sigma_is_refused_for_every_backend(backend):
 
 def test_positions_and_sensor_are_bounded():
     x_lo, x_hi, y_lo, y_hi = limits.position_box(304, 240)
-    assert (x_lo, x_hi, y_lo, y_hi) == (-304, 607, -240, 479)
+    assert (x_lo, x_hi, y_lo, y_hi) == (-304, 608, -240, 480)
     assert limits.position_box(8192, 100)[:2] == (-8191, 8191)
-    for x, y in ((x_lo, y_lo), (x_hi, y_hi)):                     # a model half out of view
+    for x, y in ((x_lo, y_lo), (x_hi - 1e-6, y_hi - 1e-6)):       # a model half out of view
         ShapeModel("m", 304, 240, [TrackerSpec("a", x, y, (4.0, 0.0, 4.0))], [])
-    for x, y in ((x_lo - 1e-6, 0.0), (0.0, y_hi + 1e-6), (math.nan, 0.0)):
+    for x, y in ((x_lo - 1e-6, 0.0), (0.0, y_hi), (math.nan, 0.0)):
         with pytest.raises(ModelError, match="outside|finite"):
             ShapeModel("m", 304, 240, [TrackerSpec("a", x, y, (4.0, 0.0, 4.0))], [])
     with pytest.raises(ModelError, match=r"sensor.width must be an integer in \[1, 8192\]"):
@@ -149,8 +149,8 @@ def test_just_inside_the_spring_bound_stays_finite_on_an_adversarial_stream(shap
             st = tr.state()
             for f in ("x", "y", "sxx", "sxy", "syy", "activity"):
                 assert np.all(np.isfinite(st[f])), (prm, f)
-            assert np.all((st["x"] >= x_lo) & (st["x"] <= x_hi)), prm
-            assert np.all((st["y"] >= y_lo) & (st["y"] <= y_hi)), prm
+            assert np.all((st["x"] >= x_lo) & (st["x"] < x_hi)), prm
+            assert np.all((st["y"] >= y_lo) & (st["y"] < y_hi)), prm
         assert np.all(np.isfinite(tr.energies()["mean"]))
         assert tr.counters["spring_updates"] > 0 and tr.counters["state_resets"] == 0
 
@@ -206,7 +206,7 @@ def test_past_the_bound_the_guard_keeps_every_sample_finite(monkeypatch, backend
     for f in ("x", "y", "sxx", "sxy", "syy", "activity", "energy"):
         assert np.all(np.isfinite(getattr(track, f))), f
     x_lo, x_hi, y_lo, y_hi = limits.position_box(m.width, m.height)
-    assert np.all((track.x >= x_lo) & (track.x <= x_hi) & (track.y >= y_lo) & (track.y <= y_hi))
+    assert np.all((track.x >= x_lo) & (track.x < x_hi) & (track.y >= y_lo) & (track.y < y_hi))
 
 
 # ---- the firmware's path: NACKs, never a dead thread ------------------------------------

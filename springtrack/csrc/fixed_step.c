@@ -1444,10 +1444,13 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
         s->my[i] = sat_pos(s, s->my[i] + mulsh(ty - s->my[i], s->energy_gain, 30));
     }
     /* [ref] _guard: a mean outside the position box (a saturated one is) is a state no
-       model within springtrack.limits reaches: counted, and the state reset to the model */
-    for (i = 0; i < n; i++)
-        bad |= (uint64_t)(s->mx[i] < s->pos_lo_x || s->mx[i] > s->pos_hi_x
-                          || s->my[i] < s->pos_lo_y || s->my[i] > s->pos_hi_y);
+       model within springtrack.limits reaches: counted, and the state reset to the model.
+       The box is whole px: the integer parts (the high words) tell */
+    for (i = 0; i < n; i++) {
+        int32_t xi = (int32_t)(s->mx[i] >> FX_POS_FRAC), yi = (int32_t)(s->my[i] >> FX_POS_FRAC);
+        bad |= (uint64_t)(xi < s->pos_lo_x || xi >= s->pos_hi_x || yi < s->pos_lo_y
+                          || yi >= s->pos_hi_y);
+    }
     if (bad) {
         s->n_resets++;
         fx_reset(s);
@@ -1587,7 +1590,7 @@ int fx_load_model(fx_state *s, const int32_t *w, int32_t nw, uint64_t *cells, in
     if (width < 1 || height < 1 || width > 8192 || height > 8192)
         return FX_ERR_RANGE;
     /* the position box, whole px: x_lo, x_hi, y_lo, y_hi within +-8191 */
-    if (w[4] > w[5] || w[6] > w[7] || w[4] < -8191 || w[5] > 8191 || w[6] < -8191
+    if (w[4] >= w[5] || w[6] >= w[7] || w[4] < -8191 || w[5] > 8191 || w[6] < -8191
         || w[7] > 8191)
         return FX_ERR_RANGE;
     need = fx_cells_needed(width, height);
@@ -1604,10 +1607,10 @@ int fx_load_model(fx_state *s, const int32_t *w, int32_t nw, uint64_t *cells, in
     s->height = height;
     s->gw = ((width - 1) >> FX_CELL_SHIFT) + 1;
     s->gh = ((height - 1) >> FX_CELL_SHIFT) + 1;
-    s->pos_lo_x = shl64(w[4], FX_POS_FRAC);
-    s->pos_hi_x = shl64(w[5], FX_POS_FRAC);
-    s->pos_lo_y = shl64(w[6], FX_POS_FRAC);
-    s->pos_hi_y = shl64(w[7], FX_POS_FRAC);
+    s->pos_lo_x = w[4];
+    s->pos_hi_x = w[5];
+    s->pos_lo_y = w[6];
+    s->pos_hi_y = w[7];
     w += FX_MODEL_HEAD;
     for (i = 0; i < n; i++, w += FX_MODEL_TRACKER) {
         s->mx[i] = s->rest_x[i] = word64(w);

@@ -96,11 +96,12 @@ typedef struct {
     int32_t equal_mass;                       /* every centre-of-mass weight is the same */
     int64_t decay_span;                       /* min(dt_max, 2^(2 FX_DECAY_BITS)) us */
     /* the model's means and covariances (the state starts from them and the guard resets
-       it to them), and the position box (springtrack.limits.position_box, Q.32): after a
-       spring update every mean lies in it, or the guard resets the state (fx_reset) */
+       it to them), and the position box (springtrack.limits.position_box, whole px): after
+       a spring update every mean has lo <= its integer part < hi, or the guard resets the
+       state (fx_reset) */
     int64_t rest_x[FX_MAX_TRACKERS], rest_y[FX_MAX_TRACKERS];
     int64_t rest_sxx[FX_MAX_TRACKERS], rest_sxy[FX_MAX_TRACKERS], rest_syy[FX_MAX_TRACKERS];
-    int64_t pos_lo_x, pos_hi_x, pos_lo_y, pos_hi_y;
+    int32_t pos_lo_x, pos_hi_x, pos_lo_y, pos_hi_y;
     /* tracker state, structure of arrays */
     int64_t mx[FX_MAX_TRACKERS], my[FX_MAX_TRACKERS];
     int64_t sxx[FX_MAX_TRACKERS], sxy[FX_MAX_TRACKERS], syy[FX_MAX_TRACKERS];
