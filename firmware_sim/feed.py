@@ -31,7 +31,6 @@ class DecodedFeed:
         self.gaps = 0
         self.old_words = 0            # counts of decoders replaced after gaps
         self.old_events = 0
-        self.sink = None              # as Fused.sink: parts passed on as they are taken
 
     @property
     def kernel_obj(self):
@@ -66,7 +65,9 @@ class DecodedFeed:
         self.decoder = camusb.make_decoder(self.profile)
         self.gaps += 1
 
-    def feed(self, buf, n: int = -1):
+    def feed(self, buf, n: int = -1, sink=None):
+        """As ``_fused.Fused.feed``: the snapshots taken, or each block of them passed to
+        ``sink`` as it is taken (memory bounded by one block) and None returned."""
         mv = memoryview(buf).cast("B")
         if n >= 0:
             mv = mv[:n]
@@ -82,8 +83,8 @@ class DecodedFeed:
             consumed, self.next_t, out = self._track(ev[pos:])
             pos += consumed
             if out is not None and len(out["t"]):
-                if self.sink is not None:
-                    self.sink(out)
+                if sink is not None:
+                    sink(out)
                 else:
                     parts.append(out)
         self.tracked += len(ev)

@@ -98,9 +98,6 @@ class FirmwareLoop:
             if roi is not None:
                 raise ValueError("--roi needs a kernel the fused loop runs (cython, fixed)")
             self.fused = DecodedFeed(self.slot.kernel, telemetry_period_us, self.profile)
-        # snapshots reach the telemetry queue part by part (bounded memory whatever the
-        # time span one transfer covers)
-        self.fused.sink = lambda part: self._emit(part)
         self.source_counters = source_counters or dict
         self.period = int(telemetry_period_us)
         self.piece = int(piece_bytes)
@@ -116,6 +113,7 @@ class FirmwareLoop:
         self.telemetry = TelemetryQueue(telemetry_queue)
         self.recorder = Recorder() if record else None
         self.counters = LoopCounters()
+        self.in_transfer = False          # the processing thread is inside a transfer
         self.meter = LoadMeter()
         self.last_error = ""
         self.stop_event = threading.Event()
@@ -191,11 +189,13 @@ class FirmwareLoop:
         return self.reader.queue_depth() == 0
 
     def caught_up(self) -> bool:
-        """Every byte read so far has been processed: nothing queued, and the fused loop
-        has consumed all read bytes but the dropped ones."""
+        """Every byte read so far has been processed: nothing queued, no transfer in the
+        middle of its processing (the feed counts its bytes as it starts), and the fused
+        loop has consumed all read bytes but the dropped ones."""
         rc = self.reader.counts
-        return self.drained() and (self.fused.bytes_in + self.counters.bytes_abandoned
-                                   == rc["bytes"] - rc["bytes_dropped"])
+        return (self.drained() and not self.in_transfer
+                and self.fused.bytes_in + self.counters.bytes_abandoned
+                == rc["bytes"] - rc["bytes_dropped"])
 
     def reset(self) -> None:
         """Restart the tracker from the current model (queued like a model swap) and clear
@@ -324,12 +324,13 @@ class FirmwareLoop:
         n = len(mv)
         fed = 0
         f = self.fused
+        self.in_transfer = True
         try:
             while fed < n:
                 k = min(self.piece, n - fed)
                 fed += k                        # the feed counts it (bytes_in) as it starts
                 t0 = time.perf_counter_ns()
-                out = f.feed(mv[fed - k:fed])
+                out = f.feed(mv[fed - k:fed], sink=self._emit)     # parts as they fill
                 dt = time.perf_counter_ns() - t0
                 self.counters.pieces += 1
                 self.counters.proc_ns += dt
@@ -342,6 +343,7 @@ class FirmwareLoop:
                     self._apply_pending()
         finally:                                # the rest of a transfer abandoned (an error,
             self.counters.bytes_abandoned += n - fed    # a stop): caught_up() counts it
+            self.in_transfer = False
 
     def _emit(self, out: dict) -> None:
         """One part of the snapshots a feed took (at most the fused loop's capacity in rows):

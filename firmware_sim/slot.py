@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 from springtrack import model as _model
 from springtrack import params as _params
-from springtrack.geometry import SensorError, fit_model
+from springtrack.geometry import fit_model
 from springtrack.tracker import make_backend, resolve_params
-from springtrack.wire import MAX_NAME_BYTES, Nack
+from springtrack.wire import Nack
 
 from .engine import UpdateRejected
 
@@ -50,13 +50,11 @@ class ApplyFailed(Exception):
         self.swap: Swap | None = None
 
 
-def check_name(model) -> None:
-    """A model name must fit INFO (``wire.MAX_NAME_BYTES`` of UTF-8)."""
-    n = len(model.name.encode("utf-8"))
-    if n > MAX_NAME_BYTES:
-        raise UpdateRejected(Nack.TOO_LONG, f"model name of {n} bytes: at most "
-                                            f"{MAX_NAME_BYTES} bytes of UTF-8 "
-                                            f"(INFO carries it in one frame)")
+def _model_code(e: BaseException) -> Nack:
+    """The NACK code of an error raised while loading a model: a ``ModelError``'s own
+    (``SensorError``: sensor_mismatch, ``ModelNameError``: too_long), else invalid_model
+    (a parameter error inside a model file too)."""
+    return e.code if isinstance(e, _model.ModelError) else Nack.INVALID_MODEL
 
 
 def _reason(e: BaseException) -> str:
@@ -81,7 +79,6 @@ class ModelSlot:
         self.sensor = sensor or (None, None)
         self.sensor_from = sensor_from
         self.model = self.fit(_model.load_model(model))
-        check_name(self.model)
         self.params = resolve_params(self.model, params)
         self.kernel = self.new_kernel(self.model, self.params)
         self.generation = 1                  # in effect
@@ -127,16 +124,15 @@ class ModelSlot:
         try:
             m = _model.loads(toml_text, "uploaded model")
         except (ValueError, TypeError, RecursionError) as e:   # ModelError is a ValueError
-            raise UpdateRejected(Nack.INVALID_MODEL, _reason(e)) from None
-        check_name(m)
+            # a ModelError names its code (a name INFO cannot carry: too_long)
+            raise UpdateRejected(_model_code(e), _reason(e)) from None
         try:
             m = self.fit(m)
             p = resolve_params(m)
             k = self.new_kernel(m, p)
         except (ValueError, TypeError, ArithmeticError) as e:  # ParamError is a ValueError
             # a model that does not fit the sensor says so (springtrack.geometry's code)
-            code = e.code if isinstance(e, SensorError) else Nack.INVALID_MODEL
-            raise UpdateRejected(code, _reason(e)) from None
+            raise UpdateRejected(_model_code(e), _reason(e)) from None
         with self.lock:
             self._last_gen += 1
             self._build = _Build(m, p, k, self._last_gen)

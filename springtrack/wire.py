@@ -42,7 +42,6 @@ MAX_BODY = HEADER.size + MAX_PAYLOAD + SIG_LEN + CRC.size
 MAX_ENCODED = MAX_BODY + MAX_BODY // 254 + 2   # COBS worst case: one code byte per 254
 MODEL_CHUNK_SIZE = 512
 NONCE_LEN = 8
-MAX_NAME_BYTES = 128      # longest model name (UTF-8) a firmware accepts: INFO always fits
 MIN_KEY_BYTES = 16        # shortest link key either end accepts (128 bits)
 
 
@@ -120,7 +119,7 @@ class Nack(IntEnum):
     BAD_STATE = 9         # not now (e.g. MODEL_CHUNK without MODEL_BEGIN)
     INTERNAL = 10         # an exception inside the firmware's handler
     SENSOR_MISMATCH = 11  # the model's [sensor] is not the camera's, or trackers lie outside it
-    TOO_LONG = 12         # a name longer than the protocol carries (MAX_NAME_BYTES)
+    TOO_LONG = 12         # a name longer than the protocol carries (INFO_NAME_BUDGET)
     FORBIDDEN = 13        # not allowed in this session's role (a monitor), or all sessions busy
 
 
@@ -568,16 +567,31 @@ def version_reason(firmware: int, host: int) -> str:
 
 
 # INFO: u16 protocol version, 8-byte session nonce, u8 flags (bit0 auth required,
-# bit1 running), u32 generation, u16-length UTF-8 JSON of the engine's info() dict
+# bit1 running), u32 generation, u16-length UTF-8 JSON of the engine's info() dict.
+# The model's name is the one free-length text INFO must carry (a big model's tracker ids
+# are left out when they do not fit): it may take INFO_NAME_BUDGET bytes of the JSON, half
+# the payload, so that INFO fits one frame whatever else the engine reports (about 300
+# bytes: firmware, backend, geometry, capacities, hash, generation, period).
+INFO_NAME_BUDGET = MAX_PAYLOAD // 2
+
+
+def info_name_bytes(name: str) -> int:
+    """Bytes ``name`` takes in INFO's JSON: 1 per ASCII character, 6 per other character
+    (\\uXXXX), 12 outside the Basic Multilingual Plane, 2 for '"' and '\\'."""
+    return len(json.dumps(name)) - 2
+
+
 INFO_FIXED = 2 + NONCE_LEN + 5 + 2         # version, nonce, flags, generation, JSON length
+INFO_CUT_BYTES = 128                       # INFO's last resort: longer strings cut to this
 
 
 def encode_info(info: dict, nonce: bytes, auth_required: bool,
                 version: int = PROTOCOL_VERSION) -> bytes:
     """INFO, always within MAX_PAYLOAD: when the JSON does not fit, the tracker ids are
     replaced by ``trackers_omitted: n`` (hostctl then names trackers t00, t01, ...), then
-    strings longer than MAX_NAME_BYTES are cut to it (listed in ``truncated``); a dict that
-    still does not fit raises WireError."""
+    strings longer than INFO_CUT_BYTES are cut to it (listed in ``truncated``: the last
+    resort, for a name past INFO_NAME_BUDGET that a firmware would have refused); a dict
+    that still does not fit raises WireError."""
     flags = (1 if auth_required else 0) | (2 if info.get("running") else 0)
     js = _info_json(info)
     if INFO_FIXED + len(js) > MAX_PAYLOAD and isinstance(info.get("trackers"), list):
@@ -587,9 +601,9 @@ def encode_info(info: dict, nonce: bytes, auth_required: bool,
     if INFO_FIXED + len(js) > MAX_PAYLOAD:
         info = dict(info)
         cut = sorted(k for k, v in info.items()
-                     if isinstance(v, str) and len(v.encode("utf-8")) > MAX_NAME_BYTES)
+                     if isinstance(v, str) and len(v.encode("utf-8")) > INFO_CUT_BYTES)
         for k in cut:
-            info[k] = info[k].encode("utf-8")[:MAX_NAME_BYTES].decode("utf-8", "ignore")
+            info[k] = info[k].encode("utf-8")[:INFO_CUT_BYTES].decode("utf-8", "ignore")
         info["truncated"] = cut
         js = _info_json(info)
     if INFO_FIXED + len(js) > MAX_PAYLOAD:

@@ -6,7 +6,7 @@ models (refused cleanly or survived) and with faults injected directly into the 
 parts, so that the supervision path is proven whatever the validation refuses."""
 from __future__ import annotations
 
-import dataclasses
+import re
 import threading
 import time
 
@@ -74,56 +74,43 @@ class FeedProxy:
     def __init__(self, inner, feed):
         self._inner, self._feed = inner, feed
 
-    def feed(self, buf, n=-1):
-        return self._feed(self._inner, buf)
+    def feed(self, buf, n=-1, sink=None):
+        return self._feed(self._inner, buf, sink)
 
     def __getattr__(self, name):
         return getattr(self._inner, name)
 
 
-# ---- models that drive the float kernel to NaN --------------------------------------------
-def _stiff(m, k):
-    return dataclasses.replace(m, connections=[dataclasses.replace(c, stiffness=k)
-                                               for c in m.connections])
-
-
-def nan_models():
-    face = _model.face26()
-    two = _model.ShapeModel("two", 304, 240, face.trackers[:2],
-                            [_model.Connection(face.trackers[0].id, face.trackers[1].id,
-                                               ("euclidean", "torsional", "cartesian"), 0.9)])
-    light = dataclasses.replace(face, trackers=[dataclasses.replace(face.trackers[0], mass=1e-9)]
-                                + face.trackers[1:])
-    return {"face26_stiffness_0.5": _stiff(face, 0.5), "two_trackers_stiffness_0.9": two,
-            "mass_1e-9": light}
+# ---- models that drove the float kernel to NaN ---------------------------------------------
+def nan_models() -> dict:
+    """The reproductions, as TOML text (a ShapeModel refuses to hold them): face26 at
+    stiffness 0.5 (NaN after about 58 k events before the spring bound), two trackers at 0.9
+    with all three spring kinds, a mass of 1e-9."""
+    face = _model.face26().to_toml()
+    head, _, rest = face.partition("[[trackers]]")
+    blocks = rest.split("[[trackers]]")
+    two = (head.replace('name = "face26"', 'name = "two"') + "[[trackers]]" + blocks[0]
+           + "[[trackers]]" + blocks[1].split("[[connections]]")[0]
+           + '[[connections]]\na = "brow_l"\nb = "brow_r"\n'
+             'springs = ["euclidean", "torsional", "cartesian"]\nstiffness = 0.9\n')
+    return {"face26_stiffness_0.5": re.sub(r"stiffness = [0-9.e-]+", "stiffness = 0.5", face),
+            "two_trackers_stiffness_0.9": two,
+            "mass_1e-9": face.replace("mass = 1.0", "mass = 1e-9", 1)}
 
 
 @pytest.mark.parametrize("name", list(nan_models()))
-def test_a_model_that_drives_the_kernel_to_nan_is_refused_or_survived(scene, name):
-    """Refused at upload (NACK invalid_model), or run: no snapshot of a non-finite state
-    leaves the loop, they are counted, reported (ERROR nonfinite_state), the trackers reset,
-    and every snapshot that does leave encodes."""
+def test_a_model_that_drives_the_kernel_to_nan_is_refused(scene, name):
+    """Refused at upload (NACK invalid_model, the reason naming the spring load or the
+    mass: springtrack.limits), nothing changes, and the loop runs on."""
     cam, eng = make_engine(scene)
-    try:
-        eng.load_model(nan_models()[name].to_toml())
-    except UpdateRejected as e:
-        assert e.code == Nack.INVALID_MODEL
-        return
+    with pytest.raises(UpdateRejected) as e:
+        eng.load_model(nan_models()[name])
+    assert e.value.code == Nack.INVALID_MODEL
+    assert "spring load" in str(e.value) or "mass" in str(e.value), e.value
     run_to_end(cam, eng)
-    snaps = eng.poll_telemetry(10 ** 6)
-    assert snaps
-    for s in snaps:
-        assert all(np.isfinite(s.trackers[k]).all() for k in wire.NUMERIC_FIELDS)
-        wire.encode_telemetry(s.t_us, s.generation, s.mean_energy, s.records)
-        if s.energies is not None:
-            wire.encode_energies(s.t_us, *s.energies)
-    c = eng.stats()["loop"]
-    if c["nonfinite_snapshots"]:
-        assert c["nonfinite_resets"] >= 1
-        assert any(code == Fault.NONFINITE_STATE for code, _ in errors(eng))
-        assert eng.stats()["state"] == "faulted"
-        eng.reset()
-        assert eng.stats()["state"] != "faulted"
+    st = eng.stats()
+    assert st["loop"]["generation"] == 1 and st["events_tracked"] > 0
+    assert st["loop"]["nonfinite_snapshots"] == 0 and st["state"] != "faulted"
 
 
 def test_injected_nan_rows_are_dropped_counted_reported_and_the_trackers_reset(scene):
@@ -154,13 +141,14 @@ def test_injected_nan_rows_are_dropped_counted_reported_and_the_trackers_reset(s
 @pytest.mark.parametrize("name, value", [("sigma_max_px", 100.0), ("alpha_covariance", 1.0)])
 def test_fixed_kernel_parameters_are_refused_before_the_ack(scene, name, value):
     """In a gap of events (the loop idle in its wait for a transfer) and afterwards: a
-    NACK out_of_range, no generation handed out, the fused-loop thread alive."""
+    NACK out_of_range (springtrack.limits: what every backend runs), no generation handed
+    out, the fused-loop thread alive."""
     cam, eng = make_engine(scene, realtime=True, backend="fixed")
     eng.start()
     try:
         wait_for(lambda: eng.fused.tracked > 0, what="tracking")
         gen = eng.generation
-        with pytest.raises(UpdateRejected, match="fixed kernel cannot run it") as e:
+        with pytest.raises(UpdateRejected, match=name) as e:
             eng.set_param(name, value)
         assert e.value.code == Nack.OUT_OF_RANGE
         assert eng.set_param("energy_gain", 0.07) == gen + 1        # the next one is fine
@@ -172,18 +160,19 @@ def test_fixed_kernel_parameters_are_refused_before_the_ack(scene, name, value):
 
 
 def test_an_update_the_kernel_refuses_when_applied_keeps_the_old_one_and_says_so(scene):
-    """Defence in depth: with the kernel check bypassed, the refusal happens in the
+    """Defence in depth: a change queued as if it had passed validation is refused in the
     processing thread between two events (here during a gap: no transfer waits).  The
     thread survives, the running parameters are kept, the generation is not advanced,
     and the hosts get ERROR update_failed naming the generation."""
     cam, eng = make_engine(scene, realtime=True, backend="fixed")
-    eng.slot.check_kernel_params = lambda model, params: None
     eng.start()
     try:
         wait_for(lambda: eng.fused.tracked > 0, what="tracking")
         before = eng.get_params()["sigma_max_px"]
         gen0 = eng.generation
-        gen = eng.set_param("sigma_max_px", 100.0)
+        with eng.slot.lock:                     # queued unchecked: the defect to survive
+            gen = eng.slot._last_gen = eng.slot._last_gen + 1
+            eng.slot._params["sigma_max_px"] = (100.0, gen)
         wait_for(lambda: eng.stats()["loop"]["updates_failed"] == 1, what="the apply")
         assert eng.running and eng.generation == gen0
         assert eng.get_params()["sigma_max_px"] == before
@@ -256,19 +245,38 @@ def test_a_stop_in_the_middle_of_a_transfer_still_lets_the_stream_end(scene):
     cam, eng = make_engine(scene, transfer_bytes=131072)      # 8 pieces per transfer
     once = [True]
 
-    def feed(inner, buf):
+    def feed(inner, buf, sink):
         if once[0] and inner.tracked > 10_000:
             once[0] = False
             eng.stop_event.set()                # the stop arrives while this piece runs
-        return inner.feed(buf)
+        return inner.feed(buf, sink=sink)
     eng.fused = FeedProxy(eng.fused, feed)
-    eng.fused.sink = eng.fused._inner.sink
     eng.start()
     wait_for(lambda: not once[0] and not eng.running, what="the stop")
     eng.stop()
     assert eng.counters.bytes_abandoned > 0
     run_to_end(cam, eng)                        # ends: caught_up() counts what was abandoned
     assert eng.stats()["events_decoded"] < len(scene)
+
+
+def test_the_stream_is_not_caught_up_while_its_last_transfer_is_being_processed(scene):
+    """The feed counts a piece's bytes as it starts: until the transfer's processing has
+    finished (its snapshots emitted), caught_up() must stay False, or the end of the stream
+    would stop the loop in the middle of its last snapshots."""
+    cam, eng = make_engine(scene)
+    seen = []                          # (every byte counted, caught_up) after each piece
+
+    def feed(inner, buf, sink):
+        out = inner.feed(buf, sink=sink)
+        rc = eng.reader.counts
+        if cam.finished and eng.drained():
+            seen.append((inner.bytes_in == rc["bytes"] - rc["bytes_dropped"], eng.caught_up()))
+        return out
+    eng.fused = FeedProxy(eng.fused, feed)
+    run_to_end(cam, eng)
+    assert any(every for every, _ in seen), "no observation inside the last piece"
+    assert not any(caught for _, caught in seen)
+    assert eng.stats()["events_tracked"] == len(scene)
 
 
 class FlakyCamera:
@@ -302,11 +310,11 @@ def test_the_watchdog_reports_a_stalled_loop(scene):
     cam, eng = make_engine(scene, realtime=True)
     stall = threading.Event()
 
-    def feed(inner, buf):
+    def feed(inner, buf, sink):
         if stall.is_set():
             stall.clear()
             time.sleep(WATCHDOG_S + 1.0)          # stuck: transfers pile up meanwhile
-        return inner.feed(buf)
+        return inner.feed(buf, sink=sink)
     eng.fused = FeedProxy(eng.fused, feed)
     eng.start()
     try:
@@ -432,30 +440,20 @@ def test_hostile_models_get_their_nack_code_never_internal(scene, backend):
 # ---- a model that drives the kernel to NaN, firmware and host as processes ----------------
 def test_hil_a_nan_model_does_not_make_the_device_deaf(tmp_path):
     """The reproduction: face26 with stiffness 0.5 uploaded to a running firmware over TCP.
-    Refused (NACK invalid_model), or survived: the link keeps answering, every snapshot the
-    host receives is finite, the host gets ERROR nonfinite_state, STATS counts it, a new
-    session can still say HELLO."""
+    Refused (NACK invalid_model); the link keeps answering, telemetry keeps coming, every
+    snapshot is finite, and a new session can still say HELLO.  (Non-finite state that
+    escapes validation anyway is dropped, counted and reported: the tests above.)"""
     fw = Firmware("--source", "sim:face_occlusion", "--seconds", "60", "--listen", "127.0.0.1:0")
     try:
         with Device(fw.path) as dev:
-            try:
+            with pytest.raises(Nacked) as e:
                 dev.load_model(nan_models()["face26_stiffness_0.5"])
-            except Nacked as e:
-                assert e.code == Nack.INVALID_MODEL
-                return
-            snaps = []
-            end = time.monotonic() + 60
-            while time.monotonic() < end and not dev.errors:
-                snaps += dev.telemetry(seconds=0.2)
-            snaps += dev.telemetry(seconds=1.0)
-            assert [e.code for e in dev.errors][:1] == [Fault.NONFINITE_STATE], dev.errors
+            assert e.value.code == Nack.INVALID_MODEL and "spring load" in e.value.reason
+            snaps = list(dev.telemetry(seconds=1.0))
             assert snaps and all(np.isfinite(s.trackers["x"]).all() for s in snaps)
             st = dev.stats()
-            assert st["loop.nonfinite_snapshots"] > 0 and st["state"] == "faulted"
-            assert st["link.telemetry_errors"] == 0
-            dev.load_model("face26")
-            dev.reset()
-            assert dev.stats()["state"] != "faulted"
+            assert st["loop.generation"] == 1 and st["state"] == "streaming"
+            assert st["link.telemetry_errors"] == 0 and not dev.errors
         with Device(fw.path) as again:
             assert again.info["model"] == "face26"
             again.ping()

@@ -298,7 +298,7 @@ def test_info_always_fits_one_frame():
     p = wire.encode_info(info, b"12345678", False)
     assert len(p) <= wire.MAX_PAYLOAD
     got = wire.decode_info(p)
-    assert got["model"] == "m" * wire.MAX_NAME_BYTES and got["truncated"] == ["model"]
+    assert got["model"] == "m" * wire.INFO_CUT_BYTES and got["truncated"] == ["model"]
     assert got["trackers_omitted"] == 64 and got["model_hash"] == "ab" * 32
 
 
