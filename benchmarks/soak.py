@@ -6,11 +6,11 @@ replaces the "Soak" section of docs/benchmarks.md.
                                         [--no-write]
 
 The firmware: ``firmware-sim run --source sim:face_occlusion --seconds 30 --realtime
---listen 127.0.0.1:0 --key-file K --faults timeout,short,stall,corrupt,disconnect,burst``
+--listen 127.0.0.1:0 --key-file K --faults timeout,odd,stall,corrupt,disconnect,burst``
 (USB faults of firmware_sim/faults.py, re-armed at every replay), in its own process.
-``short`` rather than ``odd``: an odd cut followed by a shed transfer misaligns the
-simulated word stream (docs/firmware.md, "Load shedding"), and the garbage time-high words
-that follow make the sampler march through hours of empty event time.
+``odd`` cuts transfers inside a word; one followed by a shed transfer misaligns the
+simulated word stream (docs/firmware.md, "Load shedding"): garbage words, time-high words
+hours ahead, whose empty stretches the sampling rule skips (docs/algorithm.md, "Sampling").
 Traffic, each in its own thread and connection(s):
 
 * operator (127.0.0.1): START at every end of the scene (a replay), model swaps (face26,
@@ -61,7 +61,7 @@ TITLE = "Soak"
 PROGRESS = ("state", "events_tracked", "loop.snapshots", "loop.telemetry_dropped",
             "loop.nonfinite_snapshots", "loop.generation", "loop.last_t_us")
 TRAFFIC = ("operator", "monitor", "slow_consumer", "fuzzer", "signed_fuzzer", "storm", "probe")
-FAULTS = "timeout,short,stall,corrupt,disconnect,burst"
+FAULTS = "timeout,odd,stall,corrupt,disconnect,burst"
 SCENE_S = 30
 
 
@@ -519,9 +519,9 @@ COUNTERS = {
     "usb.disconnects": "simulated unplugs (one per replay)",
     "usb.reconnects": "reconnections after them",
     "usb.open_failures": "attempts to reopen the camera while it was unplugged",
-    "usb.short_transfers": "transfers shorter than the buffer (the short fault, the scene's "
+    "usb.short_transfers": "transfers shorter than the buffer (the odd fault, the scene's "
                            "quiet stretches)",
-    "usb.odd_transfers": "transfers cut inside a word (the odd fault, not used)",
+    "usb.odd_transfers": "transfers cut inside a word (the odd fault)",
     "usb.commands": "vendor control requests (biases)",
     "usb.command_errors": "vendor control requests that failed",
     "usb.coalesced": "short transfers merged into the buffer before them",

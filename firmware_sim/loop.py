@@ -46,7 +46,7 @@ from .meter import LoadMeter, LoopCounters
 from .reader import Reader
 from .record import Recorder
 from .slot import AppliedLog, ApplyFailed, ModelSlot
-from .supervise import Supervisor
+from .supervise import Supervisor, where
 from .telemetry import Block, TelemetryQueue
 
 FIRMWARE = "firmware-sim 0.1 (fused decode+track loop)"
@@ -157,7 +157,8 @@ class FirmwareLoop:
                 if t is not None and t is not threading.current_thread():
                     t.join(timeout)
                     if t.is_alive():
-                        raise RuntimeError(f"{t.name} thread did not stop within {timeout} s")
+                        raise RuntimeError(f"{t.name} thread did not stop within {timeout} s "
+                                           f"(at {where(t)})")
                     setattr(self, attr, None)
             self.reader.stop(timeout)
 

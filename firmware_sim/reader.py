@@ -29,7 +29,7 @@ from collections import deque
 import usb.core
 
 from . import usb as camusb
-from .supervise import Supervisor
+from .supervise import Supervisor, where
 
 BACKOFF_S = (0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
 COALESCE_MAX = 16 * 1024      # transfers up to this size may be copied into the queued tail
@@ -86,8 +86,8 @@ class Reader:
         if self.thread is not None:
             self.thread.join(timeout)
             if self.thread.is_alive():
-                raise RuntimeError("USB reader thread did not stop within "
-                                   f"{timeout} s (a read without timeout?)")
+                raise RuntimeError(f"USB reader thread did not stop within {timeout} s "
+                                   f"(at {where(self.thread)})")
             self.thread = None
 
     @property

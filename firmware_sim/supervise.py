@@ -15,6 +15,7 @@ session keeps the number of the last one it sent, so every session sees every re
 """
 from __future__ import annotations
 
+import sys
 import threading
 import time
 import traceback
@@ -142,3 +143,15 @@ class Supervisor:
                         threads_stopped=sum(self.stopped.values()),
                         **{f"faults_{k.replace('-', '_')}": v for k, v in self.faults.items()},
                         **{f"reported_{k}": v for k, v in self.reported.items()})
+
+
+def where(thread: threading.Thread, depth: int = 3) -> str:
+    """Where ``thread`` is now: its innermost ``depth`` frames as ``file:line func``, for the
+    message about a thread that did not stop in time."""
+    frame = sys._current_frames().get(thread.ident)
+    if frame is None:
+        return "not running"
+    stack = traceback.extract_stack(frame)[-depth:]
+    return " < ".join(f"{f.filename.rsplit('/', 1)[-1]}:{f.lineno} {f.name}"
+                      for f in reversed(stack))
+

@@ -1,6 +1,7 @@
 """Every injected fault is survived, counted and recovered from."""
 from __future__ import annotations
 
+import array
 import threading
 import time
 
@@ -14,6 +15,7 @@ from firmware_sim.faults import FAULT_NAMES, Faults, parse
 from firmware_sim.loop import FirmwareLoop
 from springtrack.sim.sensor import simulate_all
 from firmware_sim.simcam import SimBackend, SimCamera
+from firmware_sim.simcam.words import burst_chunks
 from firmware_sim.sources import events_source
 
 SAMPLE = 1000
@@ -128,6 +130,28 @@ def test_burst_is_shed_with_bounded_memory_and_tracking_recovers(face):
     # everything after the burst (plus the 2 ms until a fresh time base) is tracked
     assert s["events_tracked"] >= int((t >= 190_000 + 4096).sum())
     assert eng.fused.last_t == t[-1]
+
+
+def test_a_read_honours_its_timeout_while_the_burst_is_generated(face):
+    """The burst's chunks take seconds of CPU to make; a bulk read that started them returns
+    after its timeout with what is made (a real camera's read never blocks past it, and the
+    reader thread must be able to stop), and the next reads go on where it stopped."""
+    faults = Faults(["burst"], burst_at_us=20_000, burst_us=40_000, burst_rate=100e6)
+    dev = SimCamera(events_source(face, 2048), realtime=True, faults=faults)
+    cam = camusb.Camera.open("ccam_atis", backend=SimBackend(dev))
+    buf = array.array("B", bytes(16384))
+    seen_partial = False
+    deadline = time.monotonic() + 60
+    while not dev.finished and time.monotonic() < deadline:
+        cam.read_into(buf, 20)
+        if faults.injected["burst"] and dev._burst is not None:
+            seen_partial = True               # a read returned with the burst half made
+    assert faults.injected["burst"] == 1 and seen_partial
+    p = faults.plan                           # every event of the burst was made in the end
+    assert faults.injected["burst_events"] == sum(
+        c.n_events for c in burst_chunks(p.burst_at_us, p.burst_at_us + p.burst_us,
+                                         p.burst_rate, p.seed))
+    cam.close()
 
 
 def test_cli_reports_faults_and_survives_them_together():

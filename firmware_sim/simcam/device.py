@@ -213,11 +213,16 @@ class SimCamera:
         k = int(np.searchsorted(c.marks_t, now_t, side="right"))
         return int(c.marks_off[k - 1]) if k else 0
 
-    def _fill(self, want: int):
+    def _fill(self, want: int, deadline: float | None = None):
         """Generate chunks until ``want`` bytes are queued (max-speed) or the device clock
-        is passed (realtime)."""
+        is passed (realtime), and at most until the monotonic ``deadline`` once one chunk
+        is made (a read honours its timeout: the burst fault's chunks take seconds of CPU
+        to generate, which a real camera's FIFO does not)."""
         queued = sum(len(c.data) - c.pos for c in self.fifo)
+        made = False
         while not self.exhausted:
+            if made and deadline is not None and time.monotonic() >= deadline:
+                return
             if self.realtime:          # generate LOOKAHEAD_US ahead: events are never late
                 now_t = self.device_time()
                 if (self.fifo and now_t is not None
@@ -229,6 +234,7 @@ class SimCamera:
             if c is None:
                 return
             self.fifo.append(c)
+            made = True
             queued += len(c.data)
             while queued > DEVICE_FIFO_BYTES and len(self.fifo) > 2:
                 # the host does not keep up: the camera's own FIFO overflows and loses the
@@ -279,7 +285,7 @@ class SimCamera:
                 if not self.started:
                     n = 0
                 else:
-                    n = self._copy(out, n_max)
+                    n = self._copy(out, n_max, deadline)
             if n:
                 self.counts["bytes_sent"] += n
                 return n
@@ -322,8 +328,8 @@ class SimCamera:
             avail += self._releasable(c2, now_t)
         return avail >= n_max
 
-    def _copy(self, out, n_max: int) -> int:
-        self._fill(n_max)
+    def _copy(self, out, n_max: int, deadline: float | None = None) -> int:
+        self._fill(n_max, deadline)
         self._check_disconnect()
         now_t = self.device_time() if self.realtime else None
         if now_t is not None and not self._commit_due(now_t, n_max):
