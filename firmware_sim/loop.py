@@ -161,6 +161,10 @@ class FirmwareLoop:
                                            f"(at {where(t)})")
                     setattr(self, attr, None)
             self.reader.stop(timeout)
+            # transfers read but not processed are dropped (counted with the abandoned
+            # bytes): the rest of a transfer the stop cut short is gone, so what was queued
+            # after it would be decoded out of step with its words
+            self.counters.bytes_abandoned += self.reader.discard_queued()
 
     def end_of_stream(self) -> None:
         """The source has no more data and every byte was processed: stop the threads and

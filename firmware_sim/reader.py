@@ -105,6 +105,18 @@ class Reader:
             idx, n, gap, _ = self.filled.popleft()
             return idx, n, gap
 
+    def discard_queued(self) -> int:
+        """Drop the transfers read but not taken (the host stopped the loop: they are not
+        processed, and the camera's next stream starts afresh); returns their bytes."""
+        with self.cond:
+            items = list(self.filled)
+            self.filled.clear()
+            self.free.extend(idx for idx, *_ in items)
+            if items:
+                self.gap = True                  # what comes next is not contiguous
+            self.cond.notify_all()
+        return sum(n for _, n, *_ in items)
+
     def release(self, idx: int) -> None:
         with self.cond:
             self.free.append(idx)
