@@ -98,7 +98,7 @@ class LearnParams:
     rigidity_scale: float = 0.5        # deformation (in part sizes) of rigidity 1/2
     cartesian_turn_deg: float = 10.0
     stiffness_gain: float = 0.1        # stiffness = gain * alpha_1 (tracking) * rigidity
-    energy_quantile: float = 0.99      # s of eqs. (21)-(22): this quantile of E_ij / mean E
+    energy_quantile: float = 0.9       # s of eqs. (21)-(22): this quantile of E_ij / mean E
     smooth_us: int = 20_000            # averaging of directions for the turn measure
 
     def __post_init__(self):
@@ -372,6 +372,36 @@ def moment_match(m1, c1, w1, m2, c2, w2):
     return mu, cov
 
 
+def union_series(a, wa: float, b, wb: float, until: int):
+    """The samples (x, y, act, cnt, valid) of the union of two pieces ``a`` and ``b``
+    (each such a tuple of (T,) arrays, weighted ``wa``, ``wb`` at their merge) before
+    sample ``until``.  Where both existed: positions weighted, activities and events
+    summed.  Where one existed alone (a piece born late, or one that lived on its own
+    before the other was born): that piece, moved by its offset from the union at the
+    last sample they shared, with its own activity and events: a piece of a part (an
+    edge, a fragment) keeps its place on the part, so the part's history is not cut to
+    the samples its pieces shared."""
+    (xa, ya, aa, ca, oa), (xb, yb, ab, cb, ob) = a, b
+    T = len(xa)
+    before = np.arange(T) < until
+    both = oa & ob & before
+    w = wa + wb
+    x = np.where(both, (wa * xa + wb * xb) / w, np.nan)
+    y = np.where(both, (wa * ya + wb * yb) / w, np.nan)
+    act = np.where(both, aa + ab, 0.0)
+    cnt = np.where(both, ca + cb, 0.0)
+    if both.any():
+        k = int(np.flatnonzero(both)[-1])
+        for px, py, pa, pc, po in (a, b):
+            alone = po & ~both & before & ~np.isfinite(x)
+            x = np.where(alone, px + (x[k] - px[k]), x)
+            y = np.where(alone, py + (y[k] - py[k]), y)
+            act = np.where(alone, pa, act)
+            cnt = np.where(alone, pc, cnt)
+    ok = np.isfinite(x)
+    return x, y, act, cnt, ok
+
+
 def contrast_sign(ev: np.ndarray, width: int, height: int) -> int:
     """+1 if the parts are brighter than their background, -1 if darker, 0 if unclear.
 
@@ -481,8 +511,8 @@ class History:
         """The samples of the trackers ``uids`` (N,): ``t`` (T,), ``x``, ``y``, ``act``,
         ``cnt`` (T, N) and ``valid`` (T, N) (elsewhere x, y are NaN, act and cnt 0).
         Before a tracker got its identity by merging two (``lineage``: uid -> (uid_a,
-        w_a, uid_b, w_b)), its samples are those of the union of both pieces: positions
-        weighted by w, activities and events summed, where both existed."""
+        w_a, uid_b, w_b)), its samples are those of the union of both pieces
+        (:func:`union_series`)."""
         T = len(self.rows)
         where = {}                                    # uid -> (rows, places in them)
         for r, row in enumerate(self.rows):
@@ -503,19 +533,13 @@ class History:
         def get(u):
             if u in done:
                 return done[u]
-            x, y, act, cnt, ok = own(u)
+            mine = own(u)
             if u in lineage:
                 ua, wa, ub, wb = lineage[u]
-                xa, ya, aa, ca, oa = get(ua)
-                xb, yb, ab, cb, ob = get(ub)
-                first = np.argmax(ok) if ok.any() else T
-                both = oa & ob & (np.arange(T) < first)
-                x = np.where(both, (wa * xa + wb * xb) / (wa + wb), x)
-                y = np.where(both, (wa * ya + wb * yb) / (wa + wb), y)
-                act = np.where(both, aa + ab, act)
-                cnt = np.where(both, ca + cb, cnt)
-                ok = ok | both
-            done[u] = (x, y, act, cnt, ok)
+                first = int(np.argmax(mine[4])) if mine[4].any() else T
+                union = union_series(get(ua), wa, get(ub), wb, first)
+                mine = tuple(np.where(mine[4], m, un) for m, un in zip(mine, union))
+            done[u] = mine
             return done[u]
 
         cols = [get(int(u)) for u in uids]
@@ -655,8 +679,8 @@ def _keep_cols(rec: dict, mask: np.ndarray) -> dict:
 def _to_count(pool: Pool, rec: dict, n_target: int, t: int, stats: dict) -> dict:
     """Drop the weakest tracker while it takes less than ``keep_share`` of the median's
     events, else merge the nearest pair (Bhattacharyya), until n_target; split the widest
-    until n_target.  Returns the samples ``rec`` of the new set: a merged pair's are the
-    weighted mean of both (where both exist), a split tracker's its parent's, shifted."""
+    until n_target.  Returns the samples ``rec`` of the new set: a merged pair's those of
+    the union (:func:`union_series`), a split tracker's its parent's, shifted."""
     rec = dict(rec)
     while pool.n > n_target:
         share = event_shares(rec)
@@ -670,13 +694,10 @@ def _to_count(pool: Pool, rec: dict, n_target: int, t: int, stats: dict) -> dict
         i, j = _closest_pair(pool)
         wi, wj = pool.recent[i] + 1e-9, pool.recent[j] + 1e-9
         pool.merge(i, j, t)
-        both = rec["valid"][:, i] & rec["valid"][:, j]
-        for f in ("x", "y"):
-            rec[f][:, i] = np.where(both, (wi * rec[f][:, i] + wj * rec[f][:, j]) / (wi + wj),
-                                    np.nan)
-        for f in ("act", "cnt"):
-            rec[f][:, i] = np.where(both, rec[f][:, i] + rec[f][:, j], 0.0)
-        rec["valid"][:, i] = both
+        cols = [tuple(rec[f][:, k] for f in ("x", "y", "act", "cnt", "valid")) for k in (i, j)]
+        union = union_series(cols[0], wi, cols[1], wj, len(rec["t"]))
+        for f, v in zip(("x", "y", "act", "cnt", "valid"), union):
+            rec[f][:, i] = v
         rec = _keep_cols(rec, np.arange(pool.n + 1) != j)
         stats["merged_to_n"] += 1
     while pool.n < n_target:
