@@ -98,7 +98,8 @@ class LearnParams:
     rigidity_scale: float = 0.5        # deformation (in part sizes) of rigidity 1/2
     cartesian_turn_deg: float = 10.0
     stiffness_gain: float = 0.1        # stiffness = gain * alpha_1 (tracking) * rigidity
-    energy_quantile: float = 0.9       # s of eqs. (21)-(22): this quantile of E_ij / mean E
+    energy_quantile: float = 0.99      # s of eqs. (21)-(22): this quantile of E_ij / mean E,
+    energy_scale_max: float = 4.5      # ... at most this (and at least the default 2.5)
     smooth_us: int = 20_000            # averaging of directions for the turn measure
 
     def __post_init__(self):
@@ -768,16 +769,25 @@ def coactivation(a: np.ndarray, b: np.ndarray) -> float:
     return float(a @ b) / norm if norm > 0 else 0.0
 
 
-def object_rotation(x: np.ndarray, y: np.ndarray, w: np.ndarray, x_ref, y_ref) -> np.ndarray:
-    """(T,) rotation (rad) of the point set at each sample from the reference positions
-    (N,): the 2-D Procrustes angle about the centroids, with weights ``w`` (T, N) (0 where
-    a point is missing; x, y are ignored there)."""
+def object_similarity(x: np.ndarray, y: np.ndarray, w: np.ndarray, x_ref, y_ref) -> np.ndarray:
+    """(T,) complex ``a = s e^(i phi)`` of the similarity that best maps the reference
+    positions (N,) onto the point set at each sample (2-D Procrustes about the centroids,
+    weights ``w`` (T, N), 0 where a point is missing; x, y are ignored there): a
+    reference offset ``d0`` (complex) appears at each sample as ``a d0``.  0 where fewer
+    than two points exist."""
     z = np.where(w > 0, x + 1j * y, 0.0)
     ref = x_ref + 1j * y_ref
     ws = np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
     zc = z - (w * z).sum(axis=1, keepdims=True) / ws
     rc = ref[None, :] - (w * ref[None, :]).sum(axis=1, keepdims=True) / ws
-    return np.angle((w * zc * np.conj(rc)).sum(axis=1))
+    den = (w * np.abs(rc) ** 2).sum(axis=1)
+    return np.where(den > 0, (w * zc * np.conj(rc)).sum(axis=1) / np.maximum(den, 1e-300), 0.0)
+
+
+def object_rotation(x: np.ndarray, y: np.ndarray, w: np.ndarray, x_ref, y_ref) -> np.ndarray:
+    """(T,) rotation (rad) of the point set at each sample from the reference positions:
+    the angle of :func:`object_similarity`."""
+    return np.angle(object_similarity(x, y, w, x_ref, y_ref))
 
 
 def object_turn(X, Y, valid, pairs, x_end, y_end, smooth: int) -> float:
@@ -819,7 +829,7 @@ def _springs(rec: dict, sig: np.ndarray, lp: LearnParams, x_end, y_end):
     averaged over ``smooth_us``, or the object's (:func:`object_turn`) if larger: a short
     history does not prove that nothing turned), hence its kinds."""
     act, X, Y, valid = rec["act"], rec["x"], rec["y"], rec["valid"]
-    w = np.where(valid, act / np.maximum(act.max(axis=0, keepdims=True), 1e-12), 0.0)
+    w = activity_weights(rec)
     phi = object_rotation(X, Y, w, x_end, y_end)
     c, s = np.cos(-phi), np.sin(-phi)
     nsm = max(1, int(round(lp.smooth_us / lp.batch_us)))
@@ -934,18 +944,87 @@ def reading_order(x: np.ndarray, y: np.ndarray, row_px: float) -> np.ndarray:
     return np.lexsort((x, rows))
 
 
+def activity_weights(rec: dict) -> np.ndarray:
+    """(T, N) each sample's weight: the tracker's activity (eq. 6) over its largest, 0
+    where it did not exist: a tracker counts where it follows its part."""
+    act, valid = rec["act"], rec["valid"]
+    return np.where(valid, act / np.maximum(act.max(axis=0, keepdims=True), 1e-12), 0.0)
+
+
+def similarity_fit(z: np.ndarray, ref: np.ndarray, w: np.ndarray):
+    """The similarity ``z ~ zbar + a (ref - rbar)`` (complex points (N,), weights (N,)):
+    returns (a, zbar, rbar); a = 0 with fewer than two weighted points."""
+    ws = max(float(w.sum()), 1e-300)
+    zbar, rbar = (w * z).sum() / ws, (w * ref).sum() / ws
+    den = float((w * np.abs(ref - rbar) ** 2).sum())
+    a = (w * (z - zbar) * np.conj(ref - rbar)).sum() / den if den > 0 else 0.0
+    return a, zbar, rbar
+
+
+def mean_shape(rec: dict, x_end: np.ndarray, y_end: np.ndarray, size_px: float,
+               rounds: int = 3):
+    """The object's shape over the window, placed where the object is at its end:
+    positions (x, y) (N,).
+
+    Each sample's positions are carried into the shape's frame by the similarity that
+    maps the shape onto them (:func:`object_similarity`, activity-weighted), and the
+    shape is their weighted mean, starting from the final positions and repeated
+    ``rounds`` times (generalised Procrustes analysis); the result is placed by the
+    similarity that maps it onto the final positions.  A sample counts with weight
+    exp(-d^2 / (2 size_px^2)), d the RMS distance of its carried positions from the
+    shape: where the object only moved, turned and scaled (d about the trackers' jitter)
+    every sample counts, where it showed another view (a 3-D turn: d of several part
+    sizes) only the samples near the end do; and where that is most samples (the
+    median d over a part size: a deforming object), the final positions are the
+    shape.  The final positions alone are one instant
+    of free trackers, each with its own jitter and lag; a part caught a few pixels off
+    at that instant would put a constant strain on the springs (their rest geometry is
+    the model's positions) that the energy criteria, eqs. (21)-(22), would then misread."""
+    X, Y = rec["x"], rec["y"]
+    w0 = activity_weights(rec)
+    z = np.where(w0 > 0, X + 1j * Y, 0.0)
+    end = x_end + 1j * y_end
+    shape = end.copy()
+    w = w0
+    for _ in range(rounds):
+        a = object_similarity(X, Y, w0, shape.real, shape.imag)              # (T,)
+        ok = np.abs(a) > 0
+        if not ok.any():
+            return x_end, y_end
+        ws = np.maximum(w0.sum(axis=1), 1e-300)
+        zbar = (w0 * z).sum(axis=1) / ws
+        rbar = (w0 * shape[None, :]).sum(axis=1) / ws
+        inv = np.where(ok, 1.0 / np.where(ok, a, 1.0), 0.0)
+        est = rbar[:, None] + (z - zbar[:, None]) * inv[:, None]              # (T, N)
+        d2 = (w0 * np.abs(est - shape[None, :]) ** 2).sum(axis=1) / ws
+        if np.median(d2[ok]) > size_px ** 2:
+            return x_end, y_end           # not one shape: the one at the end
+        w = w0 * (ok * np.exp(-0.5 * d2 / size_px ** 2))[:, None]
+        tot = w.sum(axis=0)
+        shape = np.where(tot > 0, (w * est).sum(axis=0) / np.maximum(tot, 1e-300), end)
+    a, zbar, rbar = similarity_fit(end, shape, np.ones(len(end)))
+    if a == 0:
+        return x_end, y_end
+    placed = zbar + a * (shape - rbar)
+    return placed.real.copy(), placed.imag.copy()
+
+
 def spring_energies(rec: dict, kept: list, stiffness: np.ndarray, kind: str, x_end,
                     y_end) -> np.ndarray:
     """(T, C) energies of the connections ``kept`` (LearnedSpring, pool indices) along the
-    samples, the rest geometry being the final positions: eq. (12) (euclidean) or
-    eq. (20) (cartesian); NaN where an end is missing."""
+    samples, as the tracker computes them with the final positions as its rest geometry,
+    NaN where an end is missing: eq. (12) (euclidean: rest lengths l0) or eq. (20)
+    (cartesian: rest offsets ``a d0`` carried by each sample's similarity ``a``,
+    :func:`object_similarity`, as the tracker's similarity frame carries them)."""
     a = np.array([c.a for c in kept])
     b = np.array([c.b for c in kept])
-    rx, ry = rec["x"][:, b] - rec["x"][:, a], rec["y"][:, b] - rec["y"][:, a]
-    rx0, ry0 = x_end[b] - x_end[a], y_end[b] - y_end[a]
+    X, Y = rec["x"], rec["y"]
+    r = (X[:, b] - X[:, a]) + 1j * (Y[:, b] - Y[:, a])
+    r0 = (x_end[b] - x_end[a]) + 1j * (y_end[b] - y_end[a])
     if kind == "cartesian":
-        return 0.5 * stiffness * ((rx - rx0) ** 2 + (ry - ry0) ** 2)         # eq. (20)
-    dl = np.hypot(rx, ry) - np.hypot(rx0, ry0)                             # eq. (10)
+        sim = object_similarity(X, Y, activity_weights(rec), x_end, y_end)[:, None]
+        return 0.5 * stiffness * np.abs(r - sim * r0) ** 2                  # eq. (20)
+    dl = np.abs(r) - np.abs(r0)                                            # eq. (10)
     return 0.5 * stiffness * dl * dl                                        # eq. (12)
 
 
@@ -978,16 +1057,22 @@ def motion_alpha(rec: dict, sig: np.ndarray, batch_us: int, smooth_us: int,
     return float(np.clip(np.quantile(alpha, quantile), *bounds))
 
 
-def energy_scale(energies: np.ndarray, quantile: float, floor: float) -> float:
+def energy_scale(energies: np.ndarray, quantile: float, floor: float,
+                 ceiling: float = math.inf) -> float:
     """s of eqs. (21)-(22) such that the deformations seen while learning stay below it:
-    the ``quantile`` of E_ij / mean(E) over the samples (NaN: missing), at least ``floor``."""
+    the ``quantile`` of E_ij / mean(E) over the samples (NaN: missing), within
+    [``floor``, ``ceiling``].  The ceiling keeps the criteria able to act: the window's
+    clean motion says how unevenly the parts deform, not how hard an occluder will pull,
+    and a few unevenly deforming pairs (an object's outline, texture) make the tail long;
+    above about 5 the criteria no longer fire even on a part dragged off its place
+    (docs/tuning.md), so a larger s would switch eqs. (21)-(22) off."""
     with quiet_nan():
         mean = np.nanmean(energies, axis=1, keepdims=True)
         ratio = energies / mean
     ratio = ratio[np.isfinite(ratio)]
     if not len(ratio):
         return floor
-    return max(floor, float(np.quantile(ratio, quantile)))
+    return min(max(floor, float(np.quantile(ratio, quantile))), max(floor, ceiling))
 
 
 def _build_model(pool, rec, counts, lp, track_params, width, height, names, name):
@@ -996,8 +1081,8 @@ def _build_model(pool, rec, counts, lp, track_params, width, height, names, name
     energy_scale: energy_scale; energy_kind: cartesian if every spring is)."""
     n = pool.n
     st = pool.st
-    x, y = pool.x.copy(), pool.y.copy()
     sig = np.sqrt(0.5 * (st[F["sxx"], :n] + st[F["syy"], :n]))
+    x, y = mean_shape(rec, pool.x.copy(), pool.y.copy(), float(np.median(sig)))
     order = reading_order(x, y, float(np.median(sig)))
     if names is not None:
         names = list(names)
@@ -1034,7 +1119,7 @@ def _build_model(pool, rec, counts, lp, track_params, width, height, names, name
             c.kinds == ("cartesian",) for c in kept) else "euclidean")
         if "energy_scale" not in params:
             s = energy_scale(spring_energies(rec, kept, stiff, kind, x, y),
-                             lp.energy_quantile, Params().energy_scale)
+                             lp.energy_quantile, Params().energy_scale, lp.energy_scale_max)
             params["energy_scale"] = round(s, 3)
     for c in cands:                       # model order from here on
         c.a, c.b = sorted((int(new_of[c.a]), int(new_of[c.b])))
