@@ -247,3 +247,50 @@ def test_cli_biplane_learned_then_tracked_as_delivered(data_file, tmp_path, caps
     from springtrack.track import read_csv
     track = read_csv(csv)
     assert track.t_us[0] >= 200_000 and track.t_us[-1] >= 990_000
+
+
+# ---- the firmware ------------------------------------------------------------------------
+def test_firmware_sim_learn_first_ms_equals_springtrack_track(tmp_path):
+    """firmware-sim learns from the camera's first second and tracks the rest exactly as
+    ``springtrack track --learn-first-ms`` does offline (the same model, bit for bit the
+    same samples)."""
+    import subprocess
+    import sys
+    ev, _ = simulate_all("grid_pull", 1.5, seed=0)
+    np.save(tmp_path / "grid.npy", ev)
+    ref = tmp_path / "ref.csv"
+    assert cli(["track", str(tmp_path / "grid.npy"), "--learn-first-ms", "1000", "--out",
+                str(ref), "--no-progress"]) == 0
+    out = tmp_path / "fw.csv"
+    r = subprocess.run([sys.executable, "-m", "firmware_sim.cli", "run", "--source",
+                        "sim:grid_pull", "--max-speed", "--seconds", "1.5", "--learn-first-ms",
+                        "1000", "--record", str(out), "--stats-every", "0"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert "learn: learned 9 trackers" in r.stderr and "learn=learned" in r.stdout
+    assert out.read_text() == ref.read_text()
+
+
+def test_firmware_learning_on_noise_tracks_nothing_and_says_so():
+    import time
+    from firmware_sim import usb as camusb
+    from firmware_sim.loop import FirmwareLoop
+    from firmware_sim.simcam import SimBackend, SimCamera
+    from firmware_sim.sources import events_source
+    ev = noise(0.1, 0.5)
+    cam = SimCamera(events_source(ev, 2048), realtime=False)
+    be = SimBackend(cam)
+    eng = FirmwareLoop(lambda: camusb.Camera.open("ccam_atis", backend=be), "face26",
+                       lossless=True, record=True, transfer_bytes=16384, learn_first_ms=300)
+    assert eng.info()["learning"]
+    eng.start()
+    t0 = time.monotonic()
+    while not (cam.finished and eng.caught_up()):
+        assert time.monotonic() - t0 < 60, eng.stats_line()
+        time.sleep(0.05)
+    eng.stop()
+    s = eng.stats()
+    assert s["learn"]["state"] == "failed" and "no object found" in s["learn"]["error"]
+    assert s["events_tracked"] == 0 and s["learn"]["events"] > 0
+    assert s["learn"]["events"] + s["learn"]["untracked"] == s["events_decoded"]
+    assert not eng.recorder.blocks and "learn=failed" in eng.stats_line()
