@@ -961,31 +961,29 @@ def similarity_fit(z: np.ndarray, ref: np.ndarray, w: np.ndarray):
     return a, zbar, rbar
 
 
-def mean_shape(rec: dict, x_end: np.ndarray, y_end: np.ndarray, size_px: float,
+def steady_positions(rec: dict, x_end: np.ndarray, y_end: np.ndarray, size_px: float,
                rounds: int = 3):
-    """The object's shape over the window, placed where the object is at its end:
-    positions (x, y) (N,).
+    """The final positions (x, y) (N,), each tracker caught off its part at the window's
+    end put back where the object's shape over the window places it.
 
-    Each sample's positions are carried into the shape's frame by the similarity that
-    maps the shape onto them (:func:`object_similarity`, activity-weighted), and the
-    shape is their weighted mean, starting from the final positions and repeated
-    ``rounds`` times (generalised Procrustes analysis); the result is placed by the
-    similarity that maps it onto the final positions.  A sample counts with weight
-    exp(-d^2 / (2 size_px^2)), d the RMS distance of its carried positions from the
-    shape: where the object only moved, turned and scaled (d about the trackers' jitter)
-    every sample counts, where it showed another view (a 3-D turn: d of several part
-    sizes) only the samples near the end do; and where that is most samples (the
-    median d over a part size: a deforming object), the final positions are the
-    shape.  The final positions alone are one instant
-    of free trackers, each with its own jitter and lag; a part caught a few pixels off
-    at that instant would put a constant strain on the springs (their rest geometry is
-    the model's positions) that the energy criteria, eqs. (21)-(22), would then misread."""
+    The final positions are one instant of free trackers, each with its own jitter and
+    lag; a part caught a few pixels off at that instant would put a constant strain on
+    the springs (their rest geometry is the model's positions) that the energy criteria,
+    eqs. (21)-(22), would then misread.  The shape is the mean of the samples, each
+    carried into the shape's frame by the similarity that maps the shape onto it
+    (:func:`object_similarity`, activity-weighted), starting from the final positions and
+    repeated ``rounds`` times (generalised Procrustes analysis); a sample counts with
+    weight exp(-d^2 / (2 size_px^2)), d the RMS distance of its carried positions from
+    the shape.  The shape is placed on the final positions by the similarity that maps it
+    there, and a tracker farther than ``size_px`` (a part's size) from its place takes
+    it; the others keep their final positions (where the parts are: a perspective view
+    is not a similarity).  When most samples are no similarity of one shape (the median
+    d over ``size_px``: a 3-D turn, a deforming object), the final positions stay."""
     X, Y = rec["x"], rec["y"]
     w0 = activity_weights(rec)
     z = np.where(w0 > 0, X + 1j * Y, 0.0)
     end = x_end + 1j * y_end
     shape = end.copy()
-    w = w0
     for _ in range(rounds):
         a = object_similarity(X, Y, w0, shape.real, shape.imag)              # (T,)
         ok = np.abs(a) > 0
@@ -1006,6 +1004,7 @@ def mean_shape(rec: dict, x_end: np.ndarray, y_end: np.ndarray, size_px: float,
     if a == 0:
         return x_end, y_end
     placed = zbar + a * (shape - rbar)
+    placed = np.where(np.abs(placed - end) > size_px, placed, end)
     return placed.real.copy(), placed.imag.copy()
 
 
@@ -1082,7 +1081,7 @@ def _build_model(pool, rec, counts, lp, track_params, width, height, names, name
     n = pool.n
     st = pool.st
     sig = np.sqrt(0.5 * (st[F["sxx"], :n] + st[F["syy"], :n]))
-    x, y = mean_shape(rec, pool.x.copy(), pool.y.copy(), float(np.median(sig)))
+    x, y = steady_positions(rec, pool.x.copy(), pool.y.copy(), float(np.median(sig)))
     order = reading_order(x, y, float(np.median(sig)))
     if names is not None:
         names = list(names)
