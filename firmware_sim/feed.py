@@ -74,10 +74,11 @@ class DecodedFeed:
         if n >= 0:
             mv = mv[:n]
         self.bytes_in += len(mv)
-        return self.track(self.decoder.decode(mv))
+        return self.track(self.decoder.decode(mv), sink)
 
-    def track(self, ev):
-        """Track decoded events ``ev``; returns their sample rows (None if none)."""
+    def track(self, ev, sink=None):
+        """Track decoded events ``ev``: their sample rows (None if none), or each block of
+        them passed to ``sink`` (as :meth:`feed`)."""
         if len(ev) == 0:
             return None
         if self.mark:

@@ -16,7 +16,7 @@ import numpy as np
 
 from springtrack.events import EVENT_DTYPE
 
-from .feed import DecodedFeed, join_samples
+from .feed import DecodedFeed
 
 
 class LearningFeed(DecodedFeed):
@@ -57,9 +57,9 @@ class LearningFeed(DecodedFeed):
         self.idle = False
         super().set_kernel(kernel)
 
-    def feed(self, buf, n: int = -1):
+    def feed(self, buf, n: int = -1, sink=None):
         if not self.learning and not self.idle:
-            return super().feed(buf, n)
+            return super().feed(buf, n, sink)
         mv = memoryview(buf).cast("B")
         if n >= 0:
             mv = mv[:n]
@@ -80,11 +80,11 @@ class LearningFeed(DecodedFeed):
             self._learn()
         return None
 
-    def track_rest(self):
+    def track_rest(self, sink=None):
         """Track the events decoded after the window (with the learned model, once the
-        loop has set its kernel); returns their sample rows (None if none)."""
+        loop has set its kernel): their sample rows, or each block passed to ``sink``."""
         ev, self.rest = self.rest, np.empty(0, EVENT_DTYPE)
-        return self.track(ev)
+        return self.track(ev, sink)
 
     def _learn(self) -> None:
         """The window is complete: learn (``learned``, or ``error`` and the events after

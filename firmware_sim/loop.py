@@ -271,9 +271,7 @@ class FirmwareLoop:
                                                                m.params.items()))
         self.slot.queue_model(m.to_toml())
         self._apply_pending()
-        out = self.learner.track_rest()
-        if out is not None:
-            self._emit(out)
+        self.learner.track_rest(sink=self._emit)
 
     def _emit(self, out: dict) -> None:
         self.counters.snapshots += len(out["t"])
