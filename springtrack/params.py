@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields, asdict
+from pathlib import Path
 from typing import Mapping
 
 from .wire import Nack
@@ -172,6 +173,28 @@ def from_mapping(values: Mapping, base: Params | None = None, where: str = "") -
         return Params(**merged)
     except ParamError as e:
         raise type(e)(f"{where}: {e}" if where else str(e)) from None
+
+
+def resolve(model, params=None) -> Params:
+    """The parameters of ``model`` (anything with ``params``, its ``[params]`` table, and
+    ``source``): defaults, then the model's [params], then ``params`` (Params, dict or
+    TOML path; a Params is taken as it is)."""
+    base = from_mapping(model.params, where=f"{model.source} [params]")
+    if params is None:
+        return base
+    if isinstance(params, Params):
+        return params
+    if isinstance(params, dict):
+        return from_mapping(params, base)
+    if isinstance(params, (str, Path)):
+        import tomllib
+        with open(params, "rb") as f:
+            try:
+                data = tomllib.load(f)
+            except tomllib.TOMLDecodeError as e:
+                raise ParamError(f"{params}: not valid TOML: {e}") from None
+        return from_mapping(data.get("params", data), base, where=str(params))
+    raise TypeError(f"params must be Params, dict, a TOML path or None, not {type(params).__name__}")
 
 
 def load(path) -> Params:

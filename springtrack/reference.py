@@ -30,6 +30,14 @@ Interpretation choices (docs/algorithm.md explains them):
   trackers no over-threshold connection touches; eq. (22) then pulls toward
   ``G + s R dG0``, and the Cartesian springs of the next update hold the rest offset
   ``s R d0``.
+* Several model instances (springtrack.instances): their trackers side by side; eq. (2)'s
+  argmin runs over the union of the sensitive trackers (ties: lowest index, the first
+  instance); springs, eq. (13)'s mean energy, eqs. (21)-(22), the centre of mass and the
+  similarity frame per instance, each with its own parameters of INSTANCE_PARAMS; only
+  tracking instances are sensitive and run their springs.
+* The loss rule (``enable_loss``): at the first spring update after each LOSS_CHECK_US of
+  event time, a tracking instance with fewer than a third of its trackers active at every
+  such check for ``hold_us`` becomes lost (insensitive, positions kept).
 """
 from __future__ import annotations
 
@@ -37,6 +45,8 @@ import math
 
 import numpy as np
 
+from .instances import (LOSS_ACTIVE_DIV, LOSS_CHECK_US, LOST, TRACKING, ModelSet,
+                        loss_hold_us, per_instance)
 from .model import SPRING_BIT, ShapeModel
 from .params import ENERGY_KINDS, Params
 from .sampling import UNSET, first_sample_time, sample_due
@@ -88,14 +98,29 @@ def wrap_angle(a: float) -> float:
 
 
 class ReferenceTracker:
-    """Float64 reference tracker; state in plain Python lists, one event per call."""
+    """Float64 reference tracker; state in plain Python lists, one event per call.
 
-    def __init__(self, model: ShapeModel, params: Params | None = None):
-        self.model = model
-        arr = model.arrays()
-        self.n = len(model.trackers)
-        self.nc = len(model.connections)
-        self.width, self.height = model.width, model.height
+    ``ReferenceTracker(model, params)``: one ShapeModel and its resolved Params, or a
+    ``springtrack.instances.ModelSet`` (params None: each instance's own)."""
+
+    def __init__(self, model, params: Params | None = None):
+        if isinstance(model, ModelSet):
+            mset = model if params is None else model.with_params(params)
+        else:
+            mset = ModelSet([model], params if params is not None else Params())
+        self.mset = mset
+        self.model = mset[0].model
+        arr = mset.arrays()
+        self.n = mset.n
+        self.nc = mset.nc
+        self.ni = len(mset)
+        self.width, self.height = mset.width, mset.height
+        # instances: trackers [t0, t1), connections [c0, c1)
+        self.t0 = [int(v) for v in arr["inst_t0"]]
+        self.t1 = [int(v) for v in arr["inst_t1"]]
+        self.c0 = [int(v) for v in arr["inst_c0"]]
+        self.c1 = [int(v) for v in arr["inst_c1"]]
+        self.inst = [g for g in range(self.ni) for _ in range(self.t0[g], self.t1[g])]
         # tracker state
         self.mx = [float(v) for v in arr["x"]]
         self.my = [float(v) for v in arr["y"]]
@@ -122,41 +147,85 @@ class ReferenceTracker:
         self.dx0 = [float(v) for v in arr["dx0"]]
         self.dy0 = [float(v) for v in arr["dy0"]]
         self.energy = [[0.0] * self.nc for _ in ENERGY_KINDS]   # [kind][connection]
-        self.mean_energy = 0.0
-        # the similarity frame of the last spring update (fit_frame): s R = [[fc, -fs],
-        # [fs, fc]], and (fgx, fgy) where it maps the rest centre of mass G0
-        self.fc, self.fs = 1.0, 0.0
-        self.fgx = float(arr["x"][0] - arr["gdx0"][0]) if self.n else 0.0    # G0 at rest
-        self.fgy = float(arr["y"][0] - arr["gdy0"][0]) if self.n else 0.0
         self.degree = [0] * self.n
         for k in range(self.nc):
             self.degree[self.ca[k]] += 1
             self.degree[self.cb[k]] += 1
+        # per instance: eq. (13)'s mean energy, the similarity frame of the last spring
+        # update (fit_frame: s R = [[fc, -fs], [fs, fc]], (fgx, fgy) where it maps the
+        # rest centre of mass G0), the state and the loss rule's clock
+        self.mean_energies = [0.0] * self.ni
+        self.fc = [1.0] * self.ni
+        self.fs = [0.0] * self.ni
+        self.fgx = [0.0] * self.ni
+        self.fgy = [0.0] * self.ni
+        for g in range(self.ni):
+            self._rest_frame(g)
+        self.state = [int(TRACKING)] * self.ni
+        self.low_since = [None] * self.ni     # first loss check that found it low
+        self.n_lost = [0] * self.ni           # losses, and the event time of the last
+        self.lost_t = [0] * self.ni
+        self.loss_hold = None                 # the loss rule: off (enable_loss)
+        self.loss_t = None                    # the last loss check's time
         # counters
         self.last_t = -(1 << 62)
         self.n_valid = self.n_assigned = self.n_back = self.n_outside = 0
         self.since_spring = 0
         self.n_spring_updates = 0
-        self.set_params(params if params is not None else Params())
+        self.set_params(mset.params_list)
 
-    def set_params(self, params: Params) -> None:
-        p = params
-        self.params = p
-        self.a1 = p.alpha_position
-        self.a2 = p.alpha_covariance
+    def _rest_frame(self, g: int) -> None:
+        """Instance g's frame before its first fit: the identity about G0 at rest."""
+        t0 = self.t0[g]
+        self.fc[g], self.fs[g] = 1.0, 0.0
+        self.fgx[g] = self.mx[t0] - self.gdx0[t0]
+        self.fgy[g] = self.my[t0] - self.gdy0[t0]
+
+    @property
+    def mean_energy(self) -> float:
+        """eq. (13) of the first instance (:attr:`mean_energies`: every instance's)."""
+        return self.mean_energies[0]
+
+    @property
+    def ekind(self) -> int:
+        return self.ekinds[0]
+
+    @property
+    def params(self) -> Params:
+        return self.plist[0]
+
+    def set_params(self, params) -> None:
+        """One Params for every instance, or one per instance (shared ones equal)."""
+        plist = per_instance(params, self.ni)
+        self.mset = self.mset.with_params(plist)
+        p = plist[0]                               # SHARED_PARAMS: the same in all
+        self.plist = plist
         self.gate = p.gate_d2
         if getattr(self, "tau", p.activity_tau_us) != p.activity_tau_us and self.n_valid:
             for i in range(self.n):      # eq. (6): a new tau decays from the change on
                 self.act[i] = self.activity_at(i, self.last_t)
                 self.tlast[i] = self.last_t
         self.tau = p.activity_tau_us
-        self.cov_gain = p.alpha_covariance / covariance_bias(p.alpha_position, p.gate_d2)
+        self.act_thr = p.activity_threshold
+        self.period = p.spring_period
         self.smin2 = p.sigma_min_px * p.sigma_min_px
         self.smax2 = p.sigma_max_px * p.sigma_max_px
-        self.ekind = p.energy_kind_index
-        self.pull_sim = p.pull_similarity
-        self.car_sim = p.cartesian_similarity
-        self.need_torsion = self.nc > 0 and (self.ekind == 1 or any(k & TORSIONAL for k in self.kinds))
+        # per tracker, from its instance: the gains of eqs. (3)-(5)
+        self.a1 = [plist[g].alpha_position for g in self.inst]
+        self.a2 = [plist[g].alpha_covariance for g in self.inst]
+        self.cov_gain = [q.alpha_covariance / covariance_bias(q.alpha_position, q.gate_d2)
+                         for q in (plist[g] for g in self.inst)]
+        # per instance: the criteria and the frames
+        self.ekinds = [q.energy_kind_index for q in plist]
+        self.escale = [q.energy_scale for q in plist]
+        self.egain = [q.energy_gain for q in plist]
+        self.pull_sim = [q.pull_similarity for q in plist]
+        self.car_sim = [q.cartesian_similarity for q in plist]
+        self.need_torsion = [self.c1[g] > self.c0[g] and (
+            self.ekinds[g] == 1 or any(self.kinds[k] & TORSIONAL for k in range(self.c0[g], self.c1[g])))
+            for g in range(self.ni)]
+        if self.loss_hold is not None:
+            self.loss_hold = loss_hold_us(p)
         for i in range(self.n):          # new sigma bounds apply at once
             self._clamp_and_invert(i)
 
@@ -173,8 +242,8 @@ class ReferenceTracker:
         self.n_valid += 1
         fx = float(x)
         fy = float(y)
-        # eq. (2) in the log domain: smallest Mahalanobis d^2 among sensitive trackers,
-        # accepted only inside the gate exp(-d^2/2) > p_threshold.
+        # eq. (2) in the log domain: smallest Mahalanobis d^2 among sensitive trackers (of
+        # every instance), accepted only inside the gate exp(-d^2/2) > p_threshold.
         best = NO_TRACKER
         best_d2 = self.gate
         for i in range(self.n):
@@ -190,9 +259,9 @@ class ReferenceTracker:
             self._update(best, t, fx, fy, best_d2)
             self.n_assigned += 1
         self.since_spring += 1
-        if self.since_spring >= self.params.spring_period:
+        if self.since_spring >= self.period:
             self.since_spring = 0
-            self.springs()
+            self.springs(t)
         return best
 
     def _update(self, i: int, t: int, fx: float, fy: float, d2: float) -> None:
@@ -202,10 +271,10 @@ class ReferenceTracker:
         self.tlast[i] = t
         dx = fx - self.mx[i]                                         # eq. (5): offset from the
         dy = fy - self.my[i]                                         # pre-update mean
-        self.mx[i] = self.mx[i] + self.a1 * dx                       # eq. (3), a1 = weight of u
-        self.my[i] = self.my[i] + self.a1 * dy
-        keep = 1.0 - self.a2                                         # eq. (4), a2 = weight of dS,
-        g = self.cov_gain                                            # dS / covariance_bias
+        self.mx[i] = self.mx[i] + self.a1[i] * dx                    # eq. (3), a1 = weight of u
+        self.my[i] = self.my[i] + self.a1[i] * dy
+        keep = 1.0 - self.a2[i]                                      # eq. (4), a2 = weight of dS,
+        g = self.cov_gain[i]                                         # dS / covariance_bias
         self.sxx[i] = keep * self.sxx[i] + g * (dx * dx)
         self.sxy[i] = keep * self.sxy[i] + g * (dx * dy)
         self.syy[i] = keep * self.syy[i] + g * (dy * dy)
@@ -225,24 +294,26 @@ class ReferenceTracker:
         self.ic[i] = sxx * inv_det
 
     # ---- springs and energy criteria (every spring_period events) ------------
-    def fit_frame(self, calm: list) -> None:
-        """The similarity x -> G + s R (x - G0) that best maps the rest shape onto the
-        current means, in the mass-weighted least-squares sense (Procrustes, closed form).
+    def fit_frame(self, calm: list, g: int = 0) -> None:
+        """The similarity x -> G + s R (x - G0) that best maps instance g's rest shape onto
+        its current means, in the mass-weighted least-squares sense (Procrustes, closed
+        form).
 
-        Fit set F: the trackers ``calm`` marks -- at a spring update, those no connection
-        over the energy threshold touches (eqs. 21-22 leave them alone), so that trackers
-        an occluder drags do not drag the frame.  With fewer than 2 trackers in F the fit
-        uses all trackers.  With rest offsets p_i = dG0_i - pbar and current offsets
-        q_i = mu_i - qbar about F's weighted centroids pbar (rest, relative to G0) and
-        qbar (current):
+        Fit set F: the trackers ``calm`` marks (indexed like all trackers) -- at a spring
+        update, those no connection over the energy threshold touches (eqs. 21-22 leave
+        them alone), so that trackers an occluder drags do not drag the frame.  With fewer
+        than 2 trackers in F the fit uses all of the instance's trackers.  With rest
+        offsets p_i = dG0_i - pbar and current offsets q_i = mu_i - qbar about F's weighted
+        centroids pbar (rest, relative to G0) and qbar (current):
             a = sum m p.q,  b = sum m p x q,  D = sum m |p|^2,  s R = [[a, -b], [b, a]] / D
         and G = qbar - s R pbar, the image of the rest centre of mass G0.  D below
         FRAME_MIN_SPREAD times sum m (all of F's rest points together) gives s R = I; the
         scale sqrt(a^2 + b^2) / D is held to [FRAME_SCALE_MIN, FRAME_SCALE_MAX]."""
-        n, mass, mx, my = self.n, self.mass, self.mx, self.my
-        fit = [i for i in range(n) if calm[i]]
+        mass, mx, my = self.mass, self.mx, self.my
+        mine = range(self.t0[g], self.t1[g])
+        fit = [i for i in mine if calm[i]]
         if len(fit) < 2:
-            fit = range(n)
+            fit = mine
         w = px = py = qx = qy = 0.0
         for i in fit:                                                # weighted centroids
             m = mass[i]
@@ -282,27 +353,39 @@ class ReferenceTracker:
                     sn = sn * f
                 else:                                                # no rotation to keep
                     c, sn = FRAME_SCALE_MIN, 0.0
-        self.fc, self.fs = c, sn
-        self.fgx = qx - (c * px - sn * py)                           # G = qbar - s R pbar
-        self.fgy = qy - (sn * px + c * py)
+        self.fc[g], self.fs[g] = c, sn
+        self.fgx[g] = qx - (c * px - sn * py)                        # G = qbar - s R pbar
+        self.fgy[g] = qy - (sn * px + c * py)
 
-    def springs(self) -> None:
-        n, nc = self.n, self.nc
+    def springs(self, t: int | None = None) -> None:
+        """One spring update at event time ``t`` (default: the last event's): every
+        tracking instance's springs and criteria, then the loss rule's check."""
         self.n_spring_updates += 1
+        for g in range(self.ni):
+            if self.state[g] == TRACKING:
+                self._springs(g)
+        if self.loss_hold is not None:
+            self._check_loss(self.last_t if t is None else t)
+
+    def _springs(self, g: int) -> None:
+        t0, t1, c0, c1 = self.t0[g], self.t1[g], self.c0[g], self.c1[g]
+        nc = c1 - c0
         mx, my, im = self.mx, self.my, self.inv_mass
-        ddx = [0.0] * n
-        ddy = [0.0] * n
+        ddx = {i: 0.0 for i in range(t0, t1)}
+        ddy = {i: 0.0 for i in range(t0, t1)}
         e_euc, e_tor, e_car = self.energy
-        dth_raw = [0.0] * nc
+        fc, fs = self.fc[g], self.fs[g]
+        need_torsion, car_sim = self.need_torsion[g], self.car_sim[g]
+        dth_raw = {}
         mean_dth = 0.0
-        if self.need_torsion:
-            for k in range(nc):                                      # eq. (14)
+        if need_torsion:
+            for k in range(c0, c1):                                  # eq. (14)
                 i, j = self.ca[k], self.cb[k]
                 th = math.atan2(my[j] - my[i], mx[j] - mx[i])
                 dth_raw[k] = wrap_angle(th - self.th0[k])
                 mean_dth += dth_raw[k]
-            mean_dth = mean_dth / nc
-        for k in range(nc):
+            mean_dth = mean_dth / nc                                 # eq. (15), per instance
+        for k in range(c0, c1):
             i, j = self.ca[k], self.cb[k]
             a = self.stiff[k]
             rx = mx[j] - mx[i]
@@ -310,9 +393,9 @@ class ReferenceTracker:
             l = math.sqrt(rx * rx + ry * ry)
             dl = l - self.l0[k]                                      # eq. (10)
             e_euc[k] = 0.5 * a * (dl * dl)                           # eq. (12)
-            if self.car_sim:                     # eq. (18), rest offset s R d0 in the frame
-                ex = rx - (self.fc * self.dx0[k] - self.fs * self.dy0[k])   # of the last update
-                ey = ry - (self.fs * self.dx0[k] + self.fc * self.dy0[k])
+            if car_sim:                          # eq. (18), rest offset s R d0 in the frame
+                ex = rx - (fc * self.dx0[k] - fs * self.dy0[k])      # of the last update
+                ey = ry - (fs * self.dx0[k] + fc * self.dy0[k])
             else:                                                    # eq. (18)
                 ex = rx - self.dx0[k]
                 ey = ry - self.dy0[k]
@@ -332,7 +415,7 @@ class ReferenceTracker:
                 ddy[i] += fy * im[i]
                 ddx[j] -= fx * im[j]
                 ddy[j] -= fy * im[j]
-            if self.need_torsion:
+            if need_torsion:
                 dth = dth_raw[k] - mean_dth                          # eq. (15)
                 e_tor[k] = 0.5 * a * (dth * dth)                     # eq. (17)
                 if kind & TORSIONAL:                                 # eq. (16), with
@@ -352,76 +435,137 @@ class ReferenceTracker:
                 ddy[i] += a * ey * im[i]
                 ddx[j] -= a * ex * im[j]
                 ddy[j] -= a * ey * im[j]
-        for i in range(n):
+        for i in range(t0, t1):
             mx[i] = mx[i] + ddx[i]
             my[i] = my[i] + ddy[i]
-        self._energy_criteria()
+        self._energy_criteria(g)
 
-    def _energy_criteria(self) -> None:
-        n, nc = self.n, self.nc
+    def _energy_criteria(self, g: int) -> None:
+        t0, t1, c0, c1 = self.t0[g], self.t1[g], self.c0[g], self.c1[g]
+        nc = c1 - c0
         if nc == 0:
             return
-        e = self.energy[self.ekind]
+        e = self.energy[self.ekinds[g]]
         total = 0.0
-        for k in range(nc):                                          # eq. (13)
+        for k in range(c0, c1):                                      # eq. (13)
             total += e[k]
-        self.mean_energy = total / nc
-        thr = self.params.energy_scale * self.mean_energy
-        over_count = [0] * n
-        for k in range(nc):
+        self.mean_energies[g] = total / nc
+        thr = self.escale[g] * self.mean_energies[g]
+        over_count = {i: 0 for i in range(t0, t1)}
+        for k in range(c0, c1):
             if e[k] > thr:
                 over_count[self.ca[k]] += 1
                 over_count[self.cb[k]] += 1
-        a_en = self.params.energy_gain
-        if self.pull_sim or self.car_sim:
+        a_en = self.egain[g]
+        if self.pull_sim[g] or self.car_sim[g]:
             # the frame, fitted to the trackers this update leaves alone; the Cartesian
             # springs use it at the next update (this one's energies decided who is calm)
-            self.fit_frame([c == 0 for c in over_count])
-        if self.pull_sim:
+            self.fit_frame({i: c == 0 for i, c in over_count.items()}, g)
+        if self.pull_sim[g]:
             # eq. (22) in the fitted frame: pull toward G + s R dG0 (fit_frame)
-            for i in range(n):
+            fc, fs, fgx, fgy = self.fc[g], self.fs[g], self.fgx[g], self.fgy[g]
+            for i in range(t0, t1):
                 if over_count[i] > 0:
-                    tx = self.fgx + (self.fc * self.gdx0[i] - self.fs * self.gdy0[i])
-                    ty = self.fgy + (self.fs * self.gdx0[i] + self.fc * self.gdy0[i])
+                    tx = fgx + (fc * self.gdx0[i] - fs * self.gdy0[i])
+                    ty = fgy + (fs * self.gdx0[i] + fc * self.gdy0[i])
                     self.mx[i] = self.mx[i] + a_en * (tx - self.mx[i])
                     self.my[i] = self.my[i] + a_en * (ty - self.my[i])
         else:
             # eq. (22): pull both ends of an over-threshold connection toward G + dG0, G the
-            # centre of mass after the spring step
+            # instance's centre of mass after the spring step
             msum = 0.0
             gx = 0.0
             gy = 0.0
-            for i in range(n):
+            for i in range(t0, t1):
                 msum += self.mass[i]
                 gx += self.mass[i] * self.mx[i]
                 gy += self.mass[i] * self.my[i]
             gx = gx / msum
             gy = gy / msum
-            for i in range(n):
+            for i in range(t0, t1):
                 if over_count[i] > 0:
                     self.mx[i] = self.mx[i] + a_en * (gx + self.gdx0[i] - self.mx[i])
                     self.my[i] = self.my[i] + a_en * (gy + self.gdy0[i] - self.my[i])
-        for i in range(n):
+        for i in range(t0, t1):
             # eq. (21): insensitive while every connection of the tracker is over
             self.sensitive[i] = not (self.degree[i] > 0 and over_count[i] == self.degree[i])
 
+    # ---- the loss rule ----------------------------------------------------------
+    def enable_loss(self, on: bool = True) -> None:
+        """Turn the loss rule on (hold time LOSS_HOLD_TAU tau) or off."""
+        self.loss_hold = loss_hold_us(self.plist[0]) if on else None
+
+    def _check_loss(self, t: int) -> None:
+        """At the first spring update after each LOSS_CHECK_US of event time: a tracking
+        instance with LOSS_ACTIVE_DIV x (active trackers) < its trackers at every check
+        since ``loss_hold`` µs is lost."""
+        if self.loss_t is not None and t - self.loss_t < LOSS_CHECK_US:
+            return
+        self.loss_t = t
+        for g in range(self.ni):
+            if self.state[g] != TRACKING:
+                continue
+            active = sum(1 for i in range(self.t0[g], self.t1[g])
+                         if self.activity_at(i, t) > self.act_thr)
+            if LOSS_ACTIVE_DIV * active >= self.t1[g] - self.t0[g]:
+                self.low_since[g] = None
+                continue
+            if self.low_since[g] is None:
+                self.low_since[g] = t
+            if t - self.low_since[g] >= self.loss_hold:
+                self.set_state(g, LOST)
+                self.n_lost[g] += 1
+                self.lost_t[g] = t
+
+    def set_state(self, g: int, state: int) -> None:
+        """Instance g's state; a tracking instance's trackers are sensitive, the others'
+        are not (the next spring update decides eq. 21 again)."""
+        self.state[g] = int(state)
+        self.low_since[g] = None
+        for i in range(self.t0[g], self.t1[g]):
+            self.sensitive[i] = state == TRACKING
+
+    def place(self, g: int, model: ShapeModel) -> None:
+        """Instance g placed as ``model`` (its model moved, e.g. by an acquisition: the
+        same trackers and connections): positions, covariances and the rest geometry of
+        eqs. (10), (14), (18), (22) from it, activities 0, the frame at rest; tracking."""
+        self.mset = self.mset.replaced(g, model)
+        arr = model.arrays()
+        t0, c0 = self.t0[g], self.c0[g]
+        for j in range(len(arr["x"])):
+            i = t0 + j
+            self.mx[i], self.my[i] = float(arr["x"][j]), float(arr["y"][j])
+            self.sxx[i], self.sxy[i] = float(arr["sxx"][j]), float(arr["sxy"][j])
+            self.syy[i] = float(arr["syy"][j])
+            self.gdx0[i], self.gdy0[i] = float(arr["gdx0"][j]), float(arr["gdy0"][j])
+            self.act[i] = 0.0
+            self.tlast[i] = 0
+            self._clamp_and_invert(i)
+        for j in range(len(arr["l0"])):
+            k = c0 + j
+            self.l0[k], self.th0[k] = float(arr["l0"][j]), float(arr["th0"][j])
+            self.dx0[k], self.dy0[k] = float(arr["dx0"][j]), float(arr["dy0"][j])
+        self._rest_frame(g)
+        self.set_state(g, TRACKING)
+
     # ---- observation -----------------------------------------------------------
-    def frame(self) -> tuple:
-        """The similarity frame of the last spring update (fit_frame): (c, sn, gx, gy) with
-        s R = [[c, -sn], [sn, c]] and (gx, gy) the image of the rest centre of mass;
-        (1, 0, G0) until a spring update fits one."""
-        return (self.fc, self.fs, self.fgx, self.fgy)
+    def frame(self, g: int = 0) -> tuple:
+        """Instance g's similarity frame of the last spring update (fit_frame): (c, sn, gx,
+        gy) with s R = [[c, -sn], [sn, c]] and (gx, gy) the image of the rest centre of
+        mass; (1, 0, G0) until a spring update fits one."""
+        return (self.fc[g], self.fs[g], self.fgx[g], self.fgy[g])
 
     def activity_at(self, i: int, t: int) -> float:
         """eq. (6) evaluated lazily at time t (no event)."""
         return self.act[i] * math.exp(-(t - self.tlast[i]) / self.tau)
 
     def snapshot(self, t: int) -> tuple:
-        """(x, y, sxx, sxy, syy, activity, active, sensitive) lists at event time t."""
+        """(x, y, sxx, sxy, syy, activity, active, sensitive, state) lists at event time t."""
         act = [self.activity_at(i, t) for i in range(self.n)]
-        thr = self.params.activity_threshold
+        thr = self.act_thr
         return (list(self.mx), list(self.my), list(self.sxx), list(self.sxy), list(self.syy),
-                act, [a > thr for a in act], list(self.sensitive))
+                act, [a > thr for a in act], list(self.sensitive),
+                [self.state[g] for g in self.inst])
 
     def run(self, events: np.ndarray, sample_us: int | None = None):
         """Process an event array; with ``sample_us``, return [(t_us, snapshot), ...] taken at

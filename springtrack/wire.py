@@ -745,6 +745,7 @@ def decode_telemetry(payload: bytes) -> tuple[int, int, float, np.ndarray]:
     out["syy"] = sy * sy
     out["sxy"] = rec["rho"] / RHO_SCALE * sx * sy
     out["activity"] = np.exp2(rec["act"] / ACT_SCALE) - 1.0
+    out["state"] = 1
     return t_us, gen, me, out
 
 

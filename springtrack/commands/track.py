@@ -19,13 +19,21 @@ input: .npy structured arrays (fields t, x, y, p), CSV with header t,x,y,p, and 
 camera format springtrack.io reads (EVT 2.0/2.1/3.0 RAW, Event Stream .es, DAT, AEDAT 4);
 - reads an event stream (RAW EVT 2.0/2.1/3.0 with its % header, or .es, .dat, .aedat4) from
 standard input as it arrives, e.g. another stack's live output piped in.
-output CSV header: t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive — one row per
-tracker at every multiple of --sample-us between the first and the last event, holding the
-state after all events with t < t_us.
---acquire: the model's positions are not used; the model is found (translation, rotation,
-isotropic scale within the --acquire-* bounds) in the first --acquire-ms of events, placed
-there and tracked from that window's first event; while it is not found the window slides
-by half its length (rows start once it is found).  See docs/acquisition.md.
+output CSV header: t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive,state — one row
+per tracker at every multiple of --sample-us between the first and the last event, holding
+the state after all events with t < t_us; state: the tracker's model instance searching,
+tracking or lost.
+several objects: --model A --model B tracks both at once (one event assignment, springs
+and energies per instance); --instances N holds N instances of each model (with
+--acquire: each found in turn, the ones found explaining their events away).  Tracker ids
+stay as written when unique across the instances, else become NAME#K/ID.
+--acquire: the models' positions are not used; each instance is found (translation,
+rotation, isotropic scale within the --acquire-* bounds) in the first --acquire-ms of
+events, placed there and tracked from that window's first event; while none is found the
+window slides by half its length (rows start once one is found).  Then an instance whose
+trackers fall inactive (fewer than a third active for 3 activity time constants) is lost
+and searched for again every --acquire-ms / 2 in the last --acquire-ms of events; an
+instance not found at the start is searched for the same way.  See docs/acquisition.md.
 """
 
 
@@ -33,9 +41,11 @@ def add_arguments(p):
     p.epilog = EPILOG
     p.add_argument("input", help="event file (.npy, .csv, .raw, .es, .dat, .aedat4), or - for "
                                  "an event stream (e.g. RAW) on standard input")
-    p.add_argument("--model",
-                   help="shape model: TOML file or preset name (grid3x3, face26); "
-                        "or --learn-first-ms")
+    p.add_argument("--model", action="append",
+                   help="shape model: TOML file or preset name (grid3x3, face26); repeat it "
+                        "to track several models at once; or --learn-first-ms")
+    p.add_argument("--instances", type=int, default=1, metavar="N",
+                   help="instances of each model (default 1; more than 1 needs --acquire)")
     p.add_argument("--learn-first-ms", type=float, metavar="MS",
                    help="learn the model from the stream's first MS ms (springtrack learn), "
                         "then track the rest with it")
@@ -81,22 +91,23 @@ def add_sensor_from(p) -> None:
 
 
 def open_stream(args):
-    """The model and the stream of (chunk, total) to track: the input's events, prepared
-    when asked (springtrack.prep); the model --model, checked against the input's sensor
-    (springtrack.geometry: a mismatch or trackers off the sensor is an error, unless
-    --sensor-from), or learned from the stream's first --learn-first-ms (the tracking then
-    starts where the learning window ends)."""
+    """The models and the stream of (chunk, total) to track: the input's events, prepared
+    when asked (springtrack.prep); the models --model (a list), each checked against the
+    input's sensor (springtrack.geometry: a mismatch or trackers off the sensor is an
+    error, unless --sensor-from), or one learned from the stream's first --learn-first-ms
+    (the tracking then starts where the learning window ends)."""
     from .. import io as stio
     from ..geometry import fit_model
     from ..model import load_model
-    if (args.model is None) == (args.learn_first_ms is None):
+    if (not args.model) == (args.learn_first_ms is None):
         raise ValueError("give either --model or --learn-first-ms")
     reader = stio.open(args.input)
     width, height = reader.width, reader.height
     if args.model:
-        model = fit_model(load_model(args.model), width, height, args.sensor_from,
-                          what=f"{args.input}'s sensor")
-        width, height = model.width, model.height
+        fitted = [fit_model(load_model(m), width, height, args.sensor_from,
+                            what=f"{args.input}'s sensor") for m in args.model]
+        model = fitted if len(fitted) > 1 else fitted[0]
+        width, height = fitted[0].width, fitted[0].height
     else:
         model = None
         if args.input == "-":                       # one pass over standard input
@@ -157,12 +168,16 @@ def run(args) -> int:
     from ..tracker import Tracker
     if args.sample_us <= 0:
         raise ValueError(f"--sample-us must be a positive number of µs, got {args.sample_us}")
+    if args.instances > 1 and not args.acquire:
+        raise ValueError(f"--instances {args.instances} would place {args.instances} copies "
+                         f"of each model on the same positions: add --acquire to find each")
     backend = f"mcu:{args.mcu_target}" if args.backend == "mcu" else args.backend
     model, stream = open_stream(args)
     tr = Tracker(model, params=args.params, backend=backend, acquire=args.acquire,
-                 acquire_ms=args.acquire_ms, acquire_bounds=_acquire_bounds(args))
+                 acquire_ms=args.acquire_ms, acquire_bounds=_acquire_bounds(args),
+                 instances=args.instances)
     tr.record(args.sample_us)
-    watch = TrackWatch(tr.model)
+    watch = TrackWatch(tr.models)
     prog = Progress(not args.no_progress)
     start = time.perf_counter()
     n = 0
@@ -199,12 +214,20 @@ def run(args) -> int:
           f"wall_s={wall:.3f} events_per_s={rate:.3g} realtime_factor={rtf:.1f} out={args.out}")
     if args.acquire:
         acq = tr.acquisition
-        print(f"acquisition: {acq.pose} after {acq.attempts} window(s) of {args.acquire_ms:g} ms, "
-              f"{acq.events_dropped} events dropped before it")
+        for g, pose in enumerate(acq.poses):
+            name = "" if len(acq.poses) == 1 else f"{tr.models[g].label} "
+            print(f"acquisition: {name}{pose} after {acq.attempts} window(s) of "
+                  f"{args.acquire_ms:g} ms, {acq.events_dropped} events dropped before it")
         if not acq.done:
-            print(f"springtrack track: the model was not found in {args.input}; no track rows "
+            what = "the model was" if len(acq.poses) == 1 else "no model instance was"
+            print(f"springtrack track: {what} not found in {args.input}; no track rows "
                   f"written", file=sys.stderr)
             return 1
+        for t, label, kind in tr.changes:
+            print(f"instance {label}: {kind} at t={t} us")
+        print("instances: " + ", ".join(f"{i['label']} {i['state']} (acquired {i['acquired']}, "
+                                        f"lost {i['lost']}, reacquired {i['reacquired']})"
+                                        for i in tr.instances()))
     if n:
         watch.finish(tr.state())
         for w in watch.warnings():
@@ -248,7 +271,7 @@ def _write_rows(tr, watch, f):
     samples = tr.samples()
     if not len(samples):
         return
-    if watch.model is not tr.model:            # placed by the acquisition
-        watch.use_model(tr.model)
+    if watch.models is not tr.models:          # placed by the acquisition
+        watch.use_models(tr.models)
     watch.add(samples)
     samples.write_rows(f)
