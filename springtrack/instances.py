@@ -27,16 +27,12 @@ Capacity (:mod:`springtrack.limits`): a model holds at most ``MAX_TRACKERS`` tra
 ``MAX_SET_TRACKERS`` / ``MAX_SET_CONNECTIONS`` in all.  Beyond them :class:`ModelError`
 names the count and the limit; nothing is truncated.
 
-State (the loss rule, docs/acquisition.md).  Each instance is :data:`SEARCHING` (not yet
-placed by an acquisition), :data:`TRACKING` or :data:`LOST`; only a tracking instance's
-trackers are sensitive and only its springs run.  With the rule enabled, a tracking
-instance is *lost* when fewer than a third of its trackers are active (A_i > A_up, eq. 6)
-at every loss check over ``LOSS_HOLD_TAU`` time constants of event time; the checks run
-at the first spring update after each ``LOSS_CHECK_US`` of event time.
+State.  Each instance is :data:`SEARCHING` (not yet placed by an acquisition),
+:data:`TRACKING` or :data:`LOST` (springtrack.loss decides); only a tracking instance's
+trackers are sensitive and only its springs run.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -65,18 +61,6 @@ class InstanceState(IntEnum):
 SEARCHING, TRACKING, LOST = InstanceState.SEARCHING, InstanceState.TRACKING, InstanceState.LOST
 # the names in the track CSV (the track record's definition)
 assert STATE_NAMES == tuple(s.name.lower() for s in InstanceState)
-
-# The loss rule (docs/acquisition.md): lost when 3 x (active trackers) < trackers at every
-# check over LOSS_HOLD_TAU x activity_tau_us; checks at the first spring update after each
-# LOSS_CHECK_US of event time.  The kernels mirror these (checked at import).
-LOSS_ACTIVE_DIV = 3
-LOSS_HOLD_TAU = 3.0
-LOSS_CHECK_US = 1000
-
-
-def loss_hold_us(params: Params) -> int:
-    """The loss rule's hold time in µs for these parameters: LOSS_HOLD_TAU tau."""
-    return int(math.ceil(LOSS_HOLD_TAU * params.activity_tau_us))
 
 
 @dataclass(frozen=True)

@@ -1,24 +1,26 @@
 """Loss and re-acquisition on a stream: what a tracker does once its instances are placed.
 
-The kernels apply the loss rule (springtrack.instances: a tracking instance with fewer
-than a third of its trackers active for LOSS_HOLD_TAU time constants becomes lost and
-insensitive).  :class:`Recovery` does the rest, between two events:
+:class:`Recovery` drives the tracker's backend between two events, the same way for
+every backend:
 
 * it keeps the recent events in a bounded ring (:class:`EventRing`, RING_EVENTS events:
   memory bounded by the event rate, never by the input's span);
-* at every multiple of half the acquisition window of event time (``period``) -- the
-  state then holds every event before it, as a sample does -- while an instance is
-  searching or lost, and if events came since the last such time, it runs
+* at every loss check (springtrack.loss: the multiples of LOSS_CHECK_US of event time,
+  on the state holding every event before it) it applies the loss rule to the
+  backend's ``active`` flags; an instance found lost is set LOST (insensitive, its
+  positions kept) and searched for at once;
+* at every multiple of half the acquisition window of event time (``period``) while an
+  instance is searching or lost, and if events came since the last such time, it runs
   :func:`springtrack.acquire.acquire` for that instance on the last window of the ring,
   with the pixels of the tracking instances' gates removed (explaining away) and the pose
   wanted at the newest event (tracking resumes with the next event: nothing is replayed);
 * an instance found is placed there (``place``: positions, covariances and the rest
   geometry of the placed model, activities 0) and tracks again;
 * every change of state is kept with its event time: ``acquired`` (first found),
-  ``lost`` (the kernel's time of the loss), ``reacquired``.
+  ``lost``, ``reacquired``.
 
-The attempt times are a fixed grid of event time, so the result does not depend on how
-the input is cut into chunks.
+Check and attempt times are fixed grids of event time, so the result does not depend on
+how the input is cut into chunks.
 """
 from __future__ import annotations
 
@@ -26,10 +28,11 @@ import numpy as np
 
 from .acquire import MIN_EVENTS, acquire, place, placed_gates
 from .events import EVENT_DTYPE
-from .instances import SEARCHING, TRACKING
-from .sampling import first_sample_time
+from .instances import LOST, SEARCHING, TRACKING
+from .loss import LOSS_CHECK_US, LossRule, loss_hold_us
 
 RING_EVENTS = 1 << 17          # ~0.4 s at 300 k events/s
+NEVER = 1 << 62
 
 
 class EventRing:
@@ -64,11 +67,16 @@ class EventRing:
         return ev[(ev["t"] >= t_lo) & (ev["t"] < t_hi)]
 
 
+def _grid_at_or_before(t: int, period: int) -> int:
+    """The largest multiple of ``period`` <= t."""
+    return t // period * period
+
+
 class Recovery:
-    """The loss rule's other half for ``tracker`` (a springtrack.Tracker whose instances
-    are placed): the ring, the attempts and the log of changes (module docstring).
-    ``window_us``: the acquisition window; ``bounds``: acquire's bounds (region,
-    angle_deg, scale), relative to each instance's last placement."""
+    """The loss rule and the re-acquisition for ``tracker`` (a springtrack.Tracker whose
+    instances are placed): the ring, the checks, the attempts and the log of changes
+    (module docstring).  ``window_us``: the acquisition window; ``bounds``: acquire's
+    bounds (region, angle_deg, scale)."""
 
     def __init__(self, tracker, window_us: int, bounds: dict):
         self.tr = tracker
@@ -76,50 +84,66 @@ class Recovery:
         self.period = max(self.window_us // 2, 1)
         self.bounds = dict(bounds)
         self.ring = EventRing()
+        self.rule = LossRule([(i.t0, i.t1) for i in tracker.models],
+                             loss_hold_us(tracker.models.params))
         self.changes: list = []             # (t_us, label, kind)
         self.attempts = 0
-        self._next = None                   # the next attempt time
-        self._losses = None
+        self._check = None                  # the next check time
+        self._attempt = None                # the next attempt time
 
     def start(self, t_first: int, found) -> None:
         """The instances were placed (``found[g]``) at the window starting at t_first."""
         b = self.tr._ib
-        b.enable_loss(True)
         for g, f in enumerate(found):
             if f:
                 self.changes.append((t_first, self.tr.models[g].label, "acquired"))
             else:
                 b.set_state(g, SEARCHING)
-        self._losses = b.losses()
-        self._next = first_sample_time(t_first, self.period)
+        self._check = -(-t_first // LOSS_CHECK_US) * LOSS_CHECK_US
+        self._attempt = -(-t_first // self.period) * self.period
 
     def track(self, ev) -> None:
         """Process ``ev`` (EVENT_DTYPE, in time order) through the tracker's backend,
-        stopping at each attempt time."""
+        stopping at each check and attempt time."""
         b = self.tr._ib
         run = np.maximum.accumulate(np.maximum(ev["t"], b.last_t))   # the clock at each event
         pos, n = 0, len(ev)
         while pos < n:
-            j = int(np.searchsorted(run, self._next, "left"))      # first event at >= next
+            states = b.states()
+            searching = any(s != TRACKING for s in states)
+            tracking = any(s == TRACKING for s in states)
+            nxt = min(self._check if tracking else NEVER, self._attempt if searching else NEVER)
+            j = n if nxt >= NEVER else int(np.searchsorted(run, nxt, "left"))
             if j > pos:
                 self.tr._run(ev[pos:j])
                 self.ring.push(ev[pos:j])
                 pos = j
-            self._poll()
-            if pos < n:
-                self._attempt(self._next)
-                # the next grid time after this event's: no attempt without new events
-                self._next = first_sample_time(max(int(run[pos]), self._next) + 1, self.period)
+            if pos >= n:
+                break
+            now = int(run[pos])                  # the state holds every event before now
+            if tracking and now >= self._check:
+                t = _grid_at_or_before(now, LOSS_CHECK_US)
+                self._check = t + LOSS_CHECK_US
+                if self._lose(t):
+                    self._attempt = t            # search for it at once
+                    searching = True
+            if searching and now >= self._attempt:
+                self._search(self._attempt)
+                self._attempt = _grid_at_or_before(now, self.period) + self.period
+            # the next check and attempt times are past this event
+            self._check = max(self._check, _grid_at_or_before(now, LOSS_CHECK_US) + LOSS_CHECK_US)
 
-    def _poll(self) -> None:
-        """Record the kernel's losses since the last look."""
-        now = self.tr._ib.losses()
-        for g, ((n0, _), (n1, t)) in enumerate(zip(self._losses, now)):
-            if n1 != n0:
-                self.changes.append((int(t), self.tr.models[g].label, "lost"))
-        self._losses = now
+    def _lose(self, t: int) -> bool:
+        """The loss rule at check time t; True when an instance was lost."""
+        b = self.tr._ib
+        states = b.states()
+        lost = self.rule.check(t, b.snapshot(t)["active"], [s == TRACKING for s in states])
+        for g in lost:
+            b.set_state(g, LOST)
+            self.changes.append((t, self.tr.models[g].label, "lost"))
+        return bool(lost)
 
-    def _attempt(self, t: int) -> None:
+    def _search(self, t: int) -> None:
         """At event time t: search for every instance that is not tracking."""
         b = self.tr._ib
         states = b.states()
@@ -141,8 +165,9 @@ class Recovery:
             if not pose.found:
                 continue
             placed = place(model, pose)
-            b.place(g, placed)
             self.tr.models = mset = mset.replaced(g, placed)
+            b.place(g, placed)
+            self.rule.reset(g)
             kind = "acquired" if states[g] == SEARCHING else "reacquired"
             self.changes.append((t, mset[g].label, kind))
             claimed = [np.concatenate([c, np.asarray(v, float)])

@@ -34,10 +34,8 @@ Interpretation choices (docs/algorithm.md explains them):
   argmin runs over the union of the sensitive trackers (ties: lowest index, the first
   instance); springs, eq. (13)'s mean energy, eqs. (21)-(22), the centre of mass and the
   similarity frame per instance, each with its own parameters of INSTANCE_PARAMS; only
-  tracking instances are sensitive and run their springs.
-* The loss rule (``enable_loss``): at the first spring update after each LOSS_CHECK_US of
-  event time, a tracking instance with fewer than a third of its trackers active at every
-  such check for ``hold_us`` becomes lost (insensitive, positions kept).
+  tracking instances are sensitive and run their springs (``set_state``; the loss rule
+  that decides a state is springtrack.loss, the same for every backend).
 """
 from __future__ import annotations
 
@@ -45,8 +43,7 @@ import math
 
 import numpy as np
 
-from .instances import (LOSS_ACTIVE_DIV, LOSS_CHECK_US, LOST, TRACKING, ModelSet,
-                        loss_hold_us, per_instance)
+from .instances import TRACKING, ModelSet, per_instance
 from .model import SPRING_BIT, ShapeModel
 from .params import ENERGY_KINDS, Params
 from .sampling import UNSET, first_sample_time, sample_due
@@ -153,7 +150,7 @@ class ReferenceTracker:
             self.degree[self.cb[k]] += 1
         # per instance: eq. (13)'s mean energy, the similarity frame of the last spring
         # update (fit_frame: s R = [[fc, -fs], [fs, fc]], (fgx, fgy) where it maps the
-        # rest centre of mass G0), the state and the loss rule's clock
+        # rest centre of mass G0) and the state
         self.mean_energies = [0.0] * self.ni
         self.fc = [1.0] * self.ni
         self.fs = [0.0] * self.ni
@@ -162,11 +159,6 @@ class ReferenceTracker:
         for g in range(self.ni):
             self._rest_frame(g)
         self.state = [int(TRACKING)] * self.ni
-        self.low_since = [None] * self.ni     # first loss check that found it low
-        self.n_lost = [0] * self.ni           # losses, and the event time of the last
-        self.lost_t = [0] * self.ni
-        self.loss_hold = None                 # the loss rule: off (enable_loss)
-        self.loss_t = None                    # the last loss check's time
         # counters
         self.last_t = -(1 << 62)
         self.n_valid = self.n_assigned = self.n_back = self.n_outside = 0
@@ -224,8 +216,6 @@ class ReferenceTracker:
         self.need_torsion = [self.c1[g] > self.c0[g] and (
             self.ekinds[g] == 1 or any(self.kinds[k] & TORSIONAL for k in range(self.c0[g], self.c1[g])))
             for g in range(self.ni)]
-        if self.loss_hold is not None:
-            self.loss_hold = loss_hold_us(p)
         for i in range(self.n):          # new sigma bounds apply at once
             self._clamp_and_invert(i)
 
@@ -261,7 +251,7 @@ class ReferenceTracker:
         self.since_spring += 1
         if self.since_spring >= self.period:
             self.since_spring = 0
-            self.springs(t)
+            self.springs()
         return best
 
     def _update(self, i: int, t: int, fx: float, fy: float, d2: float) -> None:
@@ -357,15 +347,12 @@ class ReferenceTracker:
         self.fgx[g] = qx - (c * px - sn * py)                        # G = qbar - s R pbar
         self.fgy[g] = qy - (sn * px + c * py)
 
-    def springs(self, t: int | None = None) -> None:
-        """One spring update at event time ``t`` (default: the last event's): every
-        tracking instance's springs and criteria, then the loss rule's check."""
+    def springs(self) -> None:
+        """One spring update: every tracking instance's springs and criteria."""
         self.n_spring_updates += 1
         for g in range(self.ni):
             if self.state[g] == TRACKING:
                 self._springs(g)
-        if self.loss_hold is not None:
-            self._check_loss(self.last_t if t is None else t)
 
     def _springs(self, g: int) -> None:
         t0, t1, c0, c1 = self.t0[g], self.t1[g], self.c0[g], self.c1[g]
@@ -490,38 +477,11 @@ class ReferenceTracker:
             # eq. (21): insensitive while every connection of the tracker is over
             self.sensitive[i] = not (self.degree[i] > 0 and over_count[i] == self.degree[i])
 
-    # ---- the loss rule ----------------------------------------------------------
-    def enable_loss(self, on: bool = True) -> None:
-        """Turn the loss rule on (hold time LOSS_HOLD_TAU tau) or off."""
-        self.loss_hold = loss_hold_us(self.plist[0]) if on else None
-
-    def _check_loss(self, t: int) -> None:
-        """At the first spring update after each LOSS_CHECK_US of event time: a tracking
-        instance with LOSS_ACTIVE_DIV x (active trackers) < its trackers at every check
-        since ``loss_hold`` µs is lost."""
-        if self.loss_t is not None and t - self.loss_t < LOSS_CHECK_US:
-            return
-        self.loss_t = t
-        for g in range(self.ni):
-            if self.state[g] != TRACKING:
-                continue
-            active = sum(1 for i in range(self.t0[g], self.t1[g])
-                         if self.activity_at(i, t) > self.act_thr)
-            if LOSS_ACTIVE_DIV * active >= self.t1[g] - self.t0[g]:
-                self.low_since[g] = None
-                continue
-            if self.low_since[g] is None:
-                self.low_since[g] = t
-            if t - self.low_since[g] >= self.loss_hold:
-                self.set_state(g, LOST)
-                self.n_lost[g] += 1
-                self.lost_t[g] = t
-
+    # ---- instances' states ------------------------------------------------------
     def set_state(self, g: int, state: int) -> None:
         """Instance g's state; a tracking instance's trackers are sensitive, the others'
         are not (the next spring update decides eq. 21 again)."""
         self.state[g] = int(state)
-        self.low_since[g] = None
         for i in range(self.t0[g], self.t1[g]):
             self.sensitive[i] = state == TRACKING
 

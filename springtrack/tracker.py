@@ -31,7 +31,7 @@ import numpy as np
 from . import params as _params
 from .events import as_events
 from .geometry import check_inside
-from .instances import ModelSet
+from .instances import TRACKING, ModelSet
 from .model import ShapeModel
 from .params import Params
 from .reference import ReferenceTracker
@@ -109,13 +109,9 @@ class ReferenceBackend:
                     skipped_back_in_time=r.n_back, skipped_outside_sensor=r.n_outside,
                     spring_updates=r.n_spring_updates)
 
-    # the instances' states and the loss rule (springtrack.instances)
+    # the instances' states (springtrack.instances)
     def states(self) -> list:
         return list(self.ref.state)
-
-    def losses(self) -> list:
-        """Per instance: (losses so far, event time of the last)."""
-        return list(zip(self.ref.n_lost, self.ref.lost_t))
 
     def set_state(self, g: int, state: int) -> None:
         self.ref.set_state(g, state)
@@ -123,15 +119,14 @@ class ReferenceBackend:
     def place(self, g: int, model) -> None:
         self.ref.place(g, model)
 
-    def enable_loss(self, on: bool = True) -> None:
-        self.ref.enable_loss(on)
-
 
 def _one_model(model, params, name):
     """A kernel that holds one model instance: its model and parameters."""
     if isinstance(model, ModelSet):
         if len(model) > 1:
-            raise ValueError(f"backend {name!r} holds one model instance, not {len(model)}")
+            raise ValueError(f"backend {name!r} holds one model instance, not {len(model)} "
+                             f"({', '.join(i.label for i in model)}): several instances "
+                             f"run on backend 'reference' (docs/acquisition.md)")
         return model[0].model, model[0].params
     return model, params
 
@@ -164,11 +159,19 @@ _FACTORIES = {"reference": lambda m, p, o: ReferenceBackend(m, p), "cython": _cy
 
 
 class _OneInstance:
-    """A kernel of one model instance without the loss rule, seen through the instances'
-    interface: always tracking; placing it builds a new kernel of the placed model."""
+    """A kernel of one model instance (cython, fixed, mcu) seen through the instances'
+    interface.  Its state is kept here: while the instance is not tracking, the tracker
+    withholds the events from the kernel (:meth:`withhold`: each fed as an event off the
+    sensor, which moves the kernel's clock and its samples on but reaches no tracker and
+    no spring update), so its trackers are insensitive and keep their positions, as a
+    lost instance's are in the reference.  Placing it builds a new kernel of the placed
+    model; the counters of the kernels it replaced are kept."""
 
     def __init__(self, tracker):
         self.tr = tracker
+        self.state = int(TRACKING)
+        self.withheld = 0                    # events withheld while not tracking
+        self._done: dict = {}                # counters of the kernels replaced
 
     def __getattr__(self, key):
         return getattr(self.tr._b, key)
@@ -183,21 +186,41 @@ class _OneInstance:
         return self.tr._b.frame()
 
     def states(self):
-        return [1]
-
-    def losses(self):
-        return [(0, 0)]
-
-    def enable_loss(self, on: bool = True):
-        pass
+        return [self.state]
 
     def set_state(self, g, state):
-        if state != 1:
-            raise ValueError(f"backend {self.tr.backend_name!r} cannot hold an instance "
-                             f"that is not tracking")
+        self.state = int(state)
 
     def place(self, g, model):
+        old = self.counters()
         self.tr._b = make_backend(self.tr.backend_name, model, self.tr.models[g].params)
+        self._done, self.withheld = old, 0
+        self.state = int(TRACKING)
+
+    def withhold(self, ev):
+        """``ev`` as the kernel sees it: as it is while tracking, else off the sensor."""
+        if self.state == TRACKING or not len(ev):
+            return ev
+        out = ev.copy()
+        inside = (out["x"] < self.tr.models.width) & (out["y"] < self.tr.models.height)
+        self.withheld += int(inside.sum())
+        out["x"] = self.tr.models.width
+        return out
+
+    def snapshot(self, t):
+        snap = self.tr._b.snapshot(t)
+        snap["state"] = np.full(len(snap["x"]), self.state, np.uint8)
+        return snap
+
+    def counters(self):
+        c = dict(self.tr._b.counters())
+        c["events_valid"] += self.withheld        # as the reference counts them
+        c["skipped_outside_sensor"] -= self.withheld
+        for k, v in self._done.items():
+            if k in ("events_valid", "events_assigned", "skipped_back_in_time",
+                     "skipped_outside_sensor", "spring_updates"):
+                c[k] = c.get(k, 0) + v
+        return c
 
 
 def make_backend(name: str, model: ShapeModel, params: Params):
@@ -244,7 +267,7 @@ class Tracker:
             for m in self.models.models:
                 check_inside(m)
         self.backend_name = backend
-        self._b = make_backend(backend, self.models, None)
+        self._use(self.models)
         self._sample_us = 0
         self._next_t = UNSET
         self._recorded: list[Track] = []
@@ -255,10 +278,11 @@ class Tracker:
             self.acquisition = Acquisition(self.models, int(round(acquire_ms * 1000)),
                                            **(acquire_bounds or {}))
 
-    @property
-    def _ib(self):
-        """The backend with the instances' interface (states, losses, place, ...)."""
-        return self._b if hasattr(self._b, "states") else _OneInstance(self)
+    def _use(self, mset: ModelSet) -> None:
+        """A backend for ``mset``: ``_b`` the kernel, ``_ib`` the kernel with the
+        instances' interface (states, set_state, place)."""
+        self._b = make_backend(self.backend_name, mset, None)
+        self._ib = self._b if hasattr(self._b, "states") else _OneInstance(self)
 
     @property
     def model(self) -> ShapeModel:
@@ -344,7 +368,7 @@ class Tracker:
             if pose is not None and pose.found:
                 mset = mset.replaced(g, place(mset[g].model, pose))
         self.models = mset
-        self._b = make_backend(self.backend_name, mset, None)
+        self._use(mset)
         self.recovery = Recovery(self, acq.window_us, acq.bounds)
         self.recovery.start(int(ready["t"][0]), [p is not None and p.found for p in acq.poses])
         return ready
@@ -359,12 +383,17 @@ class Tracker:
 
     def _run(self, ev) -> None:
         """The backend over ``ev``, the samples kept."""
+        one = self._ib if isinstance(self._ib, _OneInstance) else None
+        if one is not None:
+            ev = one.withhold(ev)
         pos = 0
         while pos < len(ev):
             consumed, self._next_t, out = self._b.run(
                 ev[pos:], self._sample_us, self._next_t, SAMPLE_CAP)
             pos += consumed
             if out is not None and len(out["t"]):
+                if one is not None:
+                    out["trackers"]["state"] = one.state
                 self._recorded.append(Track.from_samples(out, self.ids))
 
     def run(self, events, sample_us: int = 1000) -> Track:
@@ -405,7 +434,7 @@ class Tracker:
         """Per-tracker structured array (id, x, y, sxx, sxy, syy, activity, active,
         sensitive, state) at event time ``t`` (default: the last event's time)."""
         t = self.last_t if t is None else int(t)
-        snap = self._b.snapshot(max(t, 0) if t < -(1 << 60) else t)
+        snap = self._ib.snapshot(max(t, 0) if t < -(1 << 60) else t)
         dt = np.dtype([("id", f"U{max(len(i) for i in self.ids)}")]
                       + [(f, TRACK_DTYPE[f]) for f in TRACK_FIELDS])
         out = np.empty(len(self.ids), dt)
@@ -435,7 +464,7 @@ class Tracker:
 
     @property
     def counters(self) -> dict:
-        c = dict(self._b.counters())
+        c = dict(self._ib.counters())
         if self.acquisition is not None:
             c.update(acquire_attempts=self.acquisition.attempts,
                      acquire_events_dropped=self.acquisition.events_dropped)

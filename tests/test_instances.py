@@ -6,8 +6,8 @@ import pytest
 
 import springtrack
 from springtrack.events import make
-from springtrack.instances import (LOSS_CHECK_US, LOST, SEARCHING, SHARED_PARAMS, TRACKING,
-                                   ModelSet, loss_hold_us)
+from springtrack.instances import LOST, SEARCHING, SHARED_PARAMS, TRACKING, ModelSet
+from springtrack.loss import LOSS_CHECK_US, LossRule, loss_hold_us
 from springtrack.limits import MAX_INSTANCES, MAX_SET_TRACKERS
 from springtrack.model import ModelError, ShapeModel, TrackerSpec, face26, grid3x3
 from springtrack.params import Params
@@ -111,32 +111,86 @@ def test_mixed_models_each_with_its_own_criteria():
     assert e["means"][0] > 0 and e["means"][1] > 0 and len(e["euclidean"]) == 12 + 40
 
 
-def test_loss_rule_marks_an_instance_lost_when_its_events_stop():
-    """A face's events stop while another object keeps the clock running: once fewer
-    than a third of its trackers are active for 3 tau, the face is lost (insensitive, its
-    positions kept); the other instance is not."""
+def test_loss_rule_counts_active_trackers_over_the_hold():
+    rule = LossRule([(0, 9), (9, 35)], 3000)
+    act = np.zeros(35, bool)
+    act[9:35] = True
+    act[:3] = True                                  # 3 of 9: not below a third
+    assert rule.check(0, act, [True, True]) == []
+    act[2] = False                                  # 2 of 9: low from t = 1000
+    for t in (1000, 2000, 3000):
+        assert rule.check(t, act, [True, True]) == []
+    assert rule.check(4000, act, [True, True]) == [0]
+    assert rule.check(5000, act, [False, True]) == []   # lost: no longer watched
+    act[:] = False
+    rule.check(6000, act, [True, True])
+    act[:5] = act[10:20] = True                     # back above a third: the clocks restart
+    rule.check(7000, act, [True, True])
+    act[:] = False
+    assert rule.check(9500, act, [True, True]) == [] and rule.check(12500, act, [True, True]) == [0, 1]
+
+
+def _face_then_grid():
+    """A face whose events stop at 0.1 s while a grid keeps the clock running."""
     f = face26(cx=100, cy=120, scale=100, width=W, height=H)
     g = grid3x3(cx=300, cy=120, spacing=30, width=W, height=H)
     ef, _ = blob_stream(f, 30000, noise=0.0, speed_px_s=(0, 0), seed=5)     # 0.1 s
     eg, _ = blob_stream(g, 90000, noise=0.0, speed_px_s=(0, 0), seed=6)     # 0.3 s
-    ev = np.sort(np.concatenate([ef, eg]), order="t")
-    ref = ReferenceTracker(ModelSet([f, g]))
-    ref.enable_loss()
-    stop = int(ef["t"][-1])
-    hold = loss_hold_us(ref.params)
-    lost_at = None
-    for t, x, y in zip(ev["t"].tolist(), ev["x"].tolist(), ev["y"].tolist()):
-        ref.step(t, x, y)
-        if lost_at is None and ref.state[0] == LOST:
-            lost_at = t
-            kept = list(ref.mx[:26])
-    assert ref.state == [LOST, TRACKING] and ref.n_lost == [1, 0]
+    return f, g, ef, np.sort(np.concatenate([ef, eg]), order="t")
+
+
+def test_loss_rule_marks_an_instance_lost_when_its_events_stop():
+    """Two instances on the reference: once fewer than a third of the face's trackers
+    are active for 3 tau, the face is lost (insensitive, its positions kept); the grid is
+    not."""
+    f, g, ef, ev = _face_then_grid()
+    tr = springtrack.Tracker([f, g], backend="reference", acquire=True,
+                             acquire_bounds={"angle_deg": (-10, 10), "scale": (0.9, 1.1)})
+    tr.process(ev[ev["t"] < 60_000])
+    assert tr._ib.states() == [TRACKING, TRACKING]
+    tr.process(ev[ev["t"] >= 60_000])
+    assert [c[1:] for c in tr.changes] == [("face26#1", "acquired"), ("grid3x3#1", "acquired"),
+                                           ("face26#1", "lost")]
+    assert tr._ib.states() == [LOST, TRACKING]
+    lost_at = tr.changes[2][0]
+    stop, hold = int(ef["t"][-1]), loss_hold_us(tr.params)
     # inactive after ~tau ln(A / A_up), then the hold, checked every LOSS_CHECK_US
-    assert stop + hold < lost_at < stop + hold + 4 * ref.tau + 2 * LOSS_CHECK_US
-    assert ref.lost_t[0] == lost_at
-    assert ref.mx[:26] == kept and not any(ref.sensitive[:26]) and all(ref.sensitive[26:])
-    ref.set_state(0, SEARCHING)
-    assert ref.state[0] == SEARCHING and not any(ref.sensitive[:26])
+    assert stop + hold < lost_at < stop + hold + 4 * tr.params.activity_tau_us + 2 * LOSS_CHECK_US
+    st = tr.state()
+    assert (st["state"][:26] == LOST).all() and (st["state"][26:] == TRACKING).all()
+    assert not st["sensitive"][:26].any() and st["sensitive"][26:].all()
+    c = tr.counters
+    assert c["lost"] == 1 and c["acquired"] == 2 and c["reacquired"] == 0
+    assert c["reacquire_attempts"] >= 1             # searched for, not found
+
+
+@pytest.mark.parametrize("backend", ["cython", "fixed", "reference"])
+def test_loss_rule_is_the_same_in_every_backend(backend):
+    """One face whose events stop: lost at the same check time in every backend; while
+    lost its trackers take no event and keep their positions; the rows say lost."""
+    f, g, ef, ev = _face_then_grid()
+    ev = ev[ev["x"] < 200]                              # the face alone, then silence ...
+    tail = ev[-1:].copy()
+    far = np.array([(t, 399, 239, 1) for t in range(int(ev["t"][-1]) + 500, 200_000, 200)],
+                   ev.dtype)                            # ... but for one hot pixel far away
+    ev = np.concatenate([ev, far])
+    tr = springtrack.Tracker(f, backend=backend, acquire=True,
+                             acquire_bounds={"angle_deg": (-10, 10), "scale": (0.9, 1.1)})
+    track = tr.run(ev, 5000)
+    kinds = [(c[1], c[2]) for c in tr.changes]
+    assert kinds == [("face26#1", "acquired"), ("face26#1", "lost")]
+    lost_at = tr.changes[1][0]
+    stop = int(ef["t"][-1])
+    assert stop + loss_hold_us(tr.params) < lost_at < stop + 80_000
+    after = track.t_us > lost_at
+    assert (track.state[after] == LOST).all() and (track.state[~after] == TRACKING).all()
+    assert np.ptp(track.x[after], axis=0).max() == 0.0   # positions kept
+    assert tr.counters["events_valid"] == len(ev)
+    global _LOST_AT
+    if backend == "cython":
+        _LOST_AT = lost_at
+    else:
+        assert lost_at == _LOST_AT
 
 
 def test_placing_an_instance_resets_it_to_the_placed_model():

@@ -1,0 +1,70 @@
+"""The loss rule, the same for every backend: when a model instance's evidence collapses.
+
+*A tracking instance is lost when fewer than a third of its trackers are active
+(A_i > A_up, eq. 6) at every loss check over ``LOSS_HOLD_TAU`` activity time constants
+of event time.*  The checks run at the multiples of ``LOSS_CHECK_US`` of event time, on
+the state that holds every event before that time (the sampling rule of
+springtrack.sampling), and only when an event at or after that time arrives: no events,
+no check, so a silent sensor is not a loss until events come again.
+
+Why activity (docs/acquisition.md): when the object jumps away, leaves the view or is
+fully hidden, its trackers receive no events and their activity decays with tau; the
+energy of eq. (13) would not notice (trackers left on empty space stop moving, their
+springs stay at rest), and energies of different kinds are not comparable.  The hold
+rides out short gaps (a blink, an occluder's edge); a fraction rather than "none"
+because clutter crossing a lost model keeps a few trackers active.
+
+Every backend reports the same ``active`` flags (the fixed kernel agrees with the float
+kernel on them, docs/benchmarks.md), so :class:`LossRule` reads them from the backend's
+snapshot and decides in one place.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+LOSS_ACTIVE_DIV = 3      # lost while LOSS_ACTIVE_DIV x (active trackers) < trackers ...
+LOSS_HOLD_TAU = 3.0      # ... at every check for this many activity time constants
+LOSS_CHECK_US = 1000     # checks at the multiples of this much event time
+
+
+def loss_hold_us(params) -> int:
+    """The hold time in µs for these parameters: LOSS_HOLD_TAU tau."""
+    return int(math.ceil(LOSS_HOLD_TAU * params.activity_tau_us))
+
+
+def collapsed(active, n: int) -> bool:
+    """The evidence of an instance of ``n`` trackers with ``active`` of them active is
+    too low: LOSS_ACTIVE_DIV x active < n."""
+    return LOSS_ACTIVE_DIV * int(active) < n
+
+
+class LossRule:
+    """The rule's clock for ``ranges`` (per instance: its trackers [t0, t1)) and a hold
+    of ``hold_us``.  :meth:`check` at a check time returns the instances lost then."""
+
+    def __init__(self, ranges, hold_us: int):
+        self.ranges = [(int(a), int(b)) for a, b in ranges]
+        self.hold_us = int(hold_us)
+        self.low_since = [None] * len(self.ranges)   # first check that found it low
+
+    def reset(self, g: int) -> None:
+        """Instance g (re)starts tracking: its clock restarts."""
+        self.low_since[g] = None
+
+    def check(self, t: int, active, tracking) -> list:
+        """At check time ``t``: ``active`` (n,) bool of every tracker, ``tracking`` per
+        instance; the instances found lost (their clocks reset)."""
+        active = np.asarray(active, bool)
+        lost = []
+        for g, (t0, t1) in enumerate(self.ranges):
+            if not tracking[g] or not collapsed(active[t0:t1].sum(), t1 - t0):
+                self.low_since[g] = None
+                continue
+            if self.low_since[g] is None:
+                self.low_since[g] = t
+            if t - self.low_since[g] >= self.hold_us:
+                lost.append(g)
+                self.low_since[g] = None
+        return lost
