@@ -495,8 +495,18 @@ def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DE
     if claimed is not None:
         remove_claimed(img_at, claimed)
     ev_at = _Evidence(geo, img_at, background_density(img_at))
-    tx, ty, th, s = ev_at.refine((best.tx, best.ty, math.radians(best.angle_deg), best.scale),
-                                 0.0, lo, hi, MAX_ITER)
+    mid = np.array([best.tx, best.ty, math.radians(best.angle_deg), best.scale])
+    q = np.array(ev_at.refine(tuple(mid), 0.0, lo, hi, MAX_ITER))
+    # the refined pose holds at the mean time of the events it saw (t_q), the window's
+    # pose at the mean of all (t_m): carry the motion between them on to at_us,
+    # pose(at) = q + (q - mid) (at - t_q) / (t_q - t_m)
+    t_q = float(np.mean(evs["t"][near]))
+    t_m = float(np.mean(evs["t"]))
+    if abs(t_q - t_m) > 0:
+        f = (int(at_us) - t_q) / (t_q - t_m)
+        if 0 < f <= 1:
+            q = np.clip(q + (q - mid) * f, lo, hi)
+    tx, ty, th, s = (float(v) for v in q)
     return replace(best, tx=tx, ty=ty, angle_deg=math.degrees(th), scale=s)
 
 

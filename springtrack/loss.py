@@ -2,7 +2,8 @@
 
 *A tracking instance is lost when fewer than a third of its trackers are active
 (A_i > A_up, eq. 6) at every loss check over ``LOSS_HOLD_TAU`` activity time constants
-of event time.*  The checks run at the multiples of ``LOSS_CHECK_US`` of event time, on
+of event time, once its evidence was there: at least a third of its trackers active at
+one check since it was placed.*  The checks run at the multiples of ``LOSS_CHECK_US`` of event time, on
 the state that holds every event before that time (the sampling rule of
 springtrack.sampling), and only when an event at or after that time arrives: no events,
 no check, so a silent sensor is not a loss until events come again.
@@ -12,7 +13,10 @@ fully hidden, its trackers receive no events and their activity decays with tau;
 energy of eq. (13) would not notice (trackers left on empty space stop moving, their
 springs stay at rest), and energies of different kinds are not comparable.  The hold
 rides out short gaps (a blink, an occluder's edge); a fraction rather than "none"
-because clutter crossing a lost model keeps a few trackers active.
+because clutter crossing a lost model keeps a few trackers active.  Evidence that was
+never there cannot collapse: an object too faint or slow to keep a third of its trackers
+active (A_up is a rate: about A_up / tau events per second per tracker) is not declared
+lost over and over, and a freshly placed instance (activities 0) has time to gather it.
 
 Every backend reports the same ``active`` flags (the fixed kernel agrees with the float
 kernel on them, docs/benchmarks.md), so :class:`LossRule` reads them from the backend's
@@ -48,10 +52,12 @@ class LossRule:
         self.ranges = [(int(a), int(b)) for a, b in ranges]
         self.hold_us = int(hold_us)
         self.low_since = [None] * len(self.ranges)   # first check that found it low
+        self.armed = [False] * len(self.ranges)      # its evidence was there once
 
     def reset(self, g: int) -> None:
-        """Instance g (re)starts tracking: its clock restarts."""
+        """Instance g (re)starts tracking, placed anew: its clock restarts, disarmed."""
         self.low_since[g] = None
+        self.armed[g] = False
 
     def check(self, t: int, active, tracking) -> list:
         """At check time ``t``: ``active`` (n,) bool of every tracker, ``tracking`` per
@@ -59,7 +65,10 @@ class LossRule:
         active = np.asarray(active, bool)
         lost = []
         for g, (t0, t1) in enumerate(self.ranges):
-            if not tracking[g] or not collapsed(active[t0:t1].sum(), t1 - t0):
+            low = collapsed(active[t0:t1].sum(), t1 - t0)
+            if tracking[g] and not low:
+                self.armed[g] = True
+            if not tracking[g] or not low or not self.armed[g]:
                 self.low_since[g] = None
                 continue
             if self.low_since[g] is None:

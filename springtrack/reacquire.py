@@ -15,7 +15,9 @@ every backend:
   with the pixels of the tracking instances' gates removed (explaining away) and the pose
   wanted at the newest event (tracking resumes with the next event: nothing is replayed);
 * an instance found is placed there (``place``: positions, covariances and the rest
-  geometry of the placed model, activities 0) and tracks again;
+  geometry of the placed model, activities 0) and tracks again -- unless it was found
+  where its trackers were kept (mean Mahalanobis distance below RESUME_SIGMA: the object
+  came back where it was hidden, or stood still), which resume as they were;
 * every change of state is kept with its event time: ``acquired`` (first found),
   ``lost``, ``reacquired``.
 
@@ -33,6 +35,7 @@ from .loss import LOSS_CHECK_US, LossRule, loss_hold_us
 
 RING_EVENTS = 1 << 17          # ~0.4 s at 300 k events/s
 NEVER = 1 << 62
+RESUME_SIGMA = 1.0             # a lost instance found within this of where it was resumes
 
 
 class EventRing:
@@ -67,6 +70,16 @@ class EventRing:
         return ev[(ev["t"] >= t_lo) & (ev["t"] < t_hi)]
 
 
+def _where_kept(placed, x, y) -> bool:
+    """The placement found lies where a lost instance's trackers were kept: their mean
+    Mahalanobis distance (the placed covariances) below RESUME_SIGMA."""
+    a = placed.arrays()
+    dx, dy = x - a["x"], y - a["y"]
+    det = a["sxx"] * a["syy"] - a["sxy"] ** 2
+    d2 = (a["syy"] * dx * dx - 2 * a["sxy"] * dx * dy + a["sxx"] * dy * dy) / det
+    return float(np.mean(np.sqrt(np.maximum(d2, 0.0)))) < RESUME_SIGMA
+
+
 def _grid_at_or_before(t: int, period: int) -> int:
     """The largest multiple of ``period`` <= t."""
     return t // period * period
@@ -87,6 +100,7 @@ class Recovery:
         self.rule = LossRule([(i.t0, i.t1) for i in tracker.models],
                              loss_hold_us(tracker.models.params))
         self.changes: list = []             # (t_us, label, kind)
+        self.placements: list = []          # (t_us, instance, (n, 2) positions placed)
         self.attempts = 0
         self._check = None                  # the next check time
         self._attempt = None                # the next attempt time
@@ -97,6 +111,7 @@ class Recovery:
         for g, f in enumerate(found):
             if f:
                 self.changes.append((t_first, self.tr.models[g].label, "acquired"))
+                self._placed(t_first, g)
             else:
                 b.set_state(g, SEARCHING)
         self._check = -(-t_first // LOSS_CHECK_US) * LOSS_CHECK_US
@@ -165,13 +180,23 @@ class Recovery:
             if not pose.found:
                 continue
             placed = place(model, pose)
-            self.tr.models = mset = mset.replaced(g, placed)
-            b.place(g, placed)
+            inst = mset[g]
+            kept = [np.asarray(snap[k], float)[inst.t0:inst.t1] for k in ("x", "y")]
+            if states[g] == LOST and _where_kept(placed, *kept):
+                b.set_state(g, TRACKING)          # found where it was kept: resume from there
+            else:
+                self.tr.models = mset = mset.replaced(g, placed)
+                b.place(g, placed)
             self.rule.reset(g)
             kind = "acquired" if states[g] == SEARCHING else "reacquired"
             self.changes.append((t, mset[g].label, kind))
+            self._placed(t, g)
             claimed = [np.concatenate([c, np.asarray(v, float)])
                        for c, v in zip(claimed, placed_gates(model, pose))]
+
+    def _placed(self, t: int, g: int) -> None:
+        a = self.tr.models[g].model.arrays()
+        self.placements.append((t, g, np.column_stack([a["x"], a["y"]])))
 
     def counters(self) -> dict:
         kinds = [c[2] for c in self.changes]

@@ -44,8 +44,6 @@ def add_arguments(p):
     p.add_argument("--model", action="append",
                    help="shape model: TOML file or preset name (grid3x3, face26); repeat it "
                         "to track several models at once; or --learn-first-ms")
-    p.add_argument("--instances", type=int, default=1, metavar="N",
-                   help="instances of each model (default 1; more than 1 needs --acquire)")
     p.add_argument("--learn-first-ms", type=float, metavar="MS",
                    help="learn the model from the stream's first MS ms (springtrack learn), "
                         "then track the rest with it")
@@ -60,20 +58,41 @@ def add_arguments(p):
     p.add_argument("--sample-us", type=int, default=1000, metavar="US",
                    help="state sampling period in µs of event time (default 1000)")
     p.add_argument("--out", required=True, help="output track CSV")
-    p.add_argument("--acquire", action="store_true",
-                   help="find the model in the first events instead of trusting its positions")
-    p.add_argument("--acquire-ms", type=float, default=50.0, metavar="MS",
-                   help="acquisition window in ms of event time (default 50)")
-    p.add_argument("--acquire-angle", type=float, default=45.0, metavar="DEG",
-                   help="acquisition searches rotations within +-DEG degrees (default 45)")
-    p.add_argument("--acquire-scale", default="0.6,1.6", metavar="LO,HI",
-                   help="acquisition searches sizes LO..HI times the model's (default 0.6,1.6)")
+    add_acquire_arguments(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--profile", metavar="OUT.csv|OUT.png",
                    help="time the kernel per 10 ms bin of events (paper Figs. 22-23): a CSV "
                         "t_us,events,proc_us or a plot")
     add_sensor_from(p)
     prepargs.add_arguments(p)
+
+
+def add_acquire_arguments(p) -> None:
+    """--instances and the acquisition's options, shared by track and render."""
+    p.add_argument("--instances", type=int, default=1, metavar="N",
+                   help="instances of each model (default 1; more than 1 needs --acquire)")
+    p.add_argument("--acquire", action="store_true",
+                   help="find the models in the events instead of trusting their positions; "
+                        "lost instances are searched for again (docs/acquisition.md)")
+    p.add_argument("--acquire-ms", type=float, default=50.0, metavar="MS",
+                   help="acquisition window in ms of event time (default 50)")
+    p.add_argument("--acquire-angle", type=float, default=45.0, metavar="DEG",
+                   help="acquisition searches rotations within +-DEG degrees (default 45)")
+    p.add_argument("--acquire-scale", default="0.6,1.6", metavar="LO,HI",
+                   help="acquisition searches sizes LO..HI times the model's (default 0.6,1.6)")
+
+
+def tracker_from_args(args, model):
+    """The springtrack.Tracker of --params, --backend, --instances and --acquire*."""
+    from ..tracker import Tracker
+    if args.instances > 1 and not args.acquire:
+        raise ValueError(f"--instances {args.instances} would place {args.instances} copies "
+                         f"of each model on the same positions: add --acquire to find each")
+    backend = getattr(args, "backend", "cython")
+    backend = f"mcu:{args.mcu_target}" if backend == "mcu" else backend
+    return Tracker(model, params=args.params, backend=backend, acquire=args.acquire,
+                   acquire_ms=args.acquire_ms, acquire_bounds=_acquire_bounds(args),
+                   instances=args.instances)
 
 
 def read_events(reader):
@@ -165,17 +184,10 @@ class Progress:
 
 
 def run(args) -> int:
-    from ..tracker import Tracker
     if args.sample_us <= 0:
         raise ValueError(f"--sample-us must be a positive number of µs, got {args.sample_us}")
-    if args.instances > 1 and not args.acquire:
-        raise ValueError(f"--instances {args.instances} would place {args.instances} copies "
-                         f"of each model on the same positions: add --acquire to find each")
-    backend = f"mcu:{args.mcu_target}" if args.backend == "mcu" else args.backend
     model, stream = open_stream(args)
-    tr = Tracker(model, params=args.params, backend=backend, acquire=args.acquire,
-                 acquire_ms=args.acquire_ms, acquire_bounds=_acquire_bounds(args),
-                 instances=args.instances)
+    tr = tracker_from_args(args, model)
     tr.record(args.sample_us)
     watch = TrackWatch(tr.models)
     prog = Progress(not args.no_progress)
