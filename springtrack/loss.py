@@ -3,10 +3,10 @@
 *A tracking instance is lost when fewer than a third of its trackers are active
 (A_i > A_up, eq. 6) at every loss check over ``LOSS_HOLD_TAU`` activity time constants
 of event time, once its evidence was there: at least a third of its trackers active at
-one check since it was placed.*  The checks run at the multiples of ``LOSS_CHECK_US`` of event time, on
-the state that holds every event before that time (the sampling rule of
-springtrack.sampling), and only when an event at or after that time arrives: no events,
-no check, so a silent sensor is not a loss until events come again.
+one check since it was placed.*  The checks are at the multiples T of ``LOSS_CHECK_US``
+of event time, on the state that holds every event before T (a sample: the sampling rule
+of springtrack.sampling), and count only when an event came in the LOSS_CHECK_US before
+T: no events, no check, so a silent sensor is not a loss until events come again.
 
 Why activity (docs/acquisition.md): when the object jumps away, leaves the view or is
 fully hidden, its trackers receive no events and their activity decays with tau; the
@@ -34,8 +34,15 @@ LOSS_CHECK_US = 1000     # checks at the multiples of this much event time
 
 
 def loss_hold_us(params) -> int:
-    """The hold time in µs for these parameters: LOSS_HOLD_TAU tau."""
-    return int(math.ceil(LOSS_HOLD_TAU * params.activity_tau_us))
+    """The hold time in µs for these parameters: LOSS_HOLD_TAU tau, rounded up to whole
+    check periods."""
+    return int(math.ceil(LOSS_HOLD_TAU * params.activity_tau_us / LOSS_CHECK_US)) * LOSS_CHECK_US
+
+
+def counted(t, last_event_before) -> np.ndarray:
+    """Which check times ``t`` count: an event came in the LOSS_CHECK_US before each
+    (``last_event_before``: the time of the last event before each check)."""
+    return np.asarray(last_event_before) >= np.asarray(t) - LOSS_CHECK_US
 
 
 def collapsed(active, n: int) -> bool:
@@ -46,11 +53,14 @@ def collapsed(active, n: int) -> bool:
 
 class LossRule:
     """The rule's clock for ``ranges`` (per instance: its trackers [t0, t1)) and a hold
-    of ``hold_us``.  :meth:`check` at a check time returns the instances lost then."""
+    of ``hold_us``.  :meth:`check` at a check time returns the instances lost then;
+    :meth:`earliest` says how long no loss can happen, so that a driver may run events up
+    to then in one go and feed the checks in between afterwards."""
 
-    def __init__(self, ranges, hold_us: int):
+    def __init__(self, ranges, hold_us: int, start_us: int = 0):
         self.ranges = [(int(a), int(b)) for a, b in ranges]
         self.hold_us = int(hold_us)
+        self.last = (int(start_us) // LOSS_CHECK_US) * LOSS_CHECK_US   # last check time seen
         self.low_since = [None] * len(self.ranges)   # first check that found it low
         self.armed = [False] * len(self.ranges)      # its evidence was there once
 
@@ -59,9 +69,25 @@ class LossRule:
         self.low_since[g] = None
         self.armed[g] = False
 
+    def earliest(self, tracking) -> int:
+        """The first check time at which an instance could be found lost (a multiple of
+        LOSS_CHECK_US after :attr:`last`); 1 << 62 when none is tracking."""
+        out = 1 << 62
+        for g, on in enumerate(tracking):
+            if on:
+                low = self.low_since[g]
+                start = low if (low is not None and self.armed[g]) else self.last + LOSS_CHECK_US
+                out = min(out, max(start + self.hold_us, self.last + LOSS_CHECK_US))
+        return out
+
+    def skip_to(self, t: int) -> None:
+        """Check times up to ``t`` were not counted (no events before them)."""
+        self.last = max(self.last, int(t))
+
     def check(self, t: int, active, tracking) -> list:
         """At check time ``t``: ``active`` (n,) bool of every tracker, ``tracking`` per
         instance; the instances found lost (their clocks reset)."""
+        self.last = max(self.last, int(t))
         active = np.asarray(active, bool)
         lost = []
         for g, (t0, t1) in enumerate(self.ranges):

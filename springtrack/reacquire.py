@@ -26,12 +26,14 @@ how the input is cut into chunks.
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from .acquire import MIN_EVENTS, acquire, place, placed_gates
 from .events import EVENT_DTYPE
 from .instances import LOST, SEARCHING, TRACKING
-from .loss import LOSS_CHECK_US, LossRule, loss_hold_us
+from .loss import LOSS_CHECK_US, LossRule, counted, loss_hold_us
 
 RING_EVENTS = 1 << 17          # ~0.4 s at 300 k events/s
 NEVER = 1 << 62
@@ -97,62 +99,96 @@ class Recovery:
         self.period = max(self.window_us // 2, 1)
         self.bounds = dict(bounds)
         self.ring = EventRing()
-        self.rule = LossRule([(i.t0, i.t1) for i in tracker.models],
-                             loss_hold_us(tracker.models.params))
+        self.rule = None
         self.changes: list = []             # (t_us, label, kind)
         self.placements: list = []          # (t_us, instance, (n, 2) positions placed)
         self.attempts = 0
-        self._check = None                  # the next check time
         self._attempt = None                # the next attempt time
+        self._last_event = None             # the clock of the last event run
+        self._span = None                   # the clock of the events being run
 
     def start(self, t_first: int, found) -> None:
         """The instances were placed (``found[g]``) at the window starting at t_first."""
         b = self.tr._ib
+        self.rule = LossRule([(i.t0, i.t1) for i in self.tr.models],
+                             loss_hold_us(self.tr.models.params), t_first - 1)
         for g, f in enumerate(found):
             if f:
                 self.changes.append((t_first, self.tr.models[g].label, "acquired"))
                 self._placed(t_first, g)
             else:
                 b.set_state(g, SEARCHING)
-        self._check = -(-t_first // LOSS_CHECK_US) * LOSS_CHECK_US
         self._attempt = -(-t_first // self.period) * self.period
 
+    def sample_period(self, sample_us: int) -> int:
+        """The backend's sampling period: the checks' and the caller's samples' grids."""
+        return math.gcd(LOSS_CHECK_US, sample_us) if sample_us > 0 else LOSS_CHECK_US
+
     def track(self, ev) -> None:
-        """Process ``ev`` (EVENT_DTYPE, in time order) through the tracker's backend,
-        stopping at each check and attempt time."""
+        """Process ``ev`` (EVENT_DTYPE, in time order) through the tracker's backend in
+        spans: up to the first time an instance could be lost (the checks in between are
+        the backend's own samples, :meth:`rows`) or the next attempt, then that check and
+        the attempts."""
         b = self.tr._ib
-        run = np.maximum.accumulate(np.maximum(ev["t"], b.last_t))   # the clock at each event
+        clock = np.maximum.accumulate(np.maximum(ev["t"], b.last_t))   # the clock at each event
         pos, n = 0, len(ev)
         while pos < n:
             states = b.states()
-            searching = any(s != TRACKING for s in states)
-            tracking = any(s == TRACKING for s in states)
-            nxt = min(self._check if tracking else NEVER, self._attempt if searching else NEVER)
-            j = n if nxt >= NEVER else int(np.searchsorted(run, nxt, "left"))
+            tracking = [s == TRACKING for s in states]
+            searching = not all(tracking)
+            end = self.rule.earliest(tracking)
+            if searching:
+                end = min(end, self._attempt)
+            j = n if end >= NEVER else int(np.searchsorted(clock, end, "left"))
             if j > pos:
+                self._span = clock[pos:j]
                 self.tr._run(ev[pos:j])
                 self.ring.push(ev[pos:j])
+                self._last_event = int(clock[j - 1])
+                self._span = None
                 pos = j
             if pos >= n:
                 break
-            now = int(run[pos])                  # the state holds every event before now
-            if tracking and now >= self._check:
-                t = _grid_at_or_before(now, LOSS_CHECK_US)
-                self._check = t + LOSS_CHECK_US
-                if self._lose(t):
-                    self._attempt = t            # search for it at once
-                    searching = True
-            if searching and now >= self._attempt:
-                self._search(self._attempt)
-                self._attempt = _grid_at_or_before(now, self.period) + self.period
-            # the next check and attempt times are past this event
-            self._check = max(self._check, _grid_at_or_before(now, LOSS_CHECK_US) + LOSS_CHECK_US)
+            now = int(clock[pos])                # the state holds every event before now
+            if any(tracking):
+                self._stop_check(now)
+            if searching or b.states() != states:
+                if now >= self._attempt:
+                    self._search(self._attempt)
+                    self._attempt = _grid_at_or_before(now, self.period) + self.period
 
-    def _lose(self, t: int) -> bool:
-        """The loss rule at check time t; True when an instance was lost."""
+    def rows(self, t, active) -> None:
+        """The backend's samples at check times ``t`` ((k,) int64) with their ``active``
+        flags ((k, n) bool), taken while it ran the current span."""
         b = self.tr._ib
-        states = b.states()
-        lost = self.rule.check(t, b.snapshot(t)["active"], [s == TRACKING for s in states])
+        tracking = [s == TRACKING for s in b.states()]
+        span = self._span
+        for k, tk in enumerate(np.asarray(t).tolist()):
+            if tk <= self.rule.last:
+                continue
+            i = int(np.searchsorted(span, tk, "left")) if span is not None else 0
+            before = int(span[i - 1]) if i > 0 else self._last_event
+            if before is None or not counted(tk, before):
+                self.rule.skip_to(tk)
+                continue
+            self._apply(tk, self.rule.check(tk, active[k], tracking))
+
+    def _stop_check(self, now: int) -> None:
+        """The checks a stop before the event at ``now`` is due: the one after the last
+        event run (if it is due by now), the others in between do not count."""
+        if self._last_event is None:
+            return
+        t = _grid_at_or_before(self._last_event, LOSS_CHECK_US) + LOSS_CHECK_US
+        if self.rule.last < t <= now:
+            b = self.tr._ib
+            tracking = [s == TRACKING for s in b.states()]
+            if self._apply(t, self.rule.check(t, b.snapshot(t)["active"], tracking)):
+                self._attempt = t                 # search for it at once
+        self.rule.skip_to(_grid_at_or_before(now, LOSS_CHECK_US))
+
+    def _apply(self, t: int, lost) -> bool:
+        """The instances ``lost`` at check time t: LOST, recorded; True if any."""
+        b = self.tr._ib
         for g in lost:
             b.set_state(g, LOST)
             self.changes.append((t, self.tr.models[g].label, "lost"))

@@ -32,6 +32,7 @@ from . import params as _params
 from .events import as_events
 from .geometry import check_inside
 from .instances import TRACKING, ModelSet
+from .loss import LOSS_CHECK_US
 from .model import ShapeModel
 from .params import Params
 from .reference import ReferenceTracker
@@ -386,15 +387,26 @@ class Tracker:
         one = self._ib if isinstance(self._ib, _OneInstance) else None
         if one is not None:
             ev = one.withhold(ev)
+        rec = self.recovery
+        period = self._sample_us if rec is None else rec.sample_period(self._sample_us)
         pos = 0
         while pos < len(ev):
-            consumed, self._next_t, out = self._b.run(
-                ev[pos:], self._sample_us, self._next_t, SAMPLE_CAP)
+            consumed, self._next_t, out = self._b.run(ev[pos:], period, self._next_t, SAMPLE_CAP)
             pos += consumed
-            if out is not None and len(out["t"]):
-                if one is not None:
-                    out["trackers"]["state"] = one.state
-                self._recorded.append(Track.from_samples(out, self.ids))
+            if out is None or not len(out["t"]):
+                continue
+            if one is not None:
+                out["trackers"]["state"] = one.state
+            if rec is not None:            # the loss rule's checks are samples too
+                t = out["t"]
+                chk = t % LOSS_CHECK_US == 0
+                rec.rows(t[chk], out["trackers"]["active"][chk])
+                keep = t % self._sample_us == 0 if self._sample_us else np.zeros(len(t), bool)
+                if not keep.all():
+                    out = {k: out[k][keep] for k in ("t", "trackers", "energy")}
+                if not len(out["t"]):
+                    continue
+            self._recorded.append(Track.from_samples(out, self.ids))
 
     def run(self, events, sample_us: int = 1000) -> Track:
         """Process events and return the samples taken during this call."""

@@ -135,3 +135,21 @@ def test_renderer_draws_lost_instances_grey_and_dotted(tmp_path):
         assert "face26#1 lost" in r.text.get_text()
     finally:
         r.close()
+
+
+@pytest.mark.parametrize("backend", ["cython", "reference"])
+def test_changes_and_rows_do_not_depend_on_how_the_input_is_cut(backend):
+    sc = Disrupted(face(), hide_s=(0.2, 0.35))
+    ev, _ = simulate_all(sc, 0.45)
+    runs = []
+    for cut in (None, 997, 15_013):
+        tr = springtrack.Tracker(sc.initial_model(), backend=backend, acquire=True)
+        tr.record(2000)
+        for s in range(0, len(ev), cut or len(ev)):
+            tr.process(ev[s:s + (cut or len(ev))])
+        runs.append((tr.changes, tr.samples()))
+    assert [k for _, _, k in runs[0][0]] == ["acquired", "lost", "reacquired"]
+    for changes, track in runs[1:]:
+        assert changes == runs[0][0]
+        assert np.array_equal(track.t_us, runs[0][1].t_us)
+        assert np.array_equal(track.x, runs[0][1].x) and np.array_equal(track.state, runs[0][1].state)
