@@ -84,6 +84,31 @@ class LossRule:
         """Check times up to ``t`` were not counted (no events before them)."""
         self.last = max(self.last, int(t))
 
+    def check_rows(self, ts, active, tracking) -> list:
+        """:meth:`check` at each of the counted check times ``ts`` (k,) in order, ``active``
+        (k, n); returns [(t, [instances lost at t]), ...] for the times that lost any.
+        While every tracking instance has its evidence at every row (the common case) the
+        rows are taken at once."""
+        ts = np.asarray(ts, np.int64)
+        if not len(ts):
+            return []
+        active = np.asarray(active, bool)
+        well = all(not on or not np.any(LOSS_ACTIVE_DIV * active[:, a:b].sum(axis=1) < b - a)
+                   for on, (a, b) in zip(tracking, self.ranges))
+        if well:
+            for g, on in enumerate(tracking):
+                if on:
+                    self.armed[g] = True
+                self.low_since[g] = None
+            self.last = max(self.last, int(ts[-1]))
+            return []
+        out = []
+        for t, act in zip(ts.tolist(), active):
+            lost = self.check(t, act, tracking)
+            if lost:
+                out.append((t, lost))
+        return out
+
     def check(self, t: int, active, tracking) -> list:
         """At check time ``t``: ``active`` (n,) bool of every tracker, ``tracking`` per
         instance; the instances found lost (their clocks reset)."""

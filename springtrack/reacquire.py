@@ -160,18 +160,20 @@ class Recovery:
     def rows(self, t, active) -> None:
         """The backend's samples at check times ``t`` ((k,) int64) with their ``active``
         flags ((k, n) bool), taken while it ran the current span."""
-        b = self.tr._ib
-        tracking = [s == TRACKING for s in b.states()]
+        t = np.asarray(t, np.int64)
+        new = t > self.rule.last
+        t, active = t[new], active[new]
+        if not len(t):
+            return
         span = self._span
-        for k, tk in enumerate(np.asarray(t).tolist()):
-            if tk <= self.rule.last:
-                continue
-            i = int(np.searchsorted(span, tk, "left")) if span is not None else 0
-            before = int(span[i - 1]) if i > 0 else self._last_event
-            if before is None or not counted(tk, before):
-                self.rule.skip_to(tk)
-                continue
-            self._apply(tk, self.rule.check(tk, active[k], tracking))
+        i = np.searchsorted(span, t, "left")
+        before = np.where(i > 0, span[np.maximum(i - 1, 0)],
+                          -NEVER if self._last_event is None else self._last_event)
+        ok = counted(t, before)
+        tracking = [s == TRACKING for s in self.tr._ib.states()]
+        for tk, lost in self.rule.check_rows(t[ok], active[ok], tracking):
+            self._apply(tk, lost)
+        self.rule.skip_to(int(t[-1]))
 
     def _stop_check(self, now: int) -> None:
         """The checks a stop before the event at ``now`` is due: the one after the last
