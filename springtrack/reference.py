@@ -44,9 +44,10 @@ import math
 import numpy as np
 
 from .instances import TRACKING, ModelSet, per_instance
+from .limits import position_box
 from .model import SPRING_BIT, ShapeModel
 from .params import ENERGY_KINDS, Params
-from .sampling import UNSET, first_sample_time, sample_due
+from .sampling import UNSET, first_sample_time, next_sample, sample_due
 
 EUCLIDEAN, TORSIONAL, CARTESIAN = SPRING_BIT["euclidean"], SPRING_BIT["torsional"], SPRING_BIT["cartesian"]
 RHO_MAX = 0.99           # |correlation| bound that keeps a covariance positive definite
@@ -118,18 +119,18 @@ class ReferenceTracker:
         self.c0 = [int(v) for v in arr["inst_c0"]]
         self.c1 = [int(v) for v in arr["inst_c1"]]
         self.inst = [g for g in range(self.ni) for _ in range(self.t0[g], self.t1[g])]
+        # the models' state, which the tracker state starts from and an instance is reset to
+        self.rest = tuple([float(v) for v in arr[k]] for k in ("x", "y", "sxx", "sxy", "syy"))
+        # where trackers may be after a spring update (the state guard, _guard)
+        self.box = position_box(self.width, self.height)
         # tracker state
-        self.mx = [float(v) for v in arr["x"]]
-        self.my = [float(v) for v in arr["y"]]
-        self.sxx = [float(v) for v in arr["sxx"]]
-        self.sxy = [float(v) for v in arr["sxy"]]
-        self.syy = [float(v) for v in arr["syy"]]
-        self.ia = [0.0] * self.n
-        self.ib = [0.0] * self.n
-        self.ic = [0.0] * self.n
+        self.mx, self.my, self.sxx, self.sxy, self.syy = (list(v) for v in self.rest)
         self.act = [0.0] * self.n
         self.tlast = [0] * self.n
         self.sensitive = [True] * self.n
+        self.ia = [0.0] * self.n
+        self.ib = [0.0] * self.n
+        self.ic = [0.0] * self.n
         self.mass = [float(v) for v in arr["mass"]]
         self.inv_mass = [1.0 / float(v) for v in arr["mass"]]
         self.gdx0 = [float(v) for v in arr["gdx0"]]
@@ -164,7 +165,25 @@ class ReferenceTracker:
         self.n_valid = self.n_assigned = self.n_back = self.n_outside = 0
         self.since_spring = 0
         self.n_spring_updates = 0
+        self.n_resets = 0
         self.set_params(mset.params_list)
+
+    def _reset_instance(self, g: int) -> None:
+        """Instance g's state as its model gives it: means and covariances, no activity,
+        its trackers sensitive if it is tracking, no energy, the similarity frame the
+        identity at the rest centre of mass."""
+        for i in range(self.t0[g], self.t1[g]):
+            self.mx[i], self.my[i], self.sxx[i], self.sxy[i], self.syy[i] = (
+                v[i] for v in self.rest)
+            self.act[i] = 0.0
+            self.tlast[i] = 0
+            self.sensitive[i] = self.state[g] == TRACKING
+            self._clamp_and_invert(i)
+        for e in self.energy:
+            for k in range(self.c0[g], self.c1[g]):
+                e[k] = 0.0
+        self.mean_energies[g] = 0.0
+        self._rest_frame(g)
 
     def _rest_frame(self, g: int) -> None:
         """Instance g's frame before its first fit: the identity about G0 at rest."""
@@ -353,6 +372,20 @@ class ReferenceTracker:
         for g in range(self.ni):
             if self.state[g] == TRACKING:
                 self._springs(g)
+        self._guard()
+
+    def _guard(self) -> None:
+        """The state guard, after every spring update: a tracker outside the position box
+        (springtrack.limits.position_box: one sensor size around the sensor), or not finite,
+        is a state no limit-abiding model reaches (docs/algorithm.md, Limits); it is counted
+        (``n_resets``) and its instance's whole state is reset to the model, never reported."""
+        x_lo, x_hi, y_lo, y_hi = self.box
+        for g in range(self.ni):
+            for i in range(self.t0[g], self.t1[g]):
+                if not (x_lo <= self.mx[i] < x_hi and y_lo <= self.my[i] < y_hi):
+                    self.n_resets += 1
+                    self._reset_instance(g)
+                    break
 
     def _springs(self, g: int) -> None:
         t0, t1, c0, c1 = self.t0[g], self.t1[g], self.c0[g], self.c1[g]
@@ -488,7 +521,8 @@ class ReferenceTracker:
     def place(self, g: int, model: ShapeModel) -> None:
         """Instance g placed as ``model`` (its model moved, e.g. by an acquisition: the
         same trackers and connections): positions, covariances and the rest geometry of
-        eqs. (10), (14), (18), (22) from it, activities 0, the frame at rest; tracking."""
+        eqs. (10), (14), (18), (22) from it (and the state the guard resets it to),
+        activities 0, the frame at rest; tracking."""
         self.mset = self.mset.replaced(g, model)
         arr = model.arrays()
         t0, c0 = self.t0[g], self.c0[g]
@@ -497,6 +531,8 @@ class ReferenceTracker:
             self.mx[i], self.my[i] = float(arr["x"][j]), float(arr["y"][j])
             self.sxx[i], self.sxy[i] = float(arr["sxx"][j]), float(arr["sxy"][j])
             self.syy[i] = float(arr["syy"][j])
+            for rest, key in zip(self.rest, ("x", "y", "sxx", "sxy", "syy")):
+                rest[i] = float(arr[key][j])          # the state guard resets to this
             self.gdx0[i], self.gdy0[i] = float(arr["gdx0"][j]), float(arr["gdy0"][j])
             self.act[i] = 0.0
             self.tlast[i] = 0
@@ -529,8 +565,8 @@ class ReferenceTracker:
 
     def run(self, events: np.ndarray, sample_us: int | None = None):
         """Process an event array; with ``sample_us``, return [(t_us, snapshot), ...] taken at
-        every multiple of sample_us, each the state after all events with t < t_us (the
-        sampling rule of springtrack.sampling)."""
+        the multiples of sample_us the sampling rule of springtrack.sampling names, each the
+        state after all events with t < t_us."""
         samples = []
         next_t = UNSET
         for t, x, y in zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist()):
@@ -538,7 +574,10 @@ class ReferenceTracker:
                 if next_t == UNSET:
                     next_t = first_sample_time(t, sample_us)
                 if sample_due(t, next_t, self.last_t):
-                    while t >= next_t:
+                    while True:
+                        next_t = next_sample(t, next_t, self.last_t, sample_us)
+                        if t < next_t:
+                            break
                         samples.append((next_t, self.snapshot(next_t)))
                         next_t += sample_us
             self.step(t, x, y)

@@ -8,11 +8,13 @@ CSV schema (``springtrack track``, ``firmware-sim --record``, ``hostctl record``
 
     t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive,state
 
-one row per tracker per sample time; ``t_us`` is event time in microseconds, the row holds
-the state after all events with t < t_us; positions in px, covariances in px^2,
-``active``/``sensitive`` are 0/1; ``state`` is the state of the tracker's model instance
-(``searching``, ``tracking`` or ``lost``: springtrack.instances, docs/acquisition.md).
-A CSV without the ``state`` column (written before it existed) reads as ``tracking``.
+one row per tracker per sample time (springtrack.sampling: every multiple of the period
+from the first event on, an empty stretch for its first HOLD periods only); ``t_us`` is
+event time in microseconds, the row holds the state after all events with t < t_us;
+positions in px, covariances in px^2, ``active``/``sensitive`` are 0/1; ``state`` is the
+state of the tracker's model instance (``searching``, ``tracking`` or ``lost``:
+springtrack.instances, docs/acquisition.md).  A CSV without the ``state`` column (written
+before it existed) reads as ``tracking``.
 """
 from __future__ import annotations
 
