@@ -124,11 +124,11 @@ class Recovery:
         """The backend's sampling period: the checks' and the caller's samples' grids."""
         return math.gcd(LOSS_CHECK_US, sample_us) if sample_us > 0 else LOSS_CHECK_US
 
-    def track(self, ev) -> None:
+    def track(self, ev):
         """Process ``ev`` (EVENT_DTYPE, in time order) through the tracker's backend in
         spans: up to the first time an instance could be lost (the checks in between are
         the backend's own samples, :meth:`rows`) or the next attempt, then that check and
-        the attempts."""
+        the attempts.  Yields the tracker's samples (Tracks) as they are taken."""
         b = self.tr._ib
         clock = np.maximum.accumulate(np.maximum(ev["t"], b.last_t))   # the clock at each event
         pos, n = 0, len(ev)
@@ -142,7 +142,7 @@ class Recovery:
             j = n if end >= NEVER else int(np.searchsorted(clock, end, "left"))
             if j > pos:
                 self._span = clock[pos:j]
-                self.tr._run(ev[pos:j])
+                yield from self.tr._run(ev[pos:j])
                 self.ring.push(ev[pos:j])
                 self._last_event = int(clock[j - 1])
                 self._span = None
