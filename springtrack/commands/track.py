@@ -76,6 +76,11 @@ def add_acquire_arguments(p) -> None:
     p.add_argument("--acquire", action="store_true",
                    help="find the models in the events instead of trusting their positions; "
                         "lost instances are searched for again (docs/acquisition.md)")
+    add_acquire_window(p)
+
+
+def add_acquire_window(p) -> None:
+    """--acquire-ms, --acquire-angle and --acquire-scale (track, render, firmware-sim)."""
     p.add_argument("--acquire-ms", type=float, default=50.0, metavar="MS",
                    help="acquisition window in ms of event time (default 50)")
     p.add_argument("--acquire-angle", type=float, default=45.0, metavar="DEG",
@@ -93,7 +98,7 @@ def tracker_from_args(args, model):
     backend = getattr(args, "backend", "cython")
     backend = f"mcu:{args.mcu_target}" if backend == "mcu" else backend
     return Tracker(model, params=args.params, backend=backend, acquire=args.acquire,
-                   acquire_ms=args.acquire_ms, acquire_bounds=_acquire_bounds(args),
+                   acquire_ms=args.acquire_ms, acquire_bounds=acquire_bounds(args),
                    instances=args.instances)
 
 
@@ -252,7 +257,7 @@ def run(args) -> int:
     return 0
 
 
-def _acquire_bounds(args) -> dict:
+def acquire_bounds(args) -> dict:
     """The acquisition's bounds from --acquire-angle and --acquire-scale."""
     try:
         lo, hi = (float(v) for v in args.acquire_scale.split(","))
