@@ -6,13 +6,16 @@ loaded into a KState, the Python API of springtrack.tracker's backends) and the 
 C-level loop makes through ``Kernel.stepper()`` (springtrack/_stepper.pxd), with the
 sample row (ksnapshot).  The algorithm lives in its parts, one job each:
 
-  _kstate.pxd     the state (KState), capacities and step codes
-  _kstep.pxd      the per-event step, eqs. (2)-(6): kstep, ksteps
-  _kindex.pxd     the spatial index the step scans candidates from
-  _kactivity.pxd  eq. (6)'s activity, stored rescaled, its exps logged and batched
-  _ksprings.pyx   springs and energy criteria, eqs. (7)-(22), incl. the similarity frame
+  _kstate.pxd       the state (KState), capacities and step codes
+  _kstep.pxd        the per-event step, eqs. (2)-(6): kstep, ksteps
+  _kindex.pxd       the spatial index the step scans candidates from
+  _kactivity.pxd    eq. (6)'s activity, stored rescaled, its exps logged and batched
+  _kcovariance.pxd  eq. (4)'s covariance clamped and inverted for eq. (2)
+  _ksprings.pyx     springs and energy criteria, eqs. (7)-(22), incl. the similarity
+                    frame, and the state guard (a mean outside the position box resets
+                    the state to the model's)
 
-The step, the index and the activity log are cdef inline functions in .pxd files, so the
+The step, the index, the covariance clamp and the activity log are cdef inline functions in .pxd files, so the
 whole per-event path compiles into this module as one unit (ksteps inlined in the
 Stepper's steps()); the springs, once per spring_period events, are a call into
 springtrack._ksprings.
@@ -56,7 +59,8 @@ from springtrack._samples cimport SampleOut
 from springtrack.track cimport TrackRow
 from springtrack._stepper cimport Stepper, run_array
 from springtrack._kstate cimport KState, MAX_TRACKERS, MAX_CONNECTIONS, CELL_SHIFT
-from springtrack._kstep cimport kstep, ksteps, clamp_and_invert, ST_RHO_MAX, ST_RHO_MAX2
+from springtrack._kstep cimport kstep, ksteps
+from springtrack._kcovariance cimport clamp_and_invert, ST_RHO_MAX, ST_RHO_MAX2
 from springtrack._kindex cimport reindex
 from springtrack._kactivity cimport activity_decay, kactivity, rescale_activity
 from springtrack._ksprings cimport ksprings, init_springs
@@ -68,7 +72,7 @@ cnp.import_array()
 
 assert _limits.MAX_TRACKERS == MAX_TRACKERS and _limits.MAX_CONNECTIONS == MAX_CONNECTIONS
 assert ST_RHO_MAX == _RHO_MAX and ST_RHO_MAX2 == _RHO_MAX * _RHO_MAX * (1.0 - 1e-12), \
-    "_kstep.pxd disagrees with reference.py"
+    "_kcovariance.pxd disagrees with reference.py"
 
 
 # ---- the sample row -------------------------------------------------------------------
@@ -154,12 +158,13 @@ cdef class Kernel:
         s.cells = <uint64_t*>calloc(s.gw * s.gh, sizeof(uint64_t))
         if s.cells == NULL:
             raise MemoryError()
+        s.pos_lo_x, s.pos_hi_x, s.pos_lo_y, s.pos_hi_y = _limits.position_box(s.width, s.height)
         for i in range(n):
-            s.mx[i] = arr["x"][i]
-            s.my[i] = arr["y"][i]
-            s.sxx[i] = arr["sxx"][i]
-            s.sxy[i] = arr["sxy"][i]
-            s.syy[i] = arr["syy"][i]
+            s.mx[i] = s.rest_x[i] = arr["x"][i]
+            s.my[i] = s.rest_y[i] = arr["y"][i]
+            s.sxx[i] = s.rest_sxx[i] = arr["sxx"][i]
+            s.sxy[i] = s.rest_sxy[i] = arr["sxy"][i]
+            s.syy[i] = s.rest_syy[i] = arr["syy"][i]
             s.mass[i] = arr["mass"][i]
             s.gdx0[i] = arr["gdx0"][i]
             s.gdy0[i] = arr["gdy0"][i]
@@ -272,7 +277,8 @@ cdef class Kernel:
         cdef KState* s = &self.st
         return dict(events_valid=s.n_valid, events_assigned=s.n_assigned,
                     skipped_back_in_time=s.n_back, skipped_outside_sensor=s.n_outside,
-                    spring_updates=s.n_spring_updates, index_updates=s.n_reindex)
+                    spring_updates=s.n_spring_updates, index_updates=s.n_reindex,
+                    state_resets=s.n_resets)
 
     def frame_stats(self):
         """Diagnostics of eq. (14)'s fast path (ksprings): spring updates that fell back to

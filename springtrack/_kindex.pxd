@@ -51,7 +51,7 @@ cdef inline void index_set(KState* s, int i, int x0, int x1, int y0, int y1, bin
 cdef inline int cell_of(const KState* s, double v, int gmax) noexcept nogil:
     # floor division of a pixel coordinate by the cell size, clamped to the grid
     cdef double c = floor(v / (1 << CELL_SHIFT))
-    if c < 0.0:
+    if not c >= 0.0:                   # below the grid, or not a number
         return 0
     if c > gmax:
         return gmax

@@ -1,5 +1,5 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
-"""The float64 kernel's springs and energy criteria, eqs. (7)-(22), on a KState.
+"""The float64 kernel's springs and energy criteria, eqs. (7)-(22), and its state guard.
 
 Translates springtrack/reference.py springs(), fit_frame() and _energy_criteria() ([ref]
 marks the lines translated) in structure-of-arrays passes over the connections: gather,
@@ -10,6 +10,11 @@ by init_springs, and eq. (14)'s angles measured in a frame that follows the mean
 ksprings).  Unlike the per-event step, the springs do not keep the reference's order of
 operations (see ksprings), so the two differ by rounding, ~1e-13 px over a million
 events.
+
+After every spring update the state guard (guard_state, the reference's _guard) checks
+every mean against the position box (springtrack.limits.position_box): a mean outside it,
+or not a number, is a state no valid model reaches, and resets the tracker state to the
+model's.
 """
 from libc.math cimport cos, sin, fabs, M_PI
 from libc.stdint cimport int64_t, uint64_t
@@ -18,6 +23,7 @@ from springtrack import reference as _ref
 
 from springtrack._kstate cimport KState, MAX_TRACKERS, MAX_CONNECTIONS
 from springtrack._kindex cimport reindex
+from springtrack._kcovariance cimport clamp_and_invert
 
 cdef extern from "springtrack/csrc/springs.h" nogil:
     double st_sum(int n, const double* x)
@@ -78,8 +84,8 @@ cdef void ksprings(KState* s) noexcept nogil:
     #   similarity frame: the Cartesian rest offsets turned and scaled);  5. eqs. (10)-(12), (16),
     #   (18)-(20) branch-free (a_euc/a_tor/a_car are 0 for kinds a connection lacks),
     #   displacements divided by each end's mass;  6. scatter onto the ends' means
-    #   (scalar);  7. energy criteria (OR-reduced bit masks);  8. re-index the trackers
-    #   whose gate boxes left their indexed boxes.
+    #   (scalar);  7. energy criteria (OR-reduced bit masks);  8. the state guard;  9.
+    #   re-index the trackers whose gate boxes left their indexed boxes.
     # Rounding-level differences from the reference, none larger than ~1e-15 relative: the
     # three kinds' displacements are summed per connection and added straight to the means
     # (the reference adds them one by one to per-tracker sums, then those to the means);
@@ -137,11 +143,55 @@ cdef void ksprings(KState* s) noexcept nogil:
         s.mx[j] -= ubx[k]
         s.my[j] -= uby[k]
     energy_criteria(s)                                               # 7.
-    st_boxes_left(n, s.mx, s.my, s.sxx, s.syy, s.bcx, s.bcy, s.dev_x, s.dev_y, s.sxx_lim,  # 8.
+    if guard_state(s):                                               # 8.
+        return
+    st_boxes_left(n, s.mx, s.my, s.sxx, s.syy, s.bcx, s.bcy, s.dev_x, s.dev_y, s.sxx_lim,  # 9.
                   s.syy_lim, left)
     for i in range(n):
         if left[i]:
             reindex(s, i)
+
+
+cdef bint guard_state(KState* s) noexcept nogil:
+    """[ref] _guard: a mean outside the position box, or not a number, is a state no model
+    within springtrack.limits reaches: counted, and the state reset to the model (True)."""
+    cdef int i
+    cdef bint out = False
+    for i in range(s.n):
+        out |= not (s.mx[i] >= s.pos_lo_x and s.mx[i] < s.pos_hi_x
+                    and s.my[i] >= s.pos_lo_y and s.my[i] < s.pos_hi_y)
+    if out:
+        s.n_resets += 1
+        reset_state(s)
+    return out
+
+
+cdef void reset_state(KState* s) noexcept nogil:
+    """[ref] _reset_state, then every covariance clamped and inverted and every tracker
+    re-indexed: the tracker state of the model, counters and time kept."""
+    cdef int i, k, q
+    for i in range(s.n):
+        s.mx[i] = s.rest_x[i]
+        s.my[i] = s.rest_y[i]
+        s.sxx[i] = s.rest_sxx[i]
+        s.sxy[i] = s.rest_sxy[i]
+        s.syy[i] = s.rest_syy[i]
+        s.act[i] = 0.0
+    s.act_n = 0                        # increments logged for the state left behind
+    for q in range(3):
+        for k in range(s.nc):
+            s.energy[q][k] = 0.0
+    s.mean_energy = 0.0
+    s.sensitive_mask = ~(<uint64_t>0) if s.n == 64 else ((<uint64_t>1) << s.n) - 1
+    s.sim_c = 1.0                      # [ref] the identity frame about G0 until a fit
+    s.sim_s = 0.0
+    if s.n:
+        s.sim_gx = s.mx[0] - s.gdx0[0]
+        s.sim_gy = s.my[0] - s.gdy0[0]
+    set_frame(s, 0.0)
+    for i in range(s.n):
+        clamp_and_invert(s, i)
+        reindex(s, i)
 
 
 cdef void set_frame(KState* s, double phi) noexcept nogil:

@@ -1,12 +1,14 @@
 # The float64 tracker kernel's state: one KState per springtrack._kernel.Kernel, read and
 # written by the kernel's parts (docs/architecture.md, "The float64 kernel"):
 #
-#   _kindex.pxd     spatial index: cells, box_*, bx_*, bcx ... syy_lim
-#   _kactivity.pxd  eq. (6): act, act_t0, act_span, the exp log act_n / act_i / act_arg
-#   _kstep.pxd      eqs. (2)-(5): means, covariances and their inverses, the counters
-#   _ksprings.pyx   eqs. (7)-(22): connections, their precomputed coefficients, energies,
-#                   the similarity frame, sensitive_mask
-#   _kernel.pyx     loads the model and parameters into it; samples it (ksnapshot)
+#   _kindex.pxd       spatial index: cells, box_*, bx_*, bcx ... syy_lim
+#   _kactivity.pxd    eq. (6): act, act_t0, act_span, the exp log act_n / act_i / act_arg
+#   _kcovariance.pxd  eq. (4)'s clamp: covariances and their inverses ia, ib2, ic
+#   _kstep.pxd        eqs. (2)-(5): means, covariances, the counters
+#   _ksprings.pyx     eqs. (7)-(22): connections, their precomputed coefficients,
+#                     energies, the similarity frame, sensitive_mask; the state guard
+#                     (rest_*, pos_*, n_resets)
+#   _kernel.pyx       loads the model and parameters into it; samples it (ksnapshot)
 #
 # Plain C (structure of arrays, fixed capacities), so that the per-event code runs on it
 # without the GIL and allocates nothing; the capacities are springtrack/limits.py's
@@ -32,6 +34,15 @@ ctypedef struct KState:
     double smin2, smax2
     int period, ekind, need_torsion
     int pull_sim, car_sim            # eq. (22) / eqs. (18)-(20) in the similarity frame
+    # the model's means and covariances (the state starts from them and the guard resets it
+    # to them), and the position box (springtrack.limits.position_box): after a spring
+    # update every mean lies in it, or the guard resets the state (guard_state)
+    double rest_x[MAX_TRACKERS]
+    double rest_y[MAX_TRACKERS]
+    double rest_sxx[MAX_TRACKERS]
+    double rest_sxy[MAX_TRACKERS]
+    double rest_syy[MAX_TRACKERS]
+    double pos_lo_x, pos_hi_x, pos_lo_y, pos_hi_y
     # tracker state, structure of arrays
     double mx[MAX_TRACKERS]
     double my[MAX_TRACKERS]
@@ -112,4 +123,5 @@ ctypedef struct KState:
     # counters
     int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates, n_reindex
     int64_t n_frame_misses, n_frame_moves
+    int64_t n_resets                 # states the guard reset to the model
     int since_spring

@@ -17,7 +17,6 @@
 # compiled as one unit into springtrack._kernel, which exposes it (Kernel.stepper(),
 # Kernel.step()).  The springs, once per spring_period events, are a call into
 # springtrack._ksprings.
-from libc.math cimport sqrt
 from libc.stdint cimport int64_t, uint64_t
 
 from springtrack.events cimport Event
@@ -25,47 +24,15 @@ from springtrack._stepper cimport st_sample_due
 from springtrack._kstate cimport (KState, CELL_SHIFT, K_NO_TRACKER, K_BACK_IN_TIME,
                                   K_OUT_OF_SENSOR)
 from springtrack._kindex cimport check_index
+from springtrack._kcovariance cimport clamp_and_invert
 from springtrack._kactivity cimport log_activity, flush_activity, rescale_activity
 from springtrack._ksprings cimport ksprings
 
 cdef extern from *:
     """
-    /* springtrack/_kstep.pxd: springtrack.reference.RHO_MAX, the |correlation| bound that
-       keeps a covariance positive definite (_kernel.pyx checks they agree), and its
-       square made slightly low, so that the exact test never misses a clamp */
-    #define ST_RHO_MAX 0.99
-    #define ST_RHO_MAX2 (ST_RHO_MAX * ST_RHO_MAX * (1.0 - 1e-12))
     static inline int st_ctz64(unsigned long long v) { return __builtin_ctzll(v); }
     """
-    const double ST_RHO_MAX
-    const double ST_RHO_MAX2
     int st_ctz64(unsigned long long v) nogil
-
-
-cdef inline void clamp_and_invert(KState* s, int i) noexcept nogil:
-    # [ref] _clamp_and_invert
-    cdef double sxx = s.sxx[i], syy = s.syy[i], sxy = s.sxy[i], lim, inv_det
-    if sxx < s.smin2:
-        sxx = s.smin2
-    if sxx > s.smax2:
-        sxx = s.smax2
-    if syy < s.smin2:
-        syy = s.smin2
-    if syy > s.smax2:
-        syy = s.smax2
-    if sxy * sxy > ST_RHO_MAX2 * (sxx * syy):    # |rho| may exceed RHO_MAX: the exact test
-        lim = ST_RHO_MAX * sqrt(sxx * syy)
-        if sxy < -lim:
-            sxy = -lim
-        if sxy > lim:
-            sxy = lim
-    s.sxx[i] = sxx
-    s.sxy[i] = sxy
-    s.syy[i] = syy
-    inv_det = 1.0 / (sxx * syy - sxy * sxy)                         # [ref] one division
-    s.ia[i] = syy * inv_det
-    s.ib2[i] = 2.0 * (-sxy * inv_det)
-    s.ic[i] = sxx * inv_det
 
 
 cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double fy, double d2) noexcept nogil:
