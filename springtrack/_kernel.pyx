@@ -15,10 +15,10 @@ sample row (ksnapshot).  The algorithm lives in its parts, one job each:
                     frame, and the state guard (a mean outside the position box resets
                     the state to the model's)
 
-The step, the index, the covariance clamp and the activity log are cdef inline functions in .pxd files, so the
-whole per-event path compiles into this module as one unit (ksteps inlined in the
-Stepper's steps()); the springs, once per spring_period events, are a call into
-springtrack._ksprings.
+The step, the index, the covariance clamp and the activity log are cdef inline functions
+in .pxd files, so the whole per-event path compiles into this module as one unit (ksteps
+inlined in the Stepper's steps()); the springs, once per spring_period events, are a call
+into springtrack._ksprings.
 
 The per-event loop touches no Python object, allocates nothing and runs without the GIL.
 Equations cite Valeiras et al. 2015; comments marked [ref] point at the reference lines

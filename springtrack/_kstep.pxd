@@ -13,10 +13,10 @@
 # distance d^2 (eq. 2 in the log domain, no exp per tracker) over the spatial index's
 # candidates only (_kindex.pxd), eq. (6)'s exps logged and batched (_kactivity.pxd).
 #
-# cdef inline, like the index and the activity log it calls: the whole per-event path is
-# compiled as one unit into springtrack._kernel, which exposes it (Kernel.stepper(),
-# Kernel.step()).  The springs, once per spring_period events, are a call into
-# springtrack._ksprings.
+# cdef inline, like the index, the covariance clamp and the activity log it calls: the
+# whole per-event path is compiled as one unit into springtrack._kernel, which exposes it
+# (Kernel.stepper(), Kernel.step()).  The springs, once per spring_period events, are a
+# call into springtrack._ksprings.
 from libc.stdint cimport int64_t, uint64_t
 
 from springtrack.events cimport Event
