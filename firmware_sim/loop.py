@@ -66,14 +66,16 @@ class FirmwareLoop:
                  biases: dict | None = None, profile="ccam_atis",
                  record: bool = False, width: int | None = None, height: int | None = None,
                  backend: str = "cython", roi=None, source_counters=None, sensor_from=None,
-                 learn_first_ms: float | None = None, learn_params: dict | None = None):
+                 acquire: dict | None = None, learn_first_ms: float | None = None,
+                 learn_params: dict | None = None):
         if telemetry_period_us <= 0:
             raise ValueError(f"telemetry_period_us must be positive, got {telemetry_period_us}")
         self.profile = camusb.PROFILES[profile] if isinstance(profile, str) else profile
         self.width = width or self.profile.width          # the sensor
         self.height = height or self.profile.height
         # every model (this one, uploads) must fit the sensor: springtrack.geometry
-        self.slot = ModelSlot(backend, model, params, (self.width, self.height), sensor_from)
+        self.slot = ModelSlot(backend, model, params, (self.width, self.height), sensor_from,
+                              acquire)
         self.applied = AppliedLog()
         self.learner = None
         if learn_first_ms is not None:      # decoded events for the learner: springtrack.io
@@ -82,13 +84,15 @@ class FirmwareLoop:
             self.fused = self.learner = LearningFeed(
                 self.slot.kernel, telemetry_period_us, self.profile, learn_first_ms,
                 self.width, self.height, learn_params)
-        elif not backend.startswith("mcu"):
+        elif not backend.startswith("mcu") and acquire is None:
             self.fused = Fused(self.slot.kernel, telemetry_period_us, 512, fmt=self.profile.fmt,
                                width=self.width, height=self.height,
                                legacy=self.profile.legacy, roi=roi)
-        else:        # a kernel in an emulator, with no C step: springtrack.io decoder + run
+        else:        # a kernel in an emulator, with no C step, or one that acquires (it
+            #          needs the events): springtrack.io decoder + run
             if roi is not None:
-                raise ValueError("--roi needs a kernel the fused loop runs (cython, fixed)")
+                raise ValueError("--roi needs a kernel the fused loop runs (cython, fixed; "
+                                 "not --acquire)")
             self.fused = DecodedFeed(self.slot.kernel, telemetry_period_us, self.profile)
         self.source_counters = source_counters or dict
         self.period = int(telemetry_period_us)
@@ -150,6 +154,17 @@ class FirmwareLoop:
         """Restart the tracker from the current model (queued like a model swap)."""
         self.slot.queue_reset()
         self._apply_if_idle()
+
+    def acquire(self) -> int:
+        """Search for the model again (ACQUIRE): a fresh acquiring kernel of the current
+        model, queued like a reset; its state is ``searching`` until it is found.  Refused
+        (BAD_STATE) when the firmware runs without acquisition."""
+        if self.slot.acquire is None:
+            raise UpdateRejected(Nack.BAD_STATE, "this firmware runs without acquisition: "
+                                                 "start it with --acquire")
+        gen = self.slot.queue_reset()
+        self._apply_if_idle()
+        return gen
 
     # ---- Engine: updates -------------------------------------------------------------------
     def load_model(self, toml_text: str) -> int:
@@ -327,6 +342,7 @@ class FirmwareLoop:
             loop=dict(self.counters.as_dict(), telemetry_dropped=self.telemetry.dropped,
                       generation=self.generation, last_t_us=int(self.fused.last_t)),
             kernel=self.slot.kernel_counters(),
+            instances=self._instances(),
             learn=self._learn_stats())
 
     def _learn_stats(self) -> dict:
@@ -338,6 +354,13 @@ class FirmwareLoop:
         c = le.counters()
         return dict(state=state, events=c["events_learned"], dropped=c["events_unlearned"],
                     untracked=c["events_untracked"], error=le.error, report=self.learn_report)
+
+    def _instances(self) -> dict:
+        """Each model instance's state (searching, tracking, lost), with acquisition."""
+        kern = self.slot.kernel
+        if not hasattr(kern, "instances"):
+            return {}
+        return {i["label"]: i["state"] for i in kern.instances()}
 
     def _geometry_drops(self, fc: dict) -> dict:
         """Events lost because they lay outside the sensor: in the words (the decoder's
