@@ -18,6 +18,7 @@
 
 #include <stddef.h>
 #include <stdint.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "springtrack/io/evt3_types.h"
@@ -386,23 +387,40 @@ EVT3_AVX2 static size_t evt3_run_avx2(const uint8_t *p, size_t nw, Evt3Run *st,
 #define EVT3_BLOCK_SIMD 0
 #endif
 
+/* Whether blocks take the AVX2 path: 1 where this build has it (x86-64, GCC or clang) and
+ * the processor runs it (__builtin_cpu_supports, asked once), 0 otherwise -- and 0 when the
+ * environment sets SPRINGTRACK_SIMD=0 (the word loop alone: a check, or a processor that
+ * reports AVX2 wrongly).  Every word then goes through the word loop, never an AVX2
+ * instruction. */
+static int evt3_block_cpu = -1;
+
+static inline int evt3_block_path(void)
+{
+#if EVT3_BLOCK_SIMD
+    if (evt3_block_cpu < 0) {
+        const char *env = getenv("SPRINGTRACK_SIMD");
+        evt3_block_cpu = (env != NULL && strcmp(env, "0") == 0) ? 0
+                         : __builtin_cpu_supports("avx2") ? 1 : 0;
+    }
+    return evt3_block_cpu;
+#else
+    return 0;
+#endif
+}
+
 /* Decode words from p, at most nw, 16 at a time while they take the fast path, into the
  * EVENT_DTYPE records at out from index *k (advanced; a block starts only while out has
  * room for EVT3_BLOCK_MAX_EVENTS before index cap), with the word loop's state st,
  * updated.  Returns the words decoded and sets *scalar to the number of words the caller
  * must decode word by word before calling again (a time high, an orphan, ...), or 0 if
- * the words or the room ran out (or the processor has no AVX2): decode the rest word by
- * word. */
-static int evt3_block_cpu = -1;
-
+ * the words or the room ran out (or there is no AVX2 path: evt3_block_path): decode the
+ * rest word by word. */
 static inline size_t evt3_decode_run(const uint8_t *p, size_t nw, Evt3Run *st,
                                      uint32_t width, uint32_t height, void *out, size_t *k,
                                      size_t cap, size_t *scalar)
 {
 #if EVT3_BLOCK_SIMD
-    if (evt3_block_cpu < 0)
-        evt3_block_cpu = __builtin_cpu_supports("avx2") ? 1 : 0;
-    if (evt3_block_cpu)
+    if (evt3_block_path())
         return evt3_run_avx2(p, nw, st, width, height, (uint8_t *)out, k, cap, scalar);
 #endif
     (void)p, (void)nw, (void)st, (void)width, (void)height, (void)out, (void)k, (void)cap;
