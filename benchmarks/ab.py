@@ -2,13 +2,15 @@
 
 Run: .venv/bin/python benchmarks/ab.py OLD_TREE NEW_TREE [--preset face26] [--backend cython]
      [--scene face_occlusion] [--events 2000000] [--rounds 5] [--paired [--pairs 30]]
+     [--param NAME=VALUE ...]
 
 Each tree is a source checkout with its extensions built in place (for example a
 `git worktree add /tmp/base HEAD~3` built with `python setup.py build_ext --inplace`).
 Every round runs each tree once, in its own process, best of 3 in the thread's CPU time, so
 both trees see the same machine state: this VM's speed drifts by tens of percent within
 minutes, so runs minutes apart are not comparable, interleaved runs are.  Prints best and
-median ns/event per tree.
+median ns/event per tree.  --param sets a tracker parameter for both trees, --param-new for
+NEW_TREE only (what a parameter costs: a tree without the option against one with it).
 
 --paired is finer: one process imports OLD_TREE's springtrack and loads NEW_TREE's kernel
 extension beside it, then times the two kernels on the same events alternately (pairs of
@@ -23,6 +25,7 @@ instruction counts").
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import statistics
 import subprocess
@@ -31,14 +34,15 @@ import tempfile
 from pathlib import Path
 
 RUN = r'''
-import sys, time
+import json, sys, time
 import numpy as np
 sys.path.insert(0, sys.argv[1])
 import springtrack
 ev = np.load(sys.argv[2])
+params = json.loads(sys.argv[5])
 best = float("inf")
 for _ in range(3):
-    tr = springtrack.Tracker(sys.argv[3], backend=sys.argv[4])
+    tr = springtrack.Tracker(sys.argv[3], params or None, backend=sys.argv[4])
     c0 = time.thread_time()
     tr.process(ev)
     best = min(best, time.thread_time() - c0)
@@ -46,9 +50,9 @@ print(best / len(ev) * 1e9)
 '''
 
 PAIRED = r'''
-import glob, importlib.util, statistics, sys, time
+import glob, importlib.util, json, statistics, sys, time
 import numpy as np
-old, new, path, preset, module, cls, pairs, events = sys.argv[1:9]
+old, new, path, preset, module, cls, pairs, events, pa, pb = sys.argv[1:11]
 sys.path.insert(0, old)
 import springtrack
 ka = importlib.import_module("springtrack." + module)
@@ -60,12 +64,13 @@ kb = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(kb)
 ev = np.ascontiguousarray(np.load(path)[:int(events)])
 model = springtrack.load_model(preset)
-params = springtrack.Tracker(model).params
+params = {ka: springtrack.Tracker(model, json.loads(pa) or None).params,
+          kb: springtrack.Tracker(model, json.loads(pb) or None).params}
 ta, tb = [], []
 for r in range(int(pairs)):
     order = ((ka, ta), (kb, tb)) if r % 2 == 0 else ((kb, tb), (ka, ta))
     for mod, out in order:
-        k = getattr(mod, cls)(model, params)
+        k = getattr(mod, cls)(model, params[mod])
         c0 = time.thread_time()
         k.run(ev, 0, 0, 0)
         out.append((time.thread_time() - c0) / len(ev) * 1e9)
@@ -93,7 +98,13 @@ def main():
     ap.add_argument("--pairs", type=int, default=30, help="pairs of runs with --paired")
     ap.add_argument("--pair-events", type=int, default=500_000,
                     help="events per run with --paired (the first of --events)")
+    ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                    help="a tracker parameter for both trees (repeatable)")
+    ap.add_argument("--param-new", action="append", default=[], metavar="NAME=VALUE",
+                    help="a tracker parameter for NEW_TREE only (repeatable)")
     args = ap.parse_args()
+    both = parse_params(args.param)
+    params = [both, {**both, **parse_params(args.param_new)}]      # OLD_TREE, NEW_TREE
     if args.paired and args.backend not in KERNEL_CLASSES:
         ap.error(f"--paired supports --backend {' or '.join(KERNEL_CLASSES)}")
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -115,12 +126,13 @@ def main():
         path = os.path.join(tmp, "events.npy")
         np.save(path, ev)
         if args.paired:
-            paired(args, path, env)
+            paired(args, path, env, params)
             return
         for r in range(args.rounds):
-            for tree in args.trees:
+            for tree, prm in zip(args.trees, params):
                 out = subprocess.run([sys.executable, "-c", RUN, tree, path, args.preset,
-                                      args.backend], capture_output=True, text=True, env=env)
+                                      args.backend, json.dumps(prm)],
+                                     capture_output=True, text=True, env=env)
                 if out.returncode != 0:
                     sys.exit(f"{tree}: {out.stderr.strip().splitlines()[-1]}")
                 times[tree].append(float(out.stdout))
@@ -130,10 +142,27 @@ def main():
               f"best {min(v):.1f} ns/event, median {statistics.median(v):.1f}")
 
 
-def paired(args, path, env):
+def parse_params(items) -> dict:
+    """NAME=VALUE strings -> {name: int, float or str value}."""
+    out = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep:
+            sys.exit(f"--param: expected NAME=VALUE, got {item!r}")
+        for conv in (int, float, str):
+            try:
+                out[name] = conv(value)
+                break
+            except ValueError:
+                pass
+    return out
+
+
+def paired(args, path, env, params):
     module, cls = KERNEL_CLASSES[args.backend]
     out = subprocess.run([sys.executable, "-c", PAIRED, *args.trees, path, args.preset, module,
-                          cls, str(args.pairs), str(args.pair_events)],
+                          cls, str(args.pairs), str(args.pair_events),
+                          *(json.dumps(p) for p in params)],
                          capture_output=True, text=True, env=env)
     if out.returncode != 0:
         sys.exit(f"paired run failed: {(out.stderr.strip().splitlines() or ['?'])[-1]}")

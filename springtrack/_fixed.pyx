@@ -44,6 +44,8 @@ cdef extern from "csrc/fixed_step.h" nogil:
         uint64_t sensitive_mask
         int64_t energy[3][FX_MAX_CONNECTIONS]
         int64_t mean_energy
+        int32_t frame_c, frame_s
+        int64_t frame_gx, frame_gy
         int32_t energy_stale
         uint64_t* cells
         int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates, n_reindex
@@ -254,6 +256,14 @@ cdef class FixedKernel:
     @property
     def mean_energy(self):
         return (<fx_state*>self.state).mean_energy * Q32_UNIT
+
+    def frame(self):
+        """The similarity frame of the last spring update: (c, sn, gx, gy) as floats, s R =
+        [[c, -sn], [sn, c]] (Q.28 in the state), (gx, gy) the image of the rest centre of
+        mass (Q.32)."""
+        cdef fx_state* s = <fx_state*>self.state
+        return (s.frame_c / 268435456.0, s.frame_s / 268435456.0, s.frame_gx * POS_UNIT,
+                s.frame_gy * POS_UNIT)
 
     @property
     def last_t(self):

@@ -35,6 +35,7 @@ ctypedef struct KState:
     double a1, a2, keep, cov_gain, gate, tau, act_thr, energy_scale, energy_gain
     double smin2, smax2
     int period, ekind, need_torsion
+    int pull_sim, car_sim            # eq. (22) / eqs. (18)-(20) in the similarity frame
     # tracker state, structure of arrays
     double mx[MAX_TRACKERS]
     double my[MAX_TRACKERS]
@@ -89,6 +90,9 @@ ctypedef struct KState:
     double qdy[MAX_CONNECTIONS]
     double energy[3][MAX_CONNECTIONS]
     double mean_energy
+    # the similarity frame of the last spring update (st_fit_frame): s R = [[sim_c, -sim_s],
+    # [sim_s, sim_c]] and sim_g, the image of the rest centre of mass
+    double sim_c, sim_s, sim_gx, sim_gy
     # spatial index: cells[cy * gw + cx] has bit i set if tracker i's gate box may cover
     # the cell; box_* is the (margin-enlarged) box each tracker is indexed with.
     uint64_t* cells

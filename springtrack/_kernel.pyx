@@ -38,6 +38,7 @@ from springtrack.events cimport Event
 from springtrack.events import EVENT_DTYPE
 from springtrack import limits as _limits
 from springtrack.reference import covariance_bias, RHO_MAX as _RHO_MAX
+from springtrack import reference as _ref
 
 from springtrack._samples cimport SampleOut, sample_buffers
 from springtrack.track cimport TrackRow
@@ -46,6 +47,8 @@ from springtrack._stepper cimport Stepper, run_array, st_sample_due
 cnp.import_array()
 
 assert _limits.MAX_TRACKERS == MAX_TRACKERS and _limits.MAX_CONNECTIONS == MAX_CONNECTIONS
+assert (_ref.FRAME_SCALE_MIN, _ref.FRAME_SCALE_MAX, _ref.FRAME_MIN_SPREAD) == (
+    ST_FRAME_SCALE_MIN, ST_FRAME_SCALE_MAX, ST_FRAME_MIN_SPREAD), "springs.h disagrees with reference.py"
 
 cdef double RHO_MAX = _RHO_MAX
 cdef double RHO_MAX2 = _RHO_MAX * _RHO_MAX * (1.0 - 1e-12)   # slightly low: never miss a clamp
@@ -84,8 +87,14 @@ cdef extern from "csrc/springs.h" nogil:
     double st_sum(int n, const double* x)
     void st_over_ends(int nc, const double* e, double thr, const uint64_t* ends,
                       uint64_t* pulled, uint64_t* calm)
-    void st_pull(int n, uint64_t pulled, double gx, double gy, double gain, const double* gdx0,
-                 const double* gdy0, double* mx, double* my)
+    void st_pull(int n, uint64_t pulled, double gx, double gy, double c, double sn, double gain,
+                 const double* gdx0, const double* gdy0, double* mx, double* my)
+    double ST_FRAME_SCALE_MIN, ST_FRAME_SCALE_MAX, ST_FRAME_MIN_SPREAD
+    void st_fit_frame(int n, uint64_t fit, const double* mass, const double* gdx0,
+                      const double* gdy0, const double* mx, const double* my, double rx,
+                      double ry, double* c, double* sn, double* gx, double* gy)
+    void st_turn_offsets(int n, double c, double sn, const double* dx0, const double* dy0,
+                         double* odx, double* ody)
     void st_torsion_angles(int n, const double* rx, const double* ry, const double* rdx,
                            const double* rdy, const double* dth_zero, double* th)
     int64_t st_torsion_angles_framed(int n, const double* rx, const double* ry,
@@ -316,7 +325,8 @@ cdef void ksprings(KState* s) noexcept nogil:
     # [ref] springs, in structure-of-arrays passes (csrc/springs.h, vectorised):
     #   1. gather r = end b - end a;  2. eq. (14) angles, in the frame of a recent mean
     #   angle (fast) or from the rest directions;  3. eq. (15) mean angle;  4. eqs.
-    #   (15)-(17) deviation, torsional energy and rotation;  5. eqs. (10)-(12), (16),
+    #   (15)-(17) deviation, torsional energy and rotation (0. before them all, in the
+    #   similarity frame: the Cartesian rest offsets turned and scaled);  5. eqs. (10)-(12), (16),
     #   (18)-(20) branch-free (a_euc/a_tor/a_car are 0 for kinds a connection lacks),
     #   displacements divided by each end's mass;  6. scatter onto the ends' means
     #   (scalar);  7. energy criteria (OR-reduced bit masks);  8. re-index the trackers
@@ -338,8 +348,16 @@ cdef void ksprings(KState* s) noexcept nogil:
     cdef double uay[MAX_CONNECTIONS]
     cdef double ubx[MAX_CONNECTIONS]
     cdef double uby[MAX_CONNECTIONS]
+    cdef double odx[MAX_CONNECTIONS]
+    cdef double ody[MAX_CONNECTIONS]
+    cdef const double* dx0 = s.dx0
+    cdef const double* dy0 = s.dy0
     cdef double mean_dth = 0.0
     s.n_spring_updates += 1
+    if s.car_sim:                      # 0. eq. (18): s R d0 in the last update's frame
+        st_turn_offsets(nc, s.sim_c, s.sim_s, s.dx0, s.dy0, odx, ody)
+        dx0 = odx
+        dy0 = ody
     for k in range(nc):                                              # 1. gather
         i = s.ca[k]
         j = s.cb[k]
@@ -359,7 +377,7 @@ cdef void ksprings(KState* s) noexcept nogil:
             s.energy[1][k] = 0.0
             sn[k] = 0.0
             cm1[k] = 0.0
-    st_spring_terms_batch(nc, rx, ry, sn, cm1, s.l0, s.half_a, s.dx0, s.dy0, s.c0, s.s0,  # 5.
+    st_spring_terms_batch(nc, rx, ry, sn, cm1, s.l0, s.half_a, dx0, dy0, s.c0, s.s0,  # 5.
                           s.a_euc, s.a_car, s.wa, s.wb, s.energy[0], s.energy[2],
                           uax, uay, ubx, uby)
     for k in range(nc):                                              # 6. scatter
@@ -399,13 +417,20 @@ cdef void energy_criteria(KState* s) noexcept nogil:
         return
     s.mean_energy = st_sum(nc, e) / nc                               # eq. (13)
     thr = s.energy_scale * s.mean_energy
-    for i in range(n):                                               # eq. (22): G
-        gx += s.mass[i] * s.mx[i]
-        gy += s.mass[i] * s.my[i]
-    gx = gx / msum
-    gy = gy / msum
     st_over_ends(nc, e, thr, s.ends, &pulled, &calm)
-    st_pull(n, pulled, gx, gy, s.energy_gain, s.gdx0, s.gdy0, s.mx, s.my)  # eq. (22)
+    if s.pull_sim or s.car_sim:          # [ref] fit_frame over the trackers left alone
+        st_fit_frame(n, ~pulled, s.mass, s.gdx0, s.gdy0, s.mx, s.my, s.sim_gx, s.sim_gy,
+                     &s.sim_c, &s.sim_s, &s.sim_gx, &s.sim_gy)
+    if s.pull_sim:                       # eq. (22) toward G + s R dG0, the fitted frame
+        st_pull(n, pulled, s.sim_gx, s.sim_gy, s.sim_c, s.sim_s, s.energy_gain, s.gdx0,
+                s.gdy0, s.mx, s.my)
+    else:
+        for i in range(n):                                           # eq. (22): G
+            gx += s.mass[i] * s.mx[i]
+            gy += s.mass[i] * s.my[i]
+        gx = gx / msum
+        gy = gy / msum
+        st_pull(n, pulled, gx, gy, 1.0, 0.0, s.energy_gain, s.gdx0, s.gdy0, s.mx, s.my)
     s.sensitive_mask = calm | s.isolated     # eq. (21): insensitive if all its connections are over
 
 
@@ -587,6 +612,11 @@ cdef class Kernel:
             s.sensitive_mask |= (<uint64_t>1) << i
             s.mass_sum += s.mass[i]           # [ref] msum, summed in the same order
         s.isolated = s.sensitive_mask         # less every tracker a connection links
+        s.sim_c = 1.0
+        s.sim_s = 0.0
+        if n:                                 # [ref] G0, the frame before the first fit
+            s.sim_gx = s.mx[0] - s.gdx0[0]
+            s.sim_gy = s.my[0] - s.gdy0[0]
         for k in range(nc):
             s.isolated &= ~s.ends[k]
         s.last_t = -(1 << 62)
@@ -626,6 +656,8 @@ cdef class Kernel:
         s.smax2 = params.sigma_max_px * params.sigma_max_px
         s.period = params.spring_period
         s.ekind = params.energy_kind_index
+        s.pull_sim = 1 if params.pull_similarity else 0
+        s.car_sim = 1 if params.cartesian_similarity else 0
         s.need_torsion = 1 if s.ekind == 1 else 0
         for k in range(s.nc):
             if s.kinds[k] & 2:
@@ -669,6 +701,12 @@ cdef class Kernel:
     @property
     def mean_energy(self):
         return self.st.mean_energy
+
+    def frame(self):
+        """The similarity frame of the last spring update (st_fit_frame): (c, sn, gx, gy)
+        with s R = [[c, -sn], [sn, c]] and (gx, gy) the image of the rest centre of mass;
+        (1, 0, G0) until a spring update fits one."""
+        return (self.st.sim_c, self.st.sim_s, self.st.sim_gx, self.st.sim_gy)
 
     @property
     def last_t(self):

@@ -32,7 +32,7 @@ ESCALE_FRAC = 14              # energy_scale Q17.14
 EXP2_BITS = 10                # exp2 table of 2^10 + 1 entries
 CORDIC_N = 30
 ATAN_BITS = 10                # atan table of 2^10 + 2 entries
-PARAMS_HEAD = 21              # fx_set_params: words before the two decay tables
+PARAMS_HEAD = 23              # fx_set_params: words before the two decay tables
 SIGMA_MAX_PX = 64.0           # covariance range of the fixed kernel: sigma <= 64 px
 MAX_SENSOR = 8192
 LOG2E = 1.0 / math.log(2.0)
@@ -161,6 +161,8 @@ def params_q(p, nc: int) -> dict:
         period=p.spring_period,
         ekind=p.energy_kind_index,
         tau_bits=struct.unpack("<II", struct.pack("<d", float(tau))),
+        pull_sim=1 if p.pull_similarity else 0,
+        car_sim=1 if p.cartesian_similarity else 0,
     )
 
 
@@ -181,7 +183,7 @@ def params_words(p, nc: int) -> np.ndarray:
     words = [pq["a1"], pq["cov_gm"], pq["cov_am"], pq["cov_sh"], pq["energy_gain"], pq["gate"],
              pq["k_tau"], *_w64(pq["dt_max"]), *_w64(pq["act_thr"]), pq["escale"],
              pq["escale_never"], *_w64(pq["smin2"]), *_w64(pq["smax2"]), pq["period"],
-             pq["ekind"], *pq["tau_bits"], *lo, *hi]
+             pq["ekind"], *pq["tau_bits"], pq["pull_sim"], pq["car_sim"], *lo, *hi]
     assert len(words) == PARAMS_HEAD + 2 * (1 << DECAY_BITS)
     return _int32_words(words)
 

@@ -1,8 +1,11 @@
 """Tracker parameters: names, units, defaults and valid ranges.
 
 Defaults reproduce the paper's face experiment (section IV-B): alpha1 = 0.2,
-alpha2 = 2e-4, delta_p = 0.1, s = 2.5, springs every 55 events, Euclidean energy.
-See docs/algorithm.md for how each parameter enters the equations.
+alpha2 = 2e-4, delta_p = 0.1, s = 2.5, springs every 55 events, Euclidean energy; eq. (22)
+and the Cartesian springs work in the structure's own (similarity) frame, which holds
+under turns and changes of scale (docs/tuning.md); pull_frame = cartesian_frame = "image"
+is the paper's exact rule.  See docs/algorithm.md for how each parameter enters the
+equations.
 """
 from __future__ import annotations
 
@@ -13,6 +16,10 @@ from typing import Mapping
 from .wire import Nack
 
 ENERGY_KINDS = ("euclidean", "torsional", "cartesian")
+# Frames of eq. (22)'s pull and of the Cartesian springs' rest offsets (eqs. 18-20):
+# "image" holds the rest offsets fixed in the image (the paper); "similarity" turns and
+# scales them with the similarity fitted to the trackers at each spring update.
+FRAMES = ("image", "similarity")
 
 
 @dataclass(frozen=True)
@@ -24,6 +31,7 @@ class ParamSpec:
     hi: float | None
     unit: str
     doc: str
+    choices: tuple[str, ...] = ()      # the allowed values of a str parameter
 
 
 SPECS: dict[str, ParamSpec] = {s.name: s for s in [
@@ -44,7 +52,13 @@ SPECS: dict[str, ParamSpec] = {s.name: s for s in [
     ParamSpec("spring_period", int, 55, 1, 1_000_000, "events",
               "springs and energy criteria are applied every this many events"),
     ParamSpec("energy_kind", str, "euclidean", None, None, "",
-              "energy feeding eqs. (21)-(22): euclidean | torsional | cartesian"),
+              "energy feeding eqs. (21)-(22): euclidean | torsional | cartesian", ENERGY_KINDS),
+    ParamSpec("pull_frame", str, "similarity", None, None, "",
+              "frame of eq. (22)'s rest offsets: similarity (fitted to the trackers at each "
+              "spring update) | image (the paper)", FRAMES),
+    ParamSpec("cartesian_frame", str, "similarity", None, None, "",
+              "frame of the Cartesian springs' rest offsets, eqs. (18)-(20): similarity | "
+              "image (the paper)", FRAMES),
     ParamSpec("sigma_min_px", float, 0.5, 0.05, 64.0, "px",
               "lower bound on a tracker's standard deviation along x and y"),
     ParamSpec("sigma_max_px", float, 64.0, 0.5, 1024.0, "px",
@@ -80,6 +94,8 @@ class Params:
     energy_gain: float = SPECS["energy_gain"].default
     spring_period: int = SPECS["spring_period"].default
     energy_kind: str = SPECS["energy_kind"].default
+    pull_frame: str = SPECS["pull_frame"].default
+    cartesian_frame: str = SPECS["cartesian_frame"].default
     sigma_min_px: float = SPECS["sigma_min_px"].default
     sigma_max_px: float = SPECS["sigma_max_px"].default
 
@@ -101,6 +117,16 @@ class Params:
         return ENERGY_KINDS.index(self.energy_kind)
 
     @property
+    def pull_similarity(self) -> bool:
+        """eq. (22) pulls toward the fitted similarity's rest positions."""
+        return self.pull_frame == "similarity"
+
+    @property
+    def cartesian_similarity(self) -> bool:
+        """eqs. (18)-(20) use the rest offsets turned and scaled by the fitted similarity."""
+        return self.cartesian_frame == "similarity"
+
+    @property
     def gate_d2(self) -> float:
         """Mahalanobis gate: exp(-d2/2) > p_threshold  <=>  d2 < -2 ln(p_threshold)."""
         return -2.0 * math.log(self.p_threshold)
@@ -113,9 +139,9 @@ def check(name: str, value, where: str = "") -> object:
     if spec is None:
         raise UnknownParamError(f"{ctx}unknown parameter {name!r}; known: {', '.join(SPECS)}")
     if spec.kind is str:
-        if not isinstance(value, str) or value not in ENERGY_KINDS:
+        if not isinstance(value, str) or value not in spec.choices:
             err = ParamError if isinstance(value, str) else ParamTypeError
-            raise err(f"{ctx}{name} must be one of {', '.join(ENERGY_KINDS)}, got {value!r}")
+            raise err(f"{ctx}{name} must be one of {', '.join(spec.choices)}, got {value!r}")
         return value
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ParamTypeError(f"{ctx}{name} must be a number, got {type(value).__name__} {value!r}")

@@ -24,6 +24,12 @@ Interpretation choices (docs/algorithm.md explains them):
 * eqs. (21)-(22) use strict ``E > s * mean(E)`` so a model at rest (all E = 0) is
   neither pulled nor insensitive; a tracker is pulled by eq. (22) at most once per
   spring update, however many of its connections exceed the threshold.
+* ``pull_frame`` / ``cartesian_frame`` = "similarity": once per spring update, after the
+  spring step, the similarity (scale s, rotation R, translation) that best maps the rest
+  shape onto the trackers is fitted (mass-weighted Procrustes, ``fit_frame``) over the
+  trackers no over-threshold connection touches; eq. (22) then pulls toward
+  ``G + s R dG0``, and the Cartesian springs of the next update hold the rest offset
+  ``s R d0``.
 """
 from __future__ import annotations
 
@@ -38,6 +44,14 @@ from .sampling import UNSET, first_sample_time, sample_due
 EUCLIDEAN, TORSIONAL, CARTESIAN = SPRING_BIT["euclidean"], SPRING_BIT["torsional"], SPRING_BIT["cartesian"]
 RHO_MAX = 0.99           # |correlation| bound that keeps a covariance positive definite
 TWO_PI = 2.0 * math.pi
+# The similarity frame (fit_frame): its scale is held to [FRAME_SCALE_MIN, FRAME_SCALE_MAX]
+# (a structure collapsed onto a point or blown apart has lost its object: the frame then
+# keeps a plausible size instead of following it), and a fit set whose rest shape spreads
+# less than FRAME_MIN_SPREAD px^2 (mass-weighted mean square about its centroid, 2^-20:
+# about 1e-3 px RMS) cannot tell a rotation, so the frame is the identity there.
+FRAME_SCALE_MIN = 0.25
+FRAME_SCALE_MAX = 4.0
+FRAME_MIN_SPREAD = 2.0 ** -20
 
 # Result codes of step(): >= 0 is the index of the tracker that took the event.
 NO_TRACKER = -1          # valid event, no sensitive tracker within its gate
@@ -109,6 +123,11 @@ class ReferenceTracker:
         self.dy0 = [float(v) for v in arr["dy0"]]
         self.energy = [[0.0] * self.nc for _ in ENERGY_KINDS]   # [kind][connection]
         self.mean_energy = 0.0
+        # the similarity frame of the last spring update (fit_frame): s R = [[fc, -fs],
+        # [fs, fc]], and (fgx, fgy) where it maps the rest centre of mass G0
+        self.fc, self.fs = 1.0, 0.0
+        self.fgx = float(arr["x"][0] - arr["gdx0"][0]) if self.n else 0.0    # G0 at rest
+        self.fgy = float(arr["y"][0] - arr["gdy0"][0]) if self.n else 0.0
         self.degree = [0] * self.n
         for k in range(self.nc):
             self.degree[self.ca[k]] += 1
@@ -135,6 +154,8 @@ class ReferenceTracker:
         self.smin2 = p.sigma_min_px * p.sigma_min_px
         self.smax2 = p.sigma_max_px * p.sigma_max_px
         self.ekind = p.energy_kind_index
+        self.pull_sim = p.pull_similarity
+        self.car_sim = p.cartesian_similarity
         self.need_torsion = self.nc > 0 and (self.ekind == 1 or any(k & TORSIONAL for k in self.kinds))
         for i in range(self.n):          # new sigma bounds apply at once
             self._clamp_and_invert(i)
@@ -204,6 +225,67 @@ class ReferenceTracker:
         self.ic[i] = sxx * inv_det
 
     # ---- springs and energy criteria (every spring_period events) ------------
+    def fit_frame(self, calm: list) -> None:
+        """The similarity x -> G + s R (x - G0) that best maps the rest shape onto the
+        current means, in the mass-weighted least-squares sense (Procrustes, closed form).
+
+        Fit set F: the trackers ``calm`` marks -- at a spring update, those no connection
+        over the energy threshold touches (eqs. 21-22 leave them alone), so that trackers
+        an occluder drags do not drag the frame.  With fewer than 2 trackers in F the fit
+        uses all trackers.  With rest offsets p_i = dG0_i - pbar and current offsets
+        q_i = mu_i - qbar about F's weighted centroids pbar (rest, relative to G0) and
+        qbar (current):
+            a = sum m p.q,  b = sum m p x q,  D = sum m |p|^2,  s R = [[a, -b], [b, a]] / D
+        and G = qbar - s R pbar, the image of the rest centre of mass G0.  D below
+        FRAME_MIN_SPREAD times sum m (all of F's rest points together) gives s R = I; the
+        scale sqrt(a^2 + b^2) / D is held to [FRAME_SCALE_MIN, FRAME_SCALE_MAX]."""
+        n, mass, mx, my = self.n, self.mass, self.mx, self.my
+        fit = [i for i in range(n) if calm[i]]
+        if len(fit) < 2:
+            fit = range(n)
+        w = px = py = qx = qy = 0.0
+        for i in fit:                                                # weighted centroids
+            m = mass[i]
+            w += m
+            px += m * self.gdx0[i]
+            py += m * self.gdy0[i]
+            qx += m * mx[i]
+            qy += m * my[i]
+        px = px / w
+        py = py / w
+        qx = qx / w
+        qy = qy / w
+        a = b = d = 0.0
+        for i in fit:
+            m = mass[i]
+            ux = self.gdx0[i] - px                                   # rest offset p_i
+            uy = self.gdy0[i] - py
+            vx = mx[i] - qx                                          # current offset q_i
+            vy = my[i] - qy
+            a += m * (ux * vx + uy * vy)                             # a = sum m p.q
+            b += m * (ux * vy - uy * vx)                             # b = sum m p x q
+            d += m * (ux * ux + uy * uy)                             # D = sum m |p|^2
+        if d <= FRAME_MIN_SPREAD * w:
+            c, sn = 1.0, 0.0
+        else:
+            c = a / d                                                # s R = [[a, -b],
+            sn = b / d                                               #        [b, a]] / D
+            k2 = c * c + sn * sn                                     # s^2
+            if k2 > FRAME_SCALE_MAX * FRAME_SCALE_MAX:
+                f = FRAME_SCALE_MAX / math.sqrt(k2)
+                c = c * f
+                sn = sn * f
+            elif k2 < FRAME_SCALE_MIN * FRAME_SCALE_MIN:
+                if k2 > 0.0:
+                    f = FRAME_SCALE_MIN / math.sqrt(k2)
+                    c = c * f
+                    sn = sn * f
+                else:                                                # no rotation to keep
+                    c, sn = FRAME_SCALE_MIN, 0.0
+        self.fc, self.fs = c, sn
+        self.fgx = qx - (c * px - sn * py)                           # G = qbar - s R pbar
+        self.fgy = qy - (sn * px + c * py)
+
     def springs(self) -> None:
         n, nc = self.n, self.nc
         self.n_spring_updates += 1
@@ -228,8 +310,12 @@ class ReferenceTracker:
             l = math.sqrt(rx * rx + ry * ry)
             dl = l - self.l0[k]                                      # eq. (10)
             e_euc[k] = 0.5 * a * (dl * dl)                           # eq. (12)
-            ex = rx - self.dx0[k]                                    # eq. (18)
-            ey = ry - self.dy0[k]
+            if self.car_sim:                     # eq. (18), rest offset s R d0 in the frame
+                ex = rx - (self.fc * self.dx0[k] - self.fs * self.dy0[k])   # of the last update
+                ey = ry - (self.fs * self.dx0[k] + self.fc * self.dy0[k])
+            else:                                                    # eq. (18)
+                ex = rx - self.dx0[k]
+                ey = ry - self.dy0[k]
             e_car[k] = 0.5 * a * (ex * ex + ey * ey)                 # eq. (20)
             kind = self.kinds[k]
             if kind & EUCLIDEAN:                                     # eq. (11)
@@ -286,25 +372,46 @@ class ReferenceTracker:
             if e[k] > thr:
                 over_count[self.ca[k]] += 1
                 over_count[self.cb[k]] += 1
-        # eq. (22): pull both ends of an over-threshold connection toward G + dG0
-        msum = 0.0
-        gx = 0.0
-        gy = 0.0
-        for i in range(n):
-            msum += self.mass[i]
-            gx += self.mass[i] * self.mx[i]
-            gy += self.mass[i] * self.my[i]
-        gx = gx / msum
-        gy = gy / msum
         a_en = self.params.energy_gain
+        if self.pull_sim or self.car_sim:
+            # the frame, fitted to the trackers this update leaves alone; the Cartesian
+            # springs use it at the next update (this one's energies decided who is calm)
+            self.fit_frame([c == 0 for c in over_count])
+        if self.pull_sim:
+            # eq. (22) in the fitted frame: pull toward G + s R dG0 (fit_frame)
+            for i in range(n):
+                if over_count[i] > 0:
+                    tx = self.fgx + (self.fc * self.gdx0[i] - self.fs * self.gdy0[i])
+                    ty = self.fgy + (self.fs * self.gdx0[i] + self.fc * self.gdy0[i])
+                    self.mx[i] = self.mx[i] + a_en * (tx - self.mx[i])
+                    self.my[i] = self.my[i] + a_en * (ty - self.my[i])
+        else:
+            # eq. (22): pull both ends of an over-threshold connection toward G + dG0, G the
+            # centre of mass after the spring step
+            msum = 0.0
+            gx = 0.0
+            gy = 0.0
+            for i in range(n):
+                msum += self.mass[i]
+                gx += self.mass[i] * self.mx[i]
+                gy += self.mass[i] * self.my[i]
+            gx = gx / msum
+            gy = gy / msum
+            for i in range(n):
+                if over_count[i] > 0:
+                    self.mx[i] = self.mx[i] + a_en * (gx + self.gdx0[i] - self.mx[i])
+                    self.my[i] = self.my[i] + a_en * (gy + self.gdy0[i] - self.my[i])
         for i in range(n):
-            if over_count[i] > 0:
-                self.mx[i] = self.mx[i] + a_en * (gx + self.gdx0[i] - self.mx[i])
-                self.my[i] = self.my[i] + a_en * (gy + self.gdy0[i] - self.my[i])
             # eq. (21): insensitive while every connection of the tracker is over
             self.sensitive[i] = not (self.degree[i] > 0 and over_count[i] == self.degree[i])
 
     # ---- observation -----------------------------------------------------------
+    def frame(self) -> tuple:
+        """The similarity frame of the last spring update (fit_frame): (c, sn, gx, gy) with
+        s R = [[c, -sn], [sn, c]] and (gx, gy) the image of the rest centre of mass;
+        (1, 0, G0) until a spring update fits one."""
+        return (self.fc, self.fs, self.fgx, self.fgy)
+
     def activity_at(self, i: int, t: int) -> float:
         """eq. (6) evaluated lazily at time t (no event)."""
         return self.act[i] * math.exp(-(t - self.tlast[i]) / self.tau)

@@ -16,7 +16,8 @@ Backends (same results, different speed):
                   ``[mcu]`` extra).
 
 Each backend object offers ``run(events, sample_us, next_t, cap)``, ``set_params``,
-``snapshot(t)``, ``energies()``, ``mean_energy``, ``last_t`` and ``counters()``.
+``snapshot(t)``, ``energies()``, ``mean_energy``, ``frame()``, ``last_t`` and
+``counters()``.
 """
 from __future__ import annotations
 
@@ -88,6 +89,9 @@ class ReferenceBackend:
     @property
     def mean_energy(self):
         return self.ref.mean_energy
+
+    def frame(self):
+        return self.ref.frame()
 
     @property
     def last_t(self):
@@ -295,6 +299,15 @@ class Tracker:
         e = self._b.energies()
         return {"euclidean": e[0], "torsional": e[1], "cartesian": e[2],
                 "mean": float(self._b.mean_energy), "kind": self.params.energy_kind}
+
+    def frame(self) -> dict:
+        """The similarity frame of the last spring update (``pull_frame`` or
+        ``cartesian_frame`` = "similarity", docs/algorithm.md): ``scale`` s, ``angle`` of R
+        (rad), and ``gx``, ``gy``, where the rest centre of mass G0 maps to (px); scale 1,
+        angle 0 and G0 until a spring update fits one, or in the image frame."""
+        c, sn, gx, gy = (float(v) for v in self._b.frame())
+        return {"scale": float(np.hypot(c, sn)), "angle": float(np.arctan2(sn, c)),
+                "gx": gx, "gy": gy}
 
     @property
     def counters(self) -> dict:

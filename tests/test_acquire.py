@@ -256,15 +256,25 @@ def test_track_acquire_model_placed_off_reaches_the_error_placed_by_hand(tmp_pat
     off = tmp_path / "off.toml"                       # 20 deg, 15 %, 30 px off
     place(m, Pose(g.tx + 24.0, g.ty + 18.0, 20.0, 1.15)).save(off)
     errors = {}
-    for name, model, extra in (("hand", good, []), ("off", off, []),
-                               ("acquire", off, ["--acquire"])):
-        out = tmp_path / f"{name}.csv"
-        stdout = _run("track", ev, "--model", model, "--out", out, *extra)
-        if extra:
-            assert "acquisition: found" in stdout
-        errors[name] = score_track(read_truth_csv(truth), _read(out)).mean_pct
-    assert errors["off"] > 2 * errors["hand"]         # placed off, it does not recover
-    assert errors["acquire"] <= 1.25 * errors["hand"], errors
+    for frame in ("image", "similarity"):
+        prm = tmp_path / f"{frame}.toml"
+        prm.write_text(f'pull_frame = "{frame}"\ncartesian_frame = "{frame}"\n')
+        for name, model, extra in (("hand", good, []), ("off", off, []),
+                                   ("acquire", off, ["--acquire"])):
+            out = tmp_path / f"{name}.csv"
+            stdout = _run("track", ev, "--model", model, "--out", out, "--params", prm, *extra)
+            if extra:
+                assert "acquisition: found" in stdout
+            errors[frame, name] = score_track(read_truth_csv(truth), _read(out)).mean_pct
+    # the paper's frame: placed off, it does not recover; acquired, as placed by hand
+    assert errors["image", "off"] > 2 * errors["image", "hand"], errors
+    assert errors["image", "acquire"] <= 1.25 * errors["image", "hand"], errors
+    # the structure's own frame (the default) recovers more of a placement 20 deg, 15 % off
+    # by itself and tracks the face better by hand (3 s of face_occlusion: 1.28 % against
+    # 2.46 %); an acquired start settles to that more slowly (2.22 % over these 3 s, 1.53
+    # against 1.41 % at 5-8 s), still within the image frame's hand-placed error
+    assert errors["similarity", "acquire"] <= 1.25 * errors["image", "hand"], errors
+    assert errors["similarity", "off"] > errors["similarity", "hand"], errors
 
 
 def _read(path):

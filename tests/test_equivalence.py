@@ -8,7 +8,7 @@ import probes
 import springtrack
 from springtrack.events import make
 from springtrack.model import SPRING_KINDS, Connection, ShapeModel, TrackerSpec, face26, grid3x3
-from springtrack.params import ENERGY_KINDS
+from springtrack.params import ENERGY_KINDS, FRAMES
 from springtrack.synthetic import blob_stream
 
 FIELDS = ("x", "y", "sxx", "sxy", "syy", "activity")
@@ -34,6 +34,9 @@ def assert_same(model, params, events, sample_us=1000):
     ca, cb = a.counters, b.counters
     for k in cb:
         assert ca[k] == cb[k], k
+    fa, fb = a.frame(), b.frame()         # the similarity frame of the last spring update
+    for k in fb:
+        np.testing.assert_allclose(fa[k], fb[k], rtol=0, atol=1e-9, err_msg=k)
     return a
 
 
@@ -97,7 +100,9 @@ def params(draw):
                 energy_scale=draw(st.floats(0.5, 10.0)),
                 energy_gain=draw(st.floats(0.0, 0.5)),
                 spring_period=draw(st.integers(1, 60)),
-                energy_kind=draw(st.sampled_from(ENERGY_KINDS)))
+                energy_kind=draw(st.sampled_from(ENERGY_KINDS)),
+                pull_frame=draw(st.sampled_from(FRAMES)),
+                cartesian_frame=draw(st.sampled_from(FRAMES)))
 
 
 # Criterion energies (eqs. 12, 17, 20) this small are rounding residue of a model at rest:
@@ -162,15 +167,23 @@ def test_kernel_equals_reference_on_random_models(model, prm, seed):
         raise
 
 
+@pytest.mark.parametrize("frame", FRAMES)
 @pytest.mark.parametrize("preset,motion", [("grid3x3", dict(speed_px_s=(15, 8), rot_deg_s=10)),
                                            ("face26", dict(speed_px_s=(10, -5), rot_deg_s=-8,
                                                            wobble_px=4))])
-def test_kernel_equals_reference_on_100k_structured_events(preset, motion):
+def test_kernel_equals_reference_on_100k_structured_events(preset, motion, frame):
     m = springtrack.load_model(preset)
     ev, _ = blob_stream(m, 110_000, noise=0.3, seed=7, **motion)
-    a = assert_same(m, None, ev)
+    prm = dict(pull_frame=frame, cartesian_frame=frame, energy_scale=3.0)
+    a = assert_same(m, prm, ev)
     assert a.counters["events_valid"] >= 100_000
     assert a.counters["events_assigned"] > 0.5 * len(ev)
+    if frame == "similarity":       # the frame turned with the scene and changed the result
+        assert abs(a.frame()["angle"]) > 0.02
+        img = springtrack.Tracker(m, dict(prm, **dict.fromkeys(("pull_frame", "cartesian_frame"),
+                                                               "image")))
+        img.run(ev, 1000)
+        assert np.abs(img.state()["x"] - a.state()["x"]).max() > 1e-3
 
 
 def test_chunked_processing_equals_whole():

@@ -39,6 +39,18 @@ def test_plan_covers_every_experiment():
     assert len(by["table1"]) == len(by["fig16"]) == 2 * len(plan.alphas) * len(plan.table_s)
     assert {c["model"]["springs"] for c in by["table1"]} == {("cartesian",), ("euclidean", "torsional")}
     assert len(by["face"]) == len(plan.face_s) * len(plan.face_seeds)
+    # the frames' comparison: the sweeps of Figs. 14-16 once more in the other frame, and
+    # every scene in both
+    extra = cs
+    other = [e for e in ("image", "similarity") if e != xp.default_frame()]
+    for e in ("fig14", "table1", "fig16"):
+        again = [c for c in extra if c["exp"] == f"{e}@{other[0]}"]
+        assert len(again) == len(by[e]) and all(c["params"]["pull_frame"] == other[0]
+                                                for c in again)
+    scenes = [c for c in extra if c["exp"] == "scenes"]
+    assert {c["scene"] for c in scenes} >= {"grid_rot_y", "grid_pull", "grid_inplane",
+                                            "grid_spin", "grid_scale", "face_occlusion"}
+    assert {c["frame"] for c in scenes} == {"image", "similarity"}
 
 
 def test_tiny_plan_end_to_end_with_dask(tmp_path):
@@ -57,8 +69,13 @@ def test_tiny_plan_end_to_end_with_dask(tmp_path):
     out = report.write_report(results, plan, tmp_path, quick=True, elapsed=1.0, where="test")
     text = out.read_text()
     for title in ("Fig. 11b", "Fig. 13", "Fig. 14", "Table I", "Fig. 16", "Figs. 20-21",
-                  "Fig. 24", "size of the hand"):
+                  "Fig. 24", "size of the hand", "Fig. 14 in both frames",
+                  "Table I / Fig. 15 in both frames", "Fig. 16 in both frames",
+                  "Every scene with the paper's per-experiment values"):
         assert title in text
+    for scene in ("grid_spin", "grid_scale", "face_occlusion"):
+        assert f"| {scene} |" in text
     for png in ("fig11b_max_angle", "fig13_pulled_element", "fig14_error_vs_s", "fig15_min_error", "fig16_inplane",
-                "fig20_face_error", "fig21_face_energy", "fig24_spring_period"):
+                "fig20_face_error", "fig21_face_energy", "fig24_spring_period", "fig14_frames",
+                "fig15_frames", "fig16_frames"):
         assert (tmp_path / "img" / f"{png}.png").stat().st_size > 1000

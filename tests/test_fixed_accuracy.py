@@ -10,10 +10,13 @@ pytest.importorskip("springtrack._fixed")
 N_EVENTS = 150_000
 
 
+@pytest.mark.parametrize("frame", ["image", "similarity"])
 @pytest.mark.parametrize("preset", ["grid3x3", "face26"])
-def test_fixed_within_bound_of_float(preset):
+def test_fixed_within_bound_of_float(preset, frame):
+    """In both frames of eq. (22) and the Cartesian springs (s = 3: the pull acts)."""
     model, ev = scene_stream(preset, N_EVENTS, seed=7)
-    res = compare(model, ev, sample_us=1000)
+    res = compare(model, ev, sample_us=1000,
+                  params=dict(pull_frame=frame, cartesian_frame=frame, energy_scale=3.0))
     t = res["samples"]
     assert t > 400
     assert not violations(res), (preset, violations(res))

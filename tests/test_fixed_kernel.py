@@ -315,14 +315,17 @@ def test_chunked_equals_whole_and_set_params():
     assert b.energies()["euclidean"].shape == (40,)
 
 
+@pytest.mark.parametrize("frame", ["image", "similarity"])
 @pytest.mark.parametrize("preset", ["face26", "grid3x3"])
-def test_energies_computed_when_read(preset):
+def test_energies_computed_when_read(preset, frame):
     """A spring update computes only the criterion's energy kind; the others are computed
-    from the spring vectors it kept when they are read.  Recomputing every kind from those
-    vectors gives the same integers (the criterion's too), and they follow the float kernel."""
+    from the spring vectors it kept when they are read (the Cartesian ones with the rest
+    offsets of that update's frame).  Recomputing every kind from those vectors gives the
+    same integers (the criterion's too), and they follow the float kernel."""
     ev = stream(preset, 30_000)
-    f = Tracker(preset, backend="fixed")
-    c = Tracker(preset, backend="cython")
+    prm = dict(pull_frame=frame, cartesian_frame=frame)
+    f = Tracker(preset, prm, backend="fixed")
+    c = Tracker(preset, prm, backend="cython")
     f.process(ev)
     c.process(ev)
     first = f._b.energies()

@@ -43,8 +43,14 @@ def test_cli_info_set_get_stats(served, capsys):
     served.engine.step()
     rc, out, _ = run(capsys, "--port", p, "get", "alpha_position", "spring_period")
     assert rc == 0 and out.splitlines() == ["alpha_position=0.05", "spring_period=40"]
+    rc, out, _ = run(capsys, "--port", p, "set", "pull_frame=image")   # a string value
+    assert rc == 0 and "pull_frame='image': generation 4" in out
+    served.engine.step()
+    rc, out, _ = run(capsys, "--port", p, "get", "pull_frame", "cartesian_frame")
+    assert rc == 0 and out.splitlines() == ["pull_frame='image'", "cartesian_frame='similarity'"]
+    assert not served.engine.tracker.params.pull_similarity
     rc, out, _ = run(capsys, "--port", p, "stats")
-    assert rc == 0 and "updates_applied: 1" in out and "host.lost: 0" in out
+    assert rc == 0 and "updates_applied: 2" in out and "host.lost: 0" in out
     rc, out, _ = run(capsys, "--port", p, "ping", "-n", "3")
     assert rc == 0 and "3 pings" in out
 
@@ -63,6 +69,8 @@ def test_cli_errors_exit_nonzero_with_reason(served, capsys):
     assert rc == 6 and "PARAM_SET refused (out_of_range)" in err and "alpha_position=7" in err
     rc, _, err = run(capsys, "--port", served.path, "set", "alpha_position")
     assert rc == 1 and "expected NAME=VALUE" in err
+    rc, _, err = run(capsys, "--port", served.path, "set", "cartesian_frame=rotated")
+    assert rc == 6 and "PARAM_SET refused" in err and "cartesian_frame" in err
     rc, _, err = run(capsys, "--port", "/dev/nonexistent-port", "info")
     assert rc == 3 and "/dev/nonexistent-port: cannot open port" in err
     silent = transport.PtyPort()

@@ -106,6 +106,11 @@ def test_hil_model_upload_and_param_change_seen_at_reported_time(realtime_fw):
         assert all(s.generation == g for s in snaps if s.t_us > tg)
         assert all(s.t_us <= tg for s in snaps if s.generation < g)
         assert dev.get("energy_scale") == {"energy_scale": 3.25}
+        g = dev.set(pull_frame="image", cartesian_frame="image")   # string values
+        collect_until(dev, lambda s: g in dev.applied and any(x.t_us > dev.applied[g]
+                                                              for x in s))
+        assert dev.get("pull_frame", "cartesian_frame") == {"pull_frame": "image",
+                                                            "cartesian_frame": "image"}
         assert dev.link_counters()["crc_errors"] == 0
 
 

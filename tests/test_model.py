@@ -119,6 +119,8 @@ def test_kernel_capacity_matches_limits():
     ({"spring_period": 0}, "spring_period=0 out of range"),
     ({"spring_period": 5.5}, "whole number"),
     ({"energy_kind": "total"}, "energy_kind must be one of"),
+    ({"pull_frame": "rotated"}, "pull_frame must be one of image, similarity"),
+    ({"cartesian_frame": 1}, "cartesian_frame must be one of"),
     ({"alpha_covariance": "big"}, "must be a number"),
     ({"activity_tau_us": math.inf}, "must be finite"),
     ({"sigma_min_px": 10.0, "sigma_max_px": 5.0}, "must be below"),

@@ -11,13 +11,14 @@ from springtrack.metrics import read_truth_csv
 from springtrack.model import face26, grid3x3
 
 PAPER_SCENES = ["grid_rot_y", "grid_pull", "grid_inplane", "face_occlusion"]
+FRAME_SCENES = ["grid_spin", "grid_scale"]          # beyond the paper: the similarity frame
 
 
 def test_registry_has_the_paper_scenes():
-    assert set(PAPER_SCENES) <= set(SCENES)
+    assert set(PAPER_SCENES + FRAME_SCENES) <= set(SCENES)
 
 
-@pytest.mark.parametrize("name", PAPER_SCENES)
+@pytest.mark.parametrize("name", PAPER_SCENES + FRAME_SCENES)
 def test_parts_and_initial_model_match_the_preset(name):
     sc = make_scene(name)
     preset = grid3x3() if sc.preset == "grid3x3" else face26()
@@ -31,7 +32,7 @@ def test_parts_and_initial_model_match_the_preset(name):
     assert np.allclose(blobs[:, 2:5], [t.sigma for t in m.trackers], rtol=1e-9, atol=1e-9)
 
 
-@pytest.mark.parametrize("name", PAPER_SCENES)
+@pytest.mark.parametrize("name", PAPER_SCENES + FRAME_SCENES)
 def test_short_run_events_are_valid(name):
     ev, tr = simulate_all(name, 0.1, seed=2)
     assert len(ev) > 1000
@@ -71,6 +72,32 @@ def test_grid_inplane_rotates_within_45_degrees():
         angles.append(math.degrees(math.atan2(d[1], d[0])))
         assert np.hypot(*d) == pytest.approx(100.0)        # rigid in the image plane
     assert max(angles) == pytest.approx(45.0, abs=0.5) and min(angles) == pytest.approx(-45.0, abs=0.5)
+
+
+def test_grid_spin_rotates_within_90_degrees():
+    sc = make_scene("grid_spin")
+    angles = []
+    for t in np.arange(0, 25, 0.25):
+        d = sc.truth(t)[2] - sc.truth(t)[0]                # r0c0 -> r0c2
+        angles.append(math.degrees(math.atan2(d[1], d[0])))
+        assert np.hypot(*d) == pytest.approx(100.0)
+    assert max(angles) == pytest.approx(90.0, abs=0.5) and min(angles) == pytest.approx(-90.0, abs=0.5)
+    assert sc.truth(6.0)[2, 1] - sc.truth(6.0)[0, 1] == pytest.approx(100.0)   # 90 deg at 6 s
+
+
+def test_grid_scale_scales_by_30_percent_rigidly():
+    sc = make_scene("grid_scale")
+    sides = []
+    for t in np.arange(0, 25, 0.25):
+        xy = sc.truth(t)
+        d = xy[2] - xy[0]
+        assert d[1] == pytest.approx(0.0, abs=1e-9)        # no turn
+        assert xy[8] - xy[6] == pytest.approx(d)           # no perspective: a similarity
+        sides.append(d[0])
+        blobs = sc.frame(t).blobs                          # blobs scale with the grid
+        assert blobs[0, 2] == pytest.approx((sc.sigma * d[0] / 100.0) ** 2)
+    assert max(sides) == pytest.approx(130.0, abs=0.5) and min(sides) == pytest.approx(70.0, abs=0.5)
+    assert sides[0] == pytest.approx(100.0)
 
 
 def test_face_hand_passes_three_times_in_20_s_and_crosses_the_face():

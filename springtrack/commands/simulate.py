@@ -18,6 +18,8 @@ scenes (springtrack/sim/scenes.py; paper section IV):
   grid_pull       rotations about x and y, motion, disturbances, one element pulled away
                   and returned every 10 s; its truth is the unpulled position (Figs. 12-14)
   grid_inplane    in-plane rotation +-45 deg while translating (Fig. 16)
+  grid_spin       in-plane rotation +-90 deg while translating
+  grid_scale      the grid scaling 0.7 to 1.3 times while translating
   face_occlusion  face26 parts moving, scaling, rolling; a hand passes 3 times (Figs. 17-21)
   moving_blob     one blob moving right (sensor tests)
 truth CSV: t_us,part,x,y every 1 ms; part = the tracker ids of the matching preset

@@ -940,12 +940,19 @@ static inline int32_t clamp_offset(int64_t v)
     return (int32_t)(v >= OFFSET_LIM ? OFFSET_LIM - 1 : (v <= -OFFSET_LIM ? -OFFSET_LIM + 1 : v));
 }
 
+static inline void frame_offset(const fx_state *s, int k, int64_t *ox, int64_t *oy);
+
 /* the offsets of eq. (18) of connection k, each clamped to +-16384 px; returns how many
-   were */
+   were.  The rest offset is (dx0, dy0), or s R (dx0, dy0) (frame_offset) if the spring
+   update computing the energies used the similarity frame. */
 static inline int offsets(const fx_state *s, int k, int32_t rx, int32_t ry, int32_t *ex,
                           int32_t *ey)
 {
-    int64_t x = (int64_t)rx - s->dx0[k], y = (int64_t)ry - s->dy0[k];   /* |.| < 2^31 */
+    int64_t ox = s->dx0[k], oy = s->dy0[k], x, y;
+    if (s->car_turned)
+        frame_offset(s, k, &ox, &oy);
+    x = (int64_t)rx - ox;                                 /* |.| < 2^34 */
+    y = (int64_t)ry - oy;
     *ex = clamp_offset(x);
     *ey = clamp_offset(y);
     return (x >= OFFSET_LIM || x <= -OFFSET_LIM) + (y >= OFFSET_LIM || y <= -OFFSET_LIM);
@@ -1203,6 +1210,155 @@ static int64_t centre(const fx_state *s, const int64_t *x, uint32_t msum)
     return x[0] + shl64(q, 16) + div_round(shl64(r, 16) + lo, msum);
 }
 
+/* ---- the similarity frame (pull_frame, cartesian_frame = "similarity") --------------
+   [ref] fit_frame.  Every product is a 32 x 32 -> 64-bit one (smul), every division an
+   int64 by a divisor below 2^31 (div_round).  Formats: the means' offsets from the last
+   frame's G and the rest offsets in 29 bits with one shift for the whole fit (Q.(32 -
+   sh): Q.23 for a structure within +-128 px), their centroids and the offsets about those
+   in the same Q, the fit's sums in that Q doubled less 8, masses in units of the largest;
+   s R = [[c, -sn], [sn, c]] Q.28 (|c|, |sn| <= 4 < 8); G Q.32. */
+#define FRAME_ONE ((int32_t)1 << 28)                  /* 1.0 in Q.28 */
+#define FRAME_SCALE_MIN_Q ((int32_t)1 << 26)          /* [ref] FRAME_SCALE_MIN = 1/4, Q.28 */
+#define FRAME_SCALE_MAX_Q ((int32_t)1 << 30)          /* [ref] FRAME_SCALE_MAX = 4, Q.28 */
+#define FRAME_SPREAD_SHIFT 20                         /* [ref] FRAME_MIN_SPREAD = 2^-20 */
+
+/* c v for c in Q.28 and v in Q.32, |v| < 2^46: v = hi 2^16 + lo, two 32 x 32 products,
+   rounded to Q.32 (within 1 unit) */
+static inline int64_t frame_scale(int32_t c, int64_t v)
+{
+    return rshr(smul(c, (int32_t)(v >> 16)), 12) + rshr(smul(c, (int32_t)(v & 0xffff)), 28);
+}
+
+/* (x, y) scaled to the length len (Q.28): x len / |(x, y)|, |x|, |y| < 2^30, not both 0 */
+static inline void frame_to_length(int32_t x, int32_t y, int32_t len, int32_t *c, int32_t *sn)
+{
+    uint32_t r = (uint32_t)isqrt64((uint64_t)(smul(x, x) + smul(y, y)));   /* < 2^31 */
+    *c = (int32_t)div_round(smul(x, len), r);
+    *sn = (int32_t)div_round(smul(y, len), r);
+}
+
+/* The similarity x -> G + s R (x - G0) that best maps the rest shape onto the means, in
+   the mass-weighted least-squares sense, over the trackers of `fit` (all if it holds
+   fewer than 2): with p = dG0 - pbar, q = mu - qbar about the set's weighted centroids,
+   a = sum m p.q, b = sum m p x q, D = sum m |p|^2, s R = [[a, -b], [b, a]] / D (the scale
+   held to [1/4, 4]; s R = I when D <= 2^-20 sum m), G = qbar - s R pbar.  Sets frame_c,
+   frame_s (Q.28) and frame_gx, frame_gy (Q.32). */
+static void fit_frame(fx_state *s, uint64_t fit)
+{
+    int n = s->n, i, sh;
+    uint64_t all = n == 64 ? ~(uint64_t)0 : ((uint64_t)1 << n) - 1, k2;
+    const int64_t *gdx = s->gdx0, *gdy = s->gdy0, *mx = s->mx, *my = s->my;
+    int32_t w[FX_MAX_TRACKERS], ux[FX_MAX_TRACKERS], uy[FX_MAX_TRACKERS];
+    int32_t vx[FX_MAX_TRACKERS], vy[FX_MAX_TRACKERS], an, bn, dn, c, sn;
+    int64_t ox[FX_MAX_TRACKERS], oy[FX_MAX_TRACKERS], W = 0, spx = 0, spy = 0, sqx = 0, sqy = 0;
+    int64_t px, py, qx, qy, a = 0, b = 0, d = 0, big = 0, lim;
+    fit &= all;
+    if ((fit & (fit - 1)) == 0)                       /* fewer than 2: all of them */
+        fit = all;
+    for (i = 0; i < n; i++)                           /* mass / largest, Q.24; 0 outside */
+        w[i] = (int32_t)s->mq[i] & -(int32_t)((fit >> i) & 1);
+    /* the means' offsets from the last frame's G (near qbar), the rest offsets (from G0),
+       and one shift that puts the weighed trackers' largest below 2^29: their centroids
+       and the offsets about those are then below 2^30 */
+    for (i = 0; i < n; i++) {                         /* x ^ (x >> 63): |x| or |x| - 1 */
+        ox[i] = mx[i] - s->frame_gx;
+        oy[i] = my[i] - s->frame_gy;
+        big |= ((gdx[i] ^ (gdx[i] >> 63)) | (gdy[i] ^ (gdy[i] >> 63)) | (ox[i] ^ (ox[i] >> 63))
+                | (oy[i] ^ (oy[i] >> 63))) & -(int64_t)(w[i] > 0);
+    }
+    sh = bitlen64((uint64_t)big) - 29;                /* |.| >> sh <= 2^29 */
+    if (sh < 0)
+        sh = 0;
+    for (i = 0; i < n; i++) {                         /* weighted centroids, Q.(32 - sh) */
+        int32_t in = -(int32_t)(w[i] > 0);
+        ux[i] = (int32_t)(gdx[i] >> sh) & in;
+        uy[i] = (int32_t)(gdy[i] >> sh) & in;
+        vx[i] = (int32_t)(ox[i] >> sh) & in;
+        vy[i] = (int32_t)(oy[i] >> sh) & in;
+        W += w[i];                                    /* <= 2^30 */
+        spx += smul(w[i], ux[i]);                     /* < 2^53 each */
+        spy += smul(w[i], uy[i]);
+        sqx += smul(w[i], vx[i]);
+        sqy += smul(w[i], vy[i]);
+    }
+    px = div_round(spx, (uint32_t)W);                 /* pbar, about G0 */
+    py = div_round(spy, (uint32_t)W);
+    qx = div_round(sqx, (uint32_t)W);                 /* qbar, about the last G */
+    qy = div_round(sqy, (uint32_t)W);
+    for (i = 0; i < n; i++) {                         /* p, q: below 2^30 */
+        int32_t in = -(int32_t)(w[i] > 0);
+        int32_t pux = (ux[i] - (int32_t)px) & in, puy = (uy[i] - (int32_t)py) & in;
+        int32_t qvx = (vx[i] - (int32_t)qx) & in, qvy = (vy[i] - (int32_t)qy) & in;
+        int32_t mux = pux, muy = puy;                 /* m p: m = 1 if the masses are equal */
+        if (!s->equal_mass) {
+            mux = (int32_t)rshr(smul(w[i], pux), 24);
+            muy = (int32_t)rshr(smul(w[i], puy), 24);
+        }
+        /* products < 2^60, pairs < 2^61: a 2^-8 of each keeps 64 of them in int64 */
+        a += (smul(mux, qvx) + smul(muy, qvy)) >> 8;  /* a = sum m p.q */
+        b += (smul(mux, qvy) - smul(muy, qvx)) >> 8;  /* b = sum m p x q */
+        d += (smul(mux, pux) + smul(muy, puy)) >> 8;  /* D = sum m |p|^2 */
+    }
+    px = shl64(px, sh);                               /* Q.32 */
+    py = shl64(py, sh);
+    qx = s->frame_gx + shl64(qx, sh);
+    qy = s->frame_gy + shl64(qy, sh);
+    /* D <= 2^-20 sum m, with D in Q.(56 - 2 sh) px^2 and sum m (W) in Q.24:
+       D <= W 2^(56 - 2 sh - 24 - 20) */
+    sh = 32 - FRAME_SPREAD_SHIFT - 2 * sh;
+    lim = sh >= 0 ? shl64(W, sh) : W >> -sh;
+    if (d <= lim) {                                   /* no rotation to tell */
+        c = FRAME_ONE;
+        sn = 0;
+    } else {
+        /* a, b, D to 30 bits with one shift: s R = [[a, -b], [b, a]] / D unchanged */
+        big = d;
+        if ((a < 0 ? -a : a) > big)
+            big = a < 0 ? -a : a;
+        if ((b < 0 ? -b : b) > big)
+            big = b < 0 ? -b : b;
+        sh = bitlen64((uint64_t)big) - 30;
+        if (sh < 0)
+            sh = 0;
+        an = (int32_t)(a >> sh);
+        bn = (int32_t)(b >> sh);
+        dn = (int32_t)(d >> sh);
+        k2 = (uint64_t)(smul(an, an) + smul(bn, bn));              /* s^2 D^2, < 2^61 */
+        if (dn > 0 && k2 <= (uint64_t)smul(dn, dn) << 4) {         /* s <= 4 */
+            if (k2 >= ((uint64_t)1 << 60) || k2 << 4 >= (uint64_t)smul(dn, dn)) {
+                c = (int32_t)div_round(smul(an, FRAME_ONE), (uint32_t)dn);   /* s R = [[a, -b], */
+                sn = (int32_t)div_round(smul(bn, FRAME_ONE), (uint32_t)dn);  /*     [b, a]] / D */
+            } else if (k2 > 0) {                                    /* s < 1/4: held */
+                frame_to_length(an, bn, FRAME_SCALE_MIN_Q, &c, &sn);
+            } else {                                                /* no rotation to keep */
+                c = FRAME_SCALE_MIN_Q;
+                sn = 0;
+            }
+        } else {                                                    /* s > 4: held */
+            frame_to_length(an, bn, FRAME_SCALE_MAX_Q, &c, &sn);
+        }
+    }
+    s->frame_c = c;
+    s->frame_s = sn;
+    s->frame_gx = qx - (frame_scale(c, px) - frame_scale(sn, py));   /* G = qbar - s R pbar */
+    s->frame_gy = qy - (frame_scale(sn, px) + frame_scale(c, py));
+}
+
+/* eq. (22)'s target of tracker i in the frame: G + s R dG0_i, Q.32 */
+static inline void frame_target(const fx_state *s, int i, int64_t *tx, int64_t *ty)
+{
+    *tx = s->frame_gx + (frame_scale(s->frame_c, s->gdx0[i]) - frame_scale(s->frame_s, s->gdy0[i]));
+    *ty = s->frame_gy + (frame_scale(s->frame_s, s->gdx0[i]) + frame_scale(s->frame_c, s->gdy0[i]));
+}
+
+/* eq. (18)'s rest offset of connection k in the frame the Cartesian springs use (car_c,
+   car_s: the frame fitted at the update before): s R (dx0, dy0), Q.16 */
+static inline void frame_offset(const fx_state *s, int k, int64_t *ox, int64_t *oy)
+{
+    *ox = rshr(smul(s->car_c, s->dx0[k]) - smul(s->car_s, s->dy0[k]), 28);
+    *oy = rshr(smul(s->car_s, s->dx0[k]) + smul(s->car_c, s->dy0[k]), 28);
+}
+
 /* [ref] springs: displacements from the same positions, applied together (Jacobi).  The
    forces of eqs. (11), (16), (19) are summed per tracker (Q.32 px, |sum| < 2^55) and
    divided by the mass once: the same sums as the reference's per-connection f / m_i.
@@ -1216,6 +1372,9 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
     const int64_t *e = s->energy[s->ekind];
     uint32_t rem;
     s->n_spring_updates++;
+    s->car_turned = s->car_sim;                          /* eq. (18) in the last fit's frame */
+    s->car_c = s->frame_c;
+    s->car_s = s->frame_s;
     for (i = 0; i < n; i++)
         ddx[i] = ddy[i] = 0;
     total = spring_passes_of[used & 7](s, ddx, ddy);
@@ -1254,10 +1413,14 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
             }
         }
     }
-    /* centre of mass G = x0 + sum m_i (x_i - x0) / sum m_i, rounded half up */
     if (n == 0)
         return;
-    if (s->equal_mass) {                                  /* = x0 + round(sum (x_i - x0) / n) */
+    if (nc > 0 && (s->pull_sim || s->car_sim))          /* [ref] fit_frame, the calm ones */
+        fit_frame(s, ~pulled);
+    /* centre of mass G = x0 + sum m_i (x_i - x0) / sum m_i, rounded half up */
+    if (s->pull_sim) {
+        gx = gy = 0;                                      /* eq. (22) uses the frame's G */
+    } else if (s->equal_mass) {                           /* = x0 + round(sum (x_i - x0) / n) */
         gx = s->mx[0] + floor_div(2 * sx + n, 2 * (uint32_t)n, &rem);
         gy = s->my[0] + floor_div(2 * sy + n, 2 * (uint32_t)n, &rem);
     } else {
@@ -1269,9 +1432,16 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
     }
     for (uint64_t p = pulled; p; p &= p - 1) {            /* eq. (22) */
         uint32_t lo = (uint32_t)p;
+        int64_t tx, ty;                                   /* G + dG0, or G + s R dG0 */
         i = lo ? __builtin_ctz(lo) : 32 + __builtin_ctz((uint32_t)(p >> 32));
-        s->mx[i] = sat_pos(s, s->mx[i] + mulsh(gx + s->gdx0[i] - s->mx[i], s->energy_gain, 30));
-        s->my[i] = sat_pos(s, s->my[i] + mulsh(gy + s->gdy0[i] - s->my[i], s->energy_gain, 30));
+        if (s->pull_sim) {
+            frame_target(s, i, &tx, &ty);
+        } else {
+            tx = gx + s->gdx0[i];
+            ty = gy + s->gdy0[i];
+        }
+        s->mx[i] = sat_pos(s, s->mx[i] + mulsh(tx - s->mx[i], s->energy_gain, 30));
+        s->my[i] = sat_pos(s, s->my[i] + mulsh(ty - s->my[i], s->energy_gain, 30));
     }
     for (i = 0; i < n; i++)
         bad |= (uint64_t)!box_kept(s, i) << i;
@@ -1422,6 +1592,12 @@ int fx_load_model(fx_state *s, const int32_t *w, int32_t nw, uint64_t *cells, in
         s->isolated &= ~s->ends[k];
     }
     fx_clamp_positions(s);
+    s->frame_c = FRAME_ONE;                               /* [ref] the identity frame about */
+    s->frame_s = 0;                                       /* G0 until a fit */
+    if (s->n > 0) {
+        s->frame_gx = s->mx[0] - s->gdx0[0];
+        s->frame_gy = s->my[0] - s->gdy0[0];
+    }
     s->last_t = -((int64_t)1 << 62);
     return FX_OK;
 }
@@ -1431,7 +1607,8 @@ int fx_set_params(fx_state *s, const int32_t *w, int32_t nw)
     int i;
     if (nw != FX_PARAMS_WORDS)
         return FX_ERR_WORDS;
-    if (w[3] < 31 || w[3] > 62 || w[17] < 1 || w[18] < 0 || w[18] > 2)
+    if (w[3] < 31 || w[3] > 62 || w[17] < 1 || w[18] < 0 || w[18] > 2
+        || (uint32_t)w[21] > 1 || (uint32_t)w[22] > 1)
         return FX_ERR_RANGE;
     /* [ref] eq. (6): a new tau decays from the change on */
     if (s->has_params && s->n_valid > 0
@@ -1458,6 +1635,8 @@ int fx_set_params(fx_state *s, const int32_t *w, int32_t nw)
     s->ekind = w[18];
     s->tau_bits[0] = (uint32_t)w[19];
     s->tau_bits[1] = (uint32_t)w[20];
+    s->pull_sim = w[21];
+    s->car_sim = w[22];
     for (i = 0; i < FX_DECAY_N; i++) {
         s->decay_lo[i] = (uint32_t)w[FX_PARAMS_HEAD + i];
         s->decay_hi[i] = (uint32_t)w[FX_PARAMS_HEAD + FX_DECAY_N + i];

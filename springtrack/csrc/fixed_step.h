@@ -65,7 +65,7 @@
 #define FX_MODEL_HEAD 4                     /* n, nc, width, height */
 #define FX_MODEL_TRACKER 16                 /* words per tracker */
 #define FX_MODEL_CONNECTION 10              /* words per connection */
-#define FX_PARAMS_HEAD 21                   /* words before the two decay tables */
+#define FX_PARAMS_HEAD 23                   /* words before the two decay tables */
 #define FX_PARAMS_WORDS (FX_PARAMS_HEAD + 2 * FX_DECAY_N)
 
 enum { FX_NO_TRACKER = -1, FX_BACK_IN_TIME = -2, FX_OUT_OF_SENSOR = -3 };
@@ -87,6 +87,7 @@ typedef struct {
     int32_t escale_never;                     /* 1: energy_scale >= nc, nothing is ever over */
     int64_t smin2, smax2;                     /* Q.40 px^2 */
     int32_t period, ekind, need_torsion;
+    int32_t pull_sim, car_sim;                /* eq. (22) / eqs. (18)-(20) in the similarity frame */
     uint32_t tau_bits[2];                     /* activity_tau_us's float64 bits: its identity */
     int32_t has_params;
     /* derived by fx_prepare() from the model and parameters above */
@@ -117,6 +118,12 @@ typedef struct {
     int32_t c0x[FX_MAX_CONNECTIONS], c0y[FX_MAX_CONNECTIONS];    /* cos, sin th0, Q.30 */
     int64_t energy[3][FX_MAX_CONNECTIONS];   /* read them through fx_energies() */
     int64_t mean_energy;
+    /* the similarity frame of the last fit (fit_frame): s R = [[frame_c, -frame_s],
+       [frame_s, frame_c]] Q.28 and frame_g, the image of the rest centre of mass (Q.32);
+       car_c, car_s: the frame the Cartesian springs of the last update used (the one
+       fitted before it), in force for its energies if car_turned */
+    int32_t frame_c, frame_s, car_c, car_s, car_turned;
+    int64_t frame_gx, frame_gy;
     /* the spring vectors r = x_j - x_i of the last spring update (Q.16 px, |.| < 2^30): the
        energies of the kinds the criterion does not use are computed from them only when
        they are read (fx_energies) */

@@ -15,11 +15,16 @@
  *   st_over_ends            eqs. (21)-(22) once the threshold is known: the trackers
  *                           at an over-threshold connection, and those at one under it,
  *                           as bit masks (no branch)
- *   st_pull                 eq. (22): the pull of the former toward G
+ *   st_fit_frame            the similarity frame of eq. (22) and eqs. (18)-(20): the
+ *                           mass-weighted Procrustes fit of the rest shape to the means
+ *   st_turn_offsets         eq. (18)'s rest offsets in that frame, s R d0
+ *   st_pull                 eq. (22): the pull of the former toward G + s R dG0
  *   st_boxes_left           which trackers' gate boxes left their indexed boxes
  */
 #ifndef SPRINGTRACK_SPRINGS_H
 #define SPRINGTRACK_SPRINGS_H
+
+#include <string.h>
 
 #include "fastmath.h"
 
@@ -61,17 +66,140 @@ ST_CLONES static void st_over_ends(int nc, const double *restrict e, double thr,
     *calm = c;
 }
 
-/* eq. (22): the trackers in the mask pulled move toward G + (gdx0, gdy0) = (gx + gdx0,
- * gy + gdy0) by gain; the others by gain 0 (mx + 0 = mx exactly), without a branch. */
-ST_CLONES static void st_pull(int n, uint64_t pulled, double gx, double gy, double gain,
-                              const double *restrict gdx0, const double *restrict gdy0,
-                              double *restrict mx, double *restrict my)
+/* eq. (22): the trackers in the mask pulled move toward G + s R dG0 by gain, the others
+ * by gain 0 (mx + 0 = mx exactly), without a branch.  s R = [[c, -sn], [sn, c]]: the
+ * similarity frame (st_fit_frame), or c = 1, sn = 0 in the image frame, where the target
+ * is gx + (1 gdx0 - 0 gdy0) = gx + gdx0 exactly, the reference's G + dG0. */
+ST_CLONES static void st_pull(int n, uint64_t pulled, double gx, double gy, double c, double sn,
+                              double gain, const double *restrict gdx0,
+                              const double *restrict gdy0, double *restrict mx,
+                              double *restrict my)
 {
     for (int i = 0; i < n; i++) {
         uint64_t bit = (pulled >> (uint64_t)i) & 1;   /* a 64-bit shift count vectorises */
         double g = st_sel((int64_t)bit, gain, 0.0);
-        mx[i] = mx[i] + g * ((gx + gdx0[i]) - mx[i]);
-        my[i] = my[i] + g * ((gy + gdy0[i]) - my[i]);
+        double tx = gx + (c * gdx0[i] - sn * gdy0[i]);
+        double ty = gy + (sn * gdx0[i] + c * gdy0[i]);
+        mx[i] = mx[i] + g * (tx - mx[i]);
+        my[i] = my[i] + g * (ty - my[i]);
+    }
+}
+
+/* [ref] FRAME_SCALE_MIN, FRAME_SCALE_MAX, FRAME_MIN_SPREAD (_kernel.pyx checks they agree) */
+#define ST_FRAME_SCALE_MIN 0.25
+#define ST_FRAME_SCALE_MAX 4.0
+#define ST_FRAME_MIN_SPREAD 0x1p-20
+#define ST_MAX_FIT 64                           /* trackers (MAX_TRACKERS of _kernel.pxd) */
+
+/* [ref] fit_frame: the similarity x -> G + s R (x - G0) that best maps the rest shape onto
+ * the means (mx, my), mass-weighted least squares over the trackers of the mask fit (all
+ * n trackers if it holds fewer than 2).  With rest offsets p = dG0 - pbar and current
+ * offsets q = mu - qbar about the fit set's weighted centroids:
+ *     a = sum m p.q,  b = sum m p x q,  D = sum m |p|^2,  s R = [[a, -b], [b, a]] / D
+ * returned as *c = a / D, *sn = b / D (s R = [[c, -sn], [sn, c]]), the scale held to
+ * [ST_FRAME_SCALE_MIN, ST_FRAME_SCALE_MAX], s R = I when D <= ST_FRAME_MIN_SPREAD sum m;
+ * and G = qbar - s R pbar, where the rest centre of mass G0 goes.  The trackers outside
+ * the set weigh 0.
+ * One pass: the moments about (rx, ry) (the last frame's G, near qbar: little cancels)
+ * are summed, then centred, a = sum m p.q' - (sum m p).(sum m q') / sum m with
+ * q' = mu - r, and likewise b and D; in ST_FIT_LANES interleaved partial sums (a vector),
+ * over n rounded up to ST_FIT_LANES: the arrays must hold that many finite entries
+ * (KState's hold 64).  The reference sums the centred terms in index order: the two differ
+ * by rounding. */
+#define ST_FIT_LANES 4
+typedef double st_fit_v __attribute__((vector_size(ST_FIT_LANES * sizeof(double))));
+typedef int64_t st_fit_m __attribute__((vector_size(ST_FIT_LANES * sizeof(int64_t))));
+#define ST_FIT_LOAD(v, p) memcpy(&(v), (p), sizeof(v))    /* unaligned vector load */
+#define ST_FIT_SUM(v) (((v)[0] + (v)[1]) + ((v)[2] + (v)[3]))
+
+ST_CLONES static void st_fit_frame(int n, uint64_t fit, const double *restrict mass,
+                                   const double *restrict gdx0, const double *restrict gdy0,
+                                   const double *restrict mx, const double *restrict my,
+                                   double rx, double ry, double *c, double *sn, double *gx,
+                                   double *gy)
+{
+    const st_fit_m lane = {1, 2, 4, 8};
+    const st_fit_v vrx = {rx, rx, rx, rx}, vry = {ry, ry, ry, ry};
+    st_fit_v w = {0}, spx = {0}, spy = {0}, sqx = {0}, sqy = {0}, sa = {0}, sb = {0}, sd = {0};
+    st_fit_v m, ux, uy, vx, vy;
+    st_fit_m mb;
+    double W, px, py, qx, qy, a, b, d, cc, ss, k2, f;
+    uint64_t all = n >= 64 ? ~(uint64_t)0 : ((uint64_t)1 << n) - 1;
+    int i, nv = (n + ST_FIT_LANES - 1) / ST_FIT_LANES;
+    fit &= all;
+    if (__builtin_popcountll(fit) < 2)
+        fit = all;
+    for (i = 0; i < nv; i++) {
+        st_fit_m in = (((st_fit_m){0, 0, 0, 0} + (int64_t)(fit >> (ST_FIT_LANES * i))) & lane)
+                      != 0;                         /* -1 in the set, else 0 */
+        ST_FIT_LOAD(m, mass + ST_FIT_LANES * i);
+        memcpy(&mb, &m, sizeof mb);
+        mb &= in;
+        memcpy(&m, &mb, sizeof m);                  /* the mass, or +0.0 outside the set */
+        ST_FIT_LOAD(ux, gdx0 + ST_FIT_LANES * i);   /* rest offset about G0 */
+        ST_FIT_LOAD(uy, gdy0 + ST_FIT_LANES * i);
+        ST_FIT_LOAD(vx, mx + ST_FIT_LANES * i);
+        ST_FIT_LOAD(vy, my + ST_FIT_LANES * i);
+        vx -= vrx;                                  /* mean about r */
+        vy -= vry;
+        st_fit_v mux = m * ux, muy = m * uy;
+        w += m;
+        spx += mux;
+        spy += muy;
+        sqx += m * vx;
+        sqy += m * vy;
+        sa += mux * vx + muy * vy;                  /* sum m p.q' */
+        sb += mux * vy - muy * vx;                  /* sum m p x q' */
+        sd += mux * ux + muy * uy;                  /* sum m |p|^2 */
+    }
+    W = ST_FIT_SUM(w);
+    px = ST_FIT_SUM(spx);
+    py = ST_FIT_SUM(spy);
+    qx = ST_FIT_SUM(sqx);
+    qy = ST_FIT_SUM(sqy);
+    a = ST_FIT_SUM(sa) - (px * qx + py * qy) / W;   /* a = sum m p.q, centred */
+    b = ST_FIT_SUM(sb) - (px * qy - py * qx) / W;   /* b = sum m p x q */
+    d = ST_FIT_SUM(sd) - (px * px + py * py) / W;   /* D = sum m |p|^2 */
+    px = px / W;                                    /* pbar, about G0 */
+    py = py / W;
+    qx = rx + qx / W;                               /* qbar */
+    qy = ry + qy / W;
+    if (d <= ST_FRAME_MIN_SPREAD * W) {
+        cc = 1.0;
+        ss = 0.0;
+    } else {
+        cc = a / d;                                      /* s R = [[a, -b], [b, a]] / D */
+        ss = b / d;
+        k2 = cc * cc + ss * ss;                          /* s^2 */
+        if (k2 > ST_FRAME_SCALE_MAX * ST_FRAME_SCALE_MAX) {
+            f = ST_FRAME_SCALE_MAX / sqrt(k2);
+            cc = cc * f;
+            ss = ss * f;
+        } else if (k2 < ST_FRAME_SCALE_MIN * ST_FRAME_SCALE_MIN) {
+            if (k2 > 0.0) {
+                f = ST_FRAME_SCALE_MIN / sqrt(k2);
+                cc = cc * f;
+                ss = ss * f;
+            } else {                                     /* no rotation to keep */
+                cc = ST_FRAME_SCALE_MIN;
+                ss = 0.0;
+            }
+        }
+    }
+    *c = cc;
+    *sn = ss;
+    *gx = qx - (cc * px - ss * py);                      /* G = qbar - s R pbar */
+    *gy = qy - (ss * px + cc * py);
+}
+
+/* eq. (18)'s rest offsets in the similarity frame: (odx, ody) = s R (dx0, dy0) */
+ST_CLONES static void st_turn_offsets(int n, double c, double sn, const double *restrict dx0,
+                                      const double *restrict dy0, double *restrict odx,
+                                      double *restrict ody)
+{
+    for (int k = 0; k < n; k++) {
+        odx[k] = c * dx0[k] - sn * dy0[k];
+        ody[k] = sn * dx0[k] + c * dy0[k];
     }
 }
 

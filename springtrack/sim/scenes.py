@@ -28,6 +28,12 @@ Scenes of paper section IV (all start at rest pose, so the initial model is exac
                    in every 10 s cycle.  Its truth is where it would be without the pull.
 ``grid_inplane``   Fig. 16: in-plane rotation between +45 and -45 deg (15 deg/s) while
                    translating.
+
+Scenes beyond the paper, for the similarity frame (``pull_frame``, ``cartesian_frame``):
+
+``grid_spin``      in-plane rotation between +90 and -90 deg (15 deg/s) while translating.
+``grid_scale``     the grid scaling between 0.7 and 1.3 times its size (0.06 per s: a
+                   screen approaching and receding) while translating.
 ``face_occlusion`` IV-B (Figs. 17-21): the 26 parts of ``face26`` as bright blobs, the face
                    moving, approaching (scale) and rolling; a hand (palm + 4 fingers, opaque,
                    covering the lower or middle part of the face: a partial occlusion)
@@ -150,12 +156,17 @@ class GridScene(Scene):
         """(9, 2) image-plane displacement of individual elements (not in the truth)."""
         return np.zeros((9, 2))
 
+    def zoom(self, t) -> float:
+        """Image scale about the grid centre (1: the rest size), as if the screen moved
+        along the optical axis."""
+        return 1.0
+
     def _project(self, t):
         ax, ay, az, dx, dy = self.pose(t)
         R = _rot(ax, ay, az)
         P = self.screen @ R[:, :2].T              # (9, 3) camera coordinates minus (0,0,D)
         Z = self.D + P[:, 2]
-        f = self.D
+        f = self.D * self.zoom(t)
         u = self.cx + dx + f * P[:, 0] / Z
         v = self.cy + dy + f * P[:, 1] / Z
         # Jacobian of (u, v) wrt screen (X, Y): d(fPx/Z)/dX = f (R00 Z - Px R20) / Z^2 ...
@@ -226,11 +237,43 @@ class GridPull(GridScene):
 
 
 class GridInplane(GridScene):
+    """In-plane rotation 0 -> +amplitude -> -amplitude ... (deg, at speed deg/s) while
+    translating."""
     name = "grid_inplane"
+    amplitude_deg = 45.0
+
+    def __init__(self, seed=0, amplitude_deg=None, speed_deg_s=15.0, **kw):
+        super().__init__(seed, **kw)
+        if amplitude_deg is not None:
+            self.amplitude_deg = float(amplitude_deg)
+        self.speed_deg_s = float(speed_deg_s)
 
     def pose(self, t):
-        az = math.radians((triangle(t, -45.0, 45.0, 15.0)))
+        a = self.amplitude_deg
+        az = math.radians((triangle(t, -a, a, self.speed_deg_s)))
         return (0.0, 0.0, az, 30.0 * math.sin(2 * math.pi * t / 8.0),
+                20.0 * math.sin(2 * math.pi * t / 6.0))
+
+
+class GridSpin(GridInplane):
+    name = "grid_spin"
+    amplitude_deg = 90.0
+
+
+class GridScale(GridScene):
+    """The grid scaling 1 -> 1 + amplitude -> 1 - amplitude ... (speed per s) while
+    translating."""
+    name = "grid_scale"
+
+    def __init__(self, seed=0, amplitude=0.3, speed=0.06, **kw):
+        super().__init__(seed, **kw)
+        self.amplitude, self.speed = float(amplitude), float(speed)
+
+    def zoom(self, t):
+        return 1.0 + triangle(t, -self.amplitude, self.amplitude, self.speed)
+
+    def pose(self, t):
+        return (0.0, 0.0, 0.0, 30.0 * math.sin(2 * math.pi * t / 8.0),
                 20.0 * math.sin(2 * math.pi * t / 6.0))
 
 
@@ -382,7 +425,8 @@ class Placed(Scene):
 
 
 SCENES: dict[str, type[Scene]] = {cls.name: cls for cls in
-                                   (GridRotY, GridPull, GridInplane, FaceOcclusion, MovingBlob)}
+                                   (GridRotY, GridPull, GridInplane, GridSpin, GridScale,
+                                    FaceOcclusion, MovingBlob)}
 
 
 def make_scene(name: str, seed: int = 0, **params) -> Scene:

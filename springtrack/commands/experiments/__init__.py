@@ -9,7 +9,9 @@ Experiments (paper figure -> scene, what is swept):
   Euclidean+torsional;
 * Fig. 16   grid_inplane: the same;
 * Figs. 20-21  face_occlusion: error over time, normalised Euclidean / torsional energy;
-* Fig. 24   face_occlusion: error and computation time vs spring period.
+* Fig. 24   face_occlusion: error and computation time vs spring period;
+* Figs. 14-16 in both frames of eq. (22) and the Cartesian springs, and every scene with
+  the paper's per-experiment values in both.
 
 Every tracker run is a task on dask.distributed: a ``LocalCluster`` by default, or the
 scheduler at ``--scheduler ADDRESS``; the scenes are simulated once and scattered to the

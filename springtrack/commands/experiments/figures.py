@@ -76,6 +76,17 @@ def error_vs_s(path, s, pct, off_pct, paper) -> None:
         decorate(ax, "s", "mean error (%)", "Fig. 14: grid_pull, alpha = 0.001", legend=8)
 
 
+def error_vs_s_frames(path, s, by_frame, paper) -> None:
+    """Fig. 14 in both frames: mean error (%) vs s, one line per frame (``by_frame``:
+    frame -> errors); ``paper``: the paper's best (s, %)."""
+    with figure(path, figsize=(5, 3.2)) as (fig, ax):
+        for name, pct in by_frame.items():
+            ax.plot(s, pct, "o-", label=f"{name} frame")
+        ax.plot([paper[0]], [paper[1]], "r*", ms=10, label=f"paper best ({paper[1]:g} %)")
+        decorate(ax, "s", "mean error (%)", "Fig. 14, both frames: grid_pull, alpha = 0.001",
+                 legend=8)
+
+
 def min_error_per_alpha(path, alphas, by_kind, title, paper=None) -> None:
     """Figs. 15 / 16: minimum mean error over s (%) vs alpha, one line per spring kind
     (``by_kind``: kind -> errors); ``paper``: the paper's best (alpha, %) or None."""
