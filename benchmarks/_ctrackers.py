@@ -89,7 +89,8 @@ class CTracker:
         par = np.array([p.alpha_position, p.alpha_covariance, p.gate_d2, p.activity_tau_us,
                         p.alpha_covariance / covariance_bias(p.alpha_position, p.gate_d2),
                         p.sigma_min_px, p.sigma_max_px, p.energy_scale, p.energy_gain,
-                        p.spring_period, p.energy_kind_index], np.float64)
+                        p.spring_period, p.energy_kind_index, p.pull_similarity,
+                        p.cartesian_similarity], np.float64)
         tr = np.ascontiguousarray(np.stack([a[k] for k in ("x", "y", "sxx", "sxy", "syy",
                                                            "mass", "gdx0", "gdy0")], 1))
         ci = np.ascontiguousarray(np.stack([a["ca"], a["cb"], a["kinds"]], 1), np.int32)

@@ -131,7 +131,10 @@ The peers (benchmarks/ctrackers/): the float64 kernel's algorithm written from
 (t int64, x/y int16, p uint8: 13-byte records, as expelliarmus and numpy files hold them).
 `plain`: every event scans all trackers in a loop (eq. 2), updates the winner (eqs. 3-6,
 two libm `exp` for eqs. 2 and 6), and every spring_period valid events runs the springs
-as the reference writes them (libm `atan2`, `sin`, `cos`) and the energy criteria.
+as the reference writes them (libm `atan2`, `sin`, `cos`) and the energy criteria, with
+eq. (22) and the Cartesian springs in the similarity frame fitted at each update (the
+default, `pull_frame = cartesian_frame = similarity`; the peers do the image frame too:
+the Kernel section times both).
 `avx2`: the same, with the candidate scan over all trackers four at a time (two running
 minima, ties to the lowest index as the reference) and the spring passes four connections
 at a time (gathers, Cephes' atan2 and sincos as vector code, branch-free terms), the

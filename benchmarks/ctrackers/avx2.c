@@ -172,8 +172,8 @@ static void springs(Peer *s)
         __m256d l = _mm256_sqrt_pd(_mm256_add_pd(_mm256_mul_pd(rx, rx), _mm256_mul_pd(ry, ry)));
         __m256d dl = _mm256_sub_pd(l, _mm256_load_pd(s->l0 + o));            /* eq. (10) */
         _mm256_store_pd(s->energy[0] + o, _mm256_mul_pd(half_a, _mm256_mul_pd(dl, dl)));  /* (12) */
-        __m256d ex = _mm256_sub_pd(rx, _mm256_load_pd(s->dx0 + o));          /* eq. (18) */
-        __m256d ey = _mm256_sub_pd(ry, _mm256_load_pd(s->dy0 + o));
+        __m256d ex = _mm256_sub_pd(rx, _mm256_load_pd(s->rdx0 + o));         /* eq. (18) */
+        __m256d ey = _mm256_sub_pd(ry, _mm256_load_pd(s->rdy0 + o));
         _mm256_store_pd(s->energy[2] + o, _mm256_mul_pd(half_a, _mm256_add_pd(     /* (20) */
             _mm256_mul_pd(ex, ex), _mm256_mul_pd(ey, ey))));
         /* eq. (11): direction r / l, or the rest direction when both ends coincide */

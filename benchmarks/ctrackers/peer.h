@@ -7,7 +7,9 @@
  *               the gate takes it (ties: lowest index); eqs. (3)-(6): its mean,
  *               covariance and activity move;
  *   every `period` valid events   eqs. (10)-(20): the springs, then eqs. (13), (21)-(22):
- *               the energy criteria.
+ *               the energy criteria; with pull_frame / cartesian_frame = similarity, the
+ *               similarity that maps the rest shape onto the calm trackers (fit_frame)
+ *               sets eq. (22)'s targets and the next update's Cartesian rest offsets.
  * The two peers differ only in scan() and springs(): plain.c writes them as plain loops,
  * avx2.c with AVX2 intrinsics.  Each .c file defines them, then includes this file's
  * second half (PEER_LOOP) for the event loop.
@@ -30,6 +32,10 @@
 #define PEER_TORSIONAL 2
 #define PEER_CARTESIAN 4
 #define PEER_RHO_MAX 0.99
+/* the similarity frame's bounds (springtrack/reference.py FRAME_*) */
+#define PEER_FRAME_SCALE_MIN 0.25
+#define PEER_FRAME_SCALE_MAX 4.0
+#define PEER_FRAME_MIN_SPREAD (1.0 / 1048576.0)
 
 typedef struct __attribute__((packed)) {
     int64_t t;
@@ -39,10 +45,10 @@ typedef struct __attribute__((packed)) {
 
 /* Parameters as peer_new() takes them (doubles, in this order). */
 enum { P_A1, P_A2, P_GATE, P_TAU, P_COV_GAIN, P_SMIN, P_SMAX, P_ESCALE, P_EGAIN, P_PERIOD,
-       P_EKIND, N_PARAMS };
+       P_EKIND, P_PULL_SIM, P_CAR_SIM, N_PARAMS };
 
 typedef struct {
-    int n, nc, width, height, period, ekind, need_torsion, since;
+    int n, nc, width, height, period, ekind, need_torsion, since, pull_sim, car_sim;
     double a1, keep, cov_gain, gate, tau, smin2, smax2, escale, egain, msum;
     /* trackers; arrays padded to a multiple of 4 for the vector peer */
     _Alignas(32) double mx[PEER_MAX_T];
@@ -70,6 +76,8 @@ typedef struct {
     _Alignas(32) double th0[PEER_MAX_C];
     _Alignas(32) double dx0[PEER_MAX_C];
     _Alignas(32) double dy0[PEER_MAX_C];
+    _Alignas(32) double rdx0[PEER_MAX_C];   /* eq. (18)'s rest offset: s R d0 (or d0) */
+    _Alignas(32) double rdy0[PEER_MAX_C];
     _Alignas(32) double c0[PEER_MAX_C];     /* cos th0, sin th0 */
     _Alignas(32) double s0[PEER_MAX_C];
     _Alignas(32) double a_euc[PEER_MAX_C];  /* stiffness where the connection has the kind */
@@ -77,6 +85,7 @@ typedef struct {
     _Alignas(32) double a_car[PEER_MAX_C];
     _Alignas(32) double energy[3][PEER_MAX_C];
     double mean_energy;
+    double fc, fs, fgx, fgy;                /* the similarity frame: s R = [[fc, -fs], [fs, fc]] */
     int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_springs;
 } Peer;
 
@@ -120,6 +129,74 @@ static inline void update_tracker(Peer *s, int i, int64_t t, double fx, double f
     clamp_and_invert(s, i);
 }
 
+/* The similarity x -> G + s R (x - G0) that best maps the rest shape onto the means of
+ * the trackers no over-threshold connection touches (all trackers if fewer than 2), in
+ * the mass-weighted least-squares sense (reference.py fit_frame): with rest offsets p and
+ * current offsets q about the weighted centroids, a = sum m p.q, b = sum m p x q,
+ * D = sum m |p|^2, s R = [[a, -b], [b, a]] / D, the scale held to its bounds. */
+static void fit_frame(Peer *s, const int *over)
+{
+    int n = s->n, fit[PEER_MAX_T], nf = 0;
+    for (int i = 0; i < n; i++)
+        if (over[i] == 0)
+            fit[nf++] = i;
+    if (nf < 2) {
+        nf = n;
+        for (int i = 0; i < n; i++)
+            fit[i] = i;
+    }
+    double w = 0.0, px = 0.0, py = 0.0, qx = 0.0, qy = 0.0;
+    for (int f = 0; f < nf; f++) {                                /* weighted centroids */
+        int i = fit[f];
+        double m = s->mass[i];
+        w += m;
+        px += m * s->gdx0[i];
+        py += m * s->gdy0[i];
+        qx += m * s->mx[i];
+        qy += m * s->my[i];
+    }
+    px = px / w;
+    py = py / w;
+    qx = qx / w;
+    qy = qy / w;
+    double a = 0.0, b = 0.0, d = 0.0, c, sn;
+    for (int f = 0; f < nf; f++) {
+        int i = fit[f];
+        double m = s->mass[i];
+        double ux = s->gdx0[i] - px, uy = s->gdy0[i] - py;        /* rest offset p */
+        double vx = s->mx[i] - qx, vy = s->my[i] - qy;            /* current offset q */
+        a += m * (ux * vx + uy * vy);
+        b += m * (ux * vy - uy * vx);
+        d += m * (ux * ux + uy * uy);
+    }
+    if (d <= PEER_FRAME_MIN_SPREAD * w) {
+        c = 1.0;
+        sn = 0.0;
+    } else {
+        c = a / d;
+        sn = b / d;
+        double k2 = c * c + sn * sn;                              /* s^2 */
+        if (k2 > PEER_FRAME_SCALE_MAX * PEER_FRAME_SCALE_MAX) {
+            double f = PEER_FRAME_SCALE_MAX / sqrt(k2);
+            c = c * f;
+            sn = sn * f;
+        } else if (k2 < PEER_FRAME_SCALE_MIN * PEER_FRAME_SCALE_MIN) {
+            if (k2 > 0.0) {
+                double f = PEER_FRAME_SCALE_MIN / sqrt(k2);
+                c = c * f;
+                sn = sn * f;
+            } else {
+                c = PEER_FRAME_SCALE_MIN;
+                sn = 0.0;
+            }
+        }
+    }
+    s->fc = c;
+    s->fs = sn;
+    s->fgx = qx - (c * px - sn * py);                             /* G = qbar - s R pbar */
+    s->fgy = qy - (sn * px + c * py);
+}
+
 /* eqs. (13), (21)-(22) on the energies of the last spring update. */
 static void energy_criteria(Peer *s)
 {
@@ -137,16 +214,32 @@ static void energy_criteria(Peer *s)
             over[s->ca[k]]++;
             over[s->cb[k]]++;
         }
-    for (int i = 0; i < n; i++) {
-        gx += s->mass[i] * s->mx[i];
-        gy += s->mass[i] * s->my[i];
+    if (s->pull_sim || s->car_sim)
+        fit_frame(s, over);
+    if (s->car_sim)                                 /* the next update's eq. (18): s R d0 */
+        for (int k = 0; k < nc; k++) {
+            s->rdx0[k] = s->fc * s->dx0[k] - s->fs * s->dy0[k];
+            s->rdy0[k] = s->fs * s->dx0[k] + s->fc * s->dy0[k];
+        }
+    if (!s->pull_sim) {                             /* G, the centre of mass */
+        for (int i = 0; i < n; i++) {
+            gx += s->mass[i] * s->mx[i];
+            gy += s->mass[i] * s->my[i];
+        }
+        gx /= s->msum;
+        gy /= s->msum;
     }
-    gx /= s->msum;
-    gy /= s->msum;
     for (int i = 0; i < n; i++) {
         if (over[i] > 0) {                                        /* eq. (22) */
-            s->mx[i] = s->mx[i] + s->egain * (gx + s->gdx0[i] - s->mx[i]);
-            s->my[i] = s->my[i] + s->egain * (gy + s->gdy0[i] - s->my[i]);
+            if (s->pull_sim) {                      /* toward G + s R dG0 in the frame */
+                double tx = s->fgx + (s->fc * s->gdx0[i] - s->fs * s->gdy0[i]);
+                double ty = s->fgy + (s->fs * s->gdx0[i] + s->fc * s->gdy0[i]);
+                s->mx[i] = s->mx[i] + s->egain * (tx - s->mx[i]);
+                s->my[i] = s->my[i] + s->egain * (ty - s->my[i]);
+            } else {                                /* toward G + dG0 */
+                s->mx[i] = s->mx[i] + s->egain * (gx + s->gdx0[i] - s->mx[i]);
+                s->my[i] = s->my[i] + s->egain * (gy + s->gdy0[i] - s->my[i]);
+            }
         }
         /* eq. (21): insensitive while all of its connections are over */
         s->off[i] = (s->degree[i] > 0 && over[i] == s->degree[i]) ? INFINITY : 0.0;
@@ -179,6 +272,12 @@ Peer *peer_new(int n, int nc, int width, int height, const double *par, const do
     s->egain = par[P_EGAIN];
     s->period = (int)par[P_PERIOD];
     s->ekind = (int)par[P_EKIND];
+    s->pull_sim = par[P_PULL_SIM] != 0.0;
+    s->car_sim = par[P_CAR_SIM] != 0.0;
+    s->fc = 1.0;                            /* the frame until the first fit: identity at G0 */
+    s->fs = 0.0;
+    s->fgx = tr[0] - tr[6];
+    s->fgy = tr[1] - tr[7];
     for (int i = 0; i < PEER_MAX_T; i++)
         s->off[i] = INFINITY;
     for (int i = 0; i < n; i++) {
@@ -205,6 +304,8 @@ Peer *peer_new(int n, int nc, int width, int height, const double *par, const do
         s->th0[k] = conn_d[5 * k + 2];
         s->dx0[k] = conn_d[5 * k + 3];
         s->dy0[k] = conn_d[5 * k + 4];
+        s->rdx0[k] = s->dx0[k];
+        s->rdy0[k] = s->dy0[k];
         s->c0[k] = cos(s->th0[k]);
         s->s0[k] = sin(s->th0[k]);
         s->a_euc[k] = s->kinds[k] & PEER_EUCLIDEAN ? s->stiff[k] : 0.0;

@@ -44,7 +44,7 @@ static void springs(Peer *s)
         double l = sqrt(rx * rx + ry * ry);
         double dl = l - s->l0[k];                                 /* eq. (10) */
         s->energy[0][k] = 0.5 * a * (dl * dl);                    /* eq. (12) */
-        double ex = rx - s->dx0[k], ey = ry - s->dy0[k];          /* eq. (18) */
+        double ex = rx - s->rdx0[k], ey = ry - s->rdy0[k];        /* eq. (18) */
         s->energy[2][k] = 0.5 * a * (ex * ex + ey * ey);          /* eq. (20) */
         if (kind & PEER_EUCLIDEAN) {                              /* eq. (11) */
             double cx, cy;
