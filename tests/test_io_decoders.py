@@ -308,7 +308,8 @@ def test_ccam_block_path_equals_word_by_word(seed):
 def evt2_mixed_words(seed, n_events=4000, n_special=80):
     """An EVT 2.0 word stream of CD events (t dense enough for runs of 32 between
     TIME_HIGH words) with other words at random places: triggers, 'other' types, unknown
-    types, events outside 640 x 480, repeated TIME_HIGH words."""
+    types, events outside 640 x 480 (alone and in runs of up to 70), repeated TIME_HIGH
+    words."""
     from springtrack.events import make
     from springtrack.io import evt2
     rng = np.random.default_rng(seed)
@@ -317,7 +318,11 @@ def evt2_mixed_words(seed, n_events=4000, n_special=80):
               rng.integers(0, 2, n_events))
     words = list(np.frombuffer(evt2.encode(ev), "<u4"))
     for pos in sorted(rng.integers(1, len(words), n_special), reverse=True):
-        kind = rng.integers(0, 5)
+        kind = rng.integers(0, 7)
+        if kind == 5:                                      # a run of events outside
+            words[pos:pos] = [(1 << 28) | (int(rng.integers(0, 640)) << 11) | 480 + i % 7
+                              for i in range(int(rng.integers(2, 70)))]
+            continue
         if kind == 0:
             w = 0xA << 28                                  # external trigger
         elif kind == 1:
@@ -326,6 +331,8 @@ def evt2_mixed_words(seed, n_events=4000, n_special=80):
             w = 0x3 << 28                                  # unknown type
         elif kind == 3:
             w = (1 << 28) | (700 << 11) | 10               # x = 700 outside 640
+        elif kind == 6:
+            w = (0 << 28) | (5 << 11) | 2047               # y = 2047 outside 480
         else:
             w = [q for q in words[:pos] if q >> 28 == 0x8][-1]   # the same TIME_HIGH again
         words.insert(pos, w)

@@ -1,6 +1,7 @@
-"""The EVT 3.0 decoder without its AVX2 block path (io/evt3_block.h): a processor without
-AVX2 (or ``SPRINGTRACK_SIMD=0``) decodes every word in the word loop, with the same events
-and counters, and a build for a processor without AVX2 compiles the word loop alone."""
+"""The word decoders without their hand-written AVX2 blocks (EVT 2.0: io/evt2_block.h, EVT
+3.0: io/evt3_block.h, chosen at run time: io/clones.h): a processor without AVX2 (or
+``SPRINGTRACK_SIMD=0``) takes the portable paths, with the same events and counters, and a
+build for a processor without AVX2 compiles the portable paths alone."""
 from __future__ import annotations
 
 import json
@@ -12,21 +13,19 @@ import numpy as np
 import pytest
 
 import springtrack.io as sio
-from springtrack.io import evt3
-from test_io_decoders import evt3_mixed_words
+from test_io_decoders import evt2_mixed_words, evt3_mixed_words
 
-# decodes each (path, width, height) of argv's JSON list with the decoder of this process
-# and saves the events and counters next to the words
+# decodes each (format, path, width, height) of argv's JSON list with the decoders of this
+# process and saves the events and counters next to the words
 DECODE = """
 import json, sys
 import numpy as np
 import springtrack.io as sio
-from springtrack.io import evt3
-for path, width, height in json.loads(sys.argv[1]):
-    dec = sio.decoder("evt3", width=width, height=height)
+for fmt, path, width, height in json.loads(sys.argv[1]):
+    dec = sio.decoder(fmt, width=width, height=height)
     ev = dec.decode(open(path, "rb").read())
     np.save(path + ".events.npy", ev)
-    json.dump({"path": evt3.block_path(), "words": dec.stats.words,
+    json.dump({"path": sio.simd_path(), "words": dec.stats.words,
                "anomalies": dec.stats.anomalies, "info": dec.stats.info},
               open(path + ".stats.json", "w"))
 """
@@ -41,48 +40,57 @@ def cpu_has_avx2() -> bool:
 
 
 def same_without_simd(streams):
-    """Each (path, width, height) decoded here and in a process with SPRINGTRACK_SIMD=0:
-    asserts the same events and counters, and that the other process used the word loop."""
+    """Each (format, path, width, height) decoded here and in a process with
+    SPRINGTRACK_SIMD=0: asserts the same events and counters, and that the other process
+    took the portable paths."""
     env = {**os.environ, "SPRINGTRACK_SIMD": "0"}
     subprocess.run([sys.executable, "-c", DECODE, json.dumps(streams)], env=env, check=True)
-    for path, width, height in streams:
-        dec = sio.decoder("evt3", width=width, height=height)
+    for fmt, path, width, height in streams:
+        dec = sio.decoder(fmt, width=width, height=height)
         ev = dec.decode(open(path, "rb").read())
         np.testing.assert_array_equal(ev, np.load(path + ".events.npy"))
         other = json.load(open(path + ".stats.json"))
-        assert other["path"] == "words"
+        assert other["path"] == "portable"
         assert other["words"] == dec.stats.words
         assert other["anomalies"] == dec.stats.anomalies and other["info"] == dec.stats.info
 
 
 @pytest.mark.skipif(not cpu_has_avx2(), reason="the processor has no AVX2")
-def test_block_path_is_used_where_the_processor_has_avx2():
-    assert evt3.block_path() == "avx2"
+def test_avx2_blocks_run_where_the_processor_has_avx2():
+    assert sio.simd_path() == "avx2"
 
 
-def test_word_loop_alone_on_hand_shaped_streams(tmp_path):
+def test_portable_paths_on_hand_shaped_streams(tmp_path):
     streams = []
-    for seed in (1, 2, 3, 4):
-        path = tmp_path / f"mixed{seed}.evt3"
-        path.write_bytes(evt3_mixed_words(seed))
-        streams.append((str(path), 640, 480))
+    for fmt, words in (("evt2", evt2_mixed_words), ("evt3", evt3_mixed_words)):
+        for seed in (1, 2, 3, 4):
+            path = tmp_path / f"mixed{seed}.{fmt}"
+            path.write_bytes(words(seed))
+            streams.append((fmt, str(path), 640, 480))
     same_without_simd(streams)
 
 
-def test_word_loop_alone_on_the_recording(tmp_path, data_file):
-    src = data_file("evt3_sample.raw")
-    path = tmp_path / "evt3_sample.words"
-    path.write_bytes(src.read_bytes()[sio.open(src).offset:])
-    same_without_simd([(str(path), 1280, 720)])
+def test_portable_paths_on_the_recordings(tmp_path, data_file):
+    streams = []
+    for fmt in ("evt2", "evt3"):
+        src = data_file(f"{fmt}_sample.raw")
+        reader = sio.open(src)
+        path = tmp_path / f"{fmt}_sample.words"
+        path.write_bytes(src.read_bytes()[reader.offset:])
+        streams.append((fmt, str(path), reader.width, reader.height))
+    same_without_simd(streams)
 
 
-# a translation unit using the block path's entry point, and the path its build must take
+# a translation unit using the block paths' entry points, and whether its build must have
+# the AVX2 blocks
 PROBE = """
+#include "springtrack/io/evt2_block.h"
 #include "springtrack/io/evt3_block.h"
-_Static_assert(EVT3_BLOCK_SIMD == EXPECT_SIMD, "the block path this target must build");
+_Static_assert(IO_AVX2_BUILD == EXPECT_SIMD, "the block paths this target must build");
 size_t probe(const uint8_t *p, size_t nw, Evt3Run *st, void *out, size_t *k, size_t *scalar)
 {
-    return evt3_decode_run(p, nw, st, 640, 480, out, k, 4096, scalar);
+    return evt3_decode_run(p, nw, st, 640, 480, out, k, 4096, scalar)
+           + (size_t)evt2_decode_block(p, 0, 640, 480, out);
 }
 """
 
@@ -91,8 +99,8 @@ size_t probe(const uint8_t *p, size_t nw, Evt3Run *st, void *out, size_t *k, siz
                                           ("x86_64-linux-gnu", 1)])
 def test_header_builds_for_processors_without_avx2(tmp_path, target, simd):
     """With clang (the ziglang package) for other processors: no x86 intrinsic is left in
-    the build (the word loop alone), and on x86-64 the AVX2 path builds with clang too,
-    without -mavx2 (chosen at run time)."""
+    the build (the portable paths alone), and on x86-64 the AVX2 blocks build with clang
+    too, without -mavx2 (chosen at run time)."""
     pytest.importorskip("ziglang")
     from springtrack.mcu.build import cache_root, zig_cc
     root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))

@@ -183,6 +183,18 @@ cdef class Decoder:
             info={INFO_NAMES[i]: int(self.n.info[i]) for i in range(<int>N_INFO) if self.n.info[i]})
 
 
+cdef extern from "springtrack/io/clones.h" nogil:
+    int io_avx2()
+
+
+def simd_path() -> str:
+    """The block paths the word decoders take in this process: ``"avx2"`` (the hand-written
+    AVX2 blocks of EVT 2.0 and EVT 3.0: io/clones.h) or ``"portable"`` (no AVX2 in this
+    build or processor, or ``SPRINGTRACK_SIMD=0`` in the environment).  Events and
+    counters are the same on either."""
+    return "avx2" if io_avx2() else "portable"
+
+
 def encoder_input(events, str fmt, int width, int height, prev_t=None):
     """Events for an encoder: EVENT_DTYPE, t >= 0 (>= ``prev_t``, the last event time of
     the stream the events continue) and non-decreasing, x < width, y < height; raises

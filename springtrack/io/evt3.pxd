@@ -62,7 +62,6 @@ cdef extern from "springtrack/io/evt3_block.h" nogil:
         int32_t vp
     size_t evt3_decode_run(const uint8_t* p, size_t nw, Evt3Run* st, uint32_t width,
                            uint32_t height, void* out, size_t* k, size_t cap, size_t* scalar)
-    int evt3_block_path()
 
 cdef extern from *:
     int __builtin_ctz(unsigned int) nogil

@@ -16,13 +16,6 @@ cnp.import_array()
 MAX_COORD = 2048          # 11-bit x and y
 
 
-def block_path() -> str:
-    """How the decoder takes runs of plain event words in this process: ``"avx2"`` (16 at a
-    time, evt3_block.h) or ``"words"`` (word by word: no AVX2 in this build or processor,
-    or ``SPRINGTRACK_SIMD=0`` in the environment).  Events and counters are the same."""
-    return "avx2" if evt3_block_path() else "words"
-
-
 cdef class Evt3Decoder(Decoder):
     """The EVT 3.0 state machine (evt3.pxd) as a streaming :class:`Decoder`."""
 

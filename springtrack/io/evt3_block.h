@@ -18,9 +18,9 @@
 
 #include <stddef.h>
 #include <stdint.h>
-#include <stdlib.h>
 #include <string.h>
 
+#include "springtrack/io/clones.h"
 #include "springtrack/io/evt3_types.h"
 
 #define EVT3_BLOCK_WORDS 16
@@ -44,9 +44,8 @@ typedef struct {
     int32_t vp;          /* vector polarity */
 } Evt3Run;
 
-#if defined(__x86_64__) && (defined(__GNUC__) || defined(__clang__))
+#if IO_AVX2_BUILD
 #define EVT3_BLOCK_SIMD 1
-#include <immintrin.h>
 
 /* The vector constants of the block path, read from memory: left to itself the compiler
  * rebuilds each in every block (an immediate, a move and a broadcast) for want of
@@ -97,8 +96,6 @@ static const Evt3Vec evt3_consts[N_EVT3_CONSTS] = {
 };
 #define EVT3_K(i) _mm256_load_si256((const __m256i *)&K[i])
 
-#define EVT3_AVX2 __attribute__((target("avx2"), unused))
-#define EVT3_AVX2_INLINE __attribute__((target("avx2"), always_inline, unused)) static inline
 
 /* 16-bit lanes moved up by s inside each 128-bit half (zeros below) */
 #define EVT3_UP_HALF(v, s) _mm256_slli_si256((v), 2 * (s))
@@ -110,7 +107,7 @@ static const Evt3Vec evt3_consts[N_EVT3_CONSTS] = {
 #define EVT3_UP1(v) _mm256_alignr_epi8((v), _mm256_permute2x128_si256((v), (v), 0x08), 14)
 
 /* running maximum (unsigned) over the 16 lanes, lane 0 first */
-EVT3_AVX2_INLINE __m256i evt3_prefix_max(const Evt3Vec *K, __m256i v)
+IO_AVX2_INLINE __m256i evt3_prefix_max(const Evt3Vec *K, __m256i v)
 {
     v = _mm256_max_epu16(v, EVT3_UP_HALF(v, 1));
     v = _mm256_max_epu16(v, EVT3_UP_HALF(v, 2));
@@ -119,7 +116,7 @@ EVT3_AVX2_INLINE __m256i evt3_prefix_max(const Evt3Vec *K, __m256i v)
 }
 
 /* running sum over the 16 lanes */
-EVT3_AVX2_INLINE __m256i evt3_prefix_sum(const Evt3Vec *K, __m256i v)
+IO_AVX2_INLINE __m256i evt3_prefix_sum(const Evt3Vec *K, __m256i v)
 {
     v = _mm256_add_epi16(v, EVT3_UP_HALF(v, 1));
     v = _mm256_add_epi16(v, EVT3_UP_HALF(v, 2));
@@ -129,7 +126,7 @@ EVT3_AVX2_INLINE __m256i evt3_prefix_sum(const Evt3Vec *K, __m256i v)
 
 /* For each lane i, the value of the last lane j <= i where valid, or carry if none.
  * Values below 2048: the rank j + 1 above them (5 bits), the carry at rank 0. */
-EVT3_AVX2_INLINE __m256i evt3_last11(const Evt3Vec *K, __m256i valid, __m256i value,
+IO_AVX2_INLINE __m256i evt3_last11(const Evt3Vec *K, __m256i valid, __m256i value,
                                      int carry)
 {
     __m256i key = _mm256_and_si256(valid, _mm256_or_si256(EVT3_K(K_RANK11), value));
@@ -139,7 +136,7 @@ EVT3_AVX2_INLINE __m256i evt3_last11(const Evt3Vec *K, __m256i valid, __m256i va
 
 /* The same for values below 4096: the rank j above them (4 bits), lane 0 the carry when
  * not valid itself. */
-EVT3_AVX2_INLINE __m256i evt3_last12(const Evt3Vec *K, __m256i valid, __m256i value,
+IO_AVX2_INLINE __m256i evt3_last12(const Evt3Vec *K, __m256i valid, __m256i value,
                                      int carry)
 {
     __m256i key = _mm256_and_si256(valid, _mm256_or_si256(EVT3_K(K_RANK12), value));
@@ -149,7 +146,7 @@ EVT3_AVX2_INLINE __m256i evt3_last12(const Evt3Vec *K, __m256i valid, __m256i va
 }
 
 /* bits set in each 16-bit lane */
-EVT3_AVX2_INLINE __m256i evt3_popcount16(const Evt3Vec *K, __m256i v)
+IO_AVX2_INLINE __m256i evt3_popcount16(const Evt3Vec *K, __m256i v)
 {
     const __m256i lut = EVT3_K(K_POPCOUNT_LUT), nib = EVT3_K(K_NIBBLE);
     __m256i c = _mm256_add_epi8(_mm256_shuffle_epi8(lut, _mm256_and_si256(v, nib)),
@@ -157,7 +154,7 @@ EVT3_AVX2_INLINE __m256i evt3_popcount16(const Evt3Vec *K, __m256i v)
     return _mm256_add_epi16(_mm256_and_si256(c, EVT3_K(K_LOW_BYTE)), _mm256_srli_epi16(c, 8));
 }
 
-EVT3_AVX2_INLINE int evt3_lane15(__m256i v)
+IO_AVX2_INLINE int evt3_lane15(__m256i v)
 {
     return _mm256_extract_epi16(v, 15);
 }
@@ -172,7 +169,7 @@ EVT3_AVX2_INLINE int evt3_lane15(__m256i v)
  * decoded (16, or fewer when the block ends at a word of another type: a time high, ...);
  * or returns -1 and sets *used to the words to decode word by word (up to and including
  * the first that the fast path cannot take), nothing written. */
-EVT3_AVX2_INLINE int evt3_block_avx2(const Evt3Vec *K, const uint8_t *p, Evt3Run *st,
+IO_AVX2_INLINE int evt3_block_avx2(const Evt3Vec *K, const uint8_t *p, Evt3Run *st,
                                      __m256i xmax, __m256i ymax, uint8_t *out, int *used)
 {
     const __m256i zero = _mm256_setzero_si256();
@@ -357,7 +354,7 @@ EVT3_AVX2_INLINE int evt3_block_avx2(const Evt3Vec *K, const uint8_t *p, Evt3Run
 }
 
 /* The fast path over the nw words at p (see evt3_decode_run). */
-EVT3_AVX2 static size_t evt3_run_avx2(const uint8_t *p, size_t nw, Evt3Run *st,
+IO_AVX2 static size_t evt3_run_avx2(const uint8_t *p, size_t nw, Evt3Run *st,
                                       uint32_t width, uint32_t height, uint8_t *out,
                                       size_t *k, size_t cap, size_t *scalar)
 {
@@ -387,40 +384,19 @@ EVT3_AVX2 static size_t evt3_run_avx2(const uint8_t *p, size_t nw, Evt3Run *st,
 #define EVT3_BLOCK_SIMD 0
 #endif
 
-/* Whether blocks take the AVX2 path: 1 where this build has it (x86-64, GCC or clang) and
- * the processor runs it (__builtin_cpu_supports, asked once), 0 otherwise -- and 0 when the
- * environment sets SPRINGTRACK_SIMD=0 (the word loop alone: a check, or a processor that
- * reports AVX2 wrongly).  Every word then goes through the word loop, never an AVX2
- * instruction. */
-static int evt3_block_cpu = -1;
-
-static inline int evt3_block_path(void)
-{
-#if EVT3_BLOCK_SIMD
-    if (evt3_block_cpu < 0) {
-        const char *env = getenv("SPRINGTRACK_SIMD");
-        evt3_block_cpu = (env != NULL && strcmp(env, "0") == 0) ? 0
-                         : __builtin_cpu_supports("avx2") ? 1 : 0;
-    }
-    return evt3_block_cpu;
-#else
-    return 0;
-#endif
-}
-
 /* Decode words from p, at most nw, 16 at a time while they take the fast path, into the
  * EVENT_DTYPE records at out from index *k (advanced; a block starts only while out has
  * room for EVT3_BLOCK_MAX_EVENTS before index cap), with the word loop's state st,
  * updated.  Returns the words decoded and sets *scalar to the number of words the caller
  * must decode word by word before calling again (a time high, an orphan, ...), or 0 if
- * the words or the room ran out (or there is no AVX2 path: evt3_block_path): decode the
- * rest word by word. */
+ * the words or the room ran out (or there is no AVX2 path: io_avx2, clones.h): decode
+ * the rest word by word. */
 static inline size_t evt3_decode_run(const uint8_t *p, size_t nw, Evt3Run *st,
                                      uint32_t width, uint32_t height, void *out, size_t *k,
                                      size_t cap, size_t *scalar)
 {
 #if EVT3_BLOCK_SIMD
-    if (evt3_block_path())
+    if (io_avx2())
         return evt3_run_avx2(p, nw, st, width, height, (uint8_t *)out, k, cap, scalar);
 #endif
     (void)p, (void)nw, (void)st, (void)width, (void)height, (void)out, (void)k, (void)cap;
