@@ -292,6 +292,8 @@ IO_AVX2_INLINE int evt3_block_avx2(const Evt3Vec *K, const uint8_t *p, Evt3Run *
                                                       _mm256_set1_epi16((short)total), none), 4);
     uint16_t at16[EVT3_BLOCK_WORDS];
     _mm256_storeu_si256((__m256i *)at16, at);
+    /* read back as 16 loads: cheaper than the 16 lane extracts the compiler makes of it */
+    __asm__("" : "+m"(*(uint16_t(*)[EVT3_BLOCK_WORDS])at16));
 
     /* records (springtrack.events.EVENT_DTYPE as two uint64: t, then x | y << 16 | p << 32)
      * of the first events */
