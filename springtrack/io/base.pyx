@@ -15,7 +15,7 @@ from libc.string cimport memcpy
 cimport numpy as cnp
 import numpy as np
 
-from springtrack.events import EVENT_DTYPE
+from springtrack.events import EVENT_DTYPE, empty_output
 from springtrack.io.stats import DecodeStats
 
 cnp.import_array()
@@ -114,7 +114,7 @@ cdef class Decoder:
         feeding a stream in pieces cut anywhere gives the same events as one call.
         """
         cdef Py_ssize_t n = len(memoryview(buffer).cast("B")), nout = 0
-        out = np.empty((n + self.ncarry) // self.bound_den + self.max_per_word + 1, EVENT_DTYPE)
+        out = empty_output((n + self.ncarry) // self.bound_den + self.max_per_word + 1)
         out = self._decode(buffer, out, &nout)
         if nout * 2 < out.shape[0]:
             return out[:nout].copy()
