@@ -339,7 +339,7 @@ def target_section(rows, repeat) -> str:
             "`SPRINGTRACK_SIMD=0` the portable paths decode the same events more slowly.  "
             "Pairs, not one group of all decoders: a decoder's call allocates its output, "
             "and which memory it gets (pages already mapped, or fresh ones that fault on "
-            "first touch, about 0.2-0.5 ms per MB on this VM) depends on what the calls "
+            "first touch: up to 2.5 µs per 4 KiB page on this VM) depends on what the calls "
             "before it allocated and freed; in one group with faery, our call got fresh "
             "pages in most rounds (EVT 2.0: 1.4x instead of about 3x).")
 
