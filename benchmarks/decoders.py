@@ -313,7 +313,9 @@ def cold_section(cold, processes) -> str:
             "and a read of the file's first 128 KiB; `benchmarks/_cold_read.py`, the "
             f"contenders alternating, {processes} processes each): every decoder's output "
             "memory is touched for the first time, which on this VM costs more than the "
-            "decoding itself for the large outputs:\n\n" + "\n".join(lines))
+            "decoding itself for the large outputs.  Under the other jobs' load these "
+            "figures swing widely from run to run (compare the medians with the best):"
+            "\n\n" + "\n".join(lines))
 
 
 def target_section(rows, repeat) -> str:
