@@ -24,6 +24,7 @@ import time
 
 from springtrack import wire
 from springtrack.wire import Fault
+from springtrack.commands.track import add_acquire_window
 
 from . import faults as _faults
 from . import sources as _sources
@@ -66,6 +67,10 @@ def build_parser() -> argparse.ArgumentParser:
     m = r.add_mutually_exclusive_group()
     m.add_argument("--model", help="shape model TOML file")
     m.add_argument("--preset", help="preset model name (face26, grid3x3)")
+    m.add_argument("--learn-first-ms", type=float, metavar="MS",
+                   help="learn the model from the stream's first MS ms of event time "
+                        "(springtrack learn; docs/learning.md), then track with it from "
+                        "where the window ends; --params are written into the learned model")
     r.add_argument("--params", help="TOML file of parameter overrides")
     r.add_argument("--sensor-from", choices=["source", "model"],
                    help="a model whose [sensor] is not the camera's is refused; 'source': "
@@ -77,6 +82,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "'fixed' kernel of docs/fixed_point.md (positions Q.32 px), or 'mcu': "
                         "that kernel's Cortex-M4 build run in an emulator (docs/mcu.md; slow, "
                         "for correctness tests; needs pip install 'springtrack[mcu]')")
+    r.add_argument("--acquire", action="store_true",
+                   help="find the model in the events instead of trusting its positions, "
+                        "detect its loss and find it again (docs/acquisition.md); the host "
+                        "triggers a new search with `hostctl acquire`")
+    add_acquire_window(r)
     sp = r.add_mutually_exclusive_group()
     sp.add_argument("--realtime", action="store_true",
                     help="simulated camera releases events at their timestamps (default)")
@@ -147,10 +157,16 @@ def open_source(args, biases: dict) -> _sources.CameraSource:
 
 
 def default_model(args, source: _sources.CameraSource):
-    """--model or --preset; else the source's own model (a scene's); else face26, centred
+    """--model or --preset; with --learn-first-ms a one-tracker placeholder that tracks
+    nothing (the learned model replaces it); else the source's own model (a scene's); else face26, centred
     on the source's sensor."""
     if args.model or args.preset:
         return args.model or args.preset
+    if args.learn_first_ms is not None:
+        from springtrack.model import ShapeModel, TrackerSpec
+        w, h = source.width, source.height
+        return ShapeModel("learning", w, h, [TrackerSpec("p00", w / 2, h / 2, (4.0, 0.0, 4.0))],
+                          [])
     try:
         own = source.default_model()
     except ValueError as e:
@@ -266,7 +282,9 @@ def _run(args) -> int:
                           lossless=cam is not None and args.max_speed, biases=biases,
                           profile=source.profile, backend=args.backend, roi=roi,
                           source_counters=source.counters, sensor_from=args.sensor_from,
-                          supervisor=Supervisor(), rewind=source.rewind)
+                          supervisor=Supervisor(), rewind=source.rewind,
+                          acquire=_acquire(args), learn_first_ms=args.learn_first_ms,
+                          learn_params=learn_params(args))
     throttle = Throttle()             # the program's own log lines
     stop = threading.Event()          # ends the link
     quit_now = threading.Event()      # a host sent SHUTDOWN
@@ -277,11 +295,13 @@ def _run(args) -> int:
     next_stats = t0 + args.stats_every if args.stats_every > 0 else float("inf")
     quiet = 0
     failed = None
+    learn_said = False
     try:
         while not quit_now.is_set():
             time.sleep(0.02)
             now = time.monotonic()
             _print_logs(engine, throttle)
+            learn_said = learn_said or _say_learned(engine)
             if now >= next_stats and link is None:
                 print(engine.stats_line(), file=sys.stderr, flush=True)
                 next_stats = now + args.stats_every
@@ -322,6 +342,8 @@ def _run(args) -> int:
             print(line, file=sys.stderr)
         print(f"shutdown: threads stopped in {(time.monotonic() - t_stop) * 1e3:.0f} ms"
               + (f" ({'; '.join(slow)})" if slow else ""), file=sys.stderr, flush=True)
+    if not learn_said:
+        _say_learned(engine)
     if args.record:
         rows = engine.write_record(args.record)
         print(f"record: {rows} rows -> {args.record}", file=sys.stderr)
@@ -356,6 +378,28 @@ def _print_logs(engine, throttle) -> None:
                 print(line, file=sys.stderr, flush=True)
 
 
+def learn_params(args) -> dict | None:
+    """With --learn-first-ms: the --params file's tracking parameters, to be written into
+    the learned model (the firmware then runs with them)."""
+    if args.learn_first_ms is None or not args.params:
+        return None
+    from springtrack.commands.learn import read_params
+    return read_params(args.params)
+
+
+def _say_learned(engine) -> bool:
+    """Print what the learner found once it has (stderr); True once said."""
+    le = engine.stats()["learn"]
+    if not le or le["state"] == "learning":
+        return False
+    if le["state"] == "failed":
+        print(f"learn: {le['error']}; tracking nothing until a model is uploaded",
+              file=sys.stderr, flush=True)
+    else:
+        print(f"learn: {le['report']}", file=sys.stderr, flush=True)
+    return True
+
+
 def _terminate(signum, frame):
     raise KeyboardInterrupt
 
@@ -364,6 +408,14 @@ def _ignore_signals() -> None:
     """The shutdown runs once: signals from now on are ignored (``run`` restores them)."""
     for sig in (signal.SIGTERM, signal.SIGINT):
         signal.signal(sig, signal.SIG_IGN)
+
+
+def _acquire(args):
+    """The slot's acquisition settings from --acquire*, or None."""
+    if not args.acquire:
+        return None
+    from springtrack.commands.track import acquire_bounds
+    return {"acquire_ms": args.acquire_ms, "bounds": acquire_bounds(args)}
 
 
 def main(argv=None) -> int:

@@ -183,7 +183,8 @@ class Hub:
         for snap in snaps:                                             # they wait in the engine
             self._fan_out(receivers, MsgType.TELEMETRY, "telemetry_sent",
                           lambda: wire.encode_telemetry(snap.t_us, snap.generation,
-                                                        snap.mean_energy, snap.records),
+                                                        snap.mean_energy, snap.records,
+                                                        snap.trackers["state"]),
                           f"snapshot at t={snap.t_us} us")
             if snap.energies is not None:
                 self._energies(snap, receivers)
@@ -766,6 +767,9 @@ class LinkServer:
         elif f.type == MsgType.RESET:
             self.upload = None
             self.engine.reset()
+        elif f.type == MsgType.ACQUIRE:
+            self._ack(f, self.engine.acquire())
+            return
         self._ack(f)
 
     def on_shutdown(self, f) -> None:
@@ -791,6 +795,7 @@ HANDLERS = {
     MsgType.STOP: LinkServer.on_simple,
     MsgType.RESET: LinkServer.on_simple,
     MsgType.SHUTDOWN: LinkServer.on_shutdown,
+    MsgType.ACQUIRE: LinkServer.on_simple,
     MsgType.HEARTBEAT: LinkServer.on_simple,
 }
 

@@ -6,7 +6,7 @@
     hostctl --port /dev/pts/5 load-model face26            # preset or FILE.toml
     hostctl --port /dev/pts/5 set alpha_position=0.05 energy_scale=3
     hostctl --port /dev/pts/5 get [NAME ...]
-    hostctl --port /dev/pts/5 start | stop | reset | stats | ping | shutdown
+    hostctl --port /dev/pts/5 start | stop | reset | acquire | stats | ping | shutdown
     hostctl --port /dev/pts/5 --role monitor monitor [--seconds S] [--smooth]
     hostctl --port /dev/pts/5 record OUT.csv|OUT.npz [--seconds S] [--until-end] [--smooth]
 
@@ -31,8 +31,8 @@ from springtrack.wire import Role
 
 from .device import Device, HostctlError
 
-VERBS = ("ports", "demo", "info", "load-model", "set", "get", "start", "stop", "reset", "stats",
-         "ping", "monitor", "record", "shutdown")
+VERBS = ("ports", "demo", "info", "load-model", "set", "get", "start", "stop", "reset",
+         "acquire", "stats", "ping", "monitor", "record", "shutdown")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -63,6 +63,8 @@ def build_parser() -> argparse.ArgumentParser:
     for verb, text in (("start", "start tracking (after the source ended: replay it)"),
                        ("stop", "stop tracking"),
                        ("reset", "reset the trackers to the model, clear the faulted state"),
+                       ("acquire", "search for the model in the events again (a firmware "
+                                   "started with --acquire)"),
                        ("stats", "firmware and link counters"),
                        ("shutdown", "end the firmware program")):
         sub.add_parser(verb, help=text)
@@ -238,8 +240,8 @@ def cmd_record(dev, args) -> int:
 
 VERB_FUNCS = {"info": cmd_info, "load-model": cmd_load_model, "set": cmd_set, "get": cmd_get,
               "start": _simple("start"), "stop": _simple("stop"), "reset": _simple("reset"),
-              "stats": cmd_stats, "ping": cmd_ping, "monitor": cmd_monitor,
-              "record": cmd_record, "shutdown": _simple("shutdown")}
+              "acquire": _simple("acquire"), "stats": cmd_stats, "ping": cmd_ping,
+              "monitor": cmd_monitor, "record": cmd_record, "shutdown": _simple("shutdown")}
 
 
 if __name__ == "__main__":
