@@ -18,7 +18,7 @@
 #define PI_Q29 1686629713          /* pi, Q.29: binary angle * PI_Q29 / 2^30 = rad Q.30 */
 #define SMALL_ANGLE ((int64_t)42722830)   /* 2^-4 rad as a binary angle */
 #define ACT_MAX ((int64_t)1 << 61) /* activity saturates at 2^29 */
-#define E_MAX ((int64_t)1 << 61)   /* an energy saturates at 2^29 px^2 */
+#define E_MAX ((int64_t)1 << 61)   /* an energy (Q.40) saturates at 2^21 px^2 */
 #define D2_SAT 0xffffffffu         /* d^2 >= 32: beyond any gate */
 /* A 64-bit host does a few steps in 64-bit words, where a 32-bit core uses two 32-bit ones
    (the candidate mask, d^2's final shift, the 64 / 32 divisions): the same integers
@@ -932,67 +932,152 @@ int64_t fx_activity(const fx_state *s, int i, int64_t t)
     return mulsh(s->act[i], decay(s, t - s->tlast[i]), 30);
 }
 
-/* ---- springs and energy criteria (every `period` events) ----------------------------- */
-#define OFFSET_LIM ((int32_t)1 << 30)                     /* 16384 px: ex^2 + ey^2 < 2^61 */
+/* ---- springs and energy criteria (every `period` events) -----------------------------
+   The criteria of eqs. (21)-(22) compare each connection's energy with s times their mean:
+   a decision taken the other way than by the float64 kernel moves a tracker by up to
+   energy_gain times its distance to its target, so the energies are computed to about
+   1e-9 px of the exact ones of the kernel's own positions (dl and the Cartesian offsets
+   e in Q.32 from the Q.32 spring vectors and rest geometry; energies Q.40), while the
+   spring geometry that only sets directions and angles stays Q.16. */
+#define OFFSET_LIM ((int32_t)1 << 30)                     /* 16384 px in Q.16 */
+#define FINE_LIM ((int64_t)1 << 38)                       /* 64 px in Q.32: Q.24 fits int32 */
 
 static inline int32_t clamp_offset(int64_t v)
 {
     return (int32_t)(v >= OFFSET_LIM ? OFFSET_LIM - 1 : (v <= -OFFSET_LIM ? -OFFSET_LIM + 1 : v));
 }
 
+/* |v| < 64 px (Q.32): then v is taken in Q.24 (int32) */
+static inline int fine(int64_t v)
+{
+    return v < FINE_LIM && v > -FINE_LIM;
+}
+
 static inline void frame_offset(const fx_state *s, int k, int64_t *ox, int64_t *oy);
 
-/* the offsets of eq. (18) of connection k, each clamped to +-16384 px; returns how many
-   were.  The rest offset is (dx0, dy0), or s R (dx0, dy0) (frame_offset) if the spring
-   update computing the energies used the similarity frame. */
-static inline int offsets(const fx_state *s, int k, int32_t rx, int32_t ry, int32_t *ex,
-                          int32_t *ey)
+/* the offsets e = r - d0 of eq. (18) of connection k (Q.32) from its spring vector r
+   (Q.32).  The rest offset d0 is (dx0, dy0), or s R (dx0, dy0) (frame_offset) if the
+   spring update computing the energies used the similarity frame. */
+static inline void offsets(const fx_state *s, int k, int64_t rx, int64_t ry, int64_t *ex,
+                           int64_t *ey)
 {
-    int64_t ox = s->dx0[k], oy = s->dy0[k], x, y;
+    int64_t ox = s->dx0[k], oy = s->dy0[k];
     if (s->car_turned)
         frame_offset(s, k, &ox, &oy);
-    x = (int64_t)rx - ox;                                 /* |.| < 2^34 */
-    y = (int64_t)ry - oy;
-    *ex = clamp_offset(x);
-    *ey = clamp_offset(y);
-    return (x >= OFFSET_LIM || x <= -OFFSET_LIM) + (y >= OFFSET_LIM || y <= -OFFSET_LIM);
+    *ex = rx - ox;                                        /* |.| < 2^50 */
+    *ey = ry - oy;
 }
 
-/* a dl (Q.16 x Q.30 = Q.46, exact) rounded to Q.30 when |a dl| < 2 px (the usual case:
-   then the Euclidean force and energy are single 32 x 32 products), else ADL_WIDE */
-#define ADL_WIDE INT32_MIN
-static inline int32_t adl30(const fx_state *s, int k, int32_t dl)
+/* an offset beyond 64 px in Q.16, clamped to +-16384 px */
+static inline int32_t offset16(int64_t e)
 {
-    int64_t adl = smul(dl, (int32_t)s->stiff[k]);        /* a <= 2^30 */
-    return adl < ((int64_t)1 << 47) && adl > -((int64_t)1 << 47) ? (int32_t)rshr(adl, 16)
-                                                                 : ADL_WIDE;
+    return clamp_offset(rshr(e, 16));
 }
 
-/* energies of connection k (Q.32): eq. (12) a dl^2 / 2 from dl (Q.16) and a dl, or from the
-   length l (Q.16); eq. (17) a dtheta^2 / 2 from the corrected angle (binary); eq. (20)
-   a |e|^2 / 2 from the offsets */
-static inline int64_t energy_euclid_dl(const fx_state *s, int k, int32_t dl, int32_t adl)
+/* how many of the offsets (Q.32) offset16 clamps */
+static inline int clamped(int64_t ex, int64_t ey)
 {
-    if (adl != ADL_WIDE)
-        return rshr(smul(adl, dl), 15);                   /* Q.30 x Q.16 / 2 -> Q.32 */
-    return mulsh(smul(dl, dl), s->stiff[k], 31);
+    const int64_t lim = shl64(OFFSET_LIM, 16) - ((int64_t)1 << 15);   /* rshr reaches 2^30 */
+    return (ex >= lim || ex < -lim) + (ey >= lim || ey < -lim);
 }
 
-static inline int64_t energy_euclid(const fx_state *s, int k, int32_t l)
+/* eq. (10): dl = l - l0 (Q.32) of connection k from its spring vector r (Q.32) and the
+   length l~ (Q.16) of the spring geometry (tables: within ~1e-5 px).  One Newton step
+   on l^2, l = l~ + (r.r - l~^2) / (2 l~), leaves (l - l~)^2 / (2 l) < 1e-12 px: r.r is
+   taken exactly to 2 units of Q.32 px^2 from the Q.16 half h of r and its rest e
+   (r = h 2^16 + e: r.r = h.h + h.e 2^-15 + e.e 2^-32, the last below one unit), and
+   1 / l~ to 2^-14 from one 32-bit division (the correction is ~1e-5 px). */
+static inline int64_t spring_dl(const fx_state *s, int k, int64_t rx, int64_t ry, int32_t l)
 {
-    int32_t dl = l - s->l0[k];                            /* eq. (10) */
-    return energy_euclid_dl(s, k, dl, adl30(s, k, dl));
+    int32_t hx = (int32_t)rshr(rx, 16), hy = (int32_t)rshr(ry, 16);
+    int32_t ex = (int32_t)(rx - shl64(hx, 16)), ey = (int32_t)(ry - shl64(hy, 16));
+    int64_t diff;
+    uint32_t rec;
+    int b;
+    if (l <= 0)                                           /* |r| < 2^-16 px */
+        return -s->l0[k];
+    diff = smul(hx, hx) + smul(hy, hy) + ((smul(hx, ex) + smul(hy, ey)) >> 15)
+           - smul(l, l);                                  /* r.r - l~^2, Q.32 px^2 */
+    b = bitlen32((uint32_t)l);                            /* l~ = top 2^(b - 16) */
+    rec = (1u << 31) / ((uint32_t)l << (32 - b) >> 16);   /* 2^31 / top, top in [2^15, 2^16) */
+    /* (r.r - l~^2) / (2 l~) in Q.32 = diff 2^15 / l~ = diff rec 2^-b */
+    return shl64(l, 16) + mulsh(diff, rec, b) - s->l0[k];
+}
+
+/* eq. (11): the Euclidean force a dl r / l (Q.32) of connection k, from dl (Q.32) and the
+   direction (cx, cy) (Q.30): a dl in Q.30 when |a dl| < 2 px (single products), else from
+   dl in Q.16 */
+static inline void euclid_force(const fx_state *s, int k, int64_t dl, int32_t cx, int32_t cy,
+                                int64_t *fx, int64_t *fy)
+{
+    int32_t a = (int32_t)s->stiff[k], d;
+    if (fine(dl)) {
+        int64_t adl = smul((int32_t)rshr(dl, 8), a);      /* Q.24 x Q.30 = Q.54 */
+        if (adl < ((int64_t)1 << 55) && adl > -((int64_t)1 << 55)) {
+            int32_t q = (int32_t)rshr(adl, 24);           /* a dl, Q.30 */
+            *fx = rshr(smul(q, cx), 28);
+            *fy = rshr(smul(q, cy), 28);
+            return;
+        }
+    }
+    d = clamp_offset(rshr(dl, 16));                       /* Q.16 (|dl| < 16384 px) */
+    *fx = mulsh(rshr(smul(d, cx), 14), (uint32_t)a, 30);  /* dl r / l, Q.32, times a */
+    *fy = mulsh(rshr(smul(d, cy), 14), (uint32_t)a, 30);
+}
+
+/* a |d|^2 / 2 in Q.40 for the squared length q of d in Q.32 px^2 (offsets beyond 64 px):
+   beyond 2^21 px^2 it is E_MAX (the caller counts it) */
+static inline int64_t energy_wide(const fx_state *s, int k, int64_t q)
+{
+    int64_t e = mulsh(q, s->stiff[k], 31);                /* Q.32, < 2^61 */
+    return e >= ((int64_t)1 << 53) ? E_MAX + 1 : shl64(e, 8);
+}
+
+/* energies of connection k (Q.40): eq. (12) a dl^2 / 2 from dl (Q.32); eq. (17) a dtheta^2
+   / 2 from the corrected angle (binary); eq. (20) a |e|^2 / 2 from the offsets (Q.32),
+   each from Q.24 values (products < 2^62) below 64 px */
+static inline int64_t energy_euclid(const fx_state *s, int k, int64_t dl)
+{
+    int32_t d;
+    if (fine(dl)) {
+        d = (int32_t)rshr(dl, 8);                         /* Q.24 */
+        return mulsh(smul(d, d), s->stiff[k], 39);        /* Q.48 x Q.30 / 2^39 = Q.40 */
+    }
+    d = clamp_offset(rshr(dl, 16));
+    return energy_wide(s, k, smul(d, d));
 }
 
 static inline int64_t energy_torsion(const fx_state *s, int k, int64_t dth)
 {
     int32_t dq = (int32_t)mulsh(dth, PI_Q28, 31);         /* radians, Q.28; |.| < 2^31 */
-    return mulsh(smul(dq, dq), s->stiff[k], 55);
+    return mulsh(smul(dq, dq), s->stiff[k], 47);          /* Q.56 x Q.30 / 2^47 = Q.40 */
 }
 
-static inline int64_t energy_cart(const fx_state *s, int k, int32_t ex, int32_t ey)
+static inline int64_t energy_cart(const fx_state *s, int k, int64_t ex, int64_t ey)
 {
-    return mulsh(smul(ex, ex) + smul(ey, ey), s->stiff[k], 31);
+    int32_t x, y;
+    if (fine(ex) && fine(ey)) {
+        x = (int32_t)rshr(ex, 8);                         /* Q.24 */
+        y = (int32_t)rshr(ey, 8);
+        return mulsh(smul(x, x) + smul(y, y), s->stiff[k], 39);
+    }
+    x = offset16(ex);
+    y = offset16(ey);
+    return energy_wide(s, k, smul(x, x) + smul(y, y));
+}
+
+/* eq. (19): the Cartesian force a e (Q.32) of connection k */
+static inline void cart_force(const fx_state *s, int k, int64_t ex, int64_t ey, int64_t *fx,
+                              int64_t *fy)
+{
+    int32_t a = (int32_t)s->stiff[k];
+    if (fine(ex) && fine(ey)) {                           /* Q.24 x Q.30 -> Q.32 */
+        *fx = rshr(smul((int32_t)rshr(ex, 8), a), 22);
+        *fy = rshr(smul((int32_t)rshr(ey, 8), a), 22);
+    } else {                                              /* Q.16 x Q.30 -> Q.32 */
+        *fx = rshr(smul(offset16(ex), a), 14);
+        *fy = rshr(smul(offset16(ey), a), 14);
+    }
 }
 
 /* Eq. (14) and the polar form of a spring vector r (Q.16), in two steps so that the spring
@@ -1066,18 +1151,24 @@ static inline int64_t sat_energy_of(fx_state *s, int64_t e)
     return e;
 }
 
-/* r = x_j - x_i of connection k, Q.16, |.| < 2^30 */
-static inline void spring_vector(const fx_state *s, int k, int32_t *rx, int32_t *ry)
+/* r = x_j - x_i of connection k, Q.32, |.| < 2^46 */
+static inline void spring_vector(const fx_state *s, int k, int64_t *rx, int64_t *ry)
 {
     int i = s->ca[k], j = s->cb[k];
-    *rx = (int32_t)rshr(s->mx[j] - s->mx[i], 16);
-    *ry = (int32_t)rshr(s->my[j] - s->my[i], 16);
+    *rx = s->mx[j] - s->mx[i];
+    *ry = s->my[j] - s->my[i];
+}
+
+/* a spring vector (Q.32) in the spring geometry's Q.16, |.| < 2^30 */
+static inline int32_t geom16(int64_t r)
+{
+    return (int32_t)rshr(r, 16);
 }
 
 /* Eqs. (10)-(20) for every connection: the forces summed per tracker into ddx, ddy (Q.32)
-   and the criterion's energy (eq. 13: each and their sum saturating at 2^29), which is
-   returned.  `used` = the kinds whose geometry the model needs (its springs' kinds and the
-   criterion's); each instantiation below contains only that geometry.
+   and the criterion's energy (eq. 13: each and their sum saturating at 2^21 px^2), which
+   is returned.  `used` = the kinds whose geometry the model needs (its springs' kinds and
+   the criterion's); each instantiation below contains only that geometry.
    Structure of arrays, one short step per pass: the connections are independent, and a
    pass whose iterations are short lets an out-of-order processor overlap many of them (a
    32-bit in-order core does the first two passes as one). */
@@ -1089,7 +1180,7 @@ static inline __attribute__((always_inline)) int64_t spring_passes(fx_state *s, 
     int32_t dth[FX_MAX_CONNECTIONS];
     int64_t total = 0, mean_dth = 0;
     int64_t *en = s->energy[ek];
-    int32_t *grx = s->grx, *gry = s->gry;
+    int64_t *grx = s->grx, *gry = s->gry;
     if (used & 3) {
         int64_t sum = 0;
         spring_ratio g[FX_MAX_CONNECTIONS];
@@ -1097,7 +1188,7 @@ static inline __attribute__((always_inline)) int64_t spring_passes(fx_state *s, 
         /* an out-of-order host: r and all the divisions first, so that they overlap */
         for (k = 0; k < nc; k++) {
             spring_vector(s, k, &grx[k], &gry[k]);
-            g[k] = geom_ratio(s, k, grx[k], gry[k]);
+            g[k] = geom_ratio(s, k, geom16(grx[k]), geom16(gry[k]));
         }
 #endif
         for (k = 0; k < nc; k++) {
@@ -1105,29 +1196,22 @@ static inline __attribute__((always_inline)) int64_t spring_passes(fx_state *s, 
 #if !FX_WORD64
             /* an in-order core: one pass (the same operations per connection) */
             spring_vector(s, k, &grx[k], &gry[k]);
-            g[k] = geom_ratio(s, k, grx[k], gry[k]);
+            g[k] = geom_ratio(s, k, geom16(grx[k]), geom16(gry[k]));
 #endif
             dth[k] = geom_finish(s, k, g[k], &l, &cx, &cy);   /* eq. (14) */
             sum += dth[k];
             fx[k] = fy[k] = 0;
             if (used & 1) {
-                int32_t dl = l - s->l0[k];                /* eq. (10) */
-                int32_t adl = adl30(s, k, dl);
+                int64_t dl = spring_dl(s, k, grx[k], gry[k], l);   /* eq. (10) */
                 if (s->kinds[k] & 1) {                    /* eq. (11): a dl (r / l) */
                     if (l <= 0) {
                         cx = s->c0x[k];
                         cy = s->c0y[k];
                     }
-                    if (adl != ADL_WIDE) {                /* Q.30 x Q.30 -> Q.32 */
-                        fx[k] = rshr(smul(adl, cx), 28);
-                        fy[k] = rshr(smul(adl, cy), 28);
-                    } else {                              /* dl r / l, Q.32, times a */
-                        fx[k] = mulsh(rshr(smul(dl, cx), 14), s->stiff[k], 30);
-                        fy[k] = mulsh(rshr(smul(dl, cy), 14), s->stiff[k], 30);
-                    }
+                    euclid_force(s, k, dl, cx, cy, &fx[k], &fy[k]);
                 }
                 if (ek == 0) {                            /* eq. (12), the criterion's */
-                    en[k] = sat_energy_of(s, energy_euclid_dl(s, k, dl, adl));
+                    en[k] = sat_energy_of(s, energy_euclid(s, k, dl));
                     total = sat_add(s, total, en[k], E_MAX);
                 }
             }
@@ -1135,30 +1219,32 @@ static inline __attribute__((always_inline)) int64_t spring_passes(fx_state *s, 
         if ((used & 2) && nc > 0)
             mean_dth = div_round(sum, (uint32_t)nc);      /* eq. (15) */
     } else {
-        for (k = 0; k < nc; k++) {                        /* r = x_j - x_i, Q.16 */
+        for (k = 0; k < nc; k++) {                        /* r = x_j - x_i, Q.32 */
             spring_vector(s, k, &grx[k], &gry[k]);
             fx[k] = fy[k] = 0;
         }
     }
     for (k = 0; k < nc; k++) {
         int i = s->ca[k], j = s->cb[k], kind = s->kinds[k];
-        int32_t rx = grx[k], ry = gry[k], ex = 0, ey = 0;
-        int64_t d = 0, gx = fx[k], gy = fy[k];
+        int64_t d = 0, gx = fx[k], gy = fy[k], ex = 0, ey = 0;
         uint32_t a = s->stiff[k];
         if (used & 2) {
             d = dth[k] - mean_dth;                        /* eq. (15), binary angle */
             if (kind & 2) {                               /* eq. (16): rotate r by a d */
-                int32_t c, sn;
+                int32_t c, sn, rx = geom16(grx[k]), ry = geom16(gry[k]);
                 rotation(mulsh(d, a, 30), &c, &sn);       /* cos - 1, sin */
                 gx += rshr(smul(rx, c) - smul(ry, sn), 14);   /* l (cos(th + a d) - cos th), Q.32 */
                 gy += rshr(smul(rx, sn) + smul(ry, c), 14);
             }
         }
         if (used & 4) {
-            sat += offsets(s, k, rx, ry, &ex, &ey);       /* eq. (18) */
-            if (kind & 4) {                               /* eq. (19): a e, Q.16 x Q.30 -> Q.32 */
-                gx += rshr(smul(ex, (int32_t)a), 14);
-                gy += rshr(smul(ey, (int32_t)a), 14);
+            offsets(s, k, grx[k], gry[k], &ex, &ey);      /* eq. (18) */
+            sat += clamped(ex, ey);
+            if (kind & 4) {                               /* eq. (19): a e */
+                int64_t cxf, cyf;
+                cart_force(s, k, ex, ey, &cxf, &cyf);
+                gx += cxf;
+                gy += cyf;
             }
         }
         ddx[i] += gx;                                     /* onto both ends */
@@ -1352,11 +1438,11 @@ static inline void frame_target(const fx_state *s, int i, int64_t *tx, int64_t *
 }
 
 /* eq. (18)'s rest offset of connection k in the frame the Cartesian springs use (car_c,
-   car_s: the frame fitted at the update before): s R (dx0, dy0), Q.16 */
+   car_s: the frame fitted at the update before): s R (dx0, dy0), Q.32 */
 static inline void frame_offset(const fx_state *s, int k, int64_t *ox, int64_t *oy)
 {
-    *ox = rshr(smul(s->car_c, s->dx0[k]) - smul(s->car_s, s->dy0[k]), 28);
-    *oy = rshr(smul(s->car_s, s->dx0[k]) + smul(s->car_c, s->dy0[k]), 28);
+    *ox = frame_scale(s->car_c, s->dx0[k]) - frame_scale(s->car_s, s->dy0[k]);
+    *oy = frame_scale(s->car_s, s->dx0[k]) + frame_scale(s->car_c, s->dy0[k]);
 }
 
 /* [ref] springs: displacements from the same positions, applied together (Jacobi).  The
@@ -1397,10 +1483,8 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
         /* e > s mean; with s >= nc no connection can exceed it (e <= total = nc mean) */
         if (s->escale_never)
             thr = E_MAX;
-        else if (s->mean_energy < ((int64_t)1 << 54))      /* escale < nc 2^14 <= 2^21 */
-            thr = mulsh(s->mean_energy, s->escale, 14);
-        else                                              /* huge energies: 10 bits less */
-            thr = mulsh(s->mean_energy >> 10, s->escale, 4);
+        else                                              /* s mean < nc mean <= E_MAX */
+            thr = mulsh(s->mean_energy, s->escale, s->escale_sh);
         if (!s->escale_never) {
             /* the trackers at an over-threshold connection (pulled, eq. 22) and those at
                one under it (calm: eq. 21 keeps them sensitive), as OR-reductions of the
@@ -1467,21 +1551,24 @@ void fx_energies(fx_state *s)
         return;
     if (stale & 3) {
         for (k = 0; k < nc; k++) {
-            dth[k] = spring_angle(s, k, s->grx[k], s->gry[k], &l[k], &cx, &cy);
+            dth[k] = spring_angle(s, k, geom16(s->grx[k]), geom16(s->gry[k]), &l[k], &cx, &cy);
             sum += dth[k];
         }
         if (nc > 0)
             mean_dth = div_round(sum, (uint32_t)nc);
     }
     for (k = 0; k < nc; k++) {
-        int32_t ex, ey;
-        if (stale & 1)
-            s->energy[0][k] = energy_euclid(s, k, l[k]);
+        int64_t ex, ey, e;
+        if (stale & 1) {
+            e = energy_euclid(s, k, spring_dl(s, k, s->grx[k], s->gry[k], l[k]));
+            s->energy[0][k] = e > E_MAX ? E_MAX : e;
+        }
         if (stale & 2)
             s->energy[1][k] = stale & 8 ? 0 : energy_torsion(s, k, dth[k] - mean_dth);
         if (stale & 4) {
             offsets(s, k, s->grx[k], s->gry[k], &ex, &ey);
-            s->energy[2][k] = energy_cart(s, k, ex, ey);
+            e = energy_cart(s, k, ex, ey);
+            s->energy[2][k] = e > E_MAX ? E_MAX : e;
         }
     }
     s->energy_stale &= 8;
@@ -1582,12 +1669,12 @@ int fx_load_model(fx_state *s, const int32_t *w, int32_t nw, uint64_t *cells, in
         s->cb[k] = w[1];
         s->kinds[k] = w[2];
         s->stiff[k] = (uint32_t)w[3];
-        s->l0[k] = w[4];
-        s->dx0[k] = w[5];
-        s->dy0[k] = w[6];
-        s->th0[k] = (uint32_t)w[7];
-        s->c0x[k] = w[8];
-        s->c0y[k] = w[9];
+        s->l0[k] = word64(w + 4);
+        s->dx0[k] = word64(w + 6);
+        s->dy0[k] = word64(w + 8);
+        s->th0[k] = (uint32_t)w[10];
+        s->c0x[k] = w[11];
+        s->c0y[k] = w[12];
         s->ends[k] = ((uint64_t)1 << s->ca[k]) | ((uint64_t)1 << s->cb[k]);
         s->isolated &= ~s->ends[k];
     }
@@ -1607,12 +1694,12 @@ int fx_set_params(fx_state *s, const int32_t *w, int32_t nw)
     int i;
     if (nw != FX_PARAMS_WORDS)
         return FX_ERR_WORDS;
-    if (w[3] < 31 || w[3] > 62 || w[17] < 1 || w[18] < 0 || w[18] > 2
-        || (uint32_t)w[21] > 1 || (uint32_t)w[22] > 1)
+    if (w[3] < 31 || w[3] > 62 || w[12] < 1 || w[12] > 62 || w[18] < 1 || w[19] < 0
+        || w[19] > 2 || (uint32_t)w[22] > 1 || (uint32_t)w[23] > 1)
         return FX_ERR_RANGE;
     /* [ref] eq. (6): a new tau decays from the change on */
     if (s->has_params && s->n_valid > 0
-        && ((uint32_t)w[19] != s->tau_bits[0] || (uint32_t)w[20] != s->tau_bits[1])) {
+        && ((uint32_t)w[20] != s->tau_bits[0] || (uint32_t)w[21] != s->tau_bits[1])) {
         for (i = 0; i < s->n; i++) {
             s->act[i] = fx_activity(s, i, s->last_t);
             s->tlast[i] = s->last_t;
@@ -1628,15 +1715,16 @@ int fx_set_params(fx_state *s, const int32_t *w, int32_t nw)
     s->dt_max = word64(w + 7);
     s->act_thr = word64(w + 9);
     s->escale = (uint32_t)w[11];
-    s->escale_never = w[12];
-    s->smin2 = word64(w + 13);
-    s->smax2 = word64(w + 15);
-    s->period = w[17];
-    s->ekind = w[18];
-    s->tau_bits[0] = (uint32_t)w[19];
-    s->tau_bits[1] = (uint32_t)w[20];
-    s->pull_sim = w[21];
-    s->car_sim = w[22];
+    s->escale_sh = w[12];
+    s->escale_never = w[13];
+    s->smin2 = word64(w + 14);
+    s->smax2 = word64(w + 16);
+    s->period = w[18];
+    s->ekind = w[19];
+    s->tau_bits[0] = (uint32_t)w[20];
+    s->tau_bits[1] = (uint32_t)w[21];
+    s->pull_sim = w[22];
+    s->car_sim = w[23];
     for (i = 0; i < FX_DECAY_N; i++) {
         s->decay_lo[i] = (uint32_t)w[FX_PARAMS_HEAD + i];
         s->decay_hi[i] = (uint32_t)w[FX_PARAMS_HEAD + FX_DECAY_N + i];
