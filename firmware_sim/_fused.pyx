@@ -27,7 +27,8 @@ for the next call.
 Sampling is ``springtrack track``'s, in run_events (the rule of springtrack/csrc/sampling.h):
 the first tracked event at t0 sets the first sample time to the smallest multiple of the
 period >= t0; before an event at t with t >= next sample and t >= the kernel's last time,
-one snapshot per sample time <= t is taken (state after all events with t < sample time).
+one snapshot per sample time <= t is taken (state after all events with t < sample time),
+an empty stretch sampled for its first springtrack.sampling.HOLD periods only.
 
 Time: the decoder's own time base, unchanged (springtrack/io/timebase.pxd: wraps
 unwrapped, a counter that goes back, e.g. a camera restarted after a reconnect, rebased so
@@ -47,6 +48,7 @@ from springtrack._kernel cimport Kernel
 from springtrack._fixed cimport FixedKernel
 from springtrack._samples cimport SampleOut, sample_buffers, take_samples
 from springtrack._stepper cimport Stepper, ST_UNSET, run_events
+from springtrack.sampling import MAX_PERIOD
 from springtrack.events cimport Event
 from springtrack.io.base cimport (DecodeCounts, MAX_WORD, AN_UNKNOWN_TYPE, AN_OUT_OF_GEOMETRY,
                                   AN_TIME_BACKWARDS, AN_ORPHAN, IN_TIME_HIGH, IN_TIME_WRAPS,
@@ -162,6 +164,8 @@ cdef class Fused:
                  str fmt="ccam", int width=0, int height=0, bint legacy=False, roi=None):
         if cap < 1:
             raise ValueError(f"snapshot capacity must be >= 1, got {cap}")
+        if period_us >= MAX_PERIOD:
+            raise ValueError(f"sampling period {period_us} us is not below {MAX_PERIOD} us")
         self.width, self.height = native_geometry(fmt, width, height)
         wf, self.word_size, self.max_per_word = WORD_FORMATS[fmt]
         self.wf = wf
@@ -375,7 +379,11 @@ cdef class Fused:
                 return pos
             pos = self._decode(p, pos, n)
 
-    def feed(self, buf, Py_ssize_t n=-1):
+    def feed(self, buf, Py_ssize_t n=-1, sink=None):
+        """Process the first ``n`` bytes of ``buf`` (all if n < 0); return the snapshots
+        taken, or with ``sink`` pass them to ``sink(rows)`` as each ``cap`` rows fill
+        (memory bounded by ``cap`` rows however many samples the bytes produce) and
+        return None."""
         cdef const uint8_t[::1] mv = memoryview(buf).cast("B")
         cdef Py_ssize_t total = mv.shape[0] if n < 0 else n, pos = 0
         if total > mv.shape[0]:
@@ -390,7 +398,10 @@ cdef class Fused:
             else:                               # short work: keep the GIL (see above)
                 pos = self._run(p, pos, total)
             if self.o.count:
-                parts.append(self._take())
+                if sink is not None:
+                    sink(self._take())
+                else:
+                    parts.append(self._take())
             if pos >= total and self.bpos >= self.bn:
                 break
         if not parts:

@@ -65,7 +65,9 @@ class DecodedFeed:
         self.decoder = camusb.make_decoder(self.profile)
         self.gaps += 1
 
-    def feed(self, buf, n: int = -1):
+    def feed(self, buf, n: int = -1, sink=None):
+        """As ``_fused.Fused.feed``: the snapshots taken, or each block of them passed to
+        ``sink`` as it is taken (memory bounded by one block) and None returned."""
         mv = memoryview(buf).cast("B")
         if n >= 0:
             mv = mv[:n]
@@ -81,7 +83,10 @@ class DecodedFeed:
             consumed, self.next_t, out = self._track(ev[pos:])
             pos += consumed
             if out is not None and len(out["t"]):
-                parts.append(out)
+                if sink is not None:
+                    sink(out)
+                else:
+                    parts.append(out)
         self.tracked += len(ev)
         if not parts:
             return None

@@ -228,7 +228,7 @@ class FirmwareLoop:
         while pos < n:
             k = min(self.piece, n - pos)
             t0 = time.perf_counter_ns()
-            out = f.feed(mv[pos:pos + k])
+            out = f.feed(mv[pos:pos + k], sink=self._emit)     # blocks as they fill
             dt = time.perf_counter_ns() - t0
             pos += k
             self.counters.pieces += 1

@@ -32,6 +32,7 @@ cdef extern from "csrc/fixed_step.h" nogil:
         FX_MAX_TRACKERS
         FX_MAX_CONNECTIONS
         FX_OK
+    const int64_t FX_POS_LIM
     ctypedef struct fx_state:          # the fields this wrapper reads (fixed_step.h)
         int32_t n, nc, width, height
         int64_t act_thr
@@ -50,6 +51,7 @@ cdef extern from "csrc/fixed_step.h" nogil:
         uint64_t* cells
         int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates, n_reindex
         int64_t sat_position, sat_activity, sat_energy, sat_inverse
+        int64_t n_resets
     ctypedef struct fx_event:
         int64_t t
         uint16_t x
@@ -83,6 +85,7 @@ cdef extern from "csrc/fixed_telemetry.c":
 # fx_event mirrors springtrack.events' Event (same members in the same order)
 assert sizeof(fx_event) == sizeof(Event) == 16
 assert _limits.MAX_TRACKERS == FX_MAX_TRACKERS and _limits.MAX_CONNECTIONS == FX_MAX_CONNECTIONS
+assert FX_POS_LIM == _limits.POS_LIMIT_PX << 32, "fixed_step.h FX_POS_LIM disagrees with limits.py"
 # the C telemetry packer writes springtrack.wire's layout: the scales must be the same
 assert (_wire.TELE_TRACKER.itemsize == FX_TELE_RECORD
         and _wire.POS_SCALE == 2.0 ** (32 - FX_TELE_POS_SHIFT)
@@ -276,4 +279,5 @@ cdef class FixedKernel:
                     skipped_back_in_time=s.n_back, skipped_outside_sensor=s.n_outside,
                     spring_updates=s.n_spring_updates, index_updates=s.n_reindex,
                     saturated_position=s.sat_position, saturated_activity=s.sat_activity,
-                    saturated_energy=s.sat_energy, saturated_inverse=s.sat_inverse)
+                    saturated_energy=s.sat_energy, saturated_inverse=s.sat_inverse,
+                    state_resets=s.n_resets)

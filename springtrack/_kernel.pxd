@@ -36,6 +36,15 @@ ctypedef struct KState:
     double smin2, smax2
     int period, ekind, need_torsion
     int pull_sim, car_sim            # eq. (22) / eqs. (18)-(20) in the similarity frame
+    # the model's means and covariances (the state starts from them and the guard resets it
+    # to them), and the position box (springtrack.limits.position_box): after a spring
+    # update every mean lies in it, or the guard resets the state (guard_state)
+    double rest_x[MAX_TRACKERS]
+    double rest_y[MAX_TRACKERS]
+    double rest_sxx[MAX_TRACKERS]
+    double rest_sxy[MAX_TRACKERS]
+    double rest_syy[MAX_TRACKERS]
+    double pos_lo_x, pos_hi_x, pos_lo_y, pos_hi_y
     # tracker state, structure of arrays
     double mx[MAX_TRACKERS]
     double my[MAX_TRACKERS]
@@ -116,6 +125,7 @@ ctypedef struct KState:
     # counters
     int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates, n_reindex
     int64_t n_frame_misses, n_frame_moves
+    int64_t n_resets                 # states the guard reset to the model
     int since_spring
 
 cdef int kstep(KState* s, int64_t t, int x, int y) noexcept nogil

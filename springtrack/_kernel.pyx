@@ -141,7 +141,7 @@ cdef inline int clampi(int v, int lo, int hi) noexcept nogil:
 cdef inline int cell_of(const KState* s, double v, int gmax) noexcept nogil:
     # floor division of a pixel coordinate by the cell size, clamped to the grid
     cdef double c = floor(v / (1 << CELL_SHIFT))
-    if c < 0.0:
+    if not c >= 0.0:                   # below the grid, or not a number
         return 0
     if c > gmax:
         return gmax
@@ -329,8 +329,8 @@ cdef void ksprings(KState* s) noexcept nogil:
     #   similarity frame: the Cartesian rest offsets turned and scaled);  5. eqs. (10)-(12), (16),
     #   (18)-(20) branch-free (a_euc/a_tor/a_car are 0 for kinds a connection lacks),
     #   displacements divided by each end's mass;  6. scatter onto the ends' means
-    #   (scalar);  7. energy criteria (OR-reduced bit masks);  8. re-index the trackers
-    #   whose gate boxes left their indexed boxes.
+    #   (scalar);  7. energy criteria (OR-reduced bit masks);  8. the state guard;  9.
+    #   re-index the trackers whose gate boxes left their indexed boxes.
     # Rounding-level differences from the reference, none larger than ~1e-15 relative: the
     # three kinds' displacements are summed per connection and added straight to the means
     # (the reference adds them one by one to per-tracker sums, then those to the means);
@@ -388,11 +388,55 @@ cdef void ksprings(KState* s) noexcept nogil:
         s.mx[j] -= ubx[k]
         s.my[j] -= uby[k]
     energy_criteria(s)                                               # 7.
-    st_boxes_left(n, s.mx, s.my, s.sxx, s.syy, s.bcx, s.bcy, s.dev_x, s.dev_y, s.sxx_lim,  # 8.
+    if guard_state(s):                                               # 8.
+        return
+    st_boxes_left(n, s.mx, s.my, s.sxx, s.syy, s.bcx, s.bcy, s.dev_x, s.dev_y, s.sxx_lim,  # 9.
                   s.syy_lim, left)
     for i in range(n):
         if left[i]:
             reindex(s, i)
+
+
+cdef bint guard_state(KState* s) noexcept nogil:
+    """[ref] _guard: a mean outside the position box, or not a number, is a state no model
+    within springtrack.limits reaches: counted, and the state reset to the model (True)."""
+    cdef int i
+    cdef bint out = False
+    for i in range(s.n):
+        out |= not (s.mx[i] >= s.pos_lo_x and s.mx[i] < s.pos_hi_x
+                    and s.my[i] >= s.pos_lo_y and s.my[i] < s.pos_hi_y)
+    if out:
+        s.n_resets += 1
+        reset_state(s)
+    return out
+
+
+cdef void reset_state(KState* s) noexcept nogil:
+    """[ref] _reset_state, then every covariance clamped and inverted and every tracker
+    re-indexed: the tracker state of the model, counters and time kept."""
+    cdef int i, k, q
+    for i in range(s.n):
+        s.mx[i] = s.rest_x[i]
+        s.my[i] = s.rest_y[i]
+        s.sxx[i] = s.rest_sxx[i]
+        s.sxy[i] = s.rest_sxy[i]
+        s.syy[i] = s.rest_syy[i]
+        s.act[i] = 0.0
+    s.act_n = 0                        # increments logged for the state left behind
+    for q in range(3):
+        for k in range(s.nc):
+            s.energy[q][k] = 0.0
+    s.mean_energy = 0.0
+    s.sensitive_mask = ~(<uint64_t>0) if s.n == 64 else ((<uint64_t>1) << s.n) - 1
+    s.sim_c = 1.0                      # [ref] the identity frame about G0 until a fit
+    s.sim_s = 0.0
+    if s.n:
+        s.sim_gx = s.mx[0] - s.gdx0[0]
+        s.sim_gy = s.my[0] - s.gdy0[0]
+    set_frame(s, 0.0)
+    for i in range(s.n):
+        clamp_and_invert(s, i)
+        reindex(s, i)
 
 
 cdef void set_frame(KState* s, double phi) noexcept nogil:
@@ -568,12 +612,13 @@ cdef class Kernel:
         s.cells = <uint64_t*>calloc(s.gw * s.gh, sizeof(uint64_t))
         if s.cells == NULL:
             raise MemoryError()
+        s.pos_lo_x, s.pos_hi_x, s.pos_lo_y, s.pos_hi_y = _limits.position_box(s.width, s.height)
         for i in range(n):
-            s.mx[i] = arr["x"][i]
-            s.my[i] = arr["y"][i]
-            s.sxx[i] = arr["sxx"][i]
-            s.sxy[i] = arr["sxy"][i]
-            s.syy[i] = arr["syy"][i]
+            s.mx[i] = s.rest_x[i] = arr["x"][i]
+            s.my[i] = s.rest_y[i] = arr["y"][i]
+            s.sxx[i] = s.rest_sxx[i] = arr["sxx"][i]
+            s.sxy[i] = s.rest_sxy[i] = arr["sxy"][i]
+            s.syy[i] = s.rest_syy[i] = arr["syy"][i]
             s.mass[i] = arr["mass"][i]
             s.gdx0[i] = arr["gdx0"][i]
             s.gdy0[i] = arr["gdy0"][i]
@@ -716,7 +761,8 @@ cdef class Kernel:
         cdef KState* s = &self.st
         return dict(events_valid=s.n_valid, events_assigned=s.n_assigned,
                     skipped_back_in_time=s.n_back, skipped_outside_sensor=s.n_outside,
-                    spring_updates=s.n_spring_updates, index_updates=s.n_reindex)
+                    spring_updates=s.n_spring_updates, index_updates=s.n_reindex,
+                    state_resets=s.n_resets)
 
     def frame_stats(self):
         """Diagnostics of eq. (14)'s fast path (ksprings): spring updates that fell back to

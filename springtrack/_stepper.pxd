@@ -24,8 +24,10 @@ from springtrack._samples cimport SampleOut
 
 cdef extern from "springtrack/csrc/sampling.h" nogil:
     const int64_t ST_UNSET                   # next sample time before the first event
+    const int ST_HOLD                        # sample periods an empty stretch is sampled for
     int64_t st_first_sample(int64_t t0, int64_t period)
     bint st_sample_due(int64_t t, int64_t next_t, int64_t last_t)
+    int64_t st_next_sample(int64_t t, int64_t next_t, int64_t last_t, int64_t period)
 
 ctypedef int (*step_fn)(void* state, int64_t t, int x, int y) noexcept nogil
 ctypedef Py_ssize_t (*steps_fn)(void* state, const Event* ev, Py_ssize_t n,

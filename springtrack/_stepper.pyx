@@ -6,12 +6,12 @@ from libc.string cimport memcpy
 
 from springtrack.events cimport Event
 from springtrack.events import EVENT_DTYPE
-from springtrack.sampling import UNSET
+from springtrack.sampling import HOLD, MAX_PERIOD, UNSET
 from springtrack._samples cimport SampleOut, sample_buffers, take_samples
 
 cnp.import_array()
 
-assert ST_UNSET == UNSET, "csrc/sampling.h ST_UNSET disagrees with springtrack/sampling.py"
+assert ST_UNSET == UNSET and ST_HOLD == HOLD, "csrc/sampling.h disagrees with springtrack/sampling.py"
 
 
 cdef Py_ssize_t run_events(const Stepper* sp, const Event* ev, Py_ssize_t n, int64_t sample_us,
@@ -19,7 +19,8 @@ cdef Py_ssize_t run_events(const Stepper* sp, const Event* ev, Py_ssize_t n, int
     """Process events until done or the sample buffer is full; returns events consumed.
     The sampling rule (csrc/sampling.h): ``next_t`` ST_UNSET becomes the first sample time
     after ev[0]; before an event at t for which st_sample_due(t, next_t, the last event
-    time), one snapshot per sample time <= t (the state after all earlier events)."""
+    time), one snapshot per sample time <= t (the state after all earlier events), those
+    of an empty stretch past its ST_HOLD periods skipped (st_next_sample)."""
     cdef Py_ssize_t k = 0
     cdef int64_t t
     if sample_us <= 0:
@@ -36,7 +37,10 @@ cdef Py_ssize_t run_events(const Stepper* sp, const Event* ev, Py_ssize_t n, int
         if k >= n:
             return n
         t = ev[k].t                    # st_sample_due(t, next_t[0], the last event time)
-        while t >= next_t[0]:
+        while True:
+            next_t[0] = st_next_sample(t, next_t[0], sp.last_t[0], sample_us)
+            if t < next_t[0]:
+                break
             if o.count >= o.cap:
                 return k
             sp.snapshot(sp.state, next_t[0], o)
@@ -131,6 +135,8 @@ cdef tuple run_array(Stepper sp, events, int64_t sample_us, int64_t next_t, Py_s
     cdef SampleOut o
     cdef Layout L
     cdef bint direct = ev.dtype == EVENT_DTYPE and ev.flags.c_contiguous
+    if sample_us >= MAX_PERIOD:
+        raise ValueError(f"sampling period {sample_us} us is not below {MAX_PERIOD} us")
     if not direct:
         lay = layout_of(ev)
         if lay is None:

@@ -18,8 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
+from . import limits as _limits
+
 POS_FRAC = 32                 # positions Q.32 px (int64)
-POS_LIM_PX = 8192.0           # |position| < 8192 px (state saturates there)
+POS_LIM_PX = float(_limits.POS_LIMIT_PX)   # |position| < 8192 px (state saturates there)
 COV_FRAC = 40                 # covariances Q.40 px^2
 D2_FRAC = 27                  # Mahalanobis d^2 and the gate, Q.27 (uint32, < 32)
 KTAU_FRAC = 40                # log2(e) / tau per us, Q.40
@@ -31,8 +33,6 @@ EXP2_BITS = 10                # exp2 table of 2^10 + 1 entries
 CORDIC_N = 30
 ATAN_BITS = 10                # atan table of 2^10 + 2 entries
 PARAMS_HEAD = 24              # fx_set_params: words before the two decay tables
-SIGMA_MAX_PX = 64.0           # covariance range of the fixed kernel: sigma <= 64 px
-MAX_SENSOR = 8192
 LOG2E = 1.0 / math.log(2.0)
 
 
@@ -143,16 +143,15 @@ def angle(rad: float) -> int:
 
 
 def params_q(p, nc: int) -> dict:
-    """The kernel's integer parameters for validated springtrack.params.Params ``p``."""
-    if p.sigma_max_px > SIGMA_MAX_PX:
-        raise ValueError(f"fixed kernel: sigma_max_px={p.sigma_max_px} exceeds {SIGMA_MAX_PX} px, "
-                         f"the covariance range of its Q.40 format (docs/fixed_point.md)")
-    from .reference import covariance_bias
+    """The kernel's integer parameters for springtrack.params.Params ``p``, within the
+    limits every backend shares (springtrack.limits.check_params, as Params checks)."""
+    _limits.check_params(p)
     gate = p.gate_d2
     tau = p.activity_tau_us
     k_tau = int(round(LOG2E / tau * 2 ** KTAU_FRAC))
-    gm, am, sh = gain_pair(p.alpha_covariance / covariance_bias(p.alpha_position, gate),
-                           p.alpha_covariance, "alpha_covariance / its gain")
+    never = p.energy_scale >= max(nc, 1)             # e <= total = nc mean: never over
+    gm, am, sh = gain_pair(_limits.covariance_gain(p), p.alpha_covariance,
+                           "alpha_covariance / its gain")
     return dict(
         a1=gain(p.alpha_position, "alpha_position"),
         cov_gm=gm, cov_am=am, cov_sh=sh,
@@ -161,8 +160,8 @@ def params_q(p, nc: int) -> dict:
         k_tau=min(k_tau, (1 << 32) - 1),           # used only while dt_max > 2^18 us: < 2^27
         dt_max=-(-(32 << KTAU_FRAC) // k_tau),     # 2^-32 and beyond: decay = 0 in Q.30
         act_thr=q(min(p.activity_threshold, 2.0 ** 29), ACT_FRAC, "activity_threshold"),
-        escale_never=1 if p.energy_scale >= max(nc, 1) else 0,
-        escale=mantissa(min(p.energy_scale, max(nc, 1) - 1), "energy_scale"),
+        escale_never=1 if never else 0,
+        escale=mantissa(0.0 if never else p.energy_scale, "energy_scale"),   # < nc <= 128
         smin2=q(p.sigma_min_px ** 2, COV_FRAC, "sigma_min_px^2"),
         smax2=q(p.sigma_max_px ** 2, COV_FRAC, "sigma_max_px^2"),
         decay=decay_tables(tau),
@@ -200,7 +199,8 @@ def model_words(arr: dict, width: int, height: int) -> np.ndarray:
     """The word stream fx_load_model reads, from ShapeModel.arrays() (checked by model_q)."""
     mq = model_q(arr, width, height)
     n, nc = len(mq["mx"]), len(mq["stiff"])
-    words = [n, nc, width, height]
+    box = _limits.position_box(width, height)       # the state guard's, whole px
+    words = [n, nc, width, height, *box]
     for i in range(n):
         words += [*_w64(mq["mx"][i]), *_w64(mq["my"][i]), *_w64(mq["sxx"][i]),
                   *_w64(mq["sxy"][i]), *_w64(mq["syy"][i]), mq["mq"][i], mq["invm"][i],
@@ -213,17 +213,14 @@ def model_words(arr: dict, width: int, height: int) -> np.ndarray:
 
 
 def model_q(arr: dict, width: int, height: int) -> dict:
-    """The kernel's integer model (positions, springs, masses) from ShapeModel.arrays()."""
-    if width > MAX_SENSOR or height > MAX_SENSOR:
-        raise ValueError(f"fixed kernel: sensor {width}x{height} exceeds {MAX_SENSOR} px per side")
+    """The kernel's integer model (positions, springs, masses) from ShapeModel.arrays(),
+    within the limits every backend shares (springtrack.limits.check_model, as ShapeModel
+    checks): so every conversion below fits its format."""
+    _limits.check_model(width, height, arr)
     lim = POS_LIM_PX
     pos = lambda v, name: q(float(v), POS_FRAC, name, -lim, lim - 1.0)  # noqa: E731
     mass = [float(m) for m in arr["mass"]]
     mmax = max(mass)
-    for i, m in enumerate(mass):
-        if 1.0 / m >= 127.0 or m / mmax < 2.0 ** -20:
-            raise ValueError(f"fixed kernel: trackers[{i}] mass {m} is outside the supported "
-                             f"range (mass > 1/127 and >= 2^-20 of the largest mass)")
     out = dict(
         mx=[pos(v, f"trackers[{i}].x") for i, v in enumerate(arr["x"])],
         my=[pos(v, f"trackers[{i}].y") for i, v in enumerate(arr["y"])],

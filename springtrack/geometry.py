@@ -51,16 +51,19 @@ def outside_trackers(model: ShapeModel, width: int | None = None,
             if not (0 <= t.x < w and 0 <= t.y < h)]
 
 
-def check_inside(model: ShapeModel) -> ShapeModel:
-    """``model``, or :class:`TrackersOutside` naming the trackers off its own sensor."""
-    bad = outside_trackers(model)
+def check_inside(model: ShapeModel, width: int | None = None,
+                 height: int | None = None) -> ShapeModel:
+    """``model``, or :class:`TrackersOutside` naming the trackers off its own sensor (or off
+    ``width`` x ``height``)."""
+    w = model.width if width is None else width
+    h = model.height if height is None else height
+    bad = outside_trackers(model, w, h)
     if bad:
         shown = ", ".join(f"{i} ({x:g}, {y:g})" for i, x, y in bad[:6])
         more = f" and {len(bad) - 6} more" if len(bad) > 6 else ""
         raise TrackersOutside(
-            f"{model.source}: {len(bad)} tracker(s) outside the {model.width}x{model.height} "
-            f"sensor: {shown}{more}; every tracker needs 0 <= x < {model.width} and "
-            f"0 <= y < {model.height}")
+            f"{model.source}: {len(bad)} tracker(s) outside the {w}x{h} sensor: {shown}{more};"
+            f" every tracker needs 0 <= x < {w} and 0 <= y < {h}")
     return model
 
 
@@ -74,7 +77,8 @@ def fit_model(model: ShapeModel, width: int | None, height: int | None,
     if sensor_from is not None and sensor_from not in SENSOR_FROM + SOURCE_WORDS:
         raise ValueError(f"{flag} must be {source_word} or model, got {sensor_from!r}")
     if width and height and (model.width, model.height) != (width, height):
-        if sensor_from in SOURCE_WORDS:
+        if sensor_from in SOURCE_WORDS:          # checked before the model is rebuilt on it
+            check_inside(model, int(width), int(height))
             model = dataclasses.replace(model, width=int(width), height=int(height))
         elif sensor_from is None:
             raise SensorMismatch(

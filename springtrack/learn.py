@@ -50,8 +50,8 @@ import numpy as np
 
 from . import _learn
 from .events import as_events
-from .limits import MAX_CONNECTIONS
-from .model import Connection, ShapeModel, TrackerSpec
+from .limits import MAX_CONNECTIONS, spring_scale
+from .model import SPRING_BIT, Connection, ShapeModel, TrackerSpec
 from .params import Params
 
 POOL_CAPACITY = 128           # trackers alive at once during discovery
@@ -1009,6 +1009,11 @@ def _build_model(pool, rec, counts, lp, track_params, width, height, names, name
         params["alpha_position"] = round(motion_alpha(rec, sig, lp.batch_us, lp.smooth_us), 4)
     stiff = np.array([lp.stiffness_gain * params["alpha_position"] * c.rigidity for c in kept])
     if kept:
+        # the spring bound every model meets (springtrack.limits): all stiffnesses scaled
+        # down together if a tracker's spring load would exceed it
+        stiff = stiff * spring_scale(n, [c.a for c in kept], [c.b for c in kept],
+                                     [sum(SPRING_BIT[s] for s in c.kinds) for c in kept],
+                                     stiff, mass)
         kind = params.setdefault("energy_kind", "cartesian" if all(
             c.kinds == ("cartesian",) for c in kept) else "euclidean")
         if "energy_scale" not in params:

@@ -32,15 +32,19 @@ from pathlib import Path
 
 import numpy as np
 
+from . import limits as _limits
 from . import params as _params
 from .limits import MAX_CONNECTIONS, MAX_TRACKERS
+from .wire import Nack
 
 SPRING_KINDS = ("euclidean", "torsional", "cartesian")
 SPRING_BIT = {"euclidean": 1, "torsional": 2, "cartesian": 4}
 
 
 class ModelError(ValueError):
-    """A model file or model object is invalid; the message names file and entry."""
+    """A model file or model object is invalid; the message names file and entry.
+    ``code``: the host link's NACK code for it."""
+    code = Nack.INVALID_MODEL
 
 
 @dataclass(frozen=True)
@@ -127,12 +131,10 @@ def validate(m: ShapeModel) -> None:
     def err(msg):
         raise ModelError(f"{src}: {msg}")
 
-    if not isinstance(m.name, str) or not m.name:
-        err("name must be a non-empty string")
-    for key in ("width", "height"):
-        v = getattr(m, key)
-        if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= 65535:
-            err(f"sensor.{key} must be an integer in [1, 65535], got {v!r}")
+    try:
+        _limits.check_name(m.name)
+    except _limits.LimitError as e:
+        err(str(e))
     if not m.trackers:
         err("a model needs at least one [[trackers]] entry")
     if len(m.trackers) > MAX_TRACKERS:
@@ -180,6 +182,10 @@ def validate(m: ShapeModel) -> None:
         if pair in pairs:
             err(f"{where}: duplicate connection between {c.a!r} and {c.b!r}")
         pairs.add(pair)
+    try:
+        _limits.check_model(m.width, m.height, m.arrays(), m.ids)
+    except _limits.LimitError as e:
+        err(str(e))
     try:
         _params.from_mapping(m.params, where=f"{src} [params]")
     except _params.ParamError as e:
@@ -263,22 +269,18 @@ def from_dict(data: dict, source: str = "<model>") -> ShapeModel:
                       connections=conns, params=dict(params), source=source)
 
 
-def loads(text: str, source: str = "<string>") -> ShapeModel:
-    import tomllib
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as e:
-        raise ModelError(f"{source}: not valid TOML: {e}") from None
-    return from_dict(data, source)
+def loads(text, source: str = "<string>") -> ShapeModel:
+    """A model from TOML text (str or UTF-8 bytes); errors name ``source``."""
+    return from_dict(_params.parse_toml(text, source, ModelError), source)
 
 
 def load(path) -> ShapeModel:
     path = Path(path)
     try:
-        text = path.read_text()
+        data = path.read_bytes()
     except OSError as e:
         raise ModelError(f"{path}: cannot read model file: {e.strerror or e}") from None
-    return loads(text, str(path))
+    return loads(data, str(path))
 
 
 # ---- presets ----------------------------------------------------------------

@@ -13,6 +13,7 @@ import math
 from dataclasses import dataclass, fields, asdict
 from typing import Mapping
 
+from . import limits as _limits
 from .wire import Nack
 
 ENERGY_KINDS = ("euclidean", "torsional", "cartesian")
@@ -61,7 +62,7 @@ SPECS: dict[str, ParamSpec] = {s.name: s for s in [
               "image (the paper)", FRAMES),
     ParamSpec("sigma_min_px", float, 0.5, 0.05, 64.0, "px",
               "lower bound on a tracker's standard deviation along x and y"),
-    ParamSpec("sigma_max_px", float, 64.0, 0.5, 1024.0, "px",
+    ParamSpec("sigma_max_px", float, 64.0, 0.5, _limits.SIGMA_MAX_PX, "px",
               "upper bound on a tracker's standard deviation along x and y"),
 ]}
 
@@ -105,6 +106,10 @@ class Params:
         if self.sigma_min_px >= self.sigma_max_px:
             raise ParamError(f"sigma_min_px ({self.sigma_min_px}) must be below "
                              f"sigma_max_px ({self.sigma_max_px})")
+        try:
+            _limits.check_params(self)
+        except _limits.LimitError as e:
+            raise ParamError(str(e)) from None
 
     def replace(self, **changes) -> "Params":
         return Params(**{**asdict(self), **changes})
@@ -174,12 +179,33 @@ def from_mapping(values: Mapping, base: Params | None = None, where: str = "") -
         raise type(e)(f"{where}: {e}" if where else str(e)) from None
 
 
+def parse_toml(text, source, error: type = ParamError) -> dict:
+    """TOML ``text`` (str or UTF-8 bytes) as a dict; invalid TOML, text that is not UTF-8,
+    or nesting deeper than the parser's recursion allows (tomllib recurses once per
+    level of arrays and inline tables) raise ``error`` naming ``source``."""
+    import tomllib
+    try:
+        if isinstance(text, (bytes, bytearray)):
+            text = bytes(text).decode("utf-8")
+        return tomllib.loads(text)
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        raise error(f"{source}: not valid TOML: {e}") from None
+    except RecursionError:
+        raise error(f"{source}: not valid TOML: arrays or tables nested too deeply") from None
+
+
+def read_toml(path, error: type = ParamError) -> dict:
+    """A TOML file as a dict (see :func:`parse_toml`); a file that cannot be read raises
+    ``error`` too."""
+    try:
+        with open(path, "rb") as f:
+            data = f.read()
+    except OSError as e:
+        raise error(f"{path}: cannot read: {e.strerror or e}") from None
+    return parse_toml(data, path, error)
+
+
 def load(path) -> Params:
     """Read a params TOML file: either a top-level table of names or a ``[params]`` table."""
-    import tomllib
-    with open(path, "rb") as f:
-        try:
-            data = tomllib.load(f)
-        except tomllib.TOMLDecodeError as e:
-            raise ParamError(f"{path}: not valid TOML: {e}") from None
+    data = read_toml(path)
     return from_mapping(data.get("params", data), where=str(path))

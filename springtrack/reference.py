@@ -37,9 +37,10 @@ import math
 
 import numpy as np
 
+from .limits import position_box
 from .model import SPRING_BIT, ShapeModel
 from .params import ENERGY_KINDS, Params
-from .sampling import UNSET, first_sample_time, sample_due
+from .sampling import UNSET, first_sample_time, next_sample, sample_due
 
 EUCLIDEAN, TORSIONAL, CARTESIAN = SPRING_BIT["euclidean"], SPRING_BIT["torsional"], SPRING_BIT["cartesian"]
 RHO_MAX = 0.99           # |correlation| bound that keeps a covariance positive definite
@@ -96,18 +97,13 @@ class ReferenceTracker:
         self.n = len(model.trackers)
         self.nc = len(model.connections)
         self.width, self.height = model.width, model.height
-        # tracker state
-        self.mx = [float(v) for v in arr["x"]]
-        self.my = [float(v) for v in arr["y"]]
-        self.sxx = [float(v) for v in arr["sxx"]]
-        self.sxy = [float(v) for v in arr["sxy"]]
-        self.syy = [float(v) for v in arr["syy"]]
+        # the model's state, which the tracker state starts from and is reset to
+        self.rest = tuple([float(v) for v in arr[k]] for k in ("x", "y", "sxx", "sxy", "syy"))
+        # where trackers may be after a spring update (the state guard, _guard)
+        self.box = position_box(self.width, self.height)
         self.ia = [0.0] * self.n
         self.ib = [0.0] * self.n
         self.ic = [0.0] * self.n
-        self.act = [0.0] * self.n
-        self.tlast = [0] * self.n
-        self.sensitive = [True] * self.n
         self.mass = [float(v) for v in arr["mass"]]
         self.inv_mass = [1.0 / float(v) for v in arr["mass"]]
         self.gdx0 = [float(v) for v in arr["gdx0"]]
@@ -121,13 +117,7 @@ class ReferenceTracker:
         self.th0 = [float(v) for v in arr["th0"]]
         self.dx0 = [float(v) for v in arr["dx0"]]
         self.dy0 = [float(v) for v in arr["dy0"]]
-        self.energy = [[0.0] * self.nc for _ in ENERGY_KINDS]   # [kind][connection]
-        self.mean_energy = 0.0
-        # the similarity frame of the last spring update (fit_frame): s R = [[fc, -fs],
-        # [fs, fc]], and (fgx, fgy) where it maps the rest centre of mass G0
-        self.fc, self.fs = 1.0, 0.0
-        self.fgx = float(arr["x"][0] - arr["gdx0"][0]) if self.n else 0.0    # G0 at rest
-        self.fgy = float(arr["y"][0] - arr["gdy0"][0]) if self.n else 0.0
+        self._reset_state()
         self.degree = [0] * self.n
         for k in range(self.nc):
             self.degree[self.ca[k]] += 1
@@ -137,7 +127,24 @@ class ReferenceTracker:
         self.n_valid = self.n_assigned = self.n_back = self.n_outside = 0
         self.since_spring = 0
         self.n_spring_updates = 0
+        self.n_resets = 0
         self.set_params(params if params is not None else Params())
+
+    def _reset_state(self) -> None:
+        """The tracker state of the model: means and covariances as the model gives them,
+        no activity, every tracker sensitive, no energy, the similarity frame the identity
+        at the rest centre of mass."""
+        self.mx, self.my, self.sxx, self.sxy, self.syy = (list(v) for v in self.rest)
+        self.act = [0.0] * self.n
+        self.tlast = [0] * self.n
+        self.sensitive = [True] * self.n
+        self.energy = [[0.0] * self.nc for _ in ENERGY_KINDS]   # [kind][connection]
+        self.mean_energy = 0.0
+        # the similarity frame of the last spring update (fit_frame): s R = [[fc, -fs],
+        # [fs, fc]], and (fgx, fgy) where it maps the rest centre of mass G0
+        self.fc, self.fs = 1.0, 0.0
+        self.fgx = self.mx[0] - self.gdx0[0] if self.n else 0.0             # G0 at rest
+        self.fgy = self.my[0] - self.gdy0[0] if self.n else 0.0
 
     def set_params(self, params: Params) -> None:
         p = params
@@ -356,6 +363,21 @@ class ReferenceTracker:
             mx[i] = mx[i] + ddx[i]
             my[i] = my[i] + ddy[i]
         self._energy_criteria()
+        self._guard()
+
+    def _guard(self) -> None:
+        """The state guard, after every spring update: a tracker outside the position box
+        (springtrack.limits.position_box: one sensor size around the sensor), or not finite,
+        is a state no limit-abiding model reaches (docs/algorithm.md, Limits); it is counted
+        (``n_resets``) and the whole tracker state is reset to the model, never reported."""
+        x_lo, x_hi, y_lo, y_hi = self.box
+        for i in range(self.n):
+            if not (x_lo <= self.mx[i] < x_hi and y_lo <= self.my[i] < y_hi):
+                self.n_resets += 1
+                self._reset_state()
+                for k in range(self.n):
+                    self._clamp_and_invert(k)
+                return
 
     def _energy_criteria(self) -> None:
         n, nc = self.n, self.nc
@@ -425,8 +447,8 @@ class ReferenceTracker:
 
     def run(self, events: np.ndarray, sample_us: int | None = None):
         """Process an event array; with ``sample_us``, return [(t_us, snapshot), ...] taken at
-        every multiple of sample_us, each the state after all events with t < t_us (the
-        sampling rule of springtrack.sampling)."""
+        the multiples of sample_us the sampling rule of springtrack.sampling names, each the
+        state after all events with t < t_us."""
         samples = []
         next_t = UNSET
         for t, x, y in zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist()):
@@ -434,7 +456,10 @@ class ReferenceTracker:
                 if next_t == UNSET:
                     next_t = first_sample_time(t, sample_us)
                 if sample_due(t, next_t, self.last_t):
-                    while t >= next_t:
+                    while True:
+                        next_t = next_sample(t, next_t, self.last_t, sample_us)
+                        if t < next_t:
+                            break
                         samples.append((next_t, self.snapshot(next_t)))
                         next_t += sample_us
             self.step(t, x, y)

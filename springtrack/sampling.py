@@ -8,15 +8,24 @@ of event time holds, at each sample time T, the state after all events with t < 
   snapshot is taken per sample time <= t (:func:`sample_due`).  An event back in time
   (t < the last event time) is skipped by the kernel, so it neither moves time on nor
   triggers a sample.
+* An empty stretch (no event) is sampled for :data:`HOLD` periods after its last event;
+  its later sample times before the next event are skipped, and sampling resumes at that
+  event as at a first one, at the smallest multiple of the period >= its time
+  (:func:`next_sample`).  So a stream's samples are bounded by its events (at most HOLD + 1
+  per event), not by its time span: a counter wrap or a paused recording does not produce
+  hours of identical rows.  Within a stretch the state only decays (eq. 6's activity);
+  the sample after the stretch shows where it went.
 
 The C loops (``springtrack._stepper.run_events``, used by both kernels' ``run`` and by
-the firmware's fused loop, and the kernels' batch steps) use the same rule from
-``springtrack/csrc/sampling.h``; tests/test_sampling.py checks that both agree on
-streams with backward times, ties and gaps.
+the firmware's fused loop, the kernels' batch steps and the microcontroller build's entry
+point) use the same rule from ``springtrack/csrc/sampling.h``; tests/test_sampling.py
+checks that all agree on streams with backward times, ties and gaps.
 """
 from __future__ import annotations
 
 UNSET = -(1 << 63)          # next sample time of a loop that has seen no event (INT64_MIN)
+HOLD = 64                   # sample periods an empty stretch is sampled for (ST_HOLD)
+MAX_PERIOD = 1 << 32        # sampling periods are below this (µs; 71 minutes)
 
 
 def first_sample_time(t0: int, period: int) -> int:
@@ -27,3 +36,11 @@ def first_sample_time(t0: int, period: int) -> int:
 def sample_due(t: int, next_t: int, last_t: int) -> bool:
     """Snapshots are due before an event at ``t``."""
     return t >= next_t and t >= last_t
+
+
+def next_sample(t: int, next_t: int, last_t: int, period: int) -> int:
+    """The sample time to take next before an event at ``t`` whose snapshots are due:
+    ``next_t``, or past an empty stretch's HOLD periods the first sample time >= ``t``."""
+    if next_t - HOLD * period <= last_t or next_t >= t:
+        return next_t
+    return first_sample_time(t, period)

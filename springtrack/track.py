@@ -8,8 +8,10 @@ CSV schema (``springtrack track``, ``firmware-sim --record``, ``hostctl record``
 
     t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive
 
-one row per tracker per sample time; ``t_us`` is event time in microseconds, the row holds
-the state after all events with t < t_us; positions in px, covariances in px^2,
+one row per tracker per sample time (springtrack.sampling: every multiple of the period
+from the first event on, an empty stretch for its first HOLD periods only); ``t_us`` is
+event time in microseconds, the row holds the state after all events with t < t_us;
+positions in px, covariances in px^2,
 ``active``/``sensitive`` are 0/1.
 """
 from __future__ import annotations

@@ -27,12 +27,12 @@ from pathlib import Path
 import numpy as np
 
 from . import params as _params
-from .events import as_events
+from .events import as_events, check as check_events
 from .geometry import check_inside
 from .model import ShapeModel, load_model
 from .params import Params
 from .reference import ReferenceTracker
-from .sampling import UNSET, first_sample_time, sample_due
+from .sampling import MAX_PERIOD, UNSET, first_sample_time, next_sample, sample_due
 from .track import TRACK_DTYPE, TRACK_FIELDS, Track
 
 BACKENDS = ("cython", "reference", "fixed", "mcu")
@@ -59,7 +59,10 @@ class ReferenceBackend:
         for k in range(len(ts)):
             t = ts[k]
             if sample_us > 0 and sample_due(t, next_t, ref.last_t):
-                while t >= next_t:
+                while True:
+                    next_t = next_sample(t, next_t, ref.last_t, sample_us)
+                    if t < next_t:
+                        break
                     if len(rows) >= cap:
                         return k, next_t, self._pack(rows)
                     rows.append((next_t, ref.snapshot(next_t), self._mean_energies()))
@@ -101,7 +104,7 @@ class ReferenceBackend:
         r = self.ref
         return dict(events_valid=r.n_valid, events_assigned=r.n_assigned,
                     skipped_back_in_time=r.n_back, skipped_outside_sensor=r.n_outside,
-                    spring_updates=r.n_spring_updates)
+                    spring_updates=r.n_spring_updates, state_resets=r.n_resets)
 
 
 def _cython_backend(model, params, option):
@@ -149,12 +152,7 @@ def resolve_params(model: ShapeModel, params=None) -> Params:
     if isinstance(params, dict):
         return _params.from_mapping(params, base)
     if isinstance(params, (str, Path)):
-        import tomllib
-        with open(params, "rb") as f:
-            try:
-                data = tomllib.load(f)
-            except tomllib.TOMLDecodeError as e:
-                raise _params.ParamError(f"{params}: not valid TOML: {e}") from None
+        data = _params.read_toml(params)
         return _params.from_mapping(data.get("params", data), base, where=str(params))
     raise TypeError(f"params must be Params, dict, a TOML path or None, not {type(params).__name__}")
 
@@ -186,6 +184,7 @@ class Tracker:
         self._b = make_backend(backend, self.model, self.params)
         self._sample_us = 0
         self._next_t = UNSET
+        self._skipped = 0                    # sample times of empty stretches not taken
         self._recorded: list[Track] = []
         self.acquisition = None
         if acquire:
@@ -200,23 +199,38 @@ class Tracker:
     # ---- feeding -------------------------------------------------------------------
     def record(self, sample_us: int) -> None:
         """Keep a snapshot every ``sample_us`` µs of event time (state after events with
-        t < multiple); the kernel takes them inside its loop. Collect with :meth:`samples`."""
+        t < multiple; an empty stretch only for its first ``sampling.HOLD`` periods, see
+        springtrack.sampling); the kernel takes them inside its loop.  Collect with
+        :meth:`samples`, or take them as they come with :meth:`stream`."""
         sample_us = int(sample_us)
-        if sample_us <= 0:
-            raise ValueError(f"sample_us must be a positive number of microseconds, got {sample_us}")
+        if not 0 < sample_us < MAX_PERIOD:
+            raise ValueError(f"sample_us must be a positive number of microseconds below "
+                             f"{MAX_PERIOD}, got {sample_us}")
         if self._sample_us and sample_us != self._sample_us:
             raise ValueError("the sampling period cannot change once recording has started")
         self._sample_us = sample_us
 
     def process(self, events) -> None:
-        """Consume an event array (fields t µs, x, y, p), in time order.  The kernels read
-        the common layouts as they are (packed or aligned records, t int64 or uint64, x/y
-        int16 or uint16, p bool or int: ``springtrack._stepper.layout_of``), converting
-        them block by block inside their loop; anything else is converted first."""
+        """Consume an event array (fields t µs, x, y, p), in time order; the samples taken
+        wait for :meth:`samples`.  The kernels read the common layouts as they are (packed
+        or aligned records, t int64 or uint64, x/y int16 or uint16, p bool or int:
+        ``springtrack._stepper.layout_of``), converting them block by block inside their
+        loop; anything else is converted first.  Either way the values are checked
+        (``springtrack.events.check``: EventError for the first event out of range)."""
+        self._recorded.extend(self.stream(events))
+
+    def stream(self, events):
+        """Consume an event array like :meth:`process`, yielding the samples as the kernel
+        takes them: Tracks of at most ``SAMPLE_CAP`` rows, so memory stays bounded however
+        many samples the events produce."""
         if self.acquisition is not None and not self.acquisition.done:
-            self._track(self._placed(self.acquisition.feed(as_events(events))))
+            yield from self._track(self._placed(self.acquisition.feed(as_events(events))))
             return
-        self._track(events if self._reads_as_is(events) else as_events(events))
+        if self._reads_as_is(events):
+            check_events(events)
+        else:
+            events = as_events(events)
+        yield from self._track(events)
 
     def _reads_as_is(self, events) -> bool:
         """The backend's loop reads ``events`` without a conversion first."""
@@ -228,7 +242,7 @@ class Tracker:
     def flush(self) -> None:
         """End of input: if the acquisition is still looking, try on what it buffered."""
         if self.acquisition is not None and not self.acquisition.done:
-            self._track(self._placed(self.acquisition.finish()))
+            self._recorded.extend(self._track(self._placed(self.acquisition.finish())))
 
     def _placed(self, ready):
         """The events to track: none while acquiring; once found, the model placed at the
@@ -240,23 +254,30 @@ class Tracker:
         self._b = make_backend(self.backend_name, self.model, self.params)
         return ready
 
-    def _track(self, ev) -> None:
+    def _track(self, ev):
+        """Run the backend over ``ev`` in calls of at most SAMPLE_CAP sample rows; yield
+        each call's samples as a Track."""
         if ev is None or len(ev) == 0:
             return
-        pos = 0
+        pos, p = 0, self._sample_us
         while pos < len(ev):
-            consumed, self._next_t, out = self._b.run(
-                ev[pos:], self._sample_us, self._next_t, SAMPLE_CAP)
+            start = self._next_t
+            if p and start == UNSET:
+                start = first_sample_time(int(ev["t"][pos]), p)
+            consumed, self._next_t, out = self._b.run(ev[pos:], p, self._next_t, SAMPLE_CAP)
+            rows = 0 if out is None else len(out["t"])
+            if p:                    # the sample times passed over, less those taken
+                self._skipped += (self._next_t - start) // p - rows
             pos += consumed
-            if out is not None and len(out["t"]):
-                self._recorded.append(Track.from_samples(out, self.ids))
+            if rows:
+                yield Track.from_samples(out, self.ids)
 
     def run(self, events, sample_us: int = 1000) -> Track:
-        """Process events and return the samples taken during this call."""
+        """Process events and return the samples taken during this call (at most
+        ``sampling.HOLD + 1`` per event: see :meth:`record`)."""
         self.record(sample_us)
-        before = len(self._recorded)
-        self.process(events)
-        new = self._recorded[before:]
+        new = list(self.stream(events))
+        self._recorded.extend(new)
         return Track.concat(new, self.ids)
 
     def samples(self, clear: bool = True) -> Track:
@@ -312,29 +333,35 @@ class Tracker:
     @property
     def counters(self) -> dict:
         c = dict(self._b.counters())
+        if self._sample_us:
+            c["samples_skipped"] = self._skipped
         if self.acquisition is not None:
             c.update(acquire_attempts=self.acquisition.attempts,
                      acquire_events_dropped=self.acquisition.events_dropped)
         return c
 
 
-def profile(tracker: Tracker, events, bin_us: int = 10_000) -> dict:
+def profile(tracker: Tracker, events, bin_us: int = 10_000, sink=None) -> dict:
     """Process ``events`` bin by bin (``bin_us`` of event time) and time each bin: the
-    quantity of the paper's Figs. 22-23. Returns arrays ``t_us`` (bin start), ``events``
-    and ``proc_us`` (wall time spent in the kernel, µs; includes ~1 µs of call overhead)."""
+    quantity of the paper's Figs. 22-23.  Returns arrays ``t_us`` (bin start), ``events``
+    and ``proc_us`` (wall time spent in the kernel, µs; includes ~1 µs of call overhead)
+    for the bins that hold events (a run of events in one bin; an empty stretch has no
+    bins, so the arrays are bounded by the events, not their time span).  The samples
+    taken go to ``sink`` as they come (see :meth:`Tracker.stream`), else wait for
+    :meth:`Tracker.samples`; the time spent in ``sink`` is not counted."""
     import time
     ev = as_events(events)
-    if len(ev) == 0:
-        return {"t_us": np.empty(0, np.int64), "events": np.empty(0, np.int64),
-                "proc_us": np.empty(0)}
-    t0 = int(ev["t"][0]) // bin_us * bin_us
-    edges = np.arange(t0, int(ev["t"][-1]) + bin_us + 1, bin_us)
-    idx = np.searchsorted(ev["t"], edges)
-    proc = np.zeros(len(edges) - 1)
-    for b in range(len(edges) - 1):
-        chunk = ev[idx[b]:idx[b + 1]]
-        if len(chunk):
-            s = time.perf_counter()
-            tracker.process(chunk)
-            proc[b] = (time.perf_counter() - s) * 1e6
-    return {"t_us": edges[:-1], "events": np.diff(idx), "proc_us": proc}
+    b = ev["t"] // bin_us
+    starts = np.flatnonzero(np.r_[True, b[1:] != b[:-1]]) if len(ev) else np.empty(0, np.int64)
+    ends = np.r_[starts[1:], len(ev)].astype(np.int64)
+    keep = sink if sink is not None else tracker._recorded.append
+    proc = np.zeros(len(starts))
+    for k in range(len(starts)):
+        spent, tick = 0.0, time.perf_counter()
+        for part in tracker.stream(ev[starts[k]:ends[k]]):
+            spent += time.perf_counter() - tick
+            keep(part)
+            tick = time.perf_counter()
+        proc[k] = (spent + time.perf_counter() - tick) * 1e6
+    return {"t_us": (b[starts] * bin_us).astype(np.int64), "events": ends - starts,
+            "proc_us": proc}

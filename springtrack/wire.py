@@ -494,7 +494,20 @@ def version_reason(firmware: int, host: int) -> str:
 
 
 # INFO: u16 protocol version, 8-byte session nonce, u8 flags (bit0 auth required,
-# bit1 running), u32 generation, u16-length UTF-8 JSON of the engine's info() dict
+# bit1 running), u32 generation, u16-length UTF-8 JSON of the engine's info() dict.
+# The model's name is the one free-length text INFO must carry (a big model's tracker ids
+# are left out when they do not fit): it may take INFO_NAME_BUDGET bytes of the JSON, half
+# the payload, so that INFO fits one frame whatever else the engine reports (about 300
+# bytes: firmware, backend, geometry, capacities, hash, generation, period).
+INFO_NAME_BUDGET = MAX_PAYLOAD // 2
+
+
+def info_name_bytes(name: str) -> int:
+    """Bytes ``name`` takes in INFO's JSON: 1 per ASCII character, 6 per other character
+    (\\uXXXX), 12 outside the Basic Multilingual Plane, 2 for '"' and '\\'."""
+    return len(json.dumps(name)) - 2
+
+
 def encode_info(info: dict, nonce: bytes, auth_required: bool,
                 version: int = PROTOCOL_VERSION) -> bytes:
     flags = (1 if auth_required else 0) | (2 if info.get("running") else 0)

@@ -237,24 +237,27 @@ def test_sigma_bounds_and_correlation_clamp():
 # ---- saturation: values at a range limit clamp and are counted ----------------------------
 def test_position_saturates_and_counts():
     """All grid columns stacked at the +8192 px limit: the Cartesian springs (rest offset
-    +50 px between columns) push the right column beyond it; it stays at the limit and
-    the saturations are counted."""
+    +50 px between columns) push the right column beyond it; the saturations are counted,
+    and the state, outside the position box, is reset to the model by the guard."""
     k = kernel("grid3x3")
+    fresh = kernel("grid3x3").raw_state()
     lim = 8192 * PX - 1
     for i in range(9):
         fx.set_raw(k, i, x=lim)
     k.springs()
-    assert k.counters()["saturated_position"] == 3    # r0c2, r1c2, r2c2
-    x = k.raw_state()["x"]
-    assert list(x[[2, 5, 8]]) == [lim] * 3 and np.all(x[[0, 3, 6]] < lim)
-    assert np.all(np.abs(k.raw_state()["x"]) <= 8192 * PX)
+    c = k.counters()
+    assert c["saturated_position"] == 3 and c["state_resets"] == 1    # r0c2, r1c2, r2c2
+    for f, v in k.raw_state().items():
+        assert np.array_equal(v, fresh[f]), f
 
 
 def test_energy_offset_saturates_and_counts():
-    k = kernel("grid3x3")
-    fx.set_raw(k, 0, x=8191 * PX)
-    fx.set_raw(k, 1, x=-8191 * PX)                   # 0->1 offset -16382 px, rest +50
+    # on a sensor 8192 px wide the position box is [-8191, 8191) px: no reset here
+    k = FixedKernel(springtrack.model.grid3x3(width=8192), resolve_params(springtrack.model.grid3x3()))
+    fx.set_raw(k, 0, x=8190 * PX)
+    fx.set_raw(k, 1, x=-8190 * PX)                   # 0->1 offset -16380 px, rest +50
     k.springs()
+    assert k.counters()["state_resets"] == 0
     assert k.counters()["saturated_energy"] > 0
     e = k.energies()
     assert np.all(np.isfinite(e)) and e[2][0] == pytest.approx(0.5 * 0.001 * (2 ** 14) ** 2 * 1.0, rel=0.02)
@@ -271,18 +274,35 @@ def test_activity_saturates_and_counts():
 
 
 # ---- backend interface ---------------------------------------------------------------------
-def test_rejects_what_its_formats_cannot_hold():
+def test_refuses_by_the_limits_every_backend_shares():
+    """The fixed kernel's conversion (fixed_q) checks a model and parameters with
+    springtrack.limits' functions, the ones ShapeModel and Params call when built: what a
+    format could not hold is refused with the same message either way."""
+    from springtrack import fixed_q, limits
     m = springtrack.load_model("grid3x3")
+    p = Params()
+    object.__setattr__(p, "sigma_max_px", 100.0)            # past Params' own check
+    with pytest.raises(limits.LimitError, match="sigma_max_px=100.0 exceeds 64"):
+        FixedKernel(m, p)
     with pytest.raises(ValueError, match="sigma_max_px"):
-        FixedKernel(m, Params(sigma_max_px=100.0))
-    big = ShapeModel("big", 10000, 10, [TrackerSpec("a", 1.0, 1.0, (1.0, 0.0, 1.0))], [])
-    with pytest.raises(ValueError, match="sensor"):
-        FixedKernel(big, Params())
-    stiff = ShapeModel("stiff", 64, 64, [TrackerSpec("a", 1.0, 1.0, (1.0, 0.0, 1.0)),
-                                         TrackerSpec("b", 9.0, 1.0, (1.0, 0.0, 1.0))],
-                       [Connection("a", "b", ("euclidean",), 2.0)])
-    with pytest.raises(ValueError, match="stiffness"):
-        FixedKernel(stiff, Params())
+        Params(sigma_max_px=100.0)
+    p = Params()
+    object.__setattr__(p, "alpha_covariance", 1.0)
+    with pytest.raises(limits.LimitError, match="alpha_covariance=1.0 is too large"):
+        FixedKernel(m, p)
+    with pytest.raises(ValueError, match="alpha_covariance=1.0 is too large"):
+        Params(alpha_covariance=1.0)
+    arr = m.arrays()
+    with pytest.raises(limits.LimitError, match=r"sensor.width .*\[1, 8192\], got 10000"):
+        fixed_q.model_q(arr, 10000, 240)
+    with pytest.raises(ValueError, match=r"sensor.width .*\[1, 8192\], got 10000"):
+        ShapeModel("big", 10000, 10, [TrackerSpec("a", 1.0, 1.0, (1.0, 0.0, 1.0))], [])
+    stiff = dict(arr, stiffness=np.full(len(arr["ca"]), 2.0))
+    with pytest.raises(limits.LimitError, match=r"stiffness 2.0 is outside \[0, 1\]"):
+        fixed_q.model_q(stiff, 304, 240)
+    huge = dict(arr, sxx=np.full(9, 1e12))
+    with pytest.raises(limits.LimitError, match="exceeds"):
+        fixed_q.model_q(huge, 304, 240)
 
 
 def stream(preset, n, seed=2):

@@ -65,6 +65,55 @@ def test_npy_without_fields(tmp_path):
         sio.open(tmp_path / "bad.npy").read()
 
 
+@pytest.mark.parametrize("field,value,match", [
+    ("x", -1, "event 2: x=-1 out of range 0..65535"),
+    ("x", 70000, "event 2: x=70000 out of range 0..65535"),
+    ("p", 7, "event 2: p=7 out of range 0..1"),
+    ("t", np.nan, "event 2: t=nan is not a finite number"),
+    ("t", 2.5, "event 2: t=2.5 is not a whole number"),
+    ("t", 2.0 ** 63, r"event 2: t=9.2\d+e\+18 out of range"),
+])
+def test_npy_values_are_checked_like_csv_rows(tmp_path, field, value, match):
+    """A .npy in other types (int32 x, float t, ...) is converted only if every value fits
+    the event record: the checks of every event source (springtrack.events.as_events)."""
+    arr = np.zeros(4, [("t", "<f8"), ("x", "<i4"), ("y", "<i4"), ("p", "<i2")])
+    arr["t"] = [1, 2, 3, 4]
+    arr[field][2] = value
+    np.save(tmp_path / "v.npy", arr)
+    with pytest.raises(sio.DecodeError, match=f"v.npy: {match}"):
+        sio.open(tmp_path / "v.npy").read()
+    arr[field][2] = 3 if field == "t" else 1
+    np.save(tmp_path / "v.npy", arr)
+    assert sio.open(tmp_path / "v.npy").read()["t"].tolist() == [1, 2, 3, 4]
+
+
+def test_trackers_take_only_checked_events():
+    from springtrack import Tracker
+    from springtrack.events import EventError
+    ev = np.zeros(3, [("t", "<i8"), ("x", "<i2"), ("y", "<i2"), ("p", "u1")])
+    ev["x"][1] = -1
+    with pytest.raises(EventError, match="event 1: x=-1"):
+        Tracker("grid3x3").process(ev)
+    own = np.zeros(3, EVENT_DTYPE)
+    own["p"][2] = 7
+    with pytest.raises(EventError, match="event 2: p=7"):
+        Tracker("grid3x3").process(own)
+
+
+def test_a_percent_header_over_1_mib_is_refused(tmp_path):
+    """'%' lines past MAX_HEADER bytes are not decoded as events (786 434 of them, before)."""
+    from springtrack.io.detect import MAX_HEADER
+    line = b"% comment " + b"x" * 100 + b"\n"
+    path = tmp_path / "long.raw"
+    path.write_bytes(b"% evt 2.0\n" + line * (MAX_HEADER // len(line) + 5) + bytes(64))
+    with pytest.raises(sio.DecodeError, match="go on past 1048576 bytes"):
+        sio.open(path)
+    # a header just under the limit, then its payload, still opens
+    path.write_bytes(b"% evt 2.0\n" + line * (MAX_HEADER // len(line) - 2) + b"% end\n"
+                     + bytes(64))
+    assert sio.open(path).format == "evt2"
+
+
 def test_csv_errors_name_the_line(tmp_path):
     (tmp_path / "a.csv").write_text("t,x,y,p\n1,2,3,1\n2,3,4,7\n")
     with pytest.raises(sio.DecodeError, match="line 3: p=7"):

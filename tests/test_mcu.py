@@ -10,6 +10,7 @@ microcontroller build run bit-identical in an emulator).
 * ``springtrack mcu build`` / ``profile`` print their documented last lines, and without
   the ``[mcu]`` extra say how to install it.
 """
+import math
 import re
 import sys
 
@@ -25,7 +26,9 @@ import springtrack  # noqa: E402
 from springtrack.events import EVENT_DTYPE  # noqa: E402
 from springtrack.mcu.build import Capacity, cached_build, build  # noqa: E402
 from springtrack.mcu.targets import TARGETS  # noqa: E402
-from springtrack.model import Connection, ShapeModel, TrackerSpec  # noqa: E402
+from springtrack import limits  # noqa: E402
+from springtrack.model import SPRING_BIT, Connection, ShapeModel, TrackerSpec  # noqa: E402
+from springtrack.reference import covariance_bias  # noqa: E402
 from springtrack.sim.sensor import simulate_all  # noqa: E402
 from springtrack.tracker import Tracker  # noqa: E402
 
@@ -109,12 +112,20 @@ def scenarios(draw):
                                     draw(st.sampled_from([1.0, 1.0, 0.5, 2.0]))))
     pairs = [(a, b) for a in range(n) for b in range(a + 1, n)]
     chosen = draw(st.lists(st.sampled_from(pairs), unique=True, max_size=CAP.connections)) if pairs else []
-    conns = [Connection(f"t{a}", f"t{b}", draw(st.sampled_from(SPRINGS)), draw(st.floats(0.001, 0.3)))
-             for a, b in chosen]
+    drawn = [(a, b, draw(st.sampled_from(SPRINGS)), draw(st.floats(0.001, 0.3))) for a, b in chosen]
+    # stiffnesses within the shared spring bound (springtrack.limits)
+    scale = limits.spring_scale(n, [a for a, _, _, _ in drawn], [b for _, b, _, _ in drawn],
+                                [sum(SPRING_BIT[k] for k in kinds) for _, _, kinds, _ in drawn],
+                                [a for *_, a in drawn], [t.mass for t in trackers])
+    conns = [Connection(f"t{a}", f"t{b}", kinds, k * scale) for a, b, kinds, k in drawn]
     model = ShapeModel("random", CAP.width, CAP.height, trackers, conns)
-    params = dict(alpha_position=draw(st.floats(0.01, 0.5)),
-                  alpha_covariance=draw(st.sampled_from([5e-5, 2e-4, 0.01, 0.3])),
-                  p_threshold=draw(st.floats(1e-4, 0.5)),
+    a1, pt = draw(st.floats(0.01, 0.5)), draw(st.floats(1e-4, 0.5))
+    # eq. (4)'s gain within the shared bound: alpha_covariance <= covariance_bias
+    a2 = min(draw(st.sampled_from([5e-5, 2e-4, 0.01, 0.3])),
+             covariance_bias(a1, -2.0 * math.log(pt)))
+    params = dict(alpha_position=a1,
+                  alpha_covariance=a2,
+                  p_threshold=pt,
                   activity_tau_us=draw(st.sampled_from([300.0, 10_000.0, 1e6])),
                   energy_scale=draw(st.floats(0.5, 4.0)),
                   energy_kind=draw(st.sampled_from(["euclidean", "torsional", "cartesian"])),
@@ -122,7 +133,9 @@ def scenarios(draw):
     k = draw(st.integers(50, 600))
     rng = np.random.default_rng(draw(st.integers(0, 2 ** 32 - 1)))
     ev = np.zeros(k, EVENT_DTYPE)
-    ev["t"] = np.cumsum(rng.integers(0, 300, k)) - rng.integers(0, 2, k) * 50   # some go back
+    # some go back; a few empty stretches around the HOLD periods of the sampling rule
+    gaps = (rng.random(k) < 0.03) * rng.integers(10_000, 40_000, k)
+    ev["t"] = np.cumsum(rng.integers(0, 300, k) + gaps) - rng.integers(0, 2, k) * 50
     ev["x"] = rng.integers(0, CAP.width + 4, k)                                    # some outside
     ev["y"] = rng.integers(0, CAP.height + 4, k)
     return model, params, ev

@@ -5,7 +5,7 @@ import pytest
 
 import springtrack
 from springtrack import limits
-from springtrack.model import ModelError, face26, grid3x3, load, loads
+from springtrack.model import ModelError, face26, grid3x3, load, load_model, loads
 from springtrack.params import ParamError, Params, from_mapping
 
 GOOD = """
@@ -140,3 +140,24 @@ def test_param_defaults_are_the_face_experiment():
 def test_non_finite_integer_param_is_a_param_error(value):
     with pytest.raises(ParamError):
         from_mapping({"spring_period": value})
+
+
+def test_toml_nested_too_deeply_is_a_model_error(tmp_path):
+    """tomllib recurses once per nesting level: 20 000 levels are a ModelError with the
+    firmware's invalid_model code (and a ParamError for a params file), not a
+    RecursionError."""
+    from springtrack import params as _params
+    from springtrack.wire import Nack
+    deep = 'name = "deep"\nx = ' + "[" * 20_000 + "]" * 20_000 + "\n"
+    with pytest.raises(ModelError, match="nested too deeply") as e:
+        loads(deep, "upload")
+    assert e.value.code == Nack.INVALID_MODEL
+    (tmp_path / "m.toml").write_text(deep)
+    with pytest.raises(ModelError, match="m.toml: not valid TOML"):
+        load_model(tmp_path / "m.toml")
+    (tmp_path / "p.toml").write_text("a = " + "{b = " * 20_000 + "1" + "}" * 20_000 + "\n")
+    with pytest.raises(_params.ParamError, match="p.toml: not valid TOML"):
+        _params.load(tmp_path / "p.toml")
+    (tmp_path / "bin.toml").write_bytes(b"name = \"\xff\"\n")
+    with pytest.raises(ModelError, match="not valid TOML"):
+        load_model(tmp_path / "bin.toml")

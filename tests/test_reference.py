@@ -121,8 +121,9 @@ def test_eq10_11_12_euclidean_spring():
 
 
 def test_eq14_to_17_torsional_spring_with_mean_correction():
-    # a-b along +x, a-c along +y; rotate b by 0.1 rad about a
-    m = ShapeModel("tri", 64, 48, [TrackerSpec("a", 10.0, 10.0, (4.0, 0.0, 4.0)),
+    # a-b along +x, a-c along +y; rotate b by 0.1 rad about a (a of mass 2: its two
+    # springs of stiffness 0.5 keep its spring load at the 0.5 of springtrack.limits)
+    m = ShapeModel("tri", 64, 48, [TrackerSpec("a", 10.0, 10.0, (4.0, 0.0, 4.0), 2.0),
                                    TrackerSpec("b", 20.0, 10.0, (4.0, 0.0, 4.0)),
                                    TrackerSpec("c", 10.0, 20.0, (4.0, 0.0, 4.0))],
                    [Connection("a", "b", ("torsional",), 0.5),

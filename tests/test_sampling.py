@@ -79,18 +79,48 @@ def test_negative_times_and_events_outside_the_sensor():
     assert assert_agree(stream(times, outside=[1, 5])) == [-2000, -1000, 0, 1000, 2000, 3000, 4000]
 
 
-def test_a_gap_longer_than_one_call_s_sample_buffer():
-    t_end = (SAMPLE_CAP + 1500) * P + 7
-    times = assert_agree(stream([5, 10, t_end, t_end + 1]))
-    assert times == list(range(P, t_end + 1, P)) and len(times) > SAMPLE_CAP
+def test_more_samples_than_one_call_s_sample_buffer():
+    # gaps of HOLD - 1 periods: every sample time is taken, more than a kernel call holds
+    gap = (sampling.HOLD - 1) * P
+    times = assert_agree(stream(5 + gap * np.arange(SAMPLE_CAP // (sampling.HOLD - 1) + 20)))
+    assert times == list(range(P, times[-1] + 1, P)) and len(times) > SAMPLE_CAP
 
 
-@settings(max_examples=40, deadline=None)
-@given(st.lists(st.integers(-2500, 4000), min_size=1, max_size=60),
+def test_an_empty_stretch_is_sampled_for_hold_periods_then_skipped():
+    # after the event at 10, the sample times up to 10 + HOLD P; none until the next event;
+    # from it sampling resumes as at a first event (its own time, a multiple, included)
+    hold = sampling.HOLD * P
+    t_end = 100 * hold
+    times = assert_agree(stream([5, 10, t_end, t_end + 1, t_end + 2500]))
+    assert times == list(range(P, hold + 1, P)) + [t_end, t_end + P, t_end + 2 * P]
+    tr = Tracker(MODEL)
+    tr.run(stream([5, 10, t_end, t_end + 1, t_end + 2500]), P)
+    assert tr.counters["samples_skipped"] == t_end // P - 1 - sampling.HOLD   # 65 P .. t_end - P
+    # a stretch of exactly HOLD periods loses nothing
+    assert assert_agree(stream([10, hold + 10])) == list(range(P, hold + 1, P))
+
+
+def test_next_sample():
+    h = sampling.HOLD * P
+    assert sampling.next_sample(5 * h, 3000, 2500, P) == 3000          # within the hold
+    assert sampling.next_sample(5 * h, h + 3000, 2500, P) == 5 * h     # past it: skip to t
+    assert sampling.next_sample(5 * h + 1, h + 3000, 2500, P) == 5 * h + P
+    assert sampling.next_sample(h + 3000, h + 3000, 2500, P) == h + 3000   # t itself
+    assert sampling.next_sample(-h - 1, -5 * h, -8 * h, P) == -h          # before 0 too
+
+
+STEP = st.one_of(st.integers(-2500, 4000),
+                 st.integers((sampling.HOLD - 2) * P, (sampling.HOLD + 2) * P),
+                 st.integers(sampling.HOLD * P, 10 ** 9))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(STEP, min_size=1, max_size=60),
        st.integers(-10_000, 10_000), st.lists(st.integers(1, 59), max_size=4))
 def test_random_streams_with_backward_steps_ties_and_gaps(steps, t0, cuts):
-    """Times as a walk with backward steps, repeats (step 0) and jumps over several sample
-    times, fed whole and in chunks: every backend and the specification agree."""
+    """Times as a walk with backward steps, repeats (step 0), jumps over several sample
+    times and empty stretches around and far beyond HOLD periods, fed whole and in chunks:
+    every backend and the specification agree."""
     times = t0 + np.cumsum(steps)
     ev = stream(times)
     whole = assert_agree(ev)

@@ -21,7 +21,9 @@ camera format springtrack.io reads (EVT 2.0/2.1/3.0 RAW, Event Stream .es, DAT, 
 standard input as it arrives, e.g. another stack's live output piped in.
 output CSV header: t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive — one row per
 tracker at every multiple of --sample-us between the first and the last event, holding the
-state after all events with t < t_us.
+state after all events with t < t_us; a stretch without events is sampled for its first
+64 periods only, then from its next event on (docs/algorithm.md, Sampling).  Rows are
+written as they are taken: memory does not grow with the input's time span.
 --acquire: the model's positions are not used; the model is found (translation, rotation,
 isotropic scale within the --acquire-* bounds) in the first --acquire-ms of events, placed
 there and tracked from that window's first event; while it is not found the window slides
@@ -173,18 +175,21 @@ def run(args) -> int:
         for chunk, total in stream:
             if len(chunk) == 0:
                 continue
+            # the rows are written as the kernel takes them: memory bounded by one call's
+            # SAMPLE_CAP rows, however many samples a chunk produces
             if args.profile:
-                bins.append(profile(tr, chunk, PROFILE_BIN_US))
+                bins.append(profile(tr, chunk, PROFILE_BIN_US,
+                                    sink=lambda rows: _write_rows(rows, tr, watch, out)))
             else:
-                tr.process(chunk)
+                for part in tr.stream(chunk):
+                    _write_rows(part, tr, watch, out)
             t_first = int(chunk["t"][0]) if t_first is None else t_first
             t_last = int(chunk["t"][-1])
             n += len(chunk)
-            _write_rows(tr, watch, out)
             prog.update(n, total, t_last)
         if args.acquire:
             tr.flush()
-            _write_rows(tr, watch, out)
+            _write_rows(tr.samples(), tr, watch, out)
     prog.close()
     wall = time.perf_counter() - start
     if args.profile:
@@ -242,10 +247,9 @@ def write_profile(path, bins) -> None:
         f.writelines(f"{a},{b},{c:.3f}\n" for a, b, c in zip(keys.tolist(), ev.tolist(), pu.tolist()))
 
 
-def _write_rows(tr, watch, f):
-    """The samples the tracker took since the last call, as CSV rows (the header is already
-    written) and into the end-of-run watch."""
-    samples = tr.samples()
+def _write_rows(samples, tr, watch, f):
+    """Samples the tracker took, as CSV rows (the header is already written) and into the
+    end-of-run watch."""
     if not len(samples):
         return
     if watch.model is not tr.model:            # placed by the acquisition

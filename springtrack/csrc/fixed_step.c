@@ -1527,6 +1527,19 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
         s->mx[i] = sat_pos(s, s->mx[i] + mulsh(tx - s->mx[i], s->energy_gain, 30));
         s->my[i] = sat_pos(s, s->my[i] + mulsh(ty - s->my[i], s->energy_gain, 30));
     }
+    /* [ref] _guard: a mean outside the position box (a saturated one is) is a state no
+       model within springtrack.limits reaches: counted, and the state reset to the model.
+       The box is whole px: the integer parts (the high words) tell */
+    for (i = 0; i < n; i++) {
+        int32_t xi = (int32_t)(s->mx[i] >> FX_POS_FRAC), yi = (int32_t)(s->my[i] >> FX_POS_FRAC);
+        bad |= (uint64_t)(xi < s->pos_lo_x || xi >= s->pos_hi_x || yi < s->pos_lo_y
+                          || yi >= s->pos_hi_y);
+    }
+    if (bad) {
+        s->n_resets++;
+        fx_reset(s);
+        return;
+    }
     for (i = 0; i < n; i++)
         bad |= (uint64_t)!box_kept(s, i) << i;
     /* eq. (21): insensitive when every connection of the tracker is over */
@@ -1593,6 +1606,37 @@ void fx_prepare(fx_state *s)
                     : ((int64_t)1 << (2 * FX_DECAY_BITS));
 }
 
+void fx_reset(fx_state *s)
+{
+    int i, k, q;
+    for (i = 0; i < s->n; i++) {
+        s->mx[i] = s->rest_x[i];
+        s->my[i] = s->rest_y[i];
+        s->sxx[i] = s->rest_sxx[i];
+        s->sxy[i] = s->rest_sxy[i];
+        s->syy[i] = s->rest_syy[i];
+        s->act[i] = 0;
+        s->tlast[i] = s->last_t;
+    }
+    for (q = 0; q < 3; q++)
+        for (k = 0; k < s->nc; k++)
+            s->energy[q][k] = 0;
+    s->mean_energy = 0;
+    s->energy_stale = 0;                                  /* the energies are those zeros */
+    s->sensitive_mask = s->n == 64 ? ~(uint64_t)0 : ((uint64_t)1 << s->n) - 1;
+    s->frame_c = FRAME_ONE;                               /* [ref] the identity frame about */
+    s->frame_s = 0;                                       /* G0 until a fit */
+    s->car_c = s->car_s = s->car_turned = 0;
+    if (s->n > 0) {
+        s->frame_gx = s->mx[0] - s->gdx0[0];
+        s->frame_gy = s->my[0] - s->gdy0[0];
+    }
+    for (i = 0; i < s->n; i++) {
+        refresh(s, i);
+        fx_reindex(s, i);
+    }
+}
+
 /* Clamp every position into +-FX_POS_LIM (after loading a model), counting saturations. */
 void fx_clamp_positions(fx_state *s)
 {
@@ -1632,6 +1676,10 @@ int fx_load_model(fx_state *s, const int32_t *w, int32_t nw, uint64_t *cells, in
         return FX_ERR_WORDS;
     if (width < 1 || height < 1 || width > 8192 || height > 8192)
         return FX_ERR_RANGE;
+    /* the position box, whole px: x_lo, x_hi, y_lo, y_hi within +-8191 */
+    if (w[4] >= w[5] || w[6] >= w[7] || w[4] < -8191 || w[5] > 8191 || w[6] < -8191
+        || w[7] > 8191)
+        return FX_ERR_RANGE;
     need = fx_cells_needed(width, height);
     if (need > cell_cap)
         return FX_ERR_CELLS;
@@ -1646,13 +1694,17 @@ int fx_load_model(fx_state *s, const int32_t *w, int32_t nw, uint64_t *cells, in
     s->height = height;
     s->gw = ((width - 1) >> FX_CELL_SHIFT) + 1;
     s->gh = ((height - 1) >> FX_CELL_SHIFT) + 1;
+    s->pos_lo_x = w[4];
+    s->pos_hi_x = w[5];
+    s->pos_lo_y = w[6];
+    s->pos_hi_y = w[7];
     w += FX_MODEL_HEAD;
     for (i = 0; i < n; i++, w += FX_MODEL_TRACKER) {
-        s->mx[i] = word64(w);
-        s->my[i] = word64(w + 2);
-        s->sxx[i] = word64(w + 4);
-        s->sxy[i] = word64(w + 6);
-        s->syy[i] = word64(w + 8);
+        s->mx[i] = s->rest_x[i] = word64(w);
+        s->my[i] = s->rest_y[i] = word64(w + 2);
+        s->sxx[i] = s->rest_sxx[i] = word64(w + 4);
+        s->sxy[i] = s->rest_sxy[i] = word64(w + 6);
+        s->syy[i] = s->rest_syy[i] = word64(w + 8);
         s->mq[i] = (uint32_t)w[10];
         s->invm[i] = (uint32_t)w[11];
         s->gdx0[i] = word64(w + 12);

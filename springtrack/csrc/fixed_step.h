@@ -64,7 +64,7 @@
 #define FX_GAUSS_N 1024                     /* exp(-d2/2): d2 steps of 2^-5 and 2^-15 */
 
 /* the word streams of fx_load_model / fx_set_params (springtrack/fixed_q.py writes them) */
-#define FX_MODEL_HEAD 4                     /* n, nc, width, height */
+#define FX_MODEL_HEAD 8                     /* n, nc, width, height, the position box */
 #define FX_MODEL_TRACKER 16                 /* words per tracker */
 #define FX_MODEL_CONNECTION 13              /* words per connection */
 #define FX_PARAMS_HEAD 24                   /* words before the two decay tables */
@@ -98,6 +98,13 @@ typedef struct {
     int32_t unit_mass;                        /* every 1/mass is exactly 1 (no division) */
     int32_t equal_mass;                       /* every centre-of-mass weight is the same */
     int64_t decay_span;                       /* min(dt_max, 2^(2 FX_DECAY_BITS)) us */
+    /* the model's means and covariances (the state starts from them and the guard resets
+       it to them), and the position box (springtrack.limits.position_box, whole px): after
+       a spring update every mean has lo <= its integer part < hi, or the guard resets the
+       state (fx_reset) */
+    int64_t rest_x[FX_MAX_TRACKERS], rest_y[FX_MAX_TRACKERS];
+    int64_t rest_sxx[FX_MAX_TRACKERS], rest_sxy[FX_MAX_TRACKERS], rest_syy[FX_MAX_TRACKERS];
+    int32_t pos_lo_x, pos_hi_x, pos_lo_y, pos_hi_y;
     /* tracker state, structure of arrays */
     int64_t mx[FX_MAX_TRACKERS], my[FX_MAX_TRACKERS];
     int64_t sxx[FX_MAX_TRACKERS], sxy[FX_MAX_TRACKERS], syy[FX_MAX_TRACKERS];
@@ -152,6 +159,7 @@ typedef struct {
     /* counters */
     int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates, n_reindex;
     int64_t sat_position, sat_activity, sat_energy, sat_inverse;
+    int64_t n_resets;                         /* states the guard reset to the model */
     int32_t since_spring;
 } fx_state;
 
@@ -181,6 +189,9 @@ void fx_prepare(fx_state *s);
 void fx_refresh(fx_state *s, int i);
 void fx_reindex(fx_state *s, int i);
 void fx_clamp_positions(fx_state *s);
+/* the tracker state of the model: its means and covariances (clamped), no activity, every
+   tracker sensitive, no energy, the identity frame; counters and time kept */
+void fx_reset(fx_state *s);
 int64_t fx_activity(const fx_state *s, int i, int64_t t);
 int fx_check_index(const fx_state *s);
 /* building blocks, exported for tests */

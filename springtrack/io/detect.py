@@ -181,7 +181,10 @@ def sniff(path, format: str | None = None) -> FileInfo:
     with builtins.open(path, "rb") as f:
         head = f.read(1 << 16)
         if head.startswith(b"%") and not _header_ends(head):
-            head += f.read(MAX_HEADER - len(head))     # a long text header
+            head += f.read(MAX_HEADER + 1 - len(head))     # a long text header
+            if len(head) > MAX_HEADER and not _header_ends(head):
+                raise DecodeError(f"{path}: '%' header lines go on past {MAX_HEADER} bytes "
+                                  f"(1 MiB), the most a RAW or DAT header may take")
         if head.startswith(AEDAT4_MAGIC):
             from .aedat4 import MAX_HEADER as AEDAT4_MAX, header_length
             head += f.read(max(0, min(header_length(head), AEDAT4_MAX + 32) - len(head)))

@@ -8,7 +8,7 @@ import warnings
 
 import numpy as np
 
-from ..events import EVENT_DTYPE, as_events
+from ..events import EVENT_DTYPE, EventError, as_events
 from .detect import FileInfo, sniff
 from .errors import DecodeError
 from .stats import DecodeStats
@@ -185,7 +185,7 @@ def _load_npy(path) -> np.ndarray:
         raise DecodeError(f"{path}: not a readable .npy event array: {e}") from None
     try:
         return as_events(arr)
-    except TypeError as e:
+    except (TypeError, EventError) as e:
         raise DecodeError(f"{path}: {e}") from None
 
 
@@ -200,15 +200,11 @@ def _load_csv(path) -> np.ndarray:
         return np.empty(0, EVENT_DTYPE)
     if cols.shape[1] != 4:
         raise DecodeError(f"{path}: CSV rows have {cols.shape[1]} columns, expected 4 (t,x,y,p)")
-    for j, (name, hi) in enumerate((("x", 65535), ("y", 65535), ("p", 1)), start=1):
-        bad = np.nonzero((cols[:, j] < 0) | (cols[:, j] > hi))[0]
-        if len(bad):
-            raise DecodeError(f"{path}: line {bad[0] + 2}: {name}={cols[bad[0], j]} "
-                              f"out of range 0..{hi}")
-    ev = np.empty(len(cols), EVENT_DTYPE)
-    for j, name in enumerate(("t", "x", "y", "p")):
-        ev[name] = cols[:, j]
-    return ev
+    rows = np.ascontiguousarray(cols).view([(f, "<i8") for f in ("t", "x", "y", "p")])[:, 0]
+    try:
+        return as_events(rows)                     # the checks of every event source
+    except EventError as e:
+        raise DecodeError(f"{path}: line {e.index + 2}: {e.detail}") from None
 
 
 def open_events(path, format: str | None = None, keep_exposure: bool = False) -> Reader:

@@ -148,4 +148,5 @@ class McuBackend:
         return int(self._counters()[10])
 
     def counters(self) -> dict:
-        return dict(zip(COUNTERS, (int(v) for v in self._counters()[:len(COUNTERS)])))
+        c = self._counters()
+        return dict(zip(COUNTERS, (int(v) for v in c[:len(COUNTERS)])), state_resets=int(c[13]))

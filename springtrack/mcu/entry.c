@@ -41,7 +41,7 @@
 #define MCU_MODEL_WORDS (FX_MODEL_HEAD + FX_MODEL_TRACKER * FX_MAX_TRACKERS \
                          + FX_MODEL_CONNECTION * FX_MAX_CONNECTIONS)
 #define MCU_WORDS (MCU_MODEL_WORDS > FX_PARAMS_WORDS ? MCU_MODEL_WORDS : FX_PARAMS_WORDS)
-#define MCU_N_COUNTERS 13
+#define MCU_N_COUNTERS 14
 
 enum { MCU_NOP = 0, MCU_LOAD_MODEL = 1, MCU_SET_PARAMS = 2, MCU_RUN = 3, MCU_STEP = 4,
        MCU_SNAPSHOT = 5, MCU_ENERGIES = 6, MCU_SPRINGS = 7 };
@@ -65,7 +65,7 @@ uint8_t mcu_wire[MCU_ROWS][FX_MAX_TRACKERS * FX_TELE_RECORD];
 int64_t mcu_energy[3][FX_MAX_CONNECTIONS];
 /* events_valid, events_assigned, skipped_back_in_time, skipped_outside_sensor,
    spring_updates, index_updates, saturated_position, saturated_activity, saturated_energy,
-   saturated_inverse, last_t, mean_energy, n */
+   saturated_inverse, last_t, mean_energy, n, state_resets */
 int64_t mcu_counters[MCU_N_COUNTERS];
 
 static void snapshot_row(fx_state *s, int64_t t, int64_t *row, uint8_t *wire)
@@ -96,7 +96,8 @@ static void snapshot_row(fx_state *s, int64_t t, int64_t *row, uint8_t *wire)
 /* springtrack/_stepper.pyx run_events, the sampling rule of csrc/sampling.h: next_t
    ST_UNSET becomes the first sample time after the first event; before an event for which
    st_sample_due(t, next_t, the last event time), one row per sample time <= t (the state
-   after all earlier events); stops when the rows are full */
+   after all earlier events), an empty stretch's past its ST_HOLD periods skipped
+   (st_next_sample); stops when the rows are full */
 /* st_first_sample (sampling.h) without its 64-bit division, which a 32-bit core does not
    have: with r = |t0| mod p (fx_udiv64: 32-bit divisions), the smallest multiple of p >=
    t0 is t0 - r (+ p if r) for t0 >= 0, t0 + r below; p < 2^32 */
@@ -142,7 +143,10 @@ static void run(fx_state *s, mcu_io_t *io)
             k = n;
             break;
         }
-        while (mcu_events[k].t >= next_t) {  /* st_sample_due: fx_steps stopped here */
+        for (;;) {                          /* st_sample_due: fx_steps stopped here */
+            next_t = st_next_sample(mcu_events[k].t, next_t, s->last_t, io->sample_us);
+            if (mcu_events[k].t < next_t)
+                break;
             if (rows >= io->cap || rows >= MCU_ROWS)
                 goto full;
             snapshot_row(s, next_t, mcu_rows[rows], mcu_wire[rows]);
@@ -202,6 +206,7 @@ void mcu_main(void)
     mcu_counters[10] = s->last_t;
     mcu_counters[11] = s->mean_energy;
     mcu_counters[12] = s->n;
+    mcu_counters[13] = s->n_resets;
 }
 
 /* where the host points the return address: mcu_main returns here, and the emulator
