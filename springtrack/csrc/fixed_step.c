@@ -1001,6 +1001,13 @@ static inline int64_t spring_dl(const fx_state *s, int k, int64_t rx, int64_t ry
     b = bitlen32((uint32_t)l);                            /* l~ = top 2^(b - 16) */
     rec = (1u << 31) / ((uint32_t)l << (32 - b) >> 16);   /* 2^31 / top, top in [2^15, 2^16) */
     /* (r.r - l~^2) / (2 l~) in Q.32 = diff 2^15 / l~ = diff rec 2^-b */
+    if (b > 16 && diff < INT32_MAX && diff > -INT32_MAX) {
+        /* the usual case, l~ >= 1 px and |diff| < 2^31 (a correction < 2^30 units): the
+           product's floor by 2^b (17 <= b <= 31) from its two words, in 32 bits */
+        int64_t p = smul((int32_t)diff, (int32_t)rec);    /* |.| < 2^47 */
+        uint32_t lo = (uint32_t)p, hi = (uint32_t)(p >> 32);
+        return shl64(l, 16) + (int32_t)((lo >> b) | (hi << (32 - b))) - s->l0[k];
+    }
     return shl64(l, 16) + mulsh(diff, rec, b) - s->l0[k];
 }
 
@@ -1308,6 +1315,20 @@ static int64_t centre(const fx_state *s, const int64_t *x, uint32_t msum)
 #define FRAME_SCALE_MAX_Q ((int32_t)1 << 30)          /* [ref] FRAME_SCALE_MAX = 4, Q.28 */
 #define FRAME_SPREAD_SHIFT 20                         /* [ref] FRAME_MIN_SPREAD = 2^-20 */
 
+/* the index of the lowest set bit of m != 0 (two 32-bit halves) */
+static inline int lowest_bit(uint64_t m)
+{
+    uint32_t lo = (uint32_t)m;
+    return lo ? __builtin_ctz(lo) : 32 + __builtin_ctz((uint32_t)(m >> 32));
+}
+
+/* floor(v / 2^sh) for 0 <= sh < 32 when it fits int32: from v's two words, in 32 bits
+   ((hi 2) 2^(31 - sh): no shift by 32) */
+static inline int32_t shr32(int64_t v, int sh)
+{
+    return (int32_t)(((uint32_t)v >> sh) | (((uint32_t)(v >> 32) << 1) << (31 - sh)));
+}
+
 /* c v for c in Q.28 and v in Q.32, |v| < 2^46: v = hi 2^16 + lo, two 32 x 32 products,
    rounded to Q.32 (within 1 unit) */
 static inline int64_t frame_scale(int32_t c, int64_t v)
@@ -1332,53 +1353,59 @@ static inline void frame_to_length(int32_t x, int32_t y, int32_t len, int32_t *c
 static void fit_frame(fx_state *s, uint64_t fit)
 {
     int n = s->n, i, sh;
-    uint64_t all = n == 64 ? ~(uint64_t)0 : ((uint64_t)1 << n) - 1, k2;
+    uint64_t all = n == 64 ? ~(uint64_t)0 : ((uint64_t)1 << n) - 1, k2, m;
     const int64_t *gdx = s->gdx0, *gdy = s->gdy0, *mx = s->mx, *my = s->my;
-    int32_t w[FX_MAX_TRACKERS], ux[FX_MAX_TRACKERS], uy[FX_MAX_TRACKERS];
-    int32_t vx[FX_MAX_TRACKERS], vy[FX_MAX_TRACKERS], an, bn, dn, c, sn;
+    int32_t ux[FX_MAX_TRACKERS], uy[FX_MAX_TRACKERS], vx[FX_MAX_TRACKERS], vy[FX_MAX_TRACKERS];
+    int32_t an, bn, dn, c, sn;
     int64_t ox[FX_MAX_TRACKERS], oy[FX_MAX_TRACKERS], W = 0, spx = 0, spy = 0, sqx = 0, sqy = 0;
     int64_t px, py, qx, qy, a = 0, b = 0, d = 0, big = 0, lim;
     fit &= all;
     if ((fit & (fit - 1)) == 0)                       /* fewer than 2: all of them */
         fit = all;
-    for (i = 0; i < n; i++)                           /* mass / largest, Q.24; 0 outside */
-        w[i] = (int32_t)s->mq[i] & -(int32_t)((fit >> i) & 1);
-    /* the means' offsets from the last frame's G (near qbar), the rest offsets (from G0),
-       and one shift that puts the weighed trackers' largest below 2^29: their centroids
-       and the offsets about those are then below 2^30 */
-    for (i = 0; i < n; i++) {                         /* x ^ (x >> 63): |x| or |x| - 1 */
+    /* The sums run over the trackers of the fit only (weight mass / largest, Q.24, > 0),
+       visited in increasing order.  The means' offsets from the last frame's G (near
+       qbar), the rest offsets (from G0), and one shift that puts their largest below
+       2^29: their centroids and the offsets about those are then below 2^30 */
+    for (m = fit; m; m &= m - 1) {                    /* x ^ (x >> 63): |x| or |x| - 1 */
+        i = lowest_bit(m);
         ox[i] = mx[i] - s->frame_gx;
         oy[i] = my[i] - s->frame_gy;
-        big |= ((gdx[i] ^ (gdx[i] >> 63)) | (gdy[i] ^ (gdy[i] >> 63)) | (ox[i] ^ (ox[i] >> 63))
-                | (oy[i] ^ (oy[i] >> 63))) & -(int64_t)(w[i] > 0);
+        big |= (gdx[i] ^ (gdx[i] >> 63)) | (gdy[i] ^ (gdy[i] >> 63)) | (ox[i] ^ (ox[i] >> 63))
+               | (oy[i] ^ (oy[i] >> 63));
     }
-    sh = bitlen64((uint64_t)big) - 29;                /* |.| >> sh <= 2^29 */
+    sh = bitlen64((uint64_t)big) - 29;                /* |.| >> sh <= 2^29; sh < 24 (|G| < 2^51) */
     if (sh < 0)
         sh = 0;
-    for (i = 0; i < n; i++) {                         /* weighted centroids, Q.(32 - sh) */
-        int32_t in = -(int32_t)(w[i] > 0);
-        ux[i] = (int32_t)(gdx[i] >> sh) & in;
-        uy[i] = (int32_t)(gdy[i] >> sh) & in;
-        vx[i] = (int32_t)(ox[i] >> sh) & in;
-        vy[i] = (int32_t)(oy[i] >> sh) & in;
-        W += w[i];                                    /* <= 2^30 */
-        spx += smul(w[i], ux[i]);                     /* < 2^53 each */
-        spy += smul(w[i], uy[i]);
-        sqx += smul(w[i], vx[i]);
-        sqy += smul(w[i], vy[i]);
+    for (m = fit; m; m &= m - 1) {                    /* weighted centroids, Q.(32 - sh) */
+        int32_t w;
+        i = lowest_bit(m);
+        w = (int32_t)s->mq[i];
+        ux[i] = shr32(gdx[i], sh);
+        uy[i] = shr32(gdy[i], sh);
+        vx[i] = shr32(ox[i], sh);
+        vy[i] = shr32(oy[i], sh);
+        W += w;                                       /* <= 2^30 */
+        spx += smul(w, ux[i]);                        /* < 2^53 each */
+        spy += smul(w, uy[i]);
+        sqx += smul(w, vx[i]);
+        sqy += smul(w, vy[i]);
     }
     px = div_round(spx, (uint32_t)W);                 /* pbar, about G0 */
     py = div_round(spy, (uint32_t)W);
     qx = div_round(sqx, (uint32_t)W);                 /* qbar, about the last G */
     qy = div_round(sqy, (uint32_t)W);
-    for (i = 0; i < n; i++) {                         /* p, q: below 2^30 */
-        int32_t in = -(int32_t)(w[i] > 0);
-        int32_t pux = (ux[i] - (int32_t)px) & in, puy = (uy[i] - (int32_t)py) & in;
-        int32_t qvx = (vx[i] - (int32_t)qx) & in, qvy = (vy[i] - (int32_t)qy) & in;
-        int32_t mux = pux, muy = puy;                 /* m p: m = 1 if the masses are equal */
+    for (m = fit; m; m &= m - 1) {                    /* p, q: below 2^30 */
+        int32_t pux, puy, qvx, qvy, mux, muy;
+        i = lowest_bit(m);
+        pux = ux[i] - (int32_t)px;
+        puy = uy[i] - (int32_t)py;
+        qvx = vx[i] - (int32_t)qx;
+        qvy = vy[i] - (int32_t)qy;
+        mux = pux;                                    /* m p: m = 1 if the masses are equal */
+        muy = puy;
         if (!s->equal_mass) {
-            mux = (int32_t)rshr(smul(w[i], pux), 24);
-            muy = (int32_t)rshr(smul(w[i], puy), 24);
+            mux = (int32_t)rshr(smul((int32_t)s->mq[i], pux), 24);
+            muy = (int32_t)rshr(smul((int32_t)s->mq[i], puy), 24);
         }
         /* products < 2^60, pairs < 2^61: a 2^-8 of each keeps 64 of them in int64 */
         a += (smul(mux, qvx) + smul(muy, qvy)) >> 8;  /* a = sum m p.q */
