@@ -27,10 +27,19 @@
 
 /* ---- arithmetic building blocks ----------------------------------------------------- */
 
-/* the only two multiplications of this unit: 32 x 32 -> 64 bits (SMULL, UMULL) */
+/* the only two multiplications of this unit: 32 x 32 -> 64 bits (SMULL, UMULL).  On
+   Thumb-2 the signed one is written as its instruction: where a factor is masked or
+   selected, LLVM widens the operands first and no longer recognises the sign-extended
+   product, emitting a 64 x 64 multiply (UMULL and two MLAs) instead of one SMULL. */
 static inline int64_t smul(int32_t a, int32_t b)
 {
+#if defined(__thumb2__) && !FX_WORD64
+    uint32_t lo, hi;
+    __asm__("smull %0, %1, %2, %3" : "=r"(lo), "=r"(hi) : "r"(a), "r"(b));
+    return (int64_t)(((uint64_t)hi << 32) | lo);
+#else
     return (int64_t)a * b;
+#endif
 }
 
 static inline uint64_t umul(uint32_t a, uint32_t b)
@@ -987,7 +996,8 @@ static inline int clamped(int64_t ex, int64_t ey)
    taken exactly to 2 units of Q.32 px^2 from the Q.16 half h of r and its rest e
    (r = h 2^16 + e: r.r = h.h + h.e 2^-15 + e.e 2^-32, the last below one unit), and
    1 / l~ to 2^-14 from one 32-bit division (the correction is ~1e-5 px). */
-static inline int64_t spring_dl(const fx_state *s, int k, int64_t rx, int64_t ry, int32_t l)
+static inline __attribute__((always_inline)) int64_t spring_dl(const fx_state *s, int k,
+                                                               int64_t rx, int64_t ry, int32_t l)
 {
     int32_t hx = (int32_t)rshr(rx, 16), hy = (int32_t)rshr(ry, 16);
     int32_t ex = (int32_t)(rx - shl64(hx, 16)), ey = (int32_t)(ry - shl64(hy, 16));
@@ -1014,8 +1024,10 @@ static inline int64_t spring_dl(const fx_state *s, int k, int64_t rx, int64_t ry
 /* eq. (11): the Euclidean force a dl r / l (Q.32) of connection k, from dl (Q.32) and the
    direction (cx, cy) (Q.30): a dl in Q.30 when |a dl| < 2 px (single products), else from
    dl in Q.16 */
-static inline void euclid_force(const fx_state *s, int k, int64_t dl, int32_t cx, int32_t cy,
-                                int64_t *fx, int64_t *fy)
+static inline __attribute__((always_inline)) void euclid_force(const fx_state *s, int k,
+                                                               int64_t dl, int32_t cx,
+                                                               int32_t cy, int64_t *fx,
+                                                               int64_t *fy)
 {
     int32_t a = (int32_t)s->stiff[k], d;
     if (fine(dl)) {
