@@ -1362,7 +1362,7 @@ static inline void frame_to_length(int32_t x, int32_t y, int32_t len, int32_t *c
    a = sum m p.q, b = sum m p x q, D = sum m |p|^2, s R = [[a, -b], [b, a]] / D (the scale
    held to [1/4, 4]; s R = I when D <= 2^-20 sum m), G = qbar - s R pbar.  Sets frame_c,
    frame_s (Q.28) and frame_gx, frame_gy (Q.32). */
-static void fit_frame(fx_state *s, uint64_t fit)
+static __attribute__((noinline)) void fit_frame(fx_state *s, uint64_t fit)
 {
     int n = s->n, i, sh;
     uint64_t all = n == 64 ? ~(uint64_t)0 : ((uint64_t)1 << n) - 1, k2, m;
