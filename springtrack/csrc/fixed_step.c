@@ -77,6 +77,18 @@ int64_t fx_mulsh(int64_t v, uint32_t g, int sh)
     return mulsh(v, g, sh);
 }
 
+/* floor(v / 2^k) for 0 < k < 32: on a 32-bit core from v's two words (a variable 64-bit
+   shift there is a longer sequence that also handles k >= 32) */
+static inline int64_t sar64(int64_t v, int k)
+{
+#if FX_WORD64
+    return v >> k;
+#else
+    uint32_t lo = (uint32_t)v, hi = (uint32_t)(v >> 32);
+    return (int64_t)(((uint64_t)(uint32_t)((int32_t)hi >> k) << 32) | ((lo >> k) | (hi << (32 - k))));
+#endif
+}
+
 /* v + round((inc gm - v am) / 2^sh), half up, 31 <= sh <= 62: eq. (4) with one rounding
    (gm, am < 2^31; |inc| < 2^58, 0 <= |v| < 2^53).  Each product is split into its high and
    low words as in mulsh; the 96-bit difference is hi 2^32 + lo. */
@@ -86,8 +98,8 @@ static inline int64_t ema(int64_t v, int64_t inc, uint32_t gm, uint32_t am, int 
     int64_t lo = (int64_t)umul((uint32_t)inc, gm) - (int64_t)umul((uint32_t)v, am);  /* < 2^63 each */
     int64_t a = hi + (lo >> 32);                         /* difference = a 2^32 + r */
     uint32_t r = (uint32_t)lo;
-    if (sh > 32)
-        return v + ((a + ((int64_t)1 << (sh - 33))) >> (sh - 32));
+    if (sh > 32)                                         /* 1 <= sh - 32 <= 30 */
+        return v + sar64(a + (int64_t)(1u << (sh - 33)), sh - 32);
     if (sh == 32)
         return v + a + (r >> 31);
     return v + shl64(a, 1) + ((r >> 30) + 1) / 2;       /* sh = 31: (2^32 a + r + 2^30) >> 31 */
@@ -757,15 +769,17 @@ void fx_refresh(fx_state *s, int i)
 }
 
 /* floor((v 2^32 - m) / 2^sh) for a pixel v and a Q.32 position m, 2 <= sh <= 31, in 32-bit
-   arithmetic: with m = h 2^32 + l and d = v - h, it is d 2^(32-sh) - ceil(l / 2^sh); when
+   arithmetic: with m = h 2^32 + l and d = v - h, it is the floor of d 2^32 - l; when
    |d| >= 2^(sh-1) it is clamped to +-(2^31 - 1) (the clamp decides nothing, see refresh) */
 static inline int32_t offset32(int32_t v, int64_t m, int sh)
 {
     int32_t d = v - (int32_t)(m >> 32);
-    uint32_t l = (uint32_t)m, lim = 1u << (sh - 1);
+    uint32_t l = (uint32_t)m, lim = 1u << (sh - 1), lo, hi;
     if ((uint32_t)d + lim >= 2 * lim)
         return d < 0 ? -0x7fffffff : 0x7fffffff;
-    return (int32_t)((uint32_t)d << (32 - sh)) - (int32_t)((l >> sh) + ((l & ((1u << sh) - 1)) != 0));
+    lo = 0u - l;                                          /* d 2^32 - l = hi 2^32 + lo */
+    hi = (uint32_t)d - (l != 0);
+    return (int32_t)((lo >> sh) | (hi << (32 - sh)));     /* its floor by 2^sh: fits int32 */
 }
 
 /* Mahalanobis d^2 = ia dx^2 + ib2 dx dy + ic dy^2 (eq. 2), Q.27, saturated at 2^32 - 1,
