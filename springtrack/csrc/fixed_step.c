@@ -1005,34 +1005,26 @@ static inline int clamped(int64_t ex, int64_t ey)
 }
 
 /* eq. (10): dl = l - l0 (Q.32) of connection k from its spring vector r (Q.32) and the
-   length l~ (Q.16) of the spring geometry (tables: within ~1e-5 px).  One Newton step
-   on l^2, l = l~ + (r.r - l~^2) / (2 l~), leaves (l - l~)^2 / (2 l) < 1e-12 px: r.r is
-   taken exactly to 2 units of Q.32 px^2 from the Q.16 half h of r and its rest e
-   (r = h 2^16 + e: r.r = h.h + h.e 2^-15 + e.e 2^-32, the last below one unit), and
-   1 / l~ to 2^-14 from one 32-bit division (the correction is ~1e-5 px). */
+   direction c = (cx, cy) (Q.30) of the spring geometry, l~ its length (Q.16).  The tables
+   give c within ~2e-7 of unit length (|c| = 1 + eps), in the direction of r's Q.16
+   rounding (an angle a < 2^-17 px / l), so l = r.c / |c| = r.c (3 - |c|^2) / 2 to
+   O(eps^2 + a^2) (< 1e-11 px for l >= 0.1 px), without a division: r.c from the high 16.16
+   halves h of r and the 16-bit rests (r = h 2^16 + e; Q.46, |.| < 2^61), |c|^2 in Q.60,
+   the factor (3 - |c|^2) / 2 in Q.30 and one mulsh. */
 static inline __attribute__((always_inline)) int64_t spring_dl(const fx_state *s, int k,
-                                                               int64_t rx, int64_t ry, int32_t l)
+                                                               int64_t rx, int64_t ry, int32_t l,
+                                                               int32_t cx, int32_t cy)
 {
-    int32_t hx = (int32_t)rshr(rx, 16), hy = (int32_t)rshr(ry, 16);
-    int32_t ex = (int32_t)(rx - shl64(hx, 16)), ey = (int32_t)(ry - shl64(hy, 16));
-    int64_t diff;
-    uint32_t rec;
-    int b;
+    int32_t hx = (int32_t)(rx >> 16), hy = (int32_t)(ry >> 16);      /* |.| < 2^30 */
+    int32_t ex = (int32_t)(rx & 0xffff), ey = (int32_t)(ry & 0xffff);
+    int64_t dot, cc;
+    uint32_t f;
     if (l <= 0)                                           /* |r| < 2^-16 px */
         return -s->l0[k];
-    diff = smul(hx, hx) + smul(hy, hy) + ((smul(hx, ex) + smul(hy, ey)) >> 15)
-           - smul(l, l);                                  /* r.r - l~^2, Q.32 px^2 */
-    b = bitlen32((uint32_t)l);                            /* l~ = top 2^(b - 16) */
-    rec = (1u << 31) / ((uint32_t)l << (32 - b) >> 16);   /* 2^31 / top, top in [2^15, 2^16) */
-    /* (r.r - l~^2) / (2 l~) in Q.32 = diff 2^15 / l~ = diff rec 2^-b */
-    if (b > 16 && diff < INT32_MAX && diff > -INT32_MAX) {
-        /* the usual case, l~ >= 1 px and |diff| < 2^31 (a correction < 2^30 units): the
-           product's floor by 2^b (17 <= b <= 31) from its two words, in 32 bits */
-        int64_t p = smul((int32_t)diff, (int32_t)rec);    /* |.| < 2^47 */
-        uint32_t lo = (uint32_t)p, hi = (uint32_t)(p >> 32);
-        return shl64(l, 16) + (int32_t)((lo >> b) | (hi << (32 - b))) - s->l0[k];
-    }
-    return shl64(l, 16) + mulsh(diff, rec, b) - s->l0[k];
+    dot = smul(hx, cx) + smul(hy, cy) + ((smul(ex, cx) + smul(ey, cy)) >> 16);   /* Q.46 */
+    cc = smul(cx, cx) + smul(cy, cy);                     /* |c|^2, Q.60 (< 2^61) */
+    f = (uint32_t)((((int64_t)3 << 60) - cc) >> 31);      /* (3 - |c|^2) / 2, Q.30 */
+    return mulsh(dot, f, 44) - s->l0[k];                  /* Q.46 x Q.30 / 2^44 = Q.32 */
 }
 
 /* eq. (11): the Euclidean force a dl r / l (Q.32) of connection k, from dl (Q.32) and the
@@ -1235,7 +1227,7 @@ static inline __attribute__((always_inline)) int64_t spring_passes(fx_state *s, 
             sum += dth[k];
             fx[k] = fy[k] = 0;
             if (used & 1) {
-                int64_t dl = spring_dl(s, k, grx[k], gry[k], l);   /* eq. (10) */
+                int64_t dl = spring_dl(s, k, grx[k], gry[k], l, cx, cy);   /* eq. (10) */
                 if (s->kinds[k] & 1) {                    /* eq. (11): a dl (r / l) */
                     if (l <= 0) {
                         cx = s->c0x[k];
@@ -1611,13 +1603,15 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
 void fx_energies(fx_state *s)
 {
     int nc = s->nc, k, stale = s->energy_stale;
-    int32_t l[FX_MAX_CONNECTIONS], dth[FX_MAX_CONNECTIONS], cx, cy;
+    int32_t l[FX_MAX_CONNECTIONS], dth[FX_MAX_CONNECTIONS], cx[FX_MAX_CONNECTIONS];
+    int32_t cy[FX_MAX_CONNECTIONS];
     int64_t mean_dth = 0, sum = 0;
     if (!(stale & 7))
         return;
     if (stale & 3) {
         for (k = 0; k < nc; k++) {
-            dth[k] = spring_angle(s, k, geom16(s->grx[k]), geom16(s->gry[k]), &l[k], &cx, &cy);
+            dth[k] = spring_angle(s, k, geom16(s->grx[k]), geom16(s->gry[k]), &l[k], &cx[k],
+                                  &cy[k]);
             sum += dth[k];
         }
         if (nc > 0)
@@ -1626,7 +1620,7 @@ void fx_energies(fx_state *s)
     for (k = 0; k < nc; k++) {
         int64_t ex, ey, e;
         if (stale & 1) {
-            e = energy_euclid(s, k, spring_dl(s, k, s->grx[k], s->gry[k], l[k]));
+            e = energy_euclid(s, k, spring_dl(s, k, s->grx[k], s->gry[k], l[k], cx[k], cy[k]));
             s->energy[0][k] = e > E_MAX ? E_MAX : e;
         }
         if (stale & 2)
