@@ -66,8 +66,8 @@ def gain_pair(g: float, a: float, names: str) -> tuple[int, int, int]:
 
 
 def mantissa(value: float, name: str) -> tuple[int, int]:
-    """A value in [0, 2^7) as a 31-bit mantissa m and a shift sh in [24, 62], value = m
-    2^-sh (the larger below 2^31; values below 2^-32 keep fewer bits)."""
+    """A value in [0, 2^7) as a mantissa m < 2^31 and a shift sh in [24, 62], value ~ m
+    2^-sh, with the largest such m (31 significant bits; values below 2^-32 keep fewer)."""
     q(value, 0, name, 0.0, 128.0)
     sh = 62 if value <= 0 else max(24, min(62, 30 - math.floor(math.log2(value))))
     while sh > 24 and round(value * 2.0 ** sh) >= 1 << 31:
