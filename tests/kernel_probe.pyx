@@ -12,7 +12,8 @@ from libc.stdint cimport int64_t
 
 import numpy as np
 
-from springtrack._kernel cimport Kernel, KState, reindex
+from springtrack._kernel cimport Kernel, KState
+from springtrack._kindex cimport reindex
 
 cdef extern from "springtrack/csrc/fastmath.h" nogil:
     double st_exp(double x)

@@ -36,9 +36,12 @@
 #define ST_SINCOS_MAX 0.7853981633974483      /* pi/4: domain of st_sincos_small */
 
 /* Batch functions: one build runs on any x86-64 and the loader picks the widest vector
- * unit present. */
+ * unit present.  Each module that includes these headers uses some of them: "unused"
+ * keeps the others from warning (an unused static function is still left out). */
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && !defined(ST_NO_CLONES)
-#define ST_CLONES __attribute__((target_clones("default", "avx2", "avx512f")))
+#define ST_CLONES __attribute__((target_clones("default", "avx2", "avx512f"), unused))
+#elif defined(__GNUC__)
+#define ST_CLONES __attribute__((unused))
 #else
 #define ST_CLONES
 #endif

@@ -1,0 +1,136 @@
+# The float64 kernel's per-event step (Algorithm 1): the most probable sensitive tracker
+# takes the event (eq. 2) and moves toward it (eqs. 3-6); every spring_period valid events
+# the springs act (_ksprings.pyx).
+#
+#     cdef KState* s = &kernel.st                  # kernel: a springtrack._kernel.Kernel
+#     with nogil:
+#         r = kstep(s, t, x, y)                    # one event; r >= 0: winning tracker
+#         c = ksteps(s, ev, n, t_stop)             # a batch (the Stepper's steps())
+#
+# Translates springtrack.reference.ReferenceTracker.step() ([ref] marks the lines
+# translated) and keeps its order of floating-point operations, so its decisions match
+# even on exact ties.  Speed without changing a decision: argmin of the Mahalanobis
+# distance d^2 (eq. 2 in the log domain, no exp per tracker) over the spatial index's
+# candidates only (_kindex.pxd), eq. (6)'s exps logged and batched (_kactivity.pxd).
+#
+# cdef inline, like the index, the covariance clamp and the activity log it calls: the
+# whole per-event path is compiled as one unit into springtrack._kernel, which exposes it
+# (Kernel.stepper(), Kernel.step()).  The springs, once per spring_period events, are a
+# call into springtrack._ksprings.
+from libc.stdint cimport int64_t, uint64_t
+
+from springtrack.events cimport Event
+from springtrack._stepper cimport st_sample_due
+from springtrack._kstate cimport (KState, CELL_SHIFT, K_NO_TRACKER, K_BACK_IN_TIME,
+                                  K_OUT_OF_SENSOR)
+from springtrack._kindex cimport check_index
+from springtrack._kcovariance cimport clamp_and_invert
+from springtrack._kactivity cimport log_activity, flush_activity, rescale_activity
+from springtrack._ksprings cimport ksprings
+
+cdef extern from *:
+    """
+    static inline int st_ctz64(unsigned long long v) { return __builtin_ctzll(v); }
+    """
+    int st_ctz64(unsigned long long v) nogil
+
+
+cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double fy, double d2) noexcept nogil:
+    # [ref] _update
+    # eq. (6) with eq. (2)'s unnormalised kernel value p = exp(-d2/2) as the increment,
+    # kept rescaled (_kactivity.pxd): act += p * exp((t - act_t0) / tau), one exp (logged)
+    if t - s.act_t0 > s.act_span:
+        rescale_activity(s, t)
+    log_activity(s, i, -0.5 * d2 + <double>(t - s.act_t0) * s.inv_tau)
+    cdef double dx = fx - s.mx[i]                                    # eq. (5), pre-update mean
+    cdef double dy = fy - s.my[i]
+    s.mx[i] = s.mx[i] + s.a1 * dx                                    # eq. (3)
+    s.my[i] = s.my[i] + s.a1 * dy
+    s.sxx[i] = s.keep * s.sxx[i] + s.cov_gain * (dx * dx)           # eq. (4)
+    s.sxy[i] = s.keep * s.sxy[i] + s.cov_gain * (dx * dy)
+    s.syy[i] = s.keep * s.syy[i] + s.cov_gain * (dy * dy)
+    clamp_and_invert(s, i)
+    check_index(s, i)
+
+
+cdef inline int assign_event(KState* s, int64_t t, int x, int y) noexcept nogil:
+    """eqs. (2)-(6) for a valid event: the most probable sensitive tracker takes it."""
+    cdef double fx = x, fy = y, dx, dy, d2
+    cdef double best_d2 = s.gate
+    cdef int best = K_NO_TRACKER, i
+    # eq. (2): candidates are the sensitive trackers indexed in this event's cell, in
+    # increasing index order, so ties resolve exactly as in the reference's full scan.
+    cdef uint64_t m = s.cells[(y >> CELL_SHIFT) * s.gw + (x >> CELL_SHIFT)] & s.sensitive_mask
+    while m:
+        i = st_ctz64(m)
+        m &= m - 1
+        dx = fx - s.mx[i]
+        dy = fy - s.my[i]
+        d2 = s.ia[i] * dx * dx + s.ic[i] * dy * dy + s.ib2[i] * dx * dy
+        if d2 < best_d2:
+            best_d2 = d2
+            best = i
+    if best >= 0:
+        update_tracker(s, best, t, fx, fy, best_d2)
+        s.n_assigned += 1
+    return best
+
+
+cdef inline Py_ssize_t ksteps(KState* s, const Event* ev, Py_ssize_t n, int64_t t_stop) noexcept nogil:
+    """kstep() over ev[0..n), stopping before the first event with t >= t_stop that is not
+    back in time (the sampling rule, csrc/sampling.h, with t_stop the next sample time);
+    returns the events processed (the Stepper's steps(), _stepper.pxd).
+    The counters and the last time live in locals for the batch and are written back at
+    its end (nothing the step calls reads them)."""
+    cdef Py_ssize_t k
+    cdef int64_t t, last_t = s.last_t, n_back = 0, n_outside = 0, n_valid = 0
+    cdef int since = s.since_spring, period = s.period
+    cdef unsigned int x, y, width = s.width, height = s.height
+    for k in range(n):
+        t = ev[k].t
+        if st_sample_due(t, t_stop, last_t):
+            break
+        if t < last_t:
+            n_back += 1
+            continue
+        last_t = t
+        x = ev[k].x
+        y = ev[k].y
+        if x >= width or y >= height:
+            n_outside += 1
+            continue
+        n_valid += 1
+        assign_event(s, t, x, y)
+        since += 1
+        if since >= period:
+            since = 0
+            ksprings(s)
+    else:
+        k = n
+    flush_activity(s)
+    s.last_t = last_t
+    s.since_spring = since
+    s.n_back += n_back
+    s.n_outside += n_outside
+    s.n_valid += n_valid
+    return k
+
+
+cdef inline int kstep(KState* s, int64_t t, int x, int y) noexcept nogil:
+    """One event (Algorithm 1). Returns the winning tracker, K_NO_TRACKER or a skip code.
+    ksteps() is the same step over a batch, with the counters kept in locals."""
+    if t < s.last_t:
+        s.n_back += 1
+        return K_BACK_IN_TIME
+    s.last_t = t
+    if x >= s.width or y >= s.height or x < 0 or y < 0:
+        s.n_outside += 1
+        return K_OUT_OF_SENSOR
+    s.n_valid += 1
+    cdef int best = assign_event(s, t, x, y)
+    flush_activity(s)
+    s.since_spring += 1
+    if s.since_spring >= s.period:
+        s.since_spring = 0
+        ksprings(s)
+    return best
