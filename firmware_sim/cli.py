@@ -19,6 +19,8 @@ import sys
 import threading
 import time
 
+from springtrack.commands.track import add_acquire_window
+
 from . import faults as _faults
 from . import sources as _sources
 from . import usb as camusb
@@ -66,6 +68,11 @@ def build_parser() -> argparse.ArgumentParser:
                         "'fixed' kernel of docs/fixed_point.md (positions Q.32 px), or 'mcu': "
                         "that kernel's Cortex-M4 build run in an emulator (docs/mcu.md; slow, "
                         "for correctness tests; needs pip install 'springtrack[mcu]')")
+    r.add_argument("--acquire", action="store_true",
+                   help="find the model in the events instead of trusting its positions, "
+                        "detect its loss and find it again (docs/acquisition.md); the host "
+                        "triggers a new search with `hostctl acquire`")
+    add_acquire_window(r)
     sp = r.add_mutually_exclusive_group()
     sp.add_argument("--realtime", action="store_true",
                     help="simulated camera releases events at their timestamps (default)")
@@ -212,7 +219,8 @@ def run(args) -> int:
                           nbuf=args.buffers, record=bool(args.record),
                           lossless=cam is not None and args.max_speed, biases=biases,
                           profile=source.profile, backend=args.backend, roi=roi,
-                          source_counters=source.counters, sensor_from=args.sensor_from)
+                          source_counters=source.counters, sensor_from=args.sensor_from,
+                          acquire=_acquire(args))
     stop = threading.Event()
     link_thread, port = start_link(args, engine, stop)
     if args.wait_start and link_thread is None:
@@ -283,6 +291,14 @@ def _wait_telemetry_sent(engine, link_thread, timeout: float = 30.0) -> None:
 
 def _terminate(signum, frame):
     raise KeyboardInterrupt
+
+
+def _acquire(args):
+    """The slot's acquisition settings from --acquire*, or None."""
+    if not args.acquire:
+        return None
+    from springtrack.commands.track import acquire_bounds
+    return {"acquire_ms": args.acquire_ms, "bounds": acquire_bounds(args)}
 
 
 def main(argv=None) -> int:

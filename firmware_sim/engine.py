@@ -53,6 +53,10 @@ class Engine(Protocol):
 
     def reset(self) -> None: ...
 
+    def acquire(self) -> int:
+        """Search for the model again (acquisition); returns the generation it carries.
+        Raises UpdateRejected (Nack.BAD_STATE) when the engine cannot acquire."""
+
     def stats(self) -> dict:
         """Counters: transfers, bytes, events decoded/tracked, drops, anomalies, queue HWM, ..."""
 

@@ -175,7 +175,7 @@ class LinkServer:
             return
         for snap in self.engine.poll_telemetry(min(64, room)):
             payload = wire.encode_telemetry(snap.t_us, snap.generation, snap.mean_energy,
-                                            snap.records)
+                                            snap.records, snap.trackers["state"])
             if self.send(MsgType.TELEMETRY, payload, droppable=True) is not None:
                 self.counts["telemetry_sent"] += 1
             if snap.energies is not None:
@@ -374,6 +374,9 @@ class LinkServer:
         elif f.type == MsgType.RESET:
             self.upload = None
             self.engine.reset()
+        elif f.type == MsgType.ACQUIRE:
+            self._ack(f, self.engine.acquire())
+            return
         self._ack(f)
 
 
@@ -388,6 +391,7 @@ HANDLERS = {
     MsgType.START: LinkServer.on_simple,
     MsgType.STOP: LinkServer.on_simple,
     MsgType.RESET: LinkServer.on_simple,
+    MsgType.ACQUIRE: LinkServer.on_simple,
     MsgType.HEARTBEAT: LinkServer.on_simple,
 }
 

@@ -58,22 +58,26 @@ class FirmwareLoop:
                  transfer_bytes: int | None = None, lossless: bool = False,
                  biases: dict | None = None, profile="ccam_atis",
                  record: bool = False, width: int | None = None, height: int | None = None,
-                 backend: str = "cython", roi=None, source_counters=None, sensor_from=None):
+                 backend: str = "cython", roi=None, source_counters=None, sensor_from=None,
+                 acquire: dict | None = None):
         if telemetry_period_us <= 0:
             raise ValueError(f"telemetry_period_us must be positive, got {telemetry_period_us}")
         self.profile = camusb.PROFILES[profile] if isinstance(profile, str) else profile
         self.width = width or self.profile.width          # the sensor
         self.height = height or self.profile.height
         # every model (this one, uploads) must fit the sensor: springtrack.geometry
-        self.slot = ModelSlot(backend, model, params, (self.width, self.height), sensor_from)
+        self.slot = ModelSlot(backend, model, params, (self.width, self.height), sensor_from,
+                              acquire)
         self.applied = AppliedLog()
-        if not backend.startswith("mcu"):
+        if not backend.startswith("mcu") and acquire is None:
             self.fused = Fused(self.slot.kernel, telemetry_period_us, 512, fmt=self.profile.fmt,
                                width=self.width, height=self.height,
                                legacy=self.profile.legacy, roi=roi)
-        else:        # a kernel in an emulator, with no C step: springtrack.io decoder + run
+        else:        # a kernel in an emulator, with no C step, or one that acquires (it
+            #          needs the events): springtrack.io decoder + run
             if roi is not None:
-                raise ValueError("--roi needs a kernel the fused loop runs (cython, fixed)")
+                raise ValueError("--roi needs a kernel the fused loop runs (cython, fixed; "
+                                 "not --acquire)")
             self.fused = DecodedFeed(self.slot.kernel, telemetry_period_us, self.profile)
         self.source_counters = source_counters or dict
         self.period = int(telemetry_period_us)
@@ -134,6 +138,17 @@ class FirmwareLoop:
         """Restart the tracker from the current model (queued like a model swap)."""
         self.slot.queue_reset()
         self._apply_if_idle()
+
+    def acquire(self) -> int:
+        """Search for the model again (ACQUIRE): a fresh acquiring kernel of the current
+        model, queued like a reset; its state is ``searching`` until it is found.  Refused
+        (BAD_STATE) when the firmware runs without acquisition."""
+        if self.slot.acquire is None:
+            raise UpdateRejected(Nack.BAD_STATE, "this firmware runs without acquisition: "
+                                                 "start it with --acquire")
+        gen = self.slot.queue_reset()
+        self._apply_if_idle()
+        return gen
 
     # ---- Engine: updates -------------------------------------------------------------------
     def load_model(self, toml_text: str) -> int:
@@ -293,7 +308,15 @@ class FirmwareLoop:
             anomalies=fc["anomalies"],
             loop=dict(self.counters.as_dict(), telemetry_dropped=self.telemetry.dropped,
                       generation=self.generation, last_t_us=int(self.fused.last_t)),
-            kernel=self.slot.kernel_counters())
+            kernel=self.slot.kernel_counters(),
+            instances=self._instances())
+
+    def _instances(self) -> dict:
+        """Each model instance's state (searching, tracking, lost), with acquisition."""
+        kern = self.slot.kernel
+        if not hasattr(kern, "instances"):
+            return {}
+        return {i["label"]: i["state"] for i in kern.instances()}
 
     def _geometry_drops(self, fc: dict) -> dict:
         """Events lost because they lay outside the sensor: in the words (the decoder's

@@ -48,12 +48,17 @@ class ModelSlot:
     in an emulator, docs/mcu.md; "mcu:cortex-m7" names the core); ``sensor``: the camera's
     (width, height), which every model must fit (``springtrack.geometry.fit_model`` with
     ``sensor_from``: None, "source" or "model").  The queue_* methods are thread-safe and
-    raise :class:`UpdateRejected`; :meth:`apply` runs in the processing thread."""
+    raise :class:`UpdateRejected`; :meth:`apply` runs in the processing thread.  ``acquire``
+    (``{"acquire_ms": ..., "bounds": {...}}``): each kernel built finds its model in the
+    events first (firmware_sim.acquiring)."""
 
-    def __init__(self, backend: str, model, params=None, sensor=None, sensor_from=None):
+    def __init__(self, backend: str, model, params=None, sensor=None, sensor_from=None,
+                 acquire: dict | None = None):
         if backend.partition(":")[0] not in BACKENDS:
             raise ValueError(f"backend {backend!r}: the firmware runs one of {', '.join(BACKENDS)}")
         self.backend = backend
+        self.acquire = acquire               # None, or acquire_ms and bounds: every kernel
+        #                                      built searches for its model (AcquiringKernel)
         self.sensor = sensor or (None, None)
         self.sensor_from = sensor_from
         self.model = self.fit(_model.load_model(model))
@@ -67,6 +72,9 @@ class ModelSlot:
         self._retired: dict = {}             # counters of the kernels swapped out
 
     def new_kernel(self, model, params):
+        if self.acquire is not None:
+            from .acquiring import AcquiringKernel
+            return AcquiringKernel(model, params, self.backend, **self.acquire)
         return make_backend(self.backend, model, params)
 
     def fit(self, model):

@@ -6,7 +6,7 @@
     hostctl --port /dev/pts/5 load-model face26            # preset or FILE.toml
     hostctl --port /dev/pts/5 set alpha_position=0.05 energy_scale=3
     hostctl --port /dev/pts/5 get [NAME ...]
-    hostctl --port /dev/pts/5 start | stop | reset | stats | ping
+    hostctl --port /dev/pts/5 start | stop | reset | acquire | stats | ping
     hostctl --port /dev/pts/5 monitor [--seconds S] [--smooth]
     hostctl --port /dev/pts/5 record OUT.csv|OUT.npz [--seconds S] [--smooth]
 
@@ -24,8 +24,8 @@ import time
 
 from .device import Device, HostctlError
 
-VERBS = ("ports", "demo", "info", "load-model", "set", "get", "start", "stop", "reset", "stats",
-         "ping", "monitor", "record")
+VERBS = ("ports", "demo", "info", "load-model", "set", "get", "start", "stop", "reset",
+         "acquire", "stats", "ping", "monitor", "record")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -52,6 +52,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("names", nargs="*")
     for verb, text in (("start", "start tracking"), ("stop", "stop tracking"),
                        ("reset", "reset the trackers to the model"),
+                       ("acquire", "search for the model in the events again (a firmware "
+                                   "started with --acquire)"),
                        ("stats", "firmware and link counters")):
         sub.add_parser(verb, help=text)
     sp = sub.add_parser("ping", help="command round-trip times")
@@ -216,7 +218,7 @@ def cmd_record(dev, args) -> int:
 
 VERB_FUNCS = {"info": cmd_info, "load-model": cmd_load_model, "set": cmd_set, "get": cmd_get,
               "start": _simple("start"), "stop": _simple("stop"), "reset": _simple("reset"),
-              "stats": cmd_stats, "ping": cmd_ping, "monitor": cmd_monitor,
+              "acquire": _simple("acquire"), "stats": cmd_stats, "ping": cmd_ping, "monitor": cmd_monitor,
               "record": cmd_record}
 
 

@@ -158,6 +158,12 @@ class Device:
     def reset(self) -> None:
         self._command(MsgType.RESET)
 
+    def acquire(self) -> int:
+        """Make the firmware search for its model again (ACQUIRE; a firmware started with
+        --acquire, else HostctlError for the NACK); returns the generation it carries.
+        Telemetry shows each tracker's instance ``searching`` until it is found."""
+        return self._command(MsgType.ACQUIRE)
+
     def ping(self) -> float:
         """Round-trip time of a HEARTBEAT command, seconds."""
         t = time.perf_counter()

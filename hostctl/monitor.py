@@ -1,10 +1,14 @@
 """``hostctl monitor``: a live terminal view redrawn ``rate`` times a second (plain ANSI:
 cursor home + clear) - per-tracker position, active/sensitive flags, activity, optional
-smoothed velocity; mean energy, event rate, telemetry rate, lost frames, link errors."""
+smoothed velocity; the model instances' states (searching, tracking, lost); mean energy,
+event rate, telemetry rate, lost frames, link errors."""
 from __future__ import annotations
 
 import sys
 import time
+
+from springtrack.track import STATE_NAMES
+from springtrack.wire import state_runs
 
 from .record import tracker_ids
 from .smooth import Smoother
@@ -20,6 +24,16 @@ def event_count(stats: dict) -> int | None:
     return None
 
 
+def instances_line(trackers) -> str:
+    """The trackers' instance states as runs: ``state: tracking (trackers 0-25)``."""
+    parts, k = [], 0
+    for st, count in state_runs(trackers["state"]):
+        name = STATE_NAMES[st] if st < len(STATE_NAMES) else f"state {st}"
+        parts.append(f"{name.upper() if name != 'tracking' else name} (trackers {k}-{k + count - 1})")
+        k += count
+    return "state: " + ", ".join(parts)
+
+
 def render(dev, snap, ids, smooth, rates: dict) -> str:
     lc = dev.link_counters()
     errors = lc["crc_errors"] + lc["cobs_errors"] + lc["malformed"] + lc["oversize"]
@@ -29,6 +43,7 @@ def render(dev, snap, ids, smooth, rates: dict) -> str:
              f"telemetry {rates.get('telemetry', 0):.0f}/s   lost frames {lc['lost']}   "
              f"link errors {errors}   retries {lc['retries']}   "
              f"firmware tx dropped {lc.get('firmware.tx_dropped', 0)}",
+             instances_line(snap.trackers),
              ""]
     head = f"{'tracker':<12}{'x':>9}{'y':>9}  act sens {'activity':>9}"
     if smooth is not None:

@@ -116,6 +116,7 @@ cdef inline void snapshot_row(const fx_state* s, int64_t t, SampleOut* o) noexce
         r[i].activity = a * Q32_UNIT
         r[i].active = a > s.act_thr
         r[i].sensitive = (s.sensitive_mask >> i) & 1
+        r[i].state = 1
     fx_energies(<fx_state*>s)     # the kinds the criterion does not use, computed when read
     for q in range(3):
         tot = 0
@@ -236,7 +237,8 @@ cdef class FixedKernel:
                     syy=np.array([s.syy[i] * COV_UNIT for i in range(n)]),
                     activity=act,
                     active=np.array([fx_activity(s, i, t) > s.act_thr for i in range(n)]),
-                    sensitive=np.array([bool((s.sensitive_mask >> i) & 1) for i in range(n)]))
+                    sensitive=np.array([bool((s.sensitive_mask >> i) & 1) for i in range(n)]),
+                    state=np.ones(n, np.uint8))
 
     def raw_state(self):
         """The integer state itself (Q formats of docs/fixed_point.md): x, y Q.32 int64;

@@ -97,6 +97,7 @@ cdef void ksnapshot(const KState* s, int64_t t, SampleOut* o) noexcept nogil:
         r[i].activity = a
         r[i].active = a > thr
         r[i].sensitive = (sensitive >> i) & 1
+        r[i].state = 1
     for q in range(3):                                # eq. (13) of each kind
         o.energy[row * 3 + q] = st_sum(s.nc, s.energy[q]) / s.nc if s.nc > 0 else 0.0
     o.count = row + 1
@@ -252,7 +253,8 @@ cdef class Kernel:
                     sxy=np.array([s.sxy[i] for i in range(n)]),
                     syy=np.array([s.syy[i] for i in range(n)]),
                     activity=act, active=act > s.act_thr,
-                    sensitive=np.array([bool((s.sensitive_mask >> i) & 1) for i in range(n)]))
+                    sensitive=np.array([bool((s.sensitive_mask >> i) & 1) for i in range(n)]),
+                    state=np.ones(n, np.uint8))
 
     def energies(self):
         """(3, nc) array of the last spring update's energies: euclidean, torsional, cartesian."""

@@ -82,6 +82,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from .events import EVENT_DTYPE, as_events
+from .instances import ModelSet
 from .model import ShapeModel, TrackerSpec, load_model
 
 KAPPA = 0.5              # support: excess >= KAPPA b + Z sqrt(b) + N_MIN over the background
@@ -234,6 +235,25 @@ def count_image(events, width: int, height: int):
                 np.maximum(busiest, pad[dy:dy + height, dx:dx + width], out=busiest)
     np.minimum(counts, busiest + 1.0, out=counts)
     return counts, int(inside.sum())
+
+
+def remove_claimed(img, claimed) -> None:
+    """Zero the pixels of ``img`` inside the gates (d^2 < GATE2, 3 sigma) of the trackers
+    ``claimed`` = (mx, my, sxx, sxy, syy) arrays: the events other instances explain."""
+    h, w = img.shape
+    for x, y, sxx, sxy, syy in zip(*(np.asarray(a, float) for a in claimed)):
+        det = sxx * syy - sxy * sxy
+        if not (np.isfinite(x) and np.isfinite(y) and det > 0):
+            continue
+        hx, hy = math.sqrt(GATE2 * sxx), math.sqrt(GATE2 * syy)
+        x0, x1 = max(int(math.floor(x - hx)), 0), min(int(math.ceil(x + hx)), w - 1)
+        y0, y1 = max(int(math.floor(y - hy)), 0), min(int(math.ceil(y + hy)), h - 1)
+        if x0 > x1 or y0 > y1:
+            continue
+        dx = np.arange(x0, x1 + 1) - x
+        dy = (np.arange(y0, y1 + 1) - y)[:, None]
+        d2 = (syy * dx * dx - 2 * sxy * dx * dy + sxx * dy * dy) / det
+        img[y0:y1 + 1, x0:x1 + 1][d2 < GATE2] = 0.0
 
 
 def background_density(img) -> float:
@@ -413,7 +433,7 @@ def _levels(cells, c0: int, sig_c: float, n_lev: int, pad: int, rho: float,
 
 def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DEFAULT_SCALE,
             width: int | None = None, height: int | None = None,
-            at_us: int | None = None) -> Pose:
+            at_us: int | None = None, claimed=None) -> Pose:
     """Find ``model`` (ShapeModel, preset name or TOML path) in ``events`` (a window of
     tens of ms, fields t, x, y, p, in time order).
 
@@ -429,6 +449,9 @@ def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DE
     stay those of the whole window).  A tracker that starts on the window's first event
     wants ``at_us`` = that event's time: it does not pull a model placed a pixel or two
     off its parts back onto them.
+
+    ``claimed``: (mx, my, sxx, sxy, syy) arrays of trackers whose events are explained
+    already (other instances'): the pixels inside their 3-sigma gates do not count.
     """
     model = load_model(model)
     w, h = int(width or model.width), int(height or model.height)
@@ -444,6 +467,8 @@ def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DE
     if len(scales) != 2 or not 0 < scales[0] <= scales[1] or not math.isfinite(scales[1]):
         raise ValueError(f"acquire: scale must be (lo, hi) with 0 < lo <= hi, got {tuple(scale)}")
     img, n_ev = count_image(events, w, h)
+    if claimed is not None:
+        remove_claimed(img, claimed)
     geo = _Geometry(model)
     if n_ev < MIN_EVENTS:
         g = geo.g
@@ -467,40 +492,63 @@ def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DE
     evs = as_events(events)
     near = np.argsort(np.abs(evs["t"] - int(at_us)), kind="stable")[:max(len(evs) // 4, 1)]
     img_at, _ = count_image(evs[np.sort(near)], w, h)
+    if claimed is not None:
+        remove_claimed(img_at, claimed)
     ev_at = _Evidence(geo, img_at, background_density(img_at))
-    tx, ty, th, s = ev_at.refine((best.tx, best.ty, math.radians(best.angle_deg), best.scale),
-                                 0.0, lo, hi, MAX_ITER)
+    mid = np.array([best.tx, best.ty, math.radians(best.angle_deg), best.scale])
+    q = np.array(ev_at.refine(tuple(mid), 0.0, lo, hi, MAX_ITER))
+    # the refined pose holds at the mean time of the events it saw (t_q), the window's
+    # pose at the mean of all (t_m): carry the motion between them on to at_us,
+    # pose(at) = q + (q - mid) (at - t_q) / (t_q - t_m)
+    t_q = float(np.mean(evs["t"][near]))
+    t_m = float(np.mean(evs["t"]))
+    if abs(t_q - t_m) > 0:
+        f = (int(at_us) - t_q) / (t_q - t_m)
+        if 0 < f <= 1:
+            q = np.clip(q + (q - mid) * f, lo, hi)
+    tx, ty, th, s = (float(v) for v in q)
     return replace(best, tx=tx, ty=ty, angle_deg=math.degrees(th), scale=s)
 
 
 class Acquisition:
     """Acquisition on a stream: buffers events until ``window_us`` of them are in, runs
-    :func:`acquire` on that window, and when the model is not found slides by half a
-    window and tries again.  Memory: the events of one window plus the chunk fed.
+    :func:`acquire` on that window for each instance of ``models`` (a model, or a
+    ``springtrack.instances.ModelSet``: each instance found explains its events away
+    before the next is searched), and when none is found slides by half a window and tries
+    again.  Memory: the events of one window plus the chunk fed.
 
-    :meth:`feed` returns ``None`` while acquiring, then, once found, every buffered event
-    (the window and what followed it) for the tracker to process from the window's
-    start; :attr:`pose` is the pose found.  :attr:`attempts` counts the windows tried,
-    :attr:`events_dropped` the events that slid out of the window unfound.
+    :meth:`feed` returns ``None`` while acquiring, then, once an instance is found, every
+    buffered event (the window and what followed it) for the tracker to process from the
+    window's start; :attr:`poses` are the poses found (one per instance; ``found`` False
+    for one not found), :attr:`pose` the first instance's.  :attr:`attempts` counts the
+    windows tried, :attr:`events_dropped` the events that slid out of the window unfound.
     """
 
-    def __init__(self, model, window_us: int = 50_000, **bounds):
+    def __init__(self, models, window_us: int = 50_000, **bounds):
         window_us = int(window_us)
         if window_us <= 0:
             raise ValueError(f"acquisition window must be a positive number of µs, got {window_us}")
-        self.model = load_model(model)
+        self.models = models if isinstance(models, ModelSet) else ModelSet(models)
         self.window_us, self.bounds = window_us, bounds
-        self.pose: Pose | None = None
+        self.poses: list = [None] * len(self.models)
         self.attempts = 0
         self.events_dropped = 0
         self._buf: list[np.ndarray] = []
 
     @property
+    def model(self) -> ShapeModel:
+        return self.models[0].model
+
+    @property
+    def pose(self) -> Pose | None:
+        return self.poses[0]
+
+    @property
     def done(self) -> bool:
-        return self.pose is not None and self.pose.found
+        return any(p is not None and p.found for p in self.poses)
 
     def feed(self, events):
-        """Add events (in time order); the buffered events once the model is found."""
+        """Add events (in time order); the buffered events once an instance is found."""
         ev = as_events(events)
         if len(ev):
             self._buf.append(ev)
@@ -537,9 +585,36 @@ class Acquisition:
 
     def _try(self, window):
         self.attempts += 1
-        self.pose = acquire(self.model, window, at_us=int(window["t"][0]), **self.bounds)
-        if not self.pose.found:
+        self.poses = acquire_all(self.models.models, window, at_us=int(window["t"][0]),
+                                 **self.bounds)
+        if not self.done:
             return None
         out = self._joined()
         self._buf = []
         return out
+
+
+def acquire_all(models, events, claimed=None, **kw) -> list:
+    """:func:`acquire` for each model in turn on the same ``events``; each one found
+    claims its trackers' gates (explaining its events away) before the next search.
+    ``claimed``: gates claimed from the start (as for :func:`acquire`)."""
+    poses = []
+    gates = [np.asarray(a, float) for a in claimed] if claimed is not None else None
+    for m in models:
+        pose = acquire(m, events, claimed=gates, **kw)
+        poses.append(pose)
+        if pose.found:
+            gates = _join_gates(gates, placed_gates(m, pose))
+    return poses
+
+
+def placed_gates(model, pose) -> tuple:
+    """(mx, my, sxx, sxy, syy) of ``model``'s trackers placed at ``pose``."""
+    a = place(model, pose).arrays()
+    return tuple(a[k] for k in ("x", "y", "sxx", "sxy", "syy"))
+
+
+def _join_gates(a, b):
+    if a is None:
+        return [np.asarray(v, float) for v in b]
+    return [np.concatenate([u, np.asarray(v, float)]) for u, v in zip(a, b)]

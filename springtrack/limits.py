@@ -17,6 +17,11 @@ from .wire import INFO_NAME_BUDGET, info_name_bytes
 
 MAX_TRACKERS = 64
 MAX_CONNECTIONS = 128
+# Several model instances in one tracker (springtrack.instances, docs/acquisition.md): at
+# most MAX_INSTANCES instances and MAX_SET_TRACKERS / MAX_SET_CONNECTIONS in all.
+MAX_INSTANCES = 16
+MAX_SET_TRACKERS = 256
+MAX_SET_CONNECTIONS = 512
 
 # Positions: the fixed kernel keeps them in Q.32 px of an int64, saturated at +-2^13 px
 # (csrc/fixed_step.h FX_POS_LIM); every kernel keeps them inside that range.

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, fields, asdict
+from pathlib import Path
 from typing import Mapping
 
 from . import limits as _limits
@@ -203,6 +204,23 @@ def read_toml(path, error: type = ParamError) -> dict:
     except OSError as e:
         raise error(f"{path}: cannot read: {e.strerror or e}") from None
     return parse_toml(data, path, error)
+
+
+def resolve(model, params=None) -> Params:
+    """The parameters of ``model`` (anything with ``params``, its ``[params]`` table, and
+    ``source``): defaults, then the model's [params], then ``params`` (Params, dict or
+    TOML path; a Params is taken as it is)."""
+    base = from_mapping(model.params, where=f"{model.source} [params]")
+    if params is None:
+        return base
+    if isinstance(params, Params):
+        return params
+    if isinstance(params, dict):
+        return from_mapping(params, base)
+    if isinstance(params, (str, Path)):
+        data = read_toml(params)
+        return from_mapping(data.get("params", data), base, where=str(params))
+    raise TypeError(f"params must be Params, dict, a TOML path or None, not {type(params).__name__}")
 
 
 def load(path) -> Params:

@@ -30,6 +30,12 @@ Interpretation choices (docs/algorithm.md explains them):
   trackers no over-threshold connection touches; eq. (22) then pulls toward
   ``G + s R dG0``, and the Cartesian springs of the next update hold the rest offset
   ``s R d0``.
+* Several model instances (springtrack.instances): their trackers side by side; eq. (2)'s
+  argmin runs over the union of the sensitive trackers (ties: lowest index, the first
+  instance); springs, eq. (13)'s mean energy, eqs. (21)-(22), the centre of mass and the
+  similarity frame per instance, each with its own parameters of INSTANCE_PARAMS; only
+  tracking instances are sensitive and run their springs (``set_state``; the loss rule
+  that decides a state is springtrack.loss, the same for every backend).
 """
 from __future__ import annotations
 
@@ -37,6 +43,7 @@ import math
 
 import numpy as np
 
+from .instances import TRACKING, ModelSet, per_instance
 from .limits import position_box
 from .model import SPRING_BIT, ShapeModel
 from .params import ENERGY_KINDS, Params
@@ -89,18 +96,38 @@ def wrap_angle(a: float) -> float:
 
 
 class ReferenceTracker:
-    """Float64 reference tracker; state in plain Python lists, one event per call."""
+    """Float64 reference tracker; state in plain Python lists, one event per call.
 
-    def __init__(self, model: ShapeModel, params: Params | None = None):
-        self.model = model
-        arr = model.arrays()
-        self.n = len(model.trackers)
-        self.nc = len(model.connections)
-        self.width, self.height = model.width, model.height
-        # the model's state, which the tracker state starts from and is reset to
+    ``ReferenceTracker(model, params)``: one ShapeModel and its resolved Params, or a
+    ``springtrack.instances.ModelSet`` (params None: each instance's own)."""
+
+    def __init__(self, model, params: Params | None = None):
+        if isinstance(model, ModelSet):
+            mset = model if params is None else model.with_params(params)
+        else:
+            mset = ModelSet([model], params if params is not None else Params())
+        self.mset = mset
+        self.model = mset[0].model
+        arr = mset.arrays()
+        self.n = mset.n
+        self.nc = mset.nc
+        self.ni = len(mset)
+        self.width, self.height = mset.width, mset.height
+        # instances: trackers [t0, t1), connections [c0, c1)
+        self.t0 = [int(v) for v in arr["inst_t0"]]
+        self.t1 = [int(v) for v in arr["inst_t1"]]
+        self.c0 = [int(v) for v in arr["inst_c0"]]
+        self.c1 = [int(v) for v in arr["inst_c1"]]
+        self.inst = [g for g in range(self.ni) for _ in range(self.t0[g], self.t1[g])]
+        # the models' state, which the tracker state starts from and an instance is reset to
         self.rest = tuple([float(v) for v in arr[k]] for k in ("x", "y", "sxx", "sxy", "syy"))
         # where trackers may be after a spring update (the state guard, _guard)
         self.box = position_box(self.width, self.height)
+        # tracker state
+        self.mx, self.my, self.sxx, self.sxy, self.syy = (list(v) for v in self.rest)
+        self.act = [0.0] * self.n
+        self.tlast = [0] * self.n
+        self.sensitive = [True] * self.n
         self.ia = [0.0] * self.n
         self.ib = [0.0] * self.n
         self.ic = [0.0] * self.n
@@ -117,53 +144,97 @@ class ReferenceTracker:
         self.th0 = [float(v) for v in arr["th0"]]
         self.dx0 = [float(v) for v in arr["dx0"]]
         self.dy0 = [float(v) for v in arr["dy0"]]
-        self._reset_state()
+        self.energy = [[0.0] * self.nc for _ in ENERGY_KINDS]   # [kind][connection]
         self.degree = [0] * self.n
         for k in range(self.nc):
             self.degree[self.ca[k]] += 1
             self.degree[self.cb[k]] += 1
+        # per instance: eq. (13)'s mean energy, the similarity frame of the last spring
+        # update (fit_frame: s R = [[fc, -fs], [fs, fc]], (fgx, fgy) where it maps the
+        # rest centre of mass G0) and the state
+        self.mean_energies = [0.0] * self.ni
+        self.fc = [1.0] * self.ni
+        self.fs = [0.0] * self.ni
+        self.fgx = [0.0] * self.ni
+        self.fgy = [0.0] * self.ni
+        for g in range(self.ni):
+            self._rest_frame(g)
+        self.state = [int(TRACKING)] * self.ni
         # counters
         self.last_t = -(1 << 62)
         self.n_valid = self.n_assigned = self.n_back = self.n_outside = 0
         self.since_spring = 0
         self.n_spring_updates = 0
         self.n_resets = 0
-        self.set_params(params if params is not None else Params())
+        self.set_params(mset.params_list)
 
-    def _reset_state(self) -> None:
-        """The tracker state of the model: means and covariances as the model gives them,
-        no activity, every tracker sensitive, no energy, the similarity frame the identity
-        at the rest centre of mass."""
-        self.mx, self.my, self.sxx, self.sxy, self.syy = (list(v) for v in self.rest)
-        self.act = [0.0] * self.n
-        self.tlast = [0] * self.n
-        self.sensitive = [True] * self.n
-        self.energy = [[0.0] * self.nc for _ in ENERGY_KINDS]   # [kind][connection]
-        self.mean_energy = 0.0
-        # the similarity frame of the last spring update (fit_frame): s R = [[fc, -fs],
-        # [fs, fc]], and (fgx, fgy) where it maps the rest centre of mass G0
-        self.fc, self.fs = 1.0, 0.0
-        self.fgx = self.mx[0] - self.gdx0[0] if self.n else 0.0             # G0 at rest
-        self.fgy = self.my[0] - self.gdy0[0] if self.n else 0.0
+    def _reset_instance(self, g: int) -> None:
+        """Instance g's state as its model gives it: means and covariances, no activity,
+        its trackers sensitive if it is tracking, no energy, the similarity frame the
+        identity at the rest centre of mass."""
+        for i in range(self.t0[g], self.t1[g]):
+            self.mx[i], self.my[i], self.sxx[i], self.sxy[i], self.syy[i] = (
+                v[i] for v in self.rest)
+            self.act[i] = 0.0
+            self.tlast[i] = 0
+            self.sensitive[i] = self.state[g] == TRACKING
+            self._clamp_and_invert(i)
+        for e in self.energy:
+            for k in range(self.c0[g], self.c1[g]):
+                e[k] = 0.0
+        self.mean_energies[g] = 0.0
+        self._rest_frame(g)
 
-    def set_params(self, params: Params) -> None:
-        p = params
-        self.params = p
-        self.a1 = p.alpha_position
-        self.a2 = p.alpha_covariance
+    def _rest_frame(self, g: int) -> None:
+        """Instance g's frame before its first fit: the identity about G0 at rest."""
+        t0 = self.t0[g]
+        self.fc[g], self.fs[g] = 1.0, 0.0
+        self.fgx[g] = self.mx[t0] - self.gdx0[t0]
+        self.fgy[g] = self.my[t0] - self.gdy0[t0]
+
+    @property
+    def mean_energy(self) -> float:
+        """eq. (13) of the first instance (:attr:`mean_energies`: every instance's)."""
+        return self.mean_energies[0]
+
+    @property
+    def ekind(self) -> int:
+        return self.ekinds[0]
+
+    @property
+    def params(self) -> Params:
+        return self.plist[0]
+
+    def set_params(self, params) -> None:
+        """One Params for every instance, or one per instance (shared ones equal)."""
+        plist = per_instance(params, self.ni)
+        self.mset = self.mset.with_params(plist)
+        p = plist[0]                               # SHARED_PARAMS: the same in all
+        self.plist = plist
         self.gate = p.gate_d2
         if getattr(self, "tau", p.activity_tau_us) != p.activity_tau_us and self.n_valid:
             for i in range(self.n):      # eq. (6): a new tau decays from the change on
                 self.act[i] = self.activity_at(i, self.last_t)
                 self.tlast[i] = self.last_t
         self.tau = p.activity_tau_us
-        self.cov_gain = p.alpha_covariance / covariance_bias(p.alpha_position, p.gate_d2)
+        self.act_thr = p.activity_threshold
+        self.period = p.spring_period
         self.smin2 = p.sigma_min_px * p.sigma_min_px
         self.smax2 = p.sigma_max_px * p.sigma_max_px
-        self.ekind = p.energy_kind_index
-        self.pull_sim = p.pull_similarity
-        self.car_sim = p.cartesian_similarity
-        self.need_torsion = self.nc > 0 and (self.ekind == 1 or any(k & TORSIONAL for k in self.kinds))
+        # per tracker, from its instance: the gains of eqs. (3)-(5)
+        self.a1 = [plist[g].alpha_position for g in self.inst]
+        self.a2 = [plist[g].alpha_covariance for g in self.inst]
+        self.cov_gain = [q.alpha_covariance / covariance_bias(q.alpha_position, q.gate_d2)
+                         for q in (plist[g] for g in self.inst)]
+        # per instance: the criteria and the frames
+        self.ekinds = [q.energy_kind_index for q in plist]
+        self.escale = [q.energy_scale for q in plist]
+        self.egain = [q.energy_gain for q in plist]
+        self.pull_sim = [q.pull_similarity for q in plist]
+        self.car_sim = [q.cartesian_similarity for q in plist]
+        self.need_torsion = [self.c1[g] > self.c0[g] and (
+            self.ekinds[g] == 1 or any(self.kinds[k] & TORSIONAL for k in range(self.c0[g], self.c1[g])))
+            for g in range(self.ni)]
         for i in range(self.n):          # new sigma bounds apply at once
             self._clamp_and_invert(i)
 
@@ -180,8 +251,8 @@ class ReferenceTracker:
         self.n_valid += 1
         fx = float(x)
         fy = float(y)
-        # eq. (2) in the log domain: smallest Mahalanobis d^2 among sensitive trackers,
-        # accepted only inside the gate exp(-d^2/2) > p_threshold.
+        # eq. (2) in the log domain: smallest Mahalanobis d^2 among sensitive trackers (of
+        # every instance), accepted only inside the gate exp(-d^2/2) > p_threshold.
         best = NO_TRACKER
         best_d2 = self.gate
         for i in range(self.n):
@@ -197,7 +268,7 @@ class ReferenceTracker:
             self._update(best, t, fx, fy, best_d2)
             self.n_assigned += 1
         self.since_spring += 1
-        if self.since_spring >= self.params.spring_period:
+        if self.since_spring >= self.period:
             self.since_spring = 0
             self.springs()
         return best
@@ -209,10 +280,10 @@ class ReferenceTracker:
         self.tlast[i] = t
         dx = fx - self.mx[i]                                         # eq. (5): offset from the
         dy = fy - self.my[i]                                         # pre-update mean
-        self.mx[i] = self.mx[i] + self.a1 * dx                       # eq. (3), a1 = weight of u
-        self.my[i] = self.my[i] + self.a1 * dy
-        keep = 1.0 - self.a2                                         # eq. (4), a2 = weight of dS,
-        g = self.cov_gain                                            # dS / covariance_bias
+        self.mx[i] = self.mx[i] + self.a1[i] * dx                    # eq. (3), a1 = weight of u
+        self.my[i] = self.my[i] + self.a1[i] * dy
+        keep = 1.0 - self.a2[i]                                      # eq. (4), a2 = weight of dS,
+        g = self.cov_gain[i]                                         # dS / covariance_bias
         self.sxx[i] = keep * self.sxx[i] + g * (dx * dx)
         self.sxy[i] = keep * self.sxy[i] + g * (dx * dy)
         self.syy[i] = keep * self.syy[i] + g * (dy * dy)
@@ -232,24 +303,26 @@ class ReferenceTracker:
         self.ic[i] = sxx * inv_det
 
     # ---- springs and energy criteria (every spring_period events) ------------
-    def fit_frame(self, calm: list) -> None:
-        """The similarity x -> G + s R (x - G0) that best maps the rest shape onto the
-        current means, in the mass-weighted least-squares sense (Procrustes, closed form).
+    def fit_frame(self, calm: list, g: int = 0) -> None:
+        """The similarity x -> G + s R (x - G0) that best maps instance g's rest shape onto
+        its current means, in the mass-weighted least-squares sense (Procrustes, closed
+        form).
 
-        Fit set F: the trackers ``calm`` marks -- at a spring update, those no connection
-        over the energy threshold touches (eqs. 21-22 leave them alone), so that trackers
-        an occluder drags do not drag the frame.  With fewer than 2 trackers in F the fit
-        uses all trackers.  With rest offsets p_i = dG0_i - pbar and current offsets
-        q_i = mu_i - qbar about F's weighted centroids pbar (rest, relative to G0) and
-        qbar (current):
+        Fit set F: the trackers ``calm`` marks (indexed like all trackers) -- at a spring
+        update, those no connection over the energy threshold touches (eqs. 21-22 leave
+        them alone), so that trackers an occluder drags do not drag the frame.  With fewer
+        than 2 trackers in F the fit uses all of the instance's trackers.  With rest
+        offsets p_i = dG0_i - pbar and current offsets q_i = mu_i - qbar about F's weighted
+        centroids pbar (rest, relative to G0) and qbar (current):
             a = sum m p.q,  b = sum m p x q,  D = sum m |p|^2,  s R = [[a, -b], [b, a]] / D
         and G = qbar - s R pbar, the image of the rest centre of mass G0.  D below
         FRAME_MIN_SPREAD times sum m (all of F's rest points together) gives s R = I; the
         scale sqrt(a^2 + b^2) / D is held to [FRAME_SCALE_MIN, FRAME_SCALE_MAX]."""
-        n, mass, mx, my = self.n, self.mass, self.mx, self.my
-        fit = [i for i in range(n) if calm[i]]
+        mass, mx, my = self.mass, self.mx, self.my
+        mine = range(self.t0[g], self.t1[g])
+        fit = [i for i in mine if calm[i]]
         if len(fit) < 2:
-            fit = range(n)
+            fit = mine
         w = px = py = qx = qy = 0.0
         for i in fit:                                                # weighted centroids
             m = mass[i]
@@ -289,27 +362,50 @@ class ReferenceTracker:
                     sn = sn * f
                 else:                                                # no rotation to keep
                     c, sn = FRAME_SCALE_MIN, 0.0
-        self.fc, self.fs = c, sn
-        self.fgx = qx - (c * px - sn * py)                           # G = qbar - s R pbar
-        self.fgy = qy - (sn * px + c * py)
+        self.fc[g], self.fs[g] = c, sn
+        self.fgx[g] = qx - (c * px - sn * py)                        # G = qbar - s R pbar
+        self.fgy[g] = qy - (sn * px + c * py)
 
     def springs(self) -> None:
-        n, nc = self.n, self.nc
+        """One spring update: every tracking instance's springs and criteria."""
         self.n_spring_updates += 1
+        for g in range(self.ni):
+            if self.state[g] == TRACKING:
+                self._springs(g)
+        self._guard()
+
+    def _guard(self) -> None:
+        """The state guard, after every spring update: a tracker outside the position box
+        (springtrack.limits.position_box: one sensor size around the sensor), or not finite,
+        is a state no limit-abiding model reaches (docs/algorithm.md, Limits); it is counted
+        (``n_resets``) and its instance's whole state is reset to the model, never reported."""
+        x_lo, x_hi, y_lo, y_hi = self.box
+        for g in range(self.ni):
+            for i in range(self.t0[g], self.t1[g]):
+                if not (x_lo <= self.mx[i] < x_hi and y_lo <= self.my[i] < y_hi):
+                    self.n_resets += 1
+                    self._reset_instance(g)
+                    break
+
+    def _springs(self, g: int) -> None:
+        t0, t1, c0, c1 = self.t0[g], self.t1[g], self.c0[g], self.c1[g]
+        nc = c1 - c0
         mx, my, im = self.mx, self.my, self.inv_mass
-        ddx = [0.0] * n
-        ddy = [0.0] * n
+        ddx = {i: 0.0 for i in range(t0, t1)}
+        ddy = {i: 0.0 for i in range(t0, t1)}
         e_euc, e_tor, e_car = self.energy
-        dth_raw = [0.0] * nc
+        fc, fs = self.fc[g], self.fs[g]
+        need_torsion, car_sim = self.need_torsion[g], self.car_sim[g]
+        dth_raw = {}
         mean_dth = 0.0
-        if self.need_torsion:
-            for k in range(nc):                                      # eq. (14)
+        if need_torsion:
+            for k in range(c0, c1):                                  # eq. (14)
                 i, j = self.ca[k], self.cb[k]
                 th = math.atan2(my[j] - my[i], mx[j] - mx[i])
                 dth_raw[k] = wrap_angle(th - self.th0[k])
                 mean_dth += dth_raw[k]
-            mean_dth = mean_dth / nc
-        for k in range(nc):
+            mean_dth = mean_dth / nc                                 # eq. (15), per instance
+        for k in range(c0, c1):
             i, j = self.ca[k], self.cb[k]
             a = self.stiff[k]
             rx = mx[j] - mx[i]
@@ -317,9 +413,9 @@ class ReferenceTracker:
             l = math.sqrt(rx * rx + ry * ry)
             dl = l - self.l0[k]                                      # eq. (10)
             e_euc[k] = 0.5 * a * (dl * dl)                           # eq. (12)
-            if self.car_sim:                     # eq. (18), rest offset s R d0 in the frame
-                ex = rx - (self.fc * self.dx0[k] - self.fs * self.dy0[k])   # of the last update
-                ey = ry - (self.fs * self.dx0[k] + self.fc * self.dy0[k])
+            if car_sim:                          # eq. (18), rest offset s R d0 in the frame
+                ex = rx - (fc * self.dx0[k] - fs * self.dy0[k])      # of the last update
+                ey = ry - (fs * self.dx0[k] + fc * self.dy0[k])
             else:                                                    # eq. (18)
                 ex = rx - self.dx0[k]
                 ey = ry - self.dy0[k]
@@ -339,7 +435,7 @@ class ReferenceTracker:
                 ddy[i] += fy * im[i]
                 ddx[j] -= fx * im[j]
                 ddy[j] -= fy * im[j]
-            if self.need_torsion:
+            if need_torsion:
                 dth = dth_raw[k] - mean_dth                          # eq. (15)
                 e_tor[k] = 0.5 * a * (dth * dth)                     # eq. (17)
                 if kind & TORSIONAL:                                 # eq. (16), with
@@ -359,91 +455,113 @@ class ReferenceTracker:
                 ddy[i] += a * ey * im[i]
                 ddx[j] -= a * ex * im[j]
                 ddy[j] -= a * ey * im[j]
-        for i in range(n):
+        for i in range(t0, t1):
             mx[i] = mx[i] + ddx[i]
             my[i] = my[i] + ddy[i]
-        self._energy_criteria()
-        self._guard()
+        self._energy_criteria(g)
 
-    def _guard(self) -> None:
-        """The state guard, after every spring update: a tracker outside the position box
-        (springtrack.limits.position_box: one sensor size around the sensor), or not finite,
-        is a state no limit-abiding model reaches (docs/algorithm.md, Limits); it is counted
-        (``n_resets``) and the whole tracker state is reset to the model, never reported."""
-        x_lo, x_hi, y_lo, y_hi = self.box
-        for i in range(self.n):
-            if not (x_lo <= self.mx[i] < x_hi and y_lo <= self.my[i] < y_hi):
-                self.n_resets += 1
-                self._reset_state()
-                for k in range(self.n):
-                    self._clamp_and_invert(k)
-                return
-
-    def _energy_criteria(self) -> None:
-        n, nc = self.n, self.nc
+    def _energy_criteria(self, g: int) -> None:
+        t0, t1, c0, c1 = self.t0[g], self.t1[g], self.c0[g], self.c1[g]
+        nc = c1 - c0
         if nc == 0:
             return
-        e = self.energy[self.ekind]
+        e = self.energy[self.ekinds[g]]
         total = 0.0
-        for k in range(nc):                                          # eq. (13)
+        for k in range(c0, c1):                                      # eq. (13)
             total += e[k]
-        self.mean_energy = total / nc
-        thr = self.params.energy_scale * self.mean_energy
-        over_count = [0] * n
-        for k in range(nc):
+        self.mean_energies[g] = total / nc
+        thr = self.escale[g] * self.mean_energies[g]
+        over_count = {i: 0 for i in range(t0, t1)}
+        for k in range(c0, c1):
             if e[k] > thr:
                 over_count[self.ca[k]] += 1
                 over_count[self.cb[k]] += 1
-        a_en = self.params.energy_gain
-        if self.pull_sim or self.car_sim:
+        a_en = self.egain[g]
+        if self.pull_sim[g] or self.car_sim[g]:
             # the frame, fitted to the trackers this update leaves alone; the Cartesian
             # springs use it at the next update (this one's energies decided who is calm)
-            self.fit_frame([c == 0 for c in over_count])
-        if self.pull_sim:
+            self.fit_frame({i: c == 0 for i, c in over_count.items()}, g)
+        if self.pull_sim[g]:
             # eq. (22) in the fitted frame: pull toward G + s R dG0 (fit_frame)
-            for i in range(n):
+            fc, fs, fgx, fgy = self.fc[g], self.fs[g], self.fgx[g], self.fgy[g]
+            for i in range(t0, t1):
                 if over_count[i] > 0:
-                    tx = self.fgx + (self.fc * self.gdx0[i] - self.fs * self.gdy0[i])
-                    ty = self.fgy + (self.fs * self.gdx0[i] + self.fc * self.gdy0[i])
+                    tx = fgx + (fc * self.gdx0[i] - fs * self.gdy0[i])
+                    ty = fgy + (fs * self.gdx0[i] + fc * self.gdy0[i])
                     self.mx[i] = self.mx[i] + a_en * (tx - self.mx[i])
                     self.my[i] = self.my[i] + a_en * (ty - self.my[i])
         else:
             # eq. (22): pull both ends of an over-threshold connection toward G + dG0, G the
-            # centre of mass after the spring step
+            # instance's centre of mass after the spring step
             msum = 0.0
             gx = 0.0
             gy = 0.0
-            for i in range(n):
+            for i in range(t0, t1):
                 msum += self.mass[i]
                 gx += self.mass[i] * self.mx[i]
                 gy += self.mass[i] * self.my[i]
             gx = gx / msum
             gy = gy / msum
-            for i in range(n):
+            for i in range(t0, t1):
                 if over_count[i] > 0:
                     self.mx[i] = self.mx[i] + a_en * (gx + self.gdx0[i] - self.mx[i])
                     self.my[i] = self.my[i] + a_en * (gy + self.gdy0[i] - self.my[i])
-        for i in range(n):
+        for i in range(t0, t1):
             # eq. (21): insensitive while every connection of the tracker is over
             self.sensitive[i] = not (self.degree[i] > 0 and over_count[i] == self.degree[i])
 
+    # ---- instances' states ------------------------------------------------------
+    def set_state(self, g: int, state: int) -> None:
+        """Instance g's state; a tracking instance's trackers are sensitive, the others'
+        are not (the next spring update decides eq. 21 again)."""
+        self.state[g] = int(state)
+        for i in range(self.t0[g], self.t1[g]):
+            self.sensitive[i] = state == TRACKING
+
+    def place(self, g: int, model: ShapeModel) -> None:
+        """Instance g placed as ``model`` (its model moved, e.g. by an acquisition: the
+        same trackers and connections): positions, covariances and the rest geometry of
+        eqs. (10), (14), (18), (22) from it (and the state the guard resets it to),
+        activities 0, the frame at rest; tracking."""
+        self.mset = self.mset.replaced(g, model)
+        arr = model.arrays()
+        t0, c0 = self.t0[g], self.c0[g]
+        for j in range(len(arr["x"])):
+            i = t0 + j
+            self.mx[i], self.my[i] = float(arr["x"][j]), float(arr["y"][j])
+            self.sxx[i], self.sxy[i] = float(arr["sxx"][j]), float(arr["sxy"][j])
+            self.syy[i] = float(arr["syy"][j])
+            for rest, key in zip(self.rest, ("x", "y", "sxx", "sxy", "syy")):
+                rest[i] = float(arr[key][j])          # the state guard resets to this
+            self.gdx0[i], self.gdy0[i] = float(arr["gdx0"][j]), float(arr["gdy0"][j])
+            self.act[i] = 0.0
+            self.tlast[i] = 0
+            self._clamp_and_invert(i)
+        for j in range(len(arr["l0"])):
+            k = c0 + j
+            self.l0[k], self.th0[k] = float(arr["l0"][j]), float(arr["th0"][j])
+            self.dx0[k], self.dy0[k] = float(arr["dx0"][j]), float(arr["dy0"][j])
+        self._rest_frame(g)
+        self.set_state(g, TRACKING)
+
     # ---- observation -----------------------------------------------------------
-    def frame(self) -> tuple:
-        """The similarity frame of the last spring update (fit_frame): (c, sn, gx, gy) with
-        s R = [[c, -sn], [sn, c]] and (gx, gy) the image of the rest centre of mass;
-        (1, 0, G0) until a spring update fits one."""
-        return (self.fc, self.fs, self.fgx, self.fgy)
+    def frame(self, g: int = 0) -> tuple:
+        """Instance g's similarity frame of the last spring update (fit_frame): (c, sn, gx,
+        gy) with s R = [[c, -sn], [sn, c]] and (gx, gy) the image of the rest centre of
+        mass; (1, 0, G0) until a spring update fits one."""
+        return (self.fc[g], self.fs[g], self.fgx[g], self.fgy[g])
 
     def activity_at(self, i: int, t: int) -> float:
         """eq. (6) evaluated lazily at time t (no event)."""
         return self.act[i] * math.exp(-(t - self.tlast[i]) / self.tau)
 
     def snapshot(self, t: int) -> tuple:
-        """(x, y, sxx, sxy, syy, activity, active, sensitive) lists at event time t."""
+        """(x, y, sxx, sxy, syy, activity, active, sensitive, state) lists at event time t."""
         act = [self.activity_at(i, t) for i in range(self.n)]
-        thr = self.params.activity_threshold
+        thr = self.act_thr
         return (list(self.mx), list(self.my), list(self.sxx), list(self.sxy), list(self.syy),
-                act, [a > thr for a in act], list(self.sensitive))
+                act, [a > thr for a in act], list(self.sensitive),
+                [self.state[g] for g in self.inst])
 
     def run(self, events: np.ndarray, sample_us: int | None = None):
         """Process an event array; with ``sample_us``, return [(t_us, snapshot), ...] taken at

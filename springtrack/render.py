@@ -18,6 +18,8 @@ from .track import Track
 ACTIVE = "#1a9850"        # green: active and sensitive
 INACTIVE = "#222222"      # black: sensitive but not active
 INSENSITIVE = "#f46d43"   # orange, dashed: insensitive (eq. 21)
+LOST = "#9e9e9e"          # grey, dotted: the instance is lost (springtrack.loss)
+ACQUIRED = "#7b3294"      # purple x: where an acquisition placed an instance
 TRUTH = "#ffd92f"
 ON_RGB = np.array([0.85, 0.15, 0.15])
 OFF_RGB = np.array([0.15, 0.35, 0.9])
@@ -51,47 +53,74 @@ def ellipse_xy(x, y, sxx, sxy, syy, nsig=2.0, n=40):
     return x + pts[0], y + pts[1]
 
 
-class OverlayRenderer:
-    """One figure, updated per frame. ``frame(t_us, events, state_row)`` returns RGB uint8."""
+def _drawn(models):
+    """(width, height, ids, links, instance of each tracker, labels) of a model or a
+    ``springtrack.instances.ModelSet``."""
+    from .instances import ModelSet
+    mset = models if isinstance(models, ModelSet) else ModelSet([models])
+    links = []
+    for inst in mset:
+        idx = {t: inst.t0 + i for i, t in enumerate(inst.model.ids)}
+        links += [(idx[c.a], idx[c.b]) for c in inst.model.connections]
+    return (mset.width, mset.height, list(mset.ids), links, mset.instance_of(),
+            [i.label for i in mset])
 
-    def __init__(self, model: ShapeModel, scale: float = 2.0, title: str = ""):
+
+class OverlayRenderer:
+    """One figure, updated per frame. ``frame(t_us, events, state_row)`` returns RGB uint8.
+    ``model``: a ShapeModel or a ModelSet (several instances, each drawn by its state:
+    a lost instance grey and dotted, one not found yet not drawn)."""
+
+    def __init__(self, model, scale: float = 2.0, title: str = ""):
         plt = _mpl()
         self.plt = plt
-        self.model = model
-        w, h = model.width, model.height
+        w, h, self.ids, self.links, self.inst, self.labels = _drawn(model)
         self.fig = plt.figure(figsize=(w * scale / 100, (h + 28) * scale / 100), dpi=100)
         self.ax = self.fig.add_axes([0, 0, 1, h / (h + 28)])
         self.ax.set_xlim(-0.5, w - 0.5)
         self.ax.set_ylim(h - 0.5, -0.5)
         self.ax.set_axis_off()
         self.img = self.ax.imshow(np.full((h, w, 3), BG), interpolation="nearest")
-        idx = {t: i for i, t in enumerate(model.ids)}
-        self.links = [(idx[c.a], idx[c.b]) for c in model.connections]
+        self.width, self.height = w, h
         self.link_lines = [self.ax.plot([], [], "-", color="#888888", lw=0.8)[0] for _ in self.links]
-        self.ell = [self.ax.plot([], [], "-", lw=1.4)[0] for _ in model.ids]
+        self.ell = [self.ax.plot([], [], "-", lw=1.4)[0] for _ in self.ids]
         self.truth_pts = self.ax.plot([], [], "+", color=TRUTH, ms=7, mew=1.5)[0]
+        self.acq_pts = self.ax.plot([], [], "x", color=ACQUIRED, ms=6, mew=1.5)[0]
         self.text = self.fig.text(0.01, 1 - 14 / (h + 28), "", fontsize=9 * scale / 2,
                                   family="monospace", va="center")
         from matplotlib.lines import Line2D
         handles = [Line2D([], [], color=ACTIVE, lw=2, label="active (2σ)"),
                    Line2D([], [], color=INACTIVE, lw=2, label="inactive"),
                    Line2D([], [], color=INSENSITIVE, lw=2, ls="--", label="insensitive"),
+                   Line2D([], [], color=LOST, lw=2, ls=":", label="lost"),
                    Line2D([], [], color="#888888", lw=1, label="spring"),
                    Line2D([], [], color=ON_RGB, marker="s", ls="", label="ON"),
                    Line2D([], [], color=OFF_RGB, marker="s", ls="", label="OFF")]
-        self.fig.legend(handles=handles, loc="upper right", ncol=6, fontsize=6.5 * scale / 2,
+        self.fig.legend(handles=handles, loc="upper right", ncol=7, fontsize=6.5 * scale / 2,
                         frameon=False, handlelength=1.2, columnspacing=0.8)
         self.title = title
 
-    def frame(self, t_us: int, events: np.ndarray, st: dict, truth_xy=None, window_us=10_000):
-        m = self.model
-        self.img.set_data(event_image(events, m.width, m.height))
+    def frame(self, t_us: int, events: np.ndarray, st: dict, truth_xy=None, window_us=10_000,
+              acquired_xy=None):
+        """``acquired_xy`` (K, 2): where acquisitions placed trackers (shown as x)."""
+        from .instances import LOST as LOST_CODE, SEARCHING
+        state = st.get("state")
+        state = np.full(len(self.ids), 1) if state is None else np.asarray(state)
+        self.img.set_data(event_image(events, self.width, self.height))
         for k, (i, j) in enumerate(self.links):
-            self.link_lines[k].set_data([st["x"][i], st["x"][j]], [st["y"][i], st["y"][j]])
+            shown = state[i] != SEARCHING
+            self.link_lines[k].set_data([st["x"][i], st["x"][j]] if shown else [],
+                                        [st["y"][i], st["y"][j]] if shown else [])
         for i, line in enumerate(self.ell):
+            if state[i] == SEARCHING:
+                line.set_data([], [])
+                continue
             ex, ey = ellipse_xy(st["x"][i], st["y"][i], st["sxx"][i], st["sxy"][i], st["syy"][i])
             line.set_data(ex, ey)
-            if not st["sensitive"][i]:
+            if state[i] == LOST_CODE:
+                line.set_color(LOST)
+                line.set_linestyle(":")
+            elif not st["sensitive"][i]:
                 line.set_color(INSENSITIVE)
                 line.set_linestyle("--")
             else:
@@ -99,9 +128,16 @@ class OverlayRenderer:
                 line.set_linestyle("-")
         if truth_xy is not None:
             self.truth_pts.set_data(truth_xy[:, 0], truth_xy[:, 1])
+        if acquired_xy is not None and len(acquired_xy):
+            self.acq_pts.set_data(acquired_xy[:, 0], acquired_xy[:, 1])
+        else:
+            self.acq_pts.set_data([], [])
         n_act = int(np.sum(st["active"]))
+        gone = [f"{lab} {'lost' if state[self.inst == g][0] == LOST_CODE else 'searching'}"
+                for g, lab in enumerate(self.labels) if state[self.inst == g][0] != 1]
         self.text.set_text(f"{self.title}   t = {t_us / 1e6:.3f} s   events in last "
-                           f"{window_us / 1000:g} ms: {len(events)}   active {n_act}/{len(m.ids)}")
+                           f"{window_us / 1000:g} ms: {len(events)}   active {n_act}/{len(self.ids)}"
+                           + (f"   {', '.join(gone)}" if gone else ""))
         self.fig.canvas.draw()
         buf = np.asarray(self.fig.canvas.buffer_rgba())
         return buf[..., :3].copy()
@@ -111,15 +147,26 @@ class OverlayRenderer:
 
 
 def _state_at(track: Track, k: int) -> dict:
-    return {f: getattr(track, f)[k] for f in ("x", "y", "sxx", "sxy", "syy", "active", "sensitive")}
+    return {f: getattr(track, f)[k]
+            for f in ("x", "y", "sxx", "sxy", "syy", "active", "sensitive", "state")}
 
 
-def render(events: np.ndarray, model: ShapeModel, track: Track, out, window_us: int = 10_000,
+def _acquired_at(acquisitions, t, window_us):
+    """The (x, y) of the placements made in the ``window_us`` before ``t``."""
+    if not acquisitions:
+        return None
+    near = [xy for ta, xy in acquisitions if t - window_us <= ta <= t]
+    return np.concatenate(near) if near else None
+
+
+def render(events: np.ndarray, model, track: Track, out, window_us: int = 10_000,
            every_us: int | None = None, truth=None, title: str = "", progress: bool = True,
-           max_frames: int = 2000, scale: float = 2.0) -> int:
+           max_frames: int = 2000, scale: float = 2.0, acquisitions=None) -> int:
     """Render frames at track sample times spaced by ``every_us`` (default ``window_us``).
-    ``out``: .gif/.mp4 (video), .png (one frame: the middle one) or a directory (PNGs).
-    Returns the number of frames written."""
+    ``model``: a ShapeModel or a ModelSet (the track's instances); ``acquisitions``:
+    [(t_us, (K, 2) positions)] of placements by the acquisition, each drawn for one
+    window after it.  ``out``: .gif/.mp4 (video), .png (one frame: the middle one) or a
+    directory (PNGs).  Returns the number of frames written."""
     out = Path(out)
     every_us = every_us or window_us
     if len(track) == 0:
@@ -147,8 +194,9 @@ def render(events: np.ndarray, model: ShapeModel, track: Track, out, window_us: 
             out.mkdir(parents=True, exist_ok=True)
         for n, (t, row) in enumerate(zip(times, rows)):
             lo, hi = np.searchsorted(t_ev, [t - window_us, t])
-            txy = _truth_xy(truth, model, t) if truth is not None else None
-            img = r.frame(int(t), events[lo:hi], _state_at(track, row), txy, window_us)
+            txy = _truth_xy(truth, r.ids, t) if truth is not None else None
+            img = r.frame(int(t), events[lo:hi], _state_at(track, row), txy, window_us,
+                          _acquired_at(acquisitions, t, every_us))
             if writer is not None:
                 writer.append_data(img)
             elif out.suffix == ".png":
@@ -174,10 +222,10 @@ def _save_png(path, img):
     iio.imwrite(path, img)
 
 
-def _truth_xy(truth, model, t):
-    """Truth positions (K', 2) of the model's parts nearest in time to t."""
+def _truth_xy(truth, ids, t):
+    """Truth positions (K', 2) of the parts ``ids`` nearest in time to t."""
     k = int(np.clip(np.searchsorted(truth.t_us, t), 0, len(truth.t_us) - 1))
-    cols = [truth.ids.index(i) for i in model.ids if i in truth.ids]
+    cols = [truth.ids.index(i) for i in ids if i in truth.ids]
     return truth.xy[k, cols]
 
 

@@ -8,3 +8,4 @@ cdef struct TrackRow:
     double activity           # A, eq. (6), decayed to the sample time
     uint8_t active            # A > activity threshold (0/1)
     uint8_t sensitive         # takes part in the energy criteria, eq. (21) (0/1)
+    uint8_t state             # the model instance's state (springtrack.instances.InstanceState)

@@ -6,13 +6,15 @@ kernels' sample rows, the firmware, the wire protocol, ``hostctl record`` and th
 
 CSV schema (``springtrack track``, ``firmware-sim --record``, ``hostctl record``)::
 
-    t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive
+    t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive,state
 
 one row per tracker per sample time (springtrack.sampling: every multiple of the period
 from the first event on, an empty stretch for its first HOLD periods only); ``t_us`` is
 event time in microseconds, the row holds the state after all events with t < t_us;
-positions in px, covariances in px^2,
-``active``/``sensitive`` are 0/1.
+positions in px, covariances in px^2, ``active``/``sensitive`` are 0/1; ``state`` is the
+state of the tracker's model instance (``searching``, ``tracking`` or ``lost``:
+springtrack.instances, docs/acquisition.md).  A CSV without the ``state`` column (written
+before it existed) reads as ``tracking``.
 """
 from __future__ import annotations
 
@@ -26,13 +28,18 @@ FLOAT_FIELDS = ("x", "y",                 # position, px (eq. 3)
                 "activity")               # A, eq. (6), decayed to the sample time
 BOOL_FIELDS = ("active",                  # A > activity threshold
                "sensitive")               # takes part in the energy criteria (eq. 21)
-TRACK_FIELDS = FLOAT_FIELDS + BOOL_FIELDS
+CODE_FIELDS = ("state",)                  # the instance's state (instances.InstanceState)
+TRACK_FIELDS = FLOAT_FIELDS + BOOL_FIELDS + CODE_FIELDS
 # one tracker's state; aligned: the C view is TrackRow in track.pxd (checked at import by
 # springtrack._samples, whose sample rows are arrays of it)
-TRACK_DTYPE = np.dtype([(f, "<f8") for f in FLOAT_FIELDS] + [(f, "?") for f in BOOL_FIELDS],
-                       align=True)
+TRACK_DTYPE = np.dtype([(f, "<f8") for f in FLOAT_FIELDS] + [(f, "?") for f in BOOL_FIELDS]
+                       + [(f, "u1") for f in CODE_FIELDS], align=True)
 CSV_HEADER = ("t_us", "tracker") + TRACK_FIELDS
 _FLAGS_AT = 2 + len(FLOAT_FIELDS)           # CSV column of the first flag
+_STATE_AT = _FLAGS_AT + len(BOOL_FIELDS)    # CSV column of the state
+# the instance states' names in the CSV, by code (instances.STATE_NAMES)
+STATE_NAMES = ("searching", "tracking", "lost")
+TRACKING_CODE = STATE_NAMES.index("tracking")
 
 
 @dataclass
@@ -47,8 +54,14 @@ class Track:
     activity: np.ndarray
     active: np.ndarray                    # (n, K) bool
     sensitive: np.ndarray
+    state: np.ndarray | None = None       # (n, K) uint8, the instance's state (STATE_NAMES);
+    #                                       None: tracking throughout
     energy: np.ndarray | None = None      # (n, 3) mean energy: euclidean, torsional, cartesian
     meta: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        if self.state is None:
+            self.state = np.full(np.shape(self.x), TRACKING_CODE, np.uint8)
 
     def __len__(self) -> int:
         return len(self.t_us)
@@ -59,7 +72,7 @@ class Track:
         z = np.empty((0, k))
         b = np.empty((0, k), bool)
         return cls(np.empty(0, np.int64), list(ids), z, z.copy(), z.copy(), z.copy(), z.copy(),
-                   z.copy(), b, b.copy(), np.empty((0, 3)))
+                   z.copy(), b, b.copy(), np.empty((0, k), np.uint8), np.empty((0, 3)))
 
     @classmethod
     def concat(cls, parts, ids) -> "Track":
@@ -67,7 +80,7 @@ class Track:
         if not parts:
             return cls.empty(ids)
         kw = {f: np.concatenate([getattr(p, f) for p in parts])
-              for f in ("t_us",) + FLOAT_FIELDS + BOOL_FIELDS}
+              for f in ("t_us",) + TRACK_FIELDS}
         en = None
         if all(p.energy is not None for p in parts):
             en = np.concatenate([p.energy for p in parts])
@@ -83,7 +96,7 @@ class Track:
 
     def tracker(self, tracker_id) -> dict:
         k = self.ids.index(tracker_id)
-        return {f: getattr(self, f)[:, k] for f in FLOAT_FIELDS + BOOL_FIELDS} | {"t_us": self.t_us}
+        return {f: getattr(self, f)[:, k] for f in TRACK_FIELDS} | {"t_us": self.t_us}
 
     def to_csv(self, path_or_file) -> None:
         own = isinstance(path_or_file, (str, bytes)) or hasattr(path_or_file, "__fspath__")
@@ -104,10 +117,13 @@ class Track:
             ids = np.tile(np.array(self.ids, dtype=object), e - s)
             cols = [getattr(self, c)[s:e].ravel() for c in FLOAT_FIELDS]
             flags = [getattr(self, c)[s:e].ravel().astype(np.uint8) for c in BOOL_FIELDS]
+            states = np.array(STATE_NAMES, dtype=object)[
+                np.minimum(self.state[s:e].ravel(), len(STATE_NAMES) - 1)]
             f.writelines(
-                f"{a},{b},{c:.6f},{d:.6f},{g:.6f},{h:.6f},{i:.6f},{j:.6g},{m},{n}\n"
-                for a, b, c, d, g, h, i, j, m, n in zip(t.tolist(), ids, *(c.tolist() for c in cols),
-                                                       *(c.tolist() for c in flags)))
+                f"{a},{b},{c:.6f},{d:.6f},{g:.6f},{h:.6f},{i:.6f},{j:.6g},{m},{n},{o}\n"
+                for a, b, c, d, g, h, i, j, m, n, o in zip(
+                    t.tolist(), ids, *(c.tolist() for c in cols), *(c.tolist() for c in flags),
+                    states.tolist()))
 
 
 # the dataclass spells the fields out for readers and type checkers: keep it the record
@@ -119,17 +135,22 @@ def read_csv(path) -> Track:
     with open(path, newline="") as f:
         reader = csv.reader(f)
         header = next(reader, None)
-        if header is None or tuple(h.strip() for h in header) != CSV_HEADER:
+        header = None if header is None else tuple(h.strip() for h in header)
+        if header not in (CSV_HEADER, CSV_HEADER[:_STATE_AT]):
             raise ValueError(f"{path}: not a track CSV (expected header {','.join(CSV_HEADER)})")
         rows = list(reader)
+    with_state = header == CSV_HEADER
     if not rows:
         raise ValueError(f"{path}: track CSV has a header but no rows")
     try:
         t = np.array([int(r[0]) for r in rows], np.int64)
         names = [r[1] for r in rows]
         vals = np.array([[float(v) for v in r[2:_FLAGS_AT]] for r in rows])
-        flags = np.array([[int(v) for v in r[_FLAGS_AT:len(CSV_HEADER)]] for r in rows], bool)
-    except (ValueError, IndexError) as e:
+        flags = np.array([[int(v) for v in r[_FLAGS_AT:_STATE_AT]] for r in rows], bool)
+        code = {name: k for k, name in enumerate(STATE_NAMES)}
+        states = np.array([code[r[_STATE_AT]] if with_state else TRACKING_CODE for r in rows],
+                          np.uint8)
+    except (ValueError, IndexError, KeyError) as e:
         raise ValueError(f"{path}: malformed track row: {e}") from None
     ids = list(dict.fromkeys(names))
     times = np.unique(t)
@@ -146,4 +167,7 @@ def read_csv(path) -> Track:
         a = np.zeros(shape, bool)
         a[ti, ci] = flags[:, j]
         arrs[fname] = a
+    a = np.full(shape, TRACKING_CODE, np.uint8)
+    a[ti, ci] = states
+    arrs["state"] = a
     return Track(times, ids, **arrs)

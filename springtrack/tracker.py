@@ -16,24 +16,28 @@ Backends (same results, different speed):
                   ``[mcu]`` extra).
 
 Each backend object offers ``run(events, sample_us, next_t, cap)``, ``set_params``,
-``snapshot(t)``, ``energies()``, ``mean_energy``, ``frame()``, ``last_t`` and
-``counters()``.
+``snapshot(t)``, ``energies()``, ``mean_energy``, ``mean_energies()``, ``frame(g)``,
+``last_t`` and ``counters()``, and for the instances' states (springtrack.instances)
+``states()``, ``losses()``, ``set_state(g, state)``, ``place(g, model)`` and
+``enable_loss(on)``.  A backend is made from a ShapeModel and its Params or from a
+``ModelSet`` (params None: each instance's own).
 """
 from __future__ import annotations
 
 import importlib
-from pathlib import Path
 
 import numpy as np
 
 from . import params as _params
 from .events import as_events, check as check_events
 from .geometry import check_inside
-from .model import ShapeModel, load_model
+from .instances import TRACKING, ModelSet
+from .loss import LOSS_CHECK_US
+from .model import ShapeModel
 from .params import Params
 from .reference import ReferenceTracker
 from .sampling import MAX_PERIOD, UNSET, first_sample_time, next_sample, sample_due
-from .track import TRACK_DTYPE, TRACK_FIELDS, Track
+from .track import STATE_NAMES, TRACK_DTYPE, TRACK_FIELDS, Track
 
 BACKENDS = ("cython", "reference", "fixed", "mcu")
 SAMPLE_CAP = 4096          # sample rows per kernel call; bounds memory for huge time gaps
@@ -44,10 +48,10 @@ class ReferenceBackend:
     ``run`` (springtrack/_stepper.pyx) in Python, with the same sampling rule
     (springtrack.sampling)."""
 
-    def __init__(self, model: ShapeModel, params: Params):
+    def __init__(self, model, params):
         self.ref = ReferenceTracker(model, params)
 
-    def set_params(self, params: Params) -> None:
+    def set_params(self, params) -> None:
         self.ref.set_params(params)
 
     def run(self, events, sample_us, next_t, cap):
@@ -93,8 +97,11 @@ class ReferenceBackend:
     def mean_energy(self):
         return self.ref.mean_energy
 
-    def frame(self):
-        return self.ref.frame()
+    def mean_energies(self):
+        return list(self.ref.mean_energies)
+
+    def frame(self, g: int = 0):
+        return self.ref.frame(g)
 
     @property
     def last_t(self):
@@ -106,10 +113,31 @@ class ReferenceBackend:
                     skipped_back_in_time=r.n_back, skipped_outside_sensor=r.n_outside,
                     spring_updates=r.n_spring_updates, state_resets=r.n_resets)
 
+    # the instances' states (springtrack.instances)
+    def states(self) -> list:
+        return list(self.ref.state)
+
+    def set_state(self, g: int, state: int) -> None:
+        self.ref.set_state(g, state)
+
+    def place(self, g: int, model) -> None:
+        self.ref.place(g, model)
+
+
+def _one_model(model, params, name):
+    """A kernel that holds one model instance: its model and parameters."""
+    if isinstance(model, ModelSet):
+        if len(model) > 1:
+            raise ValueError(f"backend {name!r} holds one model instance, not {len(model)} "
+                             f"({', '.join(i.label for i in model)}): several instances "
+                             f"run on backend 'reference' (docs/acquisition.md)")
+        return model[0].model, model[0].params
+    return model, params
+
 
 def _cython_backend(model, params, option):
     from ._kernel import Kernel
-    return Kernel(model, params)
+    return Kernel(*_one_model(model, params, "cython"))
 
 
 def _fixed_backend(model, params, option):
@@ -117,14 +145,14 @@ def _fixed_backend(model, params, option):
         mod = importlib.import_module("springtrack._fixed")
     except ImportError as e:
         raise ValueError(f"backend 'fixed' is not available in this build: {e}") from None
-    return mod.FixedKernel(model, params)
+    return mod.FixedKernel(*_one_model(model, params, "fixed"))
 
 
 def _mcu_backend(model, params, option):
     from .mcu import MissingExtra
     try:
         from .mcu.backend import DEFAULT_TARGET, McuBackend
-        return McuBackend(model, params, target=option or DEFAULT_TARGET)
+        return McuBackend(*_one_model(model, params, "mcu"), target=option or DEFAULT_TARGET)
     except (MissingExtra, RuntimeError) as e:      # no toolchain, a failed build or run
         raise ValueError(f"backend 'mcu': {e}") from None
 
@@ -132,6 +160,70 @@ def _mcu_backend(model, params, option):
 # name -> factory(model, params, option); "name:option" passes the option (the mcu's core)
 _FACTORIES = {"reference": lambda m, p, o: ReferenceBackend(m, p), "cython": _cython_backend,
               "fixed": _fixed_backend, "mcu": _mcu_backend}
+
+
+class _OneInstance:
+    """A kernel of one model instance (cython, fixed, mcu) seen through the instances'
+    interface.  Its state is kept here: while the instance is not tracking, the tracker
+    withholds the events from the kernel (:meth:`withhold`: each fed as an event off the
+    sensor, which moves the kernel's clock and its samples on but reaches no tracker and
+    no spring update), so its trackers are insensitive and keep their positions, as a
+    lost instance's are in the reference.  Placing it builds a new kernel of the placed
+    model; the counters of the kernels it replaced are kept."""
+
+    def __init__(self, tracker):
+        self.tr = tracker
+        self.state = int(TRACKING)
+        self.withheld = 0                    # events withheld while not tracking
+        self._done: dict = {}                # counters of the kernels replaced
+
+    def __getattr__(self, key):
+        return getattr(self.tr._b, key)
+
+    def mean_energies(self):
+        return [self.tr._b.mean_energy]
+
+    def set_params(self, params):
+        self.tr._b.set_params(params if isinstance(params, Params) else params[0])
+
+    def frame(self, g: int = 0):
+        return self.tr._b.frame()
+
+    def states(self):
+        return [self.state]
+
+    def set_state(self, g, state):
+        self.state = int(state)
+
+    def place(self, g, model):
+        old = self.counters()
+        self.tr._b = make_backend(self.tr.backend_name, model, self.tr.models[g].params)
+        self._done, self.withheld = old, 0
+        self.state = int(TRACKING)
+
+    def withhold(self, ev):
+        """``ev`` as the kernel sees it: as it is while tracking, else off the sensor."""
+        if self.state == TRACKING or not len(ev):
+            return ev
+        out = ev.copy()
+        inside = (out["x"] < self.tr.models.width) & (out["y"] < self.tr.models.height)
+        self.withheld += int(inside.sum())
+        out["x"] = self.tr.models.width
+        return out
+
+    def snapshot(self, t):
+        snap = self.tr._b.snapshot(t)
+        snap["state"] = np.full(len(snap["x"]), self.state, np.uint8)
+        return snap
+
+    def counters(self):
+        c = dict(self.tr._b.counters())
+        c["events_valid"] += self.withheld        # as the reference counts them
+        c["skipped_outside_sensor"] -= self.withheld
+        for k, v in self._done.items():             # counts of the kernels replaced
+            if isinstance(v, (int, np.integer)) and not isinstance(v, bool):
+                c[k] = c.get(k, 0) + int(v)
+        return c
 
 
 def make_backend(name: str, model: ShapeModel, params: Params):
@@ -142,59 +234,98 @@ def make_backend(name: str, model: ShapeModel, params: Params):
     return _FACTORIES[base](model, params, option)
 
 
+def _multiples(a: int, b: int, q: int) -> int:
+    """How many multiples of q lie in [a, b)."""
+    return -(-b // q) - -(-a // q) if b > a else 0
+
+
 def resolve_params(model: ShapeModel, params=None) -> Params:
     """Defaults, then the model's [params], then ``params`` (Params, dict or TOML path)."""
-    base = _params.from_mapping(model.params, where=f"{model.source} [params]")
-    if params is None:
-        return base
-    if isinstance(params, Params):
-        return params
-    if isinstance(params, dict):
-        return _params.from_mapping(params, base)
-    if isinstance(params, (str, Path)):
-        data = _params.read_toml(params)
-        return _params.from_mapping(data.get("params", data), base, where=str(params))
-    raise TypeError(f"params must be Params, dict, a TOML path or None, not {type(params).__name__}")
+    return _params.resolve(model, params)
 
 
 class Tracker:
     """Part-based shape tracker. Feed events in time order, in as many chunks as you like.
 
     ``model``: a ShapeModel, a preset name or a TOML path, its trackers on its sensor
-    (``springtrack.geometry.TrackersOutside`` otherwise); ``params``: Params, a dict of
-    overrides, a TOML path, or None (defaults < model [params] < these).
-    Events that go back in time or fall outside the sensor are skipped and counted
-    (:attr:`counters`), never raised.
+    (``springtrack.geometry.TrackersOutside`` otherwise), or a list of them: several model
+    instances in one tracker (springtrack.instances: one event assignment across all,
+    springs and energies per instance), ``instances`` copies of each; ``params``: Params,
+    a dict of overrides, a TOML path, or None (defaults < model [params] < these, per
+    instance).  Events that go back in time or fall outside the sensor are skipped and
+    counted (:attr:`counters`), never raised.
 
-    ``acquire=True``: the model's positions are not trusted; the first ``acquire_ms`` of
-    events are buffered and the model is found in them (:mod:`springtrack.acquire`;
-    ``acquire_bounds``: its region, angle_deg, scale), placed there, and tracked from
-    the window's first event.  While it is not found the window slides by half its
-    length (:attr:`acquisition` counts the attempts and the events dropped); call
-    :meth:`flush` at the end of the input to try on a last, shorter window.
+    ``acquire=True``: the models' positions are not trusted; the first ``acquire_ms`` of
+    events are buffered and the instances are found in them (:mod:`springtrack.acquire`;
+    ``acquire_bounds``: its region, angle_deg, scale; each instance found explains its
+    events away before the next search), placed there, and tracked from the window's first
+    event.  While none is found the window slides by half its length (:attr:`acquisition`
+    counts the attempts and the events dropped); call :meth:`flush` at the end of the input
+    to try on a last, shorter window.  Then the loss rule watches every instance, and an
+    instance not found yet or lost is searched for again in the recent events
+    (:mod:`springtrack.reacquire`); :attr:`changes` lists every change of state with its
+    event time.
     """
 
     def __init__(self, model, params=None, backend: str = "cython", acquire: bool = False,
-                 acquire_ms: float = 50.0, acquire_bounds: dict | None = None):
-        self.model = load_model(model)
+                 acquire_ms: float = 50.0, acquire_bounds: dict | None = None,
+                 instances: int = 1):
+        self.models = ModelSet(model, params, instances)
         if not acquire:          # placed by the acquisition otherwise
-            check_inside(self.model)
-        self.params = resolve_params(self.model, params)
+            for m in self.models.models:
+                check_inside(m)
         self.backend_name = backend
-        self._b = make_backend(backend, self.model, self.params)
+        self._use(self.models)
         self._sample_us = 0
         self._next_t = UNSET
         self._skipped = 0                    # sample times of empty stretches not taken
         self._recorded: list[Track] = []
         self.acquisition = None
+        self.recovery = None
         if acquire:
             from .acquire import Acquisition
-            self.acquisition = Acquisition(self.model, int(round(acquire_ms * 1000)),
+            self.acquisition = Acquisition(self.models, int(round(acquire_ms * 1000)),
                                            **(acquire_bounds or {}))
+
+    def _use(self, mset: ModelSet) -> None:
+        """A backend for ``mset``: ``_b`` the kernel, ``_ib`` the kernel with the
+        instances' interface (states, set_state, place)."""
+        self._b = make_backend(self.backend_name, mset, None)
+        self._ib = self._b if hasattr(self._b, "states") else _OneInstance(self)
+
+    @property
+    def model(self) -> ShapeModel:
+        """The first instance's model (as placed, with acquisition)."""
+        return self.models[0].model
+
+    @property
+    def params(self) -> Params:
+        """The first instance's parameters (the shared ones are every instance's)."""
+        return self.models.params
 
     @property
     def ids(self) -> list[str]:
-        return self.model.ids
+        """Tracker ids, unique across the instances (springtrack.instances.unique_ids)."""
+        return self.models.ids
+
+    @property
+    def changes(self) -> list:
+        """Every change of an instance's state, in order: (event time µs, instance label,
+        "acquired" | "lost" | "reacquired")."""
+        return [] if self.recovery is None else list(self.recovery.changes)
+
+    def instances(self) -> list[dict]:
+        """Per instance: label, model name, state name and its counts of changes."""
+        states = self._ib.states()
+        out = []
+        for g, inst in enumerate(self.models):
+            counts = {k: 0 for k in ("acquired", "lost", "reacquired")}
+            for _, label, kind in self.changes:
+                if label == inst.label:
+                    counts[kind] += 1
+            out.append(dict(label=inst.label, model=inst.model.name,
+                            state=STATE_NAMES[states[g]], **counts))
+        return out
 
     # ---- feeding -------------------------------------------------------------------
     def record(self, sample_us: int) -> None:
@@ -223,8 +354,11 @@ class Tracker:
         """Consume an event array like :meth:`process`, yielding the samples as the kernel
         takes them: Tracks of at most ``SAMPLE_CAP`` rows, so memory stays bounded however
         many samples the events produce."""
-        if self.acquisition is not None and not self.acquisition.done:
-            yield from self._track(self._placed(self.acquisition.feed(as_events(events))))
+        if self.acquisition is not None:
+            ev = as_events(events)
+            if not self.acquisition.done:
+                ev = self._placed(self.acquisition.feed(ev))
+            yield from self._track(ev)
             return
         if self._reads_as_is(events):
             check_events(events)
@@ -245,13 +379,22 @@ class Tracker:
             self._recorded.extend(self._track(self._placed(self.acquisition.finish())))
 
     def _placed(self, ready):
-        """The events to track: none while acquiring; once found, the model placed at the
-        pose found and the buffered events."""
+        """The events to track: none while acquiring; once an instance is found, the
+        instances placed at the poses found (the others searching) and the buffered
+        events, from which the loss rule and the re-acquisition take over."""
         if ready is None:
             return ready
         from .acquire import place
-        self.model = place(self.model, self.acquisition.pose)
-        self._b = make_backend(self.backend_name, self.model, self.params)
+        from .reacquire import Recovery
+        acq = self.acquisition
+        mset = self.models
+        for g, pose in enumerate(acq.poses):
+            if pose is not None and pose.found:
+                mset = mset.replaced(g, place(mset[g].model, pose))
+        self.models = mset
+        self._use(mset)
+        self.recovery = Recovery(self, acq.window_us, acq.bounds)
+        self.recovery.start(int(ready["t"][0]), [p is not None and p.found for p in acq.poses])
         return ready
 
     def _track(self, ev):
@@ -259,18 +402,44 @@ class Tracker:
         each call's samples as a Track."""
         if ev is None or len(ev) == 0:
             return
-        pos, p = 0, self._sample_us
+        if self.recovery is not None:
+            yield from self.recovery.track(ev)
+            return
+        yield from self._run(ev)
+
+    def _run(self, ev):
+        """Run the backend over ``ev`` in calls of at most SAMPLE_CAP sample rows; yield
+        each call's samples as a Track.  With the recovery the backend also samples at the
+        loss rule's check times, whose rows go to the recovery first."""
+        one = self._ib if isinstance(self._ib, _OneInstance) else None
+        if one is not None:
+            ev = one.withhold(ev)
+        rec = self.recovery
+        q = self._sample_us
+        p = q if rec is None else rec.sample_period(q)
+        pos = 0
         while pos < len(ev):
             start = self._next_t
             if p and start == UNSET:
                 start = first_sample_time(int(ev["t"][pos]), p)
             consumed, self._next_t, out = self._b.run(ev[pos:], p, self._next_t, SAMPLE_CAP)
-            rows = 0 if out is None else len(out["t"])
-            if p:                    # the sample times passed over, less those taken
-                self._skipped += (self._next_t - start) // p - rows
             pos += consumed
-            if rows:
-                yield Track.from_samples(out, self.ids)
+            t = out["t"] if out is not None else np.empty(0, np.int64)
+            if q:                    # the sample times passed over, less those taken
+                self._skipped += _multiples(start, self._next_t, q) - int(np.count_nonzero(t % q == 0))
+            if not len(t):
+                continue
+            if one is not None:
+                out["trackers"]["state"] = one.state
+            if rec is not None:      # the loss rule's checks are samples too
+                chk = t % LOSS_CHECK_US == 0
+                rec.rows(t[chk], out["trackers"]["active"][chk])
+                if p != q:
+                    keep = t % q == 0 if q else np.zeros(len(t), bool)
+                    out = {k: out[k][keep] for k in ("t", "trackers", "energy")}
+                    if not len(out["t"]):
+                        continue
+            yield Track.from_samples(out, self.ids)
 
     def run(self, events, sample_us: int = 1000) -> Track:
         """Process events and return the samples taken during this call (at most
@@ -288,13 +457,18 @@ class Tracker:
 
     # ---- control ---------------------------------------------------------------------
     def set_params(self, params=None, **changes) -> Params:
-        """Change parameters between two events; returns the new Params."""
-        new = resolve_params(self.model, params) if params is not None else self.params
+        """Change parameters between two events, for every instance (``params`` over the
+        defaults and each model's [params], then ``changes``); returns the first
+        instance's new Params."""
+        if params is not None:
+            plist = [resolve_params(m, params) for m in self.models.models]
+        else:
+            plist = self.models.params_list
         if changes:
-            new = _params.from_mapping(changes, new)
-        self.params = new
-        self._b.set_params(new)
-        return new
+            plist = [_params.from_mapping(changes, p) for p in plist]
+        self.models = self.models.with_params(plist)
+        self._ib.set_params(plist)
+        return plist[0]
 
     # ---- observation -----------------------------------------------------------------
     @property
@@ -303,9 +477,9 @@ class Tracker:
 
     def state(self, t: int | None = None) -> np.ndarray:
         """Per-tracker structured array (id, x, y, sxx, sxy, syy, activity, active,
-        sensitive) at event time ``t`` (default: the last event's time)."""
+        sensitive, state) at event time ``t`` (default: the last event's time)."""
         t = self.last_t if t is None else int(t)
-        snap = self._b.snapshot(max(t, 0) if t < -(1 << 60) else t)
+        snap = self._ib.snapshot(max(t, 0) if t < -(1 << 60) else t)
         dt = np.dtype([("id", f"U{max(len(i) for i in self.ids)}")]
                       + [(f, TRACK_DTYPE[f]) for f in TRACK_FIELDS])
         out = np.empty(len(self.ids), dt)
@@ -315,29 +489,34 @@ class Tracker:
         return out
 
     def energies(self) -> dict:
-        """Energies of the last spring update: per connection for each kind (eqs. 12, 17,
-        20) and ``mean``, the mean of the kind that feeds the criteria (eqs. 21-22)."""
+        """Energies of the last spring update: per connection (of every instance, in
+        order) for each kind (eqs. 12, 17, 20); ``mean``, the first instance's mean of the
+        kind that feeds its criteria (eqs. 21-22), ``means`` every instance's."""
         e = self._b.energies()
         return {"euclidean": e[0], "torsional": e[1], "cartesian": e[2],
-                "mean": float(self._b.mean_energy), "kind": self.params.energy_kind}
+                "mean": float(self._b.mean_energy),
+                "means": [float(v) for v in self._ib.mean_energies()],
+                "kind": self.params.energy_kind}
 
-    def frame(self) -> dict:
-        """The similarity frame of the last spring update (``pull_frame`` or
+    def frame(self, instance: int = 0) -> dict:
+        """An instance's similarity frame of the last spring update (``pull_frame`` or
         ``cartesian_frame`` = "similarity", docs/algorithm.md): ``scale`` s, ``angle`` of R
         (rad), and ``gx``, ``gy``, where the rest centre of mass G0 maps to (px); scale 1,
         angle 0 and G0 until a spring update fits one, or in the image frame."""
-        c, sn, gx, gy = (float(v) for v in self._b.frame())
+        c, sn, gx, gy = (float(v) for v in self._ib.frame(instance))
         return {"scale": float(np.hypot(c, sn)), "angle": float(np.arctan2(sn, c)),
                 "gx": gx, "gy": gy}
 
     @property
     def counters(self) -> dict:
-        c = dict(self._b.counters())
+        c = dict(self._ib.counters())
         if self._sample_us:
             c["samples_skipped"] = self._skipped
         if self.acquisition is not None:
             c.update(acquire_attempts=self.acquisition.attempts,
                      acquire_events_dropped=self.acquisition.events_dropped)
+        if self.recovery is not None:
+            c.update(self.recovery.counters())
         return c
 
 

@@ -15,29 +15,32 @@ from __future__ import annotations
 
 import numpy as np
 
-from .model import ShapeModel
+from .instances import ModelSet
 from .track import Track
 
 
 class TrackWatch:
-    """Accumulates a run's samples (:meth:`add`) and the final state (:meth:`finish`)."""
+    """Accumulates a run's samples (:meth:`add`) and the final state (:meth:`finish`).
+    ``models``: the tracker's model, or its ModelSet (each instance watched)."""
 
-    def __init__(self, model: ShapeModel):
-        self.model = model
-        self.ids = list(model.ids)
-        self.width, self.height = model.width, model.height
-        self.mass = np.array([t.mass for t in model.trackers], float)
+    def __init__(self, models):
+        self.use_models(models)
+        self.ids = list(self.models.ids)
+        self.mass = np.concatenate([[t.mass for t in m.trackers] for m in self.models.models])
         n = len(self.ids)
         self.received = np.zeros(n, bool)
         self.out_since = np.full(n, -1, np.int64)     # sample time it went out for good
-        self.model_out_since = -1
+        self.model_out_since = np.full(len(self.models), -1, np.int64)
         self.last_xy = None
         self.last_centre = None
 
-    def use_model(self, model: ShapeModel) -> None:
-        """The model was replaced (placed by acquisition): same trackers, new sensor check."""
-        self.model = model
-        self.width, self.height = model.width, model.height
+    def use_models(self, models) -> None:
+        """The models were replaced (placed by acquisition): same trackers."""
+        self.models = models if isinstance(models, ModelSet) else ModelSet(models)
+        self.model = self.models[0].model
+        self.width, self.height = self.models.width, self.models.height
+
+    use_model = use_models
 
     def _outside(self, x, y):
         return (x < 0) | (x >= self.width) | (y < 0) | (y >= self.height)
@@ -56,17 +59,21 @@ class TrackWatch:
                 self.out_since[k] = track.t_us[len(col) - int(np.argmin(col[::-1]))]
             elif self.out_since[k] < 0:
                 self.out_since[k] = track.t_us[0]
-        gx = track.x @ self.mass / self.mass.sum()                  # eq. (22)'s G
-        gy = track.y @ self.mass / self.mass.sum()
-        gout = self._outside(gx, gy)
-        if not gout[-1]:
-            self.model_out_since = -1
-        elif not gout.all():
-            self.model_out_since = int(track.t_us[len(gout) - int(np.argmin(gout[::-1]))])
-        elif self.model_out_since < 0:
-            self.model_out_since = int(track.t_us[0])
+        centres = []
+        for g, inst in enumerate(self.models):                      # eq. (22)'s G
+            m = self.mass[inst.t0:inst.t1]
+            gx = track.x[:, inst.t0:inst.t1] @ m / m.sum()
+            gy = track.y[:, inst.t0:inst.t1] @ m / m.sum()
+            gout = self._outside(gx, gy)
+            if not gout[-1]:
+                self.model_out_since[g] = -1
+            elif not gout.all():
+                self.model_out_since[g] = int(track.t_us[len(gout) - int(np.argmin(gout[::-1]))])
+            elif self.model_out_since[g] < 0:
+                self.model_out_since[g] = int(track.t_us[0])
+            centres.append((float(gx[-1]), float(gy[-1])))
         self.last_xy = (track.x[-1], track.y[-1])
-        self.last_centre = (float(gx[-1]), float(gy[-1]))
+        self.last_centre = centres
 
     def finish(self, state) -> None:
         """The tracker's final state (``Tracker.state()``): events after the last sample."""
@@ -80,10 +87,13 @@ class TrackWatch:
                        f"{_names(never)} (nothing moved under them, or the model does not "
                        f"match the recording: check its positions against `springtrack "
                        f"render INPUT --out grid.png`)")
-        if self.model_out_since >= 0:
-            gx, gy = self.last_centre
-            out.append(f"the model instance {self.model.name!r} left the {self.width}x"
-                       f"{self.height} sensor at t={self.model_out_since} us (its centre of "
+        for g, since in enumerate(self.model_out_since):
+            if since < 0:
+                continue
+            gx, gy = self.last_centre[g]
+            name = self.model.name if len(self.models) == 1 else self.models[g].label
+            out.append(f"the model instance {name!r} left the {self.width}x"
+                       f"{self.height} sensor at t={since} us (its centre of "
                        f"mass ends at ({gx:.1f}, {gy:.1f})); its later samples track nothing")
         gone = [(i, t) for i, t in zip(self.ids, self.out_since) if t >= 0]
         if gone:

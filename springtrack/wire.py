@@ -27,7 +27,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .track import TRACK_DTYPE     # the decoded TELEMETRY trackers are track records
+from .track import STATE_NAMES, TRACK_DTYPE, TRACKING_CODE   # decoded TELEMETRY: track records
 
 PROTOCOL_VERSION = 1
 
@@ -59,6 +59,7 @@ class MsgType(IntEnum):
     START = 0x30
     STOP = 0x31
     RESET = 0x32
+    ACQUIRE = 0x34        # H->F  search for every model instance again (acquisition)
     STATS = 0x33          # H->F request (empty) / F->H counters
     TELEMETRY = 0x40      # F->H  one compact tracker snapshot
     ENERGIES = 0x41       # F->H  per-connection energies, at a lower rate than TELEMETRY
@@ -723,19 +724,44 @@ def quantise_trackers(trackers) -> np.ndarray:
     return rec
 
 
-def encode_telemetry(t_us: int, generation: int, mean_energy: float, records) -> bytes:
+# Trailer (optional): the model instances' states, as runs over the trackers in order:
+#   u8 runs, then runs x (u8 state, u16 trackers); the states are springtrack.instances'
+#   codes (0 searching, 1 tracking, 2 lost).  Absent: every tracker's instance tracking.
+TELE_RUN = struct.Struct("<BH")
+
+
+def state_runs(states) -> list:
+    """[(state, count), ...] of a per-tracker state array, in order."""
+    st = np.asarray(states, np.uint8).ravel()
+    if not len(st):
+        return []
+    cut = np.flatnonzero(np.diff(st)) + 1
+    starts = np.concatenate([[0], cut])
+    ends = np.concatenate([cut, [len(st)]])
+    return [(int(st[a]), int(b - a)) for a, b in zip(starts, ends)]
+
+
+def encode_telemetry(t_us: int, generation: int, mean_energy: float, records,
+                     states=None) -> bytes:
     """Pack one snapshot from its tracker records in the TELE_TRACKER layout (bytes, or an
-    array from :func:`quantise_trackers`).  A non-finite mean energy encodes as NaN."""
+    array from :func:`quantise_trackers`), and the trackers' instance ``states`` (per
+    tracker; the trailer is sent only when one is not tracking).  A non-finite mean
+    energy encodes as NaN."""
     if isinstance(records, np.ndarray):
         records = records.tobytes()
     n, rest = divmod(len(records), TELE_TRACKER.itemsize)
-    if rest or n > 255 or TELE_HDR.size + len(records) > MAX_PAYLOAD:
+    trailer = b""
+    if states is not None and np.any(np.asarray(states) != TRACKING_CODE):
+        runs = state_runs(states)
+        trailer = bytes([len(runs)]) + b"".join(TELE_RUN.pack(st, c) for st, c in runs)
+    if rest or n > 255 or TELE_HDR.size + len(records) + len(trailer) > MAX_PAYLOAD:
         raise WireError(f"TELEMETRY: {len(records)} bytes of tracker records are not "
                         f"whole {TELE_TRACKER.itemsize}-byte records that fit one frame")
     me = float(mean_energy)
     if not math.isfinite(me):
         me = float("nan")
-    return TELE_HDR.pack(int(t_us) & (2**64 - 1), int(generation) & 0xFFFF, me, n) + bytes(records)
+    return (TELE_HDR.pack(int(t_us) & (2**64 - 1), int(generation) & 0xFFFF, me, n)
+            + bytes(records) + trailer)
 
 
 def decode_telemetry(payload: bytes) -> tuple[int, int, float, np.ndarray]:
@@ -744,7 +770,7 @@ def decode_telemetry(payload: bytes) -> tuple[int, int, float, np.ndarray]:
         raise WireError(f"TELEMETRY: payload of {len(payload)} bytes is shorter than its header")
     t_us, gen, me, n = TELE_HDR.unpack_from(payload)
     want = TELE_HDR.size + n * TELE_TRACKER.itemsize
-    if len(payload) != want:
+    if len(payload) < want:
         raise WireError(f"TELEMETRY: {n} trackers need {want} bytes, payload has {len(payload)}")
     rec = np.frombuffer(payload, TELE_TRACKER, n, TELE_HDR.size)
     out = np.empty(n, TRACK_DTYPE)
@@ -758,7 +784,23 @@ def decode_telemetry(payload: bytes) -> tuple[int, int, float, np.ndarray]:
     out["syy"] = sy * sy
     out["sxy"] = rec["rho"] / RHO_SCALE * sx * sy
     out["activity"] = np.exp2(rec["act"] / ACT_SCALE) - 1.0
+    out["state"] = _decode_states(payload[want:], n)
     return t_us, gen, me, out
+
+
+def _decode_states(trailer: bytes, n: int) -> np.ndarray:
+    """The per-tracker states of a TELEMETRY trailer (all tracking when there is none)."""
+    if not trailer:
+        return np.full(n, TRACKING_CODE, np.uint8)
+    k = trailer[0]
+    if len(trailer) != 1 + k * TELE_RUN.size:
+        raise WireError(f"TELEMETRY: a states trailer of {k} runs needs {1 + k * TELE_RUN.size} "
+                        f"bytes, has {len(trailer)}")
+    runs = [TELE_RUN.unpack_from(trailer, 1 + i * TELE_RUN.size) for i in range(k)]
+    if sum(c for _, c in runs) != n or any(st >= len(STATE_NAMES) for st, _ in runs):
+        raise WireError(f"TELEMETRY: states trailer {runs} does not cover the {n} trackers "
+                        f"with known states")
+    return np.repeat(np.array([st for st, _ in runs], np.uint8), [c for _, c in runs])
 
 
 def set_read_timeout(port, seconds: float) -> None:

@@ -301,3 +301,19 @@ def test_tampered_signed_payload_fails_tag_even_with_fixed_crc():
     body[-4:] = struct.pack("<I", zlib.crc32(bytes(body[:-4])))
     f = wire.decode_body(bytes(body))
     assert wire.ReplayGuard(key, nonce).check(f) == "bad_tag"
+
+
+def test_telemetry_carries_the_instance_states_in_an_optional_trailer():
+    tr = face26_snapshot()
+    rec = wire.quantise_trackers(tr)
+    plain = wire.encode_telemetry(7, 1, 0.5, rec)
+    assert wire.encode_telemetry(7, 1, 0.5, rec, np.ones(26, np.uint8)) == plain   # all tracking
+    assert (wire.decode_telemetry(plain)[3]["state"] == 1).all()
+    st = np.array([1] * 10 + [2] * 10 + [0] * 6, np.uint8)
+    p = wire.encode_telemetry(7, 1, 0.5, rec, st)
+    assert len(p) == len(plain) + 1 + 3 * 3
+    assert np.array_equal(wire.decode_telemetry(p)[3]["state"], st)
+    for bad in (p[:-1], p + b"\x00", plain + bytes([1, 1, 25, 0]),       # short, long, 25 of 26
+                plain + bytes([1, 7, 26, 0])):                          # an unknown state
+        with pytest.raises(wire.WireError, match="TELEMETRY"):
+            wire.decode_telemetry(bad)

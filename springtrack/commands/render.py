@@ -7,12 +7,14 @@ from __future__ import annotations
 import sys
 
 from . import prepargs
-from .track import add_sensor_from
+from .track import add_acquire_arguments, add_sensor_from
 
 EPILOG = """\
 colours: events ON red, OFF blue (last --window-us of events); ellipses are 2-sigma:
 green = active, black = inactive, orange dashed = insensitive (eq. 21); grey lines are the
-springs; yellow + marks the ground truth when --truth is given.
+springs; yellow + marks the ground truth when --truth is given; a lost model instance is
+drawn grey and dotted, one not found yet not at all; --show-acquisition marks with purple x
+where each acquisition placed an instance (tracking on the fly with --acquire).
 OUT: .gif or .mp4 (video, MP4 needs imageio-ffmpeg), .png (the middle frame), or a
 directory (one PNG per frame). Times in µs of event time.
 without --model: one picture (.png, .svg, .pdf, ...) of the events of --start-us .. --end-us
@@ -24,11 +26,17 @@ without --model: one picture (.png, .svg, .pdf, ...) of the events of --start-us
 def add_arguments(p):
     p.epilog = EPILOG
     p.add_argument("input", help="event file (any format springtrack reads)")
-    p.add_argument("--model", help="shape model TOML or preset name (default: events only)")
+    p.add_argument("--model", action="append",
+                   help="shape model TOML or preset name (default: events only); repeat it for "
+                        "several models, as for track")
     add_sensor_from(p)
     p.add_argument("--track", help="track CSV (springtrack track / hostctl record); "
                                    "default: track on the fly")
     p.add_argument("--params", help="parameter TOML for tracking on the fly")
+    add_acquire_arguments(p)
+    p.add_argument("--show-acquisition", action="store_true",
+                   help="mark where each acquisition placed an instance (needs --acquire, "
+                        "tracking on the fly)")
     p.add_argument("--truth", help="ground truth CSV t_us,part,x,y to overlay")
     p.add_argument("--out", required=True, help="output .gif, .mp4, .png or directory; "
                                                 "without --model a picture (.png, .svg, ...)")
@@ -70,7 +78,7 @@ def run(args) -> int:
         raise ValueError(f"--grid must be a positive number of px, got {args.grid}")
     events, width, height, known = load_events(args.input)
     events, stats = prepared(args, events, width, height)
-    if args.model is None:
+    if not args.model:
         return events_only(args, events, width, height, stats)
     return overlay(args, events, width if known else None, height if known else None)
 
@@ -78,9 +86,9 @@ def run(args) -> int:
 def events_only(args, events, width, height, stats) -> int:
     from pathlib import Path
     from ..render import plot_events
-    for opt in ("track", "truth", "params"):
+    for opt in ("track", "truth", "params", "acquire", "show_acquisition"):
         if getattr(args, opt):
-            raise ValueError(f"--{opt} needs --model")
+            raise ValueError(f"--{opt.replace('_', '-')} needs --model")
     if Path(args.out).suffix.lower() in (".gif", ".mp4", "") or Path(args.out).is_dir():
         raise ValueError(f"{args.out}: without --model, render writes one picture "
                          f"(.png, .svg, .pdf, ...)")
@@ -96,28 +104,44 @@ def events_only(args, events, width, height, stats) -> int:
 
 def overlay(args, events, width, height) -> int:
     from ..geometry import fit_model
+    from ..instances import ModelSet
     from ..model import load_model
     from ..render import render
     from ..track import TRACK_FIELDS, read_csv
-    from ..tracker import Tracker
-    model = fit_model(load_model(args.model), width, height, args.sensor_from,
-                      what=f"{args.input}'s sensor")
+    from .track import tracker_from_args
+    models = [fit_model(load_model(m), width, height, args.sensor_from,
+                        what=f"{args.input}'s sensor") for m in args.model]
+    if args.show_acquisition and (args.track or not args.acquire):
+        raise ValueError("--show-acquisition needs --acquire and tracking on the fly (no --track)")
+    acquisitions = None
     if args.track:
+        mset = ModelSet(models, instances=args.instances)
         track = read_csv(args.track)
-        missing = [i for i in model.ids if i not in track.ids]
+        missing = [i for i in mset.ids if i not in track.ids]
         if missing:
             raise ValueError(f"{args.track}: no rows for tracker(s) {', '.join(missing[:5])} of the model")
-        order = [track.ids.index(i) for i in model.ids]
+        order = [track.ids.index(i) for i in mset.ids]
         for f in TRACK_FIELDS:
             setattr(track, f, getattr(track, f)[:, order])
-        track.ids = list(model.ids)
+        track.ids = list(mset.ids)
     else:
-        track = Tracker(model, params=args.params).run(events, sample_us=1000)
+        tr = tracker_from_args(args, models if len(models) > 1 else models[0])
+        tr.record(1000)
+        tr.process(events)
+        tr.flush()
+        track = tr.samples()
+        mset = tr.models
+        if args.acquire and tr.acquisition is not None and not tr.acquisition.done:
+            raise ValueError(f"no model instance was found in {args.input}")
+        if args.show_acquisition:
+            acquisitions = [(t, xy) for t, _, xy in tr.recovery.placements]
     truth = None
     if args.truth:
         from ..metrics import read_truth_csv
         truth = read_truth_csv(args.truth)
-    n = render(events, model, track, args.out, window_us=args.window_us, every_us=args.every_us,
-               truth=truth, title=model.name, max_frames=args.max_frames, scale=args.scale)
+    title = ", ".join(i.label if len(mset) > 1 else i.model.name for i in mset)
+    n = render(events, mset, track, args.out, window_us=args.window_us, every_us=args.every_us,
+               truth=truth, title=title, max_frames=args.max_frames, scale=args.scale,
+               acquisitions=acquisitions)
     print(f"wrote {args.out}: {n} frame(s)", file=sys.stderr)
     return 0

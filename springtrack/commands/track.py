@@ -19,15 +19,23 @@ input: .npy structured arrays (fields t, x, y, p), CSV with header t,x,y,p, and 
 camera format springtrack.io reads (EVT 2.0/2.1/3.0 RAW, Event Stream .es, DAT, AEDAT 4);
 - reads an event stream (RAW EVT 2.0/2.1/3.0 with its % header, or .es, .dat, .aedat4) from
 standard input as it arrives, e.g. another stack's live output piped in.
-output CSV header: t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive — one row per
-tracker at every multiple of --sample-us between the first and the last event, holding the
-state after all events with t < t_us; a stretch without events is sampled for its first
+output CSV header: t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive,state — one row
+per tracker at every multiple of --sample-us between the first and the last event, holding
+the state after all events with t < t_us; a stretch without events is sampled for its first
 64 periods only, then from its next event on (docs/algorithm.md, Sampling).  Rows are
-written as they are taken: memory does not grow with the input's time span.
---acquire: the model's positions are not used; the model is found (translation, rotation,
-isotropic scale within the --acquire-* bounds) in the first --acquire-ms of events, placed
-there and tracked from that window's first event; while it is not found the window slides
-by half its length (rows start once it is found).  See docs/acquisition.md.
+written as they are taken: memory does not grow with the input's time span.  state: the
+tracker's model instance searching, tracking or lost.
+several objects: --model A --model B tracks both at once (one event assignment, springs
+and energies per instance; --backend reference); --instances N holds N instances of each
+model (with --acquire: each found in turn, the ones found explaining their events away).
+Tracker ids stay as written when unique across the instances, else become NAME#K/ID.
+--acquire: the models' positions are not used; each instance is found (translation,
+rotation, isotropic scale within the --acquire-* bounds) in the first --acquire-ms of
+events, placed there and tracked from that window's first event; while none is found the
+window slides by half its length (rows start once one is found).  Then an instance whose
+trackers fall inactive (fewer than a third active for 3 activity time constants) is lost
+and searched for again every --acquire-ms / 2 in the last --acquire-ms of events; an
+instance not found at the start is searched for the same way.  See docs/acquisition.md.
 """
 
 
@@ -35,9 +43,9 @@ def add_arguments(p):
     p.epilog = EPILOG
     p.add_argument("input", help="event file (.npy, .csv, .raw, .es, .dat, .aedat4), or - for "
                                  "an event stream (e.g. RAW) on standard input")
-    p.add_argument("--model",
-                   help="shape model: TOML file or preset name (grid3x3, face26); "
-                        "or --learn-first-ms")
+    p.add_argument("--model", action="append",
+                   help="shape model: TOML file or preset name (grid3x3, face26); repeat it "
+                        "to track several models at once; or --learn-first-ms")
     p.add_argument("--learn-first-ms", type=float, metavar="MS",
                    help="learn the model from the stream's first MS ms (springtrack learn), "
                         "then track the rest with it")
@@ -52,20 +60,46 @@ def add_arguments(p):
     p.add_argument("--sample-us", type=int, default=1000, metavar="US",
                    help="state sampling period in µs of event time (default 1000)")
     p.add_argument("--out", required=True, help="output track CSV")
-    p.add_argument("--acquire", action="store_true",
-                   help="find the model in the first events instead of trusting its positions")
-    p.add_argument("--acquire-ms", type=float, default=50.0, metavar="MS",
-                   help="acquisition window in ms of event time (default 50)")
-    p.add_argument("--acquire-angle", type=float, default=45.0, metavar="DEG",
-                   help="acquisition searches rotations within +-DEG degrees (default 45)")
-    p.add_argument("--acquire-scale", default="0.6,1.6", metavar="LO,HI",
-                   help="acquisition searches sizes LO..HI times the model's (default 0.6,1.6)")
+    add_acquire_arguments(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--profile", metavar="OUT.csv|OUT.png",
                    help="time the kernel per 10 ms bin of events (paper Figs. 22-23): a CSV "
                         "t_us,events,proc_us or a plot")
     add_sensor_from(p)
     prepargs.add_arguments(p)
+
+
+def add_acquire_arguments(p) -> None:
+    """--instances and the acquisition's options, shared by track and render."""
+    p.add_argument("--instances", type=int, default=1, metavar="N",
+                   help="instances of each model (default 1; more than 1 needs --acquire)")
+    p.add_argument("--acquire", action="store_true",
+                   help="find the models in the events instead of trusting their positions; "
+                        "lost instances are searched for again (docs/acquisition.md)")
+    add_acquire_window(p)
+
+
+def add_acquire_window(p) -> None:
+    """--acquire-ms, --acquire-angle and --acquire-scale (track, render, firmware-sim)."""
+    p.add_argument("--acquire-ms", type=float, default=50.0, metavar="MS",
+                   help="acquisition window in ms of event time (default 50)")
+    p.add_argument("--acquire-angle", type=float, default=45.0, metavar="DEG",
+                   help="acquisition searches rotations within +-DEG degrees (default 45)")
+    p.add_argument("--acquire-scale", default="0.6,1.6", metavar="LO,HI",
+                   help="acquisition searches sizes LO..HI times the model's (default 0.6,1.6)")
+
+
+def tracker_from_args(args, model):
+    """The springtrack.Tracker of --params, --backend, --instances and --acquire*."""
+    from ..tracker import Tracker
+    if args.instances > 1 and not args.acquire:
+        raise ValueError(f"--instances {args.instances} would place {args.instances} copies "
+                         f"of each model on the same positions: add --acquire to find each")
+    backend = getattr(args, "backend", "cython")
+    backend = f"mcu:{args.mcu_target}" if backend == "mcu" else backend
+    return Tracker(model, params=args.params, backend=backend, acquire=args.acquire,
+                   acquire_ms=args.acquire_ms, acquire_bounds=acquire_bounds(args),
+                   instances=args.instances)
 
 
 def read_events(reader):
@@ -83,22 +117,23 @@ def add_sensor_from(p) -> None:
 
 
 def open_stream(args):
-    """The model and the stream of (chunk, total) to track: the input's events, prepared
-    when asked (springtrack.prep); the model --model, checked against the input's sensor
-    (springtrack.geometry: a mismatch or trackers off the sensor is an error, unless
-    --sensor-from), or learned from the stream's first --learn-first-ms (the tracking then
-    starts where the learning window ends)."""
+    """The models and the stream of (chunk, total) to track: the input's events, prepared
+    when asked (springtrack.prep); the models --model (a list), each checked against the
+    input's sensor (springtrack.geometry: a mismatch or trackers off the sensor is an
+    error, unless --sensor-from), or one learned from the stream's first --learn-first-ms
+    (the tracking then starts where the learning window ends)."""
     from .. import io as stio
     from ..geometry import fit_model
     from ..model import load_model
-    if (args.model is None) == (args.learn_first_ms is None):
+    if (not args.model) == (args.learn_first_ms is None):
         raise ValueError("give either --model or --learn-first-ms")
     reader = stio.open(args.input)
     width, height = reader.width, reader.height
     if args.model:
-        model = fit_model(load_model(args.model), width, height, args.sensor_from,
-                          what=f"{args.input}'s sensor")
-        width, height = model.width, model.height
+        fitted = [fit_model(load_model(m), width, height, args.sensor_from,
+                            what=f"{args.input}'s sensor") for m in args.model]
+        model = fitted if len(fitted) > 1 else fitted[0]
+        width, height = fitted[0].width, fitted[0].height
     else:
         model = None
         if args.input == "-":                       # one pass over standard input
@@ -156,15 +191,12 @@ class Progress:
 
 
 def run(args) -> int:
-    from ..tracker import Tracker
     if args.sample_us <= 0:
         raise ValueError(f"--sample-us must be a positive number of µs, got {args.sample_us}")
-    backend = f"mcu:{args.mcu_target}" if args.backend == "mcu" else args.backend
     model, stream = open_stream(args)
-    tr = Tracker(model, params=args.params, backend=backend, acquire=args.acquire,
-                 acquire_ms=args.acquire_ms, acquire_bounds=_acquire_bounds(args))
+    tr = tracker_from_args(args, model)
     tr.record(args.sample_us)
-    watch = TrackWatch(tr.model)
+    watch = TrackWatch(tr.models)
     prog = Progress(not args.no_progress)
     start = time.perf_counter()
     n = 0
@@ -204,12 +236,20 @@ def run(args) -> int:
           f"wall_s={wall:.3f} events_per_s={rate:.3g} realtime_factor={rtf:.1f} out={args.out}")
     if args.acquire:
         acq = tr.acquisition
-        print(f"acquisition: {acq.pose} after {acq.attempts} window(s) of {args.acquire_ms:g} ms, "
-              f"{acq.events_dropped} events dropped before it")
+        for g, pose in enumerate(acq.poses):
+            name = "" if len(acq.poses) == 1 else f"{tr.models[g].label} "
+            print(f"acquisition: {name}{pose} after {acq.attempts} window(s) of "
+                  f"{args.acquire_ms:g} ms, {acq.events_dropped} events dropped before it")
         if not acq.done:
-            print(f"springtrack track: the model was not found in {args.input}; no track rows "
+            what = "the model was" if len(acq.poses) == 1 else "no model instance was"
+            print(f"springtrack track: {what} not found in {args.input}; no track rows "
                   f"written", file=sys.stderr)
             return 1
+        for t, label, kind in tr.changes:
+            print(f"instance {label}: {kind} at t={t} us")
+        print("instances: " + ", ".join(f"{i['label']} {i['state']} (acquired {i['acquired']}, "
+                                        f"lost {i['lost']}, reacquired {i['reacquired']})"
+                                        for i in tr.instances()))
     if n:
         watch.finish(tr.state())
         for w in watch.warnings():
@@ -217,7 +257,7 @@ def run(args) -> int:
     return 0
 
 
-def _acquire_bounds(args) -> dict:
+def acquire_bounds(args) -> dict:
     """The acquisition's bounds from --acquire-angle and --acquire-scale."""
     try:
         lo, hi = (float(v) for v in args.acquire_scale.split(","))
@@ -252,7 +292,7 @@ def _write_rows(samples, tr, watch, f):
     end-of-run watch."""
     if not len(samples):
         return
-    if watch.model is not tr.model:            # placed by the acquisition
-        watch.use_model(tr.model)
+    if watch.models is not tr.models:          # placed by the acquisition
+        watch.use_models(tr.models)
     watch.add(samples)
     samples.write_rows(f)

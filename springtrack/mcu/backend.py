@@ -109,6 +109,7 @@ class McuBackend:
         tr["activity"] = per[:, :, 5].astype(np.float64) * Q32_UNIT
         tr["active"] = (per[:, :, 6] & 1).astype(bool)
         tr["sensitive"] = ((per[:, :, 6] >> 1) & 1).astype(bool)
+        tr["state"] = 1
         energy = (rows[:, 1:4].astype(np.float64) * Q40_UNIT / self.nc if self.nc
                   else np.zeros((len(rows), 3)))
         return {"t": rows[:, 0].copy(), "trackers": tr, "energy": energy, "wire": wire}

@@ -424,6 +424,87 @@ class Placed(Scene):
         return place(model, fit_pose(model, xy[:, 0], xy[:, 1]))
 
 
+# ---- losing the object: a jump, a full occlusion, an exit and return ---------------
+class Disrupted(Scene):
+    """Another scene disrupted, to test loss and re-acquisition: from ``at_s`` on, the
+    object is shifted by (``dx``, ``dy``) px (a jump: ``move_s`` 0), reached along a
+    straight line in ``move_s`` s; with ``back_s`` it returns to its own place, again in
+    ``move_s`` s, starting at ``back_s`` (an exit and return: shift it off the sensor);
+    ``hide_s`` = (start, end): the object is not seen at all in between (a full
+    occlusion: no blob drawn, no event fired).  :meth:`returned` gives the time the
+    object is whole and in view again."""
+
+    def __init__(self, base: Scene, at_s=None, dx=0.0, dy=0.0, move_s=0.0, back_s=None,
+                 hide_s=None):
+        super().__init__(base.seed)
+        self.base = base
+        self.name = f"{base.name}+disrupted"
+        self.preset, self.part_ids = base.preset, base.part_ids
+        self.default_seconds, self.background = base.default_seconds, base.background
+        self.at_s, self.shift, self.move_s = at_s, np.array([dx, dy], float), float(move_s)
+        self.back_s, self.hide_s = back_s, hide_s
+
+    def _offset(self, t):
+        if self.at_s is None or t < self.at_s:
+            return np.zeros(2)
+        u = 1.0 if self.move_s <= 0 else min((t - self.at_s) / self.move_s, 1.0)
+        if self.back_s is not None and t >= self.back_s:
+            u = 0.0 if self.move_s <= 0 else max(1.0 - (t - self.back_s) / self.move_s, 0.0)
+        return u * self.shift
+
+    def returned(self) -> float:
+        """When the object is in view at its place again (s): after the occlusion, the
+        jump or the return."""
+        if self.hide_s is not None:
+            return float(self.hide_s[1])
+        if self.back_s is not None:
+            return float(self.back_s + self.move_s)
+        return float(self.at_s + self.move_s)
+
+    def truth(self, t):
+        return self.base.truth(t) + self._offset(t)
+
+    def frame(self, t):
+        f = self.base.frame(t)
+        if self.hide_s is not None and self.hide_s[0] <= t < self.hide_s[1]:
+            return Frame(f.blobs[:0], f.occluders)
+        off = self._offset(t)
+        blobs, occ = f.blobs.copy(), f.occluders.copy()
+        blobs[:, :2] += off
+        occ[:, :2] += off
+        return Frame(blobs, occ)
+
+    def initial_model(self, **kw):
+        return self.base.initial_model(**kw)
+
+
+# ---- several objects in one view -----------------------------------------------------
+class Together(Scene):
+    """Several scenes seen at once: their blobs and occluders drawn together (later
+    scenes on top); the truth is each scene's in turn, ``parts`` the slices of each."""
+
+    def __init__(self, *scenes):
+        super().__init__(scenes[0].seed)
+        self.scenes = list(scenes)
+        self.name = "+".join(sc.name for sc in scenes)
+        self.part_ids = [p for sc in scenes for p in sc.part_ids]
+        self.default_seconds = min(sc.default_seconds for sc in scenes)
+        self.background = scenes[0].background
+        bounds = np.cumsum([0] + [len(sc.part_ids) for sc in scenes])
+        self.parts = [slice(a, b) for a, b in zip(bounds[:-1], bounds[1:])]
+
+    def truth(self, t):
+        return np.concatenate([sc.truth(t) for sc in self.scenes])
+
+    def frame(self, t):
+        fs = [sc.frame(t) for sc in self.scenes]
+        return Frame(np.concatenate([f.blobs for f in fs]),
+                     np.concatenate([f.occluders for f in fs]))
+
+    def initial_models(self, **kw) -> list:
+        return [sc.initial_model(**kw) for sc in self.scenes]
+
+
 SCENES: dict[str, type[Scene]] = {cls.name: cls for cls in
                                    (GridRotY, GridPull, GridInplane, GridSpin, GridScale,
                                     FaceOcclusion, MovingBlob)}

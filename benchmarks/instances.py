@@ -1,0 +1,90 @@
+"""Tracking throughput with 1, 2 and 8 model instances in one tracker, and the cost of the
+loss rule and the re-acquisition machinery on one instance.
+
+Scenes (springtrack.sim): N copies of the grid (grid_inplane, scaled 0.4, each turning
+and moving about its own place) side by side on the 304x240 sensor, or one face
+(face_occlusion).  Each row tracks the same events:
+
+* ``reference``, N instances (``springtrack.Tracker([grid] * N, backend="reference")``):
+  several instances run on the reference backend; events/s of CPU time;
+* ``cython``/``fixed``, one instance, as placed and with ``acquire=True`` (the loss rule
+  checked every LOSS_CHECK_US, the event ring, the acquisition of the first window):
+  the overhead of springtrack.reacquire on the fast kernels.
+
+Run: .venv/bin/python benchmarks/instances.py [--seconds S] [--no-write]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _report import machine, write_section  # noqa: E402
+
+import springtrack  # noqa: E402
+from springtrack.sim.scenes import Placed, Together, make_scene  # noqa: E402
+from springtrack.sim.sensor import simulate_all  # noqa: E402
+
+PLACES = [(-114 + 76 * (k % 4), -60 + 120 * (k // 4)) for k in range(8)]
+
+
+def grids(n: int):
+    return Together(*[Placed(make_scene("grid_inplane", seed=k), 0.0, 0.4, dx, dy)
+                      for k, (dx, dy) in enumerate(PLACES[:n])])
+
+
+def rate(models, ev, backend, repeat, **kw):
+    """(events per CPU second, best of ``repeat``, and the tracker of the last run)."""
+    best, tr = None, None
+    for _ in range(repeat):
+        c0 = time.process_time()
+        tr = springtrack.Tracker(models, backend=backend, **kw)
+        tr.run(ev, 1000)
+        dt = time.process_time() - c0
+        best = dt if best is None else min(best, dt)
+    return len(ev) / best, tr
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--seconds", type=float, default=0.5)
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--no-write", action="store_true")
+    args = ap.parse_args()
+    rows = ["| tracker | instances | trackers | events | events/s (CPU) | per instance |",
+            "|---|---:|---:|---:|---:|---|"]
+    for n in (1, 2, 8):
+        sc = grids(n)
+        ev, _ = simulate_all(sc, args.seconds)
+        models = sc.initial_models()
+        r, tr = rate(models, ev, "reference", max(1, args.repeat - 2))
+        rows.append(f"| reference, {n} × grid3x3 | {n} | {9 * n} | {len(ev):,} | {r:,.0f} | "
+                    f"{r * n:,.0f} instance-events/s |")
+        print(rows[-1], flush=True)
+    sc = make_scene("face_occlusion")
+    ev, _ = simulate_all(sc, 2 * args.seconds)
+    m = sc.initial_model()
+    for backend in ("cython", "fixed"):
+        plain, _ = rate(m, ev, backend, args.repeat)
+        acq, tr = rate(m, ev, backend, args.repeat, acquire=True)
+        rows.append(f"| {backend}, face26 as placed | 1 | 26 | {len(ev):,} | {plain:,.0f} | |")
+        rows.append(f"| {backend}, face26 with acquire=True (loss rule, ring, first "
+                    f"acquisition) | 1 | 26 | {len(ev):,} | {acq:,.0f} | "
+                    f"{plain / acq:.2f}× the CPU time |")
+        print(rows[-2:], flush=True)
+    body = (f"Machine: {machine()}.  Command: `.venv/bin/python benchmarks/instances.py "
+            f"--seconds {args.seconds:g} --repeat {args.repeat}` (CPU time, best of the "
+            f"repeats; the machine is shared).\n\n" + "\n".join(rows) + "\n\n"
+            "Several instances run on the reference backend only (the kernels hold one "
+            "instance: docs/acquisition.md); its cost per event grows with the trackers of "
+            "all instances (eq. 2's argmin over the union).")
+    print(body)
+    if not args.no_write:
+        write_section("Instances: tracking throughput with 1, 2 and 8 instances", body)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,242 @@
+"""Loss and re-acquisition on a stream: what a tracker does once its instances are placed.
+
+:class:`Recovery` drives the tracker's backend between two events, the same way for
+every backend:
+
+* it keeps the recent events in a bounded ring (:class:`EventRing`, RING_EVENTS events:
+  memory bounded by the event rate, never by the input's span);
+* at every loss check (springtrack.loss: the multiples of LOSS_CHECK_US of event time,
+  on the state holding every event before it) it applies the loss rule to the
+  backend's ``active`` flags; an instance found lost is set LOST (insensitive, its
+  positions kept) and searched for at once;
+* at every multiple of half the acquisition window of event time (``period``) while an
+  instance is searching or lost, and if events came since the last such time, it runs
+  :func:`springtrack.acquire.acquire` for that instance on the last window of the ring,
+  with the pixels of the tracking instances' gates removed (explaining away) and the pose
+  wanted at the newest event (tracking resumes with the next event: nothing is replayed);
+* an instance found is placed there (``place``: positions, covariances and the rest
+  geometry of the placed model, activities 0) and tracks again -- unless it was found
+  where its trackers were kept (mean Mahalanobis distance below RESUME_SIGMA: the object
+  came back where it was hidden, or stood still), which resume as they were;
+* every change of state is kept with its event time: ``acquired`` (first found),
+  ``lost``, ``reacquired``.
+
+Check and attempt times are fixed grids of event time, so the result does not depend on
+how the input is cut into chunks.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .acquire import MIN_EVENTS, acquire, place, placed_gates
+from .events import EVENT_DTYPE
+from .instances import LOST, SEARCHING, TRACKING
+from .loss import LOSS_CHECK_US, LossRule, counted, loss_hold_us
+
+RING_EVENTS = 1 << 17          # ~0.4 s at 300 k events/s
+NEVER = 1 << 62
+RESUME_SIGMA = 1.0             # a lost instance found within this of where it was resumes
+
+
+class EventRing:
+    """The last ``capacity`` events pushed, in order."""
+
+    def __init__(self, capacity: int = RING_EVENTS):
+        self.buf = np.zeros(capacity, EVENT_DTYPE)
+        self.count = 0                      # events pushed in all
+
+    def push(self, ev) -> None:
+        cap = len(self.buf)
+        if len(ev) > cap:
+            self.count += len(ev) - cap
+            ev = ev[-cap:]
+        pos = self.count % cap
+        k = min(len(ev), cap - pos)
+        self.buf[pos:pos + k] = ev[:k]
+        self.buf[:len(ev) - k] = ev[k:]
+        self.count += len(ev)
+
+    def recent(self) -> np.ndarray:
+        """Every event held, oldest first (a copy)."""
+        cap = len(self.buf)
+        if self.count <= cap:
+            return self.buf[:self.count].copy()
+        pos = self.count % cap
+        return np.concatenate([self.buf[pos:], self.buf[:pos]])
+
+    def window(self, t_lo: int, t_hi: int) -> np.ndarray:
+        """The events held with t_lo <= t < t_hi, in order."""
+        ev = self.recent()
+        return ev[(ev["t"] >= t_lo) & (ev["t"] < t_hi)]
+
+
+def _where_kept(placed, x, y) -> bool:
+    """The placement found lies where a lost instance's trackers were kept: their mean
+    Mahalanobis distance (the placed covariances) below RESUME_SIGMA."""
+    a = placed.arrays()
+    dx, dy = x - a["x"], y - a["y"]
+    det = a["sxx"] * a["syy"] - a["sxy"] ** 2
+    d2 = (a["syy"] * dx * dx - 2 * a["sxy"] * dx * dy + a["sxx"] * dy * dy) / det
+    return float(np.mean(np.sqrt(np.maximum(d2, 0.0)))) < RESUME_SIGMA
+
+
+def _grid_at_or_before(t: int, period: int) -> int:
+    """The largest multiple of ``period`` <= t."""
+    return t // period * period
+
+
+class Recovery:
+    """The loss rule and the re-acquisition for ``tracker`` (a springtrack.Tracker whose
+    instances are placed): the ring, the checks, the attempts and the log of changes
+    (module docstring).  ``window_us``: the acquisition window; ``bounds``: acquire's
+    bounds (region, angle_deg, scale)."""
+
+    def __init__(self, tracker, window_us: int, bounds: dict):
+        self.tr = tracker
+        self.window_us = int(window_us)
+        self.period = max(self.window_us // 2, 1)
+        self.bounds = dict(bounds)
+        self.ring = EventRing()
+        self.rule = None
+        self.changes: list = []             # (t_us, label, kind)
+        self.placements: list = []          # (t_us, instance, (n, 2) positions placed)
+        self.attempts = 0
+        self._attempt = None                # the next attempt time
+        self._last_event = None             # the clock of the last event run
+        self._span = None                   # the clock of the events being run
+
+    def start(self, t_first: int, found) -> None:
+        """The instances were placed (``found[g]``) at the window starting at t_first."""
+        b = self.tr._ib
+        self.rule = LossRule([(i.t0, i.t1) for i in self.tr.models],
+                             loss_hold_us(self.tr.models.params), t_first - 1)
+        for g, f in enumerate(found):
+            if f:
+                self.changes.append((t_first, self.tr.models[g].label, "acquired"))
+                self._placed(t_first, g)
+            else:
+                b.set_state(g, SEARCHING)
+        self._attempt = -(-t_first // self.period) * self.period
+
+    def sample_period(self, sample_us: int) -> int:
+        """The backend's sampling period: the checks' and the caller's samples' grids."""
+        return math.gcd(LOSS_CHECK_US, sample_us) if sample_us > 0 else LOSS_CHECK_US
+
+    def track(self, ev):
+        """Process ``ev`` (EVENT_DTYPE, in time order) through the tracker's backend in
+        spans: up to the first time an instance could be lost (the checks in between are
+        the backend's own samples, :meth:`rows`) or the next attempt, then that check and
+        the attempts.  Yields the tracker's samples (Tracks) as they are taken."""
+        b = self.tr._ib
+        clock = np.maximum.accumulate(np.maximum(ev["t"], b.last_t))   # the clock at each event
+        pos, n = 0, len(ev)
+        while pos < n:
+            states = b.states()
+            tracking = [s == TRACKING for s in states]
+            searching = not all(tracking)
+            end = self.rule.earliest(tracking)
+            if searching:
+                end = min(end, self._attempt)
+            j = n if end >= NEVER else int(np.searchsorted(clock, end, "left"))
+            if j > pos:
+                self._span = clock[pos:j]
+                yield from self.tr._run(ev[pos:j])
+                self.ring.push(ev[pos:j])
+                self._last_event = int(clock[j - 1])
+                self._span = None
+                pos = j
+            if pos >= n:
+                break
+            now = int(clock[pos])                # the state holds every event before now
+            if any(tracking):
+                self._stop_check(now)
+            if searching or b.states() != states:
+                if now >= self._attempt:
+                    self._search(self._attempt)
+                    self._attempt = _grid_at_or_before(now, self.period) + self.period
+
+    def rows(self, t, active) -> None:
+        """The backend's samples at check times ``t`` ((k,) int64) with their ``active``
+        flags ((k, n) bool), taken while it ran the current span."""
+        t = np.asarray(t, np.int64)
+        new = t > self.rule.last
+        t, active = t[new], active[new]
+        if not len(t):
+            return
+        span = self._span
+        i = np.searchsorted(span, t, "left")
+        before = np.where(i > 0, span[np.maximum(i - 1, 0)],
+                          -NEVER if self._last_event is None else self._last_event)
+        ok = counted(t, before)
+        tracking = [s == TRACKING for s in self.tr._ib.states()]
+        for tk, lost in self.rule.check_rows(t[ok], active[ok], tracking):
+            self._apply(tk, lost)
+        self.rule.skip_to(int(t[-1]))
+
+    def _stop_check(self, now: int) -> None:
+        """The checks a stop before the event at ``now`` is due: the one after the last
+        event run (if it is due by now), the others in between do not count."""
+        if self._last_event is None:
+            return
+        t = _grid_at_or_before(self._last_event, LOSS_CHECK_US) + LOSS_CHECK_US
+        if self.rule.last < t <= now:
+            b = self.tr._ib
+            tracking = [s == TRACKING for s in b.states()]
+            if self._apply(t, self.rule.check(t, b.snapshot(t)["active"], tracking)):
+                self._attempt = t                 # search for it at once
+        self.rule.skip_to(_grid_at_or_before(now, LOSS_CHECK_US))
+
+    def _apply(self, t: int, lost) -> bool:
+        """The instances ``lost`` at check time t: LOST, recorded; True if any."""
+        b = self.tr._ib
+        for g in lost:
+            b.set_state(g, LOST)
+            self.changes.append((t, self.tr.models[g].label, "lost"))
+        return bool(lost)
+
+    def _search(self, t: int) -> None:
+        """At event time t: search for every instance that is not tracking."""
+        b = self.tr._ib
+        states = b.states()
+        todo = [g for g, s in enumerate(states) if s != TRACKING]
+        if not todo:
+            return
+        window = self.ring.window(t - self.window_us, t)
+        if len(window) < MIN_EVENTS:
+            return
+        snap = b.snapshot(t)
+        mset = self.tr.models
+        live = np.repeat(np.array(states) == TRACKING, [i.n for i in mset])
+        claimed = [np.asarray(snap[k], float)[live] for k in ("x", "y", "sxx", "sxy", "syy")]
+        at = int(window["t"][-1])
+        for g in todo:
+            self.attempts += 1
+            model = mset[g].model
+            pose = acquire(model, window, at_us=at, claimed=claimed, **self.bounds)
+            if not pose.found:
+                continue
+            placed = place(model, pose)
+            inst = mset[g]
+            kept = [np.asarray(snap[k], float)[inst.t0:inst.t1] for k in ("x", "y")]
+            if states[g] == LOST and _where_kept(placed, *kept):
+                b.set_state(g, TRACKING)          # found where it was kept: resume from there
+            else:
+                self.tr.models = mset = mset.replaced(g, placed)
+                b.place(g, placed)
+            self.rule.reset(g)
+            kind = "acquired" if states[g] == SEARCHING else "reacquired"
+            self.changes.append((t, mset[g].label, kind))
+            self._placed(t, g)
+            claimed = [np.concatenate([c, np.asarray(v, float)])
+                       for c, v in zip(claimed, placed_gates(model, pose))]
+
+    def _placed(self, t: int, g: int) -> None:
+        a = self.tr.models[g].model.arrays()
+        self.placements.append((t, g, np.column_stack([a["x"], a["y"]])))
+
+    def counters(self) -> dict:
+        kinds = [c[2] for c in self.changes]
+        return dict(reacquire_attempts=self.attempts, acquired=kinds.count("acquired"),
+                    lost=kinds.count("lost"), reacquired=kinds.count("reacquired"))

@@ -1,0 +1,155 @@
+"""Loss and re-acquisition on the simulated sensor (springtrack.reacquire, springtrack.loss):
+a jump, a full occlusion and an exit-and-return each give "lost" then "reacquired"; two
+objects side by side and two instances of one model crossing paths keep their
+identities; the track CSV and the renderer carry the states."""
+import numpy as np
+import pytest
+
+import springtrack
+from springtrack.instances import LOST, TRACKING
+from springtrack.sim.scenes import Disrupted, Placed, Together, make_scene
+from springtrack.sim.sensor import simulate_all
+
+RETURN_US = 50_000          # re-acquired within this of the object's return
+FACE_PX = 6.0               # on the face: 5 % of its 120 px (all 26 parts, outline included)
+
+
+def face():
+    return make_scene("face_occlusion", hand_first=100.0)
+
+
+def mean_px(track, truth_xy, t_us, cols=slice(None)):
+    """Mean distance (px) of the track's trackers ``cols`` to ``truth_xy`` at ``t_us``."""
+    k = int(np.searchsorted(track.t_us, t_us))
+    return float(np.mean(np.hypot(track.x[k, cols] - truth_xy[:, 0],
+                                  track.y[k, cols] - truth_xy[:, 1])))
+
+
+@pytest.mark.parametrize("what", ["occlusion", "exit"])
+def test_hidden_or_gone_then_back_is_lost_then_reacquired_within_50ms(what):
+    sc = {"occlusion": Disrupted(face(), hide_s=(0.5, 0.8)),
+          "exit": Disrupted(face(), at_s=0.4, dx=330.0, move_s=0.1, back_s=0.8)}[what]
+    ev, _ = simulate_all(sc, 1.2)
+    tr = springtrack.Tracker(sc.initial_model(), acquire=True)
+    track = tr.run(ev, 1000)
+    kinds = [k for _, _, k in tr.changes]
+    assert kinds[:3] == ["acquired", "lost", "reacquired"], tr.changes
+    back = int(sc.returned() * 1e6)
+    t_lost, t_re = tr.changes[1][0], tr.changes[2][0]
+    assert t_lost < back and t_re <= back + RETURN_US, tr.changes
+    assert "lost" not in kinds[3:] or tr.changes[-1][2] == "reacquired"
+    # lost rows in between, and on the face again at the end
+    k = (track.t_us >= t_lost) & (track.t_us < t_re)        # a change at T: rows from T
+    assert (track.state[k] == LOST).all() and (track.state[-1] == TRACKING).all()
+    assert mean_px(track, sc.truth(track.t_us[-1] / 1e6), track.t_us[-1]) < FACE_PX
+    c = tr.counters
+    assert c["lost"] == kinds.count("lost") and c["reacquired"] == kinds.count("reacquired")
+
+
+def test_a_jump_is_lost_then_reacquired_at_once():
+    """A jump of 60 px: the trackers left behind lose their activity (~tau ln(A/A_up))
+    and the hold runs; the search then finds the face at its new place at once."""
+    sc = Disrupted(face(), at_s=0.5, dx=60.0)
+    ev, _ = simulate_all(sc, 1.0)
+    tr = springtrack.Tracker(sc.initial_model(), acquire=True)
+    track = tr.run(ev, 1000)
+    assert [k for _, _, k in tr.changes] == ["acquired", "lost", "reacquired"], tr.changes
+    t_lost, t_re = tr.changes[1][0], tr.changes[2][0]
+    assert 500_000 < t_lost < 650_000 and t_re - t_lost <= RETURN_US
+    assert mean_px(track, sc.truth(0.95), 950_000) < FACE_PX
+
+
+def test_two_objects_side_by_side_keep_their_identities():
+    f = Placed(make_scene("face_occlusion", hand_first=100.0, motion=0.5), 0.0, 0.6, -75, 0)
+    g = Placed(make_scene("grid_inplane"), 0.0, 0.6, 75, 0)
+    both = Together(f, g)
+    ev, _ = simulate_all(both, 0.4)
+    tr = springtrack.Tracker(both.initial_models(), backend="reference", acquire=True)
+    track = tr.run(ev, 1000)
+    assert tr.ids[:26] == f.initial_model().ids and tr.ids[26:] == g.initial_model().ids
+    assert [c[1:] for c in tr.changes[:2]] == [("face26#1", "acquired"), ("grid3x3#1", "acquired")]
+    t = track.t_us[-1]
+    truth = both.truth(t / 1e6)
+    assert mean_px(track, truth[both.parts[0]], t, slice(0, 26)) < FACE_PX
+    assert mean_px(track, truth[both.parts[1]], t, slice(26, 35)) < 3.0
+
+
+def test_two_instances_of_one_model_crossing_paths_keep_their_identities():
+    """Two grids pass each other (one right, one left, 60 px apart vertically, 10 px
+    between their nearest rows while they cross): each instance stays on its own grid."""
+    a = Disrupted(Placed(make_scene("grid_inplane", speed_deg_s=0.0), 0.0, 0.5, -90, -30),
+                  at_s=0.0, dx=180.0, move_s=1.0)
+    b = Disrupted(Placed(make_scene("grid_inplane", speed_deg_s=0.0, seed=1), 0.0, 0.5, 90, 30),
+                  at_s=0.0, dx=-180.0, move_s=1.0)
+    both = Together(a, b)
+    ev, _ = simulate_all(both, 0.9)
+    models = both.initial_models()
+    tr = springtrack.Tracker(models, backend="reference")
+    track = tr.run(ev, 1000)
+    assert tr.ids[0] == "grid3x3#1/r0c0" and tr.ids[9] == "grid3x3#2/r0c0"
+    t = track.t_us[-1]
+    truth = both.truth(t / 1e6)
+    # crossed: a is now right of b, and each instance followed its own grid
+    assert truth[both.parts[0]][:, 0].mean() > truth[both.parts[1]][:, 0].mean() + 100
+    assert mean_px(track, truth[both.parts[0]], t, slice(0, 9)) < 3.0
+    assert mean_px(track, truth[both.parts[1]], t, slice(9, 18)) < 3.0
+
+
+def test_track_cli_writes_the_state_and_reports_the_changes(tmp_path, capsys):
+    from springtrack import cli
+    from springtrack.track import read_csv
+    sc = Disrupted(face(), hide_s=(0.3, 0.6))
+    ev, _ = simulate_all(sc, 0.8)
+    np.save(tmp_path / "ev.npy", ev)
+    sc.initial_model().save(tmp_path / "face.toml")
+    out = tmp_path / "t.csv"
+    assert cli.main(["track", str(tmp_path / "ev.npy"), "--model", str(tmp_path / "face.toml"),
+                     "--acquire", "--out", str(out), "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    assert "instance face26#1: lost at t=" in printed and "reacquired at t=" in printed
+    assert "face26#1 tracking (acquired 1, lost 1, reacquired 1)" in printed
+    tr = read_csv(out)
+    states = tr.state[:, 0]
+    lost = np.flatnonzero(states == LOST)
+    assert len(lost) and (states[:lost[0]] == TRACKING).all() and states[-1] == TRACKING
+    assert 300_000 < tr.t_us[lost[0]] < 400_000 and 590_000 <= tr.t_us[lost[-1]] < 650_000
+    with open(out) as f:
+        assert f.readline().strip().endswith(",state") and ",lost\n" in f.read()
+
+
+def test_renderer_draws_lost_instances_grey_and_dotted(tmp_path):
+    from springtrack.instances import ModelSet
+    from springtrack.model import face26, grid3x3
+    from springtrack.render import ACTIVE, LOST as LOST_COLOUR, OverlayRenderer
+    mset = ModelSet([face26(), grid3x3()])
+    a = mset.arrays()
+    st = {k: a[k] for k in ("x", "y", "sxx", "sxy", "syy")}
+    st.update(active=np.ones(mset.n, bool), sensitive=np.ones(mset.n, bool),
+              state=np.repeat([LOST, TRACKING], [26, 9]).astype(np.uint8))
+    r = OverlayRenderer(mset, scale=1.0, title="t")
+    try:
+        img = r.frame(1000, np.zeros(0, springtrack.events.EVENT_DTYPE), st)
+        assert img.ndim == 3
+        assert r.ell[0].get_color() == LOST_COLOUR and r.ell[0].get_linestyle() == ":"
+        assert r.ell[30].get_color() == ACTIVE
+        assert "face26#1 lost" in r.text.get_text()
+    finally:
+        r.close()
+
+
+@pytest.mark.parametrize("backend", ["cython", "reference"])
+def test_changes_and_rows_do_not_depend_on_how_the_input_is_cut(backend):
+    sc = Disrupted(face(), hide_s=(0.2, 0.35))
+    ev, _ = simulate_all(sc, 0.45)
+    runs = []
+    for cut in (None, 997, 15_013):
+        tr = springtrack.Tracker(sc.initial_model(), backend=backend, acquire=True)
+        tr.record(2000)
+        for s in range(0, len(ev), cut or len(ev)):
+            tr.process(ev[s:s + (cut or len(ev))])
+        runs.append((tr.changes, tr.samples()))
+    assert [k for _, _, k in runs[0][0]] == ["acquired", "lost", "reacquired"]
+    for changes, track in runs[1:]:
+        assert changes == runs[0][0]
+        assert np.array_equal(track.t_us, runs[0][1].t_us)
+        assert np.array_equal(track.x, runs[0][1].x) and np.array_equal(track.state, runs[0][1].state)
