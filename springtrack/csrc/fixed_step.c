@@ -784,7 +784,8 @@ static inline int32_t offset32(int32_t v, int64_t m, int sh)
 
 /* Mahalanobis d^2 = ia dx^2 + ib2 dx dy + ic dy^2 (eq. 2), Q.27, saturated at 2^32 - 1,
    of pixel (x, y) from tracker i: five 32 x 32 products (|pa|, |pc| <= 2^29, |pb| <= 2^30,
-   |q| < 2^62); the relative rounding is ~2^-25 of d^2 at the gate */
+   |q| < 2^62); rounding: 2^-24 of d^2 from the mantissas plus up to |u| + 2|v| units of q
+   from the floors of pa, pb, pc (docs/fixed_point.md) */
 static inline uint32_t qform(const fx_state *s, int i, int32_t x, int32_t y)
 {
     int sh = s->osh[i];
