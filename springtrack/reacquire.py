@@ -13,7 +13,8 @@ every backend:
   lost is set LOST (insensitive, its positions kept) and searched for at once;
 * at every multiple of DOUBT_CHECK_US of event time, each tracking instance's share of
   the sensor's events (springtrack.loss.ShareDoubt); an instance in doubt is verified
-  (at most once per ``period``): a search on the last ``period / 2`` of events, and if
+  (at most once per ``period``; while the doubt stays and nothing better is found, the
+  waits double up to VERIFY_BACKOFF periods): a search on the last ``period / 2`` of events, and if
   it finds the model whole in view, away from its trackers and supported MOVED_SUPPORT
   times more than where its trackers are (:func:`springtrack.acquire.judge` on the same
   events), the object moved: lost and re-placed there at once (a jump is caught as soon
@@ -52,6 +53,8 @@ RING_EVENTS = 1 << 17          # ~0.4 s at 300 k events/s
 NEVER = 1 << 62
 RESUME_SIGMA = 1.0             # a lost instance found within this of where it was resumes
 MOVED_SUPPORT = 2.0            # in doubt and found elsewhere supported this x more: moved
+VERIFY_BACKOFF = 8             # a doubt that stays: verified every period, 2, 4 ... up to
+#                                this x period apart while nothing better is found
 
 
 class EventRing:
@@ -135,6 +138,7 @@ class Recovery:
         self.doubt = None                   # the share of events taken (springtrack.loss)
         self._doubt_at = None               # the next doubt check time
         self._verify_next = []              # per instance: no verification before this
+        self._verify_wait = []              # per instance: the wait after the next one
         self._mass = (0.0, None)            # the sensor's event mass and its time
         self.verifications = 0
         self.refuted = 0                    # losses refuted: found where its trackers are
@@ -147,6 +151,7 @@ class Recovery:
                              loss_hold_us(params), t_first - 1)
         self.doubt = ShareDoubt(len(self.tr.models), params.activity_tau_us, loss_hold_us(params))
         self._verify_next = [0] * len(self.tr.models)
+        self._verify_wait = [self.period] * len(self.tr.models)
         self._doubt_at = -(-t_first // DOUBT_CHECK_US) * DOUBT_CHECK_US
         for g in range(len(self.tr.models)):
             self.doubt.reset(g, t_first)
@@ -327,7 +332,8 @@ class Recovery:
     def _doubt_check(self, t: int) -> None:
         """At doubt check time t (the state holds every event before t): each tracking
         instance's share of the events (springtrack.loss.ShareDoubt); one in doubt is
-        verified, at most once per ``period``."""
+        verified, then again a ``period`` later, and while the doubt stays and the
+        searches find nothing better, after waits doubling up to VERIFY_BACKOFF periods."""
         b = self.tr._ib
         tau = self.tr.models.params.activity_tau_us
         mass, since = self._mass
@@ -345,34 +351,39 @@ class Recovery:
             if snap is None:
                 snap = b.snapshot(t)
             taken = float(np.sum(snap["activity"][inst.t0:inst.t1]))
-            if self.doubt.doubt(t, g, taken, mass, inst.n) and t >= self._verify_next[g]:
-                self._verify_next[g] = t + self.period
-                self._verify(t, g, snap, states)
+            if not self.doubt.doubt(t, g, taken, mass, inst.n):
+                self._verify_wait[g] = self.period
+            elif t >= self._verify_next[g]:
+                moved = self._verify(t, g, snap, states)
+                wait = self._verify_wait[g]
+                self._verify_wait[g] = self.period if moved else min(2 * wait, VERIFY_BACKOFF * self.period)
+                self._verify_next[g] = t + wait
 
-    def _verify(self, t: int, g: int, snap, states) -> None:
-        """Instance g is in doubt at t: search for it on the last ``period`` of events; if
+    def _verify(self, t: int, g: int, snap, states) -> bool:
+        """Instance g is in doubt at t: search for it on the last ``period / 2`` of events; if
         it is found whole in view, away from its trackers (RESUME_SIGMA) and supported
         MOVED_SUPPORT times more than where its trackers are, it moved: lost and re-placed
-        there at t."""
+        there at t (True)."""
         window = self.ring.window(t - self.period // 2, t)
         if len(window) < MIN_EVENTS:
-            return
+            return False
         self.verifications += 1
         inst = self.tr.models[g]
         model = inst.model
         claimed = self._claimed(snap, states, but=g)
-        pose = acquire(model, window, at_us=int(window["t"][-1]), claimed=claimed, **self.bounds)
+        pose = acquire(model, window, claimed=claimed, **self.bounds)
         if not pose.found or pose.in_view < inst.n:
-            return
+            return False
         placed = place(model, pose)
         x, y = (np.asarray(snap[k], float)[inst.t0:inst.t1] for k in ("x", "y"))
         if _where_kept(placed, x, y):
-            return
+            return False
         here = judge(model, window, fit_pose(model, x, y), claimed=claimed)
         if pose.supported < MOVED_SUPPORT * max(here.supported, 1):
-            return
+            return False
         self._apply(t, [g])
         self._replace(t, g, placed, "reacquired")
+        return True
 
     def _stays_partly_in_view(self, g: int, placed) -> bool:
         """A pose found with some trackers off the sensor is taken only when the attempt
