@@ -44,6 +44,10 @@ def test_hidden_or_gone_then_back_is_lost_then_reacquired_within_50ms(what):
     assert mean_px(track, sc.truth(track.t_us[-1] / 1e6), track.t_us[-1]) < FACE_PX
     c = tr.counters
     assert c["lost"] == kinds.count("lost") and c["reacquired"] == kinds.count("reacquired")
+    # placed whole in view: not half in view while it slides back in
+    t_placed, _, xy = tr.recovery.placements[-1]
+    w, h = tr.models.width, tr.models.height
+    assert t_placed == t_re and (xy >= 0).all() and (xy[:, 0] < w).all() and (xy[:, 1] < h).all()
 
 
 def test_a_jump_is_lost_then_reacquired_at_once():
