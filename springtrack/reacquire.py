@@ -55,6 +55,7 @@ RESUME_SIGMA = 1.0             # a lost instance found within this of where it w
 MOVED_SUPPORT = 2.0            # in doubt and found elsewhere supported this x more: moved
 VERIFY_BACKOFF = 8             # a doubt that stays: verified every period, 2, 4 ... up to
 #                                this x period apart while nothing better is found
+VERIFY_EVERY = 8               # and every instance, in doubt or not, this x period apart
 
 
 class EventRing:
@@ -139,6 +140,7 @@ class Recovery:
         self._doubt_at = None               # the next doubt check time
         self._verify_next = []              # per instance: no verification before this
         self._verify_wait = []              # per instance: the wait after the next one
+        self._verify_due = []               # per instance: verified, doubt or not, by then
         self._mass = (0.0, None)            # the sensor's event mass and its time
         self.verifications = 0
         self.refuted = 0                    # losses refuted: found where its trackers are
@@ -152,6 +154,7 @@ class Recovery:
         self.doubt = ShareDoubt(len(self.tr.models), params.activity_tau_us, loss_hold_us(params))
         self._verify_next = [0] * len(self.tr.models)
         self._verify_wait = [self.period] * len(self.tr.models)
+        self._verify_due = [t_first + VERIFY_EVERY * self.period] * len(self.tr.models)
         self._doubt_at = -(-t_first // DOUBT_CHECK_US) * DOUBT_CHECK_US
         for g in range(len(self.tr.models)):
             self.doubt.reset(g, t_first)
@@ -351,19 +354,24 @@ class Recovery:
             if snap is None:
                 snap = b.snapshot(t)
             taken = float(np.sum(snap["activity"][inst.t0:inst.t1]))
-            if not self.doubt.doubt(t, g, taken, mass, inst.n):
+            doubt = self.doubt.doubt(t, g, taken, mass, inst.n)
+            if not doubt:
                 self._verify_wait[g] = self.period
-            elif t >= self._verify_next[g]:
+            if (doubt and t >= self._verify_next[g]) or t >= self._verify_due[g]:
                 moved = self._verify(t, g, snap, states)
-                wait = self._verify_wait[g]
-                self._verify_wait[g] = self.period if moved else min(2 * wait, VERIFY_BACKOFF * self.period)
-                self._verify_next[g] = t + wait
+                self._verify_due[g] = t + VERIFY_EVERY * self.period
+                if doubt:
+                    wait = self._verify_wait[g]
+                    self._verify_wait[g] = (self.period if moved else
+                                            min(2 * wait, VERIFY_BACKOFF * self.period))
+                    self._verify_next[g] = t + wait
 
     def _verify(self, t: int, g: int, snap, states) -> bool:
-        """Instance g is in doubt at t: search for it on the last ``period / 2`` of events; if
-        it is found whole in view, away from its trackers (RESUME_SIGMA) and supported
-        MOVED_SUPPORT times more than where its trackers are, it moved: lost and re-placed
-        there at t (True)."""
+        """Instance g is in doubt (or due) at t: search for it on the last ``period / 2``
+        of events; if it is found away from its trackers (RESUME_SIGMA) and supported
+        MOVED_SUPPORT times more than where its trackers are (and, partly in view, found
+        at the same place by the verification before), it moved: lost and re-placed there
+        at t (True)."""
         window = self.ring.window(t - self.period // 2, t)
         if len(window) < MIN_EVENTS:
             return False
@@ -372,7 +380,7 @@ class Recovery:
         model = inst.model
         claimed = self._claimed(snap, states, but=g)
         pose = acquire(model, window, claimed=claimed, **self.bounds)
-        if not pose.found or pose.in_view < inst.n:
+        if not pose.found:
             return False
         placed = place(model, pose)
         x, y = (np.asarray(snap[k], float)[inst.t0:inst.t1] for k in ("x", "y"))
@@ -380,6 +388,8 @@ class Recovery:
             return False
         here = judge(model, window, fit_pose(model, x, y), claimed=claimed)
         if pose.supported < MOVED_SUPPORT * max(here.supported, 1):
+            return False
+        if pose.in_view < inst.n and not self._stays_partly_in_view(g, placed):
             return False
         self._apply(t, [g])
         self._replace(t, g, placed, "reacquired")
