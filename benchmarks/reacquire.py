@@ -172,6 +172,20 @@ def main() -> None:
                      e_hand, e_acq, 1.5, changes_text(tr, labels=True)))
         print(rows[-1], flush=True)
 
+    # jumps of other sizes and directions, other scenes (seed 1, jump at 2 s)
+    S3 = min(S, 4.0)
+    jumps = []
+    for name, kw in [("face_occlusion", dict(dy=60.0)), ("face_occlusion", dict(dx=-40.0)),
+                     ("face_occlusion", dict(dx=150.0)), ("face_occlusion", dict(dx=-80.0, dy=-50.0)),
+                     ("grid_inplane", dict(dx=80.0)), ("grid_pull", dict(dx=-60.0)),
+                     ("grid_rot_y", dict(dy=40.0))]:
+        base = make_scene(name, seed=1)
+        sc = Disrupted(base, at_s=2.0, **kw)
+        tr, tk, truth, n, cpu = run(sc, base.initial_model(), S3)
+        jumps.append(f"| {name}, jump {kw} | {score(truth, tk, since_us=2_000_000):.2f} | "
+                     f"{changes_text(tr, 2_000_000)} | {tr.counters['verifications']} |")
+        print(jumps[-1], flush=True)
+
     lines = ["| scene | by hand: exact / nudged % | --acquire % | ratio to exact, nudged "
              "(target) | notes |", "|---|---:|---:|---|---|"]
     for what, (h, hn), a, target, note in rows:
@@ -180,7 +194,10 @@ def main() -> None:
                      f"{a / hn:.2f} ({ok[1]}) (≤ {target:g}) | {note} |")
     body = (f"Machine: {machine()}.  Command: `.venv/bin/python benchmarks/reacquire.py "
             f"--seconds {S:g} --seeds {args.seeds}`.\n\n" + "\n".join(lines)
-            + f"\n\nLosses on the scenes placed wrong (no disruption): {false_losses}.")
+            + f"\n\nLosses on the scenes placed wrong (no disruption): {false_losses}.\n\n"
+            f"Jumps at 2 s ({S3:g} s scenes, seed 1; error from the jump, changes relative "
+            "to it):\n\n| scene | --acquire % | changes | verifications |\n|---|---:|---|---:|\n"
+            + "\n".join(jumps))
     print(body)
     if not args.no_write:
         write_section("Loss and re-acquisition (measured targets)", body)

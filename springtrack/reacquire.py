@@ -55,7 +55,7 @@ RESUME_SIGMA = 1.0             # a lost instance found within this of where it w
 MOVED_SUPPORT = 2.0            # in doubt and found elsewhere supported this x more: moved
 VERIFY_BACKOFF = 8             # a doubt that stays: verified every period, 2, 4 ... up to
 #                                this x period apart while nothing better is found
-VERIFY_EVERY = 8               # and every instance, in doubt or not, this x period apart
+VERIFY_EVERY = 40              # and every instance, in doubt or not, this x period apart
 
 
 class EventRing:
