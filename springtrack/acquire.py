@@ -300,11 +300,13 @@ class _Evidence:
                GATE_AREA, KAPPA, Z, N_MIN, CAUCHY, self.scratch)
         return tuple(p)
 
-    def judge(self, tx, ty, th, s, events: int) -> Pose:
-        """The pose with its score, support and found decision (module docstring)."""
+    def judge(self, tx, ty, th, s, events: int, at=None) -> Pose:
+        """The pose with its score, support and found decision (module docstring);
+        ``at``: (x, y) the trackers' means instead of the pose's (its covariances kept)."""
         from ._acquire import moments, surround
         h, w = self.h, self.w
-        mx, my = self.geo.means(tx, ty, th, s)
+        mx, my = self.geo.means(tx, ty, th, s) if at is None else (
+            np.ascontiguousarray(at[0], float), np.ascontiguousarray(at[1], float))
         cov = self.geo.covs(th, s)
         sxx, sxy, syy = cov[:, 0, 0].copy(), cov[:, 0, 1].copy(), cov[:, 1, 1].copy()
         moments(*self.sparse, mx, my, sxx, sxy, syy, FLAT2, GATE2, self.out)
@@ -507,16 +509,18 @@ def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DE
 
 
 def judge(model, events, pose, *, width: int | None = None, height: int | None = None,
-          claimed=None) -> Pose:
+          claimed=None, at=None) -> Pose:
     """``pose`` (anything with tx, ty, angle_deg, scale; e.g. :func:`fit_pose` of a
     tracker's current positions) judged on ``events`` as :func:`acquire` judges the pose
-    it finds: its score, support, confidence and found decision, no search."""
+    it finds: its score, support, confidence and found decision, no search.  ``at``:
+    (x, y) arrays of the trackers' positions as they are (a deformed or perspective view
+    that no similarity fits), judged there with the pose's covariances."""
     model = load_model(model)
     w, h = int(width or model.width), int(height or model.height)
     img, n_ev = _evidence_image(events, w, h, claimed)
     ev = _Evidence(_Geometry(model), img, background_density(img))
     return ev.judge(float(pose.tx), float(pose.ty), math.radians(pose.angle_deg),
-                    float(pose.scale), n_ev)
+                    float(pose.scale), n_ev, at)
 
 
 def _evidence_image(events, w: int, h: int, claimed):

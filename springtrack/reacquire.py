@@ -369,7 +369,7 @@ class Recovery:
     def _verify(self, t: int, g: int, snap, states) -> bool:
         """Instance g is in doubt (or due) at t: search for it on the last ``period / 2``
         of events; if it is found away from its trackers (RESUME_SIGMA) and supported
-        MOVED_SUPPORT times more than where its trackers are (and, partly in view, found
+        MOVED_SUPPORT times more than its trackers where they are (and, partly in view, found
         at the same place by the verification before), it moved: lost and re-placed there
         at t (True)."""
         window = self.ring.window(t - self.period // 2, t)
@@ -386,7 +386,7 @@ class Recovery:
         x, y = (np.asarray(snap[k], float)[inst.t0:inst.t1] for k in ("x", "y"))
         if _where_kept(placed, x, y):
             return False
-        here = judge(model, window, fit_pose(model, x, y), claimed=claimed)
+        here = judge(model, window, fit_pose(model, x, y), claimed=claimed, at=(x, y))
         if pose.supported < MOVED_SUPPORT * max(here.supported, 1):
             return False
         if pose.in_view < inst.n and not self._stays_partly_in_view(g, placed):
