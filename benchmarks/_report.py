@@ -9,15 +9,15 @@ from pathlib import Path
 DOC = Path(__file__).resolve().parents[1] / "docs" / "benchmarks.md"
 
 
-def machine() -> str:
-    """CPU model, clock, widest vector extension (the kernels' vectorised passes pick their
-    clone by it, so it matters as much as the clock), cores, Python, OS."""
-    model, mhz, flags = platform.processor() or "unknown CPU", None, set()
+def cpu_info() -> tuple[str | None, float | None, set[str]]:
+    """The first processor's model name, clock (MHz) and flags from /proc/cpuinfo (None,
+    None, empty where it is not readable)."""
+    model, mhz, flags = None, None, set()
     try:
         for line in open("/proc/cpuinfo"):
             key, _, val = line.partition(":")
             key = key.strip()
-            if key == "model name" and model == (platform.processor() or "unknown CPU"):
+            if key == "model name" and model is None:
                 model = val.strip()
             elif key == "cpu MHz" and mhz is None:
                 mhz = float(val)
@@ -25,6 +25,14 @@ def machine() -> str:
                 flags = set(val.split())
     except OSError:
         pass
+    return model, mhz, flags
+
+
+def machine() -> str:
+    """CPU model, clock, widest vector extension (the kernels' vectorised passes pick their
+    clone by it, so it matters as much as the clock), cores, Python, OS."""
+    model, mhz, flags = cpu_info()
+    model = model or platform.processor() or "unknown CPU"
     vec = next((v for v in ("avx512f", "avx2", "sse2") if v in flags), None)
     clock = f" at {mhz / 1000:.2f} GHz" if mhz else ""
     isa = f", {vec.upper()}" + (" (no AVX-512)" if vec == "avx2" else "") if vec else ""

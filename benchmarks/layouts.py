@@ -81,9 +81,9 @@ each layout:
 
 The kernels read any common layout in place (`springtrack._stepper.run_array`: 256 records
 at a time converted into a stack buffer inside the loop, then tracked), so a packed array
-costs a few percent over EVENT_DTYPE instead of a full copy first.  Not measured here: the
-issue's comparison with a hand-written plain-C tracker (and a hand-vectorised one) — no such
-tracker is in `benchmarks/` yet.
+costs a few percent over EVENT_DTYPE instead of a full copy first.  The comparison with
+hand-written C trackers (plain and AVX2) on the same packed array: "Tracker against
+hand-written C" (benchmarks/c_peers.py).
 """
     write_section("Event layouts", body)
 

@@ -57,6 +57,10 @@ def build_parser() -> argparse.ArgumentParser:
     m = r.add_mutually_exclusive_group()
     m.add_argument("--model", help="shape model TOML file")
     m.add_argument("--preset", help="preset model name (face26, grid3x3)")
+    m.add_argument("--learn-first-ms", type=float, metavar="MS",
+                   help="learn the model from the stream's first MS ms of event time "
+                        "(springtrack learn; docs/learning.md), then track with it from "
+                        "where the window ends; --params are written into the learned model")
     r.add_argument("--params", help="TOML file of parameter overrides")
     r.add_argument("--sensor-from", choices=["source", "model"],
                    help="a model whose [sensor] is not the camera's is refused; 'source': "
@@ -142,10 +146,16 @@ def open_source(args, biases: dict) -> _sources.CameraSource:
 
 
 def default_model(args, source: _sources.CameraSource):
-    """--model or --preset; else the source's own model (a scene's); else face26, centred
+    """--model or --preset; with --learn-first-ms a one-tracker placeholder that tracks
+    nothing (the learned model replaces it); else the source's own model (a scene's); else face26, centred
     on the source's sensor."""
     if args.model or args.preset:
         return args.model or args.preset
+    if args.learn_first_ms is not None:
+        from springtrack.model import ShapeModel, TrackerSpec
+        w, h = source.width, source.height
+        return ShapeModel("learning", w, h, [TrackerSpec("p00", w / 2, h / 2, (4.0, 0.0, 4.0))],
+                          [])
     try:
         own = source.default_model()
     except ValueError as e:
@@ -220,7 +230,8 @@ def run(args) -> int:
                           lossless=cam is not None and args.max_speed, biases=biases,
                           profile=source.profile, backend=args.backend, roi=roi,
                           source_counters=source.counters, sensor_from=args.sensor_from,
-                          acquire=_acquire(args))
+                          acquire=_acquire(args), learn_first_ms=args.learn_first_ms,
+                          learn_params=learn_params(args))
     stop = threading.Event()
     link_thread, port = start_link(args, engine, stop)
     if args.wait_start and link_thread is None:
@@ -231,12 +242,14 @@ def run(args) -> int:
     next_stats = t0 + args.stats_every if args.stats_every > 0 else float("inf")
     quiet = 0
     failed = None
+    learn_said = False
     try:
         while True:
             time.sleep(0.02)
             now = time.monotonic()
             while engine.reader.log:              # disconnects, reconnects, stalls
                 print(f"usb: {engine.reader.log.popleft()}", file=sys.stderr, flush=True)
+            learn_said = learn_said or _say_learned(engine)
             if now >= next_stats and link_thread is None:
                 print(engine.stats_line(), file=sys.stderr, flush=True)
                 next_stats = now + args.stats_every
@@ -264,6 +277,8 @@ def run(args) -> int:
             link_thread.join(3)
         if port is not None:
             port.close()
+    if not learn_said:
+        _say_learned(engine)
     if args.record:
         rows = engine.write_record(args.record)
         print(f"record: {rows} rows -> {args.record}", file=sys.stderr)
@@ -276,6 +291,28 @@ def run(args) -> int:
         print(f"firmware-sim run: error: {failed}", file=sys.stderr)
         return 1
     return 0
+
+
+def learn_params(args) -> dict | None:
+    """With --learn-first-ms: the --params file's tracking parameters, to be written into
+    the learned model (the firmware then runs with them)."""
+    if args.learn_first_ms is None or not args.params:
+        return None
+    from springtrack.commands.learn import read_params
+    return read_params(args.params)
+
+
+def _say_learned(engine) -> bool:
+    """Print what the learner found once it has (stderr); True once said."""
+    le = engine.stats()["learn"]
+    if not le or le["state"] == "learning":
+        return False
+    if le["state"] == "failed":
+        print(f"learn: {le['error']}; tracking nothing until a model is uploaded",
+              file=sys.stderr, flush=True)
+    else:
+        print(f"learn: {le['report']}", file=sys.stderr, flush=True)
+    return True
 
 
 def _wait_telemetry_sent(engine, link_thread, timeout: float = 30.0) -> None:

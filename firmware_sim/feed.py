@@ -38,7 +38,9 @@ class DecodedFeed:
 
     @property
     def native_records(self):
-        return self.kernel.native_records
+        """The sample rows carry the kernel's own TELEMETRY records (the microcontroller
+        build packs them; the host kernels' ``run`` returns float rows)."""
+        return getattr(self.kernel, "native_records", False)
 
     @property
     def last_t(self):
@@ -72,7 +74,11 @@ class DecodedFeed:
         if n >= 0:
             mv = mv[:n]
         self.bytes_in += len(mv)
-        ev = self.decoder.decode(mv)
+        return self.track(self.decoder.decode(mv), sink)
+
+    def track(self, ev, sink=None):
+        """Track decoded events ``ev``: their sample rows (None if none), or each block of
+        them passed to ``sink`` (as :meth:`feed`)."""
         if len(ev) == 0:
             return None
         if self.mark:
@@ -88,10 +94,7 @@ class DecodedFeed:
                 else:
                     parts.append(out)
         self.tracked += len(ev)
-        if not parts:
-            return None
-        return parts[0] if len(parts) == 1 else {k: np.concatenate([q[k] for q in parts])
-                                                  for k in parts[0]}
+        return join_samples(parts)
 
     def counters(self) -> dict:
         st = self.decoder.stats
@@ -109,3 +112,12 @@ class DecodedFeed:
                     triggers=st.info.get("triggers", 0), other_words=st.info.get("other_words", 0),
                     time_low_backwards=st.info.get("time_low_backwards", 0), outside_roi=0,
                     anomalies=an)
+
+
+def join_samples(parts):
+    """Sample blocks (dicts of arrays; None entries skipped) as one, None if none."""
+    parts = [q for q in parts if q is not None]
+    if not parts:
+        return None
+    return parts[0] if len(parts) == 1 else {k: np.concatenate([q[k] for q in parts])
+                                              for k in parts[0]}

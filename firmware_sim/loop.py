@@ -16,7 +16,10 @@ composes parts that each keep one job:
   bounded queue (``firmware_sim.telemetry``: the oldest dropped and counted), and with
   ``record`` all are kept for ``--record`` (``firmware_sim.record``);
 * counters and the load meter (processing time per 10 ms of events) in
-  ``firmware_sim.meter``.
+  ``firmware_sim.meter``;
+* with ``learn_first_ms`` the feed is ``firmware_sim.learning.LearningFeed``: the model
+  is learned from the stream's first milliseconds (springtrack.learn) and swapped in
+  like an upload, then the rest is tracked with it.
 """
 from __future__ import annotations
 
@@ -28,6 +31,7 @@ from springtrack.wire import Nack
 
 from ._fused import Fused
 from .feed import DecodedFeed
+from .learning import LearningFeed
 from . import usb as camusb
 from .engine import UpdateRejected
 from .meter import LoadMeter, LoopCounters
@@ -51,7 +55,10 @@ class FirmwareLoop:
     of another ``[sensor]``, None refuses it: ValueError here, NACK ``sensor_mismatch`` for
     an upload); ``roi`` ``(x, y, w, h)`` tracks only that region; ``source_counters()``
     (optional) returns what the source dropped
-    before the camera (``events_in``, ``outside_sensor``), reported in the statistics."""
+    before the camera (``events_in``, ``outside_sensor``), reported in the statistics.
+    ``learn_first_ms``: learn the model from the stream's first milliseconds instead
+    (``model`` only holds the slot until then and tracks nothing; ``learn_params``: tracking
+    parameters written into the learned model, as ``springtrack learn --params``)."""
 
     def __init__(self, open_camera, model="face26", params=None, telemetry_period_us: int = 1000,
                  nbuf: int = 64, piece_bytes: int = 16384, telemetry_queue: int = 4096,
@@ -59,7 +66,8 @@ class FirmwareLoop:
                  biases: dict | None = None, profile="ccam_atis",
                  record: bool = False, width: int | None = None, height: int | None = None,
                  backend: str = "cython", roi=None, source_counters=None, sensor_from=None,
-                 acquire: dict | None = None):
+                 acquire: dict | None = None, learn_first_ms: float | None = None,
+                 learn_params: dict | None = None):
         if telemetry_period_us <= 0:
             raise ValueError(f"telemetry_period_us must be positive, got {telemetry_period_us}")
         self.profile = camusb.PROFILES[profile] if isinstance(profile, str) else profile
@@ -69,7 +77,14 @@ class FirmwareLoop:
         self.slot = ModelSlot(backend, model, params, (self.width, self.height), sensor_from,
                               acquire)
         self.applied = AppliedLog()
-        if not backend.startswith("mcu") and acquire is None:
+        self.learner = None
+        if learn_first_ms is not None:      # decoded events for the learner: springtrack.io
+            if roi is not None:
+                raise ValueError("--roi and --learn-first-ms cannot be combined")
+            self.fused = self.learner = LearningFeed(
+                self.slot.kernel, telemetry_period_us, self.profile, learn_first_ms,
+                self.width, self.height, learn_params)
+        elif not backend.startswith("mcu") and acquire is None:
             self.fused = Fused(self.slot.kernel, telemetry_period_us, 512, fmt=self.profile.fmt,
                                width=self.width, height=self.height,
                                legacy=self.profile.legacy, roi=roi)
@@ -93,6 +108,7 @@ class FirmwareLoop:
         self.counters = LoopCounters()
         self.meter = LoadMeter()
         self.last_error = ""
+        self.learn_report = ""              # what the learner found (learn_first_ms)
         self.stop_event = threading.Event()
         self.thread = None
 
@@ -249,12 +265,28 @@ class FirmwareLoop:
             self.counters.pieces += 1
             self.counters.proc_ns += dt
             self.meter.account(f.last_t, dt, f.tracked)
+            if self.learner is not None and self.learner.learned is not None:
+                self._load_learned()
             if self.applied.waiting and f.first_t >= 0:
                 self.applied.first_event(f.first_t)
             if out is not None:
                 self._emit(out)
             if self.slot.pending:
                 self._apply_pending()
+
+    def _load_learned(self) -> None:
+        """Processing thread: the learner's model becomes the running one (a new
+        generation, like an upload); the window's tail is tracked with it."""
+        res, self.learner.learned = self.learner.learned, None
+        m = res.model
+        self.learn_report = (f"learned {len(m.trackers)} trackers, {len(m.connections)} "
+                             f"springs from {res.events:,} events over "
+                             f"{(res.t_end_us - res.t_start_us) / 1e3:.1f} ms in "
+                             f"{res.wall_s:.2f} s; " + ", ".join(f"{k}={v}" for k, v in
+                                                               m.params.items()))
+        self.slot.queue_model(m.to_toml())
+        self._apply_pending()
+        self.learner.track_rest(sink=self._emit)
 
     def _emit(self, out: dict) -> None:
         self.counters.snapshots += len(out["t"])
@@ -278,6 +310,7 @@ class FirmwareLoop:
                         max_trackers=MAX_TRACKERS, max_connections=MAX_CONNECTIONS,
                         model=self.model.name, model_hash=self.model.digest(),
                         trackers=list(self.model.ids), running=self.running,
+                        learning=self.learner is not None and self.learner.learning,
                         generation=self.generation, telemetry_period_us=self.period)
 
     def stats(self) -> dict:
@@ -309,7 +342,18 @@ class FirmwareLoop:
             loop=dict(self.counters.as_dict(), telemetry_dropped=self.telemetry.dropped,
                       generation=self.generation, last_t_us=int(self.fused.last_t)),
             kernel=self.slot.kernel_counters(),
-            instances=self._instances())
+            instances=self._instances(),
+            learn=self._learn_stats())
+
+    def _learn_stats(self) -> dict:
+        """The learner's state (learn_first_ms): learning, learned or failed, and events."""
+        le = self.learner
+        if le is None:
+            return {}
+        state = ("failed" if le.error else "learned" if self.learn_report else "learning")
+        c = le.counters()
+        return dict(state=state, events=c["events_learned"], dropped=c["events_unlearned"],
+                    untracked=c["events_untracked"], error=le.error, report=self.learn_report)
 
     def _instances(self) -> dict:
         """Each model instance's state (searching, tracking, lost), with acquisition."""
@@ -346,6 +390,7 @@ class FirmwareLoop:
                 f"proc_us_per_10ms(mean={s['proc_us_per_10ms']['mean']:.0f} "
                 f"max={s['proc_us_per_10ms']['max']:.0f}) state={s['state']} "
                 f"usb={usb or 'ok'} anomalies={an or 'none'} kernel={s['kernel']['backend']}"
+                + (f" learn={s['learn']['state']}" if s["learn"] else "")
                 + (f" saturated={sat}" if (sat := {k[10:]: v for k, v in s["kernel"].items()
                                                     if k.startswith("saturated_") and v}) else ""))
 

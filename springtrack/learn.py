@@ -98,7 +98,8 @@ class LearnParams:
     rigidity_scale: float = 0.5        # deformation (in part sizes) of rigidity 1/2
     cartesian_turn_deg: float = 10.0
     stiffness_gain: float = 0.1        # stiffness = gain * alpha_1 (tracking) * rigidity
-    energy_quantile: float = 0.99      # s of eqs. (21)-(22): this quantile of E_ij / mean E
+    energy_quantile: float = 0.99      # s of eqs. (21)-(22): this quantile of E_ij / mean E,
+    energy_scale_max: float = 4.5      # ... at most this (and at least the default 2.5)
     smooth_us: int = 20_000            # averaging of directions for the turn measure
 
     def __post_init__(self):
@@ -372,6 +373,36 @@ def moment_match(m1, c1, w1, m2, c2, w2):
     return mu, cov
 
 
+def union_series(a, wa: float, b, wb: float, until: int):
+    """The samples (x, y, act, cnt, valid) of the union of two pieces ``a`` and ``b``
+    (each such a tuple of (T,) arrays, weighted ``wa``, ``wb`` at their merge) before
+    sample ``until``.  Where both existed: positions weighted, activities and events
+    summed.  Where one existed alone (a piece born late, or one that lived on its own
+    before the other was born): that piece, moved by its offset from the union at the
+    last sample they shared, with its own activity and events: a piece of a part (an
+    edge, a fragment) keeps its place on the part, so the part's history is not cut to
+    the samples its pieces shared."""
+    (xa, ya, aa, ca, oa), (xb, yb, ab, cb, ob) = a, b
+    T = len(xa)
+    before = np.arange(T) < until
+    both = oa & ob & before
+    w = wa + wb
+    x = np.where(both, (wa * xa + wb * xb) / w, np.nan)
+    y = np.where(both, (wa * ya + wb * yb) / w, np.nan)
+    act = np.where(both, aa + ab, 0.0)
+    cnt = np.where(both, ca + cb, 0.0)
+    if both.any():
+        k = int(np.flatnonzero(both)[-1])
+        for px, py, pa, pc, po in (a, b):
+            alone = po & ~both & before & ~np.isfinite(x)
+            x = np.where(alone, px + (x[k] - px[k]), x)
+            y = np.where(alone, py + (y[k] - py[k]), y)
+            act = np.where(alone, pa, act)
+            cnt = np.where(alone, pc, cnt)
+    ok = np.isfinite(x)
+    return x, y, act, cnt, ok
+
+
 def contrast_sign(ev: np.ndarray, width: int, height: int) -> int:
     """+1 if the parts are brighter than their background, -1 if darker, 0 if unclear.
 
@@ -481,8 +512,8 @@ class History:
         """The samples of the trackers ``uids`` (N,): ``t`` (T,), ``x``, ``y``, ``act``,
         ``cnt`` (T, N) and ``valid`` (T, N) (elsewhere x, y are NaN, act and cnt 0).
         Before a tracker got its identity by merging two (``lineage``: uid -> (uid_a,
-        w_a, uid_b, w_b)), its samples are those of the union of both pieces: positions
-        weighted by w, activities and events summed, where both existed."""
+        w_a, uid_b, w_b)), its samples are those of the union of both pieces
+        (:func:`union_series`)."""
         T = len(self.rows)
         where = {}                                    # uid -> (rows, places in them)
         for r, row in enumerate(self.rows):
@@ -503,19 +534,13 @@ class History:
         def get(u):
             if u in done:
                 return done[u]
-            x, y, act, cnt, ok = own(u)
+            mine = own(u)
             if u in lineage:
                 ua, wa, ub, wb = lineage[u]
-                xa, ya, aa, ca, oa = get(ua)
-                xb, yb, ab, cb, ob = get(ub)
-                first = np.argmax(ok) if ok.any() else T
-                both = oa & ob & (np.arange(T) < first)
-                x = np.where(both, (wa * xa + wb * xb) / (wa + wb), x)
-                y = np.where(both, (wa * ya + wb * yb) / (wa + wb), y)
-                act = np.where(both, aa + ab, act)
-                cnt = np.where(both, ca + cb, cnt)
-                ok = ok | both
-            done[u] = (x, y, act, cnt, ok)
+                first = int(np.argmax(mine[4])) if mine[4].any() else T
+                union = union_series(get(ua), wa, get(ub), wb, first)
+                mine = tuple(np.where(mine[4], m, un) for m, un in zip(mine, union))
+            done[u] = mine
             return done[u]
 
         cols = [get(int(u)) for u in uids]
@@ -655,8 +680,8 @@ def _keep_cols(rec: dict, mask: np.ndarray) -> dict:
 def _to_count(pool: Pool, rec: dict, n_target: int, t: int, stats: dict) -> dict:
     """Drop the weakest tracker while it takes less than ``keep_share`` of the median's
     events, else merge the nearest pair (Bhattacharyya), until n_target; split the widest
-    until n_target.  Returns the samples ``rec`` of the new set: a merged pair's are the
-    weighted mean of both (where both exist), a split tracker's its parent's, shifted."""
+    until n_target.  Returns the samples ``rec`` of the new set: a merged pair's those of
+    the union (:func:`union_series`), a split tracker's its parent's, shifted."""
     rec = dict(rec)
     while pool.n > n_target:
         share = event_shares(rec)
@@ -670,13 +695,10 @@ def _to_count(pool: Pool, rec: dict, n_target: int, t: int, stats: dict) -> dict
         i, j = _closest_pair(pool)
         wi, wj = pool.recent[i] + 1e-9, pool.recent[j] + 1e-9
         pool.merge(i, j, t)
-        both = rec["valid"][:, i] & rec["valid"][:, j]
-        for f in ("x", "y"):
-            rec[f][:, i] = np.where(both, (wi * rec[f][:, i] + wj * rec[f][:, j]) / (wi + wj),
-                                    np.nan)
-        for f in ("act", "cnt"):
-            rec[f][:, i] = np.where(both, rec[f][:, i] + rec[f][:, j], 0.0)
-        rec["valid"][:, i] = both
+        cols = [tuple(rec[f][:, k] for f in ("x", "y", "act", "cnt", "valid")) for k in (i, j)]
+        union = union_series(cols[0], wi, cols[1], wj, len(rec["t"]))
+        for f, v in zip(("x", "y", "act", "cnt", "valid"), union):
+            rec[f][:, i] = v
         rec = _keep_cols(rec, np.arange(pool.n + 1) != j)
         stats["merged_to_n"] += 1
     while pool.n < n_target:
@@ -747,16 +769,25 @@ def coactivation(a: np.ndarray, b: np.ndarray) -> float:
     return float(a @ b) / norm if norm > 0 else 0.0
 
 
-def object_rotation(x: np.ndarray, y: np.ndarray, w: np.ndarray, x_ref, y_ref) -> np.ndarray:
-    """(T,) rotation (rad) of the point set at each sample from the reference positions
-    (N,): the 2-D Procrustes angle about the centroids, with weights ``w`` (T, N) (0 where
-    a point is missing; x, y are ignored there)."""
+def object_similarity(x: np.ndarray, y: np.ndarray, w: np.ndarray, x_ref, y_ref) -> np.ndarray:
+    """(T,) complex ``a = s e^(i phi)`` of the similarity that best maps the reference
+    positions (N,) onto the point set at each sample (2-D Procrustes about the centroids,
+    weights ``w`` (T, N), 0 where a point is missing; x, y are ignored there): a
+    reference offset ``d0`` (complex) appears at each sample as ``a d0``.  0 where fewer
+    than two points exist."""
     z = np.where(w > 0, x + 1j * y, 0.0)
     ref = x_ref + 1j * y_ref
     ws = np.maximum(w.sum(axis=1, keepdims=True), 1e-300)
     zc = z - (w * z).sum(axis=1, keepdims=True) / ws
     rc = ref[None, :] - (w * ref[None, :]).sum(axis=1, keepdims=True) / ws
-    return np.angle((w * zc * np.conj(rc)).sum(axis=1))
+    den = (w * np.abs(rc) ** 2).sum(axis=1)
+    return np.where(den > 0, (w * zc * np.conj(rc)).sum(axis=1) / np.maximum(den, 1e-300), 0.0)
+
+
+def object_rotation(x: np.ndarray, y: np.ndarray, w: np.ndarray, x_ref, y_ref) -> np.ndarray:
+    """(T,) rotation (rad) of the point set at each sample from the reference positions:
+    the angle of :func:`object_similarity`."""
+    return np.angle(object_similarity(x, y, w, x_ref, y_ref))
 
 
 def object_turn(X, Y, valid, pairs, x_end, y_end, smooth: int) -> float:
@@ -798,7 +829,7 @@ def _springs(rec: dict, sig: np.ndarray, lp: LearnParams, x_end, y_end):
     averaged over ``smooth_us``, or the object's (:func:`object_turn`) if larger: a short
     history does not prove that nothing turned), hence its kinds."""
     act, X, Y, valid = rec["act"], rec["x"], rec["y"], rec["valid"]
-    w = np.where(valid, act / np.maximum(act.max(axis=0, keepdims=True), 1e-12), 0.0)
+    w = activity_weights(rec)
     phi = object_rotation(X, Y, w, x_end, y_end)
     c, s = np.cos(-phi), np.sin(-phi)
     nsm = max(1, int(round(lp.smooth_us / lp.batch_us)))
@@ -913,18 +944,86 @@ def reading_order(x: np.ndarray, y: np.ndarray, row_px: float) -> np.ndarray:
     return np.lexsort((x, rows))
 
 
+def activity_weights(rec: dict) -> np.ndarray:
+    """(T, N) each sample's weight: the tracker's activity (eq. 6) over its largest, 0
+    where it did not exist: a tracker counts where it follows its part."""
+    act, valid = rec["act"], rec["valid"]
+    return np.where(valid, act / np.maximum(act.max(axis=0, keepdims=True), 1e-12), 0.0)
+
+
+def similarity_fit(z: np.ndarray, ref: np.ndarray, w: np.ndarray):
+    """The similarity ``z ~ zbar + a (ref - rbar)`` (complex points (N,), weights (N,)):
+    returns (a, zbar, rbar); a = 0 with fewer than two weighted points."""
+    ws = max(float(w.sum()), 1e-300)
+    zbar, rbar = (w * z).sum() / ws, (w * ref).sum() / ws
+    den = float((w * np.abs(ref - rbar) ** 2).sum())
+    a = (w * (z - zbar) * np.conj(ref - rbar)).sum() / den if den > 0 else 0.0
+    return a, zbar, rbar
+
+
+def steady_positions(rec: dict, x_end: np.ndarray, y_end: np.ndarray, size_px: float,
+               rounds: int = 3):
+    """The final positions (x, y) (N,), each tracker caught off its part at the window's
+    end put back where the object's shape over the window places it.
+
+    The final positions are one instant of free trackers, each with its own jitter and
+    lag; a part caught a few pixels off at that instant would put a constant strain on
+    the springs (their rest geometry is the model's positions) that the energy criteria,
+    eqs. (21)-(22), would then misread.  The shape is the mean of the samples, each
+    carried into the shape's frame by the similarity that maps the shape onto it
+    (:func:`object_similarity`, activity-weighted), starting from the final positions and
+    repeated ``rounds`` times (generalised Procrustes analysis); a sample counts with
+    weight exp(-d^2 / (2 size_px^2)), d the RMS distance of its carried positions from
+    the shape.  The shape is placed on the final positions by the similarity that maps it
+    there, and a tracker farther than ``size_px`` (a part's size) from its place takes
+    it; the others keep their final positions (where the parts are: a perspective view
+    is not a similarity).  When most samples are no similarity of one shape (the median
+    d over ``size_px``: a 3-D turn, a deforming object), the final positions stay."""
+    X, Y = rec["x"], rec["y"]
+    w0 = activity_weights(rec)
+    z = np.where(w0 > 0, X + 1j * Y, 0.0)
+    end = x_end + 1j * y_end
+    shape = end.copy()
+    for _ in range(rounds):
+        a = object_similarity(X, Y, w0, shape.real, shape.imag)              # (T,)
+        ok = np.abs(a) > 0
+        if not ok.any():
+            return x_end, y_end
+        ws = np.maximum(w0.sum(axis=1), 1e-300)
+        zbar = (w0 * z).sum(axis=1) / ws
+        rbar = (w0 * shape[None, :]).sum(axis=1) / ws
+        inv = np.where(ok, 1.0 / np.where(ok, a, 1.0), 0.0)
+        est = rbar[:, None] + (z - zbar[:, None]) * inv[:, None]              # (T, N)
+        d2 = (w0 * np.abs(est - shape[None, :]) ** 2).sum(axis=1) / ws
+        if np.median(d2[ok]) > size_px ** 2:
+            return x_end, y_end           # not one shape: the one at the end
+        w = w0 * (ok * np.exp(-0.5 * d2 / size_px ** 2))[:, None]
+        tot = w.sum(axis=0)
+        shape = np.where(tot > 0, (w * est).sum(axis=0) / np.maximum(tot, 1e-300), end)
+    a, zbar, rbar = similarity_fit(end, shape, np.ones(len(end)))
+    if a == 0:
+        return x_end, y_end
+    placed = zbar + a * (shape - rbar)
+    placed = np.where(np.abs(placed - end) > size_px, placed, end)
+    return placed.real.copy(), placed.imag.copy()
+
+
 def spring_energies(rec: dict, kept: list, stiffness: np.ndarray, kind: str, x_end,
                     y_end) -> np.ndarray:
     """(T, C) energies of the connections ``kept`` (LearnedSpring, pool indices) along the
-    samples, the rest geometry being the final positions: eq. (12) (euclidean) or
-    eq. (20) (cartesian); NaN where an end is missing."""
+    samples, as the tracker computes them with the final positions as its rest geometry,
+    NaN where an end is missing: eq. (12) (euclidean: rest lengths l0) or eq. (20)
+    (cartesian: rest offsets ``a d0`` carried by each sample's similarity ``a``,
+    :func:`object_similarity`, as the tracker's similarity frame carries them)."""
     a = np.array([c.a for c in kept])
     b = np.array([c.b for c in kept])
-    rx, ry = rec["x"][:, b] - rec["x"][:, a], rec["y"][:, b] - rec["y"][:, a]
-    rx0, ry0 = x_end[b] - x_end[a], y_end[b] - y_end[a]
+    X, Y = rec["x"], rec["y"]
+    r = (X[:, b] - X[:, a]) + 1j * (Y[:, b] - Y[:, a])
+    r0 = (x_end[b] - x_end[a]) + 1j * (y_end[b] - y_end[a])
     if kind == "cartesian":
-        return 0.5 * stiffness * ((rx - rx0) ** 2 + (ry - ry0) ** 2)         # eq. (20)
-    dl = np.hypot(rx, ry) - np.hypot(rx0, ry0)                             # eq. (10)
+        sim = object_similarity(X, Y, activity_weights(rec), x_end, y_end)[:, None]
+        return 0.5 * stiffness * np.abs(r - sim * r0) ** 2                  # eq. (20)
+    dl = np.abs(r) - np.abs(r0)                                            # eq. (10)
     return 0.5 * stiffness * dl * dl                                        # eq. (12)
 
 
@@ -957,16 +1056,22 @@ def motion_alpha(rec: dict, sig: np.ndarray, batch_us: int, smooth_us: int,
     return float(np.clip(np.quantile(alpha, quantile), *bounds))
 
 
-def energy_scale(energies: np.ndarray, quantile: float, floor: float) -> float:
+def energy_scale(energies: np.ndarray, quantile: float, floor: float,
+                 ceiling: float = math.inf) -> float:
     """s of eqs. (21)-(22) such that the deformations seen while learning stay below it:
-    the ``quantile`` of E_ij / mean(E) over the samples (NaN: missing), at least ``floor``."""
+    the ``quantile`` of E_ij / mean(E) over the samples (NaN: missing), within
+    [``floor``, ``ceiling``].  The ceiling keeps the criteria able to act: the window's
+    clean motion says how unevenly the parts deform, not how hard an occluder will pull,
+    and a few unevenly deforming pairs (an object's outline, texture) make the tail long;
+    above about 5 the criteria no longer fire even on a part dragged off its place
+    (docs/tuning.md), so a larger s would switch eqs. (21)-(22) off."""
     with quiet_nan():
         mean = np.nanmean(energies, axis=1, keepdims=True)
         ratio = energies / mean
     ratio = ratio[np.isfinite(ratio)]
     if not len(ratio):
         return floor
-    return max(floor, float(np.quantile(ratio, quantile)))
+    return min(max(floor, float(np.quantile(ratio, quantile))), max(floor, ceiling))
 
 
 def _build_model(pool, rec, counts, lp, track_params, width, height, names, name):
@@ -975,8 +1080,8 @@ def _build_model(pool, rec, counts, lp, track_params, width, height, names, name
     energy_scale: energy_scale; energy_kind: cartesian if every spring is)."""
     n = pool.n
     st = pool.st
-    x, y = pool.x.copy(), pool.y.copy()
     sig = np.sqrt(0.5 * (st[F["sxx"], :n] + st[F["syy"], :n]))
+    x, y = steady_positions(rec, pool.x.copy(), pool.y.copy(), float(np.median(sig)))
     order = reading_order(x, y, float(np.median(sig)))
     if names is not None:
         names = list(names)
@@ -1018,7 +1123,7 @@ def _build_model(pool, rec, counts, lp, track_params, width, height, names, name
             c.kinds == ("cartesian",) for c in kept) else "euclidean")
         if "energy_scale" not in params:
             s = energy_scale(spring_energies(rec, kept, stiff, kind, x, y),
-                             lp.energy_quantile, Params().energy_scale)
+                             lp.energy_quantile, Params().energy_scale, lp.energy_scale_max)
             params["energy_scale"] = round(s, 3)
     for c in cands:                       # model order from here on
         c.a, c.b = sorted((int(new_of[c.a]), int(new_of[c.b])))

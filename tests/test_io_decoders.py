@@ -308,7 +308,8 @@ def test_ccam_block_path_equals_word_by_word(seed):
 def evt2_mixed_words(seed, n_events=4000, n_special=80):
     """An EVT 2.0 word stream of CD events (t dense enough for runs of 32 between
     TIME_HIGH words) with other words at random places: triggers, 'other' types, unknown
-    types, events outside 640 x 480, repeated TIME_HIGH words."""
+    types, events outside 640 x 480 (alone and in runs of up to 70), repeated TIME_HIGH
+    words."""
     from springtrack.events import make
     from springtrack.io import evt2
     rng = np.random.default_rng(seed)
@@ -317,7 +318,11 @@ def evt2_mixed_words(seed, n_events=4000, n_special=80):
               rng.integers(0, 2, n_events))
     words = list(np.frombuffer(evt2.encode(ev), "<u4"))
     for pos in sorted(rng.integers(1, len(words), n_special), reverse=True):
-        kind = rng.integers(0, 5)
+        kind = rng.integers(0, 7)
+        if kind == 5:                                      # a run of events outside
+            words[pos:pos] = [(1 << 28) | (int(rng.integers(0, 640)) << 11) | 480 + i % 7
+                              for i in range(int(rng.integers(2, 70)))]
+            continue
         if kind == 0:
             w = 0xA << 28                                  # external trigger
         elif kind == 1:
@@ -326,10 +331,25 @@ def evt2_mixed_words(seed, n_events=4000, n_special=80):
             w = 0x3 << 28                                  # unknown type
         elif kind == 3:
             w = (1 << 28) | (700 << 11) | 10               # x = 700 outside 640
+        elif kind == 6:
+            w = (0 << 28) | (5 << 11) | 2047               # y = 2047 outside 480
         else:
             w = [q for q in words[:pos] if q >> 28 == 0x8][-1]   # the same TIME_HIGH again
         words.insert(pos, w)
     return np.array(words, "<u4").tobytes()
+
+
+def decoded_whole_and_by_word(fmt, data, **opts):
+    """``data`` decoded in one call (block paths) and one word per call (never a block):
+    asserts the same events and counters; returns the events and the counters."""
+    whole = sio.decoder(fmt, **opts)
+    single = sio.decoder(fmt, **opts)
+    a = whole.decode(data)
+    ws = whole.word_size
+    b = np.concatenate([single.decode(data[i:i + ws]) for i in range(0, len(data), ws)])
+    np.testing.assert_array_equal(a, b)
+    assert whole.stats == single.stats
+    return a, whole.stats
 
 
 @pytest.mark.parametrize("seed", [1, 2, 3])
@@ -337,12 +357,64 @@ def test_evt2_block_path_equals_word_by_word(seed):
     """The EVT 2.0 decoder takes runs of plain CD words 32 at a time (io/evt2_block.h) and
     any block with another word word by word: the same events and counters as decoding
     one word per call (never a block)."""
-    data = evt2_mixed_words(seed)
-    whole = sio.decoder("evt2", width=640, height=480)
-    single = sio.decoder("evt2", width=640, height=480)
-    a = whole.decode(data)
-    b = np.concatenate([single.decode(data[i:i + 4]) for i in range(0, len(data), 4)])
-    np.testing.assert_array_equal(a, b)
-    assert whole.stats.anomalies == single.stats.anomalies
-    assert whole.stats.info == single.stats.info
-    assert len(a) > 3900 and sum(whole.stats.anomalies.values()) > 10
+    a, stats = decoded_whole_and_by_word("evt2", evt2_mixed_words(seed), width=640, height=480)
+    assert len(a) > 3900 and sum(stats.anomalies.values()) > 10
+
+
+def evt3_mixed_words(seed, n_words=40_000, width=640, height=480):
+    """An EVT 3.0 word stream shaped like a sensor's: rows of EVT_ADDR_X runs and vector
+    groups (VECT_BASE_X, then VECT_12 / VECT_8 with random masks), EVT_TIME_LOW words
+    (sometimes going back), EVT_TIME_HIGH words (sometimes wrapping or going back), and
+    the rare words at random places: events and vectors before their address or base,
+    events and vectors reaching outside width x height, triggers, 'other' and unknown
+    types, a vector base driven far by vectors without a VECT_BASE_X."""
+    rng = np.random.default_rng(seed)
+    # after the first time high: events and vectors before any row and base (orphans)
+    words, th = [0x8000, 0x2005, 0x2006, 0x4FFF, 0x2007, 0x5003, 0x0003, 0x4001, 0x2008], 0
+    while len(words) < n_words:
+        r = rng.random()
+        if r < 0.35:
+            words.append(0x0000 | int(rng.integers(0, height + 8)))        # EVT_ADDR_Y
+            for _ in range(int(rng.integers(0, 6))):                        # EVT_ADDR_X
+                words.append(0x2000 | int(rng.integers(0, 2)) << 11
+                             | int(rng.integers(0, width + 4)))
+        elif r < 0.55:                                                      # a vector group
+            words.append(0x3000 | int(rng.integers(0, 2)) << 11
+                         | int(rng.integers(0, width + 20)))
+            for _ in range(int(rng.integers(1, 5))):
+                v12 = rng.random() < 0.6
+                bits = int(rng.integers(0, 1 << (12 if v12 else 8)))
+                bits &= int(rng.integers(0, 1 << (12 if v12 else 8)))       # sparse masks
+                words.append((0x4000 if v12 else 0x5000) | bits)
+        elif r < 0.62:
+            words.append(0x6000 | int(rng.integers(0, 4096)))               # EVT_TIME_LOW
+        elif r < 0.635:
+            th = (th + int(rng.choice([1, 1, 1, 2, -3, 4000]))) % 4096      # EVT_TIME_HIGH
+            words.append(0x8000 | th)
+        elif r < 0.645:
+            words.append(int(rng.choice([0xA000, 0xE000, 0xF000, 0x7000, 0x1000, 0x9000,
+                                         0xC000, 0xD000])) | int(rng.integers(0, 4096)))
+        elif r < 0.65:                                                      # base far away
+            words.extend([0x4FFF] * int(rng.integers(100, 400)))
+        else:
+            words.append(0x2000 | int(rng.integers(0, width)))
+    return np.array(words, "<u2").tobytes()
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3, 4])
+def test_evt3_block_path_equals_word_by_word(seed):
+    """The EVT 3.0 decoder takes plain event words 16 at a time (io/evt3_block.h) and any
+    other word word by word: the same events and counters as decoding one word per call
+    (never a block), with every kind of word at every kind of place."""
+    a, s = decoded_whole_and_by_word("evt3", evt3_mixed_words(seed), width=640, height=480)
+    assert len(a) > 30_000 and s.anomalies["orphan"] > 0 and s.anomalies["out_of_geometry"] > 0
+    assert s.info["time_low_backwards"] > 100 and s.anomalies["unknown_type"] > 10
+
+
+def test_evt3_block_path_on_the_recording(data_file):
+    """The real EVT 3.0 recording decoded whole (blocks) and one word per call (never a
+    block): the same events and counters."""
+    path = data_file("evt3_sample.raw")
+    data = path.read_bytes()[sio.open(path).offset:]
+    a, _ = decoded_whole_and_by_word("evt3", data, width=1280, height=720)
+    assert len(a) == 219_596

@@ -234,3 +234,16 @@ def test_es_writer_refuses_absurd_time_offsets(tmp_path):
     ev = make([10**12], [1], [1], [1])          # an absolute epoch time in us
     with pytest.raises(ValueError, match="subtract the first timestamp"):
         sio.write(tmp_path / "a.es", ev, 304, 240)
+
+
+def test_large_decoder_outputs_start_on_a_huge_page():
+    """Decoder outputs of 4 MiB and more start on a 2 MiB boundary (huge pages back all of
+    them); smaller ones are plain arrays."""
+    from springtrack.events import EVENT_DTYPE, HUGE_PAGE, empty_output
+    big = empty_output(300_000)                    # 4.8 MB
+    assert big.dtype == EVENT_DTYPE and big.shape == (300_000,) and big.flags.c_contiguous
+    assert big.ctypes.data % HUGE_PAGE == 0 and big.flags.writeable
+    big[-1] = (1, 2, 3, 1)                         # the whole length is usable
+    assert tuple(big[-1]) == (1, 2, 3, 1)
+    small = empty_output(1000)
+    assert small.base is None and small.shape == (1000,)

@@ -91,9 +91,10 @@ def test_info_on_the_real_biplane_names_its_quirks(data_file):
 
 def test_the_biplane_tracks_as_delivered_with_dequantize(data_file, tmp_path):
     """A model of the plane (learned on 1..100 ms), tracked over the whole file as
-    delivered: without preparation the full-frame burst at t = 0 throws it off in the first
-    millisecond; with --dequantize (burst dropped, ticks spread) it stays, and follows the
-    plane."""
+    delivered: without preparation the full-frame burst at t = 0 throws its trackers off in
+    the first millisecond unless eqs. (21)-(22) hold them (the learned energy_scale lets
+    them act: they move by about 2 px; with the criteria off, by about 70 px); with
+    --dequantize (burst dropped, ticks spread) it does not move, and follows the plane."""
     es = data_file("dvs.es")
     model = tmp_path / "plane.toml"
 
@@ -121,7 +122,11 @@ def test_the_biplane_tracks_as_delivered_with_dequantize(data_file, tmp_path):
             d = np.hypot(tr.x[k][:, None] - last["x"][None], tr.y[k][:, None] - last["y"][None])
             on.append(float((d.min(axis=1) < 6).mean()))
         return moved, on
-    moved, _ = run()
+    off = tmp_path / "criteria_off.toml"
+    off.write_text("energy_scale = 1e6\n")
+    moved, _ = run("--params", off)
     assert moved > 10.0                              # thrown off by the burst
+    moved, _ = run()
+    assert moved < 5.0                               # held by eqs. (21)-(22)
     moved, on = run("--dequantize")
     assert moved < 2.0 and min(on) >= 0.75, (moved, on)

@@ -15,7 +15,7 @@ from libc.string cimport memcpy
 cimport numpy as cnp
 import numpy as np
 
-from springtrack.events import EVENT_DTYPE
+from springtrack.events import EVENT_DTYPE, empty_output
 from springtrack.io.stats import DecodeStats
 
 cnp.import_array()
@@ -114,7 +114,7 @@ cdef class Decoder:
         feeding a stream in pieces cut anywhere gives the same events as one call.
         """
         cdef Py_ssize_t n = len(memoryview(buffer).cast("B")), nout = 0
-        out = np.empty((n + self.ncarry) // self.bound_den + self.max_per_word + 1, EVENT_DTYPE)
+        out = empty_output((n + self.ncarry) // self.bound_den + self.max_per_word + 1)
         out = self._decode(buffer, out, &nout)
         if nout * 2 < out.shape[0]:
             return out[:nout].copy()
@@ -181,6 +181,18 @@ cdef class Decoder:
             pending_bytes=self.pending_bytes,
             anomalies={ANOMALY_NAMES[i]: int(self.n.anomalies[i]) for i in range(<int>N_ANOMALY)},
             info={INFO_NAMES[i]: int(self.n.info[i]) for i in range(<int>N_INFO) if self.n.info[i]})
+
+
+cdef extern from "springtrack/io/clones.h" nogil:
+    int io_avx2()
+
+
+def simd_path() -> str:
+    """The block paths the word decoders take in this process: ``"avx2"`` (the hand-written
+    AVX2 blocks of EVT 2.0 and EVT 3.0: io/clones.h) or ``"portable"`` (no AVX2 in this
+    build or processor, or ``SPRINGTRACK_SIMD=0`` in the environment).  Events and
+    counters are the same on either."""
+    return "avx2" if io_avx2() else "portable"
 
 
 def encoder_input(events, str fmt, int width, int height, prev_t=None):

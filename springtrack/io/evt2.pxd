@@ -42,8 +42,8 @@ cdef extern from "springtrack/io/evt2_types.h" nogil:
 cdef extern from "springtrack/io/evt2_block.h" nogil:
     enum:
         EVT2_BLOCK
-    int evt2_decode_plain(const uint8_t* p, int n, int64_t th, uint32_t width,
-                          uint32_t height, void* out)
+    int evt2_decode_block(const uint8_t* p, int64_t th, uint32_t width, uint32_t height,
+                          void* out)
 
 cdef struct Evt2State:
     TimeBase tb                # the EVT_TIME_HIGH counter
@@ -66,16 +66,22 @@ cdef inline Py_ssize_t evt2_decode_words(Evt2State* s, DecodeCounts* n, const ui
     # events from out[k0] on have no time base (counted at the first time-high word);
     # k0 = -1 once the time base is known
     cdef Py_ssize_t k0 = -1 if timebase_known(&tb) else k
+    cdef Py_ssize_t next_block = 0     # no block before this word
+    cdef int f
     while i < nw:
-        # a block of plain CD words at once (evt2_block.h), else word by word up to the
-        # next block boundary (blocks need the time base); the block never writes past
-        # out[nout[0] + nw): k <= nout[0] + i
-        if i & (EVT2_BLOCK - 1) == 0:
-            if (i + EVT2_BLOCK <= nw and k0 < 0
-                    and evt2_decode_plain(p + EVT2_WORD_BYTES * i, EVT2_BLOCK, th, W, H, &out[k])):
-                k += EVT2_BLOCK
-                i += EVT2_BLOCK
+        # blocks of plain CD words at once (evt2_block.h), up to the first other word (a
+        # time high, a trigger, an event outside), which goes word by word; after a block
+        # that stopped at its first word, the next EVT2_BLOCK words go word by word (runs
+        # of other words never cost a block each).  Blocks need the time base and never
+        # write past out[nout[0] + nw): k <= nout[0] + i
+        if i >= next_block and i + EVT2_BLOCK <= nw and k0 < 0:
+            f = evt2_decode_block(p + EVT2_WORD_BYTES * i, th, W, H, &out[k])
+            k += f
+            i += f
+            if f == EVT2_BLOCK:
                 continue
+            if f == 0:
+                next_block = i + EVT2_BLOCK
         memcpy(&v, p + EVT2_WORD_BYTES * i, EVT2_WORD_BYTES)   # little-endian host assumed
         i += 1
         typ = evt2_type(v)

@@ -11,7 +11,7 @@
 # Word types and fields: evt3_types.h.  The state: the current row (EVT_ADDR_Y), vector
 # base and polarity (VECT_BASE_X) and time (EVT_TIME_HIGH through the time base of every
 # decoder, timebase.pxd; EVT_TIME_LOW taken as read).
-from libc.stdint cimport uint8_t, uint16_t, uint32_t, int64_t, uint64_t
+from libc.stdint cimport uint8_t, uint16_t, uint32_t, int32_t, int64_t, uint64_t
 from libc.string cimport memcpy
 
 from springtrack.events cimport Event
@@ -50,6 +50,18 @@ cdef extern from "springtrack/io/evt3_types.h" nogil:
     uint32_t evt3_vect_mask(uint16_t v, uint32_t bits)
     uint16_t evt3_word(uint32_t type, uint32_t payload)
     uint16_t evt3_addr_x_word(uint32_t pol, uint32_t x)
+
+cdef extern from "springtrack/io/evt3_block.h" nogil:
+    ctypedef struct Evt3Run:
+        int64_t th
+        int64_t t_low_last
+        uint64_t tl_back
+        int32_t tl
+        int32_t y
+        int32_t base
+        int32_t vp
+    size_t evt3_decode_run(const uint8_t* p, size_t nw, Evt3Run* st, uint32_t width,
+                           uint32_t height, void* out, size_t* k, size_t cap, size_t* scalar)
 
 cdef extern from *:
     int __builtin_ctz(unsigned int) nogil
@@ -98,6 +110,8 @@ cdef inline Py_ssize_t evt3_decode_words(Evt3State* s, DecodeCounts* n, const ui
     cdef uint32_t typ, x, m
     cdef int b
     cdef uint32_t W = s.width, H = s.height
+    cdef Evt3Run r
+    cdef size_t done, kk, scalar = 0     # words to decode word by word before the fast path
     # the time in locals for the loop (written back after it): kept in the state, every
     # EVT_TIME_LOW word's load and store of t_low_last would chain through memory.  t is
     # the time base (bits 12 and up) | the last EVT_TIME_LOW (bits 11..0); the time base's
@@ -110,6 +124,33 @@ cdef inline Py_ssize_t evt3_decode_words(Evt3State* s, DecodeCounts* n, const ui
     # k0 = -1 once the time base is known
     cdef Py_ssize_t k0 = -1 if timebase_known(&s.tb) else k
     while w < end and k <= stop:
+        # 16 words at a time while they are plain event words (evt3_block.h); the words it
+        # leaves go word by word (blocks need the time base)
+        if scalar == 0 and k0 < 0:
+            r.th = t & ~(<int64_t>EVT3_TIME_LOW_MASK)
+            r.tl = <int32_t>(t & EVT3_TIME_LOW_MASK)
+            r.t_low_last = t_low_last
+            r.tl_back = 0
+            r.y = y
+            r.base = base
+            r.vp = vp
+            kk = k
+            done = evt3_decode_run(w, (end - w) // EVT3_WORD_BYTES, &r, W, H, out, &kk, cap,
+                                   &scalar)
+            if done > 0:
+                k = kk
+                w += done * EVT3_WORD_BYTES
+                t = r.th | r.tl
+                t_low_last = r.t_low_last
+                n.info[<int>IN_TIME_LOW_BACK] += r.tl_back
+                y = r.y
+                base = r.base
+                vp = <uint8_t>r.vp
+            if scalar == 0:             # out of words or room: the rest word by word
+                scalar = <size_t>(end - w)
+            continue
+        if scalar > 0:
+            scalar -= 1
         memcpy(&v, w, EVT3_WORD_BYTES)   # little-endian host assumed
         w += EVT3_WORD_BYTES
         typ = evt3_type(v)

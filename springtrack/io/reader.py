@@ -8,7 +8,7 @@ import warnings
 
 import numpy as np
 
-from ..events import EVENT_DTYPE, EventError, as_events
+from ..events import EVENT_DTYPE, EventError, as_events, empty_output
 from .detect import FileInfo, sniff
 from .errors import DecodeError
 from .stats import DecodeStats
@@ -129,7 +129,7 @@ class Reader:
         into an output array sized from the file length (grown if needed)."""
         dec = self.decoder()
         payload = max(0, os.path.getsize(self.path) - self.offset)
-        out = np.empty(payload // self.MIN_BYTES_PER_EVENT[self.format] + 16, EVENT_DTYPE)
+        out = empty_output(payload // self.MIN_BYTES_PER_EVENT[self.format] + 16)
         n = 0
         buf = bytearray(nbytes)
         view = memoryview(buf)
