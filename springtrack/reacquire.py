@@ -14,18 +14,19 @@ every backend:
 * at every multiple of DOUBT_CHECK_US of event time, each tracking instance's share of
   the sensor's events (springtrack.loss.ShareDoubt); an instance in doubt is verified
   (at most once per ``period``; while the doubt stays and nothing better is found, the
-  waits double up to VERIFY_BACKOFF periods): a search on the last ``period / 2`` of events, and if
-  it finds the model whole in view, away from its trackers and supported MOVED_SUPPORT
-  times more than where its trackers are (:func:`springtrack.acquire.judge` on the same
-  events), the object moved: lost and re-placed there at once (a jump is caught as soon
-  as its share falls, not after the activity has decayed and the hold has run);
+  waits double up to VERIFY_BACKOFF periods), and every instance every VERIFY_EVERY
+  periods: a search on the last ``period / 2`` of events; if it finds the model away
+  from its trackers and supported MOVED_SUPPORT times more than its trackers are where
+  they are (:func:`springtrack.acquire.judge` on the same events), the object moved:
+  lost and re-placed there at once (a jump is caught as soon as its share falls, not
+  after the activity has decayed and the hold has run);
 * at every multiple of half the acquisition window of event time (``period``) while an
   instance is searching or lost, and if events came since the last such time, it runs
   :func:`springtrack.acquire.acquire` for that instance on the last window of the ring,
   with the pixels of the tracking instances' gates removed (explaining away) and the pose
   wanted at the newest event (tracking resumes with the next event: nothing is replayed);
-* a pose found with trackers off the sensor is taken only when the attempt before
-  found it at the same place: an object sliding into view is not placed half in view,
+* a pose found with trackers off the sensor (by a search or a verification) is taken
+  only when the attempt before found it at the same place: an object sliding into view is not placed half in view,
   where a tracker could not follow it;
 * an instance found is placed there (``place``: positions, covariances and the rest
   geometry of the placed model, activities 0) and tracks again -- unless it was found
