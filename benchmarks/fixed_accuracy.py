@@ -1,9 +1,11 @@
 """Fixed-point kernel accuracy against the float64 kernel, >= 1 M events per scene.
 
-Run: .venv/bin/python benchmarks/fixed_accuracy.py [--events N] [--no-write]
+Run: .venv/bin/python benchmarks/fixed_accuracy.py [--events N] [--sim-seconds S] [--no-write]
 Streams: SCENES of tests/fixed_bound.py (structured synthetic grid3x3 and face26
 scenes, plain and "steady": the parts move smoothly, 30 % uniform noise, 300 k events/s),
-sampled every 1 ms.
+and SIM_SCENES (the simulator's face_occlusion and grid scenes with the paper's
+per-experiment values, S seconds each), sampled every 1 ms, in the default parameters'
+frame.
 Writes the "Fixed-point accuracy" section of docs/benchmarks.md and the "Measured
 accuracy" section of docs/fixed_point.md.
 """
@@ -19,7 +21,8 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))     # the bound the tests check, on longer streams
-from fixed_bound import BOUNDS, SCENES, compare, scene_stream, truth_for, violations  # noqa: E402
+from fixed_bound import (BOUNDS, SCENES, SIM_SCENES, compare, scene_stream, sim_stream,  # noqa: E402
+                         truth_for, violations)
 
 from _report import machine, replace_section, write_section  # noqa: E402
 
@@ -39,21 +42,27 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--events", type=int, default=2_000_000)
     ap.add_argument("--seed", type=int, default=11)
-    ap.add_argument("--scenes", nargs="+", default=list(SCENES), choices=list(SCENES))
+    ap.add_argument("--sim-seconds", type=float, default=20.0)
+    ap.add_argument("--scenes", nargs="+", default=[*SCENES, *SIM_SCENES],
+                    choices=[*SCENES, *SIM_SCENES])
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
     rows, bad = [], []
     for preset in args.scenes:
         t0 = time.perf_counter()
-        model, ev = scene_stream(preset, args.events, seed=args.seed)
-        first = -(-int(ev["t"][0]) // 1000) * 1000
-        times = np.arange(first, int(ev["t"][-1]) + 1000, 1000)
-        res = compare(model, ev, sample_us=1000, truth=truth_for(model, preset, times))
+        if preset in SIM_SCENES:
+            model, ev, truth, params = sim_stream(preset, args.sim_seconds)
+        else:
+            model, ev = scene_stream(preset, args.events, seed=args.seed)
+            first = -(-int(ev["t"][0]) // 1000) * 1000
+            times = np.arange(first, int(ev["t"][-1]) + 1000, 1000)
+            truth, params = truth_for(model, preset, times), None
+        res = compare(model, ev, sample_us=1000, truth=truth, params=params)
         sat = sum(v for k, v in res["counters_fixed"].items() if k.startswith("saturated_"))
         assigned = (res["counters_float"]["events_assigned"], res["counters_fixed"]["events_assigned"])
         rows.append((preset, res, sat, assigned))
         bad += [f"{preset}: {v}" for v in violations(res)]
-        print(f"{preset:8s} {res['events']:>10,d} events {res['samples']:>6d} samples  "
+        print(f"{preset:14s} {res['events']:>10,d} events {res['samples']:>6d} samples  "
               f"pos rms {res['pos_rms_px']:.2e} max {res['pos_max_px']:.2e} px  "
               f"cov {res['cov_rel_max']:.2e}  active {res['active_agree']:.5f}  "
               f"sensitive {res['sensitive_agree']:.5f}  metric {res['metric_float_pct']:.4f} / "
@@ -78,10 +87,13 @@ def main():
              + ("**All met.**" if not bad else "**Violations: " + "; ".join(bad) + "**"))
     text = "\n".join([
         f"Command: `.venv/bin/python benchmarks/fixed_accuracy.py --events {args.events} "
-        f"--seed {args.seed}`  ",
+        f"--seed {args.seed} --sim-seconds {args.sim_seconds:g}`  ",
         f"Machine: {machine()}  ",
         "Streams: `SCENES` of `tests/fixed_bound.py` (structured synthetic scenes, 30 % noise, "
-        "300 k events/s), both kernels on the same events, samples every 1 ms.", "",
+        "300 k events/s) and its `SIM_SCENES` (the simulator's scenes, seed 0, with the "
+        "paper's per-experiment springs, stiffness and s), both kernels on the same events, "
+        "samples every 1 ms, the default parameters otherwise (the similarity frame of eq. (22) "
+        "and the Cartesian springs).", "",
         *lines, "", bound])
     if not args.no_write:
         write_section("Fixed-point accuracy", text)

@@ -87,15 +87,34 @@ def main():
                + f" ({face['mean']:.0f} on face_occlusion, Cortex-M4).")
     c = face["counters"]
     assigned = c["events_assigned"] / max(c["events_valid"], 1)
+    fn = face["by_function"]
+    updates = max(c["spring_updates"], 1)
+    nc = len(springtrack.load_model("face26").connections)
+    n_tr = len(springtrack.load_model("face26").trackers)
+    per_update = face["spring_share"] * face["mean"] * face["events"] / updates
+    per_event = face["mean"] * (1 - face["spring_share"])
+    passes = sum(v for k, v in fn.items() if k.startswith("spring_passes")) * face["events"] / updates
+    fit = fn.get("fit_frame", 0) * face["events"] / updates
+    period = face["events"] / updates
+    need = per_update / (TARGET_INSTR - per_event) if per_event < TARGET_INSTR else float("inf")
     where = ("Where they go (face_occlusion, Cortex-M4, instructions per event; inlined code "
              "counts in its caller): "
              + ", ".join(f"{k} {v:.0f} ({100 * v / face['mean']:.0f} %)"
-                         for k, v in list(face["by_function"].items())[:7])
-             + f".  {100 * assigned:.0f} % of the events are assigned, so eqs. (3)-(6) and the "
-             "inverse covariance (update_tracker, refresh) cost about "
-             f"{(face['by_function'].get('update_tracker', 0) + face['by_function'].get('refresh', 0)) / max(assigned, 1e-9):.0f}"
-             " per assigned event; the spring update (every 55 events, 40 connections) "
-             f"{face['spring_share'] * face['mean'] * 55:,.0f} per update.")
+                         for k, v in list(fn.items())[:8])
+             + f".  Per event, outside the spring update: {per_event:.0f} (the candidates' "
+             "quadratic forms of eq. (2) in fx_step and qform, eqs. (3)-(6) and the inverse "
+             f"covariance in update_tracker and refresh; {100 * assigned:.0f} % of the events are "
+             f"assigned, about {(fn.get('update_tracker', 0) + fn.get('refresh', 0)) / max(assigned, 1e-9):.0f}"
+             " each).  The spring update, once per "
+             f"{period:.0f} events: {per_update:,.0f} instructions, of which the {nc} connections' "
+             f"passes (eqs. 10-20) {passes:,.0f} ({passes / nc:.0f} per connection), the "
+             f"similarity frame's fit over {n_tr} trackers {fit:,.0f}, and the forces, eqs. (13), "
+             "(21)-(22), the state guard and the index checks the rest.  The target would need "
+             + (f"the spring update every {need:.0f} events at today's cost (or its cost cut "
+                f"to {(TARGET_INSTR - per_event) * period:,.0f})"
+                if need != float("inf") else
+                f"the per-event part alone cut below {TARGET_INSTR}")
+             + ".")
     text = "\n".join([
         f"Command: `.venv/bin/python benchmarks/mcu.py --events {args.events}`  ",
         f"Machine: {machine()} (the counts do not depend on it: they are instructions the "

@@ -96,7 +96,8 @@ assert (_wire.TELE_TRACKER.itemsize == FX_TELE_RECORD
 # float64 views of the Q formats (output only)
 cdef double POS_UNIT = 1.0 / 4294967296.0     # Q.32 px
 cdef double COV_UNIT = 1.0 / 1099511627776.0  # Q.40 px^2
-cdef double Q32_UNIT = 1.0 / 4294967296.0     # Q.32 (activity, energy)
+cdef double Q32_UNIT = 1.0 / 4294967296.0     # Q.32 (activity)
+cdef double Q40_UNIT = 1.0 / 1099511627776.0  # Q.40 (energies)
 
 
 cdef inline void snapshot_row(const fx_state* s, int64_t t, SampleOut* o) noexcept nogil:
@@ -121,7 +122,7 @@ cdef inline void snapshot_row(const fx_state* s, int64_t t, SampleOut* o) noexce
         tot = 0
         for k in range(s.nc):
             tot += s.energy[q][k]
-        o.energy[row * 3 + q] = (<double>tot) * Q32_UNIT / s.nc if s.nc > 0 else 0.0
+        o.energy[row * 3 + q] = (<double>tot) * Q40_UNIT / s.nc if s.nc > 0 else 0.0
     if o.wire != NULL:
         fx_tele_records(s, t, o.wire + base * FX_TELE_RECORD)
     o.count = row + 1
@@ -255,12 +256,12 @@ cdef class FixedKernel:
         """(3, nc) array of the last spring update's energies: euclidean, torsional, cartesian."""
         cdef fx_state* s = <fx_state*>self.state
         fx_energies(s)
-        return (np.array([[s.energy[q][k] * Q32_UNIT for k in range(s.nc)] for q in range(3)])
+        return (np.array([[s.energy[q][k] * Q40_UNIT for k in range(s.nc)] for q in range(3)])
                 .reshape(3, s.nc))
 
     @property
     def mean_energy(self):
-        return (<fx_state*>self.state).mean_energy * Q32_UNIT
+        return (<fx_state*>self.state).mean_energy * Q40_UNIT
 
     def frame(self):
         """The similarity frame of the last spring update: (c, sn, gx, gy) as floats, s R =

@@ -21,7 +21,6 @@ import numpy as np
 from . import limits as _limits
 
 POS_FRAC = 32                 # positions Q.32 px (int64)
-GEOM_FRAC = 16                # spring geometry (rest lengths and offsets) Q.16 px
 POS_LIM_PX = float(_limits.POS_LIMIT_PX)   # |position| < 8192 px (state saturates there)
 COV_FRAC = 40                 # covariances Q.40 px^2
 D2_FRAC = 27                  # Mahalanobis d^2 and the gate, Q.27 (uint32, < 32)
@@ -29,12 +28,11 @@ KTAU_FRAC = 40                # log2(e) / tau per us, Q.40
 GAIN_FRAC = 30                # stiffness, a1, energy_gain: Q2.30, <= 1
 MASS_FRAC = 24                # 1 / mass, Q7.24
 ACT_FRAC = 32                 # activity Q.32
-ENERGY_FRAC = 32              # energies Q.32
-ESCALE_FRAC = 14              # energy_scale Q17.14
+ENERGY_FRAC = 40              # energies Q.40
 EXP2_BITS = 10                # exp2 table of 2^10 + 1 entries
 CORDIC_N = 30
 ATAN_BITS = 10                # atan table of 2^10 + 2 entries
-PARAMS_HEAD = 23              # fx_set_params: words before the two decay tables
+PARAMS_HEAD = 24              # fx_set_params: words before the two decay tables
 LOG2E = 1.0 / math.log(2.0)
 
 
@@ -65,6 +63,16 @@ def gain_pair(g: float, a: float, names: str) -> tuple[int, int, int]:
         sh -= 1
     gm, am = int(round(g * 2.0 ** sh)), int(round(a * 2.0 ** sh))
     return min(gm, (1 << 31) - 1), min(am, (1 << 31) - 1), sh
+
+
+def mantissa(value: float, name: str) -> tuple[int, int]:
+    """A value in [0, 2^7) as a mantissa m < 2^31 and a shift sh in [24, 62], value ~ m
+    2^-sh, with the largest such m (31 significant bits; values below 2^-32 keep fewer)."""
+    q(value, 0, name, 0.0, 128.0)
+    sh = 62 if value <= 0 else max(24, min(62, 30 - math.floor(math.log2(value))))
+    while sh > 24 and round(value * 2.0 ** sh) >= 1 << 31:
+        sh -= 1
+    return int(round(value * 2.0 ** sh)), sh
 
 
 def exp2_table() -> list[int]:
@@ -141,6 +149,7 @@ def params_q(p, nc: int) -> dict:
     gate = p.gate_d2
     tau = p.activity_tau_us
     k_tau = int(round(LOG2E / tau * 2 ** KTAU_FRAC))
+    never = p.energy_scale >= max(nc, 1)             # e <= total = nc mean: never over
     gm, am, sh = gain_pair(_limits.covariance_gain(p), p.alpha_covariance,
                            "alpha_covariance / its gain")
     return dict(
@@ -151,8 +160,8 @@ def params_q(p, nc: int) -> dict:
         k_tau=min(k_tau, (1 << 32) - 1),           # used only while dt_max > 2^18 us: < 2^27
         dt_max=-(-(32 << KTAU_FRAC) // k_tau),     # 2^-32 and beyond: decay = 0 in Q.30
         act_thr=q(min(p.activity_threshold, 2.0 ** 29), ACT_FRAC, "activity_threshold"),
-        escale_never=1 if p.energy_scale >= max(nc, 1) else 0,
-        escale=q(min(p.energy_scale, max(nc, 1)), ESCALE_FRAC, "energy_scale"),
+        escale_never=1 if never else 0,
+        escale=mantissa(0.0 if never else p.energy_scale, "energy_scale"),   # < nc <= 128
         smin2=q(p.sigma_min_px ** 2, COV_FRAC, "sigma_min_px^2"),
         smax2=q(p.sigma_max_px ** 2, COV_FRAC, "sigma_max_px^2"),
         decay=decay_tables(tau),
@@ -179,7 +188,7 @@ def params_words(p, nc: int) -> np.ndarray:
     pq = params_q(p, nc)
     lo, hi = pq["decay"]
     words = [pq["a1"], pq["cov_gm"], pq["cov_am"], pq["cov_sh"], pq["energy_gain"], pq["gate"],
-             pq["k_tau"], *_w64(pq["dt_max"]), *_w64(pq["act_thr"]), pq["escale"],
+             pq["k_tau"], *_w64(pq["dt_max"]), *_w64(pq["act_thr"]), *pq["escale"],
              pq["escale_never"], *_w64(pq["smin2"]), *_w64(pq["smax2"]), pq["period"],
              pq["ekind"], *pq["tau_bits"], pq["pull_sim"], pq["car_sim"], *lo, *hi]
     assert len(words) == PARAMS_HEAD + 2 * (1 << DECAY_BITS)
@@ -198,8 +207,8 @@ def model_words(arr: dict, width: int, height: int) -> np.ndarray:
                   *_w64(mq["gdx0"][i]), *_w64(mq["gdy0"][i])]
     for k in range(nc):
         words += [int(arr["ca"][k]), int(arr["cb"][k]), int(arr["kinds"][k]), mq["stiff"][k],
-                  mq["l0"][k], mq["dx0"][k], mq["dy0"][k], mq["th0"][k], mq["c0x"][k],
-                  mq["c0y"][k]]
+                  *_w64(mq["l0"][k]), *_w64(mq["dx0"][k]), *_w64(mq["dy0"][k]), mq["th0"][k],
+                  mq["c0x"][k], mq["c0y"][k]]
     return _int32_words(words)
 
 
@@ -228,9 +237,9 @@ def model_q(arr: dict, width: int, height: int) -> dict:
         a = float(arr["stiffness"][k])
         where = f"connections[{k}]"
         out["stiff"].append(gain(a, f"{where}.stiffness"))
-        out["l0"].append(q(float(arr["l0"][k]), GEOM_FRAC, f"{where} rest length", 0.0, 2 * 1.5 * lim))
-        out["dx0"].append(q(float(arr["dx0"][k]), GEOM_FRAC, f"{where} rest dx", -2 * lim, 2 * lim))
-        out["dy0"].append(q(float(arr["dy0"][k]), GEOM_FRAC, f"{where} rest dy", -2 * lim, 2 * lim))
+        out["l0"].append(q(float(arr["l0"][k]), POS_FRAC, f"{where} rest length", 0.0, 2 * 1.5 * lim))
+        out["dx0"].append(q(float(arr["dx0"][k]), POS_FRAC, f"{where} rest dx", -2 * lim, 2 * lim))
+        out["dy0"].append(q(float(arr["dy0"][k]), POS_FRAC, f"{where} rest dy", -2 * lim, 2 * lim))
         th = float(arr["th0"][k])
         out["th0"].append(angle(th))
         out["c0x"].append(int(round(math.cos(th) * (1 << 30))))

@@ -33,6 +33,30 @@ SCENES = {
 }
 
 
+# the simulator's scenes (springtrack.sim) with the paper's per-experiment values
+# (springtrack.commands.experiments.plan.SCENE_RUNS): name -> (scene, spring kinds,
+# stiffness, energy_scale s); the face keeps its preset's springs
+SIM_SCENES = {
+    "face_occlusion": ("face_occlusion", None, None, 2.5),
+    "grid_pull": ("grid_pull", ("cartesian",), 0.001, 4.5),
+    "grid_inplane": ("grid_inplane", ("euclidean", "torsional"), 0.001, 4.0),
+    "grid_scale": ("grid_scale", ("cartesian",), 0.001, 4.5),
+}
+
+
+def sim_stream(name: str, seconds: float, seed: int = 0):
+    """(model, events, Truth, params) of a SIM_SCENES scene simulated for ``seconds``."""
+    from springtrack.metrics import truth_from_array
+    from springtrack.sim.scenes import make_scene
+    from springtrack.sim.sensor import simulate_all
+    scene_name, springs, stiffness, s = SIM_SCENES[name]
+    scene = make_scene(scene_name, seed=seed)
+    model = scene.initial_model(**({} if springs is None
+                                   else dict(stiffness=stiffness, springs=springs)))
+    ev, tr = simulate_all(scene, seconds, seed=seed)
+    return model, ev, truth_from_array(tr), dict(energy_scale=s)
+
+
 def scene_stream(scene: str, n: int, seed: int = 1):
     """(model, events) of a structured synthetic scene: the preset's parts moving smoothly,
     plus uniform noise, 300 k events/s."""

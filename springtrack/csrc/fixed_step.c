@@ -18,7 +18,7 @@
 #define PI_Q29 1686629713          /* pi, Q.29: binary angle * PI_Q29 / 2^30 = rad Q.30 */
 #define SMALL_ANGLE ((int64_t)42722830)   /* 2^-4 rad as a binary angle */
 #define ACT_MAX ((int64_t)1 << 61) /* activity saturates at 2^29 */
-#define E_MAX ((int64_t)1 << 61)   /* an energy saturates at 2^29 px^2 */
+#define E_MAX ((int64_t)1 << 61)   /* an energy (Q.40) saturates at 2^21 px^2 */
 #define D2_SAT 0xffffffffu         /* d^2 >= 32: beyond any gate */
 /* A 64-bit host does a few steps in 64-bit words, where a 32-bit core uses two 32-bit ones
    (the candidate mask, d^2's final shift, the 64 / 32 divisions): the same integers
@@ -27,10 +27,19 @@
 
 /* ---- arithmetic building blocks ----------------------------------------------------- */
 
-/* the only two multiplications of this unit: 32 x 32 -> 64 bits (SMULL, UMULL) */
+/* the only two multiplications of this unit: 32 x 32 -> 64 bits (SMULL, UMULL).  On
+   Thumb-2 the signed one is written as its instruction: where a factor is masked or
+   selected, LLVM widens the operands first and no longer recognises the sign-extended
+   product, emitting a 64 x 64 multiply (UMULL and two MLAs) instead of one SMULL. */
 static inline int64_t smul(int32_t a, int32_t b)
 {
+#if defined(__thumb2__) && !FX_WORD64
+    uint32_t lo, hi;
+    __asm__("smull %0, %1, %2, %3" : "=r"(lo), "=r"(hi) : "r"(a), "r"(b));
+    return (int64_t)(((uint64_t)hi << 32) | lo);
+#else
     return (int64_t)a * b;
+#endif
 }
 
 static inline uint64_t umul(uint32_t a, uint32_t b)
@@ -68,6 +77,18 @@ int64_t fx_mulsh(int64_t v, uint32_t g, int sh)
     return mulsh(v, g, sh);
 }
 
+/* floor(v / 2^k) for 0 < k < 32: on a 32-bit core from v's two words (a variable 64-bit
+   shift there is a longer sequence that also handles k >= 32) */
+static inline int64_t sar64(int64_t v, int k)
+{
+#if FX_WORD64
+    return v >> k;
+#else
+    uint32_t lo = (uint32_t)v, hi = (uint32_t)(v >> 32);
+    return (int64_t)(((uint64_t)(uint32_t)((int32_t)hi >> k) << 32) | ((lo >> k) | (hi << (32 - k))));
+#endif
+}
+
 /* v + round((inc gm - v am) / 2^sh), half up, 31 <= sh <= 62: eq. (4) with one rounding
    (gm, am < 2^31; |inc| < 2^58, 0 <= |v| < 2^53).  Each product is split into its high and
    low words as in mulsh; the 96-bit difference is hi 2^32 + lo. */
@@ -77,8 +98,8 @@ static inline int64_t ema(int64_t v, int64_t inc, uint32_t gm, uint32_t am, int 
     int64_t lo = (int64_t)umul((uint32_t)inc, gm) - (int64_t)umul((uint32_t)v, am);  /* < 2^63 each */
     int64_t a = hi + (lo >> 32);                         /* difference = a 2^32 + r */
     uint32_t r = (uint32_t)lo;
-    if (sh > 32)
-        return v + ((a + ((int64_t)1 << (sh - 33))) >> (sh - 32));
+    if (sh > 32)                                         /* 1 <= sh - 32 <= 30 */
+        return v + sar64(a + (int64_t)(1u << (sh - 33)), sh - 32);
     if (sh == 32)
         return v + a + (r >> 31);
     return v + shl64(a, 1) + ((r >> 30) + 1) / 2;       /* sh = 31: (2^32 a + r + 2^30) >> 31 */
@@ -748,20 +769,23 @@ void fx_refresh(fx_state *s, int i)
 }
 
 /* floor((v 2^32 - m) / 2^sh) for a pixel v and a Q.32 position m, 2 <= sh <= 31, in 32-bit
-   arithmetic: with m = h 2^32 + l and d = v - h, it is d 2^(32-sh) - ceil(l / 2^sh); when
+   arithmetic: with m = h 2^32 + l and d = v - h, it is the floor of d 2^32 - l; when
    |d| >= 2^(sh-1) it is clamped to +-(2^31 - 1) (the clamp decides nothing, see refresh) */
 static inline int32_t offset32(int32_t v, int64_t m, int sh)
 {
     int32_t d = v - (int32_t)(m >> 32);
-    uint32_t l = (uint32_t)m, lim = 1u << (sh - 1);
+    uint32_t l = (uint32_t)m, lim = 1u << (sh - 1), lo, hi;
     if ((uint32_t)d + lim >= 2 * lim)
         return d < 0 ? -0x7fffffff : 0x7fffffff;
-    return (int32_t)((uint32_t)d << (32 - sh)) - (int32_t)((l >> sh) + ((l & ((1u << sh) - 1)) != 0));
+    lo = 0u - l;                                          /* d 2^32 - l = hi 2^32 + lo */
+    hi = (uint32_t)d - (l != 0);
+    return (int32_t)((lo >> sh) | (hi << (32 - sh)));     /* its floor by 2^sh: fits int32 */
 }
 
 /* Mahalanobis d^2 = ia dx^2 + ib2 dx dy + ic dy^2 (eq. 2), Q.27, saturated at 2^32 - 1,
    of pixel (x, y) from tracker i: five 32 x 32 products (|pa|, |pc| <= 2^29, |pb| <= 2^30,
-   |q| < 2^62); the relative rounding is ~2^-25 of d^2 at the gate */
+   |q| < 2^62); rounding: 2^-24 of d^2 from the mantissas plus up to |u| + 2|v| units of q
+   from the floors of pa, pb, pc (docs/fixed_point.md) */
 static inline uint32_t qform(const fx_state *s, int i, int32_t x, int32_t y)
 {
     int sh = s->osh[i];
@@ -932,67 +956,154 @@ int64_t fx_activity(const fx_state *s, int i, int64_t t)
     return mulsh(s->act[i], decay(s, t - s->tlast[i]), 30);
 }
 
-/* ---- springs and energy criteria (every `period` events) ----------------------------- */
-#define OFFSET_LIM ((int32_t)1 << 30)                     /* 16384 px: ex^2 + ey^2 < 2^61 */
+/* ---- springs and energy criteria (every `period` events) -----------------------------
+   The criteria of eqs. (21)-(22) compare each connection's energy with s times their mean:
+   a decision taken the other way than by the float64 kernel moves a tracker by up to
+   energy_gain times its distance to its target, so the energies are computed to about
+   1e-9 px of the exact ones of the kernel's own positions (dl and the Cartesian offsets
+   e in Q.32 from the Q.32 spring vectors and rest geometry; energies Q.40), while the
+   spring geometry that only sets directions and angles stays Q.16. */
+#define OFFSET_LIM ((int32_t)1 << 30)                     /* 16384 px in Q.16 */
+#define FINE_LIM ((int64_t)1 << 38)                       /* 64 px in Q.32: Q.24 fits int32 */
 
 static inline int32_t clamp_offset(int64_t v)
 {
     return (int32_t)(v >= OFFSET_LIM ? OFFSET_LIM - 1 : (v <= -OFFSET_LIM ? -OFFSET_LIM + 1 : v));
 }
 
+/* |v| < 64 px (Q.32): then v is taken in Q.24 (int32) */
+static inline int fine(int64_t v)
+{
+    return v < FINE_LIM && v > -FINE_LIM;
+}
+
 static inline void frame_offset(const fx_state *s, int k, int64_t *ox, int64_t *oy);
 
-/* the offsets of eq. (18) of connection k, each clamped to +-16384 px; returns how many
-   were.  The rest offset is (dx0, dy0), or s R (dx0, dy0) (frame_offset) if the spring
-   update computing the energies used the similarity frame. */
-static inline int offsets(const fx_state *s, int k, int32_t rx, int32_t ry, int32_t *ex,
-                          int32_t *ey)
+/* the offsets e = r - d0 of eq. (18) of connection k (Q.32) from its spring vector r
+   (Q.32).  The rest offset d0 is (dx0, dy0), or s R (dx0, dy0) (frame_offset) if the
+   spring update computing the energies used the similarity frame. */
+static inline void offsets(const fx_state *s, int k, int64_t rx, int64_t ry, int64_t *ex,
+                           int64_t *ey)
 {
-    int64_t ox = s->dx0[k], oy = s->dy0[k], x, y;
+    int64_t ox = s->dx0[k], oy = s->dy0[k];
     if (s->car_turned)
         frame_offset(s, k, &ox, &oy);
-    x = (int64_t)rx - ox;                                 /* |.| < 2^34 */
-    y = (int64_t)ry - oy;
-    *ex = clamp_offset(x);
-    *ey = clamp_offset(y);
-    return (x >= OFFSET_LIM || x <= -OFFSET_LIM) + (y >= OFFSET_LIM || y <= -OFFSET_LIM);
+    *ex = rx - ox;                                        /* |.| < 2^50 */
+    *ey = ry - oy;
 }
 
-/* a dl (Q.16 x Q.30 = Q.46, exact) rounded to Q.30 when |a dl| < 2 px (the usual case:
-   then the Euclidean force and energy are single 32 x 32 products), else ADL_WIDE */
-#define ADL_WIDE INT32_MIN
-static inline int32_t adl30(const fx_state *s, int k, int32_t dl)
+/* an offset beyond 64 px in Q.16, clamped to +-16384 px */
+static inline int32_t offset16(int64_t e)
 {
-    int64_t adl = smul(dl, (int32_t)s->stiff[k]);        /* a <= 2^30 */
-    return adl < ((int64_t)1 << 47) && adl > -((int64_t)1 << 47) ? (int32_t)rshr(adl, 16)
-                                                                 : ADL_WIDE;
+    return clamp_offset(rshr(e, 16));
 }
 
-/* energies of connection k (Q.32): eq. (12) a dl^2 / 2 from dl (Q.16) and a dl, or from the
-   length l (Q.16); eq. (17) a dtheta^2 / 2 from the corrected angle (binary); eq. (20)
-   a |e|^2 / 2 from the offsets */
-static inline int64_t energy_euclid_dl(const fx_state *s, int k, int32_t dl, int32_t adl)
+/* how many of the offsets (Q.32) offset16 clamps */
+static inline int clamped(int64_t ex, int64_t ey)
 {
-    if (adl != ADL_WIDE)
-        return rshr(smul(adl, dl), 15);                   /* Q.30 x Q.16 / 2 -> Q.32 */
-    return mulsh(smul(dl, dl), s->stiff[k], 31);
+    const int64_t lim = shl64(OFFSET_LIM, 16) - ((int64_t)1 << 15);   /* rshr reaches 2^30 */
+    return (ex >= lim || ex < -lim) + (ey >= lim || ey < -lim);
 }
 
-static inline int64_t energy_euclid(const fx_state *s, int k, int32_t l)
+/* eq. (10): dl = l - l0 (Q.32) of connection k from its spring vector r (Q.32) and the
+   direction c = (cx, cy) (Q.30) of the spring geometry, l~ its length (Q.16).  The tables
+   give c within ~2e-7 of unit length (|c| = 1 + eps), in the direction of r's Q.16
+   rounding (an angle a < 2^-17 px / l), so l = r.c / |c| = r.c (3 - |c|^2) / 2 to
+   O(eps^2 + a^2) (< 1e-11 px for l >= 0.1 px), without a division: r.c from the high 16.16
+   halves h of r and the 16-bit rests (r = h 2^16 + e; Q.46, |.| < 2^61), |c|^2 in Q.60,
+   the factor (3 - |c|^2) / 2 in Q.30 and one mulsh. */
+static inline __attribute__((always_inline)) int64_t spring_dl(const fx_state *s, int k,
+                                                               int64_t rx, int64_t ry, int32_t l,
+                                                               int32_t cx, int32_t cy)
 {
-    int32_t dl = l - s->l0[k];                            /* eq. (10) */
-    return energy_euclid_dl(s, k, dl, adl30(s, k, dl));
+    int32_t hx = (int32_t)(rx >> 16), hy = (int32_t)(ry >> 16);      /* |.| < 2^30 */
+    int32_t ex = (int32_t)(rx & 0xffff), ey = (int32_t)(ry & 0xffff);
+    int64_t dot, cc;
+    uint32_t f;
+    if (l <= 0)                                           /* |r| < 2^-16 px */
+        return -s->l0[k];
+    dot = smul(hx, cx) + smul(hy, cy) + ((smul(ex, cx) + smul(ey, cy)) >> 16);   /* Q.46 */
+    cc = smul(cx, cx) + smul(cy, cy);                     /* |c|^2, Q.60 (< 2^61) */
+    f = (uint32_t)((((int64_t)3 << 60) - cc) >> 31);      /* (3 - |c|^2) / 2, Q.30 */
+    return mulsh(dot, f, 44) - s->l0[k];                  /* Q.46 x Q.30 / 2^44 = Q.32 */
+}
+
+/* eq. (11): the Euclidean force a dl r / l (Q.32) of connection k, from dl (Q.32) and the
+   direction (cx, cy) (Q.30): a dl in Q.30 when |a dl| < 2 px (single products), else from
+   dl in Q.16 */
+static inline __attribute__((always_inline)) void euclid_force(const fx_state *s, int k,
+                                                               int64_t dl, int32_t cx,
+                                                               int32_t cy, int64_t *fx,
+                                                               int64_t *fy)
+{
+    int32_t a = (int32_t)s->stiff[k], d;
+    if (fine(dl)) {
+        int64_t adl = smul((int32_t)rshr(dl, 8), a);      /* Q.24 x Q.30 = Q.54 */
+        if (adl < ((int64_t)1 << 55) && adl > -((int64_t)1 << 55)) {
+            int32_t q = (int32_t)rshr(adl, 24);           /* a dl, Q.30 */
+            *fx = rshr(smul(q, cx), 28);
+            *fy = rshr(smul(q, cy), 28);
+            return;
+        }
+    }
+    d = clamp_offset(rshr(dl, 16));                       /* Q.16 (|dl| < 16384 px) */
+    *fx = mulsh(rshr(smul(d, cx), 14), (uint32_t)a, 30);  /* dl r / l, Q.32, times a */
+    *fy = mulsh(rshr(smul(d, cy), 14), (uint32_t)a, 30);
+}
+
+/* a |d|^2 / 2 in Q.40 for the squared length q of d in Q.32 px^2 (offsets beyond 64 px):
+   beyond 2^21 px^2 it is E_MAX (the caller counts it) */
+static inline int64_t energy_wide(const fx_state *s, int k, int64_t q)
+{
+    int64_t e = mulsh(q, s->stiff[k], 31);                /* Q.32, < 2^61 */
+    return e >= ((int64_t)1 << 53) ? E_MAX + 1 : shl64(e, 8);
+}
+
+/* energies of connection k (Q.40): eq. (12) a dl^2 / 2 from dl (Q.32); eq. (17) a dtheta^2
+   / 2 from the corrected angle (binary); eq. (20) a |e|^2 / 2 from the offsets (Q.32),
+   each from Q.24 values (products < 2^62) below 64 px */
+static inline int64_t energy_euclid(const fx_state *s, int k, int64_t dl)
+{
+    int32_t d;
+    if (fine(dl)) {
+        d = (int32_t)rshr(dl, 8);                         /* Q.24 */
+        return mulsh(smul(d, d), s->stiff[k], 39);        /* Q.48 x Q.30 / 2^39 = Q.40 */
+    }
+    d = clamp_offset(rshr(dl, 16));
+    return energy_wide(s, k, smul(d, d));
 }
 
 static inline int64_t energy_torsion(const fx_state *s, int k, int64_t dth)
 {
     int32_t dq = (int32_t)mulsh(dth, PI_Q28, 31);         /* radians, Q.28; |.| < 2^31 */
-    return mulsh(smul(dq, dq), s->stiff[k], 55);
+    return mulsh(smul(dq, dq), s->stiff[k], 47);          /* Q.56 x Q.30 / 2^47 = Q.40 */
 }
 
-static inline int64_t energy_cart(const fx_state *s, int k, int32_t ex, int32_t ey)
+static inline int64_t energy_cart(const fx_state *s, int k, int64_t ex, int64_t ey)
 {
-    return mulsh(smul(ex, ex) + smul(ey, ey), s->stiff[k], 31);
+    int32_t x, y;
+    if (fine(ex) && fine(ey)) {
+        x = (int32_t)rshr(ex, 8);                         /* Q.24 */
+        y = (int32_t)rshr(ey, 8);
+        return mulsh(smul(x, x) + smul(y, y), s->stiff[k], 39);
+    }
+    x = offset16(ex);
+    y = offset16(ey);
+    return energy_wide(s, k, smul(x, x) + smul(y, y));
+}
+
+/* eq. (19): the Cartesian force a e (Q.32) of connection k */
+static inline void cart_force(const fx_state *s, int k, int64_t ex, int64_t ey, int64_t *fx,
+                              int64_t *fy)
+{
+    int32_t a = (int32_t)s->stiff[k];
+    if (fine(ex) && fine(ey)) {                           /* Q.24 x Q.30 -> Q.32 */
+        *fx = rshr(smul((int32_t)rshr(ex, 8), a), 22);
+        *fy = rshr(smul((int32_t)rshr(ey, 8), a), 22);
+    } else {                                              /* Q.16 x Q.30 -> Q.32 */
+        *fx = rshr(smul(offset16(ex), a), 14);
+        *fy = rshr(smul(offset16(ey), a), 14);
+    }
 }
 
 /* Eq. (14) and the polar form of a spring vector r (Q.16), in two steps so that the spring
@@ -1066,18 +1177,24 @@ static inline int64_t sat_energy_of(fx_state *s, int64_t e)
     return e;
 }
 
-/* r = x_j - x_i of connection k, Q.16, |.| < 2^30 */
-static inline void spring_vector(const fx_state *s, int k, int32_t *rx, int32_t *ry)
+/* r = x_j - x_i of connection k, Q.32, |.| < 2^46 */
+static inline void spring_vector(const fx_state *s, int k, int64_t *rx, int64_t *ry)
 {
     int i = s->ca[k], j = s->cb[k];
-    *rx = (int32_t)rshr(s->mx[j] - s->mx[i], 16);
-    *ry = (int32_t)rshr(s->my[j] - s->my[i], 16);
+    *rx = s->mx[j] - s->mx[i];
+    *ry = s->my[j] - s->my[i];
+}
+
+/* a spring vector (Q.32) in the spring geometry's Q.16, |.| < 2^30 */
+static inline int32_t geom16(int64_t r)
+{
+    return (int32_t)rshr(r, 16);
 }
 
 /* Eqs. (10)-(20) for every connection: the forces summed per tracker into ddx, ddy (Q.32)
-   and the criterion's energy (eq. 13: each and their sum saturating at 2^29), which is
-   returned.  `used` = the kinds whose geometry the model needs (its springs' kinds and the
-   criterion's); each instantiation below contains only that geometry.
+   and the criterion's energy (eq. 13: each and their sum saturating at 2^21 px^2), which
+   is returned.  `used` = the kinds whose geometry the model needs (its springs' kinds and
+   the criterion's); each instantiation below contains only that geometry.
    Structure of arrays, one short step per pass: the connections are independent, and a
    pass whose iterations are short lets an out-of-order processor overlap many of them (a
    32-bit in-order core does the first two passes as one). */
@@ -1089,7 +1206,7 @@ static inline __attribute__((always_inline)) int64_t spring_passes(fx_state *s, 
     int32_t dth[FX_MAX_CONNECTIONS];
     int64_t total = 0, mean_dth = 0;
     int64_t *en = s->energy[ek];
-    int32_t *grx = s->grx, *gry = s->gry;
+    int64_t *grx = s->grx, *gry = s->gry;
     if (used & 3) {
         int64_t sum = 0;
         spring_ratio g[FX_MAX_CONNECTIONS];
@@ -1097,7 +1214,7 @@ static inline __attribute__((always_inline)) int64_t spring_passes(fx_state *s, 
         /* an out-of-order host: r and all the divisions first, so that they overlap */
         for (k = 0; k < nc; k++) {
             spring_vector(s, k, &grx[k], &gry[k]);
-            g[k] = geom_ratio(s, k, grx[k], gry[k]);
+            g[k] = geom_ratio(s, k, geom16(grx[k]), geom16(gry[k]));
         }
 #endif
         for (k = 0; k < nc; k++) {
@@ -1105,29 +1222,22 @@ static inline __attribute__((always_inline)) int64_t spring_passes(fx_state *s, 
 #if !FX_WORD64
             /* an in-order core: one pass (the same operations per connection) */
             spring_vector(s, k, &grx[k], &gry[k]);
-            g[k] = geom_ratio(s, k, grx[k], gry[k]);
+            g[k] = geom_ratio(s, k, geom16(grx[k]), geom16(gry[k]));
 #endif
             dth[k] = geom_finish(s, k, g[k], &l, &cx, &cy);   /* eq. (14) */
             sum += dth[k];
             fx[k] = fy[k] = 0;
             if (used & 1) {
-                int32_t dl = l - s->l0[k];                /* eq. (10) */
-                int32_t adl = adl30(s, k, dl);
+                int64_t dl = spring_dl(s, k, grx[k], gry[k], l, cx, cy);   /* eq. (10) */
                 if (s->kinds[k] & 1) {                    /* eq. (11): a dl (r / l) */
                     if (l <= 0) {
                         cx = s->c0x[k];
                         cy = s->c0y[k];
                     }
-                    if (adl != ADL_WIDE) {                /* Q.30 x Q.30 -> Q.32 */
-                        fx[k] = rshr(smul(adl, cx), 28);
-                        fy[k] = rshr(smul(adl, cy), 28);
-                    } else {                              /* dl r / l, Q.32, times a */
-                        fx[k] = mulsh(rshr(smul(dl, cx), 14), s->stiff[k], 30);
-                        fy[k] = mulsh(rshr(smul(dl, cy), 14), s->stiff[k], 30);
-                    }
+                    euclid_force(s, k, dl, cx, cy, &fx[k], &fy[k]);
                 }
                 if (ek == 0) {                            /* eq. (12), the criterion's */
-                    en[k] = sat_energy_of(s, energy_euclid_dl(s, k, dl, adl));
+                    en[k] = sat_energy_of(s, energy_euclid(s, k, dl));
                     total = sat_add(s, total, en[k], E_MAX);
                 }
             }
@@ -1135,30 +1245,32 @@ static inline __attribute__((always_inline)) int64_t spring_passes(fx_state *s, 
         if ((used & 2) && nc > 0)
             mean_dth = div_round(sum, (uint32_t)nc);      /* eq. (15) */
     } else {
-        for (k = 0; k < nc; k++) {                        /* r = x_j - x_i, Q.16 */
+        for (k = 0; k < nc; k++) {                        /* r = x_j - x_i, Q.32 */
             spring_vector(s, k, &grx[k], &gry[k]);
             fx[k] = fy[k] = 0;
         }
     }
     for (k = 0; k < nc; k++) {
         int i = s->ca[k], j = s->cb[k], kind = s->kinds[k];
-        int32_t rx = grx[k], ry = gry[k], ex = 0, ey = 0;
-        int64_t d = 0, gx = fx[k], gy = fy[k];
+        int64_t d = 0, gx = fx[k], gy = fy[k], ex = 0, ey = 0;
         uint32_t a = s->stiff[k];
         if (used & 2) {
             d = dth[k] - mean_dth;                        /* eq. (15), binary angle */
             if (kind & 2) {                               /* eq. (16): rotate r by a d */
-                int32_t c, sn;
+                int32_t c, sn, rx = geom16(grx[k]), ry = geom16(gry[k]);
                 rotation(mulsh(d, a, 30), &c, &sn);       /* cos - 1, sin */
                 gx += rshr(smul(rx, c) - smul(ry, sn), 14);   /* l (cos(th + a d) - cos th), Q.32 */
                 gy += rshr(smul(rx, sn) + smul(ry, c), 14);
             }
         }
         if (used & 4) {
-            sat += offsets(s, k, rx, ry, &ex, &ey);       /* eq. (18) */
-            if (kind & 4) {                               /* eq. (19): a e, Q.16 x Q.30 -> Q.32 */
-                gx += rshr(smul(ex, (int32_t)a), 14);
-                gy += rshr(smul(ey, (int32_t)a), 14);
+            offsets(s, k, grx[k], gry[k], &ex, &ey);      /* eq. (18) */
+            sat += clamped(ex, ey);
+            if (kind & 4) {                               /* eq. (19): a e */
+                int64_t cxf, cyf;
+                cart_force(s, k, ex, ey, &cxf, &cyf);
+                gx += cxf;
+                gy += cyf;
             }
         }
         ddx[i] += gx;                                     /* onto both ends */
@@ -1222,6 +1334,20 @@ static int64_t centre(const fx_state *s, const int64_t *x, uint32_t msum)
 #define FRAME_SCALE_MAX_Q ((int32_t)1 << 30)          /* [ref] FRAME_SCALE_MAX = 4, Q.28 */
 #define FRAME_SPREAD_SHIFT 20                         /* [ref] FRAME_MIN_SPREAD = 2^-20 */
 
+/* the index of the lowest set bit of m != 0 (two 32-bit halves) */
+static inline int lowest_bit(uint64_t m)
+{
+    uint32_t lo = (uint32_t)m;
+    return lo ? __builtin_ctz(lo) : 32 + __builtin_ctz((uint32_t)(m >> 32));
+}
+
+/* floor(v / 2^sh) for 0 <= sh < 32 when it fits int32: from v's two words, in 32 bits
+   ((hi 2) 2^(31 - sh): no shift by 32) */
+static inline int32_t shr32(int64_t v, int sh)
+{
+    return (int32_t)(((uint32_t)v >> sh) | (((uint32_t)(v >> 32) << 1) << (31 - sh)));
+}
+
 /* c v for c in Q.28 and v in Q.32, |v| < 2^46: v = hi 2^16 + lo, two 32 x 32 products,
    rounded to Q.32 (within 1 unit) */
 static inline int64_t frame_scale(int32_t c, int64_t v)
@@ -1243,56 +1369,62 @@ static inline void frame_to_length(int32_t x, int32_t y, int32_t len, int32_t *c
    a = sum m p.q, b = sum m p x q, D = sum m |p|^2, s R = [[a, -b], [b, a]] / D (the scale
    held to [1/4, 4]; s R = I when D <= 2^-20 sum m), G = qbar - s R pbar.  Sets frame_c,
    frame_s (Q.28) and frame_gx, frame_gy (Q.32). */
-static void fit_frame(fx_state *s, uint64_t fit)
+static __attribute__((noinline)) void fit_frame(fx_state *s, uint64_t fit)
 {
     int n = s->n, i, sh;
-    uint64_t all = n == 64 ? ~(uint64_t)0 : ((uint64_t)1 << n) - 1, k2;
+    uint64_t all = n == 64 ? ~(uint64_t)0 : ((uint64_t)1 << n) - 1, k2, m;
     const int64_t *gdx = s->gdx0, *gdy = s->gdy0, *mx = s->mx, *my = s->my;
-    int32_t w[FX_MAX_TRACKERS], ux[FX_MAX_TRACKERS], uy[FX_MAX_TRACKERS];
-    int32_t vx[FX_MAX_TRACKERS], vy[FX_MAX_TRACKERS], an, bn, dn, c, sn;
+    int32_t ux[FX_MAX_TRACKERS], uy[FX_MAX_TRACKERS], vx[FX_MAX_TRACKERS], vy[FX_MAX_TRACKERS];
+    int32_t an, bn, dn, c, sn;
     int64_t ox[FX_MAX_TRACKERS], oy[FX_MAX_TRACKERS], W = 0, spx = 0, spy = 0, sqx = 0, sqy = 0;
     int64_t px, py, qx, qy, a = 0, b = 0, d = 0, big = 0, lim;
     fit &= all;
     if ((fit & (fit - 1)) == 0)                       /* fewer than 2: all of them */
         fit = all;
-    for (i = 0; i < n; i++)                           /* mass / largest, Q.24; 0 outside */
-        w[i] = (int32_t)s->mq[i] & -(int32_t)((fit >> i) & 1);
-    /* the means' offsets from the last frame's G (near qbar), the rest offsets (from G0),
-       and one shift that puts the weighed trackers' largest below 2^29: their centroids
-       and the offsets about those are then below 2^30 */
-    for (i = 0; i < n; i++) {                         /* x ^ (x >> 63): |x| or |x| - 1 */
+    /* The sums run over the trackers of the fit only (weight mass / largest, Q.24, > 0),
+       visited in increasing order.  The means' offsets from the last frame's G (near
+       qbar), the rest offsets (from G0), and one shift that puts their largest below
+       2^29: their centroids and the offsets about those are then below 2^30 */
+    for (m = fit; m; m &= m - 1) {                    /* x ^ (x >> 63): |x| or |x| - 1 */
+        i = lowest_bit(m);
         ox[i] = mx[i] - s->frame_gx;
         oy[i] = my[i] - s->frame_gy;
-        big |= ((gdx[i] ^ (gdx[i] >> 63)) | (gdy[i] ^ (gdy[i] >> 63)) | (ox[i] ^ (ox[i] >> 63))
-                | (oy[i] ^ (oy[i] >> 63))) & -(int64_t)(w[i] > 0);
+        big |= (gdx[i] ^ (gdx[i] >> 63)) | (gdy[i] ^ (gdy[i] >> 63)) | (ox[i] ^ (ox[i] >> 63))
+               | (oy[i] ^ (oy[i] >> 63));
     }
-    sh = bitlen64((uint64_t)big) - 29;                /* |.| >> sh <= 2^29 */
+    sh = bitlen64((uint64_t)big) - 29;                /* |.| >> sh <= 2^29; sh < 24 (|G| < 2^51) */
     if (sh < 0)
         sh = 0;
-    for (i = 0; i < n; i++) {                         /* weighted centroids, Q.(32 - sh) */
-        int32_t in = -(int32_t)(w[i] > 0);
-        ux[i] = (int32_t)(gdx[i] >> sh) & in;
-        uy[i] = (int32_t)(gdy[i] >> sh) & in;
-        vx[i] = (int32_t)(ox[i] >> sh) & in;
-        vy[i] = (int32_t)(oy[i] >> sh) & in;
-        W += w[i];                                    /* <= 2^30 */
-        spx += smul(w[i], ux[i]);                     /* < 2^53 each */
-        spy += smul(w[i], uy[i]);
-        sqx += smul(w[i], vx[i]);
-        sqy += smul(w[i], vy[i]);
+    for (m = fit; m; m &= m - 1) {                    /* weighted centroids, Q.(32 - sh) */
+        int32_t w;
+        i = lowest_bit(m);
+        w = (int32_t)s->mq[i];
+        ux[i] = shr32(gdx[i], sh);
+        uy[i] = shr32(gdy[i], sh);
+        vx[i] = shr32(ox[i], sh);
+        vy[i] = shr32(oy[i], sh);
+        W += w;                                       /* <= 2^30 */
+        spx += smul(w, ux[i]);                        /* < 2^53 each */
+        spy += smul(w, uy[i]);
+        sqx += smul(w, vx[i]);
+        sqy += smul(w, vy[i]);
     }
     px = div_round(spx, (uint32_t)W);                 /* pbar, about G0 */
     py = div_round(spy, (uint32_t)W);
     qx = div_round(sqx, (uint32_t)W);                 /* qbar, about the last G */
     qy = div_round(sqy, (uint32_t)W);
-    for (i = 0; i < n; i++) {                         /* p, q: below 2^30 */
-        int32_t in = -(int32_t)(w[i] > 0);
-        int32_t pux = (ux[i] - (int32_t)px) & in, puy = (uy[i] - (int32_t)py) & in;
-        int32_t qvx = (vx[i] - (int32_t)qx) & in, qvy = (vy[i] - (int32_t)qy) & in;
-        int32_t mux = pux, muy = puy;                 /* m p: m = 1 if the masses are equal */
+    for (m = fit; m; m &= m - 1) {                    /* p, q: below 2^30 */
+        int32_t pux, puy, qvx, qvy, mux, muy;
+        i = lowest_bit(m);
+        pux = ux[i] - (int32_t)px;
+        puy = uy[i] - (int32_t)py;
+        qvx = vx[i] - (int32_t)qx;
+        qvy = vy[i] - (int32_t)qy;
+        mux = pux;                                    /* m p: m = 1 if the masses are equal */
+        muy = puy;
         if (!s->equal_mass) {
-            mux = (int32_t)rshr(smul(w[i], pux), 24);
-            muy = (int32_t)rshr(smul(w[i], puy), 24);
+            mux = (int32_t)rshr(smul((int32_t)s->mq[i], pux), 24);
+            muy = (int32_t)rshr(smul((int32_t)s->mq[i], puy), 24);
         }
         /* products < 2^60, pairs < 2^61: a 2^-8 of each keeps 64 of them in int64 */
         a += (smul(mux, qvx) + smul(muy, qvy)) >> 8;  /* a = sum m p.q */
@@ -1352,11 +1484,11 @@ static inline void frame_target(const fx_state *s, int i, int64_t *tx, int64_t *
 }
 
 /* eq. (18)'s rest offset of connection k in the frame the Cartesian springs use (car_c,
-   car_s: the frame fitted at the update before): s R (dx0, dy0), Q.16 */
+   car_s: the frame fitted at the update before): s R (dx0, dy0), Q.32 */
 static inline void frame_offset(const fx_state *s, int k, int64_t *ox, int64_t *oy)
 {
-    *ox = rshr(smul(s->car_c, s->dx0[k]) - smul(s->car_s, s->dy0[k]), 28);
-    *oy = rshr(smul(s->car_s, s->dx0[k]) + smul(s->car_c, s->dy0[k]), 28);
+    *ox = frame_scale(s->car_c, s->dx0[k]) - frame_scale(s->car_s, s->dy0[k]);
+    *oy = frame_scale(s->car_s, s->dx0[k]) + frame_scale(s->car_c, s->dy0[k]);
 }
 
 /* [ref] springs: displacements from the same positions, applied together (Jacobi).  The
@@ -1397,10 +1529,8 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
         /* e > s mean; with s >= nc no connection can exceed it (e <= total = nc mean) */
         if (s->escale_never)
             thr = E_MAX;
-        else if (s->mean_energy < ((int64_t)1 << 54))      /* escale < nc 2^14 <= 2^21 */
-            thr = mulsh(s->mean_energy, s->escale, 14);
-        else                                              /* huge energies: 10 bits less */
-            thr = mulsh(s->mean_energy >> 10, s->escale, 4);
+        else                                              /* s mean < nc mean <= E_MAX */
+            thr = mulsh(s->mean_energy, s->escale, s->escale_sh);
         if (!s->escale_never) {
             /* the trackers at an over-threshold connection (pulled, eq. 22) and those at
                one under it (calm: eq. 21 keeps them sensitive), as OR-reductions of the
@@ -1474,27 +1604,32 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
 void fx_energies(fx_state *s)
 {
     int nc = s->nc, k, stale = s->energy_stale;
-    int32_t l[FX_MAX_CONNECTIONS], dth[FX_MAX_CONNECTIONS], cx, cy;
+    int32_t l[FX_MAX_CONNECTIONS], dth[FX_MAX_CONNECTIONS], cx[FX_MAX_CONNECTIONS];
+    int32_t cy[FX_MAX_CONNECTIONS];
     int64_t mean_dth = 0, sum = 0;
     if (!(stale & 7))
         return;
     if (stale & 3) {
         for (k = 0; k < nc; k++) {
-            dth[k] = spring_angle(s, k, s->grx[k], s->gry[k], &l[k], &cx, &cy);
+            dth[k] = spring_angle(s, k, geom16(s->grx[k]), geom16(s->gry[k]), &l[k], &cx[k],
+                                  &cy[k]);
             sum += dth[k];
         }
         if (nc > 0)
             mean_dth = div_round(sum, (uint32_t)nc);
     }
     for (k = 0; k < nc; k++) {
-        int32_t ex, ey;
-        if (stale & 1)
-            s->energy[0][k] = energy_euclid(s, k, l[k]);
+        int64_t ex, ey, e;
+        if (stale & 1) {
+            e = energy_euclid(s, k, spring_dl(s, k, s->grx[k], s->gry[k], l[k], cx[k], cy[k]));
+            s->energy[0][k] = e > E_MAX ? E_MAX : e;
+        }
         if (stale & 2)
             s->energy[1][k] = stale & 8 ? 0 : energy_torsion(s, k, dth[k] - mean_dth);
         if (stale & 4) {
             offsets(s, k, s->grx[k], s->gry[k], &ex, &ey);
-            s->energy[2][k] = energy_cart(s, k, ex, ey);
+            e = energy_cart(s, k, ex, ey);
+            s->energy[2][k] = e > E_MAX ? E_MAX : e;
         }
     }
     s->energy_stale &= 8;
@@ -1634,12 +1769,12 @@ int fx_load_model(fx_state *s, const int32_t *w, int32_t nw, uint64_t *cells, in
         s->cb[k] = w[1];
         s->kinds[k] = w[2];
         s->stiff[k] = (uint32_t)w[3];
-        s->l0[k] = w[4];
-        s->dx0[k] = w[5];
-        s->dy0[k] = w[6];
-        s->th0[k] = (uint32_t)w[7];
-        s->c0x[k] = w[8];
-        s->c0y[k] = w[9];
+        s->l0[k] = word64(w + 4);
+        s->dx0[k] = word64(w + 6);
+        s->dy0[k] = word64(w + 8);
+        s->th0[k] = (uint32_t)w[10];
+        s->c0x[k] = w[11];
+        s->c0y[k] = w[12];
         s->ends[k] = ((uint64_t)1 << s->ca[k]) | ((uint64_t)1 << s->cb[k]);
         s->isolated &= ~s->ends[k];
     }
@@ -1659,12 +1794,12 @@ int fx_set_params(fx_state *s, const int32_t *w, int32_t nw)
     int i;
     if (nw != FX_PARAMS_WORDS)
         return FX_ERR_WORDS;
-    if (w[3] < 31 || w[3] > 62 || w[17] < 1 || w[18] < 0 || w[18] > 2
-        || (uint32_t)w[21] > 1 || (uint32_t)w[22] > 1)
+    if (w[3] < 31 || w[3] > 62 || w[12] < 1 || w[12] > 62 || w[18] < 1 || w[19] < 0
+        || w[19] > 2 || (uint32_t)w[22] > 1 || (uint32_t)w[23] > 1)
         return FX_ERR_RANGE;
     /* [ref] eq. (6): a new tau decays from the change on */
     if (s->has_params && s->n_valid > 0
-        && ((uint32_t)w[19] != s->tau_bits[0] || (uint32_t)w[20] != s->tau_bits[1])) {
+        && ((uint32_t)w[20] != s->tau_bits[0] || (uint32_t)w[21] != s->tau_bits[1])) {
         for (i = 0; i < s->n; i++) {
             s->act[i] = fx_activity(s, i, s->last_t);
             s->tlast[i] = s->last_t;
@@ -1680,15 +1815,16 @@ int fx_set_params(fx_state *s, const int32_t *w, int32_t nw)
     s->dt_max = word64(w + 7);
     s->act_thr = word64(w + 9);
     s->escale = (uint32_t)w[11];
-    s->escale_never = w[12];
-    s->smin2 = word64(w + 13);
-    s->smax2 = word64(w + 15);
-    s->period = w[17];
-    s->ekind = w[18];
-    s->tau_bits[0] = (uint32_t)w[19];
-    s->tau_bits[1] = (uint32_t)w[20];
-    s->pull_sim = w[21];
-    s->car_sim = w[22];
+    s->escale_sh = w[12];
+    s->escale_never = w[13];
+    s->smin2 = word64(w + 14);
+    s->smax2 = word64(w + 16);
+    s->period = w[18];
+    s->ekind = w[19];
+    s->tau_bits[0] = (uint32_t)w[20];
+    s->tau_bits[1] = (uint32_t)w[21];
+    s->pull_sim = w[22];
+    s->car_sim = w[23];
     for (i = 0; i < FX_DECAY_N; i++) {
         s->decay_lo[i] = (uint32_t)w[FX_PARAMS_HEAD + i];
         s->decay_hi[i] = (uint32_t)w[FX_PARAMS_HEAD + FX_DECAY_N + i];

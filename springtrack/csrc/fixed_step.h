@@ -13,10 +13,12 @@
  *   inverse covariance ia, ib2, ic        int32  mantissas, per-tracker exponent (ish)
  *   candidate offsets                     int32  Q.32 px >> osh (per tracker: +-8 sigma)
  *   Mahalanobis d^2, gate                 uint32 Q.27 (< 32)
- *   spring geometry l0, dx0, r, l ...     int32  Q.16 px (rest-frame u, v: Q.18)
+ *   spring geometry r, l, angles ...      int32  Q.16 px (rest-frame u, v: Q.18)
+ *   spring vectors, l0, dx0, dy0, dl, e   int64  Q.32 px (the energy criteria's precision)
  *   activity                              int64  Q.32
- *   energies                              int64  Q.32 (px^2, or rad^2 for torsion)
+ *   energies                              int64  Q.40 (px^2, or rad^2 for torsion)
  *   gains a1, energy_gain, stiffness      uint32 Q.30 (<= 1.0)
+ *   energy_scale                          uint32 mantissa over 2^escale_sh (< 2^31)
  *   cov_gain, a2                          uint32 mantissas over 2^cov_sh (< 2^31)
  *   1/mass                                uint32 Q7.24
  *   angles                                uint32 binary angle, 2^32 = 2 pi
@@ -64,8 +66,8 @@
 /* the word streams of fx_load_model / fx_set_params (springtrack/fixed_q.py writes them) */
 #define FX_MODEL_HEAD 8                     /* n, nc, width, height, the position box */
 #define FX_MODEL_TRACKER 16                 /* words per tracker */
-#define FX_MODEL_CONNECTION 10              /* words per connection */
-#define FX_PARAMS_HEAD 23                   /* words before the two decay tables */
+#define FX_MODEL_CONNECTION 13              /* words per connection */
+#define FX_PARAMS_HEAD 24                   /* words before the two decay tables */
 #define FX_PARAMS_WORDS (FX_PARAMS_HEAD + 2 * FX_DECAY_N)
 
 enum { FX_NO_TRACKER = -1, FX_BACK_IN_TIME = -2, FX_OUT_OF_SENSOR = -3 };
@@ -83,7 +85,8 @@ typedef struct {
     uint32_t k_tau;                           /* log2(e) / tau per us, Q.40 (used when < 2^27) */
     int64_t dt_max;                           /* us after which the decay is taken as 0 */
     int64_t act_thr;                          /* Q.32 */
-    uint32_t escale;                          /* energy_scale, Q17.14 */
+    uint32_t escale;                          /* energy_scale = escale 2^-escale_sh, < 2^31 */
+    int32_t escale_sh;                        /* 24 .. 62 */
     int32_t escale_never;                     /* 1: energy_scale >= nc, nothing is ever over */
     int64_t smin2, smax2;                     /* Q.40 px^2 */
     int32_t period, ekind, need_torsion;
@@ -120,7 +123,7 @@ typedef struct {
     int32_t ca[FX_MAX_CONNECTIONS], cb[FX_MAX_CONNECTIONS], kinds[FX_MAX_CONNECTIONS];
     uint64_t ends[FX_MAX_CONNECTIONS];        /* bits ca[k] and cb[k] */
     uint32_t stiff[FX_MAX_CONNECTIONS];       /* Q2.30 */
-    int32_t l0[FX_MAX_CONNECTIONS], dx0[FX_MAX_CONNECTIONS], dy0[FX_MAX_CONNECTIONS];
+    int64_t l0[FX_MAX_CONNECTIONS], dx0[FX_MAX_CONNECTIONS], dy0[FX_MAX_CONNECTIONS];   /* Q.32 */
     uint32_t th0[FX_MAX_CONNECTIONS];         /* binary angle */
     int32_t c0x[FX_MAX_CONNECTIONS], c0y[FX_MAX_CONNECTIONS];    /* cos, sin th0, Q.30 */
     int64_t energy[3][FX_MAX_CONNECTIONS];   /* read them through fx_energies() */
@@ -131,10 +134,10 @@ typedef struct {
        fitted before it), in force for its energies if car_turned */
     int32_t frame_c, frame_s, car_c, car_s, car_turned;
     int64_t frame_gx, frame_gy;
-    /* the spring vectors r = x_j - x_i of the last spring update (Q.16 px, |.| < 2^30): the
+    /* the spring vectors r = x_j - x_i of the last spring update (Q.32 px, |.| < 2^46): the
        energies of the kinds the criterion does not use are computed from them only when
        they are read (fx_energies) */
-    int32_t grx[FX_MAX_CONNECTIONS], gry[FX_MAX_CONNECTIONS];
+    int64_t grx[FX_MAX_CONNECTIONS], gry[FX_MAX_CONNECTIONS];
     int32_t energy_stale;                     /* bit q < 3: energy[q] not yet computed;
                                                  bit 3: no torsion energies at that update */
     /* spatial index (see _kernel.pyx): bit i of cells[cy * gw + cx] set if tracker i's

@@ -18,7 +18,8 @@ from .build import Capacity, cached_build
 DEFAULT_TARGET = "cortex-m4"
 POS_UNIT = 1.0 / 4294967296.0        # Q.32 px (as _fixed.pyx)
 COV_UNIT = 1.0 / 1099511627776.0     # Q.40 px^2
-Q32_UNIT = 1.0 / 4294967296.0        # Q.32 (activity, energy)
+Q32_UNIT = 1.0 / 4294967296.0        # Q.32 (activity)
+Q40_UNIT = 1.0 / 1099511627776.0     # Q.40 (energies)
 TELE_RECORD = TELE_TRACKER.itemsize    # bytes per tracker record
 COUNTERS = ("events_valid", "events_assigned", "skipped_back_in_time", "skipped_outside_sensor",
             "spring_updates", "index_updates", "saturated_position", "saturated_activity",
@@ -109,7 +110,7 @@ class McuBackend:
         tr["active"] = (per[:, :, 6] & 1).astype(bool)
         tr["sensitive"] = ((per[:, :, 6] >> 1) & 1).astype(bool)
         tr["state"] = 1
-        energy = (rows[:, 1:4].astype(np.float64) * Q32_UNIT / self.nc if self.nc
+        energy = (rows[:, 1:4].astype(np.float64) * Q40_UNIT / self.nc if self.nc
                   else np.zeros((len(rows), 3)))
         return {"t": rows[:, 0].copy(), "trackers": tr, "energy": energy, "wire": wire}
 
@@ -134,14 +135,14 @@ class McuBackend:
         self.emu.call(E.MCU_ENERGIES)
         c = self.emu.layout["connections"]
         e = self.emu.read_array("mcu_energy", np.int64, 3 * c).reshape(3, c)[:, :self.nc]
-        return e.astype(np.float64) * Q32_UNIT
+        return e.astype(np.float64) * Q40_UNIT
 
     def _counters(self) -> np.ndarray:
         return self.emu.read_array("mcu_counters", np.int64)
 
     @property
     def mean_energy(self) -> float:
-        return float(self._counters()[11]) * Q32_UNIT
+        return float(self._counters()[11]) * Q40_UNIT
 
     @property
     def last_t(self) -> int:

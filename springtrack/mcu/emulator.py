@@ -90,7 +90,8 @@ class Emulator:
         for a, data in progbits:
             self.uc.mem_write(a, data)
         self.layout = dict(zip(LAYOUT_FIELDS, self.read_array("mcu_layout", np.int32).tolist()))
-        self._funcs = sorted((a & ~1, a + size, name) for name, (a, size) in self.sym.items()
+        # a Thumb symbol's value has bit 0 set: the function spans [value & ~1, + size)
+        self._funcs = sorted((a & ~1, (a & ~1) + size, name) for name, (a, size) in self.sym.items()
                              if size and FLASH_BASE <= a < RAM_BASE and name in self._func_names)
         self.main = self.addr("mcu_main")
         self.halt = self.addr("mcu_halt")

@@ -16,7 +16,7 @@
  *   MCU_SPRINGS     one spring update
  *
  * and then always refreshes mcu_counters.  A snapshot row is MCU_ROW_WORDS int64: t, the
- * three energy sums (Q.32), then per tracker x, y (Q.32), sxx, sxy, syy (Q.40), the
+ * three energy sums (Q.40), then per tracker x, y (Q.32), sxx, sxy, syy (Q.40), the
  * activity at t (Q.32) and flags (bit 0 active, bit 1 sensitive); beside it, in mcu_wire,
  * the row's TELEMETRY tracker records (csrc/fixed_telemetry.c, springtrack.wire), which
  * a firmware sends to the host as they are.
