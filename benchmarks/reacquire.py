@@ -15,9 +15,13 @@ off it (the mean of four such placements; the face of face_occlusion ends at abo
 * two objects side by side: a face and a grid (--model face --model grid, backend
   reference: several instances run there), each scored against its own truth.
 
-Also: when each instance was lost and re-acquired, relative to the object's return.
+The face's error is chaotic (a 0.1 px nudge moves it between about 1.3 % and 3.7 %): its
+rows are means over ``--seeds`` scene seeds (the scene's texture, noise and hand), each
+against the same seed placed by hand.  Also: when each instance was lost and
+re-acquired, relative to the object's return, and the losses on the scenes without any
+disruption (placed wrong), which must be 0.
 
-Run: .venv/bin/python benchmarks/reacquire.py [--seconds S] [--no-write]
+Run: .venv/bin/python benchmarks/reacquire.py [--seconds S] [--seeds N] [--no-write]
 """
 from __future__ import annotations
 
@@ -100,40 +104,56 @@ def changes_text(tr, ret_us=None, labels=False):
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--seconds", type=float, default=5.0)
+    ap.add_argument("--seeds", type=int, default=3, help="face scenes: seeds averaged")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
     S = args.seconds
     rows = []
+    false_losses = 0
 
     # placed wrong
     for name in ("face_occlusion", "grid_pull", "grid_rot_y", "grid_inplane"):
-        sc = make_scene(name)
-        m = sc.initial_model()
-        e_hand = by_hand(sc, m, S)
-        tr, tk, truth, n, cpu = run(sc, placed_wrong(m), S)
-        e_acq = score(truth, tk)
-        _, off, _, _, _ = run(sc, placed_wrong(m), S, acquire=False)
-        e_off = score(truth, off)
-        rows.append((f"{name}, model placed 20°/15 %/30 px off", e_hand, e_acq, 1.25,
-                     f"without --acquire {e_off:.2f} %; {changes_text(tr)}"))
+        seeds = range(args.seeds) if name == "face_occlusion" else [0]
+        hand, acq, off, notes = [], [], [], []
+        for seed in seeds:
+            sc = make_scene(name, seed=seed)
+            m = sc.initial_model()
+            hand.append(by_hand(sc, m, S))
+            tr, tk, truth, n, cpu = run(sc, placed_wrong(m), S)
+            acq.append(score(truth, tk))
+            _, tk_off, _, _, _ = run(sc, placed_wrong(m), S, acquire=False)
+            off.append(score(truth, tk_off))
+            false_losses += tr.counters["lost"]
+            notes.append(f"seed {seed}: {acq[-1]:.2f} % ({changes_text(tr)}; "
+                         f"{tr.counters['losses_refuted']} refuted)")
+        rows.append((f"{name}, model placed 20°/15 %/30 px off"
+                     + (f", mean of {len(seeds)} seeds" if len(seeds) > 1 else ""),
+                     tuple(np.mean(hand, axis=0)), float(np.mean(acq)), 1.25,
+                     f"without --acquire {np.mean(off):.2f} %; " + "; ".join(notes)))
         print(rows[-1], flush=True)
 
     # jump, occlusion, exit and return (the face, hand passes from 4 s)
-    base = make_scene("face_occlusion")
-    m = base.initial_model()
-    cases = [("jump of 60 px at 3 s", Disrupted(base, at_s=3.0, dx=60.0)),
-             ("full occlusion 3.0-3.3 s", Disrupted(base, hide_s=(3.0, 3.3))),
-             ("exit at 2.5 s, back at 3.0 s", Disrupted(base, at_s=2.5, dx=330.0, move_s=0.1,
-                                                         back_s=2.9))]
-    for what, sc in cases:
-        ret = int(sc.returned() * 1e6)
-        e_hand = by_hand(base, m, S, since_us=ret)
-        tr, tk, truth, n, cpu = run(sc, m, S)
-        e_acq = score(truth, tk, since_us=ret)
-        _, nt, _, _, _ = run(sc, m, S, acquire=False)
-        e_no = score(truth, nt, since_us=ret)
-        rows.append((f"face, {what} (error from {ret / 1e6:g} s)", e_hand, e_acq, 1.5,
-                     f"without --acquire {e_no:.2f} %; {changes_text(tr, ret)}"))
+    def cases(base):
+        return [("jump of 60 px at 3 s", Disrupted(base, at_s=3.0, dx=60.0)),
+                ("full occlusion 3.0-3.3 s", Disrupted(base, hide_s=(3.0, 3.3))),
+                ("exit at 2.5 s, back at 3.0 s", Disrupted(base, at_s=2.5, dx=330.0,
+                                                            move_s=0.1, back_s=2.9))]
+    for k, what in enumerate(w for w, _ in cases(make_scene("face_occlusion"))):
+        hand, acq, no, notes = [], [], [], []
+        for seed in range(args.seeds):
+            base = make_scene("face_occlusion", seed=seed)
+            m = base.initial_model()
+            sc = cases(base)[k][1]
+            ret = int(sc.returned() * 1e6)
+            hand.append(by_hand(base, m, S, since_us=ret))
+            tr, tk, truth, n, cpu = run(sc, m, S)
+            acq.append(score(truth, tk, since_us=ret))
+            _, nt, _, _, _ = run(sc, m, S, acquire=False)
+            no.append(score(truth, nt, since_us=ret))
+            notes.append(f"seed {seed}: {acq[-1]:.2f} % ({changes_text(tr, ret)})")
+        rows.append((f"face, {what} (error from {ret / 1e6:g} s), mean of {args.seeds} seeds",
+                     tuple(np.mean(hand, axis=0)), float(np.mean(acq)), 1.5,
+                     f"without --acquire {np.mean(no):.2f} %; " + "; ".join(notes)))
         print(rows[-1], flush=True)
 
     # two objects side by side: several instances run on the reference backend
@@ -152,6 +172,20 @@ def main() -> None:
                      e_hand, e_acq, 1.5, changes_text(tr, labels=True)))
         print(rows[-1], flush=True)
 
+    # jumps of other sizes and directions, other scenes (seed 1, jump at 2 s)
+    S3 = min(S, 4.0)
+    jumps = []
+    for name, kw in [("face_occlusion", dict(dy=60.0)), ("face_occlusion", dict(dx=-40.0)),
+                     ("face_occlusion", dict(dx=150.0)), ("face_occlusion", dict(dx=-80.0, dy=-50.0)),
+                     ("grid_inplane", dict(dx=80.0)), ("grid_pull", dict(dx=-60.0)),
+                     ("grid_rot_y", dict(dy=40.0))]:
+        base = make_scene(name, seed=1)
+        sc = Disrupted(base, at_s=2.0, **kw)
+        tr, tk, truth, n, cpu = run(sc, base.initial_model(), S3)
+        jumps.append(f"| {name}, jump {kw} | {score(truth, tk, since_us=2_000_000):.2f} | "
+                     f"{changes_text(tr, 2_000_000)} | {tr.counters['verifications']} |")
+        print(jumps[-1], flush=True)
+
     lines = ["| scene | by hand: exact / nudged % | --acquire % | ratio to exact, nudged "
              "(target) | notes |", "|---|---:|---:|---|---|"]
     for what, (h, hn), a, target, note in rows:
@@ -159,7 +193,11 @@ def main() -> None:
         lines.append(f"| {what} | {h:.2f} / {hn:.2f} | {a:.2f} | {a / h:.2f} ({ok[0]}), "
                      f"{a / hn:.2f} ({ok[1]}) (≤ {target:g}) | {note} |")
     body = (f"Machine: {machine()}.  Command: `.venv/bin/python benchmarks/reacquire.py "
-            f"--seconds {S:g}`.\n\n" + "\n".join(lines))
+            f"--seconds {S:g} --seeds {args.seeds}`.\n\n" + "\n".join(lines)
+            + f"\n\nLosses on the scenes placed wrong (no disruption): {false_losses}.\n\n"
+            f"Jumps at 2 s ({S3:g} s scenes, seed 1; error from the jump, changes relative "
+            "to it):\n\n| scene | --acquire % | changes | verifications |\n|---|---:|---|---:|\n"
+            + "\n".join(jumps))
     print(body)
     if not args.no_write:
         write_section("Loss and re-acquisition (measured targets)", body)

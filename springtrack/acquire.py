@@ -300,11 +300,13 @@ class _Evidence:
                GATE_AREA, KAPPA, Z, N_MIN, CAUCHY, self.scratch)
         return tuple(p)
 
-    def judge(self, tx, ty, th, s, events: int) -> Pose:
-        """The pose with its score, support and found decision (module docstring)."""
+    def judge(self, tx, ty, th, s, events: int, at=None) -> Pose:
+        """The pose with its score, support and found decision (module docstring);
+        ``at``: (x, y) the trackers' means instead of the pose's (its covariances kept)."""
         from ._acquire import moments, surround
         h, w = self.h, self.w
-        mx, my = self.geo.means(tx, ty, th, s)
+        mx, my = self.geo.means(tx, ty, th, s) if at is None else (
+            np.ascontiguousarray(at[0], float), np.ascontiguousarray(at[1], float))
         cov = self.geo.covs(th, s)
         sxx, sxy, syy = cov[:, 0, 0].copy(), cov[:, 0, 1].copy(), cov[:, 1, 1].copy()
         moments(*self.sparse, mx, my, sxx, sxy, syy, FLAT2, GATE2, self.out)
@@ -466,9 +468,7 @@ def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DE
                          f"got {tuple(angle_deg)}")
     if len(scales) != 2 or not 0 < scales[0] <= scales[1] or not math.isfinite(scales[1]):
         raise ValueError(f"acquire: scale must be (lo, hi) with 0 < lo <= hi, got {tuple(scale)}")
-    img, n_ev = count_image(events, w, h)
-    if claimed is not None:
-        remove_claimed(img, claimed)
+    img, n_ev = _evidence_image(events, w, h, claimed)
     geo = _Geometry(model)
     if n_ev < MIN_EVENTS:
         g = geo.g
@@ -491,9 +491,7 @@ def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DE
         return best
     evs = as_events(events)
     near = np.argsort(np.abs(evs["t"] - int(at_us)), kind="stable")[:max(len(evs) // 4, 1)]
-    img_at, _ = count_image(evs[np.sort(near)], w, h)
-    if claimed is not None:
-        remove_claimed(img_at, claimed)
+    img_at, _ = _evidence_image(evs[np.sort(near)], w, h, claimed)
     ev_at = _Evidence(geo, img_at, background_density(img_at))
     mid = np.array([best.tx, best.ty, math.radians(best.angle_deg), best.scale])
     q = np.array(ev_at.refine(tuple(mid), 0.0, lo, hi, MAX_ITER))
@@ -508,6 +506,30 @@ def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DE
             q = np.clip(q + (q - mid) * f, lo, hi)
     tx, ty, th, s = (float(v) for v in q)
     return replace(best, tx=tx, ty=ty, angle_deg=math.degrees(th), scale=s)
+
+
+def judge(model, events, pose, *, width: int | None = None, height: int | None = None,
+          claimed=None, at=None) -> Pose:
+    """``pose`` (anything with tx, ty, angle_deg, scale; e.g. :func:`fit_pose` of a
+    tracker's current positions) judged on ``events`` as :func:`acquire` judges the pose
+    it finds: its score, support, confidence and found decision, no search.  ``at``:
+    (x, y) arrays of the trackers' positions as they are (a deformed or perspective view
+    that no similarity fits), judged there with the pose's covariances."""
+    model = load_model(model)
+    w, h = int(width or model.width), int(height or model.height)
+    img, n_ev = _evidence_image(events, w, h, claimed)
+    ev = _Evidence(_Geometry(model), img, background_density(img))
+    return ev.judge(float(pose.tx), float(pose.ty), math.radians(pose.angle_deg),
+                    float(pose.scale), n_ev, at)
+
+
+def _evidence_image(events, w: int, h: int, claimed):
+    """The count image of ``events`` with the ``claimed`` gates' pixels removed, and the
+    number of events inside the sensor."""
+    img, n_ev = count_image(events, w, h)
+    if claimed is not None:
+        remove_claimed(img, claimed)
+    return img, n_ev
 
 
 class Acquisition:

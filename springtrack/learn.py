@@ -97,6 +97,7 @@ class LearnParams:
     min_rigidity: float = 0.2
     rigidity_scale: float = 0.5        # deformation (in part sizes) of rigidity 1/2
     cartesian_turn_deg: float = 10.0
+    lag_fraction: float = 0.1          # alpha_1 (tracking): eq. (3)'s lag, in part sizes
     stiffness_gain: float = 0.1        # stiffness = gain * alpha_1 (tracking) * rigidity
     energy_quantile: float = 0.99      # s of eqs. (21)-(22): this quantile of E_ij / mean E,
     energy_scale_max: float = 4.5      # ... at most this (and at least the default 2.5)
@@ -115,7 +116,8 @@ class LearnParams:
             raise ValueError("learn: p_threshold must be in (0, 1)")
         if not 0 < self.sigma_min_px < self.sigma_max_px:
             raise ValueError("learn: need 0 < sigma_min_px < sigma_max_px")
-        for name in ("batch_us", "birth_cell_px", "activity_tau_us", "life_tau_us", "smooth_us"):
+        for name in ("batch_us", "birth_cell_px", "activity_tau_us", "life_tau_us", "smooth_us",
+                     "lag_fraction"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"learn: {name} must be positive")
 
@@ -978,7 +980,9 @@ def steady_positions(rec: dict, x_end: np.ndarray, y_end: np.ndarray, size_px: f
     there, and a tracker farther than ``size_px`` (a part's size) from its place takes
     it; the others keep their final positions (where the parts are: a perspective view
     is not a similarity).  When most samples are no similarity of one shape (the median
-    d over ``size_px``: a 3-D turn, a deforming object), the final positions stay."""
+    d over ``size_px``: a 3-D turn, a deforming object), the final positions stay.
+
+    Returns (x, y, one_shape): one_shape False when the object's shape itself changed."""
     X, Y = rec["x"], rec["y"]
     w0 = activity_weights(rec)
     z = np.where(w0 > 0, X + 1j * Y, 0.0)
@@ -988,7 +992,7 @@ def steady_positions(rec: dict, x_end: np.ndarray, y_end: np.ndarray, size_px: f
         a = object_similarity(X, Y, w0, shape.real, shape.imag)              # (T,)
         ok = np.abs(a) > 0
         if not ok.any():
-            return x_end, y_end
+            return x_end, y_end, True
         ws = np.maximum(w0.sum(axis=1), 1e-300)
         zbar = (w0 * z).sum(axis=1) / ws
         rbar = (w0 * shape[None, :]).sum(axis=1) / ws
@@ -996,16 +1000,16 @@ def steady_positions(rec: dict, x_end: np.ndarray, y_end: np.ndarray, size_px: f
         est = rbar[:, None] + (z - zbar[:, None]) * inv[:, None]              # (T, N)
         d2 = (w0 * np.abs(est - shape[None, :]) ** 2).sum(axis=1) / ws
         if np.median(d2[ok]) > size_px ** 2:
-            return x_end, y_end           # not one shape: the one at the end
+            return x_end, y_end, False    # not one shape: the one at the end
         w = w0 * (ok * np.exp(-0.5 * d2 / size_px ** 2))[:, None]
         tot = w.sum(axis=0)
         shape = np.where(tot > 0, (w * est).sum(axis=0) / np.maximum(tot, 1e-300), end)
     a, zbar, rbar = similarity_fit(end, shape, np.ones(len(end)))
     if a == 0:
-        return x_end, y_end
+        return x_end, y_end, True
     placed = zbar + a * (shape - rbar)
     placed = np.where(np.abs(placed - end) > size_px, placed, end)
-    return placed.real.copy(), placed.imag.copy()
+    return placed.real.copy(), placed.imag.copy(), True
 
 
 def spring_energies(rec: dict, kept: list, stiffness: np.ndarray, kind: str, x_end,
@@ -1028,13 +1032,13 @@ def spring_energies(rec: dict, kept: list, stiffness: np.ndarray, kind: str, x_e
 
 
 def motion_alpha(rec: dict, sig: np.ndarray, batch_us: int, smooth_us: int,
-                 quantile: float = 0.9, bounds=(0.005, 0.5)) -> float:
+                 lag_fraction: float, quantile: float = 0.9, bounds=(0.005, 0.5)) -> float:
     """alpha_1 of eq. (3) for the motion seen while learning.
 
-    The running mean of eq. (3) lags 1/alpha_1 events behind a part moving at v px/s
-    and taking r events/s, i.e. v / (alpha_1 r) px, and jitters by sigma sqrt(alpha_1)
-    (both axes, sigma the part's size): the sum of squares is least at
-    alpha_1 = (2 v^2 / (r^2 sigma^2))^(1/3).  Each tracker's own v (RMS speed, positions
+    Between two of its events (1/r s apart) a part moving at v px/s moves by v / r px;
+    the running mean of eq. (3) takes 1/alpha_1 events to catch up, so it lags by
+    v / (alpha_1 r) px.  Held to ``lag_fraction`` of the part's size sigma:
+    alpha_1 = v / (lag_fraction r sigma).  Each tracker's own v (RMS speed, positions
     averaged over ``smooth_us``), r and sigma give its alpha_1; the model takes their
     ``quantile``, so that the parts that move fastest for their events (the tips of a
     turning object) are followed too."""
@@ -1047,12 +1051,13 @@ def motion_alpha(rec: dict, sig: np.ndarray, batch_us: int, smooth_us: int,
         bx = np.nanmean(rec["x"][:m].reshape(-1, step, n), axis=1)     # NaN: no sample
         by = np.nanmean(rec["y"][:m].reshape(-1, step, n), axis=1)
         v2 = np.nanmean(np.diff(bx, axis=0) ** 2 + np.diff(by, axis=0) ** 2, axis=0)
-    v2 = v2 / (step * batch_us * 1e-6) ** 2
+    v = np.sqrt(v2) / (step * batch_us * 1e-6)
     r = event_rates(rec) / (batch_us * 1e-6)
-    ok = np.isfinite(v2) & (r > 0) & (sig > 0)
+    ok = np.isfinite(v) & (r > 0) & (sig > 0)
     if not ok.any():
         return Params().alpha_position
-    alpha = (2.0 * v2[ok] / (r[ok] ** 2 * sig[ok] ** 2)) ** (1.0 / 3.0)
+    # alpha_1 = v / (lag_fraction r sigma): eq. (3)'s lag v / (alpha_1 r) = lag_fraction sigma
+    alpha = v[ok] / (lag_fraction * r[ok] * sig[ok])
     return float(np.clip(np.quantile(alpha, quantile), *bounds))
 
 
@@ -1081,7 +1086,7 @@ def _build_model(pool, rec, counts, lp, track_params, width, height, names, name
     n = pool.n
     st = pool.st
     sig = np.sqrt(0.5 * (st[F["sxx"], :n] + st[F["syy"], :n]))
-    x, y = steady_positions(rec, pool.x.copy(), pool.y.copy(), float(np.median(sig)))
+    x, y, one_shape = steady_positions(rec, pool.x.copy(), pool.y.copy(), float(np.median(sig)))
     order = reading_order(x, y, float(np.median(sig)))
     if names is not None:
         names = list(names)
@@ -1111,7 +1116,8 @@ def _build_model(pool, rec, counts, lp, track_params, width, height, names, name
     kept = sorted(kept, key=lambda c: -c.rigidity * c.coactivation)[:MAX_CONNECTIONS]
     params = dict(track_params)
     if "alpha_position" not in params:
-        params["alpha_position"] = round(motion_alpha(rec, sig, lp.batch_us, lp.smooth_us), 4)
+        params["alpha_position"] = round(motion_alpha(rec, sig, lp.batch_us, lp.smooth_us,
+                                                             lp.lag_fraction), 4)
     stiff = np.array([lp.stiffness_gain * params["alpha_position"] * c.rigidity for c in kept])
     if kept:
         # the spring bound every model meets (springtrack.limits): all stiffnesses scaled
@@ -1121,7 +1127,14 @@ def _build_model(pool, rec, counts, lp, track_params, width, height, names, name
                                      stiff, mass)
         kind = params.setdefault("energy_kind", "cartesian" if all(
             c.kinds == ("cartesian",) for c in kept) else "euclidean")
-        if "energy_scale" not in params:
+        if "energy_scale" not in params and not one_shape:
+            # the object's view changed within the window (no similarity of one shape):
+            # its own change of shape would read as an occlusion and eq. (22) would pull
+            # the trackers back to a shape the object no longer has, so eqs. (21)-(22) are
+            # off: s above the number of springs, which no E_ij can exceed (eq. 13:
+            # E_ij <= sum E = n_c mean E)
+            params["energy_scale"] = float(len(kept) + 1)
+        elif "energy_scale" not in params:
             s = energy_scale(spring_energies(rec, kept, stiff, kind, x, y),
                              lp.energy_quantile, Params().energy_scale, lp.energy_scale_max)
             params["energy_scale"] = round(s, 3)

@@ -18,6 +18,16 @@ never there cannot collapse: an object too faint or slow to keep a third of its 
 active (A_up is a rate: about A_up / tau events per second per tracker) is not declared
 lost over and over, and a freshly placed instance (activities 0) has time to gather it.
 
+*Doubt* (:class:`ShareDoubt`) is the quick signal that asks for a verification rather
+than a verdict: the share of the sensor's events an instance's trackers take, the sum of
+their activities (eq. 6: each event taken adds its kernel value, decaying with tau) over
+the same sum for every event on the sensor (as if one tracker had taken each with
+kernel value 1), falls below DOUBT_SHARE of its own running level.  A jump shows at once
+(the trackers stop taking while the object's events go on elsewhere); a motion reversal
+does not (the object and its share of the events pause together); an occluder does
+(its events are not taken), which is why doubt only triggers a search and the search
+decides (springtrack.reacquire).
+
 Every backend reports the same ``active`` flags (the fixed kernel agrees with the float
 kernel on them, docs/benchmarks.md), so :class:`LossRule` reads them from the backend's
 snapshot and decides in one place.
@@ -31,6 +41,10 @@ import numpy as np
 LOSS_ACTIVE_DIV = 3      # lost while LOSS_ACTIVE_DIV x (active trackers) < trackers ...
 LOSS_HOLD_TAU = 3.0      # ... at every check for this many activity time constants
 LOSS_CHECK_US = 1000     # checks at the multiples of this much event time
+DOUBT_CHECK_US = 5000    # doubt is looked at on the multiples of this much event time
+DOUBT_SHARE = 0.7        # in doubt below this x its running share of the events
+SHARE_LEVEL_TAU = 100.0  # the running share's time constant, in activity time constants
+MASS_HORIZON_TAU = 8.0   # events older than this many tau no longer count in the mass
 
 
 def loss_hold_us(params) -> int:
@@ -128,3 +142,50 @@ class LossRule:
                 lost.append(g)
                 self.low_since[g] = None
         return lost
+
+
+def event_mass(t_events, t: int, tau_us: float, mass: float = 0.0, since: int | None = None) -> float:
+    """The activity (eq. 6) of a tracker that took every event with kernel value 1, at
+    time ``t``: sum over ``t_events`` (all before t) of exp(-(t - t_ev) / tau), plus
+    ``mass`` carried from time ``since`` (decayed to t)."""
+    out = 0.0 if since is None else mass * math.exp(-(int(t) - int(since)) / tau_us)
+    te = np.asarray(t_events, np.float64)
+    if len(te):
+        out += float(np.exp((te - float(t)) / tau_us).sum())
+    return out
+
+
+class ShareDoubt:
+    """Per instance: its share of the sensor's events, sum of its trackers' activities
+    over :func:`event_mass`, against a running level (time constant SHARE_LEVEL_TAU tau,
+    started a hold after the instance is placed, when its activities have built up).
+    :meth:`doubt` says whether the share fell below DOUBT_SHARE of the level."""
+
+    def __init__(self, n_instances: int, tau_us: float, hold_us: int):
+        self.tau = float(tau_us)
+        self.hold = int(hold_us)
+        self.level = [None] * n_instances      # running share
+        self.t = [None] * n_instances          # time of the last update
+        self.start = [0] * n_instances         # the level starts from here
+
+    def reset(self, g: int, t: int) -> None:
+        """Instance g placed or resumed at t: a new level, from a hold after t."""
+        self.level[g], self.t[g], self.start[g] = None, None, int(t) + self.hold
+
+    def doubt(self, t: int, g: int, taken: float, mass: float, n: int) -> bool:
+        """At time t, instance g (``n`` trackers, activities summing to ``taken``) with
+        the sensor's event ``mass``: in doubt?  Too few events on the sensor (mass below
+        n): no doubt and no update, nothing to judge by."""
+        if t < self.start[g] or mass < n:
+            return False
+        share = taken / mass
+        level = self.level[g]
+        if level is None:
+            self.level[g], self.t[g] = share, int(t)
+            return False
+        low = share < DOUBT_SHARE * level
+        # the running level: level += (share - level)(1 - exp(-dt / (SHARE_LEVEL_TAU tau)))
+        k = 1.0 - math.exp(-(int(t) - self.t[g]) / (SHARE_LEVEL_TAU * self.tau))
+        self.level[g] = level + (share - level) * k
+        self.t[g] = int(t)
+        return low

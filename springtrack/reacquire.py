@@ -7,13 +7,27 @@ every backend:
   memory bounded by the event rate, never by the input's span);
 * at every loss check (springtrack.loss: the multiples of LOSS_CHECK_US of event time,
   on the state holding every event before it) it applies the loss rule to the
-  backend's ``active`` flags; an instance found lost is set LOST (insensitive, its
-  positions kept) and searched for at once;
+  backend's ``active`` flags; before an instance is declared lost it is searched for on
+  the last window, and found where its trackers are (RESUME_SIGMA) it is not lost (an
+  object that slowed down, stopped or turned: the rule's clock restarts); one found
+  lost is set LOST (insensitive, its positions kept) and searched for at once;
+* at every multiple of DOUBT_CHECK_US of event time, each tracking instance's share of
+  the sensor's events (springtrack.loss.ShareDoubt); an instance in doubt is verified
+  (at most once per ``period``; while the doubt stays and nothing better is found, the
+  waits double up to VERIFY_BACKOFF periods), and every instance every VERIFY_EVERY
+  periods: a search on the last ``period / 2`` of events; if it finds the model away
+  from its trackers and supported MOVED_SUPPORT times more than its trackers are where
+  they are (:func:`springtrack.acquire.judge` on the same events), the object moved:
+  lost and re-placed there at once (a jump is caught as soon as its share falls, not
+  after the activity has decayed and the hold has run);
 * at every multiple of half the acquisition window of event time (``period``) while an
   instance is searching or lost, and if events came since the last such time, it runs
   :func:`springtrack.acquire.acquire` for that instance on the last window of the ring,
   with the pixels of the tracking instances' gates removed (explaining away) and the pose
   wanted at the newest event (tracking resumes with the next event: nothing is replayed);
+* a pose found with trackers off the sensor (by a search or a verification) is taken
+  only when the attempt before found it at the same place: an object sliding into view is not placed half in view,
+  where a tracker could not follow it;
 * an instance found is placed there (``place``: positions, covariances and the rest
   geometry of the placed model, activities 0) and tracks again -- unless it was found
   where its trackers were kept (mean Mahalanobis distance below RESUME_SIGMA: the object
@@ -30,14 +44,19 @@ import math
 
 import numpy as np
 
-from .acquire import MIN_EVENTS, acquire, place, placed_gates
+from .acquire import MIN_EVENTS, acquire, fit_pose, judge, place, placed_gates
 from .events import EVENT_DTYPE
 from .instances import LOST, SEARCHING, TRACKING
-from .loss import LOSS_CHECK_US, LossRule, counted, loss_hold_us
+from .loss import (DOUBT_CHECK_US, LOSS_CHECK_US, MASS_HORIZON_TAU, LossRule, ShareDoubt,
+                   counted, event_mass, loss_hold_us)
 
 RING_EVENTS = 1 << 17          # ~0.4 s at 300 k events/s
 NEVER = 1 << 62
 RESUME_SIGMA = 1.0             # a lost instance found within this of where it was resumes
+MOVED_SUPPORT = 2.0            # in doubt and found elsewhere supported this x more: moved
+VERIFY_BACKOFF = 8             # a doubt that stays: verified every period, 2, 4 ... up to
+#                                this x period apart while nothing better is found
+VERIFY_EVERY = 40              # and every instance, in doubt or not, this x period apart
 
 
 class EventRing:
@@ -65,6 +84,17 @@ class EventRing:
             return self.buf[:self.count].copy()
         pos = self.count % cap
         return np.concatenate([self.buf[pos:], self.buf[:pos]])
+
+    def times_since(self, t_lo: int) -> np.ndarray:
+        """The times of the events held from the newest back to the first with t < t_lo
+        (binary search: the events are held in time order)."""
+        cap = len(self.buf)
+        if self.count <= cap:
+            parts = [self.buf["t"][:self.count]]
+        else:
+            pos = self.count % cap
+            parts = [self.buf["t"][pos:], self.buf["t"][:pos]]
+        return np.concatenate([p[np.searchsorted(p, t_lo, "left"):] for p in parts])
 
     def window(self, t_lo: int, t_hi: int) -> np.ndarray:
         """The events held with t_lo <= t < t_hi, in order."""
@@ -106,12 +136,29 @@ class Recovery:
         self._attempt = None                # the next attempt time
         self._last_event = None             # the clock of the last event run
         self._span = None                   # the clock of the events being run
+        self._partial = {}                  # instance: its last placement found partly in view
+        self.doubt = None                   # the share of events taken (springtrack.loss)
+        self._doubt_at = None               # the next doubt check time
+        self._verify_next = []              # per instance: no verification before this
+        self._verify_wait = []              # per instance: the wait after the next one
+        self._verify_due = []               # per instance: verified, doubt or not, by then
+        self._mass = (0.0, None)            # the sensor's event mass and its time
+        self.verifications = 0
+        self.refuted = 0                    # losses refuted: found where its trackers are
 
     def start(self, t_first: int, found) -> None:
         """The instances were placed (``found[g]``) at the window starting at t_first."""
         b = self.tr._ib
+        params = self.tr.models.params
         self.rule = LossRule([(i.t0, i.t1) for i in self.tr.models],
-                             loss_hold_us(self.tr.models.params), t_first - 1)
+                             loss_hold_us(params), t_first - 1)
+        self.doubt = ShareDoubt(len(self.tr.models), params.activity_tau_us, loss_hold_us(params))
+        self._verify_next = [0] * len(self.tr.models)
+        self._verify_wait = [self.period] * len(self.tr.models)
+        self._verify_due = [t_first + VERIFY_EVERY * self.period] * len(self.tr.models)
+        self._doubt_at = -(-t_first // DOUBT_CHECK_US) * DOUBT_CHECK_US
+        for g in range(len(self.tr.models)):
+            self.doubt.reset(g, t_first)
         for g, f in enumerate(found):
             if f:
                 self.changes.append((t_first, self.tr.models[g].label, "acquired"))
@@ -139,11 +186,13 @@ class Recovery:
             end = self.rule.earliest(tracking)
             if searching:
                 end = min(end, self._attempt)
+            if any(tracking):
+                end = min(end, self._doubt_at)
             j = n if end >= NEVER else int(np.searchsorted(clock, end, "left"))
             if j > pos:
                 self._span = clock[pos:j]
-                yield from self.tr._run(ev[pos:j])
                 self.ring.push(ev[pos:j])
+                yield from self.tr._run(ev[pos:j])
                 self._last_event = int(clock[j - 1])
                 self._span = None
                 pos = j
@@ -152,6 +201,9 @@ class Recovery:
             now = int(clock[pos])                # the state holds every event before now
             if any(tracking):
                 self._stop_check(now)
+                if now >= self._doubt_at:
+                    self._doubt_check(self._doubt_at)
+                    self._doubt_at = _grid_at_or_before(now, DOUBT_CHECK_US) + DOUBT_CHECK_US
             if searching or b.states() != states:
                 if now >= self._attempt:
                     self._search(self._attempt)
@@ -172,7 +224,7 @@ class Recovery:
         ok = counted(t, before)
         tracking = [s == TRACKING for s in self.tr._ib.states()]
         for tk, lost in self.rule.check_rows(t[ok], active[ok], tracking):
-            self._apply(tk, lost)
+            self._apply(tk, self._confirmed(tk, lost))
         self.rule.skip_to(int(t[-1]))
 
     def _stop_check(self, now: int) -> None:
@@ -184,9 +236,36 @@ class Recovery:
         if self.rule.last < t <= now:
             b = self.tr._ib
             tracking = [s == TRACKING for s in b.states()]
-            if self._apply(t, self.rule.check(t, b.snapshot(t)["active"], tracking)):
+            lost = self.rule.check(t, b.snapshot(t)["active"], tracking)
+            if self._apply(t, self._confirmed(t, lost)):
                 self._attempt = t                 # search for it at once
         self.rule.skip_to(_grid_at_or_before(now, LOSS_CHECK_US))
+
+    def _confirmed(self, t: int, lost) -> list:
+        """Of the instances the loss rule finds lost at t, those not found where their
+        trackers are by a search on the last window (an object that only slowed down,
+        turned or stopped keeps its place and is not lost: its rule's clock restarts)."""
+        if not lost:
+            return lost
+        b = self.tr._ib
+        states = b.states()
+        window = self.ring.window(t - self.window_us, t)
+        if len(window) < MIN_EVENTS:
+            return lost
+        snap = b.snapshot(t)
+        out = []
+        for g in lost:
+            inst = self.tr.models[g]
+            self.attempts += 1
+            pose = acquire(inst.model, window, at_us=int(window["t"][-1]),
+                           claimed=self._claimed(snap, states, but=g), **self.bounds)
+            x, y = (np.asarray(snap[k], float)[inst.t0:inst.t1] for k in ("x", "y"))
+            if pose.found and _where_kept(place(inst.model, pose), x, y):
+                self.rule.reset(g)
+                self.refuted += 1
+            else:
+                out.append(g)
+        return out
 
     def _apply(self, t: int, lost) -> bool:
         """The instances ``lost`` at check time t: LOST, recorded; True if any."""
@@ -208,29 +287,123 @@ class Recovery:
             return
         snap = b.snapshot(t)
         mset = self.tr.models
-        live = np.repeat(np.array(states) == TRACKING, [i.n for i in mset])
-        claimed = [np.asarray(snap[k], float)[live] for k in ("x", "y", "sxx", "sxy", "syy")]
+        claimed = self._claimed(snap, states)
         at = int(window["t"][-1])
         for g in todo:
             self.attempts += 1
             model = mset[g].model
             pose = acquire(model, window, at_us=at, claimed=claimed, **self.bounds)
             if not pose.found:
+                self._partial.pop(g, None)
                 continue
             placed = place(model, pose)
             inst = mset[g]
+            if pose.in_view < inst.n and not self._stays_partly_in_view(g, placed):
+                continue
             kept = [np.asarray(snap[k], float)[inst.t0:inst.t1] for k in ("x", "y")]
             if states[g] == LOST and _where_kept(placed, *kept):
                 b.set_state(g, TRACKING)          # found where it was kept: resume from there
+                self._resumed(t, g, "reacquired")
             else:
-                self.tr.models = mset = mset.replaced(g, placed)
-                b.place(g, placed)
-            self.rule.reset(g)
-            kind = "acquired" if states[g] == SEARCHING else "reacquired"
-            self.changes.append((t, mset[g].label, kind))
-            self._placed(t, g)
+                self._replace(t, g, placed, "acquired" if states[g] == SEARCHING else "reacquired")
+            mset = self.tr.models
             claimed = [np.concatenate([c, np.asarray(v, float)])
                        for c, v in zip(claimed, placed_gates(model, pose))]
+
+    def _claimed(self, snap, states, but: int | None = None) -> list:
+        """The gates (x, y, sxx, sxy, syy) of the tracking instances' trackers (but
+        instance ``but``): their events are explained already."""
+        live = np.array(states) == TRACKING
+        if but is not None:
+            live[but] = False
+        live = np.repeat(live, [i.n for i in self.tr.models])
+        return [np.asarray(snap[k], float)[live] for k in ("x", "y", "sxx", "sxy", "syy")]
+
+    def _replace(self, t: int, g: int, placed, kind: str) -> None:
+        """Instance g placed anew as ``placed`` at t (activities 0, tracking)."""
+        self.tr.models = self.tr.models.replaced(g, placed)
+        self.tr._ib.place(g, placed)
+        self._resumed(t, g, kind)
+
+    def _resumed(self, t: int, g: int, kind: str) -> None:
+        """Instance g tracks again from t: the rules' clocks restart, the change kept."""
+        self.rule.reset(g)
+        self.doubt.reset(g, t)
+        self._partial.pop(g, None)
+        self.changes.append((t, self.tr.models[g].label, kind))
+        self._placed(t, g)
+
+    def _doubt_check(self, t: int) -> None:
+        """At doubt check time t (the state holds every event before t): each tracking
+        instance's share of the events (springtrack.loss.ShareDoubt); one in doubt is
+        verified, then again a ``period`` later, and while the doubt stays and the
+        searches find nothing better, after waits doubling up to VERIFY_BACKOFF periods."""
+        b = self.tr._ib
+        tau = self.tr.models.params.activity_tau_us
+        mass, since = self._mass
+        lo = t - int(MASS_HORIZON_TAU * tau)
+        if since is None or since < lo:
+            mass, since = 0.0, lo
+        te = self.ring.times_since(since)
+        mass = event_mass(te[te < t], t, tau, mass, since)
+        self._mass = (mass, t)
+        states = b.states()
+        snap = None
+        for g, inst in enumerate(self.tr.models):
+            if states[g] != TRACKING:
+                continue
+            if snap is None:
+                snap = b.snapshot(t)
+            taken = float(np.sum(snap["activity"][inst.t0:inst.t1]))
+            doubt = self.doubt.doubt(t, g, taken, mass, inst.n)
+            if not doubt:
+                self._verify_wait[g] = self.period
+            if (doubt and t >= self._verify_next[g]) or t >= self._verify_due[g]:
+                moved = self._verify(t, g, snap, states)
+                self._verify_due[g] = t + VERIFY_EVERY * self.period
+                if doubt:
+                    wait = self._verify_wait[g]
+                    self._verify_wait[g] = (self.period if moved else
+                                            min(2 * wait, VERIFY_BACKOFF * self.period))
+                    self._verify_next[g] = t + wait
+
+    def _verify(self, t: int, g: int, snap, states) -> bool:
+        """Instance g is in doubt (or due) at t: search for it on the last ``period / 2``
+        of events; if it is found away from its trackers (RESUME_SIGMA) and supported
+        MOVED_SUPPORT times more than its trackers where they are (and, partly in view, found
+        at the same place by the verification before), it moved: lost and re-placed there
+        at t (True)."""
+        window = self.ring.window(t - self.period // 2, t)
+        if len(window) < MIN_EVENTS:
+            return False
+        self.verifications += 1
+        inst = self.tr.models[g]
+        model = inst.model
+        claimed = self._claimed(snap, states, but=g)
+        pose = acquire(model, window, claimed=claimed, **self.bounds)
+        if not pose.found:
+            return False
+        placed = place(model, pose)
+        x, y = (np.asarray(snap[k], float)[inst.t0:inst.t1] for k in ("x", "y"))
+        if _where_kept(placed, x, y):
+            return False
+        here = judge(model, window, fit_pose(model, x, y), claimed=claimed, at=(x, y))
+        if pose.supported < MOVED_SUPPORT * max(here.supported, 1):
+            return False
+        if pose.in_view < inst.n and not self._stays_partly_in_view(g, placed):
+            return False
+        self._apply(t, [g])
+        self._replace(t, g, placed, "reacquired")
+        return True
+
+    def _stays_partly_in_view(self, g: int, placed) -> bool:
+        """A pose found with some trackers off the sensor is taken only when the attempt
+        before found it at the same place (RESUME_SIGMA): an object sliding into view is
+        found half in view where it will not stay, and a tracker placed there falls
+        behind; one that stays at the border is taken one attempt later."""
+        a = placed.arrays()
+        prev, self._partial[g] = self._partial.get(g), placed
+        return prev is not None and _where_kept(prev, a["x"], a["y"])
 
     def _placed(self, t: int, g: int) -> None:
         a = self.tr.models[g].model.arrays()
@@ -238,5 +411,6 @@ class Recovery:
 
     def counters(self) -> dict:
         kinds = [c[2] for c in self.changes]
-        return dict(reacquire_attempts=self.attempts, acquired=kinds.count("acquired"),
+        return dict(reacquire_attempts=self.attempts, verifications=self.verifications,
+                    losses_refuted=self.refuted, acquired=kinds.count("acquired"),
                     lost=kinds.count("lost"), reacquired=kinds.count("reacquired"))

@@ -12,7 +12,7 @@ import pytest
 from springtrack import Tracker
 from springtrack.cli import main as cli
 from springtrack.events import make
-from springtrack.learn import NoObjectFound, learn, learn_model
+from springtrack.learn import NoObjectFound, learn, learn_model, motion_alpha
 from springtrack.metrics import score_track, truth_from_array
 from springtrack.model import FACE_INTERNAL, ShapeModel, face_layout, load
 from springtrack.sim.scenes import make_scene
@@ -242,6 +242,24 @@ def test_biplane_is_learned_on_the_plane(data_file):
     d = np.hypot(x[:, None] - last["x"][None].astype(float), y[:, None] - last["y"][None])
     assert np.all(d.min(axis=1) < 6.0)
     assert m.connections and all("torsional" in c.springs for c in m.connections)
+    # the plane's view changes within the window (no similarity of one shape), so eqs.
+    # (21)-(22) are off: s above the number of springs
+    assert m.params["energy_scale"] > len(m.connections)
+
+
+def test_alpha_holds_the_lag_to_a_fraction_of_a_part():
+    """eq. (3)'s lag v / (alpha_1 r) is lag_fraction sigma: alpha_1 = v / (f r sigma),
+    the 90th percentile over the trackers."""
+    T, batch_us = 200, 1000
+    t = np.arange(T)[:, None] * batch_us * 1e-6
+    speeds = np.array([100.0, 300.0])                         # px/s, along x
+    rec = {"x": 10.0 + speeds[None] * t, "y": np.full((T, 2), 50.0),
+           "cnt": np.full((T, 2), 5.0), "valid": np.ones((T, 2), bool)}
+    sig = np.array([2.0, 3.0])
+    a = motion_alpha(rec, sig, batch_us, 20_000, 0.1)
+    per = speeds / (0.1 * 5000.0 * sig)                       # 5 events per ms
+    assert a == pytest.approx(np.quantile(per, 0.9), rel=1e-6)
+    assert motion_alpha(rec, sig, batch_us, 20_000, 0.2) == pytest.approx(a / 2, rel=1e-6)
 
 
 def test_cli_biplane_learned_then_tracked_as_delivered(data_file, tmp_path, capsys):
@@ -257,11 +275,11 @@ def test_cli_biplane_learned_then_tracked_as_delivered(data_file, tmp_path, caps
     track = read_csv(csv)
     assert track.t_us[0] >= 200_000 and track.t_us[-1] >= 990_000
     # the share of trackers with a plane event of the last 10 ms within 6 px (measured:
-    # 93 % and 79 % at 250 and 300 ms; 6 of 28 trackers still on the plane at 1 s)
+    # 96 % and 93 % at 250 and 300 ms, 54 % from 600 ms to 1 s)
     import springtrack.io as stio
     from springtrack.prep import prepare
     ev, _ = prepare(stio.open(es).read(), 320, 240, start_us=1000, dequantize=True)
-    for t_us, least in ((250_000, 0.8), (300_000, 0.7), (990_000, 0.1)):
+    for t_us, least in ((250_000, 0.8), (300_000, 0.8), (600_000, 0.4), (990_000, 0.4)):
         k = int(np.searchsorted(track.t_us, t_us))
         last = ev[(ev["t"] >= t_us - 10_000) & (ev["t"] < t_us)]
         d = np.hypot(track.x[k][:, None] - last["x"][None].astype(float),

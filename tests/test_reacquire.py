@@ -44,6 +44,10 @@ def test_hidden_or_gone_then_back_is_lost_then_reacquired_within_50ms(what):
     assert mean_px(track, sc.truth(track.t_us[-1] / 1e6), track.t_us[-1]) < FACE_PX
     c = tr.counters
     assert c["lost"] == kinds.count("lost") and c["reacquired"] == kinds.count("reacquired")
+    # placed whole in view: not half in view while it slides back in
+    t_placed, _, xy = tr.recovery.placements[-1]
+    w, h = tr.models.width, tr.models.height
+    assert t_placed == t_re and (xy >= 0).all() and (xy[:, 0] < w).all() and (xy[:, 1] < h).all()
 
 
 def test_a_jump_is_lost_then_reacquired_at_once():
@@ -57,6 +61,54 @@ def test_a_jump_is_lost_then_reacquired_at_once():
     t_lost, t_re = tr.changes[1][0], tr.changes[2][0]
     assert 500_000 < t_lost < 650_000 and t_re - t_lost <= RETURN_US
     assert mean_px(track, sc.truth(0.95), 950_000) < FACE_PX
+
+
+@pytest.mark.parametrize("backend", ["cython", "fixed", "reference"])
+def test_a_jump_is_caught_by_the_verification_search_the_same_in_every_backend(backend):
+    """The trackers left behind stop taking events while the face's events go on: its
+    share of the events falls (doubt), the search finds the face whole elsewhere and far
+    better supported, and it is re-placed there -- sooner than the activity rule's hold
+    alone could declare it lost, at the same time in every backend."""
+    from springtrack.loss import loss_hold_us
+    sc = Disrupted(face(), at_s=0.3, dx=60.0)
+    ev, _ = simulate_all(sc, 0.45)
+    tr = springtrack.Tracker(sc.initial_model(), backend=backend, acquire=True)
+    track = tr.run(ev, 1000)
+    assert [k for _, _, k in tr.changes] == ["acquired", "lost", "reacquired"], tr.changes
+    t_lost, t_re = tr.changes[1][0], tr.changes[2][0]
+    assert 300_000 < t_lost == t_re < 300_000 + loss_hold_us(tr.params), tr.changes
+    assert tr.counters["verifications"] >= 1
+    assert mean_px(track, sc.truth(0.44), 440_000) < FACE_PX
+    global _JUMP_AT
+    if backend == "cython":
+        _JUMP_AT = t_lost
+    else:
+        assert t_lost == _JUMP_AT
+
+
+def test_a_slow_turn_is_not_a_loss():
+    """grid_pull turns the grid out of the image plane and back: at each reversal its
+    events nearly stop and its activity collapses; the search finds it where its trackers
+    are, so the loss is refuted and the instance goes on tracking."""
+    sc = make_scene("grid_pull")
+    ev, _ = simulate_all(sc, 0.7)
+    tr = springtrack.Tracker(sc.initial_model(), acquire=True)
+    tr.run(ev, 1000)
+    assert [k for _, _, k in tr.changes] == ["acquired"], tr.changes
+    assert tr.counters["losses_refuted"] >= 1
+
+
+def test_share_doubt_follows_its_own_level():
+    from springtrack.loss import DOUBT_SHARE, ShareDoubt, event_mass
+    d = ShareDoubt(1, 10_000, 30_000)
+    d.reset(0, 0)
+    assert not d.doubt(10_000, 0, 5.0, 100.0, 9)            # within the hold: no level yet
+    assert not d.doubt(30_000, 0, 40.0, 100.0, 9)           # the level starts at 0.4
+    assert not d.doubt(35_000, 0, 4.0, 5.0, 9)              # too few events to judge by
+    assert not d.doubt(40_000, 0, 40.0 * DOUBT_SHARE + 1, 100.0, 9)
+    assert d.doubt(45_000, 0, 40.0 * DOUBT_SHARE - 1, 100.0, 9)
+    assert event_mass([0, 10_000], 10_000, 10_000) == pytest.approx(1 + np.exp(-1.0))
+    assert event_mass([], 20_000, 10_000, 2.0, 10_000) == pytest.approx(2 * np.exp(-1.0))
 
 
 def test_two_objects_side_by_side_keep_their_identities():
