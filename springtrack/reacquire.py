@@ -33,7 +33,8 @@ every backend:
   where its trackers were kept (mean Mahalanobis distance below RESUME_SIGMA: the object
   came back where it was hidden, or stood still), which resume as they were;
 * an instance re-acquired or found moved while its trackers still hold the model's shape
-  (mean Mahalanobis distance to their best-fit placement below SHAPE_SIGMA) is not
+  (all on the sensor, their mean Mahalanobis distance to their best-fit placement below
+  SHAPE_SIGMA) is not
   re-placed but moved rigidly onto the pose found (the backend's ``move``: activities
   and deformation kept); a window later it is searched for once more in a narrow range
   around its trackers (REFINE_PX, REFINE_DEG, REFINE_SCALE) and, found, moved onto that
@@ -359,6 +360,9 @@ class Recovery:
         inst = self.tr.models[g]
         model = inst.model
         x, y = (np.asarray(snap[k], float)[inst.t0:inst.t1] for k in ("x", "y"))
+        w, h = self.tr.models.width, self.tr.models.height
+        if not ((x >= 0) & (x < w) & (y >= 0) & (y < h)).all():
+            return False              # trackers off the sensor took no events: no shape
         now = fit_pose(model, x, y)
         if _mahalanobis(place(model, now), x, y) >= SHAPE_SIGMA:
             return False
