@@ -40,7 +40,7 @@ from springtrack import wire  # noqa: E402
 from springtrack.wire import MsgType  # noqa: E402
 
 SECTION = "## Link fuzzing"
-MUTATING = (MsgType.START, MsgType.STOP, MsgType.RESET)
+MUTATING = (MsgType.START, MsgType.STOP, MsgType.RESET, MsgType.SHUTDOWN)
 
 
 def valid_commands() -> list[bytes]:

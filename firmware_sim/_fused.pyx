@@ -126,7 +126,8 @@ cdef class Fused:
     events inside are tracked (the rest counted, ``outside_roi``).
 
     ``feed(buf, n)`` processes the first ``n`` bytes of a buffer (bytes, bytearray,
-    array('B'), numpy uint8) and returns the snapshots taken as a dict of arrays (rows
+    array('B'), numpy uint8) and returns the snapshots taken (or, with a ``sink``, passes
+    them to ``sink(part)`` part by part and returns None) as a dict of arrays (rows
     ``t``; ``trackers`` (rows, trackers) springtrack.track.TRACK_DTYPE; ``energy``
     (rows, 3); for a kernel that packs them (:attr:`native_records`, the fixed-point kernel
     from its integer state) ``wire`` (rows, trackers * 8), the TELEMETRY tracker records).

@@ -6,10 +6,13 @@
     firmware-sim run --source usb --serial 2766 --model face.toml --listen 127.0.0.1:7700
 
 Without a host link it prints a statistics line every ``--stats-every`` s on stderr and a
-final one on stdout; ``--record`` writes every telemetry snapshot in the CSV schema of
-``springtrack track`` (``t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive``).
+final one on stdout, and ends with the source; ``--record`` writes every telemetry
+snapshot in the CSV schema of ``springtrack track``
+(``t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive``).  With a host link it serves
+the link until a host sends SHUTDOWN (``hostctl shutdown``) or it gets SIGTERM / Ctrl-C:
+at the end of the source the loop goes idle (the hosts get a NOTICE) and START replays it.
 Exit status: 0 done, 1 the camera never opened (10 s) or a simulated source failed,
-2 bad arguments / no camera found.
+2 bad arguments / no camera found / unreadable source.
 """
 from __future__ import annotations
 
@@ -19,13 +22,20 @@ import sys
 import threading
 import time
 
+from springtrack import wire
+from springtrack.wire import Fault
 from springtrack.commands.track import add_acquire_window
 
 from . import faults as _faults
 from . import sources as _sources
 from . import usb as camusb
+from .supervise import Supervisor
+from .throttle import Throttle
 
 NEVER_OPENED_S = 10.0      # give up if the camera never delivered a transfer this long
+SHUTDOWN_S = 1.0           # every thread is given this long to stop
+LINK_DRAIN_S = 0.3         # telemetry still forwarded to the hosts when stopping
+PORT_RETRY_S = 1.0         # a serial port that failed is opened again after this
 
 EPILOG = """\
 sources:  """ + _sources.describe(indent=10) + """
@@ -101,7 +111,8 @@ def build_parser() -> argparse.ArgumentParser:
     link.add_argument("--port", metavar="URL", help="serve the host link on a pyserial URL")
     link.add_argument("--listen", metavar="HOST:PORT",
                       help="serve the host link on TCP (prints 'listen: socket://HOST:PORT')")
-    r.add_argument("--key-file", help="HMAC key file for the host link (docs/protocol.md)")
+    r.add_argument("--key-file", help="HMAC key file for the host link (at least 16 bytes; "
+                                      "docs/protocol.md)")
     r.add_argument("--wait-start", action="store_true",
                    help="with a host link: open the camera only when the host sends START "
                         "(e.g. after uploading a model), instead of at once")
@@ -170,56 +181,97 @@ def default_model(args, source: _sources.CameraSource):
 
 
 def read_key(path):
+    """The ``--key-file`` key (``springtrack.wire.read_key_file``), or None."""
     if not path:
         return None
-    with open(path, "rb") as f:
-        key = f.read().strip()
-    if not key:
-        raise ValueError(f"{path}: empty key file")
-    return key
+    try:
+        return wire.read_key_file(path)
+    except ValueError as e:
+        raise ValueError(f"--key-file {e}") from None
 
 
-def start_link(args, engine, stop):
-    """Start the host link thread if asked; returns (thread, port) or (None, None)."""
-    if not (args.pty or args.port or args.listen):
-        return None, None
-    from . import link, transport
-    key = read_key(args.key_file)
-    if args.pty:
-        port = transport.PtyPort()
-        transport.announce_pty(port)
-    elif args.port:
-        port = transport.open_port(args.port)
-    else:
-        host, _, p = args.listen.rpartition(":")
-        server = transport.TcpServer(host or "127.0.0.1", int(p), key=key)
-        print(f"listen: {server.url}", flush=True)
+class Link:
+    """The host link thread of ``--pty`` / ``--port`` / ``--listen``, supervised: an
+    unexpected exception is reported through the engine and the link restarted; a serial
+    port that fails is opened again."""
 
-        def accept_loop():
-            while not stop.is_set():
-                conn = server.accept(0.2)
-                if conn is not None:
-                    link.serve(conn, engine, key=key, stop_event=stop)
-                    conn.close()
-            server.close()
-        t = threading.Thread(target=accept_loop, name="host-link", daemon=True)
-        t.start()
-        return t, None
-    t = threading.Thread(target=lambda: link.serve(port, engine, key=key, stop_event=stop),
-                         name="host-link", daemon=True)
-    t.start()
-    return t, port
+    def __init__(self, args, engine, key, stop: threading.Event, on_shutdown):
+        from . import link, transport
+        self.port = self.server = None
+        self.stop = stop
+        if args.pty:
+            self.port = transport.PtyPort()
+            transport.announce_pty(self.port)
+        elif args.port:
+            self.port = transport.open_port(args.port)
+        else:
+            host, _, p = args.listen.rpartition(":")
+            self.server = transport.TcpServer(host or "127.0.0.1", int(p), key=key)
+            print(f"listen: {self.server.url}", flush=True)
+        if self.server is not None:
+            self.hub = link.Hub(engine, key, on_shutdown=on_shutdown)
+            link._switch(0.0005)
+            body = lambda: self.hub.serve_tcp(self.server, stop, drain_s=LINK_DRAIN_S)  # noqa: E731
+        else:
+            self.session = link.LinkServer(self.port, engine, key=key, on_shutdown=on_shutdown)
+            self.hub = self.session.hub
+            body = self._serve_port
+        target = engine.supervisor.thread_target("host-link", body, stop, max_faults=None)
+        self.thread = threading.Thread(target=target, name="host-link", daemon=True)
+        self.url = args.port
+        self.thread.start()
+
+    def _serve_port(self) -> None:
+        from . import transport
+        while not self.stop.is_set():
+            self.session.serve(self.stop, drain_s=LINK_DRAIN_S)
+            if self.stop.is_set() or not self.url:
+                return
+            self.hub.log("port", f"{self.url}: {self.session.closed_reason}; reopening in "
+                                 f"{PORT_RETRY_S:g} s")
+            if self.stop.wait(PORT_RETRY_S):
+                return
+            try:
+                self.port.close()
+                self.port = self.session.port = transport.open_port(self.url)
+                self.session.fd = self.session.port.fileno()
+            except OSError as e:
+                self.session.closed_reason = str(e)
+
+    def close(self, timeout: float) -> None:
+        from .transport import PtyPort
+        self.stop.set()
+        self.thread.join(timeout)
+        if isinstance(self.port, PtyPort):
+            self.port.close(linger=timeout)      # the host reads its last frames first
+        elif self.port is not None:
+            self.port.close()
+        if self.server is not None:
+            self.server.close()
 
 
 def run(args) -> int:
-    from .loop import FirmwareLoop
+    """``firmware-sim run``; returns the exit status."""
     # three Python threads (reader, processing, link) share the GIL: hand it over every
     # 0.5 ms instead of 5 ms so the processing thread is never starved for long
     sys.setswitchinterval(0.0005)
     # SIGTERM ends the run like Ctrl-C: threads stopped, --record written, stats printed
-    signal.signal(signal.SIGTERM, _terminate)
+    handlers = {sig: signal.signal(sig, _terminate) for sig in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        return _run(args)
+    finally:
+        for sig, h in handlers.items():
+            signal.signal(sig, h)
+
+
+def _run(args) -> int:
+    from .loop import FirmwareLoop
     biases = parse_biases(args.bias)
     roi = parse_ints(args.roi, 4, ",", "--roi")
+    has_link = bool(args.pty or args.port or args.listen)
+    if args.wait_start and not has_link:
+        raise ValueError("--wait-start needs a host link (--pty, --port or --listen)")
+    key = read_key(args.key_file)
     source = open_source(args, biases)
     for line in source.notes:
         print(line, file=sys.stderr, flush=True)
@@ -230,12 +282,13 @@ def run(args) -> int:
                           lossless=cam is not None and args.max_speed, biases=biases,
                           profile=source.profile, backend=args.backend, roi=roi,
                           source_counters=source.counters, sensor_from=args.sensor_from,
+                          supervisor=Supervisor(), rewind=source.rewind,
                           acquire=_acquire(args), learn_first_ms=args.learn_first_ms,
                           learn_params=learn_params(args))
-    stop = threading.Event()
-    link_thread, port = start_link(args, engine, stop)
-    if args.wait_start and link_thread is None:
-        raise ValueError("--wait-start needs a host link (--pty, --port or --listen)")
+    throttle = Throttle()             # the program's own log lines
+    stop = threading.Event()          # ends the link
+    quit_now = threading.Event()      # a host sent SHUTDOWN
+    link = Link(args, engine, key, stop, quit_now.set) if has_link else None
     if not args.wait_start:
         engine.start()
     t0 = time.monotonic()
@@ -244,13 +297,12 @@ def run(args) -> int:
     failed = None
     learn_said = False
     try:
-        while True:
+        while not quit_now.is_set():
             time.sleep(0.02)
             now = time.monotonic()
-            while engine.reader.log:              # disconnects, reconnects, stalls
-                print(f"usb: {engine.reader.log.popleft()}", file=sys.stderr, flush=True)
+            _print_logs(engine, throttle)
             learn_said = learn_said or _say_learned(engine)
-            if now >= next_stats and link_thread is None:
+            if now >= next_stats and link is None:
                 print(engine.stats_line(), file=sys.stderr, flush=True)
                 next_stats = now + args.stats_every
             if engine.reader.counts["transfers"] == 0 and now - t0 > NEVER_OPENED_S \
@@ -258,25 +310,38 @@ def run(args) -> int:
                 failed = f"the camera never opened in {NEVER_OPENED_S:g} s: {engine.reader.last_error}"
                 break
             if cam is not None:
-                if cam.finished and engine.caught_up():
+                if engine.running and cam.finished and engine.caught_up():
                     quiet += 1
                     if quiet >= 3:
-                        break
+                        if link is None:
+                            break
+                        quiet = 0
+                        _end_of_stream(engine, source)
                 else:
                     quiet = 0
             elif args.seconds is not None and now - t0 >= args.seconds:
                 break
-        if link_thread is not None:
-            _wait_telemetry_sent(engine, link_thread)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
     finally:
+        _ignore_signals()             # a second signal must not cut the shutdown short
+        t_stop = time.monotonic()
         stop.set()
-        engine.stop()
-        if link_thread is not None:
-            link_thread.join(3)
-        if port is not None:
-            port.close()
+        slow = []
+        try:
+            engine.stop(SHUTDOWN_S)
+        except RuntimeError as e:
+            slow.append(str(e))
+        if link is not None:
+            link.close(SHUTDOWN_S)
+            if link.thread.is_alive():
+                slow.append(f"host-link thread did not stop within {SHUTDOWN_S:g} s")
+        _print_logs(engine, throttle)
+        for line in throttle.unshown() + ([] if link is None else
+                                           [f"link: {x}" for x in link.hub.throttle.unshown()]):
+            print(line, file=sys.stderr)
+        print(f"shutdown: threads stopped in {(time.monotonic() - t_stop) * 1e3:.0f} ms"
+              + (f" ({'; '.join(slow)})" if slow else ""), file=sys.stderr, flush=True)
     if not learn_said:
         _say_learned(engine)
     if args.record:
@@ -291,6 +356,26 @@ def run(args) -> int:
         print(f"firmware-sim run: error: {failed}", file=sys.stderr)
         return 1
     return 0
+
+
+def _end_of_stream(engine, source) -> None:
+    """With a host link the program outlives its source: the loop goes idle and says so;
+    a source that failed is reported (ERROR source_failed)."""
+    engine.end_of_stream()
+    why = _sources.failure(source)
+    if why:
+        engine.supervisor.report(Fault.SOURCE_FAILED, f"the source {source.url} failed: {why}")
+
+
+def _print_logs(engine, throttle) -> None:
+    """USB state changes and supervision reports on stderr, at most one line of a kind (its
+    first two words: ``error nonfinite_state``, ``open failed``) per second."""
+    for prefix, log in (("usb", engine.reader.log), ("firmware", engine.supervisor.log)):
+        while log:
+            text = log.popleft()
+            line = throttle(" ".join([prefix, *text.split()[:2]]), f"{prefix}: {text}")
+            if line is not None:
+                print(line, file=sys.stderr, flush=True)
 
 
 def learn_params(args) -> dict | None:
@@ -315,19 +400,14 @@ def _say_learned(engine) -> bool:
     return True
 
 
-def _wait_telemetry_sent(engine, link_thread, timeout: float = 30.0) -> None:
-    """End of stream with a host link: let the link forward what the engine still holds
-    (it holds snapshots until a host says HELLO) before shutting down."""
-    end = time.monotonic() + timeout
-    while time.monotonic() < end and link_thread.is_alive():
-        if not engine.has_output():
-            time.sleep(0.2)                    # the link's last writes
-            return
-        time.sleep(0.02)
-
-
 def _terminate(signum, frame):
     raise KeyboardInterrupt
+
+
+def _ignore_signals() -> None:
+    """The shutdown runs once: signals from now on are ignored (``run`` restores them)."""
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, signal.SIG_IGN)
 
 
 def _acquire(args):
@@ -350,6 +430,9 @@ def main(argv=None) -> int:
     except (ValueError, OSError, camusb.CameraError) as e:
         print(f"firmware-sim {args.command}: error: {e}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:         # before the run started
+        print(f"firmware-sim {args.command}: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":

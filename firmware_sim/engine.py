@@ -66,3 +66,12 @@ class Engine(Protocol):
 
     def poll_applied(self) -> list:
         """(generation, t_us) pairs: the event time at which each queued update took effect."""
+
+    def reports(self, after: int = 0) -> list:
+        """ERROR and NOTICE reports numbered above ``after``, oldest first: ``(id,
+        wire.MsgType.ERROR or NOTICE, wire.Fault or wire.Notice code, text)``; every host
+        session sends each one once (``firmware_sim.supervise.Supervisor``)."""
+
+    def report_fault(self, thread: str, error: BaseException, action: str = "restarted") -> None:
+        """An unexpected exception caught in another thread (the host link): counted and
+        reported like the engine's own; ``action`` says what was done about it."""

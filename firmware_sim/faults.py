@@ -79,6 +79,13 @@ class Faults:
     def __contains__(self, name) -> bool:
         return name in self.names
 
+    def rearm(self) -> None:
+        """A replay from the start: the one-off faults (stall, disconnect, burst) fire
+        again at their times; ``injected`` keeps counting."""
+        self.reads = 0
+        self.disconnect_done = False
+        self.burst_done = False
+
     # ---- per read ----------------------------------------------------------------
     def before_read(self) -> str | None:
         """Called at the start of each bulk read; returns 'timeout' / 'stall' or None."""

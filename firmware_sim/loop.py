@@ -17,6 +17,15 @@ composes parts that each keep one job:
   ``record`` all are kept for ``--record`` (``firmware_sim.record``);
 * counters and the load meter (processing time per 10 ms of events) in
   ``firmware_sim.meter``;
+* supervision (``firmware_sim.supervise``): the reader and processing threads restart
+  after an unexpected exception (counted, reported to the hosts as ERROR frames, state
+  ``faulted`` until RESET); an update the kernel refuses when it is applied keeps the
+  previous configuration (ERROR ``update_failed``); snapshots of a non-finite tracker
+  state are dropped and counted, never sent, and the trackers are reset to the model
+  (ERROR ``nonfinite_state``); a watchdog reports a stalled loop (transfers waiting,
+  nothing processed for ``WATCHDOG_S``).
+* end of stream (:meth:`FirmwareLoop.end_of_stream`): the loop goes idle and tells the
+  hosts (NOTICE ``stream_ended``); the next START replays the source (``rewind``).
 * with ``learn_first_ms`` the feed is ``firmware_sim.learning.LearningFeed``: the model
   is learned from the stream's first milliseconds (springtrack.learn) and swapped in
   like an upload, then the rest is tracked with it.
@@ -26,8 +35,11 @@ from __future__ import annotations
 import threading
 import time
 
+import numpy as np
+
 from springtrack.limits import MAX_CONNECTIONS, MAX_TRACKERS
-from springtrack.wire import Nack
+from springtrack.track import FLOAT_FIELDS
+from springtrack.wire import Fault, Nack, Notice
 
 from ._fused import Fused
 from .feed import DecodedFeed
@@ -37,11 +49,19 @@ from .engine import UpdateRejected
 from .meter import LoadMeter, LoopCounters
 from .reader import Reader
 from .record import Recorder
-from .slot import AppliedLog, ModelSlot
+from .slot import AppliedLog, ApplyFailed, ModelSlot
+from .supervise import Supervisor, where
 from .telemetry import Block, TelemetryQueue
 
 FIRMWARE = "firmware-sim 0.1 (fused decode+track loop)"
 BIAS_PREFIX = "bias."     # camera biases are parameters "bias.<name>" on the host link
+WATCHDOG_S = 2.0          # transfers waiting this long with nothing processed: stalled
+WATCHDOG_POLL_S = 0.25
+
+
+class Stopping(Exception):
+    """The loop was told to stop while a transfer was being processed (a jump in time can
+    make one transfer take very many snapshots): the rest of it is not processed."""
 
 
 class FirmwareLoop:
@@ -66,8 +86,11 @@ class FirmwareLoop:
                  biases: dict | None = None, profile="ccam_atis",
                  record: bool = False, width: int | None = None, height: int | None = None,
                  backend: str = "cython", roi=None, source_counters=None, sensor_from=None,
+                 supervisor: Supervisor | None = None, rewind=None,
                  acquire: dict | None = None, learn_first_ms: float | None = None,
                  learn_params: dict | None = None):
+        """``rewind()``: called by the START that follows :meth:`end_of_stream`, to serve
+        the source again from its beginning (None: START after the end resumes reading)."""
         if telemetry_period_us <= 0:
             raise ValueError(f"telemetry_period_us must be positive, got {telemetry_period_us}")
         self.profile = camusb.PROFILES[profile] if isinstance(profile, str) else profile
@@ -97,7 +120,10 @@ class FirmwareLoop:
         self.source_counters = source_counters or dict
         self.period = int(telemetry_period_us)
         self.piece = int(piece_bytes)
+        self.supervisor = supervisor or Supervisor()
+        self.rewind = rewind
         self.reader = Reader(open_camera, nbuf=nbuf, shed=not lossless,
+                             supervisor=self.supervisor, on_give_up=self._gave_up,
                              **({"transfer_bytes": transfer_bytes} if transfer_bytes else {}))
         # shared with open_camera (the CLI passes the same dict) so a reconnect reloads the
         # biases the host set last
@@ -106,11 +132,16 @@ class FirmwareLoop:
         self.telemetry = TelemetryQueue(telemetry_queue)
         self.recorder = Recorder() if record else None
         self.counters = LoopCounters()
+        self.in_transfer = False          # the processing thread is inside a transfer
         self.meter = LoadMeter()
         self.last_error = ""
         self.learn_report = ""              # what the learner found (learn_first_ms)
         self.stop_event = threading.Event()
         self.thread = None
+        self.watchdog = None
+        self.ended = False                    # the source ran out; START replays it
+        self._life = threading.RLock()        # start / stop / end_of_stream, any thread
+        self._nonfinite_gen = None            # generation last reset for non-finite state
 
     # the running model, read-only (the slot swaps them)
     backend = property(lambda self: self.slot.backend)
@@ -121,21 +152,59 @@ class FirmwareLoop:
 
     # ---- Engine: lifecycle ---------------------------------------------------------------
     def start(self) -> None:
-        if self.running:
-            return
-        self.stop_event.clear()
-        self.reader.start()
-        self.thread = threading.Thread(target=self._run, name="fused-loop", daemon=True)
-        self.thread.start()
+        with self._life:
+            if self.running:
+                return
+            if self.thread is not None:       # stopped by its supervisor: join what is left
+                self.stop()
+            if self.ended and self.rewind is not None:
+                self.rewind()
+            self.ended = False
+            self.stop_event.clear()
+            self.reader.start()
+            target = self.supervisor.thread_target("fused-loop", self._run, self.stop_event,
+                                                   on_give_up=self._gave_up)
+            self.thread = threading.Thread(target=target, name="fused-loop", daemon=True)
+            self.thread.start()
+            self.watchdog = threading.Thread(target=self._watch, name="watchdog", daemon=True)
+            self.watchdog.start()
 
     def stop(self, timeout: float = 5.0) -> None:
+        with self._life:
+            self.stop_event.set()
+            for attr in ("thread", "watchdog"):
+                t = getattr(self, attr)
+                if t is not None and t is not threading.current_thread():
+                    t.join(timeout)
+                    if t.is_alive():
+                        raise RuntimeError(f"{t.name} thread did not stop within {timeout} s "
+                                           f"(at {where(t)})")
+                    setattr(self, attr, None)
+            self.reader.stop(timeout)
+            # transfers read but not processed are dropped (counted with the abandoned
+            # bytes): the rest of a transfer the stop cut short is gone, so what was queued
+            # after it would be decoded out of step with its words
+            self.counters.bytes_abandoned += self.reader.discard_queued()
+
+    def end_of_stream(self) -> None:
+        """The source has no more data and every byte was processed: stop the threads and
+        tell the hosts; the next :meth:`start` replays the source (``rewind``)."""
+        with self._life:
+            if self.ended:
+                return
+            self.stop()
+            self.ended = True
+        self.supervisor.notice(Notice.STREAM_ENDED, "the source has no more data; the loop is "
+                                                    "idle (START replays it)")
+
+    def _gave_up(self) -> None:
+        """A thread faulted too often (its supervisor stopped it): stop the loop cleanly;
+        the state stays ``faulted`` until RESET, START runs it again."""
         self.stop_event.set()
-        if self.thread is not None:
-            self.thread.join(timeout)
-            if self.thread.is_alive():
-                raise RuntimeError(f"processing thread did not stop within {timeout} s")
-            self.thread = None
-        self.reader.stop(timeout)
+        try:
+            self.reader.stop(1.0)
+        except RuntimeError as e:
+            self.supervisor.report(Fault.THREAD_STOPPED, str(e))
 
     @property
     def running(self) -> bool:
@@ -145,14 +214,19 @@ class FirmwareLoop:
         return self.reader.queue_depth() == 0
 
     def caught_up(self) -> bool:
-        """Every byte read so far has been processed: nothing queued, and the fused loop
-        has consumed all read bytes but the dropped ones."""
+        """Every byte read so far has been processed: nothing queued, no transfer in the
+        middle of its processing (the feed counts its bytes as it starts), and the fused
+        loop has consumed all read bytes but the dropped ones."""
         rc = self.reader.counts
-        return self.drained() and self.fused.bytes_in == rc["bytes"] - rc["bytes_dropped"]
+        return (self.drained() and not self.in_transfer
+                and self.fused.bytes_in + self.counters.bytes_abandoned
+                == rc["bytes"] - rc["bytes_dropped"])
 
     def reset(self) -> None:
-        """Restart the tracker from the current model (queued like a model swap)."""
+        """Restart the tracker from the current model (queued like a model swap) and clear
+        the ``faulted`` state."""
         self.slot.queue_reset()
+        self.supervisor.clear()
         self._apply_if_idle()
 
     def acquire(self) -> int:
@@ -218,7 +292,12 @@ class FirmwareLoop:
 
     def _apply_pending(self) -> None:
         """Processing thread (or idle caller), between two feeds: swap in what is queued."""
-        swap = self.slot.apply()
+        try:
+            swap = self.slot.apply()
+        except ApplyFailed as e:              # the rest of the update did take effect
+            self.counters.updates_failed += 1
+            self.supervisor.report(Fault.UPDATE_FAILED, str(e))
+            swap = e.swap
         if swap is None:
             return
         if swap.new_kernel:
@@ -231,6 +310,8 @@ class FirmwareLoop:
 
     # ---- processing thread ---------------------------------------------------------------
     def _run(self) -> None:
+        """The processing thread's body (restarted by the supervisor if anything but one
+        transfer's processing raises)."""
         r = self.reader
         while not self.stop_event.is_set():
             if self.slot.pending:
@@ -243,36 +324,64 @@ class FirmwareLoop:
                 if gap:
                     self.fused.gap()
                 self._feed(memoryview(r.pool[idx])[:n])
+            except Stopping:                # stopped in the middle of a transfer
+                self.fused.gap()
             except Exception as e:          # never let one transfer kill the loop
                 self.counters.processing_errors += 1
                 self.last_error = f"processing: {type(e).__name__}: {e}"
+                self.supervisor.report(Fault.THREAD_FAULT, f"fused-loop: transfer of {n} bytes "
+                                                           f"skipped: {type(e).__name__}: {e}")
                 self.fused.gap()
             finally:
                 r.release(idx)
         if self.slot.pending:
             self._apply_pending()
 
+    def _watch(self) -> None:
+        """Watchdog: transfers waiting while the processing thread makes no progress for
+        WATCHDOG_S is a stall (reported once per episode, counted)."""
+        last, since, stalled = None, time.monotonic(), False
+        while not self.stop_event.wait(WATCHDOG_POLL_S):
+            now = time.monotonic()
+            progress = (self.counters.pieces, self.fused.bytes_in)
+            if self.reader.queue_depth() == 0 or progress != last:
+                last, since, stalled = progress, now, False
+                continue
+            if not stalled and now - since >= WATCHDOG_S:
+                stalled = True
+                self.counters.watchdog_stalls += 1
+                alive = self.thread is not None and self.thread.is_alive()
+                self.supervisor.report(Fault.STALLED, f"{self.reader.queue_depth()} transfers "
+                                                      f"waiting, nothing processed for "
+                                                      f"{now - since:.1f} s (processing thread "
+                                                      f"{'alive' if alive else 'dead'})")
+
     def _feed(self, mv) -> None:
         n = len(mv)
-        pos = 0
+        fed = 0
         f = self.fused
-        while pos < n:
-            k = min(self.piece, n - pos)
-            t0 = time.perf_counter_ns()
-            out = f.feed(mv[pos:pos + k], sink=self._emit)     # blocks as they fill
-            dt = time.perf_counter_ns() - t0
-            pos += k
-            self.counters.pieces += 1
-            self.counters.proc_ns += dt
-            self.meter.account(f.last_t, dt, f.tracked)
-            if self.learner is not None and self.learner.learned is not None:
-                self._load_learned()
-            if self.applied.waiting and f.first_t >= 0:
-                self.applied.first_event(f.first_t)
-            if out is not None:
-                self._emit(out)
-            if self.slot.pending:
-                self._apply_pending()
+        self.in_transfer = True
+        try:
+            while fed < n:
+                k = min(self.piece, n - fed)
+                fed += k                        # the feed counts it (bytes_in) as it starts
+                t0 = time.perf_counter_ns()
+                out = f.feed(mv[fed - k:fed], sink=self._emit)     # parts as they fill
+                dt = time.perf_counter_ns() - t0
+                self.counters.pieces += 1
+                self.counters.proc_ns += dt
+                self.meter.account(f.last_t, dt, f.tracked)
+                if self.learner is not None and self.learner.learned is not None:
+                    self._load_learned()
+                if self.applied.waiting and f.first_t >= 0:
+                    self.applied.first_event(f.first_t)
+                if out is not None:             # a feed without a sink (tests)
+                    self._emit(out)
+                if self.slot.pending:
+                    self._apply_pending()
+        finally:                                # the rest of a transfer abandoned (an error,
+            self.counters.bytes_abandoned += n - fed    # a stop): caught_up() counts it
+            self.in_transfer = False
 
     def _load_learned(self) -> None:
         """Processing thread: the learner's model becomes the running one (a new
@@ -289,6 +398,16 @@ class FirmwareLoop:
         self.learner.track_rest(sink=self._emit)
 
     def _emit(self, out: dict) -> None:
+        """One part of the snapshots a feed took (at most the fused loop's capacity in rows):
+        checked, recorded, queued for the link.  Processing thread."""
+        if self.stop_event.is_set():
+            raise Stopping()
+        if not self.fused.native_records:       # the fixed kernel's state is integer
+            ok = finite_rows(out["trackers"])
+            if not ok.all():
+                out = self._drop_nonfinite(out, ok)
+                if out is None:
+                    return
         self.counters.snapshots += len(out["t"])
         if self.recorder is not None:
             self.recorder.add(self.model.ids, out)
@@ -296,12 +415,45 @@ class FirmwareLoop:
         self.telemetry.push(Block(self.generation, kind, out, self.kernel.energies()[kind].copy(),
                                   self.fused.native_records))
 
+    def _drop_nonfinite(self, out: dict, ok: np.ndarray) -> dict | None:
+        """Snapshots whose tracker state is not finite are dropped and counted (never sent
+        as numbers); the trackers restart from the model (once per generation)."""
+        bad = int((~ok).sum())
+        self.counters.nonfinite_snapshots += bad
+        if self._nonfinite_gen != self.generation:
+            self._nonfinite_gen = self.generation
+            self.counters.nonfinite_resets += 1
+            self.slot.queue_reset()
+            self.supervisor.report(Fault.NONFINITE_STATE,
+                                   f"tracker state not finite from t={int(out['t'][~ok][0])} us "
+                                   f"(model {self.model.name!r}, generation {self.generation}): "
+                                   f"snapshots dropped, trackers reset to the model")
+        if not ok.any():
+            return None
+        return {k: v[ok] for k, v in out.items()}
+
     # ---- Engine: observation ---------------------------------------------------------------
     def poll_telemetry(self, max_items: int = 64) -> list:
         return self.telemetry.poll(max_items)
 
     def poll_applied(self) -> list:
         return self.applied.poll()
+
+    def reports(self, after: int = 0) -> list:
+        return self.supervisor.reports(after)
+
+    def report_fault(self, thread: str, error: BaseException, action: str = "restarted") -> None:
+        self.supervisor.fault(thread, error, max_faults=None, action=action)
+
+    @property
+    def state(self) -> str:
+        """``faulted`` (until RESET), ``ended`` (the source ran out), else the reader's
+        (idle, streaming, disconnected, reconnecting, stopped)."""
+        if self.supervisor.faulted:
+            return "faulted"
+        if self.ended:
+            return "ended"
+        return self.reader.state
 
     def info(self) -> dict:
         with self.slot.lock:
@@ -317,7 +469,8 @@ class FirmwareLoop:
         fc = self.fused.counters()
         rc = dict(self.reader.counts)
         return dict(
-            state=self.reader.state, last_error=self.reader.last_error or self.last_error,
+            state=self.state,
+            last_error=self.supervisor.last_error or self.reader.last_error or self.last_error,
             transfers=rc["transfers"], bytes=rc["bytes"],
             transfers_dropped=rc["transfers_dropped"], bytes_dropped=rc["bytes_dropped"],
             events_decoded=fc["events_decoded"], events_tracked=fc["events_tracked"],
@@ -342,6 +495,7 @@ class FirmwareLoop:
             loop=dict(self.counters.as_dict(), telemetry_dropped=self.telemetry.dropped,
                       generation=self.generation, last_t_us=int(self.fused.last_t)),
             kernel=self.slot.kernel_counters(),
+            supervisor=self.supervisor.counters(),
             instances=self._instances(),
             learn=self._learn_stats())
 
@@ -404,6 +558,18 @@ class FirmwareLoop:
     def has_output(self) -> bool:
         """Snapshots or APPLIED reports are still waiting for the link."""
         return self.telemetry.rows > 0 or self.applied.pending()
+
+
+def finite_rows(trackers: np.ndarray) -> np.ndarray:
+    """(rows,) bool: every float field of every tracker of the row is finite.
+    ``trackers``: (rows, n) springtrack.track.TRACK_DTYPE."""
+    tr = np.ascontiguousarray(trackers)
+    f8 = tr.view(np.uint8).reshape(tr.shape[0], tr.shape[1], tr.dtype.itemsize)[:, :, :_FLOAT_BYTES]
+    return np.isfinite(np.ascontiguousarray(f8).view(np.float64)).all(axis=(1, 2))
+
+
+# the float64 fields come first in the track record (x .. activity): checked per row at once
+_FLOAT_BYTES = 8 * len(FLOAT_FIELDS)
 
 
 def _check_bias(name: str, value) -> int:

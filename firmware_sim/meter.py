@@ -20,6 +20,11 @@ class LoopCounters:
     proc_ns: int = 0              # wall time spent in the fused loop
     kernel_swaps: int = 0         # models loaded and resets
     processing_errors: int = 0    # exceptions while processing a transfer (counted, skipped)
+    bytes_abandoned: int = 0      # bytes of transfers left unprocessed after an error or a stop
+    updates_failed: int = 0       # accepted updates the kernel refused when applied (kept old)
+    nonfinite_snapshots: int = 0  # snapshots of a non-finite tracker state (dropped, not sent)
+    nonfinite_resets: int = 0     # trackers reset to the model because of them
+    watchdog_stalls: int = 0      # episodes of transfers waiting with nothing processed
 
     def as_dict(self) -> dict:
         return asdict(self)

@@ -16,6 +16,8 @@
   while another thread sits in a bulk read).
 * Every read has a finite timeout.  Stall (EPIPE): clear_halt and go on.  Disconnect
   (ENODEV): close, report, and reopen with exponential backoff until stopped.
+* Any other exception is the supervisor's (``firmware_sim.supervise``): counted, reported,
+  and the thread restarted (a fresh connection, a gap before the next transfer).
 """
 from __future__ import annotations
 
@@ -27,6 +29,7 @@ from collections import deque
 import usb.core
 
 from . import usb as camusb
+from .supervise import Supervisor, where
 
 BACKOFF_S = (0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
 COALESCE_MAX = 16 * 1024      # transfers up to this size may be copied into the queued tail
@@ -34,11 +37,16 @@ COALESCE_MAX = 16 * 1024      # transfers up to this size may be copied into the
 
 class Reader:
     def __init__(self, open_camera, nbuf: int = 16, transfer_bytes: int = camusb.TRANSFER_BYTES,
-                 timeout_ms: int = camusb.READ_TIMEOUT_MS, shed: bool = True):
+                 timeout_ms: int = camusb.READ_TIMEOUT_MS, shed: bool = True,
+                 supervisor: Supervisor | None = None, on_give_up=None):
         """``open_camera()`` returns a started :class:`firmware_sim.usb.Camera` (called again
         after a disconnect).  ``shed=False`` (a simulated camera at max speed only: a real
-        camera cannot be paused) waits for a free buffer instead of dropping."""
+        camera cannot be paused) waits for a free buffer instead of dropping.
+        ``supervisor`` restarts the thread after an unexpected exception; ``on_give_up``
+        runs when it stops it instead."""
         self.shed = shed
+        self.supervisor = supervisor or Supervisor()
+        self.on_give_up = on_give_up
         if nbuf < 3:
             raise ValueError(f"the buffer pool needs at least 3 buffers, got {nbuf}")
         self.open_camera = open_camera
@@ -66,7 +74,9 @@ class Reader:
         if self.thread is not None and self.thread.is_alive():
             return
         self.stop_event.clear()
-        self.thread = threading.Thread(target=self._run, name="usb-reader", daemon=True)
+        target = self.supervisor.thread_target("usb-reader", self._run, self.stop_event,
+                                               on_give_up=self.on_give_up)
+        self.thread = threading.Thread(target=target, name="usb-reader", daemon=True)
         self.thread.start()
 
     def stop(self, timeout: float = 5.0) -> None:
@@ -76,8 +86,8 @@ class Reader:
         if self.thread is not None:
             self.thread.join(timeout)
             if self.thread.is_alive():
-                raise RuntimeError("USB reader thread did not stop within "
-                                   f"{timeout} s (a read without timeout?)")
+                raise RuntimeError(f"USB reader thread did not stop within {timeout} s "
+                                   f"(at {where(self.thread)})")
             self.thread = None
 
     @property
@@ -94,6 +104,18 @@ class Reader:
                 return None
             idx, n, gap, _ = self.filled.popleft()
             return idx, n, gap
+
+    def discard_queued(self) -> int:
+        """Drop the transfers read but not taken (the host stopped the loop: they are not
+        processed, and the camera's next stream starts afresh); returns their bytes."""
+        with self.cond:
+            items = list(self.filled)
+            self.filled.clear()
+            self.free.extend(idx for idx, *_ in items)
+            if items:
+                self.gap = True                  # what comes next is not contiguous
+            self.cond.notify_all()
+        return sum(n for _, n, *_ in items)
 
     def release(self, idx: int) -> None:
         with self.cond:
@@ -219,6 +241,9 @@ class Reader:
                         self.last_error = f"bulk read: {e}"
                         self._lost(e)
                     continue
+                except Exception:
+                    self.release(idx)            # the pool keeps every buffer
+                    raise
                 if n == 0:
                     self.counts["timeouts"] += 1
                     self.release(idx)

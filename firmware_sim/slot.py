@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 from springtrack import model as _model
 from springtrack import params as _params
-from springtrack.geometry import SensorError, fit_model
+from springtrack.geometry import fit_model
 from springtrack.tracker import make_backend, resolve_params
 from springtrack.wire import Nack
 
@@ -39,6 +39,28 @@ class Swap:
     """What :meth:`ModelSlot.apply` put in effect."""
     generation: int
     new_kernel: bool          # a model load or reset (else parameters changed in place)
+
+
+class ApplyFailed(Exception):
+    """Queued updates that could not be applied; ``swap`` is what did take effect."""
+
+    def __init__(self, generations: list, message: str):
+        super().__init__(message)
+        self.generations = generations
+        self.swap: Swap | None = None
+
+
+def _model_code(e: BaseException) -> Nack:
+    """The NACK code of an error raised while loading a model: a ``ModelError``'s own
+    (``SensorError``: sensor_mismatch, ``ModelNameError``: too_long), else invalid_model
+    (a parameter error inside a model file too)."""
+    return e.code if isinstance(e, _model.ModelError) else Nack.INVALID_MODEL
+
+
+def _reason(e: BaseException) -> str:
+    if isinstance(e, RecursionError):
+        return "the model text is nested too deeply to parse"
+    return str(e)
 
 
 class ModelSlot:
@@ -77,6 +99,15 @@ class ModelSlot:
             return AcquiringKernel(model, params, self.backend, **self.acquire)
         return make_backend(self.backend, model, params)
 
+    def check_kernel_params(self, model, params) -> None:
+        """Raise ValueError if this backend's kernel would refuse ``params`` for ``model``:
+        the checks its ``set_params`` runs before loading them (the fixed kernel's Q
+        formats, ``springtrack.fixed_q.params_words``, also the microcontroller build's), so
+        that an accepted update always applies."""
+        if self.backend.partition(":")[0] in ("fixed", "mcu"):
+            from springtrack import fixed_q
+            fixed_q.params_words(params, len(model.connections))
+
     def fit(self, model):
         """``model`` checked against the camera's sensor (springtrack.geometry): a
         ``SensorError`` (a ModelError) if it does not fit."""
@@ -99,13 +130,17 @@ class ModelSlot:
         """Validate a model TOML, build its kernel and queue it; queued parameter changes
         are dropped (the model brings its own).  Returns its generation."""
         try:
-            m = self.fit(_model.loads(toml_text, "uploaded model"))
+            m = _model.loads(toml_text, "uploaded model")
+        except (ValueError, TypeError, RecursionError) as e:   # ModelError is a ValueError
+            # a ModelError names its code (a name INFO cannot carry: too_long)
+            raise UpdateRejected(_model_code(e), _reason(e)) from None
+        try:
+            m = self.fit(m)
             p = resolve_params(m)
             k = self.new_kernel(m, p)
-        except (ValueError, TypeError) as e:       # ModelError, ParamError are ValueErrors
+        except (ValueError, TypeError, ArithmeticError) as e:  # ParamError is a ValueError
             # a model that does not fit the sensor says so (springtrack.geometry's code)
-            code = e.code if isinstance(e, SensorError) else Nack.INVALID_MODEL
-            raise UpdateRejected(code, str(e)) from None
+            raise UpdateRejected(_model_code(e), _reason(e)) from None
         with self.lock:
             self._last_gen += 1
             self._build = _Build(m, p, k, self._last_gen)
@@ -129,9 +164,15 @@ class ModelSlot:
             merged = {k: v for k, (v, _) in self._params.items()}
             merged[name] = value
             try:
-                _params.from_mapping(merged, base)
+                new = _params.from_mapping(merged, base)
             except _params.ParamError as e:
                 raise UpdateRejected(e.code, str(e)) from None
+            model = self._build.model if self._build else self.model
+            try:
+                self.check_kernel_params(model, new)
+            except (ValueError, ArithmeticError) as e:
+                raise UpdateRejected(Nack.OUT_OF_RANGE, f"{name}={value!r}: the {self.backend} "
+                                                        f"kernel cannot run it: {e}") from None
             self._last_gen += 1
             self._params[name] = (_params.check(name, value), self._last_gen)
             return self._last_gen
@@ -142,7 +183,10 @@ class ModelSlot:
 
     # ---- applying (processing thread, between two events) ----------------------------------
     def apply(self) -> Swap | None:
-        """Put what is queued in effect; None if nothing was."""
+        """Put what is queued in effect; None if nothing was.  Parameter changes the kernel
+        refuses after all (they were checked when queued, so this is a defect) leave the
+        running parameters as they were and raise :class:`ApplyFailed` after the rest of
+        the update (a model) took effect."""
         with self.lock:
             build, self._build = self._build, None
             changes, self._params = self._params, {}
@@ -151,15 +195,26 @@ class ModelSlot:
             self._retire(self.kernel)
             self.model, self.params, self.kernel = build.model, build.params, build.kernel
             gen = build.generation
+        failed = None
         if changes:
-            new = _params.from_mapping({n: v for n, (v, _) in changes.items()}, self.params)
-            self.kernel.set_params(new)
-            self.params = new
-            gen = max([g for _, g in changes.values()] + [gen or 0])
-        if gen is None:
-            return None
-        self.generation = gen
-        return Swap(gen, build is not None)
+            gens = [g for _, g in changes.values()]
+            try:
+                new = _params.from_mapping({n: v for n, (v, _) in changes.items()}, self.params)
+                self.kernel.set_params(new)
+            except (ValueError, ArithmeticError) as e:
+                self.kernel.set_params(self.params)      # as before the attempt
+                failed = ApplyFailed(gens, f"parameter change(s) {', '.join(changes)} of "
+                                           f"generation(s) {', '.join(map(str, gens))} not "
+                                           f"applied, the kernel refused them: {e}")
+            else:
+                self.params = new
+                gen = max(gens + [gen or 0])
+        if gen is not None:
+            self.generation = gen
+        if failed is not None:
+            failed.swap = Swap(gen, build is not None) if gen is not None else None
+            raise failed
+        return Swap(gen, build is not None) if gen is not None else None
 
     # ---- counters ----------------------------------------------------------------------
     def _retire(self, kernel) -> None:

@@ -5,21 +5,32 @@ uses (``read(n)`` honouring ``timeout``, ``write(b)`` returning the count writte
 * :class:`PtyPort` - a fresh pseudo-terminal pair for tests; the host opens ``.path``
   (``/dev/pts/N``).  :func:`announce_pty` prints ``pty: /dev/pts/N`` (flushed).
 * :class:`TcpServer` - listens on TCP (127.0.0.1 by default; any other address needs a
-  key, docs/protocol.md "Threat model") and yields one :class:`FdPort` per accepted
-  connection; hosts connect with ``socket://HOST:PORT``.
+  key of at least 16 bytes, docs/protocol.md "Threat model") and yields one
+  :class:`FdPort` per accepted connection, with TCP keepalive on; hosts connect with
+  ``socket://HOST:PORT``.
 * :func:`open_port` - an existing port by pyserial URL (``/dev/ttyACM0``, ``/dev/pts/N``,
   ``socket://host:port``, ``loop://``).
 """
 from __future__ import annotations
 
+import fcntl
 import ipaddress
 import os
 import select
 import socket
+import struct
 import sys
+import termios
+import time
 import tty
 
 import serial
+
+from springtrack.wire import check_key
+
+KEEPALIVE_IDLE_S = 10      # TCP keepalive: first probe after this much silence,
+KEEPALIVE_INTERVAL_S = 5   # then one probe every this,
+KEEPALIVE_PROBES = 3       # and the connection is dead after this many unanswered
 
 
 class FdPort:
@@ -87,7 +98,19 @@ class PtyPort(FdPort):
         self.path = os.ttyname(slave)
         super().__init__(fd=master, name=self.path)
 
-    def close(self) -> None:
+    def unread(self) -> int:
+        """Bytes written to the pty that the host has not read yet."""
+        try:
+            return struct.unpack("i", fcntl.ioctl(self.slave_fd, termios.FIONREAD, b"\0" * 4))[0]
+        except OSError:
+            return 0
+
+    def close(self, linger: float = 0.0) -> None:
+        """Close both ends, after waiting up to ``linger`` seconds for the host to read what
+        is still in the pty (closing the master discards it: e.g. the ACK of SHUTDOWN)."""
+        end = time.monotonic() + linger
+        while self.is_open and self.unread() and time.monotonic() < end:
+            time.sleep(0.01)
         if self.is_open:
             super().close()
             os.close(self.slave_fd)
@@ -115,7 +138,8 @@ class TcpServer:
     def __init__(self, host: str = "127.0.0.1", port: int = 0, key: bytes | None = None):
         if not is_loopback(host) and not key:
             raise ValueError(f"refusing to listen on {host}:{port} without a key: a non-loopback "
-                             f"bind needs --key (HMAC signing, see docs/protocol.md)")
+                             f"bind needs --key-file (HMAC signing, see docs/protocol.md)")
+        check_key(key)
         self.sock = socket.create_server((host, port), reuse_port=False)
         self.host, self.port = self.sock.getsockname()[:2]
         self.url = f"socket://{self.host}:{self.port}"
@@ -124,12 +148,27 @@ class TcpServer:
         r, _, _ = select.select([self.sock], [], [], timeout)
         if not r:
             return None
-        conn, addr = self.sock.accept()
+        try:
+            conn, addr = self.sock.accept()
+        except (BlockingIOError, ConnectionAbortedError):
+            return None
         conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        keepalive(conn)
         return FdPort(sock=conn, name=f"tcp {addr[0]}:{addr[1]}")
 
     def close(self) -> None:
         self.sock.close()
+
+
+def keepalive(sock: socket.socket) -> None:
+    """TCP keepalive: a peer that vanished without closing (cable, crash, sleep) is found
+    dead after KEEPALIVE_IDLE_S + KEEPALIVE_PROBES * KEEPALIVE_INTERVAL_S (25 s) of silence,
+    and its session closed (where the platform has the options)."""
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
+    for opt, value in (("TCP_KEEPIDLE", KEEPALIVE_IDLE_S), ("TCP_KEEPINTVL", KEEPALIVE_INTERVAL_S),
+                       ("TCP_KEEPCNT", KEEPALIVE_PROBES)):
+        if hasattr(socket, opt):
+            sock.setsockopt(socket.IPPROTO_TCP, getattr(socket, opt), value)
 
 
 def open_port(url: str, baudrate: int = 3_000_000):

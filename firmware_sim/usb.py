@@ -294,6 +294,13 @@ class Camera:
         self.dev.clear_halt(self.profile.ep_in)
 
     def close(self) -> None:
+        """Stop the camera's stream, then release it: the next open starts a fresh stream
+        of whole words instead of the rest of this one (a word cut at a transfer's end
+        would otherwise misalign every later word once the host dropped its half)."""
+        try:
+            self.stop()
+        except (usb.core.USBError, ValueError):
+            pass                               # already gone (disconnect)
         try:
             usb.util.release_interface(self.dev, INTERFACE)
         except (usb.core.USBError, ValueError):

@@ -6,14 +6,18 @@
     hostctl --port /dev/pts/5 load-model face26            # preset or FILE.toml
     hostctl --port /dev/pts/5 set alpha_position=0.05 energy_scale=3
     hostctl --port /dev/pts/5 get [NAME ...]
-    hostctl --port /dev/pts/5 start | stop | reset | acquire | stats | ping
-    hostctl --port /dev/pts/5 monitor [--seconds S] [--smooth]
-    hostctl --port /dev/pts/5 record OUT.csv|OUT.npz [--seconds S] [--smooth]
+    hostctl --port /dev/pts/5 start | stop | reset | acquire | stats | ping | shutdown
+    hostctl --port /dev/pts/5 --role monitor monitor [--seconds S] [--smooth]
+    hostctl --port /dev/pts/5 record OUT.csv|OUT.npz [--seconds S] [--until-end] [--smooth]
 
-``--port`` defaults to $HOSTCTL_PORT.  A signed link (non-loopback TCP) needs the shared
-key: the contents of ``--key-file`` (as for ``firmware-sim run --key-file``) or
-$HOSTCTL_KEY - never on the command line, where other users could read it.  Exit codes: 0 ok, 1 other error, 2 usage,
-3 no such port, 4 no answer, 5 protocol version mismatch, 6 command refused (NACK).
+``--port`` defaults to $HOSTCTL_PORT.  ``--role monitor`` opens a read-only session beside
+the operator's (telemetry, stats, get, ping; docs/protocol.md, "Sessions").  A signed link
+(non-loopback TCP) needs the shared key, at least 16 bytes: the contents of ``--key-file``
+(as for ``firmware-sim run --key-file``) or $HOSTCTL_KEY - never on the command line,
+where other users could read it.  ``shutdown`` ends the firmware program; ``reset`` also
+clears its ``faulted`` state.  Exit codes: 0 ok, 1 other error, 2 usage, 3 no such port,
+4 no answer, 5 protocol version mismatch, 6 command refused (NACK), 7 authentication
+failed (wrong key, or this address locked out after failed attempts).
 """
 from __future__ import annotations
 
@@ -22,10 +26,13 @@ import os
 import sys
 import time
 
+from springtrack import wire
+from springtrack.wire import Role
+
 from .device import Device, HostctlError
 
 VERBS = ("ports", "demo", "info", "load-model", "set", "get", "start", "stop", "reset",
-         "acquire", "stats", "ping", "monitor", "record")
+         "acquire", "stats", "ping", "monitor", "record", "shutdown")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -38,6 +45,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--timeout", type=float, default=0.5, help="seconds to wait per try (0.5)")
     p.add_argument("--retries", type=int, default=3, help="retries per command (3)")
     p.add_argument("--key-file", help="file holding the shared link key (else $HOSTCTL_KEY)")
+    p.add_argument("--role", choices=[r.name.lower() for r in Role], default="operator",
+                   help="session role: operator (default; one at a time, a new one takes "
+                        "over) or monitor (read-only)")
     sub = p.add_subparsers(dest="verb", metavar="VERB", required=True)
     sub.add_parser("ports", help="list serial ports")
     from .demo import add_arguments as demo_arguments
@@ -50,11 +60,13 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("assignments", nargs="+", metavar="NAME=VALUE")
     sp = sub.add_parser("get", help="show parameters (all if none named)")
     sp.add_argument("names", nargs="*")
-    for verb, text in (("start", "start tracking"), ("stop", "stop tracking"),
-                       ("reset", "reset the trackers to the model"),
+    for verb, text in (("start", "start tracking (after the source ended: replay it)"),
+                       ("stop", "stop tracking"),
+                       ("reset", "reset the trackers to the model, clear the faulted state"),
                        ("acquire", "search for the model in the events again (a firmware "
                                    "started with --acquire)"),
-                       ("stats", "firmware and link counters")):
+                       ("stats", "firmware and link counters"),
+                       ("shutdown", "end the firmware program")):
         sub.add_parser(verb, help=text)
     sp = sub.add_parser("ping", help="command round-trip times")
     sp.add_argument("-n", type=int, default=10)
@@ -65,6 +77,8 @@ def build_parser() -> argparse.ArgumentParser:
     sp = sub.add_parser("record", help="record telemetry to OUT.csv or OUT.npz")
     sp.add_argument("out")
     sp.add_argument("--seconds", type=float, default=10.0, help="duration (10)")
+    sp.add_argument("--until-end", action="store_true",
+                    help="stop early when the device says its source has no more data")
     sp.add_argument("--smooth", action="store_true",
                     help="add smoothed positions and velocities (npz arrays / .smooth.csv)")
     return p
@@ -95,13 +109,14 @@ def parse_assignments(items) -> dict:
 def read_key(path: str | None) -> bytes | None:
     """The shared key: the key file's bytes without surrounding whitespace (the same rule as
     ``firmware-sim run --key-file``), else $HOSTCTL_KEY as UTF-8, else None."""
-    if path:
-        with open(path, "rb") as f:
-            key = f.read().strip()
-        if not key:
-            raise HostctlError(f"{path}: empty key file")
+    try:
+        if path:
+            return wire.read_key_file(path)
+        key = os.environ.get("HOSTCTL_KEY", "").strip().encode() or None
+        wire.check_key(key)
         return key
-    return os.environ.get("HOSTCTL_KEY", "").strip().encode() or None
+    except ValueError as e:
+        raise HostctlError(f"{'--key-file ' if path else '$HOSTCTL_KEY: '}{e}") from None
 
 
 def main(argv=None) -> int:
@@ -116,7 +131,7 @@ def main(argv=None) -> int:
             raise HostctlError("no port given: use --port URL or set HOSTCTL_PORT "
                                "(see `hostctl ports`)")
         with Device(args.port, timeout=args.timeout, retries=args.retries,
-                    key=read_key(args.key_file)) as dev:
+                    key=read_key(args.key_file), role=Role[args.role.upper()]) as dev:
             return int(VERB_FUNCS[args.verb](dev, args) or 0)
     except HostctlError as e:
         print(f"hostctl {args.verb}: error: {e}", file=sys.stderr)
@@ -177,7 +192,11 @@ def _simple(method):
 
 
 def cmd_stats(dev, args) -> int:
-    for k, v in sorted(dev.stats().items()):
+    st = dev.stats()
+    if "state" in st:
+        print(f"state: {st['state']}" + (f"  (last error: {st['last_error']})"
+                                         if st.get("last_error") else ""))
+    for k, v in sorted(st.items()):
         print(f"{k}: {v}")
     for k, v in sorted(dev.link_counters().items()):
         print(f"host.{k}: {v}")
@@ -201,8 +220,11 @@ def cmd_record(dev, args) -> int:
     from .smooth import Smoother  # noqa: F401 - fail early if filterpy is missing
     snaps, failure = [], None
     try:
-        for s in dev.telemetry(seconds=args.seconds):
-            snaps.append(s)
+        end = time.monotonic() + args.seconds
+        while time.monotonic() < end and not (args.until_end and dev.stream_ended):
+            snaps += dev.telemetry(seconds=min(0.2, max(0.0, end - time.monotonic())))
+        if args.until_end and dev.stream_ended:
+            snaps += dev.telemetry(seconds=0.2)     # what the link sent with the notice
     except HostctlError as e:          # the device went away: keep what arrived
         failure = e
     summary = save(args.out, snaps, dev.info, smooth={} if args.smooth else None)
@@ -218,8 +240,8 @@ def cmd_record(dev, args) -> int:
 
 VERB_FUNCS = {"info": cmd_info, "load-model": cmd_load_model, "set": cmd_set, "get": cmd_get,
               "start": _simple("start"), "stop": _simple("stop"), "reset": _simple("reset"),
-              "acquire": _simple("acquire"), "stats": cmd_stats, "ping": cmd_ping, "monitor": cmd_monitor,
-              "record": cmd_record}
+              "acquire": _simple("acquire"), "stats": cmd_stats, "ping": cmd_ping,
+              "monitor": cmd_monitor, "record": cmd_record, "shutdown": _simple("shutdown")}
 
 
 if __name__ == "__main__":

@@ -4,7 +4,8 @@
    ``face_occlusion`` scene;
 2. ``firmware-sim run --source sim:face_occlusion --pty`` streams the same scene through
    the simulated camera (a pyusb backend) into the fused decode+track loop, in real time;
-3. ``hostctl`` loads the face model over the pty and records the telemetry;
+3. ``hostctl`` loads the face model over the pty, records the telemetry until the firmware
+   says the scene has ended, and shuts the firmware down (``hostctl shutdown``);
 4. ``springtrack score`` compares the recording with the ground truth;
 5. an overlay GIF and the plots (error, energy, compute load) are written.
 
@@ -95,6 +96,7 @@ def run_demo(args) -> int:
     step(2, total, "starting firmware-sim: simulated CCam ATIS (pyusb backend) -> fused "
                    "decode+track loop, host link on a pty")
     fw, pty = start_firmware(args.seconds, args.seed, out / "face26.toml", out)
+    shut = False
     fw_t0 = time.perf_counter()
     print(f"      firmware host link on {pty}", flush=True)
     try:
@@ -104,15 +106,15 @@ def run_demo(args) -> int:
         print("      " + info.stdout.strip().replace("\n", "\n      "), flush=True)
         run(hc + ["load-model", str(out / "face26.toml")])
         run(hc + ["start"])                    # the camera streams from here on
-        # record until the scene (streamed in real time) ends and the firmware exits
-        rec = subprocess.run(hc + ["record", str(out / "track.csv"), "--seconds",
-                                   str(args.seconds + 10)], capture_output=True, text=True)
-        ended = fw.wait(timeout=60) if rec.returncode != 0 else None
-        if rec.returncode != 0 and not (ended == 0 and (out / "track.csv").exists()):
-            sys.stderr.write(rec.stdout + rec.stderr)
-            raise SystemExit(f"demo: hostctl record failed (exit code {rec.returncode})")
-        print("      " + rec.stdout.strip() + ("  [stream ended]" if ended == 0 else ""), flush=True)
+        # record until the firmware says the scene (streamed in real time) has ended
+        rec = run(hc + ["record", str(out / "track.csv"), "--seconds", str(args.seconds + 10),
+                        "--until-end"])
+        print("      " + rec.stdout.strip(), flush=True)
+        run(hc + ["shutdown"])                 # the firmware serves the link until told
+        shut = True
     finally:
+        if not shut:
+            fw.terminate()                     # a failed step: stop it (SIGTERM) as well
         try:
             fw_out, _ = fw.communicate(timeout=30)
         except subprocess.TimeoutExpired:

@@ -10,6 +10,12 @@
 Single-threaded: frames are read whenever a method waits.  Commands are retried with the
 same sequence number after ``timeout`` seconds (the firmware answers a repeat from its
 reply cache without executing it twice); after ``retries`` retries :class:`NoAnswer`.
+A session is an operator (the default) or a read-only monitor (``role=Role.MONITOR``);
+while it waits for telemetry it pings the firmware every ``keepalive_s`` seconds so that
+an idle-timeout (docs/protocol.md, "Sessions") never closes it.  On a keyed link the
+HELLO is followed by a signed ping: no answer to it raises :class:`AuthFailed` (the
+firmware drops frames whose signature does not verify without a word: a wrong key).
+ERROR and NOTICE frames from the firmware are kept in ``errors`` and ``notices``.
 """
 from __future__ import annotations
 
@@ -22,9 +28,10 @@ import numpy as np
 import serial
 
 from springtrack import wire
-from springtrack.wire import MsgType, Nack
+from springtrack.wire import MsgType, Nack, Notice, Role
 
 TELEMETRY_QUEUE = 20_000
+KEEPALIVE_S = 5.0         # a ping at least this often while waiting for telemetry
 
 
 class HostctlError(Exception):
@@ -46,6 +53,12 @@ class VersionMismatch(HostctlError):
     def __init__(self, message: str, host: int, firmware: int):
         super().__init__(message)
         self.host, self.firmware = host, firmware
+
+
+class AuthFailed(HostctlError):
+    """The device answered HELLO but not the signed frame after it: the key is wrong (or
+    this address is locked out after failed attempts)."""
+    exit_code = 7
 
 
 class Nacked(HostctlError):
@@ -70,8 +83,14 @@ class Snapshot:
 class Device:
     def __init__(self, port, timeout: float = 0.5, retries: int = 3, key: bytes | None = None,
                  name: str = "hostctl", baudrate: int = 3_000_000,
-                 version: int = wire.PROTOCOL_VERSION):
+                 version: int = wire.PROTOCOL_VERSION, role: Role = Role.OPERATOR,
+                 keepalive_s: float = KEEPALIVE_S):
         self.timeout, self.retries, self.key, self.version = timeout, retries, key, version
+        wire.check_key(key)
+        self.role = Role(role)
+        self.keepalive_s = keepalive_s
+        self.last_tx = time.monotonic()
+        self._pings: set = set()           # seqs of keepalive pings (their ACKs are dropped)
         self.url = port if isinstance(port, str) else getattr(port, "name", repr(port))
         self.port = _open(port, baudrate) if isinstance(port, str) else port
         self.reader = wire.FrameReader(hunting=True)
@@ -84,12 +103,16 @@ class Device:
         self.applied: dict[int, int] = {}  # generation -> event time it took effect
         self.firmware_link: dict = {}      # last HEARTBEAT counters of the firmware
         self.logs: deque = deque(maxlen=200)
+        self.errors: deque = deque(maxlen=200)     # ERROR reports (wire.Report, Fault codes)
+        self.notices: deque = deque(maxlen=200)    # NOTICE reports (Notice codes)
+        self.stream_ended = False                  # a NOTICE said the source ran out
         self.counts = dict(commands=0, retries=0, telemetry=0, telemetry_overflow=0,
-                           unexpected=0, foreign_version=0, energies=0, stale_snapshots=0)
+                           unexpected=0, foreign_version=0, energies=0, stale_snapshots=0,
+                           errors=0, notices=0, keepalives=0)
         self.energies: tuple | None = None   # last ENERGIES: (t_us, kind, per-connection array)
         self.info: dict = {}
         try:
-            self.port.write(b"\x00")       # terminate whatever the firmware holds
+            self._write(b"\x00")           # terminate whatever the firmware holds
             if hasattr(self.port, "reset_input_buffer"):
                 self.port.reset_input_buffer()
             self.hello(name)
@@ -113,15 +136,32 @@ class Device:
     # ---- verbs ------------------------------------------------------------------------
     def hello(self, name: str = "hostctl") -> dict:
         self.info_reply = None
-        self._request(MsgType.HELLO, wire.encode_hello(name, self.version), signed=False,
-                      done=lambda seq: self.info_reply is not None)
+        self._request(MsgType.HELLO, wire.encode_hello(name, self.version, self.role),
+                      signed=False, done=lambda seq: self.info_reply is not None)
         self.info = wire.decode_info(self.info_reply.payload)
         if self.info["auth_required"] and not self.key:
             raise HostctlError(f"{self.url}: the device requires a key (HMAC signing); "
                                f"give --key-file or $HOSTCTL_KEY (API: key=)")
         self.signer = (wire.Signer(self.key, self.info["nonce"])
                        if self.key and self.info["auth_required"] else None)
+        if self.signer is not None:
+            self._authenticate()
         return self.info
+
+    def _authenticate(self) -> None:
+        """A signed ping right after HELLO: the session gets its role and telemetry with its
+        first authentic frame; no answer means the firmware dropped it (a wrong key)."""
+        try:
+            self._command(MsgType.HEARTBEAT)
+        except NoAnswer:
+            raise AuthFailed(f"{self.url}: the device answered HELLO but not the signed ping "
+                             f"after it: the key is most likely wrong (the device drops "
+                             f"frames whose signature does not verify, without an answer); "
+                             f"check --key-file / $HOSTCTL_KEY") from None
+        except HostctlError as e:
+            raise AuthFailed(f"{self.url}: the device closed the link during authentication "
+                             f"({e}): a wrong key, or this address is locked out after failed "
+                             f"attempts") from None
 
     def load_model(self, model) -> int:
         """Upload a model (ShapeModel, preset name, TOML path or TOML text); returns the
@@ -150,13 +190,20 @@ class Device:
         return self._parts(MsgType.STATS, b"", MsgType.STATS)
 
     def start(self) -> None:
+        """Start (or, after the source ended, replay) the stream."""
+        self.stream_ended = False
         self._command(MsgType.START)
 
     def stop(self) -> None:
         self._command(MsgType.STOP)
 
     def reset(self) -> None:
+        """Restart the trackers from the model; also clears the device's ``faulted`` state."""
         self._command(MsgType.RESET)
+
+    def shutdown(self) -> None:
+        """End the firmware program (it ACKs first, then stops every thread and exits)."""
+        self._command(MsgType.SHUTDOWN)
 
     def acquire(self) -> int:
         """Make the firmware search for its model again (ACQUIRE; a firmware started with
@@ -182,9 +229,36 @@ class Device:
         """Read and dispatch whatever arrives within ``timeout`` seconds."""
         end = time.monotonic() + timeout
         while True:
+            self._keepalive()
             self._read_once(max(0.0, end - time.monotonic()))
             if time.monotonic() >= end:
                 return
+
+    def _keepalive(self) -> None:
+        """A ping (not waited for) if nothing was sent for ``keepalive_s`` seconds."""
+        if self.keepalive_s is None or time.monotonic() - self.last_tx < self.keepalive_s:
+            return
+        seq = self.tx_seq
+        self.tx_seq = (self.tx_seq + 1) & 0xFFFF
+        self._pings.add(seq)
+        if len(self._pings) > 64:
+            self._pings.clear()
+        self.counts["keepalives"] += 1
+        self._write(wire.encode_frame(MsgType.HEARTBEAT, seq, version=self.version,
+                                      signer=self.signer))
+
+    def _write(self, raw: bytes) -> None:
+        self.last_tx = time.monotonic()
+        try:
+            self.port.write(raw)
+        except (serial.SerialException, OSError) as e:
+            raise HostctlError(f"{self.url}: link failed: {e}{self._closing_note()}") from None
+
+    def _closing_note(self) -> str:
+        for n in reversed(self.notices):
+            if n.code == Notice.SESSION_CLOSING:
+                return f" (the device said: {n.text})"
+        return ""
 
     def telemetry(self, seconds: float | None = None, count: int | None = None):
         """Iterator of :class:`Snapshot` for ``seconds`` of wall time and/or ``count`` snapshots
@@ -193,6 +267,7 @@ class Device:
         n = 0
         while (end is None or time.monotonic() < end) and (count is None or n < count):
             if not self.snapshots:
+                self._keepalive()
                 self._read_once(0.05 if end is None else max(0.0, min(0.05, end - time.monotonic())))
             while self.snapshots and (count is None or n < count):
                 n += 1
@@ -213,8 +288,8 @@ class Device:
                 self.tx_seq = (self.tx_seq + 1) & 0xFFFF
                 self.replies.pop(seq, None)
                 self.counts["commands"] += 1
-                self.port.write(wire.encode_frame(mtype, seq, p, version=self.version,
-                                                  signer=self.signer))
+                self._write(wire.encode_frame(mtype, seq, p, version=self.version,
+                                              signer=self.signer))
                 seqs.append((seq, p))
             end = time.monotonic() + self.timeout
             while time.monotonic() < end and not all(q in self.replies for q, _ in seqs):
@@ -270,8 +345,8 @@ class Device:
             if attempt:
                 self.counts["retries"] += 1
             signer = self.signer if signed else None     # a retry is re-signed (fresh counter)
-            self.port.write(wire.encode_frame(mtype, seq, payload, version=self.version,
-                                              signer=signer))
+            self._write(wire.encode_frame(mtype, seq, payload, version=self.version,
+                                          signer=signer))
             end = time.monotonic() + self.timeout
             while time.monotonic() < end:
                 self._read_once(end - time.monotonic())
@@ -295,7 +370,7 @@ class Device:
                 wire.set_read_timeout(self.port, 0)
                 data += self.port.read(65536)
         except (serial.SerialException, OSError) as e:
-            raise HostctlError(f"{self.url}: link failed: {e}") from None
+            raise HostctlError(f"{self.url}: link failed: {e}{self._closing_note()}") from None
         if data:
             for frame in self.reader.feed(data):
                 self._dispatch(frame)
@@ -334,16 +409,32 @@ class Device:
                 self.applied[gen] = t_us
             elif f.type == MsgType.HEARTBEAT:
                 self.firmware_link = wire.decode_heartbeat(f.payload)
-            elif f.type in (MsgType.LOG, MsgType.ERROR):
+            elif f.type == MsgType.LOG:
                 self.logs.append(wire.decode_log(f.payload))
+            elif f.type == MsgType.ERROR:
+                self.errors.append(wire.decode_error(f.payload))
+                self.counts["errors"] += 1
+            elif f.type == MsgType.NOTICE:
+                self._notice(wire.decode_notice(f.payload))
             else:
                 self.counts["unexpected"] += 1
         except wire.WireError:
             self.reader.counts["malformed"] += 1
 
+    def _notice(self, n: wire.Report) -> None:
+        self.notices.append(n)
+        self.counts["notices"] += 1
+        if n.code == Notice.STREAM_ENDED:
+            self.stream_ended = True
+        elif n.code == Notice.ROLE_CHANGED:
+            self.role = Role.MONITOR
+
     def _store_reply(self, f) -> None:
         """File an ACK, NACK, PARAM_VALUE or STATS part under the request's seq."""
         msg = wire.decode_reply(f)
+        if msg.seq in self._pings and not isinstance(msg, wire.ReplyPart):
+            self._pings.discard(msg.seq)         # a keepalive's ACK: nobody waits for it
+            return
         self.replies.setdefault(msg.seq, []).append((f, msg))
 
 
@@ -367,4 +458,4 @@ def _model_text(model) -> str:
 
 
 __all__ = ["Device", "Snapshot", "HostctlError", "NoSuchPort", "NoAnswer", "VersionMismatch",
-           "Nacked"]
+           "Nacked", "AuthFailed", "Role"]

@@ -1,7 +1,8 @@
 """``hostctl monitor``: a live terminal view redrawn ``rate`` times a second (plain ANSI:
 cursor home + clear) - per-tracker position, active/sensitive flags, activity, optional
 smoothed velocity; the model instances' states (searching, tracking, lost); mean energy,
-event rate, telemetry rate, lost frames, link errors."""
+event rate, telemetry rate, lost frames, link errors; the device's state, fault
+counters and last error."""
 from __future__ import annotations
 
 import sys
@@ -24,6 +25,15 @@ def event_count(stats: dict) -> int | None:
     return None
 
 
+def status_line(dev, stats: dict) -> str:
+    """The device's state and fault counters (STATS), and the last ERROR it sent."""
+    last = stats.get("last_error") or (dev.errors[-1].text if dev.errors else "")
+    return (f"state {stats.get('state', '?')}   faults {stats.get('supervisor.faults', 0)}   "
+            f"non-finite dropped {stats.get('loop.nonfinite_snapshots', 0)}   "
+            f"stalls {stats.get('loop.watchdog_stalls', 0)}   errors received "
+            f"{dev.counts['errors']}" + (f"   last error: {last[:100]}" if last else ""))
+
+
 def instances_line(trackers) -> str:
     """The trackers' instance states as runs: ``state: tracking (trackers 0-25)``."""
     parts, k = [], 0
@@ -34,7 +44,7 @@ def instances_line(trackers) -> str:
     return "state: " + ", ".join(parts)
 
 
-def render(dev, snap, ids, smooth, rates: dict) -> str:
+def render(dev, snap, ids, smooth, rates: dict, stats: dict | None = None) -> str:
     lc = dev.link_counters()
     errors = lc["crc_errors"] + lc["cobs_errors"] + lc["malformed"] + lc["oversize"]
     lines = [f"hostctl monitor  {dev.url}  model {dev.info.get('model', '?')}  "
@@ -43,6 +53,7 @@ def render(dev, snap, ids, smooth, rates: dict) -> str:
              f"telemetry {rates.get('telemetry', 0):.0f}/s   lost frames {lc['lost']}   "
              f"link errors {errors}   retries {lc['retries']}   "
              f"firmware tx dropped {lc.get('firmware.tx_dropped', 0)}",
+             status_line(dev, stats or {}),
              instances_line(snap.trackers),
              ""]
     head = f"{'tracker':<12}{'x':>9}{'y':>9}  act sens {'activity':>9}"
@@ -70,7 +81,8 @@ def monitor(dev, seconds: float | None = None, smooth: bool = False, rate: float
     smoother = None
     rates: dict = {}
     n_tele, t_rate = 0, time.monotonic()
-    ev0 = event_count(dev.stats())
+    stats = dev.stats()
+    ev0 = event_count(stats)
     next_draw = time.monotonic()
     while end is None or time.monotonic() < end:
         for snap in dev.telemetry(seconds=min(period, 0.05)):
@@ -86,16 +98,18 @@ def monitor(dev, seconds: float | None = None, smooth: bool = False, rate: float
             last = snap
         now = time.monotonic()
         if now - t_rate >= 0.5:
-            ev = event_count(dev.stats())
+            stats = dev.stats()
+            ev = event_count(stats)
             if ev is not None and ev0 is not None:
                 rates["events"] = (ev - ev0) / (now - t_rate)
             rates["telemetry"] = n_tele / (now - t_rate)
             ev0, n_tele, t_rate = ev, 0, now
         if now >= next_draw:
             next_draw = max(next_draw + period, now)     # fixed schedule: no drift
-            body = (render(dev, last, ids, smoother, rates) if last is not None
+            body = (render(dev, last, ids, smoother, rates, stats) if last is not None
                     else f"hostctl monitor  {dev.url}: waiting for telemetry "
-                         f"(is the device started? `hostctl start`)")
+                         f"(is the device started? `hostctl start`)\n"
+                         + status_line(dev, stats))
             out.write(HOME_CLEAR + body + "\n")
             out.flush()
     return 0

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .wire import INFO_NAME_BUDGET, info_name_bytes
+from .wire import INFO_NAME_BUDGET, Nack, info_name_bytes
 
 MAX_TRACKERS = 64
 MAX_CONNECTIONS = 128
@@ -55,6 +55,11 @@ SPRING_BITS = {"euclidean": 1, "torsional": 2, "cartesian": 4}
 
 class LimitError(ValueError):
     """A model or parameter value outside what every backend can run; the message names it."""
+
+
+class NameTooLong(LimitError):
+    """A model name INFO cannot carry in one frame; ``code``: the host link's NACK code."""
+    code = Nack.TOO_LONG
 
 
 def position_box(width: int, height: int) -> tuple[int, int, int, int]:
@@ -109,7 +114,7 @@ def check_name(name) -> None:
         raise LimitError(f"name {name[:40]!r} contains a control character")
     size = info_name_bytes(name)
     if size > INFO_NAME_BUDGET:
-        raise LimitError(f"name of {len(name)} characters takes {size} bytes in INFO; at most "
+        raise NameTooLong(f"name of {len(name)} characters takes {size} bytes in INFO; at most "
                          f"{INFO_NAME_BUDGET} fit one frame with the rest of INFO "
                          f"(springtrack.wire.INFO_NAME_BUDGET)")
 

@@ -47,6 +47,11 @@ class ModelError(ValueError):
     code = Nack.INVALID_MODEL
 
 
+class ModelNameError(ModelError):
+    """A model name INFO cannot carry (``limits.check_name``)."""
+    code = Nack.TOO_LONG
+
+
 @dataclass(frozen=True)
 class TrackerSpec:
     id: str
@@ -133,6 +138,8 @@ def validate(m: ShapeModel) -> None:
 
     try:
         _limits.check_name(m.name)
+    except _limits.NameTooLong as e:
+        raise ModelNameError(f"{src}: {e}") from None
     except _limits.LimitError as e:
         err(str(e))
     if not m.trackers:

@@ -42,6 +42,7 @@ MAX_BODY = HEADER.size + MAX_PAYLOAD + SIG_LEN + CRC.size
 MAX_ENCODED = MAX_BODY + MAX_BODY // 254 + 2   # COBS worst case: one code byte per 254
 MODEL_CHUNK_SIZE = 512
 NONCE_LEN = 8
+MIN_KEY_BYTES = 16        # shortest link key either end accepts (128 bits)
 
 
 class MsgType(IntEnum):
@@ -58,20 +59,51 @@ class MsgType(IntEnum):
     APPLIED = 0x23        # F->H  generation + event time at which an update took effect
     START = 0x30
     STOP = 0x31
-    RESET = 0x32
+    RESET = 0x32          # also clears the ``faulted`` state
     ACQUIRE = 0x34        # H->F  search for every model instance again (acquisition)
     STATS = 0x33          # H->F request (empty) / F->H counters
+    SHUTDOWN = 0x35       # H->F  end the firmware program cleanly (ACKed first)
     TELEMETRY = 0x40      # F->H  one compact tracker snapshot
     ENERGIES = 0x41       # F->H  per-connection energies, at a lower rate than TELEMETRY
     HEARTBEAT = 0x50      # both: liveness; the firmware's carries its link counters
     LOG = 0x60            # F->H  level + text
-    ERROR = 0x61          # F->H  unsolicited error: code + text
+    ERROR = 0x61          # F->H  unsolicited error: Fault code + text
+    NOTICE = 0x62         # F->H  a state change every session should know: Notice code + text
 
 
 HOST_COMMANDS = frozenset({MsgType.HELLO, MsgType.MODEL_BEGIN, MsgType.MODEL_CHUNK,
                            MsgType.MODEL_COMMIT, MsgType.PARAM_SET, MsgType.PARAM_GET,
                            MsgType.START, MsgType.STOP, MsgType.RESET, MsgType.STATS,
-                           MsgType.HEARTBEAT})
+                           MsgType.ACQUIRE, MsgType.SHUTDOWN, MsgType.HEARTBEAT})
+# what a read-only session (Role.MONITOR) may send; everything else is the operator's
+MONITOR_COMMANDS = frozenset({MsgType.HELLO, MsgType.PARAM_GET, MsgType.STATS,
+                              MsgType.HEARTBEAT})
+
+
+class Role(IntEnum):
+    """A host session's role, asked for in HELLO (docs/protocol.md, "Sessions")."""
+    OPERATOR = 0          # may change the configuration and run state; one at a time
+    MONITOR = 1           # read-only: telemetry, STATS, PARAM_GET, HEARTBEAT
+
+
+class Fault(IntEnum):
+    """ERROR frame codes: something went wrong inside the firmware (not a refused command,
+    which is a NACK).  The text says what; the code says which kind."""
+    THREAD_FAULT = 1      # an unexpected exception in a firmware thread: counted, restarted
+    THREAD_STOPPED = 2    # a thread failed too often: the tracking loop is stopped (faulted)
+    NONFINITE_STATE = 3   # the tracker state became non-finite: snapshots dropped, trackers reset
+    STALLED = 4           # watchdog: transfers wait but the loop processed nothing
+    UPDATE_FAILED = 5     # an accepted update could not be applied: the previous one kept
+    SOURCE_FAILED = 6     # the camera source failed (e.g. a replay file unreadable mid-stream)
+    TELEMETRY = 7         # a snapshot or energy frame could not be encoded: dropped
+
+
+class Notice(IntEnum):
+    """NOTICE frame codes: state changes every session is told about."""
+    STREAM_ENDED = 1      # the source has no more data; the loop is idle, START replays it
+    ROLE_CHANGED = 2      # this session's role changed (an operator took over)
+    SHUTTING_DOWN = 3     # the firmware program is exiting
+    SESSION_CLOSING = 4   # this connection is being closed (idle, failed authentication)
 
 
 class Nack(IntEnum):
@@ -88,6 +120,8 @@ class Nack(IntEnum):
     BAD_STATE = 9         # not now (e.g. MODEL_CHUNK without MODEL_BEGIN)
     INTERNAL = 10         # an exception inside the firmware's handler
     SENSOR_MISMATCH = 11  # the model's [sensor] is not the camera's, or trackers lie outside it
+    TOO_LONG = 12         # a name longer than the protocol carries (INFO_NAME_BUDGET)
+    FORBIDDEN = 13        # not allowed in this session's role (a monitor), or all sessions busy
 
 
 class WireError(ValueError):
@@ -141,6 +175,28 @@ def cobs_decode(enc: bytes) -> bytes:
 def make_tag(key: bytes, nonce: bytes, header: bytes, payload: bytes, counter: int) -> bytes:
     return hmac.new(key, nonce + header + payload + COUNTER.pack(counter),
                     hashlib.sha256).digest()[:TAG_LEN]
+
+
+def check_key(key: bytes | None) -> None:
+    """A link key has at least MIN_KEY_BYTES bytes (None: no key); ValueError otherwise."""
+    if key is not None and len(key) < MIN_KEY_BYTES:
+        raise ValueError(f"a link key of {len(key)} bytes is too short: at least "
+                         f"{MIN_KEY_BYTES} bytes (e.g. `openssl rand -hex 32 > link.key`)")
+
+
+def read_key_file(path) -> bytes:
+    """A link key from a file: its bytes without surrounding whitespace (the rule of both
+    ``firmware-sim run --key-file`` and ``hostctl --key-file``); ValueError naming the
+    file if it is empty or shorter than MIN_KEY_BYTES."""
+    with open(path, "rb") as f:
+        key = f.read().strip()
+    if not key:
+        raise ValueError(f"{path}: empty key file")
+    try:
+        check_key(key)
+    except ValueError as e:
+        raise ValueError(f"{path}: {e}") from None
+    return key
 
 
 class Signer:
@@ -427,17 +483,34 @@ def split_kv(items: dict, budget: int = MAX_PAYLOAD - 8) -> list[dict]:
     return parts
 
 
-# HELLO: u16 protocol version, u8-length UTF-8 host name
-def encode_hello(name: str = "hostctl", version: int = PROTOCOL_VERSION) -> bytes:
-    return struct.pack("<H", version) + _text(name)
+# HELLO: u16 protocol version, u8-length UTF-8 host name, [u8 role] (absent: operator)
+class Hello(NamedTuple):
+    version: int          # the host's protocol version
+    name: str             # the host's name (for logs)
+    role: Role            # the role it asks for
 
 
-def decode_hello(payload: bytes) -> tuple[int, str]:
+def encode_hello(name: str = "hostctl", version: int = PROTOCOL_VERSION,
+                 role: Role = Role.OPERATOR) -> bytes:
+    return struct.pack("<H", version) + _text(name) + bytes([int(role)])
+
+
+def decode_hello(payload: bytes) -> Hello:
     c = _Cursor(payload, "HELLO")
     (version,) = c.unpack("H", "version")
     name = c.text("host name")
+    role = Role.OPERATOR
+    if c.pos < len(c.data):
+        code = c.u8("role")
+        if code not in _ROLE_VALUES:
+            raise WireError(f"HELLO: unknown role {code} (known: "
+                            f"{', '.join(f'{int(r)} {r.name.lower()}' for r in Role)})")
+        role = Role(code)
     c.done()
-    return version, name
+    return Hello(version, name, role)
+
+
+_ROLE_VALUES = frozenset(int(r) for r in Role)
 
 
 # ACK: u16 acked seq, u8 acked type, u32 value (model generation, or 0)
@@ -509,13 +582,41 @@ def info_name_bytes(name: str) -> int:
     return len(json.dumps(name)) - 2
 
 
+INFO_FIXED = 2 + NONCE_LEN + 5 + 2         # version, nonce, flags, generation, JSON length
+INFO_CUT_BYTES = 128                       # INFO's last resort: longer strings cut to this
+
+
 def encode_info(info: dict, nonce: bytes, auth_required: bool,
                 version: int = PROTOCOL_VERSION) -> bytes:
+    """INFO, always within MAX_PAYLOAD: when the JSON does not fit, the tracker ids are
+    replaced by ``trackers_omitted: n`` (hostctl then names trackers t00, t01, ...), then
+    strings longer than INFO_CUT_BYTES are cut to it (listed in ``truncated``: the last
+    resort, for a name past INFO_NAME_BUDGET that a firmware would have refused); a dict
+    that still does not fit raises WireError."""
     flags = (1 if auth_required else 0) | (2 if info.get("running") else 0)
-    js = json.dumps(info, separators=(",", ":"), sort_keys=True, default=_json_default)
+    js = _info_json(info)
+    if INFO_FIXED + len(js) > MAX_PAYLOAD and isinstance(info.get("trackers"), list):
+        info = dict(info)
+        info["trackers_omitted"] = len(info.pop("trackers"))
+        js = _info_json(info)
+    if INFO_FIXED + len(js) > MAX_PAYLOAD:
+        info = dict(info)
+        cut = sorted(k for k, v in info.items()
+                     if isinstance(v, str) and len(v.encode("utf-8")) > INFO_CUT_BYTES)
+        for k in cut:
+            info[k] = info[k].encode("utf-8")[:INFO_CUT_BYTES].decode("utf-8", "ignore")
+        info["truncated"] = cut
+        js = _info_json(info)
+    if INFO_FIXED + len(js) > MAX_PAYLOAD:
+        raise WireError(f"INFO: {len(js)} bytes of JSON do not fit one frame")
     return (struct.pack("<H", version) + bytes(nonce).ljust(NONCE_LEN, b"\0")[:NONCE_LEN]
             + struct.pack("<BI", flags, int(info.get("generation", 0)) & 0xFFFFFFFF)
-            + _text(js, "H"))
+            + struct.pack("<H", len(js)) + js)
+
+
+def _info_json(info: dict) -> bytes:
+    return json.dumps(info, separators=(",", ":"), sort_keys=True,
+                      default=_json_default).encode("utf-8")
 
 
 def _json_default(o):
@@ -665,17 +766,51 @@ def decode_heartbeat(payload: bytes) -> dict:
     return dict(zip(HEARTBEAT_FIELDS, HEARTBEAT.unpack(payload)))
 
 
-# LOG / ERROR: u8 level or code, u16-length UTF-8 text
+# LOG / ERROR / NOTICE: u8 level or code, u16-length UTF-8 text (at most 1000 bytes)
+TEXT_MAX = MAX_PAYLOAD - 24
+
+
 def encode_log(level: int, text: str) -> bytes:
-    return bytes([level & 0xFF]) + _text(text[:MAX_PAYLOAD - 8], "H")
+    t = text.encode("utf-8")[:TEXT_MAX].decode("utf-8", "ignore")
+    return bytes([int(level) & 0xFF]) + _text(t, "H")
+
+
+def _decode_coded_text(payload: bytes, what: str) -> tuple[int, str]:
+    c = _Cursor(payload, what)
+    code = c.u8("code")
+    text = c.text("text", "H")
+    c.done()
+    return code, text
 
 
 def decode_log(payload: bytes) -> tuple[int, str]:
-    c = _Cursor(payload, "LOG")
-    level = c.u8("level")
-    text = c.text("text", "H")
-    c.done()
-    return level, text
+    return _decode_coded_text(payload, "LOG")
+
+
+class Report(NamedTuple):
+    """An ERROR (``code`` a Fault) or a NOTICE (``code`` a Notice) from the firmware."""
+    code: int             # a newer firmware may send codes this host lacks
+    text: str
+
+    def name(self, enum) -> str:
+        return enum(self.code).name.lower() if self.code in {int(c) for c in enum} \
+            else f"code {self.code}"
+
+
+def encode_error(code: Fault, text: str) -> bytes:
+    return encode_log(int(code), text)
+
+
+def decode_error(payload: bytes) -> Report:
+    return Report(*_decode_coded_text(payload, "ERROR"))
+
+
+def encode_notice(code: Notice, text: str) -> bytes:
+    return encode_log(int(code), text)
+
+
+def decode_notice(payload: bytes) -> Report:
+    return Report(*_decode_coded_text(payload, "NOTICE"))
 
 
 # ---- TELEMETRY ------------------------------------------------------------------------
@@ -694,26 +829,42 @@ POS_MAX = 0x7FFF / POS_SCALE
 SIGMA_SCALE = 4.0
 RHO_SCALE = 127
 ACT_SCALE = 16.0
+NUMERIC_FIELDS = ("x", "y", "sxx", "sxy", "syy", "activity")
+FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+def float32_code(value: float) -> float:
+    """A value as float32 can carry it: NaN stays NaN, magnitudes beyond float32's range
+    become +-inf (struct would raise OverflowError instead)."""
+    v = float(value)
+    if math.isfinite(v) and abs(v) > FLOAT32_MAX:
+        return math.copysign(math.inf, v)
+    return v
 
 
 def quantise_trackers(trackers) -> np.ndarray:
     """TELE_TRACKER records of tracker states given as fields x, y, sxx, sxy, syy,
     activity, active, sensitive (a structured array or a dict of arrays, any numeric dtypes,
-    any shape: one snapshot or a block of them).  NaNs encode as 0.
+    any shape: one snapshot or a block of them).  A non-finite value raises WireError: it
+    has no code, and sending it as a clamped number would be a lie (the firmware drops such
+    snapshots and counts them before they get here).
 
     The quantisation of docs/protocol.md from the float state; the integer-only kernel packs
     the same layout from its fixed-point state (csrc/fixed_telemetry.c: its scales are
     checked against these at import, its codes within one of these in
     tests/test_fixed_telemetry.py)."""
     tr = trackers
+    bad = [k for k in NUMERIC_FIELDS if not np.all(np.isfinite(np.asarray(tr[k], float)))]
+    if bad:
+        raise WireError(f"TELEMETRY: non-finite tracker state ({', '.join(bad)}) has no code")
     with np.errstate(invalid="ignore"):
-        x = np.nan_to_num(np.clip(tr["x"], 0.0, POS_MAX))
-        y = np.nan_to_num(np.clip(tr["y"], 0.0, POS_MAX))
-        sx = np.sqrt(np.maximum(np.nan_to_num(tr["sxx"].astype(float)), 0.0))
-        sy = np.sqrt(np.maximum(np.nan_to_num(tr["syy"].astype(float)), 0.0))
+        x = np.clip(tr["x"], 0.0, POS_MAX)
+        y = np.clip(tr["y"], 0.0, POS_MAX)
+        sx = np.sqrt(np.maximum(tr["sxx"].astype(float), 0.0))
+        sy = np.sqrt(np.maximum(tr["syy"].astype(float), 0.0))
         den = sx * sy
-        rho = np.where(den > 0, np.nan_to_num(tr["sxy"].astype(float)) / np.where(den > 0, den, 1), 0.0)
-        act = np.maximum(np.nan_to_num(tr["activity"].astype(float)), 0.0)
+        rho = np.where(den > 0, tr["sxy"].astype(float) / np.where(den > 0, den, 1), 0.0)
+        act = np.maximum(tr["activity"].astype(float), 0.0)
     rec = np.empty(np.shape(tr["x"]), TELE_TRACKER)
     rec["x"] = np.rint(x * POS_SCALE).astype(np.uint16) | (np.asarray(tr["active"], bool).astype(np.uint16) << 15)
     rec["y"] = np.rint(y * POS_SCALE).astype(np.uint16) | (np.asarray(tr["sensitive"], bool).astype(np.uint16) << 15)
@@ -745,8 +896,8 @@ def encode_telemetry(t_us: int, generation: int, mean_energy: float, records,
                      states=None) -> bytes:
     """Pack one snapshot from its tracker records in the TELE_TRACKER layout (bytes, or an
     array from :func:`quantise_trackers`), and the trackers' instance ``states`` (per
-    tracker; the trailer is sent only when one is not tracking).  A non-finite mean
-    energy encodes as NaN."""
+    tracker; the trailer is sent only when one is not tracking).  A mean energy beyond
+    float32's range encodes as +-inf (:func:`float32_code`), NaN as NaN."""
     if isinstance(records, np.ndarray):
         records = records.tobytes()
     n, rest = divmod(len(records), TELE_TRACKER.itemsize)
@@ -757,9 +908,7 @@ def encode_telemetry(t_us: int, generation: int, mean_energy: float, records,
     if rest or n > 255 or TELE_HDR.size + len(records) + len(trailer) > MAX_PAYLOAD:
         raise WireError(f"TELEMETRY: {len(records)} bytes of tracker records are not "
                         f"whole {TELE_TRACKER.itemsize}-byte records that fit one frame")
-    me = float(mean_energy)
-    if not math.isfinite(me):
-        me = float("nan")
+    me = float32_code(mean_energy)
     return (TELE_HDR.pack(int(t_us) & (2**64 - 1), int(generation) & 0xFFFF, me, n)
             + bytes(records) + trailer)
 
@@ -819,7 +968,9 @@ ENERGY_PERIOD_US = 100_000
 
 
 def encode_energies(t_us: int, kind: int, energies) -> bytes:
-    e = np.asarray(energies, dtype="<f4")
+    """Energies beyond float32's range encode as +-inf, NaN as NaN."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        e = np.asarray(energies, dtype=np.float64).astype("<f4")
     if ENERGY_HDR.size + 4 * len(e) > MAX_PAYLOAD:
         raise WireError(f"ENERGIES: {len(e)} connections do not fit one frame")
     return ENERGY_HDR.pack(int(t_us) & (2**64 - 1), int(kind), len(e)) + e.tobytes()

@@ -1,6 +1,7 @@
 """Every injected fault is survived, counted and recovered from."""
 from __future__ import annotations
 
+import array
 import threading
 import time
 
@@ -14,6 +15,7 @@ from firmware_sim.faults import FAULT_NAMES, Faults, parse
 from firmware_sim.loop import FirmwareLoop
 from springtrack.sim.sensor import simulate_all
 from firmware_sim.simcam import SimBackend, SimCamera
+from firmware_sim.simcam.words import burst_chunks
 from firmware_sim.sources import events_source
 
 SAMPLE = 1000
@@ -128,6 +130,59 @@ def test_burst_is_shed_with_bounded_memory_and_tracking_recovers(face):
     # everything after the burst (plus the 2 ms until a fresh time base) is tracked
     assert s["events_tracked"] >= int((t >= 190_000 + 4096).sum())
     assert eng.fused.last_t == t[-1]
+
+
+def test_a_read_honours_its_timeout_while_the_burst_is_generated(face):
+    """The burst's chunks take seconds of CPU to make; a bulk read that started them returns
+    after its timeout with what is made (a real camera's read never blocks past it, and the
+    reader thread must be able to stop), and the next reads go on where it stopped."""
+    faults = Faults(["burst"], burst_at_us=20_000, burst_us=40_000, burst_rate=100e6)
+    dev = SimCamera(events_source(face, 2048), realtime=True, faults=faults)
+    cam = camusb.Camera.open("ccam_atis", backend=SimBackend(dev))
+    buf = array.array("B", bytes(16384))
+    seen_partial = False
+    deadline = time.monotonic() + 60
+    while not dev.finished and time.monotonic() < deadline:
+        cam.read_into(buf, 20)
+        if faults.injected["burst"] and dev._burst is not None:
+            seen_partial = True               # a read returned with the burst half made
+    assert faults.injected["burst"] == 1 and seen_partial
+    p = faults.plan                           # every event of the burst was made in the end
+    assert faults.injected["burst_events"] == sum(
+        c.n_events for c in burst_chunks(p.burst_at_us, p.burst_at_us + p.burst_us,
+                                         p.burst_rate, p.seed))
+    cam.close()
+
+
+@pytest.mark.xfail(strict=False, reason="a rarer STOP/START path still misreads words for one "
+                   "interval (about 1 run in 7, and one episode in a 10-minute soak): not found "
+                   "yet; without the fixes every run misreads 360-420 k words")
+def test_stop_and_start_in_the_middle_of_cut_words_keep_the_words_aligned():
+    """A host STOP closes the camera (its stream stopped), the next START opens it again:
+    the word a transfer cut in two is not resumed half-way after the host dropped its first
+    half, so no later word is misread (no undefined word types, nothing off the sensor)."""
+    faults = Faults(["odd"])
+    ev, _ = simulate_all("face_occlusion", 2.0, seed=3)
+    cam = SimCamera(events_source(ev, 2048), realtime=True, faults=faults)
+    be = SimBackend(cam)
+    # lossless: no transfer shed under load (an odd cut followed by a shed transfer
+    # misaligns the words by itself, docs/firmware.md "Load shedding")
+    eng = FirmwareLoop(lambda: camusb.Camera.open("ccam_atis", backend=be), "face26",
+                       telemetry_period_us=SAMPLE, nbuf=64, transfer_bytes=16384, lossless=True)
+    stops, at = 0, 0
+    eng.start()
+    deadline = time.monotonic() + 60
+    while not (cam.finished and eng.caught_up()):
+        assert time.monotonic() < deadline, eng.stats_line()
+        if stops < 12 and eng.fused.tracked > at + 2000:   # a stop every 2,000 events
+            eng.stop()
+            eng.start()
+            stops, at = stops + 1, eng.fused.tracked
+        time.sleep(0.002)
+    eng.stop()
+    s = eng.stats()
+    assert stops >= 8 and faults.injected["odd"] > 20 and s["transfers_dropped"] == 0
+    assert s["anomalies"]["unknown_type"] == 0 and s["anomalies"]["out_of_geometry"] == 0, s
 
 
 def test_cli_reports_faults_and_survives_them_together():

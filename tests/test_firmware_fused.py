@@ -190,3 +190,20 @@ def test_block_decoding_equals_word_by_word_in_the_fused_loop():
     assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
     assert whole.counters() == single.counters()
     assert whole.counters()["events_tracked"] > 5000 and len(a["t"]) > 10
+
+
+def test_one_feed_of_many_snapshots_reaches_the_sink_in_parts_of_at_most_the_capacity():
+    """2,001 events 10 ms apart (no empty stretch to skip) make one feed take 20,000
+    snapshots: with a sink they leave part by part (memory bounded by the capacity, not by
+    the time span), the same rows."""
+    n = 2001
+    ev = make(t=100 + 10_000 * np.arange(n), x=150 + np.arange(n) % 2, y=np.full(n, 120),
+              p=np.ones(n))
+    words = encode(ev)
+    ref = collect(fused(cap=64), [words])
+    f = fused(cap=64)
+    parts = []
+    assert f.feed(words, sink=parts.append) is None
+    assert len(parts) > 300 and max(len(p["t"]) for p in parts) <= 64
+    got = {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
+    assert len(got["t"]) == 20_000 and np.array_equal(got["t"], ref["t"])

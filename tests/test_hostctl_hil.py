@@ -6,10 +6,8 @@ import os
 import random
 import select
 import subprocess
-import sys
 import threading
 import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,49 +21,12 @@ from springtrack import cli as st_cli
 from springtrack import wire
 from springtrack.track import read_csv
 
-ROOT = Path(__file__).resolve().parents[1]
-BIN = Path(sys.executable).parent
+from fwproc import Firmware, hostctl_cmd
 
 
-def firmware_cmd(*args):
-    exe = BIN / "firmware-sim"
-    base = [str(exe)] if exe.exists() else [sys.executable, "-m", "firmware_sim.cli"]
-    return base + ["run", "--stats-every", "0", *args]
-
-
-class Firmware:
-    def __init__(self, *args, announce=True):
-        self.proc = subprocess.Popen(firmware_cmd(*args), stdout=subprocess.PIPE,
-                                     stderr=subprocess.PIPE, text=True, cwd=ROOT)
-        if not announce:
-            return
-        # the first stdout line names the link: 'pty: /dev/pts/N' or 'listen: socket://...'
-        r, _, _ = select.select([self.proc.stdout], [], [], 60)
-        line = self.proc.stdout.readline() if r else ""
-        if not line.startswith(("pty: ", "listen: socket://127.0.0.1:")):
-            self.close()
-            raise AssertionError(f"firmware-sim did not print 'pty: ...' or 'listen: ...' "
-                                 f"first: {line!r} {self.err[-2000:]}")
-        self.path = line.split()[1]
-
-    def close(self):
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        self.out = self.proc.stdout.read()
-        self.err = self.proc.stderr.read()
-        self.proc.stdout.close()
-        self.proc.stderr.close()
-
-
-# The firmware runs the scene in real time and closes its link when the scene ends; the
-# tests stop it (SIGTERM) when done.  The scene is far longer than any test needs: the
-# firmware's start-up and a hostctl process importing numpy and filterpy take seconds on a
-# loaded machine, and a scene that ends first closes the link under the test.
+# The firmware runs the scene in real time; the tests stop it (SIGTERM) when done.  The
+# scene is far longer than any test needs: the firmware's start-up and a hostctl process
+# importing numpy and filterpy take seconds on a loaded machine.
 SCENE_S = "60"
 
 
@@ -116,8 +77,9 @@ def test_hil_model_upload_and_param_change_seen_at_reported_time(realtime_fw):
 
 def test_hil_record_matches_springtrack_track(tmp_path):
     """``--port URL --wait-start``: the test opens the pty, connects and sends START; the
-    firmware streams 1.5 s of the scene --max-speed and exits; the host records every
-    snapshot and compares the recording with ``springtrack track`` on the same events."""
+    firmware streams 1.5 s of the scene --max-speed, says the stream ended (a NOTICE) and
+    keeps serving until the host sends SHUTDOWN; the host records every snapshot and
+    compares the recording with ``springtrack track`` on the same events."""
     pty = transport.PtyPort()
     try:
         fw = Firmware("--source", "sim:face_occlusion", "--max-speed", "--seconds", "1.5",
@@ -133,9 +95,12 @@ def test_hil_record_matches_springtrack_track(tmp_path):
                 while True:
                     got = list(dev.telemetry(seconds=0.3))
                     snaps += got
-                    if fw.proc.poll() is not None and not got:
+                    if dev.stream_ended and not got:
                         break
                 lost = dev.link_counters()["lost"]
+                assert dev.stats()["state"] == "ended" and fw.proc.poll() is None
+                dev.shutdown()
+            fw.proc.wait(60)
         finally:
             fw.close()
     finally:
@@ -249,10 +214,8 @@ def test_hil_corrupted_link_drops_counts_and_resyncs(realtime_fw):
 def test_hil_monitor_cli(realtime_fw):
     with Device(realtime_fw.path) as dev:           # the firmware is streaming (slow start
         collect_until(dev, lambda s: len(s) > 0, timeout=30)    # on a loaded machine)
-    exe = BIN / "hostctl"
-    cmd = [str(exe)] if exe.exists() else [sys.executable, "-m", "hostctl.cli"]
-    out = subprocess.run(cmd + ["--port", realtime_fw.path, "monitor", "--seconds", "1.2",
-                                "--smooth"], capture_output=True, text=True, timeout=60)
+    out = subprocess.run(hostctl_cmd("--port", realtime_fw.path, "monitor", "--seconds", "1.2",
+                                     "--smooth"), capture_output=True, text=True, timeout=60)
     assert out.returncode == 0, out.stderr
     frames = out.stdout.split("\x1b[H\x1b[2J")[1:]
     assert len(frames) >= 2                          # redraw rate: benchmarks/link.py
@@ -260,6 +223,7 @@ def test_hil_monitor_cli(realtime_fw):
     assert "model face26" in last and "mouth" in last and "outline18" in last
     head = last.splitlines()[1]
     assert "lost frames " in head and "link errors 0" in head and "events " in head, head
+    assert last.splitlines()[2].startswith("state streaming   faults 0"), last
 
 
 def test_hil_tcp_listener_with_key(tmp_path):

@@ -228,14 +228,16 @@ def test_param_set_the_fixed_kernel_cannot_run_is_nacked(slot, name, value):
 def test_model_uploads_that_cannot_run_are_invalid_models(slot):
     from firmware_sim.engine import UpdateRejected
     text = face26().to_toml()
-    bad = [text.replace("stiffness = 0.02", "stiffness = 0.5"),               # NaN in 58 k events
-           text.replace('name = "face26"', 'name = "' + "x" * 1200 + '"'),  # INFO over a frame
-           'name = "deep"\nx = ' + "[" * 20_000 + "]" * 20_000 + "\n",     # parser recursion
-           text.replace("mass = 1.0", "mass = 1e-9", 1)]
-    for t in bad:
+    bad = [(text.replace("stiffness = 0.02", "stiffness = 0.5"), Nack.INVALID_MODEL),  # NaN
+           (text.replace('name = "face26"', 'name = "' + "x" * 1200 + '"'),         # INFO over
+            Nack.TOO_LONG),                                                          # a frame
+           ('name = "deep"\nx = ' + "[" * 20_000 + "]" * 20_000 + "\n",            # parser
+            Nack.INVALID_MODEL),                                                     # recursion
+           (text.replace("mass = 1.0", "mass = 1e-9", 1), Nack.INVALID_MODEL)]
+    for t, code in bad:
         with pytest.raises(UpdateRejected) as e:
             slot.queue_model(t)
-        assert e.value.code == Nack.INVALID_MODEL, t[:40]
+        assert e.value.code == code, t[:40]
     assert not slot.pending
 
 
@@ -257,5 +259,6 @@ def test_the_longest_name_keeps_info_within_a_frame(slot):
     assert len(payload) <= wire.MAX_PAYLOAD
     assert wire.decode_info(payload)["model"] == name
     from firmware_sim.engine import UpdateRejected
-    with pytest.raises(UpdateRejected, match="bytes in INFO"):
+    with pytest.raises(UpdateRejected, match="bytes in INFO") as e:
         slot.queue_model(text.replace(name, name + "x"))
+    assert e.value.code == Nack.TOO_LONG

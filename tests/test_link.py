@@ -374,7 +374,11 @@ def test_telemetry_is_dropped_not_blocking_when_host_is_away():
 def test_non_loopback_bind_requires_a_key():
     with pytest.raises(ValueError, match="without a key"):
         transport.TcpServer("0.0.0.0", 0)
-    srv = transport.TcpServer("0.0.0.0", 0, key=b"secret")
+    with pytest.raises(ValueError, match="--key-file"):
+        transport.TcpServer("0.0.0.0", 0)
+    with pytest.raises(ValueError, match="1 bytes is too short: at least 16"):
+        transport.TcpServer("0.0.0.0", 0, key=b"x")
+    srv = transport.TcpServer("0.0.0.0", 0, key=b"0123456789abcdef")
     srv.close()
 
 

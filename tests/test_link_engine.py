@@ -15,6 +15,7 @@ import pytest
 
 import springtrack
 from firmware_sim.engine import Snapshot, UpdateRejected
+from firmware_sim.supervise import Supervisor
 from springtrack.sim.sensor import simulate_all
 from springtrack import model as _model
 from springtrack import params as _params
@@ -49,6 +50,7 @@ class SimEngine:
         self.applied: deque = deque()
         self.counters = dict(events_tracked=0, snapshots=0, updates_applied=0, loops=0,
                              telemetry_dropped=0)
+        self.supervisor = Supervisor()
         self._stop = threading.Event()
         self._thread = None
 
@@ -115,6 +117,12 @@ class SimEngine:
         while self.applied:
             out.append(self.applied.popleft())
         return out
+
+    def reports(self, after: int = 0) -> list:
+        return self.supervisor.reports(after)
+
+    def report_fault(self, thread: str, error: BaseException, action: str = "restarted") -> None:
+        self.supervisor.fault(thread, error, max_faults=None, action=action)
 
     # ---- the loop ----------------------------------------------------------------------
     def step(self) -> None:

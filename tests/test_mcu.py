@@ -308,7 +308,7 @@ def test_hil_chain_with_the_mcu_build_records_what_the_fixed_kernel_does(tmp_pat
     from hostctl import Device
     from hostctl.record import save
     from firmware_sim import transport
-    from test_hostctl_hil import Firmware
+    from fwproc import Firmware
     recs = {}
     for b in ("fixed", "mcu"):
         pty = transport.PtyPort()
@@ -321,12 +321,14 @@ def test_hil_chain_with_the_mcu_build_records_what_the_fixed_kernel_does(tmp_pat
                     dev.timeout = 0.5
                     info = dev.info
                     dev.start()
-                    while True:
+                    while True:             # until the firmware says the scene ended
                         got = list(dev.telemetry(seconds=0.3))
                         snaps += got
-                        if fw.proc.poll() is not None and not got:
+                        if dev.stream_ended and not got:
                             break
                     lost = dev.link_counters()["lost"]
+                    dev.shutdown()          # it serves its link until told to end
+                fw.proc.wait(60)
             finally:
                 fw.close()
         finally:

@@ -169,7 +169,9 @@ def test_param_set_roundtrip(name, v):
 
 
 def test_codecs_roundtrip_by_hand():
-    assert wire.decode_hello(wire.encode_hello("me", 7)) == (7, "me")
+    assert wire.decode_hello(wire.encode_hello("me", 7)) == (7, "me", wire.Role.OPERATOR)
+    assert wire.decode_hello(wire.encode_hello("me", 7, wire.Role.MONITOR)).role == wire.Role.MONITOR
+    assert wire.decode_hello(wire.encode_hello("me")[:-1]).role == wire.Role.OPERATOR   # v1 hosts
     assert wire.decode_ack(wire.encode_ack(70000, MsgType.PARAM_SET, 5)) == (70000 & 0xFFFF, 0x20, 5)
     assert wire.decode_nack(wire.encode_nack(3, 0x20, wire.Nack.OUT_OF_RANGE, "α too big")) == \
         (3, 0x20, 2, "α too big")
@@ -255,7 +257,7 @@ def test_telemetry_quantisation_bounds():
 
 def test_telemetry_clamps_and_saturates():
     tr = np.zeros(3, wire.TRACK_DTYPE)
-    tr["x"] = [-5.0, 5000.0, np.nan]
+    tr["x"] = [-5.0, 5000.0, 0.0]
     tr["y"] = [1.0625, 2047.9375, 0]
     tr["sxx"] = [100.0 ** 2, 1.0, 0.0]
     tr["syy"] = [1.0, 1.0, 0.0]
@@ -266,6 +268,38 @@ def test_telemetry_clamps_and_saturates():
     assert out["sxx"][0] == (255 / 4) ** 2 and out["sxy"][2] == 0
     assert out["activity"][0] == 0.0 and out["activity"][2] == 1.0
     assert out["activity"][1] == 2 ** (255 / 16) - 1
+
+
+@pytest.mark.parametrize("field", wire.NUMERIC_FIELDS)
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_non_finite_tracker_state_has_no_code_and_is_never_sent_as_a_number(field, bad):
+    tr = np.zeros(3, wire.TRACK_DTYPE)
+    tr["sxx"] = tr["syy"] = 4.0
+    tr[field][1] = bad
+    with pytest.raises(wire.WireError, match=f"non-finite tracker state \\({field}\\)"):
+        wire.quantise_trackers(tr)
+
+
+@pytest.mark.parametrize("energy, want", [(1e300, np.inf), (-1e39, -np.inf), (3.5e38, np.inf),
+                                          (1e38, np.float32(1e38)), (np.nan, np.nan)])
+def test_mean_energy_beyond_float32_saturates_instead_of_raising(energy, want):
+    recs = wire.quantise_trackers(np.zeros(2, wire.TRACK_DTYPE))
+    _, _, me, _ = wire.decode_telemetry(wire.encode_telemetry(5, 1, energy, recs))
+    assert (np.isnan(me) and np.isnan(want)) or me == want
+    _, _, e = wire.decode_energies(wire.encode_energies(5, 0, [energy, 1.0]))
+    assert (np.isnan(e[0]) and np.isnan(want)) or e[0] == want
+
+
+def test_info_always_fits_one_frame():
+    """A model name too long for a frame (the firmware refuses it at upload, this is the
+    last line) is cut, and INFO still decodes."""
+    info = dict(model="m" * 1200, model_hash="ab" * 32, trackers=[f"t{k}" for k in range(64)],
+                generation=3, firmware="x")
+    p = wire.encode_info(info, b"12345678", False)
+    assert len(p) <= wire.MAX_PAYLOAD
+    got = wire.decode_info(p)
+    assert got["model"] == "m" * wire.INFO_CUT_BYTES and got["truncated"] == ["model"]
+    assert got["trackers_omitted"] == 64 and got["model_hash"] == "ab" * 32
 
 
 def test_energies_roundtrip_float32():

@@ -36,6 +36,7 @@ MAX_PACKET = 512
 LOOKAHEAD_US = 20_000        # realtime: scene data generated this far ahead of the clock
 DEVICE_FIFO_BYTES = 16 << 20  # the simulated camera's own buffer; beyond it, it drops
 SIM_SERIAL = 0x0ACE
+CUT_TAIL = -(1 << 62)        # the release time of the cut-off tail of a transfer (at once)
 
 
 def usb_error(code: int, text: str):
@@ -63,6 +64,7 @@ class SimCamera:
             raise ValueError(f"fault(s) {', '.join(bad)} inject CCam words; the simulated "
                              f"camera streams {fmt} (use them with the CCam ATIS)")
         self.fmt = fmt
+        self.legacy = legacy
         self._encode = ENCODERS[fmt](legacy=legacy)
         self.source = iter(source)
         self.serial = serial
@@ -87,6 +89,20 @@ class SimCamera:
                            disconnects=0, reconnects=0, device_overflow_bytes=0,
                            device_overflow_events=0)
         self._reset_state()
+
+    def restart(self, source) -> None:
+        """Serve a new ``source`` from its beginning (a replay): the FIFO, the clock and the
+        one-off faults start again; the counters keep counting."""
+        with self.lock:
+            self.source = iter(source)
+            self._encode = ENCODERS[self.fmt](legacy=self.legacy)   # a stream from its start
+            self.fifo.clear()
+            self.exhausted = False
+            self.t0_wall = self.t_origin = self.skip_before = None
+            self.source_error = None
+            self._burst = None
+            self.faults.rearm()
+            self._reset_state()            # not started: the host's set-up runs again
 
     def _reset_state(self):
         self.configuration = 0
@@ -197,11 +213,16 @@ class SimCamera:
         k = int(np.searchsorted(c.marks_t, now_t, side="right"))
         return int(c.marks_off[k - 1]) if k else 0
 
-    def _fill(self, want: int):
+    def _fill(self, want: int, deadline: float | None = None):
         """Generate chunks until ``want`` bytes are queued (max-speed) or the device clock
-        is passed (realtime)."""
+        is passed (realtime), and at most until the monotonic ``deadline`` once one chunk
+        is made (a read honours its timeout: the burst fault's chunks take seconds of CPU
+        to generate, which a real camera's FIFO does not)."""
         queued = sum(len(c.data) - c.pos for c in self.fifo)
+        made = False
         while not self.exhausted:
+            if made and deadline is not None and time.monotonic() >= deadline:
+                return
             if self.realtime:          # generate LOOKAHEAD_US ahead: events are never late
                 now_t = self.device_time()
                 if (self.fifo and now_t is not None
@@ -213,6 +234,7 @@ class SimCamera:
             if c is None:
                 return
             self.fifo.append(c)
+            made = True
             queued += len(c.data)
             while queued > DEVICE_FIFO_BYTES and len(self.fifo) > 2:
                 # the host does not keep up: the camera's own FIFO overflows and loses the
@@ -263,7 +285,7 @@ class SimCamera:
                 if not self.started:
                     n = 0
                 else:
-                    n = self._copy(out, n_max)
+                    n = self._copy(out, n_max, deadline)
             if n:
                 self.counts["bytes_sent"] += n
                 return n
@@ -306,8 +328,8 @@ class SimCamera:
             avail += self._releasable(c2, now_t)
         return avail >= n_max
 
-    def _copy(self, out, n_max: int) -> int:
-        self._fill(n_max)
+    def _copy(self, out, n_max: int, deadline: float | None = None) -> int:
+        self._fill(n_max, deadline)
         self._check_disconnect()
         now_t = self.device_time() if self.realtime else None
         if now_t is not None and not self._commit_due(now_t, n_max):
@@ -330,7 +352,7 @@ class SimCamera:
             m = self.faults.cut(n)
             if m < n:                  # the cut tail is sent first by the next read
                 tail = bytearray(out[m:n])
-                self.fifo.appendleft(Chunk(tail, np.array([-(1 << 62)], np.int64),
+                self.fifo.appendleft(Chunk(tail, np.array([CUT_TAIL], np.int64),
                                            np.array([len(tail)], np.int64), 0))
                 n = m
         return n
@@ -366,6 +388,9 @@ class SimCamera:
 
     def _on_start(self):
         self.counts["starts"] += 1
+        # a (re)start sends whole words: the tail of a word cut by the odd fault before the
+        # host stopped is gone (as a real camera's FIFO is flushed by the set-up)
+        self.fifo = deque(c for c in self.fifo if c.marks_t[0] != CUT_TAIL)
         now_t = self.device_time() if self.realtime and self.counts["starts"] > 1 else None
         if now_t is not None:
             # after a reconnect the clock ran on: what happened meanwhile is lost

@@ -63,6 +63,7 @@ class CameraSource:
     device: SimCamera | None = None            # the simulated camera, None for hardware
     default_model: Callable[[], object] = lambda: None    # the scene's own model, if any
     report: Callable[[], list[str]] = lambda: []         # end-of-run lines (what was dropped)
+    rewind: Callable[[], None] | None = None   # serve the source again from its start
     # what the source dropped before the camera: events_in, outside_sensor (statistics)
     counters: Callable[[], dict] = dict
     notes: list[str] = field(default_factory=list)    # start-up lines (re-encoding, drops)
@@ -131,11 +132,12 @@ def profile(name: str | None, width: int | None = None, height: int | None = Non
 
 
 def simulated(url: str, events, opts: SourceOptions,
-              prof: camusb.DeviceProfile | None = None, **known) -> CameraSource:
+              prof: camusb.DeviceProfile | None = None, restart=None, **known) -> CameraSource:
     """A source whose ``events`` (an iterable of event arrays, or of word chunks already
     in ``prof``'s format) are served by a simulated camera presenting itself as ``prof``
     (default: the CCam ATIS; an EVT profile: a Prophesee-style EVK), with ``opts``' faults,
-    clock and serial; ``known``: further :class:`CameraSource` fields (default model,
+    clock and serial; ``restart()`` returns the same events anew (a replay from the start;
+    None: cannot rewind); ``known``: further :class:`CameraSource` fields (default model,
     report, counters)."""
     from ..simcam import SimBackend, SimCamera
     prof = prof or camusb.PROFILES["ccam_atis"]
@@ -146,7 +148,8 @@ def simulated(url: str, events, opts: SourceOptions,
 
     def open_camera():
         return camusb.Camera.open(prof, opts.serial, backend=backend, biases=opts.biases)
-    return CameraSource(url, open_camera, profile=prof, device=cam, **known)
+    rewind = (lambda: cam.restart(restart())) if restart is not None else None
+    return CameraSource(url, open_camera, profile=prof, device=cam, rewind=rewind, **known)
 
 
 def failure(source: CameraSource) -> str | None:

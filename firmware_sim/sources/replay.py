@@ -143,6 +143,8 @@ def _geometry(reader, prof_name: str) -> tuple[int, int, str]:
 
 
 def open(target: str, opts: SourceOptions, url: str):
+    if not target:
+        raise ValueError(f"--source {url!r}: name the file to replay: {USAGE}")
     reader = _reader(target)
     as_is = opts.profile is None and reader.format in WORD_PROFILES
     name = (WORD_PROFILES[reader.format] if as_is
@@ -154,9 +156,6 @@ def open(target: str, opts: SourceOptions, url: str):
     if as_is:
         notes.append(f"replay: {target}: {reader.format} words as recorded, {fw}x{fh} "
                      f"(from {where}), through a simulated {prof.name} camera")
-        source = word_chunks(reader)
-        if opts.seconds is not None:
-            source = limit_chunk_seconds(source, opts.seconds)
     else:
         notes.append(f"replay: {target}: {reader.format} {fw}x{fh} (from {where}) "
                      f"re-encoded as {prof.fmt} words of a {prof.width}x{prof.height} "
@@ -166,8 +165,14 @@ def open(target: str, opts: SourceOptions, url: str):
                          f"{prof.width}x{prof.height} sensor of --profile {prof.name}: events "
                          f"outside it are dropped (counted in geometry_drops); omit --profile "
                          f"to replay at the recording's own geometry")
-        events = reader if opts.seconds is None else limit_seconds(reader, opts.seconds)
-        source = rebased(_inside(events, prof.width, prof.height, stats), stats)
+
+    def source(rd):
+        """What the simulated camera serves from reader ``rd`` (again at every replay)."""
+        if as_is:
+            chunks = word_chunks(rd)
+            return chunks if opts.seconds is None else limit_chunk_seconds(chunks, opts.seconds)
+        events = rd if opts.seconds is None else limit_seconds(rd, opts.seconds)
+        return rebased(_inside(events, prof.width, prof.height, stats), stats)
 
     def report() -> list[str]:
         out = []
@@ -180,5 +185,5 @@ def open(target: str, opts: SourceOptions, url: str):
         return out + [f"replay: warning: {stats['outside_sensor']} of {stats['events_in']} events "
                 f"({stats['outside_sensor'] / max(stats['events_in'], 1):.1%}) lay outside the "
                 f"{prof.width}x{prof.height} sensor and were dropped before encoding"]
-    return simulated(url, source, opts, prof, report=report, counters=lambda: dict(stats),
-                     notes=notes)
+    return simulated(url, source(reader), opts, prof, restart=lambda: source(_reader(target)),
+                     report=report, counters=lambda: dict(stats), notes=notes)

@@ -20,5 +20,8 @@ def scene_source(scene: str, seconds: float | None = None, seed: int = 0,
 def open(target: str, opts: SourceOptions, url: str):
     from springtrack.sim.scenes import HEIGHT, WIDTH, make_scene
     scene = make_scene(target, seed=opts.seed)        # unknown scene: ValueError now
-    return simulated(url, scene_source(target, opts.seconds, seed=opts.seed), opts,
-                     profile(opts.profile, WIDTH, HEIGHT), default_model=scene.initial_model)
+
+    def events():
+        return scene_source(target, opts.seconds, seed=opts.seed)
+    return simulated(url, events(), opts, profile(opts.profile, WIDTH, HEIGHT), restart=events,
+                     default_model=scene.initial_model)
