@@ -118,6 +118,26 @@ cdef void snapshot_opaque(const void* s, int64_t t, SampleOut* o) noexcept nogil
 
 
 # ---- Python wrapper -----------------------------------------------------------------
+cdef load_rest(KState* s, arr):
+    """The model's rest geometry (``ShapeModel.arrays()``; s.n trackers, s.nc connections):
+    the means and covariances the state starts from and the guard resets it to, the
+    offsets to the rest centre of mass, the connections' rest lengths, angles and offsets."""
+    cdef int i, k
+    for i in range(s.n):
+        s.rest_x[i] = arr["x"][i]
+        s.rest_y[i] = arr["y"][i]
+        s.rest_sxx[i] = arr["sxx"][i]
+        s.rest_sxy[i] = arr["sxy"][i]
+        s.rest_syy[i] = arr["syy"][i]
+        s.gdx0[i] = arr["gdx0"][i]
+        s.gdy0[i] = arr["gdy0"][i]
+    for k in range(s.nc):
+        s.l0[k] = arr["l0"][k]
+        s.th0[k] = arr["th0"][k]
+        s.dx0[k] = arr["dx0"][k]
+        s.dy0[k] = arr["dy0"][k]
+
+
 cdef class Kernel:
     """Owns one KState. ``Kernel(model, params)``; see springtrack.tracker.Tracker for the API."""
 
@@ -160,15 +180,14 @@ cdef class Kernel:
         if s.cells == NULL:
             raise MemoryError()
         s.pos_lo_x, s.pos_hi_x, s.pos_lo_y, s.pos_hi_y = _limits.position_box(s.width, s.height)
+        load_rest(s, arr)
         for i in range(n):
-            s.mx[i] = s.rest_x[i] = arr["x"][i]
-            s.my[i] = s.rest_y[i] = arr["y"][i]
-            s.sxx[i] = s.rest_sxx[i] = arr["sxx"][i]
-            s.sxy[i] = s.rest_sxy[i] = arr["sxy"][i]
-            s.syy[i] = s.rest_syy[i] = arr["syy"][i]
+            s.mx[i] = s.rest_x[i]
+            s.my[i] = s.rest_y[i]
+            s.sxx[i] = s.rest_sxx[i]
+            s.sxy[i] = s.rest_sxy[i]
+            s.syy[i] = s.rest_syy[i]
             s.mass[i] = arr["mass"][i]
-            s.gdx0[i] = arr["gdx0"][i]
-            s.gdy0[i] = arr["gdy0"][i]
             s.act[i] = 0.0
         s.act_n = 0
         for k in range(nc):
@@ -176,10 +195,6 @@ cdef class Kernel:
             s.cb[k] = arr["cb"][k]
             s.kinds[k] = arr["kinds"][k]
             s.stiff[k] = arr["stiffness"][k]
-            s.l0[k] = arr["l0"][k]
-            s.th0[k] = arr["th0"][k]
-            s.dx0[k] = arr["dx0"][k]
-            s.dy0[k] = arr["dy0"][k]
         init_springs(s)
         s.last_t = -(1 << 62)
         self.set_params(params)
@@ -191,6 +206,45 @@ cdef class Kernel:
             s.box_y1[i] = -1
             reindex(s, i)
         s.n_reindex = 0
+
+    def move(self, sim, model):
+        """The instance moved rigidly by ``sim`` = (a, b, tx, ty), x -> A x + t with
+        A = [[a, -b], [b, a]], keeping activities, sensitivities and deformation; the rest
+        geometry from ``model`` (the model moved by the same sim).  As
+        springtrack.reference.ReferenceTracker.move (the specification), with the spatial
+        index rebuilt."""
+        cdef KState* s = &self.st
+        cdef double a = sim[0], b = sim[1], tx = sim[2], ty = sim[3]
+        cdef double x, y, sxx, sxy, syy, pxx, pxy, pyx, pyy, gx, gy
+        cdef uint64_t sensitive = s.sensitive_mask
+        cdef double fc = s.sim_c, fs = s.sim_s
+        cdef int i, k
+        if len(model.trackers) != s.n or len(model.connections) != s.nc:
+            raise ValueError(f"move: the model has {len(model.trackers)} trackers and "
+                             f"{len(model.connections)} connections, the kernel {s.n} and {s.nc}")
+        load_rest(s, model.arrays())
+        gx, gy = s.sim_gx, s.sim_gy
+        k = s.n_frame_moves
+        init_springs(s)                    # the rest terms' coefficients
+        s.n_frame_moves = k
+        s.sensitive_mask = sensitive
+        s.sim_c, s.sim_s = fc, fs
+        s.sim_gx = a * gx - b * gy + tx
+        s.sim_gy = b * gx + a * gy + ty
+        for i in range(s.n):
+            x, y = s.mx[i], s.my[i]
+            s.mx[i] = a * x - b * y + tx                     # mu' = A mu + t
+            s.my[i] = b * x + a * y + ty
+            sxx, sxy, syy = s.sxx[i], s.sxy[i], s.syy[i]
+            # Sigma' = A Sigma A^T
+            pxx, pxy = a * sxx - b * sxy, a * sxy - b * syy
+            pyx, pyy = b * sxx + a * sxy, b * sxy + a * syy
+            s.sxx[i] = pxx * a - pxy * b
+            s.sxy[i] = pxx * b + pxy * a
+            s.syy[i] = pyx * b + pyy * a
+            clamp_and_invert(s, i)
+            reindex(s, i)
+        self.model = model
 
     def __dealloc__(self):
         if self.st.cells != NULL:

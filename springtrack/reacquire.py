@@ -32,6 +32,15 @@ every backend:
   geometry of the placed model, activities 0) and tracks again -- unless it was found
   where its trackers were kept (mean Mahalanobis distance below RESUME_SIGMA: the object
   came back where it was hidden, or stood still), which resume as they were;
+* an instance re-acquired or found moved while its trackers still hold the model's shape
+  (all on the sensor, their mean Mahalanobis distance to their best-fit placement below
+  SHAPE_SIGMA) is not
+  re-placed but moved rigidly onto the pose found (the backend's ``move``: activities
+  and deformation kept); a window later it is searched for once more in a narrow range
+  around its trackers (REFINE_PX, REFINE_DEG, REFINE_SCALE) and, found, moved onto that
+  pose (a re-placed instance otherwise tracks a few px and degrees off the truth and
+  drifts as a whole; the springs keep it in that state).  Backends that cannot move an
+  instance re-place it;
 * every change of state is kept with its event time: ``acquired`` (first found),
   ``lost``, ``reacquired``.
 
@@ -44,7 +53,7 @@ import math
 
 import numpy as np
 
-from .acquire import MIN_EVENTS, acquire, fit_pose, judge, place, placed_gates
+from .acquire import MIN_EVENTS, Pose, acquire, fit_pose, judge, model_pose, place, placed_gates
 from .events import EVENT_DTYPE
 from .instances import LOST, SEARCHING, TRACKING
 from .loss import (DOUBT_CHECK_US, LOSS_CHECK_US, MASS_HORIZON_TAU, LossRule, ShareDoubt,
@@ -57,6 +66,10 @@ MOVED_SUPPORT = 2.0            # in doubt and found elsewhere supported this x m
 VERIFY_BACKOFF = 8             # a doubt that stays: verified every period, 2, 4 ... up to
 #                                this x period apart while nothing better is found
 VERIFY_EVERY = 40              # and every instance, in doubt or not, this x period apart
+SHAPE_SIGMA = 1.0              # trackers within this of their best-fit model keep their shape
+REFINE_PX = 10.0               # the refinement's search after a re-placement: +- px,
+REFINE_DEG = 6.0               # +- degrees,
+REFINE_SCALE = 0.07            # +- this fraction of the size
 
 
 class EventRing:
@@ -102,14 +115,20 @@ class EventRing:
         return ev[(ev["t"] >= t_lo) & (ev["t"] < t_hi)]
 
 
-def _where_kept(placed, x, y) -> bool:
-    """The placement found lies where a lost instance's trackers were kept: their mean
-    Mahalanobis distance (the placed covariances) below RESUME_SIGMA."""
+def _mahalanobis(placed, x, y) -> float:
+    """The mean Mahalanobis distance (the placed covariances) of positions x, y to the
+    placed trackers."""
     a = placed.arrays()
     dx, dy = x - a["x"], y - a["y"]
     det = a["sxx"] * a["syy"] - a["sxy"] ** 2
     d2 = (a["syy"] * dx * dx - 2 * a["sxy"] * dx * dy + a["sxx"] * dy * dy) / det
-    return float(np.mean(np.sqrt(np.maximum(d2, 0.0)))) < RESUME_SIGMA
+    return float(np.mean(np.sqrt(np.maximum(d2, 0.0))))
+
+
+def _where_kept(placed, x, y) -> bool:
+    """The placement found lies where a lost instance's trackers were kept: their mean
+    Mahalanobis distance below RESUME_SIGMA."""
+    return _mahalanobis(placed, x, y) < RESUME_SIGMA
 
 
 def _grid_at_or_before(t: int, period: int) -> int:
@@ -144,6 +163,8 @@ class Recovery:
         self._verify_due = []               # per instance: verified, doubt or not, by then
         self._mass = (0.0, None)            # the sensor's event mass and its time
         self.verifications = 0
+        self.moves = 0                      # instances moved rigidly onto a pose found
+        self._refine_at = {}                # instance: its refinement search time
         self.refuted = 0                    # losses refuted: found where its trackers are
 
     def start(self, t_first: int, found) -> None:
@@ -305,7 +326,8 @@ class Recovery:
                 b.set_state(g, TRACKING)          # found where it was kept: resume from there
                 self._resumed(t, g, "reacquired")
             else:
-                self._replace(t, g, placed, "acquired" if states[g] == SEARCHING else "reacquired")
+                self._replace(t, g, placed, "acquired" if states[g] == SEARCHING else "reacquired",
+                              pose, snap if states[g] == LOST else None)
             mset = self.tr.models
             claimed = [np.concatenate([c, np.asarray(v, float)])
                        for c, v in zip(claimed, placed_gates(model, pose))]
@@ -319,11 +341,68 @@ class Recovery:
         live = np.repeat(live, [i.n for i in self.tr.models])
         return [np.asarray(snap[k], float)[live] for k in ("x", "y", "sxx", "sxy", "syy")]
 
-    def _replace(self, t: int, g: int, placed, kind: str) -> None:
-        """Instance g placed anew as ``placed`` at t (activities 0, tracking)."""
-        self.tr.models = self.tr.models.replaced(g, placed)
-        self.tr._ib.place(g, placed)
+    def _replace(self, t: int, g: int, placed, kind: str, pose=None, snap=None) -> None:
+        """Instance g placed anew as ``placed`` at t (activities 0, tracking), or moved
+        rigidly onto ``pose`` where its trackers (``snap``) hold the model's shape."""
+        if pose is None or not self._move(g, pose, snap):
+            self.tr.models = self.tr.models.replaced(g, placed)
+            self.tr._ib.place(g, placed)
+        self.tr._ib.set_state(g, TRACKING)
         self._resumed(t, g, kind)
+        self._refine_at[g] = t + self.window_us
+
+    def _move(self, g: int, pose, snap) -> bool:
+        """Instance g moved rigidly onto ``pose`` (relative to its model) when the backend
+        can and its trackers in ``snap`` hold the model's shape (SHAPE_SIGMA); True if so."""
+        b = self.tr._ib
+        if snap is None or not getattr(b, "movable", False):
+            return False
+        inst = self.tr.models[g]
+        model = inst.model
+        x, y = (np.asarray(snap[k], float)[inst.t0:inst.t1] for k in ("x", "y"))
+        w, h = self.tr.models.width, self.tr.models.height
+        if not ((x >= 0) & (x < w) & (y >= 0) & (y < h)).all():
+            return False              # trackers off the sensor took no events: no shape
+        now = fit_pose(model, x, y)
+        if _mahalanobis(place(model, now), x, y) >= SHAPE_SIGMA:
+            return False
+        # the similarity taking the trackers' pose onto the one found: x -> A x + t,
+        # A = k R(d), k = s_found / s_now, d = angle_found - angle_now
+        k = pose.scale / now.scale
+        d = math.radians(pose.angle_deg - now.angle_deg)
+        a, bb = k * math.cos(d), k * math.sin(d)
+        tx = pose.tx - (a * now.tx - bb * now.ty)
+        ty = pose.ty - (bb * now.tx + a * now.ty)
+        g0 = model_pose(model)
+        moved = place(model, Pose(a * g0.tx - bb * g0.ty + tx, bb * g0.tx + a * g0.ty + ty,
+                                  math.degrees(d), k))
+        self.tr.models = self.tr.models.replaced(g, moved)
+        b.move(g, (a, bb, tx, ty), moved)
+        self.moves += 1
+        return True
+
+    def _refine(self, t: int, g: int, snap, states) -> None:
+        """A window after instance g was re-placed: a narrow search around its trackers on
+        the last window; found, the instance is moved onto it (:meth:`_move`)."""
+        window = self.ring.window(t - self.window_us, t)
+        if len(window) < MIN_EVENTS:
+            return
+        inst = self.tr.models[g]
+        x, y = (np.asarray(snap[k], float)[inst.t0:inst.t1] for k in ("x", "y"))
+        now = fit_pose(inst.model, x, y)
+        if not (-180.0 + REFINE_DEG <= now.angle_deg <= 180.0 - REFINE_DEG):
+            return
+        self.attempts += 1
+        pose = acquire(inst.model, window, at_us=int(window["t"][-1]),
+                       claimed=self._claimed(snap, states, but=g),
+                       region=(now.tx - REFINE_PX, now.ty - REFINE_PX,
+                               now.tx + REFINE_PX, now.ty + REFINE_PX),
+                       angle_deg=(now.angle_deg - REFINE_DEG, now.angle_deg + REFINE_DEG),
+                       scale=(now.scale * (1 - REFINE_SCALE), now.scale * (1 + REFINE_SCALE)),
+                       **{k: v for k, v in self.bounds.items()
+                          if k not in ("region", "angle_deg", "scale")})
+        if pose.found and pose.in_view == inst.n:
+            self._move(g, pose, snap)
 
     def _resumed(self, t: int, g: int, kind: str) -> None:
         """Instance g tracks again from t: the rules' clocks restart, the change kept."""
@@ -353,6 +432,10 @@ class Recovery:
             if states[g] != TRACKING:
                 continue
             if snap is None:
+                snap = b.snapshot(t)
+            if t >= self._refine_at.get(g, NEVER):
+                del self._refine_at[g]
+                self._refine(t, g, snap, states)
                 snap = b.snapshot(t)
             taken = float(np.sum(snap["activity"][inst.t0:inst.t1]))
             doubt = self.doubt.doubt(t, g, taken, mass, inst.n)
@@ -393,7 +476,7 @@ class Recovery:
         if pose.in_view < inst.n and not self._stays_partly_in_view(g, placed):
             return False
         self._apply(t, [g])
-        self._replace(t, g, placed, "reacquired")
+        self._replace(t, g, placed, "reacquired", pose, snap)
         return True
 
     def _stays_partly_in_view(self, g: int, placed) -> bool:
@@ -412,5 +495,5 @@ class Recovery:
     def counters(self) -> dict:
         kinds = [c[2] for c in self.changes]
         return dict(reacquire_attempts=self.attempts, verifications=self.verifications,
-                    losses_refuted=self.refuted, acquired=kinds.count("acquired"),
+                    losses_refuted=self.refuted, moved=self.moves, acquired=kinds.count("acquired"),
                     lost=kinds.count("lost"), reacquired=kinds.count("reacquired"))

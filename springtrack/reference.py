@@ -523,26 +523,61 @@ class ReferenceTracker:
         same trackers and connections): positions, covariances and the rest geometry of
         eqs. (10), (14), (18), (22) from it (and the state the guard resets it to),
         activities 0, the frame at rest; tracking."""
+        arr = self._load_rest(g, model)
+        for j in range(len(arr["x"])):
+            i = self.t0[g] + j
+            self.mx[i], self.my[i] = float(arr["x"][j]), float(arr["y"][j])
+            self.sxx[i], self.sxy[i] = float(arr["sxx"][j]), float(arr["sxy"][j])
+            self.syy[i] = float(arr["syy"][j])
+            self.act[i] = 0.0
+            self.tlast[i] = 0
+            self._clamp_and_invert(i)
+        self._rest_frame(g)
+        self.set_state(g, TRACKING)
+
+    def move(self, g: int, sim: tuple, model: ShapeModel) -> None:
+        """Instance g moved rigidly by the similarity ``sim`` = (a, b, tx, ty), x -> A x + t
+        with A = s R = [[a, -b], [b, a]], keeping its activities, sensitivities, state and
+        deformation: each mean mapped, mu' = A mu + t; each covariance turned and scaled,
+        Sigma' = A Sigma A^T = s^2 R Sigma R^T (then clamped as eq. (4)'s are); the
+        similarity frame's centre mapped (2-D similarities commute, so its s R is kept);
+        the rest geometry (the state guard's means and covariances, eqs. (10), (14), (18),
+        (22)'s rest terms) from ``model``, the instance's model moved by the same ``sim``."""
+        a, b, tx, ty = (float(v) for v in sim)
+        self._load_rest(g, model)
+        for i in range(self.t0[g], self.t1[g]):
+            x, y = self.mx[i], self.my[i]
+            self.mx[i] = a * x - b * y + tx                          # mu' = A mu + t
+            self.my[i] = b * x + a * y + ty
+            sxx, sxy, syy = self.sxx[i], self.sxy[i], self.syy[i]
+            # Sigma' = A Sigma A^T
+            pxx, pxy = a * sxx - b * sxy, a * sxy - b * syy          # rows of A Sigma
+            pyx, pyy = b * sxx + a * sxy, b * sxy + a * syy
+            self.sxx[i] = pxx * a - pxy * b
+            self.sxy[i] = pxx * b + pxy * a
+            self.syy[i] = pyx * b + pyy * a
+            self._clamp_and_invert(i)
+        gx, gy = self.fgx[g], self.fgy[g]
+        self.fgx[g] = a * gx - b * gy + tx
+        self.fgy[g] = b * gx + a * gy + ty
+
+    def _load_rest(self, g: int, model: ShapeModel):
+        """Instance g's rest geometry from ``model`` (the same trackers and connections):
+        the means and covariances the state guard resets to, the offsets to the rest centre
+        of mass, the connections' rest lengths, angles and offsets.  Returns its arrays."""
         self.mset = self.mset.replaced(g, model)
         arr = model.arrays()
         t0, c0 = self.t0[g], self.c0[g]
         for j in range(len(arr["x"])):
             i = t0 + j
-            self.mx[i], self.my[i] = float(arr["x"][j]), float(arr["y"][j])
-            self.sxx[i], self.sxy[i] = float(arr["sxx"][j]), float(arr["sxy"][j])
-            self.syy[i] = float(arr["syy"][j])
             for rest, key in zip(self.rest, ("x", "y", "sxx", "sxy", "syy")):
                 rest[i] = float(arr[key][j])          # the state guard resets to this
             self.gdx0[i], self.gdy0[i] = float(arr["gdx0"][j]), float(arr["gdy0"][j])
-            self.act[i] = 0.0
-            self.tlast[i] = 0
-            self._clamp_and_invert(i)
         for j in range(len(arr["l0"])):
             k = c0 + j
             self.l0[k], self.th0[k] = float(arr["l0"][j]), float(arr["th0"][j])
             self.dx0[k], self.dy0[k] = float(arr["dx0"][j]), float(arr["dy0"][j])
-        self._rest_frame(g)
-        self.set_state(g, TRACKING)
+        return arr
 
     # ---- observation -----------------------------------------------------------
     def frame(self, g: int = 0) -> tuple:

@@ -123,6 +123,11 @@ class ReferenceBackend:
     def place(self, g: int, model) -> None:
         self.ref.place(g, model)
 
+    movable = True
+
+    def move(self, g: int, sim, model) -> None:
+        self.ref.move(g, sim, model)
+
 
 def _one_model(model, params, name):
     """A kernel that holds one model instance: its model and parameters."""
@@ -200,6 +205,19 @@ class _OneInstance:
         self.tr._b = make_backend(self.tr.backend_name, model, self.tr.models[g].params)
         self._done, self.withheld = old, 0
         self.state = int(TRACKING)
+
+    @property
+    def movable(self) -> bool:
+        """Whether the kernel can move an instance rigidly (:meth:`move`)."""
+        return hasattr(self.tr._b, "move")
+
+    def move(self, g, sim, model):
+        """Instance g moved rigidly by ``sim`` (springtrack.reference.ReferenceTracker.move),
+        ``model`` its model moved by the same similarity."""
+        if not self.movable:
+            raise ValueError(f"backend {self.tr.backend_name!r} cannot move an instance "
+                             f"rigidly (docs/acquisition.md, \"Not yet\"): re-place it")
+        self.tr._b.move(sim, model)
 
     def withhold(self, ev):
         """``ev`` as the kernel sees it: as it is while tracking, else off the sensor."""
