@@ -87,7 +87,7 @@ class SimCamera:
         self.counts = dict(bulk_reads=0, bytes_sent=0, events_generated=0, control_in=0,
                            control_out=0, rejected=0, overflow=0, timeouts=0, starts=0,
                            disconnects=0, reconnects=0, device_overflow_bytes=0,
-                           device_overflow_events=0)
+                           device_overflow_events=0, restart_dropped_bytes=0)
         self._reset_state()
 
     def restart(self, source) -> None:
@@ -391,6 +391,17 @@ class SimCamera:
         # a (re)start sends whole words: the tail of a word cut by the odd fault before the
         # host stopped is gone (as a real camera's FIFO is flushed by the set-up)
         self.fifo = deque(c for c in self.fifo if c.marks_t[0] != CUT_TAIL)
+        # and resumes at a word: a full transfer that followed a cut tail ended mid-word
+        # inside the next chunk, whose rest of that word is dropped up to its next mark
+        # (a mark ends whole words, simcam.words.Chunk)
+        if self.fifo and self.fifo[0].pos:
+            c = self.fifo[0]
+            k = int(np.searchsorted(c.marks_off, c.pos, side="left"))
+            end = int(c.marks_off[k]) if k < len(c.marks_off) else len(c.data)
+            self.counts["restart_dropped_bytes"] += end - c.pos
+            c.pos = end
+            if c.pos >= len(c.data):
+                self.fifo.popleft()
         now_t = self.device_time() if self.realtime and self.counts["starts"] > 1 else None
         if now_t is not None:
             # after a reconnect the clock ran on: what happened meanwhile is lost
