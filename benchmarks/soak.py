@@ -52,7 +52,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from _report import machine, write_section  # noqa: E402
 from fuzz_link import (MUTATING, hostile_frame, mutate, rand_bytes, random_frame,  # noqa: E402
                        valid_commands)
-from hostctl import Device, HostctlError, Nacked, Role  # noqa: E402
+from hostctl import AuthFailed, Device, HostctlError, Nacked, Role  # noqa: E402
 from springtrack import model as _model  # noqa: E402
 from springtrack import wire  # noqa: E402
 from springtrack.wire import MsgType  # noqa: E402
@@ -77,6 +77,12 @@ def rss_mb(pid: int) -> float:
         if line.startswith("VmRSS:"):
             return int(line.split()[1]) / 1024
     return 0.0
+
+
+def refused(e: HostctlError) -> bool:
+    """A refusal by the firmware (its address locked out after failed authentications, or
+    the session refused: NACK forbidden), as opposed to a link error."""
+    return isinstance(e, AuthFailed) or (isinstance(e, Nacked) and e.code == wire.Nack.FORBIDDEN)
 
 
 class Soak:
@@ -137,7 +143,7 @@ class Soak:
                     fn()
                 except HostctlError as e:      # reconnect: a takeover, a closed session
                     self.count(f"{name}.reconnects")
-                    if "locked out" not in str(e) and "sessions are in use" not in str(e):
+                    if not refused(e):
                         self.count(f"{name}.link_errors")
                     self.stop.wait(0.5)
                 except Exception as e:          # noqa: BLE001 - a soak bug, not a firmware one
