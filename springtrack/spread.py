@@ -11,18 +11,24 @@ side of the part's events, and a tracker placed a pixel off its part loses that 
 and settles on the near edge, a state of its own (the gated events' mean is where the
 tracker is); the springs carry the whole model there (docs/acquisition.md, "Placement").
 
-:func:`measured_spread` returns the placed model with each tracker's covariance set to
-that fixed point on a window of events, the means held where they were placed: every
-event goes to the tracker of smallest Mahalanobis distance within the gate (eq. 2; the
-model's own trackers), each tracker's covariance becomes its events' second moment about
-its mean, scaled as the steady state of eqs. (3)-(5) scales it,
+:func:`measured_spread` returns the placed model with each tracker's covariance scaled
+to that fixed point on a window of events, its shape (the part's aspect and orientation,
+from the model) and its mean kept: every event goes to the tracker of smallest Mahalanobis
+distance within the gate (eq. 2; the model's own trackers), and a tracker whose events lie
+at a mean squared Mahalanobis distance m2 under its model covariance Sigma_0 takes
 
-    Sigma = (1 + J) S / covariance_bias(alpha_1, gate),   J = alpha_1 / (2 - alpha_1)
+    Sigma = f Sigma_0,   f = (1 + J) (m2 / 2) / covariance_bias(alpha_1, gate),
+    J = alpha_1 / (2 - alpha_1)
 
-(springtrack.reference.covariance_bias: the mean's own jitter J and the gate's truncation),
-and the assignment is repeated under the new covariances (ITERATIONS times).  A tracker
-with fewer than MIN_EVENTS events keeps its covariance, as does one whose measured
-covariance leaves the params' sigma bounds (clamped as eq. (4)'s are).
+(m2 / 2 is the scale of Sigma_0 that fits the events' second moment, trace-wise;
+springtrack.reference.covariance_bias: the mean's own jitter J and the gate's truncation,
+as eq. (4)'s steady state scales it), the assignment repeated under the new covariances
+(ITERATIONS times).  Only the size is measured: the events of a window come from one
+motion, and a moving edge fires where its normal meets the motion, so their aspect
+follows the motion of the moment (a disk moving sideways fires on its left and right
+rims) while their size does not; eq. (4) averages the aspect over the motions to come.
+A tracker with fewer than MIN_EVENTS events keeps its covariance, as does one whose
+scaled covariance leaves the params' sigma bounds (clamped as eq. (4)'s are).
 """
 from __future__ import annotations
 
@@ -69,33 +75,33 @@ def measured_spread(model: ShapeModel, events, params: Params, at_us: int | None
         u = u[~in_claimed_gates(u, claimed)]
     a = model.arrays()
     mu = np.column_stack([a["x"], a["y"]])
-    cov = np.stack([a["sxx"], a["sxy"], a["syy"]], -1)
+    base = np.stack([a["sxx"], a["sxy"], a["syy"]], -1)          # Sigma_0: the shape kept
     if len(u) == 0:
         return model
     gate = params.gate_d2
     j = params.alpha_position / (2.0 - params.alpha_position)
     gain = (1.0 + j) / covariance_bias(params.alpha_position, gate)
     lo, hi = params.sigma_min_px ** 2, params.sigma_max_px ** 2
+    # d0^2: every event's squared Mahalanobis distance to every tracker under Sigma_0
+    dx = u[:, 0:1] - mu[:, 0]
+    dy = u[:, 1:2] - mu[:, 1]
+    det = base[:, 0] * base[:, 2] - base[:, 1] * base[:, 1]
+    d0 = (base[:, 2] * dx * dx - 2.0 * base[:, 1] * dx * dy + base[:, 0] * dy * dy) / det
+    f = np.ones(len(mu))
     for _ in range(ITERATIONS):
-        # eq. (2): d^2 of every event to every tracker, the smallest within the gate
-        det = cov[:, 0] * cov[:, 2] - cov[:, 1] * cov[:, 1]
-        dx = u[:, 0:1] - mu[:, 0]
-        dy = u[:, 1:2] - mu[:, 1]
-        d2 = (cov[:, 2] * dx * dx - 2.0 * cov[:, 1] * dx * dy + cov[:, 0] * dy * dy) / det
-        best = np.argmin(d2, axis=1)
+        d2 = d0 / f                          # under Sigma = f Sigma_0
+        best = np.argmin(d2, axis=1)         # eq. (2): the nearest, within the gate
         take = d2[np.arange(len(u)), best] < gate
-        k, ex, ey = best[take], dx[take, best[take]], dy[take, best[take]]
+        k = best[take]
         n = np.bincount(k, minlength=len(mu))
-        s = np.stack([np.bincount(k, ex * ex, len(mu)), np.bincount(k, ex * ey, len(mu)),
-                      np.bincount(k, ey * ey, len(mu))], -1)
-        enough = n >= MIN_EVENTS
-        new = gain * s[enough] / n[enough, None]        # eqs. (4)-(5) at their fixed point
-        ok = ((new[:, 0] >= lo) & (new[:, 0] <= hi) & (new[:, 2] >= lo) & (new[:, 2] <= hi)
-              & (new[:, 0] * new[:, 2] > new[:, 1] * new[:, 1]))
-        idx = np.flatnonzero(enough)[ok]
-        if not len(idx):
+        m2 = np.bincount(k, d0[take, k], len(mu)) / np.maximum(n, 1)
+        new = gain * m2 / 2.0                # eqs. (4)-(5) at their fixed point
+        ok = ((n >= MIN_EVENTS) & (new * base[:, 0] >= lo) & (new * base[:, 0] <= hi)
+              & (new * base[:, 2] >= lo) & (new * base[:, 2] <= hi))
+        if not ok.any():
             break
-        cov[idx] = new[ok]
+        f = np.where(ok, new, f)
+    cov = base * f[:, None]
     trackers = [TrackerSpec(t.id, t.x, t.y, tuple(float(v) for v in cov[i]), t.mass)
                 for i, t in enumerate(model.trackers)]
     return replace(model, trackers=trackers)

@@ -29,9 +29,10 @@ def _rings(centres, radius, per_ring, rng):
 
 
 def test_ring_events_give_the_steady_state_covariance():
-    """A ring of radius r has the second moment r^2 / 2 per axis about its centre; eqs.
-    (3)-(5) settle to (1 + J) r^2 / 2 / covariance_bias, which the measurement returns
-    (the ring inside the gate: nothing truncated)."""
+    """A ring of radius r about a tracker of covariance sigma^2 I: its events' mean
+    squared Mahalanobis distance is m2 = r^2 / sigma^2, and the tracker's covariance is
+    scaled to (1 + J) (m2 / 2) / covariance_bias sigma^2 = (1 + J) (r^2 / 2) / covariance_bias,
+    the steady state of eqs. (3)-(5) on that ring (inside the gate: nothing truncated)."""
     m = grid3x3(sigma_px=4.0)
     a = m.arrays()
     r = 5.0
@@ -40,20 +41,31 @@ def test_ring_events_give_the_steady_state_covariance():
     out = measured_spread(m, ev, p).arrays()
     j = p.alpha_position / (2 - p.alpha_position)
     gain = (1 + j) / covariance_bias(p.alpha_position, p.gate_d2)
-    # each ring's own second moments about its centre (every ring event in its gate)
+    # each ring's own events, all in its tracker's gate
     ex = ev["x"][:, None] - a["x"]
     ey = ev["y"][:, None] - a["y"]
     mine = np.argmin(ex * ex + ey * ey, axis=1)
     for k in range(9):
         u, v = ex[mine == k, k], ey[mine == k, k]
-        assert out["sxx"][k] == pytest.approx(gain * np.mean(u * u), rel=1e-9)
-        assert out["sxy"][k] == pytest.approx(gain * np.mean(u * v), rel=1e-9, abs=1e-9)
-        assert out["syy"][k] == pytest.approx(gain * np.mean(v * v), rel=1e-9)
-    # about the ring's (1 + J) r^2 / 2 / covariance_bias, the steady state of eq. (4)
-    assert out["sxx"] == pytest.approx(np.full(9, gain * r * r / 2), rel=0.1)
+        m2 = np.mean(u * u + v * v) / 16.0
+        assert out["sxx"][k] == pytest.approx(gain * m2 / 2 * 16.0, rel=1e-9)
+        assert out["syy"][k] == out["sxx"][k] and out["sxy"][k] == 0.0   # the shape kept
+    assert out["sxx"] == pytest.approx(np.full(9, gain * r * r / 2), rel=0.05)
     # positions, masses and connections as placed
     for k in ("x", "y", "mass", "l0", "th0"):
         assert np.array_equal(out[k], a[k])
+
+
+def test_the_shape_is_the_models_the_size_the_events():
+    """Events on the left and right rims only (a disk moving sideways): the covariance
+    keeps the model's aspect and orientation, scaled to the events' size."""
+    m = grid3x3(sigma_px=4.0)
+    a = m.arrays()
+    rng = np.random.default_rng(4)
+    ev = _rings(zip(a["x"], a["y"]), 5.0, 3000, rng)
+    sides = np.abs(ev["x"] - np.rint(ev["x"] / 50.0) * 50.0 - 2.0) >= 4
+    out = measured_spread(m, ev[sides], Params()).arrays()
+    assert np.allclose(out["sxx"], out["syy"]) and (out["sxx"] > 16.0).all()
 
 
 def test_trackers_without_enough_events_keep_their_covariance():
