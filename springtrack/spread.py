@@ -46,6 +46,7 @@ ITERATIONS = 3           # assignment and covariance, repeated
 MIN_EVENTS = 30          # a tracker measured on fewer events keeps its covariance
 #                          (relative error of a variance from n events: sqrt(2 / n) ~ 0.26)
 PER_TRACKER = 120        # events measured on: this many per tracker, nearest the placement
+BLOCK = 2048             # events per block of distances (memory: BLOCK x trackers doubles)
 
 
 def nearest_events(events, at_us: int | None, count: int):
@@ -82,20 +83,24 @@ def measured_spread(model: ShapeModel, events, params: Params, at_us: int | None
     j = params.alpha_position / (2.0 - params.alpha_position)
     gain = (1.0 + j) / covariance_bias(params.alpha_position, gate)
     lo, hi = params.sigma_min_px ** 2, params.sigma_max_px ** 2
-    # d0^2: every event's squared Mahalanobis distance to every tracker under Sigma_0
-    dx = u[:, 0:1] - mu[:, 0]
-    dy = u[:, 1:2] - mu[:, 1]
     det = base[:, 0] * base[:, 2] - base[:, 1] * base[:, 1]
-    d0 = (base[:, 2] * dx * dx - 2.0 * base[:, 1] * dx * dy + base[:, 0] * dy * dy) / det
     f = np.ones(len(mu))
     for _ in range(ITERATIONS):
-        d2 = d0 / f                          # under Sigma = f Sigma_0
-        best = np.argmin(d2, axis=1)         # eq. (2): the nearest, within the gate
-        take = d2[np.arange(len(u)), best] < gate
-        k = best[take]
-        n = np.bincount(k, minlength=len(mu))
-        m2 = np.bincount(k, d0[take, k], len(mu)) / np.maximum(n, 1)
-        new = gain * m2 / 2.0                # eqs. (4)-(5) at their fixed point
+        n = np.zeros(len(mu))
+        m2 = np.zeros(len(mu))
+        for b in range(0, len(u), BLOCK):
+            # d0^2: squared Mahalanobis distances of a block of events to every tracker
+            # under Sigma_0; eq. (2) under Sigma = f Sigma_0: the nearest, within the gate
+            dx = u[b:b + BLOCK, 0:1] - mu[:, 0]
+            dy = u[b:b + BLOCK, 1:2] - mu[:, 1]
+            d0 = (base[:, 2] * dx * dx - 2.0 * base[:, 1] * dx * dy + base[:, 0] * dy * dy) / det
+            d2 = d0 / f
+            best = np.argmin(d2, axis=1)
+            take = d2[np.arange(len(d2)), best] < gate
+            k = best[take]
+            n += np.bincount(k, minlength=len(mu))
+            m2 += np.bincount(k, d0[take, k], len(mu))
+        new = gain * m2 / np.maximum(n, 1) / 2.0     # eqs. (4)-(5) at their fixed point
         ok = ((n >= MIN_EVENTS) & (new * base[:, 0] >= lo) & (new * base[:, 0] <= hi)
               & (new * base[:, 2] >= lo) & (new * base[:, 2] <= hi))
         if not ok.any():
