@@ -1,6 +1,7 @@
 """Moving an instance rigidly (ReferenceTracker.move, the backends' ``move``): means mapped by
 the similarity, covariances turned and scaled, activities, sensitivities and deformation
 kept; the float kernel equals the reference to 1e-9 px through the move and after it."""
+import dataclasses
 import math
 
 import numpy as np
@@ -65,15 +66,11 @@ def test_move_maps_means_and_covariances_and_keeps_activity_and_deformation(dx, 
     np.testing.assert_allclose(ref.l0[40:], np.asarray(f.arrays()["l0"]) * k, rtol=1e-12)
 
 
-@pytest.mark.parametrize("dx, dy, deg, k", [(2.5, -3.0, 3.0, 1.0), (-30.0, 20.0, -25.0, 1.15)])
-def test_move_in_the_float_kernel_equals_the_reference(dx, dy, deg, k):
-    """Kernel and reference moved alike between two runs of a face stream: every field
-    within 1e-9 px at every sample, the spatial index rebuilt."""
-    f = face26(width=W, height=H)
-    ev, _ = blob_stream(f, 30000, seed=3)
+def moved_stream(model, sim, n: int, seed: int):
+    """A face stream of ``n`` events cut in two halves, the second following the face to
+    its place moved by ``sim`` (events mapped, those off the sensor dropped)."""
+    ev, _ = blob_stream(model, n, seed=seed)
     half = len(ev) // 2
-    sim, moved = similarity(f, dx, dy, deg, k)
-    # the stream's second half follows the face to its new place
     ev2 = ev[half:].copy()
     a, b, tx, ty = sim
     x, y = ev2["x"].astype(float), ev2["y"].astype(float)
@@ -81,14 +78,31 @@ def test_move_in_the_float_kernel_equals_the_reference(dx, dy, deg, k):
     keep = (nx >= 0) & (nx < W) & (ny >= 0) & (ny < H)
     ev2 = ev2[keep]
     ev2["x"], ev2["y"] = nx[keep], ny[keep]
-    tracks = {}
-    for backend in ("cython", "reference"):
-        tr = springtrack.Tracker(f, {"spring_period": 5}, backend=backend)
-        t1 = tr.run(ev[:half], 1000)
-        tr._ib.move(0, sim, moved)
-        mid = tr.state()
-        t2 = tr.run(ev2, 1000)
-        tracks[backend] = (t1, mid, t2, tr)
+    return ev[:half], ev2
+
+
+def run_moved(backend: str, model, params, sim, moved, ev1, ev2):
+    """(track before, state at the move, track after, tracker): ``ev1``, the instance
+    moved by ``sim`` onto ``moved``, then ``ev2``."""
+    tr = springtrack.Tracker(model, params, backend=backend)
+    t1 = tr.run(ev1, 1000)
+    tr._ib.move(0, sim, moved)
+    mid = tr.state()
+    return t1, mid, tr.run(ev2, 1000), tr
+
+
+MOVES = [(2.5, -3.0, 3.0, 1.0), (-30.0, 20.0, -25.0, 1.15)]
+
+
+@pytest.mark.parametrize("dx, dy, deg, k", MOVES)
+def test_move_in_the_float_kernel_equals_the_reference(dx, dy, deg, k):
+    """Kernel and reference moved alike between two runs of a face stream: every field
+    within 1e-9 px at every sample, the spatial index rebuilt."""
+    f = face26(width=W, height=H)
+    sim, moved = similarity(f, dx, dy, deg, k)
+    ev1, ev2 = moved_stream(f, sim, 30000, seed=3)
+    tracks = {b: run_moved(b, f, {"spring_period": 5}, sim, moved, ev1, ev2)
+              for b in ("cython", "reference")}
     (a1, am, a2, ta), (b1, bm, b2, tb) = tracks["cython"], tracks["reference"]
     for fld in FIELDS:
         np.testing.assert_allclose(am[fld], bm[fld], rtol=0, atol=1e-9, err_msg=fld)
@@ -103,7 +117,83 @@ def test_move_in_the_float_kernel_equals_the_reference(dx, dy, deg, k):
     probes.load("kernel_probe").check_index(ta._b)
 
 
-@pytest.mark.parametrize("backend", ["fixed", "mcu"])
+@pytest.mark.parametrize("dx, dy, deg, k", MOVES + [(0.0, 0.0, 90.0, 0.8)])
+def test_move_in_the_fixed_kernel_stays_within_its_bound_of_the_float_kernel(dx, dy, deg, k):
+    """The fixed kernel moved as the float kernel (fx_move: the similarity in Q.28 / Q.32)
+    stays within its documented bound (tests/fixed_bound.py) before, at and after the
+    move, its frame agrees, and its spatial index holds."""
+    from fixed_bound import figures, violations
+    f = face26(width=W, height=H)
+    sim, moved = similarity(f, dx, dy, deg, k)
+    ev1, ev2 = moved_stream(f, sim, 60000, seed=3)
+    (a1, am, a2, ta), (b1, bm, b2, tb) = (run_moved(b, f, {"spring_period": 5}, sim, moved,
+                                                    ev1, ev2) for b in ("cython", "fixed"))
+    for p, q in ((a1, b1), (am, bm), (a2, b2)):
+        res = figures(p, q)
+        assert not violations(res), violations(res)
+        assert res["pos_max_px"] < 1e-4, res        # far inside the bound on this stream
+    assert len(a2) > 50 and ta.counters["events_valid"] == tb.counters["events_valid"]
+    fa, fb = ta.frame(), tb.frame()
+    for key in fb:
+        np.testing.assert_allclose(fa[key], fb[key], rtol=1e-6, atol=1e-5, err_msg=key)
+    assert probes.load("fixed_probe").check_index(tb._b)
+    assert sum(v for key, v in tb.counters.items() if key.startswith("saturated_")) == 0
+
+
+def test_fixed_move_maps_its_own_state_and_keeps_activities_and_energies():
+    """fx_move on the integer state: each mean A mu + t and covariance A S A^T of the
+    state before, to the rounding of the similarity's Q.28 (1e-6 px here); activities
+    and their times, sensitivities and the last update's energies unchanged."""
+    f = face26(width=W, height=H)
+    tr = springtrack.Tracker(f, {"spring_period": 5}, backend="fixed")
+    ev, _ = blob_stream(f, 5000, seed=4)
+    tr.run(ev, 1000)
+    kern = tr._b
+    before, e0, t0 = kern.raw_state(), kern.energies(), tr.last_t
+    sens0 = kern.snapshot(t0)["sensitive"]
+    sim, moved = similarity(f, -12.0, 7.0, 20.0, 1.1)
+    kern.move(sim, moved)
+    after = kern.raw_state()
+    a, b, tx, ty = sim
+    A = np.array([[a, -b], [b, a]])
+    xy = A @ np.array([before["x"], before["y"]]) / 2.0 ** 32 + [[tx], [ty]]
+    np.testing.assert_allclose(after["x"] / 2.0 ** 32, xy[0], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(after["y"] / 2.0 ** 32, xy[1], rtol=0, atol=1e-6)
+    for i in range(len(before["x"])):
+        S = np.array([[before["sxx"][i], before["sxy"][i]], [before["sxy"][i], before["syy"][i]]])
+        S = A @ S @ A.T
+        got = np.array([after["sxx"][i], after["sxy"][i], after["syy"][i]], float)
+        np.testing.assert_allclose(got, [S[0, 0], S[0, 1], S[1, 1]], rtol=1e-7, atol=2.0 ** 40 * 1e-6)
+    assert np.array_equal(after["activity"], before["activity"])
+    assert np.array_equal(kern.snapshot(t0)["sensitive"], sens0)
+    assert np.array_equal(kern.energies(), e0)
+
+
+def test_fixed_move_refuses_another_model_or_an_out_of_range_similarity():
+    """A clear error naming the problem, and the state unchanged."""
+    f = face26(width=W, height=H)
+    tr = springtrack.Tracker(f, backend="fixed")
+    ev, _ = blob_stream(f, 2000, seed=5)
+    tr.run(ev, 1000)
+    kern = tr._b
+    before = kern.raw_state()
+    sim, moved = similarity(f, 5.0, 0.0, 0.0, 1.0)
+    with pytest.raises(ValueError, match="similarity a"):
+        kern.move((9.0, 0.0, 0.0, 0.0), moved)
+    with pytest.raises(ValueError, match="similarity tx"):
+        kern.move((1.0, 0.0, 3e6, 0.0), moved)
+    with pytest.raises(ValueError, match="trackers"):
+        kern.move(sim, springtrack.load_model("grid3x3"))
+    c0 = moved.connections[0]
+    other = dataclasses.replace(moved, connections=[dataclasses.replace(
+        c0, stiffness=c0.stiffness / 2)] + moved.connections[1:])
+    with pytest.raises(ValueError, match="fx_move -5"):          # FX_ERR_MODEL
+        kern.move(sim, other)
+    for key, v in kern.raw_state().items():
+        assert np.array_equal(v, before[key]), key
+
+
+@pytest.mark.parametrize("backend", ["mcu"])
 def test_backends_that_cannot_move_say_so(backend):
     f = face26(width=W, height=H)
     try:
