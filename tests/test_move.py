@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 import probes
+from moves import moved_stream, run_moved, similarity
 import springtrack
-from springtrack.acquire import Pose, model_pose, place
 from springtrack.instances import ModelSet
 from springtrack.model import face26
 from springtrack.reference import ReferenceTracker
@@ -17,15 +17,6 @@ from springtrack.synthetic import blob_stream
 
 FIELDS = ("x", "y", "sxx", "sxy", "syy", "activity")
 W, H = 320, 240
-
-
-def similarity(model, dx, dy, deg, k):
-    """(a, b, tx, ty) turning by ``deg`` and scaling by ``k`` about the model's centre of
-    mass, then shifting by (dx, dy); and the model moved by it."""
-    g = model_pose(model)
-    c, s = k * math.cos(math.radians(deg)), k * math.sin(math.radians(deg))
-    tx, ty = g.tx + dx - (c * g.tx - s * g.ty), g.ty + dy - (s * g.tx + c * g.ty)
-    return (c, s, tx, ty), place(model, Pose(g.tx + dx, g.ty + dy, deg, k))
 
 
 @pytest.mark.parametrize("dx, dy, deg, k", [(3.0, -2.0, 2.5, 1.0), (-40.0, 25.0, -30.0, 1.2),
@@ -64,31 +55,6 @@ def test_move_maps_means_and_covariances_and_keeps_activity_and_deformation(dx, 
     new = np.array([ref.mx[26:], ref.my[26:]]) - np.array([mv["x"], mv["y"]])
     np.testing.assert_allclose(new, A @ old, atol=1e-9)
     np.testing.assert_allclose(ref.l0[40:], np.asarray(f.arrays()["l0"]) * k, rtol=1e-12)
-
-
-def moved_stream(model, sim, n: int, seed: int):
-    """A face stream of ``n`` events cut in two halves, the second following the face to
-    its place moved by ``sim`` (events mapped, those off the sensor dropped)."""
-    ev, _ = blob_stream(model, n, seed=seed)
-    half = len(ev) // 2
-    ev2 = ev[half:].copy()
-    a, b, tx, ty = sim
-    x, y = ev2["x"].astype(float), ev2["y"].astype(float)
-    nx, ny = np.rint(a * x - b * y + tx), np.rint(b * x + a * y + ty)
-    keep = (nx >= 0) & (nx < W) & (ny >= 0) & (ny < H)
-    ev2 = ev2[keep]
-    ev2["x"], ev2["y"] = nx[keep], ny[keep]
-    return ev[:half], ev2
-
-
-def run_moved(backend: str, model, params, sim, moved, ev1, ev2):
-    """(track before, state at the move, track after, tracker): ``ev1``, the instance
-    moved by ``sim`` onto ``moved``, then ``ev2``."""
-    tr = springtrack.Tracker(model, params, backend=backend)
-    t1 = tr.run(ev1, 1000)
-    tr._ib.move(0, sim, moved)
-    mid = tr.state()
-    return t1, mid, tr.run(ev2, 1000), tr
 
 
 MOVES = [(2.5, -3.0, 3.0, 1.0), (-30.0, 20.0, -25.0, 1.15)]
@@ -191,16 +157,3 @@ def test_fixed_move_refuses_another_model_or_an_out_of_range_similarity():
         kern.move(sim, other)
     for key, v in kern.raw_state().items():
         assert np.array_equal(v, before[key]), key
-
-
-@pytest.mark.parametrize("backend", ["mcu"])
-def test_backends_that_cannot_move_say_so(backend):
-    f = face26(width=W, height=H)
-    try:
-        tr = springtrack.Tracker(f, backend=backend)
-    except ValueError as e:                  # no toolchain for the mcu build
-        pytest.skip(str(e))
-    assert not tr._ib.movable
-    sim, moved = similarity(f, 1.0, 0.0, 0.0, 1.0)
-    with pytest.raises(ValueError, match="cannot move an instance"):
-        tr._ib.move(0, sim, moved)
