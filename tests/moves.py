@@ -1,12 +1,15 @@
 """Moving an instance rigidly in the tests (tests/test_move.py, tests/test_mcu.py): a
 similarity about the model's centre of mass, a stream that follows it, and a tracker run
-through the move."""
+through the move; the face of tests/test_reacquire.py jumping, which a tracker with
+``acquire=True`` finds moved and moves onto its new place."""
 import math
 
 import numpy as np
 
 import springtrack
 from springtrack.acquire import Pose, model_pose, place
+from springtrack.sim.scenes import Disrupted, make_scene
+from springtrack.sim.sensor import simulate_all
 from springtrack.synthetic import blob_stream
 
 
@@ -43,3 +46,13 @@ def run_moved(backend: str, model, params, sim, moved, ev1, ev2):
     tr._ib.move(0, sim, moved)
     mid = tr.state()
     return t1, mid, tr.run(ev2, 1000), tr
+
+
+def jump_run(backend: str, seconds: float = 0.45):
+    """(tracker, track) of ``springtrack.Tracker(..., acquire=True)`` on the simulator's
+    face jumping 60 px at 0.3 s (tests/test_reacquire.py's jump): found moved by the
+    verification search, it is moved onto its new place, then refined and moved again."""
+    sc = Disrupted(make_scene("face_occlusion", hand_first=100.0), at_s=0.3, dx=60.0)
+    ev, _ = simulate_all(sc, seconds)
+    tr = springtrack.Tracker(sc.initial_model(), backend=backend, acquire=True)
+    return tr, tr.run(ev, 1000)

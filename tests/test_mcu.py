@@ -256,6 +256,17 @@ def test_a_move_of_the_face_equals_the_host():
     assert_same(*[(tr, t1, mid, t2) for t1, mid, t2, tr in runs])
 
 
+def test_after_a_reacquisition_the_firmware_moves_as_the_fixed_kernel():
+    """``acquire=True`` on the face jumping 60 px (found moved, moved onto its new place,
+    refined): the firmware's track is the host fixed kernel's bit for bit."""
+    from moves import jump_run
+    (ta, a), (tb, b) = jump_run("fixed"), jump_run("mcu")
+    assert ta.recovery.moves >= 1 and ta.changes == tb.changes
+    for f in FIELDS + ("state",):
+        assert np.array_equal(getattr(a, f), getattr(b, f)), f
+    assert ta.counters == tb.counters
+
+
 # ---- command line ----------------------------------------------------------------------
 def test_cli_build_prints_flash_and_ram(tmp_path, capsys):
     from springtrack.cli import main

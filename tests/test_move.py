@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import probes
-from moves import moved_stream, run_moved, similarity
+from moves import jump_run, moved_stream, run_moved, similarity
 import springtrack
 from springtrack.instances import ModelSet
 from springtrack.model import face26
@@ -104,6 +104,21 @@ def test_move_in_the_fixed_kernel_stays_within_its_bound_of_the_float_kernel(dx,
         np.testing.assert_allclose(fa[key], fb[key], rtol=1e-6, atol=1e-5, err_msg=key)
     assert probes.load("fixed_probe").check_index(tb._b)
     assert sum(v for key, v in tb.counters.items() if key.startswith("saturated_")) == 0
+
+
+def test_after_a_reacquisition_the_fixed_kernel_moves_as_the_float_kernel():
+    """``acquire=True`` on the face jumping 60 px: the fixed backend is moved onto the face
+    found (not re-placed) as the float kernel is, at the same times, and stays within
+    its bound of it through the whole run (re-placed instead, it was 2.1 px RMS, 13.9 px
+    max away from it afterwards)."""
+    from fixed_bound import figures, violations
+    (ta, a), (tf, f) = jump_run("cython"), jump_run("fixed")
+    assert [k for _, _, k in tf.changes] == ["acquired", "lost", "reacquired"], tf.changes
+    assert tf.changes == ta.changes and tf.recovery.moves == ta.recovery.moves >= 1
+    res = figures(a, f)
+    assert res["samples"] > 400 and not violations(res), violations(res)
+    assert res["pos_max_px"] < 1e-4, res
+    assert np.array_equal(a.state, f.state)
 
 
 def test_fixed_move_maps_its_own_state_and_keeps_activities_and_energies():

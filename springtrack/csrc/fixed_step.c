@@ -1862,8 +1862,9 @@ int fx_set_params(fx_state *s, const int32_t *w, int32_t nw)
 
 /* round(c v / 2^28), half up, for c in Q.28 and |v| < 2^62 when it fits int64: v = hi 2^31
    + lo with 0 <= lo < 2^31, so c v / 2^28 = 8 c hi (exact) + c lo / 2^28 (rounded): two
-   32 x 32 -> 64-bit products, one rounding */
-static inline int64_t mulq28(int32_t c, int64_t v)
+   32 x 32 -> 64-bit products, one rounding.  A move is rare: one copy of the code, not
+   fourteen (flash on a microcontroller) */
+static __attribute__((noinline)) int64_t mulq28(int32_t c, int64_t v)
 {
     return shl64(smul(c, (int32_t)(v >> 31)), 3) + rshr(smul(c, (int32_t)(v & 0x7fffffff)), 28);
 }
