@@ -1,8 +1,9 @@
 """Moving an instance rigidly (ReferenceTracker.move, the backends' ``move``): means mapped by
 the similarity, covariances turned and scaled, activities, sensitivities and deformation
-kept; the float kernel equals the reference to 1e-9 px through the move and after it."""
+kept; the float kernel equals the reference to 1e-9 px through the move and after it, the
+fixed kernel (fx_move) stays within its bound of the float kernel, also when ``acquire=True``
+moves it after a re-acquisition."""
 import dataclasses
-import math
 
 import numpy as np
 import pytest

@@ -1926,7 +1926,7 @@ int fx_move(fx_state *s, const int32_t *w, int32_t nw)
     for (i = 0; i < s->n; i++) {
         int64_t sxx = s->sxx[i], sxy = s->sxy[i], syy = s->syy[i];   /* Q.40, <= 2^52 */
         int64_t pxx, pxy, pyx, pyy, x = s->mx[i], y = s->my[i];
-        /* mu' = A mu + t (|A mu| < 2^48 + 2^52 in Q.32), held inside +-FX_POS_LIM */
+        /* mu' = A mu + t (Q.32: |A mu| < 2^49, |t| < 2^52), held inside +-FX_POS_LIM */
         sim_point(a, b, tx, ty, &x, &y);
         s->mx[i] = sat_pos(s, x);
         s->my[i] = sat_pos(s, y);
