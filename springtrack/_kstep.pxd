@@ -44,32 +44,49 @@ cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double f
     log_activity(s, i, -0.5 * d2 + <double>(t - s.act_t0) * s.inv_tau)
     cdef double dx = fx - s.mx[i]                                    # eq. (5), pre-update mean
     cdef double dy = fy - s.my[i]
-    s.mx[i] = s.mx[i] + s.a1 * dx                                    # eq. (3)
-    s.my[i] = s.my[i] + s.a1 * dy
-    s.sxx[i] = s.keep * s.sxx[i] + s.cov_gain * (dx * dx)           # eq. (4)
-    s.sxy[i] = s.keep * s.sxy[i] + s.cov_gain * (dx * dy)
-    s.syy[i] = s.keep * s.syy[i] + s.cov_gain * (dy * dy)
+    cdef double a1 = s.a1[i], keep = s.keep[i], g = s.cov_gain[i]   # its instance's gains
+    s.mx[i] = s.mx[i] + a1 * dx                                      # eq. (3)
+    s.my[i] = s.my[i] + a1 * dy
+    s.sxx[i] = keep * s.sxx[i] + g * (dx * dx)                       # eq. (4)
+    s.sxy[i] = keep * s.sxy[i] + g * (dx * dy)
+    s.syy[i] = keep * s.syy[i] + g * (dy * dy)
     clamp_and_invert(s, i)
     check_index(s, i)
 
 
-cdef inline int assign_event(KState* s, int64_t t, int x, int y) noexcept nogil:
-    """eqs. (2)-(6) for a valid event: the most probable sensitive tracker takes it."""
-    cdef double fx = x, fy = y, dx, dy, d2
-    cdef double best_d2 = s.gate
-    cdef int best = K_NO_TRACKER, i
-    # eq. (2): candidates are the sensitive trackers indexed in this event's cell, in
-    # increasing index order, so ties resolve exactly as in the reference's full scan.
-    cdef uint64_t m = s.cells[(y >> CELL_SHIFT) * s.gw + (x >> CELL_SHIFT)] & s.sensitive_mask
+cdef inline void scan_word(const KState* s, uint64_t m, int base, double fx, double fy,
+                           int* best, double* best_d2) noexcept nogil:
+    """eq. (2) over the trackers of one mask word (tracker base + bit), in index order:
+    the smallest d^2 below *best_d2 wins (ties: the lowest index)."""
+    cdef int i
+    cdef double dx, dy, d2
     while m:
-        i = st_ctz64(m)
+        i = base + st_ctz64(m)
         m &= m - 1
         dx = fx - s.mx[i]
         dy = fy - s.my[i]
         d2 = s.ia[i] * dx * dx + s.ic[i] * dy * dy + s.ib2[i] * dx * dy
-        if d2 < best_d2:
-            best_d2 = d2
-            best = i
+        if d2 < best_d2[0]:
+            best_d2[0] = d2
+            best[0] = i
+
+
+cdef inline int assign_event(KState* s, int64_t t, int x, int y) noexcept nogil:
+    """eqs. (2)-(6) for a valid event: the most probable sensitive tracker of every
+    instance takes it (an event feeds at most one tracker of one instance)."""
+    cdef double fx = x, fy = y
+    cdef double best_d2 = s.gate
+    cdef int best = K_NO_TRACKER, w
+    # eq. (2): candidates are the sensitive trackers indexed in this event's cell, in
+    # increasing index order (word by word), so ties resolve exactly as in the
+    # reference's full scan: the lowest index, the first instance.
+    cdef Py_ssize_t c = (y >> CELL_SHIFT) * s.gw + (x >> CELL_SHIFT)
+    if s.nw == 1:                      # up to 64 trackers: one word
+        scan_word(s, s.cells[c] & s.sensitive[0], 0, fx, fy, &best, &best_d2)
+    else:
+        c *= s.nw
+        for w in range(s.nw):
+            scan_word(s, s.cells[c + w] & s.sensitive[w], w << 6, fx, fy, &best, &best_d2)
     if best >= 0:
         update_tracker(s, best, t, fx, fy, best_d2)
         s.n_assigned += 1
