@@ -361,9 +361,9 @@ cdef class Kernel:
             q = plist[g]
             gain = q.alpha_covariance / covariance_bias(q.alpha_position, q.gate_d2)
             for i in range(s.g_t0[g], s.g_t1[g]):
-                s.a1[i] = q.alpha_position
-                s.keep[i] = 1.0 - q.alpha_covariance
-                s.cov_gain[i] = gain
+                s.gain[i][0] = q.alpha_position                 # eq. (3)
+                s.gain[i][1] = 1.0 - q.alpha_covariance         # eq. (4)
+                s.gain[i][2] = gain
             s.energy_scale[g] = q.energy_scale
             s.energy_gain[g] = q.energy_gain
             s.ekind[g] = q.energy_kind_index

@@ -29,9 +29,14 @@ cdef enum:
     MAX_SET_TRACKERS = 256     # of all instances
     MAX_SET_CONNECTIONS = 512
     MAX_WORDS = 4              # MAX_SET_TRACKERS / 64: the event assignment's mask words
-    # per-tracker arrays that st_fit_frame (csrc/springs.h) reads in lanes of 4 from an
-    # instance's first tracker: up to 3 entries beyond the last tracker, kept finite (0)
-    TRACKER_PAD = MAX_SET_TRACKERS + 4
+    # the arrays' lengths: st_fit_frame (csrc/springs.h) reads the per-tracker ones in
+    # lanes of 4 from an instance's first tracker, up to 3 entries beyond the last
+    # tracker (kept finite: 0); and a length of a power of two (2 or 4 KiB) would put the
+    # same entry of every array in the same L1 cache set (4 KiB aliasing), which the
+    # per-event step, touching some 20 arrays at one index, pays for in conflict misses:
+    # 8 more entries (one 64-byte line) shift each array's sets by one
+    TRACKER_PAD = MAX_SET_TRACKERS + 8
+    CONN_PAD = MAX_SET_CONNECTIONS + 8
     CELL_SHIFT = 3             # spatial index cells of 8 x 8 px
     ACT_LOG = 256              # eq. (6) increments logged before their exps run as a batch
 
@@ -55,15 +60,15 @@ ctypedef struct KState:
     int g_t1[MAX_INSTANCES]
     int g_c0[MAX_INSTANCES]
     int g_c1[MAX_INSTANCES]
-    int inst[MAX_SET_TRACKERS]
+    int inst[TRACKER_PAD]
     int state[MAX_INSTANCES]
     # parameters shared by all instances (springtrack.instances.SHARED_PARAMS)
     double gate, tau, act_thr, smin2, smax2
     int period
-    # each tracker's gains of eqs. (3)-(4), from its instance's parameters
-    double a1[MAX_SET_TRACKERS]
-    double keep[MAX_SET_TRACKERS]       # 1 - alpha_covariance
-    double cov_gain[MAX_SET_TRACKERS]   # alpha_covariance / covariance_bias
+    # each tracker's gains of eqs. (3)-(4), from its instance's parameters, side by side
+    # (one cache line read per update): gain[i] = alpha_position, 1 - alpha_covariance,
+    # alpha_covariance / covariance_bias, 0
+    double gain[TRACKER_PAD][4]
     # each instance's criteria (INSTANCE_PARAMS)
     double energy_scale[MAX_INSTANCES]
     double energy_gain[MAX_INSTANCES]
@@ -74,22 +79,22 @@ ctypedef struct KState:
     # the models' means and covariances (the state starts from them and the guard resets
     # an instance to them), and the position box (springtrack.limits.position_box): after
     # a spring update every mean lies in it, or the guard resets its instance (guard_state)
-    double rest_x[MAX_SET_TRACKERS]
-    double rest_y[MAX_SET_TRACKERS]
-    double rest_sxx[MAX_SET_TRACKERS]
-    double rest_sxy[MAX_SET_TRACKERS]
-    double rest_syy[MAX_SET_TRACKERS]
+    double rest_x[TRACKER_PAD]
+    double rest_y[TRACKER_PAD]
+    double rest_sxx[TRACKER_PAD]
+    double rest_sxy[TRACKER_PAD]
+    double rest_syy[TRACKER_PAD]
     double pos_lo_x, pos_hi_x, pos_lo_y, pos_hi_y
     # tracker state, structure of arrays
     double mx[TRACKER_PAD]
     double my[TRACKER_PAD]
-    double sxx[MAX_SET_TRACKERS]
-    double sxy[MAX_SET_TRACKERS]
-    double syy[MAX_SET_TRACKERS]
-    double ia[MAX_SET_TRACKERS]          # inverse covariance [ia ib; ib ic]
-    double ib2[MAX_SET_TRACKERS]         # 2 * ib
-    double ic[MAX_SET_TRACKERS]
-    double act[MAX_SET_TRACKERS]          # activity at act_t0 (see kactivity)
+    double sxx[TRACKER_PAD]
+    double sxy[TRACKER_PAD]
+    double syy[TRACKER_PAD]
+    double ia[TRACKER_PAD]          # inverse covariance [ia ib; ib ic]
+    double ib2[TRACKER_PAD]         # 2 * ib
+    double ic[TRACKER_PAD]
+    double act[TRACKER_PAD]          # activity at act_t0 (see kactivity)
     int64_t act_t0, act_span
     # eq. (6) increments not yet added (see log_activity): tracker and exponent
     int act_n
@@ -108,37 +113,37 @@ ctypedef struct KState:
     # if tracker i may take events; what eq. (2) scans
     uint64_t sensitive[MAX_WORDS]
     # connections
-    int ca[MAX_SET_CONNECTIONS]
-    int cb[MAX_SET_CONNECTIONS]
-    int kinds[MAX_SET_CONNECTIONS]       # bit 1 euclidean, 2 torsional, 4 cartesian
-    uint64_t ends[MAX_SET_CONNECTIONS]   # bits ca[k], cb[k] less the instance's g_t0
-    double stiff[MAX_SET_CONNECTIONS]
-    double l0[MAX_SET_CONNECTIONS]
-    double th0[MAX_SET_CONNECTIONS]
-    double dx0[MAX_SET_CONNECTIONS]
-    double dy0[MAX_SET_CONNECTIONS]
+    int ca[CONN_PAD]
+    int cb[CONN_PAD]
+    int kinds[CONN_PAD]       # bit 1 euclidean, 2 torsional, 4 cartesian
+    uint64_t ends[CONN_PAD]   # bits ca[k], cb[k] less the instance's g_t0
+    double stiff[CONN_PAD]
+    double l0[CONN_PAD]
+    double th0[CONN_PAD]
+    double dx0[CONN_PAD]
+    double dy0[CONN_PAD]
     # per-connection coefficients precomputed from stiff/kinds/th0 (branch-free springs):
     # half_a = a / 2; a_euc, a_tor, a_car = a where the spring has that kind, else 0;
     # c0, s0 = cos, sin of th0 (direction of eq. 11 when both ends coincide)
-    double half_a[MAX_SET_CONNECTIONS]
-    double a_euc[MAX_SET_CONNECTIONS]
-    double a_tor[MAX_SET_CONNECTIONS]
-    double a_car[MAX_SET_CONNECTIONS]
-    double c0[MAX_SET_CONNECTIONS]
-    double s0[MAX_SET_CONNECTIONS]
-    double wa[MAX_SET_CONNECTIONS]       # 1 / mass of end a, of end b
-    double wb[MAX_SET_CONNECTIONS]
+    double half_a[CONN_PAD]
+    double a_euc[CONN_PAD]
+    double a_tor[CONN_PAD]
+    double a_car[CONN_PAD]
+    double c0[CONN_PAD]
+    double s0[CONN_PAD]
+    double wa[CONN_PAD]       # 1 / mass of end a, of end b
+    double wb[CONN_PAD]
     # eq. (14) measured from the rest direction: (rdx, rdy) = (dx0, dy0), or (c0, s0)
     # if that is 0; dth_zero = wrap(-th0), the reference's value when both ends coincide
-    double rdx[MAX_SET_CONNECTIONS]
-    double rdy[MAX_SET_CONNECTIONS]
-    double dth_zero[MAX_SET_CONNECTIONS]
+    double rdx[CONN_PAD]
+    double rdy[CONN_PAD]
+    double dth_zero[CONN_PAD]
     # eq. (14)'s fast frame per instance (see set_frame): the rest directions turned by
     # frame_phi
     double frame_phi[MAX_INSTANCES]
-    double qdx[MAX_SET_CONNECTIONS]
-    double qdy[MAX_SET_CONNECTIONS]
-    double energy[3][MAX_SET_CONNECTIONS]
+    double qdx[CONN_PAD]
+    double qdy[CONN_PAD]
+    double energy[3][CONN_PAD]
     double mean_energy[MAX_INSTANCES]
     # each instance's similarity frame of the last spring update (st_fit_frame): s R =
     # [[sim_c, -sim_s], [sim_s, sim_c]] and sim_g, the image of the rest centre of mass
@@ -151,22 +156,22 @@ ctypedef struct KState:
     # indexed with.
     uint64_t* cells
     int gw, gh
-    int box_x0[MAX_SET_TRACKERS]
-    int box_x1[MAX_SET_TRACKERS]
-    int box_y0[MAX_SET_TRACKERS]
-    int box_y1[MAX_SET_TRACKERS]
-    double bx_lo[MAX_SET_TRACKERS]
-    double bx_hi[MAX_SET_TRACKERS]
-    double by_lo[MAX_SET_TRACKERS]
-    double by_hi[MAX_SET_TRACKERS]
+    int box_x0[TRACKER_PAD]
+    int box_x1[TRACKER_PAD]
+    int box_y0[TRACKER_PAD]
+    int box_y1[TRACKER_PAD]
+    double bx_lo[TRACKER_PAD]
+    double bx_hi[TRACKER_PAD]
+    double by_lo[TRACKER_PAD]
+    double by_hi[TRACKER_PAD]
     # the per-update check (st_box_left): the box's centre, the slack left there for the
     # mean to move, and the variances up to which that slack holds
-    double bcx[MAX_SET_TRACKERS]
-    double bcy[MAX_SET_TRACKERS]
-    double dev_x[MAX_SET_TRACKERS]
-    double dev_y[MAX_SET_TRACKERS]
-    double sxx_lim[MAX_SET_TRACKERS]
-    double syy_lim[MAX_SET_TRACKERS]
+    double bcx[TRACKER_PAD]
+    double bcy[TRACKER_PAD]
+    double dev_x[TRACKER_PAD]
+    double dev_y[TRACKER_PAD]
+    double sxx_lim[TRACKER_PAD]
+    double syy_lim[TRACKER_PAD]
     # counters
     int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates, n_reindex
     int64_t n_frame_misses, n_frame_moves

@@ -44,7 +44,8 @@ cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double f
     log_activity(s, i, -0.5 * d2 + <double>(t - s.act_t0) * s.inv_tau)
     cdef double dx = fx - s.mx[i]                                    # eq. (5), pre-update mean
     cdef double dy = fy - s.my[i]
-    cdef double a1 = s.a1[i], keep = s.keep[i], g = s.cov_gain[i]   # its instance's gains
+    cdef const double* gain = s.gain[i]                              # its instance's gains
+    cdef double a1 = gain[0], keep = gain[1], g = gain[2]
     s.mx[i] = s.mx[i] + a1 * dx                                      # eq. (3)
     s.my[i] = s.my[i] + a1 * dy
     s.sxx[i] = keep * s.sxx[i] + g * (dx * dx)                       # eq. (4)
