@@ -92,6 +92,9 @@ cdef void compose_sensitive(KState* s) noexcept nogil:
     tracker g_t0 + j's, bit (g_t0 + j) & 63 of word (g_t0 + j) >> 6."""
     cdef int g, w, b, t0
     cdef uint64_t m
+    if s.ni == 1:                                  # one instance: its own word
+        s.sensitive[0] = s.isens[0]
+        return
     for w in range(s.nw):
         s.sensitive[w] = 0
     for g in range(s.ni):
@@ -109,21 +112,21 @@ cdef void ksprings(KState* s) noexcept nogil:
     # then the state guard; then the trackers whose gate boxes left their indexed boxes
     # re-indexed
     cdef int64_t left[MAX_SET_TRACKERS]
-    cdef int g, i
+    cdef int g, i, n = s.n
     s.n_spring_updates += 1
     for g in range(s.ni):
         if s.state[g] == K_TRACKING:
             instance_springs(s, g)
     guard_state(s)
     compose_sensitive(s)
-    st_boxes_left(s.n, s.mx, s.my, s.sxx, s.syy, s.bcx, s.bcy, s.dev_x, s.dev_y, s.sxx_lim,
+    st_boxes_left(n, s.mx, s.my, s.sxx, s.syy, s.bcx, s.bcy, s.dev_x, s.dev_y, s.sxx_lim,
                   s.syy_lim, left)
-    for i in range(s.n):
+    for i in range(n):
         if left[i]:
             reindex(s, i)
 
 
-cdef void instance_springs(KState* s, int g) noexcept nogil:
+cdef inline void instance_springs(KState* s, int g) noexcept nogil:
     # [ref] _springs(g), in structure-of-arrays passes over instance g's connections
     # (csrc/springs.h, vectorised):
     #   1. gather r = end b - end a;  2. eq. (14) angles, in the frame of a recent mean
@@ -158,9 +161,11 @@ cdef void instance_springs(KState* s, int g) noexcept nogil:
         st_turn_offsets(nc, s.sim_c[g], s.sim_s[g], dx0, dy0, odx, ody)
         dx0 = odx
         dy0 = ody
+    cdef const int* ca = s.ca + c0                   # the instance's connections' ends
+    cdef const int* cb = s.cb + c0
     for k in range(nc):                                              # 1. gather
-        i = s.ca[c0 + k]
-        j = s.cb[c0 + k]
+        i = ca[k]
+        j = cb[k]
         rx[k] = s.mx[j] - s.mx[i]
         ry[k] = s.my[j] - s.my[i]
     if s.need_torsion[g]:
@@ -182,8 +187,8 @@ cdef void instance_springs(KState* s, int g) noexcept nogil:
                           s.c0 + c0, s.s0 + c0, s.a_euc + c0, s.a_car + c0, s.wa + c0,
                           s.wb + c0, s.energy[0] + c0, s.energy[2] + c0, uax, uay, ubx, uby)
     for k in range(nc):                                              # 6. scatter
-        i = s.ca[c0 + k]
-        j = s.cb[c0 + k]
+        i = ca[k]
+        j = cb[k]
         s.mx[i] += uax[k]
         s.my[i] += uay[k]
         s.mx[j] -= ubx[k]
@@ -254,7 +259,7 @@ cdef void set_frame(KState* s, int g, double phi) noexcept nogil:
     s.n_frame_moves += 1
 
 
-cdef void energy_criteria(KState* s, int g) noexcept nogil:
+cdef inline void energy_criteria(KState* s, int g) noexcept nogil:
     # [ref] _energy_criteria(g); masks relative to the instance's first tracker t0
     cdef int t0 = s.g_t0[g], n = s.g_t1[g] - s.g_t0[g], c0 = s.g_c0[g]
     cdef int nc = s.g_c1[g] - c0, i
