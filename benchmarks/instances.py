@@ -90,11 +90,14 @@ def main() -> None:
             f"--seconds {args.seconds:g} --repeat {args.repeat}` (CPU time, best of the "
             f"repeats; the machine is shared).\n\n" + "\n".join(rows) + "\n\n"
             "Several instances run on the float kernel (cython) and the reference; the "
-            "fixed and microcontroller kernels hold one (docs/acquisition.md).  The float "
-            "kernel's cost per event grows little with the instances (eq. 2 scans only the "
-            "trackers indexed in the event's 8x8 px cell, one mask word per 64 trackers); "
-            "the reference's grows with the trackers of all instances (its argmin over the "
-            "union).")
+            "fixed and microcontroller kernels hold one (docs/acquisition.md).  On the float "
+            "kernel eq. (2) scans only the trackers indexed in the event's 8x8 px cell (one "
+            "mask word per 64 trackers), but every spring update (every spring_period "
+            "events, as in the reference) runs the springs of every tracking instance: N "
+            "instances are N times the spring work per event, which is most of the cost of "
+            "8 faces (320 connections).  The reference's argmin also grows with the "
+            "trackers of all instances.  acquire=True: the loss rule's checks, the doubt "
+            "checks and the verification searches (docs/acquisition.md).")
     print(body)
     if not args.no_write:
         write_section("Instances: tracking throughput with 1, 2 and 8 instances", body)
