@@ -131,6 +131,15 @@ def test_two_objects_side_by_side_keep_their_identities(backend):
     assert mean_px(track, truth[both.parts[1]], t, slice(26, 35)) < 3.0
 
 
+def cython_and_reference(models, ev):
+    """(tracker, track) of the float kernel and of the reference, ``acquire=True``."""
+    runs = []
+    for backend in ("cython", "reference"):
+        tr = springtrack.Tracker(models, backend=backend, acquire=True)
+        runs.append((tr, tr.run(ev, 1000)))
+    return runs
+
+
 def assert_same_rows(ta, tb):
     """Two Tracks' rows: the same times and states, every field within 1e-9 px."""
     assert np.array_equal(ta.t_us, tb.t_us) and np.array_equal(ta.state, tb.state)
@@ -147,11 +156,7 @@ def test_a_lost_instance_in_the_float_kernel_is_held_as_in_the_reference():
     reference's."""
     sc = Disrupted(face(), hide_s=(0.3, 0.5))
     ev, _ = simulate_all(sc, 0.6)
-    runs = {}
-    for backend in ("cython", "reference"):
-        tr = springtrack.Tracker(sc.initial_model(), backend=backend, acquire=True)
-        runs[backend] = (tr, tr.run(ev, 1000))
-    (a, ta), (b, tb) = runs["cython"], runs["reference"]
+    (a, ta), (b, tb) = cython_and_reference(sc.initial_model(), ev)
     assert [k for _, _, k in a.changes] == ["acquired", "lost", "reacquired"], a.changes
     assert a.changes == b.changes
     assert_same_rows(ta, tb)
@@ -164,11 +169,7 @@ def test_two_objects_one_jumping_the_float_kernel_equals_the_reference():
     f, g, _ = _two_objects()
     both = Together(Disrupted(f, at_s=0.2, dx=0.0, dy=50.0), g)
     ev, _ = simulate_all(both, 0.35)
-    runs = {}
-    for backend in ("cython", "reference"):
-        tr = springtrack.Tracker(both.initial_models(), backend=backend, acquire=True)
-        runs[backend] = (tr, tr.run(ev, 1000))
-    (a, ta), (b, tb) = runs["cython"], runs["reference"]
+    (a, ta), (b, tb) = cython_and_reference(both.initial_models(), ev)
     assert [k for _, _, k in a.changes] == ["acquired", "acquired", "lost", "reacquired"], a.changes
     assert a.changes == b.changes and a.changes[2][1] == "face26#1"
     assert a.counters["moved"] >= 1                  # moved rigidly, state kept
