@@ -429,7 +429,7 @@ def test_instances_lost_moved_and_placed_mid_stream_equal_the_reference(faces):
     then the first face moved rigidly keeping its state, the last face re-placed, and the
     grid resumes: the kernel equals the reference through all of it."""
     from springtrack.instances import LOST, TRACKING
-    from test_move import similarity
+    from moves import similarity
     ms, ev = _faces_and_grid(faces=faces)
     prm = {"pull_frame": "similarity", "cartesian_frame": "similarity", "energy_scale": 2.0}
     a = springtrack.Tracker(ms, prm, backend="cython")
