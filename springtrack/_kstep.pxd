@@ -88,6 +88,8 @@ cdef inline int assign_event(KState* s, int64_t t, int x, int y, bint one) noexc
     cdef Py_ssize_t c = (y >> CELL_SHIFT) * s.gw + (x >> CELL_SHIFT)
     cdef uint64_t m
     if one or s.nw == 1:               # up to 64 trackers: one word
+        # scan_word's loop written out: best and best_d2 stay in registers (through
+        # scan_word's pointers, a few instructions more per candidate)
         m = s.cells[c] & s.sensitive[0]
         while m:
             i = st_ctz64(m)
