@@ -111,7 +111,7 @@ def learn_first(source, ms: float, width: int, height: int, name: str = "learned
     """Learn a model from the first ``ms`` milliseconds of a stream of (chunk, total)
     pairs; returns the model and the stream of the events after that window (the
     tracking starts where the learning ended).  Prints what was learned to stderr."""
-    from ..learn import learn_model
+    from ..learn import NoObjectFound, learn_model
     if not ms > 0:
         raise ValueError(f"--learn-first-ms must be positive, got {ms}")
     held, rest, total, t_end = [], None, None, None
@@ -127,8 +127,16 @@ def learn_first(source, ms: float, width: int, height: int, name: str = "learned
             rest = chunk[k:]
             break
     events = np.concatenate(held) if held else np.empty(0, EVENT_DTYPE)
-    res = learn_model(events, width=width, height=height, name=name,
-                      track_params=read_params(params) if params else None)
+    if rest is None:
+        span = (f"{(int(events['t'][-1]) - int(events['t'][0])) / 1e3:g} ms of events"
+                if len(events) else "no events")
+        raise ValueError(f"--learn-first-ms {ms:g}: the stream holds {span}, nothing is left "
+                         f"to track after the learning window; give a shorter window")
+    try:
+        res = learn_model(events, width=width, height=height, name=name,
+                          track_params=read_params(params) if params else None)
+    except NoObjectFound as e:
+        raise NoObjectFound(f"--learn-first-ms {ms:g} ({len(events):,} events): {e}") from None
     m = res.model
     print(f"learned {len(m.trackers)} trackers, {len(m.connections)} springs from the first "
           f"{ms:g} ms ({res.events:,} events, {res.wall_s:.2f} s); "
