@@ -270,7 +270,8 @@ def run(args) -> int:
                                         f"lost {i['lost']}, reacquired {i['reacquired']})"
                                         for i in tr.instances()))
     if n:
-        watch.finish(tr.state())
+        watch.finish(tr.state(), never_found=[i["label"] for i in tr.instances()
+                                              if args.acquire and i["state"] == "searching"])
         for w in watch.warnings():
             print(f"springtrack track: warning: {w}", file=sys.stderr)
     return 0
