@@ -94,3 +94,12 @@ def test_track_reports_what_the_preparation_dropped(tmp_path, capsys):
     before = int((ev["t"] < start).sum())
     assert f"events={len(ev) - before} " in out
     assert f"outside window {before:,}" in out
+
+
+def test_a_missing_input_is_one_line_naming_the_file(tmp_path, capsys):
+    missing = tmp_path / "none.npy"
+    for cmd in (["track", str(missing), "--model", "grid3x3", "--out", str(tmp_path / "o.csv")],
+                ["learn", str(missing), "--out", str(tmp_path / "m.toml")]):
+        rc, _, err = _cli(cmd, capsys)
+        assert rc == 2
+        assert err == f"springtrack {cmd[0]}: error: {missing}: No such file or directory\n"

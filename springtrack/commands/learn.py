@@ -45,6 +45,7 @@ def run(args) -> int:
     from ..learn import NoObjectFound, learn_model
     if args.trackers is not None and not 1 <= args.trackers <= 64:
         raise ValueError(f"--trackers must be in [1, 64], got {args.trackers}")
+    track_params = read_params(args.params) if args.params else None   # its errors first
     reader = stio.open(args.input)
     raw = reader.read()
     width = reader.width or (int(raw["x"].max()) + 1 if len(raw) else 1)
@@ -57,7 +58,7 @@ def run(args) -> int:
     try:
         res = learn_model(events, trackers=args.trackers, width=width, height=height,
                           names=names, name=args.name or Path(args.input).stem,
-                          track_params=read_params(args.params) if args.params else None)
+                          track_params=track_params)
     except NoObjectFound as e:
         print(f"springtrack learn: {e}", file=sys.stderr)
         return NoObjectFound.exit_code
