@@ -135,7 +135,7 @@ def _one_model(model, params, name):
         if len(model) > 1:
             raise ValueError(f"backend {name!r} holds one model instance, not {len(model)} "
                              f"({', '.join(i.label for i in model)}): several instances "
-                             f"run on backend 'reference' (docs/acquisition.md)")
+                             f"run on backends 'reference' and 'fixed' (docs/acquisition.md)")
         return model[0].model, model[0].params
     return model, params
 
@@ -150,6 +150,8 @@ def _fixed_backend(model, params, option):
         mod = importlib.import_module("springtrack._fixed")
     except ImportError as e:
         raise ValueError(f"backend 'fixed' is not available in this build: {e}") from None
+    if isinstance(model, ModelSet) and len(model) > 1:       # one fx_state per instance
+        return mod.FixedSet(model if params is None else model.with_params(params))
     return mod.FixedKernel(*_one_model(model, params, "fixed"))
 
 
@@ -168,8 +170,8 @@ _FACTORIES = {"reference": lambda m, p, o: ReferenceBackend(m, p), "cython": _cy
 
 
 class _OneInstance:
-    """A kernel of one model instance (cython, fixed, mcu) seen through the instances'
-    interface.  Its state is kept here: while the instance is not tracking, the tracker
+    """A kernel of one model instance (cython, mcu; fixed with one) seen through the
+    instances' interface.  Its state is kept here: while the instance is not tracking, the tracker
     withholds the events from the kernel (:meth:`withhold`: each fed as an event off the
     sensor, which moves the kernel's clock and its samples on but reaches no tracker and
     no spring update), so its trackers are insensitive and keep their positions, as a
