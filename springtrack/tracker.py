@@ -158,7 +158,10 @@ def _fixed_backend(model, params, option):
 def _mcu_backend(model, params, option):
     from .mcu import MissingExtra
     try:
-        from .mcu.backend import DEFAULT_TARGET, McuBackend
+        from .mcu.backend import DEFAULT_TARGET, McuBackend, McuSet
+        if isinstance(model, ModelSet) and len(model) > 1:   # one fx_state per instance
+            return McuSet(model if params is None else model.with_params(params),
+                          target=option or DEFAULT_TARGET)
         return McuBackend(*_one_model(model, params, "mcu"), target=option or DEFAULT_TARGET)
     except (MissingExtra, RuntimeError) as e:      # no toolchain, a failed build or run
         raise ValueError(f"backend 'mcu': {e}") from None
