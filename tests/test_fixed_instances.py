@@ -2,8 +2,8 @@
 per instance, one event assignment over all): one instance equals FixedKernel bit for
 bit, instances that see no common event equal each alone bit for bit, and random sets
 (two different models, N copies of one, with moves, with a lost instance) stay within
-the fixed kernel's documented bound (tests/fixed_bound.py) of the reference, the
-specification of several instances."""
+the fixed kernel's documented bound (tests/fixed_bound.py) of the float kernel (equal to
+the reference, the specification of several instances, to 1e-9 px)."""
 import numpy as np
 import pytest
 
@@ -118,11 +118,11 @@ def _case(name, seed):
 
 @pytest.mark.parametrize("seed", [0, 1])
 @pytest.mark.parametrize("name", CASES)
-def test_random_sets_stay_within_the_bound_of_the_reference(name, seed):
+def test_random_sets_stay_within_the_bound_of_the_float_kernel(name, seed):
     """A set (its models, or N copies of one placed apart) on the merged streams of its
     instances' parts, an instance moved rigidly half way (the stream follows it): the
-    fixed kernel within its documented bound of the reference, before and after the move,
-    each instance's frame and mean energy close, the same events assigned."""
+    fixed kernel within its documented bound of the float kernel, before and after the
+    move, each instance's frame and mean energy close, the same events assigned."""
     models, placed = _case(name, seed)
     count = len(placed) // len(models)
     rng = np.random.default_rng(100 + seed)
@@ -140,7 +140,7 @@ def test_random_sets_stay_within_the_bound_of_the_reference(name, seed):
     ev["x"][mine] = np.clip(np.rint(a * x - b * y + tx), 0, W - 1)
     ev["y"][mine] = np.clip(np.rint(b * x + a * y + ty), 0, H - 1)
     tracks, trackers = {}, {}
-    for backend in ("reference", "fixed"):
+    for backend in ("cython", "fixed"):
         tr = springtrack.Tracker(models, SPRINGS, backend=backend, instances=count)
         for q, m in enumerate(placed):
             if m is not tr.models[q].model:
@@ -149,8 +149,8 @@ def test_random_sets_stay_within_the_bound_of_the_reference(name, seed):
         tr._ib.move(g, sim, moved)
         tracks[backend] = (t1, tr.run(ev[late], 1000))
         trackers[backend] = tr
-    ref, fx = trackers["reference"], trackers["fixed"]
-    for p, q in zip(tracks["reference"], tracks["fixed"]):
+    ref, fx = trackers["cython"], trackers["fixed"]
+    for p, q in zip(tracks["cython"], tracks["fixed"]):
         res = figures(p, q)
         assert res["samples"] > 25 and not violations(res), (name, violations(res))
     assert ref.counters["events_assigned"] == fx.counters["events_assigned"]
@@ -168,23 +168,23 @@ def _owned(ev, part):
     return np.isin(key(ev), key(part))
 
 
-def test_lost_and_searching_instances_as_in_the_reference():
+def test_lost_and_searching_instances_as_in_the_float_kernel():
     """The first instance lost, the second searching then placed: neither takes events
-    nor runs springs while not tracking; rows carry the states; the same as the
-    reference within the bound."""
+    nor runs springs while not tracking; rows carry the states; the same as the float
+    kernel within the bound."""
     g = grid3x3(cx=100, cy=120, spacing=30, width=W, height=H)
     f = face26(cx=290, cy=120, scale=100, width=W, height=H)
     ev = _merged(blob_stream(g, 6000, seed=1)[0], blob_stream(f, 12000, seed=2)[0])
     cut = len(ev) // 3
     out = {}
-    for backend in ("reference", "fixed"):
+    for backend in ("cython", "fixed"):
         tr = springtrack.Tracker([g, f], SPRINGS, backend=backend)
         tr._ib.set_state(0, LOST)
         tr._ib.set_state(1, SEARCHING)
         t1 = tr.run(ev[:cut], 1000)
         tr._ib.place(1, f)
         out[backend] = (t1, tr.run(ev[cut:], 1000), tr.counters)
-    (r1, r2, rc), (f1, f2, fc) = out["reference"], out["fixed"]
+    (r1, r2, rc), (f1, f2, fc) = out["cython"], out["fixed"]
     assert (f1.state[:, :9] == LOST).all() and (f1.state[:, 9:] == SEARCHING).all()
     assert not f1.sensitive.any() and np.ptp(f1.x, axis=0).max() == 0.0
     assert (f2.state[:, 9:] == TRACKING).all()

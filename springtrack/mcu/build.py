@@ -51,6 +51,7 @@ class Capacity:
     rows: int = 4              # snapshot rows per call
     instances: int = 1
     set_trackers: int = 0      # trackers of all instances (0: one instance's)
+    states: bool = False       # the set's code (instance states) even for one instance
 
     def check(self):
         if not 1 <= self.trackers <= 64 or not 0 <= self.connections <= 128:
@@ -70,19 +71,21 @@ class Capacity:
     def defines(self) -> list[str]:
         d = [f"-DFX_MAX_TRACKERS={self.trackers}", f"-DFX_MAX_CONNECTIONS={max(self.connections, 1)}",
              f"-DMCU_CELLS={self.cells}", f"-DMCU_EVENTS={self.events}", f"-DMCU_ROWS={self.rows}"]
-        if self.instances > 1:
+        if self.instances > 1 or self.states:
             d += [f"-DMCU_INSTANCES={self.instances}", f"-DFX_MAX_INSTANCES={self.instances}",
-                  f"-DMCU_SET_TRACKERS={self.set_trackers or self.trackers * self.instances}"]
+                  f"-DMCU_SET_TRACKERS={self.set_trackers or self.trackers * self.instances}",
+                  "-DMCU_SET=1"]
         return d
 
     @classmethod
     def of_model(cls, model, **kw) -> "Capacity":
-        """Exactly ``model`` (a ShapeModel, or a springtrack.instances.ModelSet)."""
+        """Exactly ``model``: a ShapeModel, or a springtrack.instances.ModelSet (the set's
+        code, with the instances' states, even for one instance)."""
         if hasattr(model, "instances"):
             ms = model.models
             return cls(max(len(m.trackers) for m in ms), max(len(m.connections) for m in ms),
-                       ms[0].width, ms[0].height, instances=len(ms),
-                       set_trackers=model.n if len(ms) > 1 else 0, **kw)
+                       ms[0].width, ms[0].height, instances=len(ms), set_trackers=model.n,
+                       states=True, **kw)
         return cls(len(model.trackers), len(model.connections), model.width, model.height, **kw)
 
 

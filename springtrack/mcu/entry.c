@@ -16,9 +16,10 @@
  *   MCU_SPRINGS     one spring update
  *   MCU_MOVE        mcu_words[0..nwords): fixed_q.move_words (the instance moved rigidly
  *                   by a similarity, fx_move)                        -> status
- *   MCU_SET_INIT    several instances (springtrack.instances): mcu_words[0] = ni instances
- *                   loaded (MCU_LOAD_MODEL, MCU_SET_PARAMS with inst = 0 .. ni-1) run as one
- *                   set (fx_set: one event assignment) from here on  -> status
+ *   MCU_SET_INIT    instances (springtrack.instances): mcu_words[0] = ni instances loaded
+ *                   (MCU_LOAD_MODEL, MCU_SET_PARAMS with inst = 0 .. ni-1) run as one set
+ *                   (fx_set: one event assignment, the instances' states) from here on, in
+ *                   a build with MCU_SET                             -> status
  *   MCU_SET_STATE   instance inst's state (instances.InstanceState) = mcu_words[0]
  *
  * MCU_LOAD_MODEL, MCU_SET_PARAMS, MCU_MOVE and MCU_ENERGIES act on instance mcu_io.inst
@@ -48,6 +49,9 @@
 
 #ifndef MCU_INSTANCES
 #define MCU_INSTANCES 1                 /* model instances (at most FX_MAX_INSTANCES) */
+#endif
+#ifndef MCU_SET
+#define MCU_SET (MCU_INSTANCES > 1)     /* the set's code (fx_set) is built */
 #endif
 #ifndef MCU_SET_TRACKERS
 #define MCU_SET_TRACKERS FX_MAX_TRACKERS   /* trackers of all instances together */
@@ -80,8 +84,8 @@ __attribute__((used, section(".rodata.keep"))) const int32_t mcu_layout[10] = {F
 fx_state mcu_state[MCU_INSTANCES];
 uint64_t mcu_cells[MCU_INSTANCES * MCU_CELLS];
 fx_set mcu_set;                         /* ni = 0: one instance, mcu_state[0] alone */
-/* the set is in use: never in a build for one instance, whose code then has no fx_set */
-#define SET_ON (MCU_INSTANCES > 1 && mcu_set.ni)
+/* the set is in use: never in a build without MCU_SET, whose code then has no fx_set */
+#define SET_ON (MCU_SET && mcu_set.ni)
 mcu_io_t mcu_io;
 int32_t mcu_words[MCU_WORDS];
 fx_event mcu_events[MCU_EVENTS];
@@ -245,10 +249,10 @@ static int32_t reload(int q, const int32_t *w, int32_t nw)
 
 static int32_t set_init(int32_t ni)
 {
-#if MCU_INSTANCES > 1
+#if MCU_SET
     fx_state *inst[MCU_INSTANCES];
     int q;
-    if (ni < 2 || ni > MCU_INSTANCES)
+    if (ni < 1 || ni > MCU_INSTANCES)
         return FX_ERR_CAPACITY;
     for (q = 0; q < ni; q++)
         inst[q] = &mcu_state[q];
