@@ -188,6 +188,7 @@ class Recovery:
         self._refine_at = {}                # instance: its refinement search time
         self.refuted = 0                    # losses refuted: found where its trackers are
         self.recalls = 0                    # trackers left behind recalled (springtrack.recall)
+        self._recall_next = {}              # instance: no recall before this time
 
     def start(self, t_first: int, found) -> None:
         """The instances were placed (``found[g]``) at the window starting at t_first."""
@@ -492,7 +493,7 @@ class Recovery:
         them there and the others as they are, its rest geometry kept (``move`` by the
         identity); True if any.  Backends that cannot move an instance do not recall."""
         b = self.tr._ib
-        if not getattr(b, "movable", False):
+        if not getattr(b, "movable", False) or t < self._recall_next.get(g, 0):
             return False
         inst = self.tr.models[g]
         part = {k: np.asarray(snap[k])[inst.t0:inst.t1]
@@ -506,6 +507,7 @@ class Recovery:
         b.place(g, recalled(inst.model, part, idx, placed))
         b.move(g, (1.0, 0.0, 0.0, 0.0), inst.model)
         self.doubt.hold_off(g, t)
+        self._recall_next[g] = t + self.rule.hold_us    # the activities built up again
         self.recalls += len(idx)
         return True
 

@@ -7,13 +7,16 @@ whose parts move faster than the springs act (a turning object, a fast motion), 
 hold it to other trackers left behind.  Its instance is not lost (the loss rule counts the
 trackers that still track), so re-acquisition never helps it either.
 
-The instance's similarity frame places every tracker's rest position; fitted to the
-trackers that are *active* (A_i > A_up, eq. 6: their events keep coming), it says where
-the object is now.  A tracker that is inactive, whose gate (``p_threshold``, eq. 2)
+The instance's frame places every tracker's rest position; fitted to the trackers that
+are *active* (A_i > A_up, eq. 6: their events keep coming), it says where the object is
+now.  The frame is a rotation and a translation, its scale the instance's as placed:
+the active trackers of a part-lost instance crowd onto the parts that still fire, and a
+scale fitted to them shrinks, and the recalled trackers with it, until the whole
+instance sits on a few parts (measured on the real biplane).  A tracker that is inactive, whose gate (``p_threshold``, eq. 2)
 no longer holds its rest position in that frame, and whose gate placed there holds at
 least A_up events of the last tau (eq. 6's threshold and time constant: the part is
 there, firing, and nobody follows it) is recalled there, with its rest
-covariance turned and scaled by the frame (s^2 R Sigma_0 R^T); the active trackers and the
+covariance turned by the frame (R Sigma_0 R^T); the active trackers and the
 inactive ones still within their gate, or whose rest position is silent (an occluded
 part, an edge parallel to the motion, a part that stopped, a view that is no similarity of
 the rest shape) are left as they are.  The frame is trusted only when at least
@@ -29,7 +32,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from .acquire import _Geometry, fit_pose, place
+from .acquire import Pose, _Geometry, fit_pose, place
 from .model import ShapeModel, TrackerSpec
 
 RECALL_ACTIVE = 0.5        # of an instance's trackers active: its frame is trusted
@@ -48,8 +51,9 @@ def left_behind(model: ShapeModel, snap: dict, gate_d2: float, recent, min_event
     if n < 3 or active.all() or active.sum() < max(RECALL_ACTIVE * n, 2):
         return none
     x, y = (np.asarray(snap[k], float) for k in ("x", "y"))
-    pose = fit_pose(model, x, y, weights=active.astype(float))
     geo = _Geometry(model)
+    pose = rigid_pose(geo, fit_pose(model, x, y, weights=active.astype(float)),
+                      active.astype(float))
     th = math.radians(pose.angle_deg)
     tx, ty = geo.means(pose.tx, pose.ty, th, pose.scale)
     # the rest place's Mahalanobis distance under the tracker's own covariance (its gate)
@@ -89,3 +93,19 @@ def recalled(model: ShapeModel, snap: dict, idx, placed: ShapeModel) -> ShapeMod
                    TrackerSpec(t.id, float(x[k]), float(y[k]),
                                (float(sxx[k]), float(sxy[k]), float(syy[k])), t.mass))
     return replace(model, trackers=out)
+
+
+
+def rigid_pose(geo: _Geometry, pose, w) -> Pose:
+    """The rotation and translation that best map the model (``geo``) onto the positions
+    to which ``pose`` is the best similarity (weights ``w``), its scale kept at 1.
+
+    The least-squares rotation does not depend on the scale (Umeyama 1991); the
+    translation puts the weighted centroid of the model's points qc, turned, on that of
+    the positions: t_s = mc - s R qc for the similarity, so t = t_s + (s - 1) R qc."""
+    qc = (np.asarray(w, float) @ geo.q) / float(np.sum(w))
+    th = math.radians(pose.angle_deg)
+    c, n = math.cos(th), math.sin(th)
+    k = pose.scale - 1.0
+    return Pose(pose.tx + k * (c * qc[0] - n * qc[1]), pose.ty + k * (n * qc[0] + c * qc[1]),
+                pose.angle_deg, 1.0)

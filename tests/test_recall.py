@@ -44,7 +44,7 @@ def _join(*evs):
 def test_the_trackers_left_behind_where_their_part_fires_are_recalled_there():
     model = grid3x3()
     p = model_pose(model)
-    pose = Pose(p.tx + 40, p.ty - 10, 30.0, 1.1)
+    pose = Pose(p.tx + 40, p.ty - 10, 30.0, 1.0)
     moved = place(model, pose)
     mv = moved.arrays()
     active = np.ones(9, bool)
