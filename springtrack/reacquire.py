@@ -359,11 +359,14 @@ class Recovery:
 
     def _acquire_about(self, model, x, y, window, **kw) -> Pose:
         """:func:`acquire` of an instance whose trackers are at ``x``, ``y`` (its model
-        ``model``, as last placed): the rotation and scale bounds taken about the pose of
-        its trackers (:func:`fit_pose`), not about the model's last placement -- an object
-        that turned 200 degrees since it was placed is searched for where it turned to.  The
-        pose is returned relative to ``model``."""
-        now = fit_pose(model, x, y)
+        ``model``, as last placed): the rotation bounds taken about the rotation of its
+        trackers (:func:`fit_pose`), not about the model's last placement -- an object that
+        turned 200 degrees since it was placed is searched for where it turned to; the
+        scale bounds about its last placement's (the trackers of a lost instance may have
+        crowded together, and their fitted scale says little).  The pose is returned
+        relative to ``model``."""
+        fit = fit_pose(model, x, y)
+        now = Pose(fit.tx, fit.ty, fit.angle_deg, 1.0)
         pose = acquire(place(model, now), window, **self.bounds, **kw)
         return about(pose, now)
 
