@@ -59,6 +59,7 @@ cdef extern from "csrc/fixed_step.h" nogil:
         uint8_t p
     int fx_load_model(fx_state* s, const int32_t* w, int32_t nw, uint64_t* cells, int32_t cap)
     int fx_set_params(fx_state* s, const int32_t* w, int32_t nw)
+    int fx_move(fx_state* s, const int32_t* w, int32_t nw)
     int32_t fx_cells_needed(int32_t width, int32_t height)
     int fx_step(fx_state* s, int64_t t, int32_t x, int32_t y)
     int64_t fx_steps(fx_state* s, const fx_event* ev, int64_t n, int64_t t_stop)
@@ -203,6 +204,20 @@ cdef class FixedKernel:
         if rc != FX_OK:
             raise ValueError(f"fixed kernel: the parameters do not load (fx_set_params {rc})")
         self.params = params
+
+    def move(self, sim, model):
+        """The instance moved rigidly by ``sim`` = (a, b, tx, ty), x -> A x + t with
+        A = [[a, -b], [b, a]], keeping activities, sensitivities and deformation; the rest
+        geometry from ``model`` (the model moved by the same sim).  As
+        springtrack.reference.ReferenceTracker.move, in integers (fx_move; the similarity
+        in the Q formats of fixed_q.move_words), with the spatial index rebuilt."""
+        cdef fx_state* s = <fx_state*>self.state
+        cdef int32_t[::1] words = _q.move_words(sim, model, s.n, s.nc)
+        rc = fx_move(s, &words[0], words.shape[0])
+        if rc != FX_OK:
+            raise ValueError(f"fixed kernel: the move does not load (fx_move {rc}): the "
+                             f"model must be the instance's own, moved")
+        self.model = model
 
     def run(self, events, long long sample_us, long long next_t, Py_ssize_t cap):
         """Process ``events`` (EVENT_DTYPE, C-contiguous). Returns (consumed, next_t, samples)

@@ -33,6 +33,8 @@ EXP2_BITS = 10                # exp2 table of 2^10 + 1 entries
 CORDIC_N = 30
 ATAN_BITS = 10                # atan table of 2^10 + 2 entries
 PARAMS_HEAD = 24              # fx_set_params: words before the two decay tables
+SIM_FRAC = 28                 # fx_move: the similarity's a, b, Q.28 (|.| < 8)
+SIM_T_LIM_PX = float(1 << 20)  # and its translation, Q.32, |.| < 2^20 px
 LOG2E = 1.0 / math.log(2.0)
 
 
@@ -210,6 +212,23 @@ def model_words(arr: dict, width: int, height: int) -> np.ndarray:
                   *_w64(mq["l0"][k]), *_w64(mq["dx0"][k]), *_w64(mq["dy0"][k]), mq["th0"][k],
                   mq["c0x"][k], mq["c0y"][k]]
     return _int32_words(words)
+
+
+def move_words(sim, model, n: int, nc: int) -> np.ndarray:
+    """The word stream fx_move reads (csrc/fixed_step.c): the similarity ``sim`` = (a, b,
+    tx, ty), x -> A x + t with A = [[a, -b], [b, a]] (a, b Q.28; tx, ty Q.32), then the
+    words of ``model``, the instance's model moved by it; ``n``, ``nc``: the loaded
+    instance's trackers and connections, which the model must have."""
+    if len(model.trackers) != n or len(model.connections) != nc:
+        raise ValueError(f"move: the model has {len(model.trackers)} trackers and "
+                         f"{len(model.connections)} connections, the kernel {n} and {nc}")
+    a, b, tx, ty = (float(v) for v in sim)
+    lim = float(1 << (31 - SIM_FRAC)) - 2.0 ** -SIM_FRAC
+    head = [q(a, SIM_FRAC, "similarity a", -lim, lim), q(b, SIM_FRAC, "similarity b", -lim, lim),
+            *_w64(q(tx, POS_FRAC, "similarity tx", -SIM_T_LIM_PX, SIM_T_LIM_PX)),
+            *_w64(q(ty, POS_FRAC, "similarity ty", -SIM_T_LIM_PX, SIM_T_LIM_PX))]
+    return np.concatenate([_int32_words(head),
+                           model_words(model.arrays(), model.width, model.height)])
 
 
 def model_q(arr: dict, width: int, height: int) -> dict:

@@ -206,17 +206,11 @@ class _OneInstance:
         self._done, self.withheld = old, 0
         self.state = int(TRACKING)
 
-    @property
-    def movable(self) -> bool:
-        """Whether the kernel can move an instance rigidly (:meth:`move`)."""
-        return hasattr(self.tr._b, "move")
+    movable = True          # every one-instance kernel moves its instance rigidly
 
     def move(self, g, sim, model):
         """Instance g moved rigidly by ``sim`` (springtrack.reference.ReferenceTracker.move),
         ``model`` its model moved by the same similarity."""
-        if not self.movable:
-            raise ValueError(f"backend {self.tr.backend_name!r} cannot move an instance "
-                             f"rigidly (docs/acquisition.md, \"Not yet\"): re-place it")
         self.tr._b.move(sim, model)
 
     def withhold(self, ev):

@@ -84,24 +84,32 @@ def compare(model: ShapeModel, events, sample_us: int = 1000, truth: Truth | Non
         tracks[b] = tr.run(events, sample_us=sample_us)
         counters[b] = tr.counters
     a, f = tracks["cython"], tracks["fixed"]
-    d = np.hypot(a.x - f.x, a.y - f.y)
-    cov_rel = max(float(np.max(np.abs(a.sxx - f.sxx) / a.sxx)),
-                  float(np.max(np.abs(a.syy - f.syy) / a.syy)),
-                  float(np.max(np.abs(a.sxy - f.sxy) / np.sqrt(a.sxx * a.syy))))
-    out = dict(samples=len(a), events=len(events),
-               pos_rms_px=float(np.sqrt(np.mean(d ** 2))), pos_max_px=float(d.max()),
-               cov_rel_max=cov_rel,
-               active_agree=float(np.mean(a.active == f.active)),
-               sensitive_agree=float(np.mean(a.sensitive == f.sensitive)),
-               activity_rel_max=float(np.max(np.abs(a.activity - f.activity)
-                                             / np.maximum(a.activity, 1e-3))),
-               counters_float=counters["cython"], counters_fixed=counters["fixed"],
-               episodes=divergence_episodes(a, f))
+    out = dict(figures(a, f), events=len(events), counters_float=counters["cython"],
+               counters_fixed=counters["fixed"], episodes=divergence_episodes(a, f))
     if truth is not None:
         ea = tracking_error(truth, a.t_us, a.ids, a.x, a.y).mean_pct
         ef = tracking_error(truth, f.t_us, f.ids, f.x, f.y).mean_pct
         out.update(metric_float_pct=ea, metric_fixed_pct=ef, metric_diff_pp=abs(ea - ef))
     return out
+
+
+def figures(a, f) -> dict:
+    """The figures of the bound for the fixed kernel's samples ``f`` against the float64
+    kernel's ``a``: two tracks, or two states (TRACK_DTYPE arrays, ``Tracker.state()``)."""
+    def get(v, k):
+        return np.asarray(v[k] if isinstance(v, np.ndarray) else getattr(v, k))
+    a_, f_ = ({k: get(v, k) for k in ("x", "y", "sxx", "sxy", "syy", "activity", "active",
+                                       "sensitive")} for v in (a, f))
+    d = np.hypot(a_["x"] - f_["x"], a_["y"] - f_["y"])
+    cov_rel = max(float(np.max(np.abs(a_["sxx"] - f_["sxx"]) / a_["sxx"])),
+                  float(np.max(np.abs(a_["syy"] - f_["syy"]) / a_["syy"])),
+                  float(np.max(np.abs(a_["sxy"] - f_["sxy"]) / np.sqrt(a_["sxx"] * a_["syy"]))))
+    return dict(samples=len(a), pos_rms_px=float(np.sqrt(np.mean(d ** 2))),
+                pos_max_px=float(d.max()), cov_rel_max=cov_rel,
+                active_agree=float(np.mean(a_["active"] == f_["active"])),
+                sensitive_agree=float(np.mean(a_["sensitive"] == f_["sensitive"])),
+                activity_rel_max=float(np.max(np.abs(a_["activity"] - f_["activity"])
+                                              / np.maximum(a_["activity"], 1e-3))))
 
 
 def divergence_episodes(a, f, threshold_px: float = 0.25) -> list[tuple[int, int, float]]:

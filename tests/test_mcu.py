@@ -6,7 +6,7 @@ microcontroller build run bit-identical in an emulator).
   double arithmetic does need such a helper and so fails to link;
 * in the emulator it gives the host's ``--backend fixed`` results bit for bit, on random
   models, parameters and streams (hypothesis) and on the simulator's face and grid scenes,
-  down to the track CSV's bytes;
+  down to the track CSV's bytes, and through a rigid move of the instance (fx_move);
 * ``springtrack mcu build`` / ``profile`` print their documented last lines, and without
   the ``[mcu]`` extra say how to install it.
 """
@@ -214,6 +214,57 @@ def test_grid_scene_equals_the_host():
     for f in FIELDS:
         assert np.array_equal(getattr(a, f), getattr(b, f)), f
     assert a_tr.counters == b_tr.counters
+
+
+def assert_same(a, b):
+    """Two runs (tracker, track before, state at the move, track after) bit for bit."""
+    (ta, a1, am, a2), (tb, b1, bm, b2) = a, b
+    for f in FIELDS:
+        assert np.array_equal(getattr(a1, f), getattr(b1, f)), f
+        assert np.array_equal(getattr(a2, f), getattr(b2, f)), f
+    assert am.tobytes() == bm.tobytes()
+    assert ta.counters == tb.counters and np.array_equal(ta._b.energies(), tb._b.energies())
+
+
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(scenarios(), st.floats(-15.0, 15.0), st.floats(-15.0, 15.0), st.floats(-180.0, 180.0),
+       st.floats(0.8, 1.25))
+def test_a_move_on_random_models_and_streams_equals_the_host(sc, dx, dy, deg, k):
+    """fx_move in the firmware (MCU_MOVE) between two halves of a random stream: the same
+    integers as the host's fixed kernel before, at and after the move."""
+    from moves import similarity
+    model, params, ev = sc
+    sim, moved = similarity(model, dx, dy, deg, k)
+    runs = []
+    for b in ("fixed", "mcu"):
+        tr, t1 = track(model, params, ev[:len(ev) // 2], b)
+        tr._ib.move(0, sim, moved)
+        mid = tr.state(int(ev["t"][len(ev) // 2]))
+        runs.append((tr, t1, mid, tr.run(ev[len(ev) // 2:], sample_us=200)))
+    assert_same(*runs)
+
+
+def test_a_move_of_the_face_equals_the_host():
+    """face26 on a stream that follows it to its moved place, on the firmware built for
+    the model: bit for bit the host's fixed kernel."""
+    from moves import moved_stream, run_moved, similarity
+    f = springtrack.load_model("face26")
+    sim, moved = similarity(f, -20.0, 12.0, -25.0, 1.15)
+    ev1, ev2 = moved_stream(f, sim, 8000, seed=3)
+    runs = [run_moved(b, f, {"spring_period": 5}, sim, moved, ev1, ev2) for b in ("fixed", "mcu")]
+    assert len(runs[0][2]) > 5
+    assert_same(*[(tr, t1, mid, t2) for t1, mid, t2, tr in runs])
+
+
+def test_after_a_reacquisition_the_firmware_moves_as_the_fixed_kernel():
+    """``acquire=True`` on the face jumping 60 px (found moved, moved onto its new place,
+    refined): the firmware's track is the host fixed kernel's bit for bit."""
+    from moves import jump_run
+    (ta, a), (tb, b) = jump_run("fixed"), jump_run("mcu")
+    assert ta.recovery.moves >= 1 and ta.changes == tb.changes
+    for f in FIELDS + ("state",):
+        assert np.array_equal(getattr(a, f), getattr(b, f)), f
+    assert ta.counters == tb.counters
 
 
 # ---- command line ----------------------------------------------------------------------

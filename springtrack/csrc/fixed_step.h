@@ -69,10 +69,15 @@
 #define FX_MODEL_CONNECTION 13              /* words per connection */
 #define FX_PARAMS_HEAD 24                   /* words before the two decay tables */
 #define FX_PARAMS_WORDS (FX_PARAMS_HEAD + 2 * FX_DECAY_N)
+#define FX_MOVE_HEAD 6                      /* fx_move: the similarity's words, then a model's */
+#define FX_SIM_FRAC 28                      /* the similarity's a, b: Q.28 (|.| < 8) */
+#define FX_SIM_T_LIM ((int64_t)1 << 52)     /* its translation: Q.32, |.| < 2^20 px */
 
 enum { FX_NO_TRACKER = -1, FX_BACK_IN_TIME = -2, FX_OUT_OF_SENSOR = -3 };
-/* fx_load_model / fx_set_params results */
-enum { FX_OK = 0, FX_ERR_WORDS = -1, FX_ERR_CAPACITY = -2, FX_ERR_CELLS = -3, FX_ERR_RANGE = -4 };
+/* fx_load_model / fx_set_params / fx_move results (FX_ERR_MODEL: fx_move's model is not the
+   loaded one moved: other trackers, connections, masses, stiffnesses or sensor) */
+enum { FX_OK = 0, FX_ERR_WORDS = -1, FX_ERR_CAPACITY = -2, FX_ERR_CELLS = -3, FX_ERR_RANGE = -4,
+       FX_ERR_MODEL = -5 };
 
 typedef struct {
     /* geometry and model size */
@@ -176,6 +181,14 @@ int fx_load_model(fx_state *s, const int32_t *w, int32_t nw, uint64_t *cells, in
 /* Apply parameters (fixed_q.params_words) between two events; a new tau applies from the
    last event on, as in the reference (eq. 6). */
 int fx_set_params(fx_state *s, const int32_t *w, int32_t nw);
+/* Move the loaded instance rigidly by a similarity x -> A x + t, A = [[a, -b], [b, a]]
+   (springtrack.reference.ReferenceTracker.move), between two events: w = a, b (Q.28), tx,
+   ty (Q.32, two words each, low first), then the word stream of the model moved by it
+   (fixed_q.move_words).  Means mapped, covariances turned and scaled (A S A^T, then
+   clamped as eq. (4)'s), the frame's centre mapped; activities, sensitivities,
+   deformation, energies and counters kept; the rest geometry from the moved model.  On an
+   error nothing changes. */
+int fx_move(fx_state *s, const int32_t *w, int32_t nw);
 int32_t fx_cells_needed(int32_t width, int32_t height);
 
 int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y);

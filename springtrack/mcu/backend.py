@@ -53,6 +53,17 @@ class McuBackend:
         self._load("mcu_words", fixed_q.params_words(params, self.nc), E.MCU_SET_PARAMS,
                    "parameters")
 
+    def move(self, sim, model) -> None:
+        """The instance moved rigidly by ``sim`` onto ``model`` (FixedKernel.move: fx_move
+        in the firmware, the same words)."""
+        words = fixed_q.move_words(sim, model, self.n, self.nc)
+        self.emu.write("mcu_words", words)
+        st = self.emu.call(E.MCU_MOVE, nwords=len(words))["status"]
+        if st != 0:
+            raise ValueError(f"mcu backend: the move does not load (fx_move {st}): the model "
+                             f"must be the instance's own, moved")
+        self.model = model
+
     # ---- events -------------------------------------------------------------------------
     def run(self, events, sample_us, next_t, cap):
         """As ``FixedKernel.run``: (consumed, next_t, samples) with at most ``cap`` rows."""

@@ -27,7 +27,7 @@ STACK_FILL = 0xA5
 
 # mcu_main commands (entry.c)
 MCU_NOP, MCU_LOAD_MODEL, MCU_SET_PARAMS, MCU_RUN, MCU_STEP, MCU_SNAPSHOT, MCU_ENERGIES, \
-    MCU_SPRINGS = range(8)
+    MCU_SPRINGS, MCU_MOVE = range(9)
 # mcu_io_t (entry.c): int64 sample_us, next_t, t; int32 cmd, status, nwords, nevents, cap,
 # consumed, rows, pad
 IO = struct.Struct("<qqqiiiiiiii")

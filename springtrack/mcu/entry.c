@@ -14,6 +14,8 @@
  *   MCU_SNAPSHOT    one row at time t into mcu_rows[0]
  *   MCU_ENERGIES    every kind's energies into mcu_energy
  *   MCU_SPRINGS     one spring update
+ *   MCU_MOVE        mcu_words[0..nwords): fixed_q.move_words (the instance moved rigidly
+ *                   by a similarity, fx_move)                        -> status
  *
  * and then always refreshes mcu_counters.  A snapshot row is MCU_ROW_WORDS int64: t, the
  * three energy sums (Q.40), then per tracker x, y (Q.32), sxx, sxy, syy (Q.40), the
@@ -40,11 +42,12 @@
 #define MCU_ROW_WORDS (MCU_ROW_HEAD + MCU_ROW_TRACKER * FX_MAX_TRACKERS)
 #define MCU_MODEL_WORDS (FX_MODEL_HEAD + FX_MODEL_TRACKER * FX_MAX_TRACKERS \
                          + FX_MODEL_CONNECTION * FX_MAX_CONNECTIONS)
-#define MCU_WORDS (MCU_MODEL_WORDS > FX_PARAMS_WORDS ? MCU_MODEL_WORDS : FX_PARAMS_WORDS)
+#define MCU_MOVE_WORDS (FX_MOVE_HEAD + MCU_MODEL_WORDS)
+#define MCU_WORDS (MCU_MOVE_WORDS > FX_PARAMS_WORDS ? MCU_MOVE_WORDS : FX_PARAMS_WORDS)
 #define MCU_N_COUNTERS 14
 
 enum { MCU_NOP = 0, MCU_LOAD_MODEL = 1, MCU_SET_PARAMS = 2, MCU_RUN = 3, MCU_STEP = 4,
-       MCU_SNAPSHOT = 5, MCU_ENERGIES = 6, MCU_SPRINGS = 7 };
+       MCU_SNAPSHOT = 5, MCU_ENERGIES = 6, MCU_SPRINGS = 7, MCU_MOVE = 8 };
 
 typedef struct {
     int64_t sample_us, next_t, t;       /* in: sampling; next_t also out */
@@ -189,6 +192,9 @@ void mcu_main(void)
         break;
     case MCU_SPRINGS:
         fx_springs(s);
+        break;
+    case MCU_MOVE:
+        io->status = fx_move(s, mcu_words, io->nwords);
         break;
     default:
         break;
