@@ -12,8 +12,8 @@ off it (the mean of four such placements; the face of face_occlusion ends at abo
 * jump: the face jumps 60 px at t = 3 s (5 s, hand passes from 4 s); error from the jump;
 * occlusion: the face fully hidden for 300 ms from t = 3 s; error from its return;
 * exit and return: the face leaves the sensor (0.1 s) at 2.5 s and comes back at 3 s;
-* two objects side by side: a face and a grid (--model face --model grid, backend
-  reference: several instances run there), each scored against its own truth.
+* two objects side by side: a face and a grid (--model face --model grid, the float
+  kernel holding both), each scored against its own truth.
 
 The face's error is chaotic (a 0.1 px nudge moves it between about 1.3 % and 3.7 %): its
 rows are means over ``--seeds`` scene seeds (the scene's texture, noise and hand), each
@@ -156,7 +156,7 @@ def main() -> None:
                      f"without --acquire {np.mean(no):.2f} %; " + "; ".join(notes)))
         print(rows[-1], flush=True)
 
-    # two objects side by side: several instances run on the reference backend
+    # two objects side by side: one tracker holding both (the float kernel)
     S2 = min(S, 2.0)
     face = Placed(make_scene("face_occlusion", hand_first=100.0, motion=0.5), 0.0, 0.6, -75, 0)
     grid = Placed(make_scene("grid_inplane"), 0.0, 0.6, 75, 0)
@@ -165,8 +165,7 @@ def main() -> None:
     for k, (sc, mm) in enumerate([(face, mf), (grid, mg)]):
         e_hand = by_hand(sc, mm, S2)
         if k == 0:
-            tr, tk, truth2, n, cpu = run(both, [placed_wrong(mf), placed_wrong(mg)], S2,
-                                         backend="reference")
+            tr, tk, truth2, n, cpu = run(both, [placed_wrong(mf), placed_wrong(mg)], S2)
         e_acq = score(truth2, tk, parts=both.parts[k])
         rows.append((f"two objects side by side ({S2:g} s): the {('face', 'grid')[k]}",
                      e_hand, e_acq, 1.5, changes_text(tr, labels=True)))

@@ -18,6 +18,6 @@ from springtrack._stepper cimport Stepper
 
 cdef class Kernel:
     cdef KState st
-    cdef object model
+    cdef object model            # the springtrack.instances.ModelSet it holds
     cdef object params
     cdef Stepper stepper(self)

@@ -12,8 +12,14 @@ sample row (ksnapshot).  The algorithm lives in its parts, one job each:
   _kactivity.pxd    eq. (6)'s activity, stored rescaled, its exps logged and batched
   _kcovariance.pxd  eq. (4)'s covariance clamped and inverted for eq. (2)
   _ksprings.pyx     springs and energy criteria, eqs. (7)-(22), incl. the similarity
-                    frame, and the state guard (a mean outside the position box resets
-                    the state to the model's)
+                    frame, per instance, and the state guard (a mean outside the position
+                    box resets its instance to the model's state)
+
+Several model instances (springtrack.instances, a ModelSet) as in the reference: their
+trackers side by side, eq. (2)'s argmin over the union of the sensitive trackers (an event
+feeds at most one tracker of one instance; ties: the lowest index), springs, eq. (13)'s
+mean energy, eqs. (21)-(22), the centre of mass and the similarity frame per instance
+with its own parameters; only a tracking instance is sensitive and runs its springs.
 
 The step, the index, the covariance clamp and the activity log are cdef inline functions
 in .pxd files, so the whole per-event path compiles into this module as one unit (ksteps
@@ -29,7 +35,8 @@ _ksprings.pyx), so the two differ by rounding, ~1e-13 px over a million events.
 
 Speed comes from ideas that do not change any decision of the algorithm:
 * argmin of the Mahalanobis distance d^2 (eq. 2 in the log domain, no exp per tracker);
-* a coarse spatial index: a bitmask of trackers per 8x8 px cell whose gate box
+* a coarse spatial index: a bitmask of trackers per 8x8 px cell (one word per 64
+  trackers: one word up to 64, the one-word path of eq. 2 kept for them) whose gate box
   (|dx| <= sqrt(gate*sxx), |dy| <= sqrt(gate*syy), enlarged by a margin) covers the cell.
   Trackers outside an event's cell cannot have d^2 < gate, so scanning only the cell's
   candidates, in index order, finds exactly the full scan's winner;
@@ -53,24 +60,33 @@ cimport numpy as cnp
 
 from springtrack.events cimport Event
 from springtrack import limits as _limits
+from springtrack.instances import InstanceState as _IS, ModelSet as _ModelSet, per_instance
+from springtrack.params import Params as _Params
 from springtrack.reference import covariance_bias, RHO_MAX as _RHO_MAX
 
 from springtrack._samples cimport SampleOut
 from springtrack.track cimport TrackRow
 from springtrack._stepper cimport Stepper, run_array
-from springtrack._kstate cimport KState, MAX_TRACKERS, MAX_CONNECTIONS, CELL_SHIFT
+from springtrack._kstate cimport (KState, MAX_TRACKERS, MAX_CONNECTIONS, MAX_INSTANCES,
+                                  MAX_SET_TRACKERS, MAX_SET_CONNECTIONS, MAX_WORDS,
+                                  CELL_SHIFT, K_SEARCHING, K_TRACKING, K_LOST)
 from springtrack._kstep cimport kstep, ksteps
 from springtrack._kcovariance cimport clamp_and_invert, ST_RHO_MAX, ST_RHO_MAX2
 from springtrack._kindex cimport reindex
-from springtrack._kactivity cimport activity_decay, kactivity, rescale_activity
-from springtrack._ksprings cimport ksprings, init_springs
+from springtrack._kactivity cimport activity_decay, kactivity, rescale_activity, flush_activity
+from springtrack._ksprings cimport ksprings, init_springs, init_instance, compose_sensitive
 
 cdef extern from "springtrack/csrc/springs.h" nogil:
     double st_sum(int n, const double* x)
 
 cnp.import_array()
 
-assert _limits.MAX_TRACKERS == MAX_TRACKERS and _limits.MAX_CONNECTIONS == MAX_CONNECTIONS
+assert (_limits.MAX_TRACKERS, _limits.MAX_CONNECTIONS, _limits.MAX_INSTANCES,
+        _limits.MAX_SET_TRACKERS, _limits.MAX_SET_CONNECTIONS) == (
+    MAX_TRACKERS, MAX_CONNECTIONS, MAX_INSTANCES, MAX_SET_TRACKERS, MAX_SET_CONNECTIONS), \
+    "_kstate.pxd's capacities disagree with springtrack/limits.py"
+assert MAX_WORDS * 64 == MAX_SET_TRACKERS
+assert (_IS.SEARCHING, _IS.TRACKING, _IS.LOST) == (K_SEARCHING, K_TRACKING, K_LOST)
 assert ST_RHO_MAX == _RHO_MAX and ST_RHO_MAX2 == _RHO_MAX * _RHO_MAX * (1.0 - 1e-12), \
     "_kcovariance.pxd disagrees with reference.py"
 
@@ -84,7 +100,6 @@ cdef void ksnapshot(const KState* s, int64_t t, SampleOut* o) noexcept nogil:
     cdef double a
     cdef double decay = activity_decay(s, t)         # kactivity's factor, one exp for all
     cdef double thr = s.act_thr
-    cdef uint64_t sensitive = s.sensitive_mask
     cdef TrackRow* r = o.trackers + row * s.n
     o.t[row] = t
     for i in range(s.n):
@@ -96,8 +111,8 @@ cdef void ksnapshot(const KState* s, int64_t t, SampleOut* o) noexcept nogil:
         r[i].syy = s.syy[i]
         r[i].activity = a
         r[i].active = a > thr
-        r[i].sensitive = (sensitive >> i) & 1
-        r[i].state = 1
+        r[i].sensitive = (s.sensitive[i >> 6] >> (i & 63)) & 1
+        r[i].state = s.state[s.inst[i]]
     for q in range(3):                                # eq. (13) of each kind
         o.energy[row * 3 + q] = st_sum(s.nc, s.energy[q]) / s.nc if s.nc > 0 else 0.0
     o.count = row + 1
@@ -118,28 +133,33 @@ cdef void snapshot_opaque(const void* s, int64_t t, SampleOut* o) noexcept nogil
 
 
 # ---- Python wrapper -----------------------------------------------------------------
-cdef load_rest(KState* s, arr):
-    """The model's rest geometry (``ShapeModel.arrays()``; s.n trackers, s.nc connections):
-    the means and covariances the state starts from and the guard resets it to, the
-    offsets to the rest centre of mass, the connections' rest lengths, angles and offsets."""
-    cdef int i, k
-    for i in range(s.n):
-        s.rest_x[i] = arr["x"][i]
-        s.rest_y[i] = arr["y"][i]
-        s.rest_sxx[i] = arr["sxx"][i]
-        s.rest_sxy[i] = arr["sxy"][i]
-        s.rest_syy[i] = arr["syy"][i]
-        s.gdx0[i] = arr["gdx0"][i]
-        s.gdy0[i] = arr["gdy0"][i]
-    for k in range(s.nc):
-        s.l0[k] = arr["l0"][k]
-        s.th0[k] = arr["th0"][k]
-        s.dx0[k] = arr["dx0"][k]
-        s.dy0[k] = arr["dy0"][k]
+cdef load_rest(KState* s, int g, arr):
+    """Instance g's rest geometry from its model (``ShapeModel.arrays()``): the means and
+    covariances the state starts from and the guard resets it to, the offsets to the rest
+    centre of mass, the connections' rest lengths, angles and offsets."""
+    cdef int i, k, t0 = s.g_t0[g], c0 = s.g_c0[g]
+    for i in range(s.g_t1[g] - t0):
+        s.rest_x[t0 + i] = arr["x"][i]
+        s.rest_y[t0 + i] = arr["y"][i]
+        s.rest_sxx[t0 + i] = arr["sxx"][i]
+        s.rest_sxy[t0 + i] = arr["sxy"][i]
+        s.rest_syy[t0 + i] = arr["syy"][i]
+        s.gdx0[t0 + i] = arr["gdx0"][i]
+        s.gdy0[t0 + i] = arr["gdy0"][i]
+    for k in range(s.g_c1[g] - c0):
+        s.l0[c0 + k] = arr["l0"][k]
+        s.th0[c0 + k] = arr["th0"][k]
+        s.dx0[c0 + k] = arr["dx0"][k]
+        s.dy0[c0 + k] = arr["dy0"][k]
 
 
 cdef class Kernel:
-    """Owns one KState. ``Kernel(model, params)``; see springtrack.tracker.Tracker for the API."""
+    """Owns one KState. ``Kernel(model, params)``: a ShapeModel and its Params, or a
+    ``springtrack.instances.ModelSet`` (params None: each instance's own); see
+    springtrack.tracker.Tracker for the API and springtrack.reference.ReferenceTracker for
+    the instances' calls (states, set_state, place, move)."""
+
+    movable = True                     # move(): an instance moved rigidly, state kept
 
     def __cinit__(self):
         self.st.cells = NULL
@@ -159,28 +179,43 @@ cdef class Kernel:
 
     def __init__(self, model, params):
         cdef KState* s = &self.st
-        arr = model.arrays()
-        n = len(model.trackers)
-        nc = len(model.connections)
-        if n > MAX_TRACKERS or nc > MAX_CONNECTIONS:
+        cdef int g, i, k
+        if isinstance(model, _ModelSet):
+            mset = model if params is None else model.with_params(params)
+        else:
+            mset = _ModelSet([model], params if params is not None else _Params())
+        arr = mset.arrays()
+        n, nc, ni = mset.n, mset.nc, len(mset)
+        if (ni > MAX_INSTANCES or n > MAX_SET_TRACKERS or nc > MAX_SET_CONNECTIONS
+                or any(inst.n > MAX_TRACKERS or inst.nc > MAX_CONNECTIONS for inst in mset)):
             raise ValueError(f"model exceeds kernel capacity ({MAX_TRACKERS} trackers, "
-                             f"{MAX_CONNECTIONS} connections)")
+                             f"{MAX_CONNECTIONS} connections a model; {MAX_INSTANCES} "
+                             f"instances, {MAX_SET_TRACKERS} trackers, {MAX_SET_CONNECTIONS} "
+                             f"connections in all)")
         if s.cells != NULL:
             free(s.cells)
             s.cells = NULL
         memset(s, 0, sizeof(KState))
-        self.model = model
+        self.model = mset
         s.n = n
         s.nc = nc
-        s.width = model.width
-        s.height = model.height
-        s.gw = ((model.width - 1) >> CELL_SHIFT) + 1
-        s.gh = ((model.height - 1) >> CELL_SHIFT) + 1
-        s.cells = <uint64_t*>calloc(s.gw * s.gh, sizeof(uint64_t))
+        s.ni = ni
+        s.nw = (n + 63) >> 6
+        s.width = mset.width
+        s.height = mset.height
+        s.gw = ((s.width - 1) >> CELL_SHIFT) + 1
+        s.gh = ((s.height - 1) >> CELL_SHIFT) + 1
+        s.cells = <uint64_t*>calloc(s.gw * s.gh * s.nw, sizeof(uint64_t))
         if s.cells == NULL:
             raise MemoryError()
         s.pos_lo_x, s.pos_hi_x, s.pos_lo_y, s.pos_hi_y = _limits.position_box(s.width, s.height)
-        load_rest(s, arr)
+        for g in range(ni):
+            s.g_t0[g], s.g_t1[g] = arr["inst_t0"][g], arr["inst_t1"][g]
+            s.g_c0[g], s.g_c1[g] = arr["inst_c0"][g], arr["inst_c1"][g]
+            s.state[g] = K_TRACKING
+            for i in range(s.g_t0[g], s.g_t1[g]):
+                s.inst[i] = g
+            load_rest(s, g, mset[g].model.arrays())
         for i in range(n):
             s.mx[i] = s.rest_x[i]
             s.my[i] = s.rest_y[i]
@@ -197,7 +232,7 @@ cdef class Kernel:
             s.stiff[k] = arr["stiffness"][k]
         init_springs(s)
         s.last_t = -(1 << 62)
-        self.set_params(params)
+        self.set_params(mset.params_list)
         for i in range(n):
             clamp_and_invert(s, i)
             s.box_x0[i] = 0
@@ -207,31 +242,84 @@ cdef class Kernel:
             reindex(s, i)
         s.n_reindex = 0
 
-    def move(self, sim, model):
-        """The instance moved rigidly by ``sim`` = (a, b, tx, ty), x -> A x + t with
-        A = [[a, -b], [b, a]], keeping activities, sensitivities and deformation; the rest
-        geometry from ``model`` (the model moved by the same sim).  As
+    def _instance(self, g):
+        if not 0 <= g < self.st.ni:
+            raise IndexError(f"instance {g} out of range [0, {self.st.ni})")
+        return g
+
+    def _rest(self, int g, model):
+        """Instance g's model replaced by ``model`` (the same trackers and connections):
+        the set's, and the rest geometry; returns its arrays."""
+        self.model = self.model.replaced(g, model)
+        arr = model.arrays()
+        load_rest(&self.st, g, arr)
+        return arr
+
+    # ---- the instances (springtrack.reference.ReferenceTracker's calls) ----------------
+    def states(self):
+        """Each instance's state (springtrack.instances.InstanceState codes)."""
+        return [int(self.st.state[g]) for g in range(self.st.ni)]
+
+    def set_state(self, int g, int state):
+        """Instance g's state; a tracking instance's trackers are sensitive, the others'
+        are not (the next spring update decides eq. 21 again)."""
+        cdef KState* s = &self.st
+        self._instance(g)
+        s.state[g] = state
+        n = s.g_t1[g] - s.g_t0[g]
+        s.isens[g] = (~(<uint64_t>0) if n >= 64 else ((<uint64_t>1) << n) - 1) \
+            if state == K_TRACKING else 0
+        compose_sensitive(s)
+
+    def place(self, int g, model):
+        """Instance g placed as ``model`` (the same trackers and connections): positions,
+        covariances and the rest geometry from it, activities 0, the frame at rest;
+        tracking (springtrack.reference.ReferenceTracker.place)."""
+        cdef KState* s = &self.st
+        cdef int i, t0
+        cdef int64_t moves = s.n_frame_moves
+        self._instance(g)
+        self._rest(g, model)
+        flush_activity(s)
+        t0 = s.g_t0[g]
+        for i in range(t0, s.g_t1[g]):
+            s.mx[i] = s.rest_x[i]
+            s.my[i] = s.rest_y[i]
+            s.sxx[i] = s.rest_sxx[i]
+            s.sxy[i] = s.rest_sxy[i]
+            s.syy[i] = s.rest_syy[i]
+            s.act[i] = 0.0
+            clamp_and_invert(s, i)
+            reindex(s, i)
+        init_instance(s, g)                # the rest terms' coefficients, the frame at rest
+        s.n_frame_moves = moves
+        self.set_state(g, K_TRACKING)
+
+    def move(self, int g, sim, model):
+        """Instance g moved rigidly by ``sim`` = (a, b, tx, ty), x -> A x + t with
+        A = [[a, -b], [b, a]], keeping activities, sensitivities, state and deformation;
+        the rest geometry from ``model`` (its model moved by the same sim).  As
         springtrack.reference.ReferenceTracker.move (the specification), with the spatial
         index rebuilt."""
         cdef KState* s = &self.st
         cdef double a = sim[0], b = sim[1], tx = sim[2], ty = sim[3]
-        cdef double x, y, sxx, sxy, syy, pxx, pxy, pyx, pyy, gx, gy
-        cdef uint64_t sensitive = s.sensitive_mask
-        cdef double fc = s.sim_c, fs = s.sim_s
-        cdef int i, k
-        if len(model.trackers) != s.n or len(model.connections) != s.nc:
+        cdef double x, y, sxx, sxy, syy, pxx, pxy, pyx, pyy, gx, gy, fc, fs
+        cdef int i
+        cdef int64_t moves = s.n_frame_moves
+        self._instance(g)
+        inst = self.model[g]
+        if len(model.trackers) != inst.n or len(model.connections) != inst.nc:
             raise ValueError(f"move: the model has {len(model.trackers)} trackers and "
-                             f"{len(model.connections)} connections, the kernel {s.n} and {s.nc}")
-        load_rest(s, model.arrays())
-        gx, gy = s.sim_gx, s.sim_gy
-        k = s.n_frame_moves
-        init_springs(s)                    # the rest terms' coefficients
-        s.n_frame_moves = k
-        s.sensitive_mask = sensitive
-        s.sim_c, s.sim_s = fc, fs
-        s.sim_gx = a * gx - b * gy + tx
-        s.sim_gy = b * gx + a * gy + ty
-        for i in range(s.n):
+                             f"{len(model.connections)} connections, instance {inst.label} "
+                             f"{inst.n} and {inst.nc}")
+        fc, fs, gx, gy = s.sim_c[g], s.sim_s[g], s.sim_gx[g], s.sim_gy[g]
+        self._rest(g, model)
+        init_instance(s, g)                # the rest terms' coefficients
+        s.n_frame_moves = moves
+        s.sim_c[g], s.sim_s[g] = fc, fs
+        s.sim_gx[g] = a * gx - b * gy + tx
+        s.sim_gy[g] = b * gx + a * gy + ty
+        for i in range(s.g_t0[g], s.g_t1[g]):
             x, y = s.mx[i], s.my[i]
             s.mx[i] = a * x - b * y + tx                     # mu' = A mu + t
             s.my[i] = b * x + a * y + ty
@@ -244,7 +332,6 @@ cdef class Kernel:
             s.syy[i] = pyx * b + pyy * a
             clamp_and_invert(s, i)
             reindex(s, i)
-        self.model = model
 
     def __dealloc__(self):
         if self.st.cells != NULL:
@@ -252,34 +339,42 @@ cdef class Kernel:
             self.st.cells = NULL
 
     def set_params(self, params):
-        """Apply validated springtrack.params.Params (between two events)."""
+        """Apply validated springtrack.params.Params (between two events): one for every
+        instance, or one per instance (the shared ones equal)."""
         cdef KState* s = &self.st
-        self.params = params
-        s.a1 = params.alpha_position
-        s.a2 = params.alpha_covariance
-        s.keep = 1.0 - params.alpha_covariance
-        s.gate = params.gate_d2
-        if s.tau != params.activity_tau_us and s.n_valid > 0:
+        cdef int g, i, k
+        plist = per_instance(params, s.ni)
+        self.model = self.model.with_params(plist)
+        p = plist[0]                                 # SHARED_PARAMS: the same in all
+        self.params = p
+        s.gate = p.gate_d2
+        if s.tau != p.activity_tau_us and s.n_valid > 0:
             rescale_activity(s, s.last_t)          # [ref] a new tau decays from now on
-        s.tau = params.activity_tau_us
+        s.tau = p.activity_tau_us
         s.inv_tau = 1.0 / s.tau
         s.act_span = <int64_t>(32.0 * s.tau)
-        s.act_thr = params.activity_threshold
-        s.energy_scale = params.energy_scale
-        s.energy_gain = params.energy_gain
-        s.cov_gain = params.alpha_covariance / covariance_bias(params.alpha_position, params.gate_d2)
-        s.smin2 = params.sigma_min_px * params.sigma_min_px
-        s.smax2 = params.sigma_max_px * params.sigma_max_px
-        s.period = params.spring_period
-        s.ekind = params.energy_kind_index
-        s.pull_sim = 1 if params.pull_similarity else 0
-        s.car_sim = 1 if params.cartesian_similarity else 0
-        s.need_torsion = 1 if s.ekind == 1 else 0
-        for k in range(s.nc):
-            if s.kinds[k] & 2:
-                s.need_torsion = 1
-        if s.nc == 0:
-            s.need_torsion = 0
+        s.act_thr = p.activity_threshold
+        s.smin2 = p.sigma_min_px * p.sigma_min_px
+        s.smax2 = p.sigma_max_px * p.sigma_max_px
+        s.period = p.spring_period
+        for g in range(s.ni):
+            q = plist[g]
+            gain = q.alpha_covariance / covariance_bias(q.alpha_position, q.gate_d2)
+            for i in range(s.g_t0[g], s.g_t1[g]):
+                s.gain[i][0] = q.alpha_position                 # eq. (3)
+                s.gain[i][1] = 1.0 - q.alpha_covariance         # eq. (4)
+                s.gain[i][2] = gain
+            s.energy_scale[g] = q.energy_scale
+            s.energy_gain[g] = q.energy_gain
+            s.ekind[g] = q.energy_kind_index
+            s.pull_sim[g] = 1 if q.pull_similarity else 0
+            s.car_sim[g] = 1 if q.cartesian_similarity else 0
+            s.need_torsion[g] = 1 if s.ekind[g] == 1 else 0
+            for k in range(s.g_c0[g], s.g_c1[g]):
+                if s.kinds[k] & 2:
+                    s.need_torsion[g] = 1
+            if s.g_c1[g] == s.g_c0[g]:
+                s.need_torsion[g] = 0
         if s.cells != NULL:
             for i in range(s.n):
                 clamp_and_invert(s, i)
@@ -307,23 +402,30 @@ cdef class Kernel:
                     sxy=np.array([s.sxy[i] for i in range(n)]),
                     syy=np.array([s.syy[i] for i in range(n)]),
                     activity=act, active=act > s.act_thr,
-                    sensitive=np.array([bool((s.sensitive_mask >> i) & 1) for i in range(n)]),
-                    state=np.ones(n, np.uint8))
+                    sensitive=np.array([bool((s.sensitive[i >> 6] >> (i & 63)) & 1)
+                                        for i in range(n)]),
+                    state=np.array([s.state[s.inst[i]] for i in range(n)], np.uint8))
 
     def energies(self):
-        """(3, nc) array of the last spring update's energies: euclidean, torsional, cartesian."""
+        """(3, nc) array of the last spring update's energies (every instance's connections,
+        in order): euclidean, torsional, cartesian."""
         cdef KState* s = &self.st
         return np.array([[s.energy[q][k] for k in range(s.nc)] for q in range(3)]).reshape(3, s.nc)
 
     @property
     def mean_energy(self):
-        return self.st.mean_energy
+        """eq. (13) of the first instance (:meth:`mean_energies`: every instance's)."""
+        return self.st.mean_energy[0]
 
-    def frame(self):
-        """The similarity frame of the last spring update (st_fit_frame): (c, sn, gx, gy)
-        with s R = [[c, -sn], [sn, c]] and (gx, gy) the image of the rest centre of mass;
-        (1, 0, G0) until a spring update fits one."""
-        return (self.st.sim_c, self.st.sim_s, self.st.sim_gx, self.st.sim_gy)
+    def mean_energies(self):
+        return [self.st.mean_energy[g] for g in range(self.st.ni)]
+
+    def frame(self, int g=0):
+        """Instance g's similarity frame of the last spring update (st_fit_frame): (c, sn,
+        gx, gy) with s R = [[c, -sn], [sn, c]] and (gx, gy) the image of the rest centre of
+        mass; (1, 0, G0) until a spring update fits one."""
+        self._instance(g)
+        return (self.st.sim_c[g], self.st.sim_s[g], self.st.sim_gx[g], self.st.sim_gy[g])
 
     @property
     def last_t(self):

@@ -1,7 +1,8 @@
 # The float64 kernel's spatial index: which trackers an event's 8 x 8 px cell may concern.
 #
-# cells[cy * gw + cx] has bit i set if tracker i's gate box (|dx| <= sqrt(gate * sxx),
-# |dy| <= sqrt(gate * syy): the region where eq. (2)'s d^2 < gate) may cover the cell.
+# The nw words at cells[(cy * gw + cx) * nw] have bit i & 63 of word i >> 6 set if tracker
+# i's gate box (|dx| <= sqrt(gate * sxx), |dy| <= sqrt(gate * syy): the region where
+# eq. (2)'s d^2 < gate) may cover the cell.
 # A tracker outside an event's cell cannot take the event, so scanning only the cell's
 # candidates in index order (_kstep.pxd assign_event) finds exactly the full scan's winner.
 #
@@ -38,14 +39,16 @@ cdef extern from "springtrack/csrc/springs.h" nogil:
 
 
 cdef inline void index_set(KState* s, int i, int x0, int x1, int y0, int y1, bint on) noexcept nogil:
-    cdef int cx, cy
-    cdef uint64_t bit = (<uint64_t>1) << i
+    # tracker i is bit i & 63 of word i >> 6 of each cell's nw words
+    cdef int cx, cy, nw = s.nw
+    cdef uint64_t bit = (<uint64_t>1) << (i & 63)
+    cdef uint64_t* word = s.cells + (i >> 6)
     for cy in range(y0, y1 + 1):
         for cx in range(x0, x1 + 1):
             if on:
-                s.cells[cy * s.gw + cx] |= bit
+                word[(cy * s.gw + cx) * nw] |= bit
             else:
-                s.cells[cy * s.gw + cx] &= ~bit
+                word[(cy * s.gw + cx) * nw] &= ~bit
 
 
 cdef inline int cell_of(const KState* s, double v, int gmax) noexcept nogil:

@@ -11,19 +11,25 @@ ksprings).  Unlike the per-event step, the springs do not keep the reference's o
 operations (see ksprings), so the two differ by rounding, ~1e-13 px over a million
 events.
 
+Several model instances (springtrack.instances): each tracking instance's springs and
+criteria run on its own ranges of the arrays (its connections [g_c0, g_c1), its trackers
+[g_t0, g_t1), at most 64: its masks are one word relative to g_t0), with its own
+parameters, mean energy and frames, in instance order as in the reference.
+
 After every spring update the state guard (guard_state, the reference's _guard) checks
 every mean against the position box (springtrack.limits.position_box): a mean outside it,
-or not a number, is a state no valid model reaches, and resets the tracker state to the
-model's.
+or not a number, is a state no valid model reaches, and resets its instance to the
+model's state.
 """
 from libc.math cimport cos, sin, fabs, M_PI
 from libc.stdint cimport int64_t, uint64_t
 
 from springtrack import reference as _ref
 
-from springtrack._kstate cimport KState, MAX_TRACKERS, MAX_CONNECTIONS
+from springtrack._kstate cimport (KState, MAX_CONNECTIONS, MAX_SET_TRACKERS, K_TRACKING)
 from springtrack._kindex cimport reindex
 from springtrack._kcovariance cimport clamp_and_invert
+from springtrack._kactivity cimport flush_activity
 
 cdef extern from "springtrack/csrc/springs.h" nogil:
     double st_sum(int n, const double* x)
@@ -76,23 +82,66 @@ cdef inline double wrap_angle(double a) noexcept nogil:
     return a
 
 
+cdef inline uint64_t all_of(int n) noexcept nogil:
+    """Bits 0 .. n-1 (n <= 64)."""
+    return ~(<uint64_t>0) if n >= 64 else ((<uint64_t>1) << n) - 1
+
+
+cdef void compose_sensitive(KState* s) noexcept nogil:
+    """The event assignment's words from each instance's isens: instance g's bit j is
+    tracker g_t0 + j's, bit (g_t0 + j) & 63 of word (g_t0 + j) >> 6."""
+    cdef int g, w, b, t0
+    cdef uint64_t m
+    if s.ni == 1:                                  # one instance: its own word
+        s.sensitive[0] = s.isens[0]
+        return
+    for w in range(s.nw):
+        s.sensitive[w] = 0
+    for g in range(s.ni):
+        t0 = s.g_t0[g]
+        m = s.isens[g]
+        w = t0 >> 6
+        b = t0 & 63
+        s.sensitive[w] |= m << b
+        if b and s.g_t1[g] - t0 + b > 64:          # it runs into the next word
+            s.sensitive[w + 1] |= m >> (64 - b)
+
+
 cdef void ksprings(KState* s) noexcept nogil:
-    # [ref] springs, in structure-of-arrays passes (csrc/springs.h, vectorised):
+    # [ref] springs: every tracking instance's springs and criteria, in instance order;
+    # then the state guard; then the trackers whose gate boxes left their indexed boxes
+    # re-indexed
+    cdef int64_t left[MAX_SET_TRACKERS]
+    cdef int g, i, n = s.n
+    s.n_spring_updates += 1
+    for g in range(s.ni):
+        if s.state[g] == K_TRACKING:
+            instance_springs(s, g)
+    guard_state(s)
+    compose_sensitive(s)
+    st_boxes_left(n, s.mx, s.my, s.sxx, s.syy, s.bcx, s.bcy, s.dev_x, s.dev_y, s.sxx_lim,
+                  s.syy_lim, left)
+    for i in range(n):
+        if left[i]:
+            reindex(s, i)
+
+
+cdef inline void instance_springs(KState* s, int g) noexcept nogil:
+    # [ref] _springs(g), in structure-of-arrays passes over instance g's connections
+    # (csrc/springs.h, vectorised):
     #   1. gather r = end b - end a;  2. eq. (14) angles, in the frame of a recent mean
     #   angle (fast) or from the rest directions;  3. eq. (15) mean angle;  4. eqs.
     #   (15)-(17) deviation, torsional energy and rotation (0. before them all, in the
     #   similarity frame: the Cartesian rest offsets turned and scaled);  5. eqs. (10)-(12), (16),
     #   (18)-(20) branch-free (a_euc/a_tor/a_car are 0 for kinds a connection lacks),
     #   displacements divided by each end's mass;  6. scatter onto the ends' means
-    #   (scalar);  7. energy criteria (OR-reduced bit masks);  8. the state guard;  9.
-    #   re-index the trackers whose gate boxes left their indexed boxes.
+    #   (scalar);  7. energy criteria (OR-reduced bit masks).
     # Rounding-level differences from the reference, none larger than ~1e-15 relative: the
     # three kinds' displacements are summed per connection and added straight to the means
     # (the reference adds them one by one to per-tracker sums, then those to the means);
     # the mean angle and the mean energy are summed in four interleaved partial sums
     # (st_sum: a chain of n/4 additions instead of n; both gate the rest of the update).
-    cdef int n = s.n, nc = s.nc, k, i, j
-    cdef int64_t left[MAX_TRACKERS]
+    cdef int c0 = s.g_c0[g], nc = s.g_c1[g] - s.g_c0[g], k, i, j
     cdef double rx[MAX_CONNECTIONS]
     cdef double ry[MAX_CONNECTIONS]
     cdef double th[MAX_CONNECTIONS]
@@ -105,140 +154,150 @@ cdef void ksprings(KState* s) noexcept nogil:
     cdef double uby[MAX_CONNECTIONS]
     cdef double odx[MAX_CONNECTIONS]
     cdef double ody[MAX_CONNECTIONS]
-    cdef const double* dx0 = s.dx0
-    cdef const double* dy0 = s.dy0
+    cdef const double* dx0 = s.dx0 + c0
+    cdef const double* dy0 = s.dy0 + c0
     cdef double mean_dth = 0.0
-    s.n_spring_updates += 1
-    if s.car_sim:                      # 0. eq. (18): s R d0 in the last update's frame
-        st_turn_offsets(nc, s.sim_c, s.sim_s, s.dx0, s.dy0, odx, ody)
+    if s.car_sim[g]:                   # 0. eq. (18): s R d0 in the last update's frame
+        st_turn_offsets(nc, s.sim_c[g], s.sim_s[g], dx0, dy0, odx, ody)
         dx0 = odx
         dy0 = ody
+    cdef const int* ca = s.ca + c0                   # the instance's connections' ends
+    cdef const int* cb = s.cb + c0
     for k in range(nc):                                              # 1. gather
-        i = s.ca[k]
-        j = s.cb[k]
+        i = ca[k]
+        j = cb[k]
         rx[k] = s.mx[j] - s.mx[i]
         ry[k] = s.my[j] - s.my[i]
-    if s.need_torsion:
-        if st_torsion_angles_framed(nc, rx, ry, s.qdx, s.qdy, s.frame_phi, th):  # 2. eq. (14)
+    if s.need_torsion[g]:
+        if st_torsion_angles_framed(nc, rx, ry, s.qdx + c0, s.qdy + c0, s.frame_phi[g],  # 2.
+                                    th):                             # eq. (14)
             s.n_frame_misses += 1
-            st_torsion_angles(nc, rx, ry, s.rdx, s.rdy, s.dth_zero, th)
+            st_torsion_angles(nc, rx, ry, s.rdx + c0, s.rdy + c0, s.dth_zero + c0, th)
         mean_dth = st_sum(nc, th) / nc                               # 3. eq. (15)
-        if fabs(mean_dth - s.frame_phi) > FRAME_SLACK:
-            set_frame(s, mean_dth)
-        st_torsion_rotation(nc, th, mean_dth, s.half_a, s.a_tor, s.energy[1], eps, sn,  # 4.
-                            cm1)
+        if fabs(mean_dth - s.frame_phi[g]) > FRAME_SLACK:
+            set_frame(s, g, mean_dth)
+        st_torsion_rotation(nc, th, mean_dth, s.half_a + c0, s.a_tor + c0,        # 4.
+                            s.energy[1] + c0, eps, sn, cm1)
     else:
         for k in range(nc):
-            s.energy[1][k] = 0.0
+            s.energy[1][c0 + k] = 0.0
             sn[k] = 0.0
             cm1[k] = 0.0
-    st_spring_terms_batch(nc, rx, ry, sn, cm1, s.l0, s.half_a, dx0, dy0, s.c0, s.s0,  # 5.
-                          s.a_euc, s.a_car, s.wa, s.wb, s.energy[0], s.energy[2],
-                          uax, uay, ubx, uby)
+    st_spring_terms_batch(nc, rx, ry, sn, cm1, s.l0 + c0, s.half_a + c0, dx0, dy0,  # 5.
+                          s.c0 + c0, s.s0 + c0, s.a_euc + c0, s.a_car + c0, s.wa + c0,
+                          s.wb + c0, s.energy[0] + c0, s.energy[2] + c0, uax, uay, ubx, uby)
     for k in range(nc):                                              # 6. scatter
-        i = s.ca[k]
-        j = s.cb[k]
+        i = ca[k]
+        j = cb[k]
         s.mx[i] += uax[k]
         s.my[i] += uay[k]
         s.mx[j] -= ubx[k]
         s.my[j] -= uby[k]
-    energy_criteria(s)                                               # 7.
-    if guard_state(s):                                               # 8.
-        return
-    st_boxes_left(n, s.mx, s.my, s.sxx, s.syy, s.bcx, s.bcy, s.dev_x, s.dev_y, s.sxx_lim,  # 9.
-                  s.syy_lim, left)
-    for i in range(n):
-        if left[i]:
-            reindex(s, i)
+    energy_criteria(s, g)                                            # 7.
 
 
-cdef bint guard_state(KState* s) noexcept nogil:
+cdef void guard_state(KState* s) noexcept nogil:
     """[ref] _guard: a mean outside the position box, or not a number, is a state no model
-    within springtrack.limits reaches: counted, and the state reset to the model (True)."""
-    cdef int i
-    cdef bint out = False
-    for i in range(s.n):
-        out |= not (s.mx[i] >= s.pos_lo_x and s.mx[i] < s.pos_hi_x
-                    and s.my[i] >= s.pos_lo_y and s.my[i] < s.pos_hi_y)
-    if out:
-        s.n_resets += 1
-        reset_state(s)
-    return out
+    within springtrack.limits reaches: counted, and its instance reset to the model."""
+    cdef int g, i
+    cdef bint out
+    for g in range(s.ni):
+        out = False
+        for i in range(s.g_t0[g], s.g_t1[g]):
+            out |= not (s.mx[i] >= s.pos_lo_x and s.mx[i] < s.pos_hi_x
+                        and s.my[i] >= s.pos_lo_y and s.my[i] < s.pos_hi_y)
+        if out:
+            s.n_resets += 1
+            reset_instance(s, g)
 
 
-cdef void reset_state(KState* s) noexcept nogil:
-    """[ref] _reset_state, then every covariance clamped and inverted and every tracker
-    re-indexed: the tracker state of the model, counters and time kept."""
-    cdef int i, k, q
-    for i in range(s.n):
+cdef void reset_instance(KState* s, int g) noexcept nogil:
+    """[ref] _reset_instance, then its covariances clamped and inverted and its trackers
+    re-indexed: instance g's tracker state of the model, its state, counters and time
+    kept."""
+    cdef int i, k, q, t0 = s.g_t0[g], t1 = s.g_t1[g]
+    flush_activity(s)                  # the increments logged so far, then its own zeroed
+    for i in range(t0, t1):
         s.mx[i] = s.rest_x[i]
         s.my[i] = s.rest_y[i]
         s.sxx[i] = s.rest_sxx[i]
         s.sxy[i] = s.rest_sxy[i]
         s.syy[i] = s.rest_syy[i]
         s.act[i] = 0.0
-    s.act_n = 0                        # increments logged for the state left behind
     for q in range(3):
-        for k in range(s.nc):
+        for k in range(s.g_c0[g], s.g_c1[g]):
             s.energy[q][k] = 0.0
-    s.mean_energy = 0.0
-    s.sensitive_mask = ~(<uint64_t>0) if s.n == 64 else ((<uint64_t>1) << s.n) - 1
-    s.sim_c = 1.0                      # [ref] the identity frame about G0 until a fit
-    s.sim_s = 0.0
-    if s.n:
-        s.sim_gx = s.mx[0] - s.gdx0[0]
-        s.sim_gy = s.my[0] - s.gdy0[0]
-    set_frame(s, 0.0)
-    for i in range(s.n):
+    s.mean_energy[g] = 0.0
+    s.isens[g] = all_of(t1 - t0) if s.state[g] == K_TRACKING else 0
+    rest_frame(s, g)
+    set_frame(s, g, 0.0)
+    for i in range(t0, t1):
         clamp_and_invert(s, i)
         reindex(s, i)
 
 
-cdef void set_frame(KState* s, double phi) noexcept nogil:
-    """Turn the rest directions by phi for st_torsion_angles_framed (a cache: any phi gives
-    the same angles, up to rounding; one near the mean angle lets the fast path apply)."""
+cdef inline void rest_frame(KState* s, int g) noexcept nogil:
+    """[ref] _rest_frame: instance g's frame before its first fit, the identity about G0
+    at rest."""
+    cdef int t0 = s.g_t0[g]
+    s.sim_c[g] = 1.0
+    s.sim_s[g] = 0.0
+    s.sim_gx[g] = s.mx[t0] - s.gdx0[t0]
+    s.sim_gy[g] = s.my[t0] - s.gdy0[t0]
+
+
+cdef void set_frame(KState* s, int g, double phi) noexcept nogil:
+    """Turn instance g's rest directions by phi for st_torsion_angles_framed (a cache: any
+    phi gives the same angles, up to rounding; one near the mean angle lets the fast path
+    apply)."""
     cdef double c = cos(phi), sn = sin(phi)
     cdef int k
-    s.frame_phi = phi
-    for k in range(s.nc):
+    s.frame_phi[g] = phi
+    for k in range(s.g_c0[g], s.g_c1[g]):
         s.qdx[k] = c * s.rdx[k] - sn * s.rdy[k]
         s.qdy[k] = sn * s.rdx[k] + c * s.rdy[k]
     s.n_frame_moves += 1
 
 
-cdef void energy_criteria(KState* s) noexcept nogil:
-    # [ref] _energy_criteria
-    cdef int n = s.n, nc = s.nc, i
-    cdef const double* e = s.energy[s.ekind]
-    cdef double thr, msum = s.mass_sum, gx = 0.0, gy = 0.0
+cdef inline void energy_criteria(KState* s, int g) noexcept nogil:
+    # [ref] _energy_criteria(g); masks relative to the instance's first tracker t0
+    cdef int t0 = s.g_t0[g], n = s.g_t1[g] - s.g_t0[g], c0 = s.g_c0[g]
+    cdef int nc = s.g_c1[g] - c0, i
+    cdef const double* e = s.energy[s.ekind[g]] + c0
+    cdef double thr, msum = s.mass_sum[g], gx = 0.0, gy = 0.0
     cdef uint64_t pulled, calm
     if nc == 0:
         return
-    s.mean_energy = st_sum(nc, e) / nc                               # eq. (13)
-    thr = s.energy_scale * s.mean_energy
-    st_over_ends(nc, e, thr, s.ends, &pulled, &calm)
-    if s.pull_sim or s.car_sim:          # [ref] fit_frame over the trackers left alone
-        st_fit_frame(n, ~pulled, s.mass, s.gdx0, s.gdy0, s.mx, s.my, s.sim_gx, s.sim_gy,
-                     &s.sim_c, &s.sim_s, &s.sim_gx, &s.sim_gy)
-    if s.pull_sim:                       # eq. (22) toward G + s R dG0, the fitted frame
-        st_pull(n, pulled, s.sim_gx, s.sim_gy, s.sim_c, s.sim_s, s.energy_gain, s.gdx0,
-                s.gdy0, s.mx, s.my)
+    s.mean_energy[g] = st_sum(nc, e) / nc                            # eq. (13)
+    thr = s.energy_scale[g] * s.mean_energy[g]
+    st_over_ends(nc, e, thr, s.ends + c0, &pulled, &calm)
+    if s.pull_sim[g] or s.car_sim[g]:    # [ref] fit_frame over the trackers left alone
+        st_fit_frame(n, ~pulled, s.mass + t0, s.gdx0 + t0, s.gdy0 + t0, s.mx + t0,
+                     s.my + t0, s.sim_gx[g], s.sim_gy[g], &s.sim_c[g], &s.sim_s[g],
+                     &s.sim_gx[g], &s.sim_gy[g])
+    if s.pull_sim[g]:                    # eq. (22) toward G + s R dG0, the fitted frame
+        st_pull(n, pulled, s.sim_gx[g], s.sim_gy[g], s.sim_c[g], s.sim_s[g], s.energy_gain[g],
+                s.gdx0 + t0, s.gdy0 + t0, s.mx + t0, s.my + t0)
     else:
-        for i in range(n):                                           # eq. (22): G
+        for i in range(t0, t0 + n):                                  # eq. (22): G
             gx += s.mass[i] * s.mx[i]
             gy += s.mass[i] * s.my[i]
         gx = gx / msum
         gy = gy / msum
-        st_pull(n, pulled, gx, gy, 1.0, 0.0, s.energy_gain, s.gdx0, s.gdy0, s.mx, s.my)
-    s.sensitive_mask = calm | s.isolated     # eq. (21): insensitive if all its connections are over
+        st_pull(n, pulled, gx, gy, 1.0, 0.0, s.energy_gain[g], s.gdx0 + t0, s.gdy0 + t0,
+                s.mx + t0, s.my + t0)
+    s.isens[g] = calm | s.isolated[g]    # eq. (21): insensitive if all its connections are over
 
 
-cdef void init_springs(KState* s) noexcept nogil:
-    """The springs' state derived from the model as loaded (ca, cb, kinds, stiff, th0, dx0,
-    dy0 of each connection; mass, gdx0, gdy0 and the means of each tracker)."""
-    cdef int n = s.n, i, k
-    for k in range(s.nc):
-        s.ends[k] = ((<uint64_t>1) << s.ca[k]) | ((<uint64_t>1) << s.cb[k])
+cdef void init_instance(KState* s, int g) noexcept nogil:
+    """Instance g's springs state derived from its model as loaded (ca, cb, kinds, stiff,
+    th0, dx0, dy0 of each of its connections; mass, gdx0, gdy0 and the means of each of
+    its trackers); its state and isens kept."""
+    cdef int t0 = s.g_t0[g], t1 = s.g_t1[g], i, k
+    cdef uint64_t linked = 0
+    for k in range(s.g_c0[g], s.g_c1[g]):
+        s.ends[k] = ((<uint64_t>1) << (s.ca[k] - t0)) | ((<uint64_t>1) << (s.cb[k] - t0))
+        linked |= s.ends[k]
         s.wa[k] = 1.0 / s.mass[s.ca[k]]
         s.wb[k] = 1.0 / s.mass[s.cb[k]]
         s.half_a[k] = 0.5 * s.stiff[k]
@@ -254,18 +313,19 @@ cdef void init_springs(KState* s) noexcept nogil:
             s.rdx[k] = s.c0[k]
             s.rdy[k] = s.s0[k]
         s.dth_zero[k] = wrap_angle(0.0 - s.th0[k])
-    set_frame(s, 0.0)
+    set_frame(s, g, 0.0)
+    s.mass_sum[g] = 0.0
+    for i in range(t0, t1):
+        s.mass_sum[g] += s.mass[i]        # [ref] msum, summed in the same order
+    s.isolated[g] = all_of(t1 - t0) & ~linked
+    rest_frame(s, g)                      # [ref] G0, the frame before the first fit
+
+
+cdef void init_springs(KState* s) noexcept nogil:
+    """Every instance's springs state (init_instance), all its trackers sensitive."""
+    cdef int g
+    for g in range(s.ni):
+        init_instance(s, g)
+        s.isens[g] = all_of(s.g_t1[g] - s.g_t0[g])
     s.n_frame_moves = 0
-    s.sensitive_mask = 0
-    s.mass_sum = 0.0
-    for i in range(n):
-        s.sensitive_mask |= (<uint64_t>1) << i
-        s.mass_sum += s.mass[i]           # [ref] msum, summed in the same order
-    s.isolated = s.sensitive_mask         # less every tracker a connection links
-    for k in range(s.nc):
-        s.isolated &= ~s.ends[k]
-    s.sim_c = 1.0
-    s.sim_s = 0.0
-    if n:                                 # [ref] G0, the frame before the first fit
-        s.sim_gx = s.mx[0] - s.gdx0[0]
-        s.sim_gy = s.my[0] - s.gdy0[0]
+    compose_sensitive(s)

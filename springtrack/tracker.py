@@ -135,14 +135,14 @@ def _one_model(model, params, name):
         if len(model) > 1:
             raise ValueError(f"backend {name!r} holds one model instance, not {len(model)} "
                              f"({', '.join(i.label for i in model)}): several instances "
-                             f"run on backend 'reference' (docs/acquisition.md)")
+                             f"run on backends 'cython' and 'reference' (docs/acquisition.md)")
         return model[0].model, model[0].params
     return model, params
 
 
 def _cython_backend(model, params, option):
     from ._kernel import Kernel
-    return Kernel(*_one_model(model, params, "cython"))
+    return Kernel(model, params)         # one ShapeModel or a ModelSet
 
 
 def _fixed_backend(model, params, option):

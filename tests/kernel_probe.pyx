@@ -51,7 +51,7 @@ def check_index(Kernel kernel):
             return False
         for cy in range(s.box_y0[i], s.box_y1[i] + 1):
             for cx in range(s.box_x0[i], s.box_x1[i] + 1):
-                if not (s.cells[cy * s.gw + cx] >> i) & 1:
+                if not (s.cells[(cy * s.gw + cx) * s.nw + (i >> 6)] >> (i & 63)) & 1:
                     return False
     return True
 

@@ -1,6 +1,8 @@
 """Several model instances in one tracker (springtrack.instances) in the reference, the
 specification: one event assignment over the union, springs and criteria per instance,
-ids, limits, parameters, and the loss rule."""
+ids, limits, parameters, and the loss rule; the float kernel holds them too
+(tests/test_equivalence.py holds it to the reference), the fixed and mcu kernels refuse
+a set."""
 import numpy as np
 import pytest
 
@@ -9,7 +11,7 @@ from springtrack.events import make
 from springtrack.instances import LOST, SEARCHING, SHARED_PARAMS, TRACKING, ModelSet
 from springtrack.loss import LOSS_CHECK_US, LossRule, loss_hold_us
 from springtrack.limits import MAX_INSTANCES, MAX_SET_TRACKERS
-from springtrack.model import ModelError, ShapeModel, TrackerSpec, face26, grid3x3
+from springtrack.model import Connection, ModelError, ShapeModel, TrackerSpec, face26, grid3x3
 from springtrack.params import Params
 from springtrack.reference import NO_TRACKER, ReferenceTracker
 from springtrack.synthetic import blob_stream
@@ -209,16 +211,22 @@ def test_placing_an_instance_resets_it_to_the_placed_model():
     assert ref.act[26:] == [0.0] * 26
 
 
-def test_track_cli_several_models_and_collided_ids(tmp_path, capsys):
-    from springtrack import cli
-    from springtrack.track import read_csv
+def two_grid_files(tmp_path, count):
+    """two_grids() saved as a.toml, b.toml and ``count`` events of each in ev.npy."""
     a, b = two_grids()
     pa, pb = tmp_path / "a.toml", tmp_path / "b.toml"
     a.save(pa)
     b.save(pb)
-    ev = np.sort(np.concatenate([blob_stream(a, 3000, seed=1)[0], blob_stream(b, 3000, seed=2)[0]]),
-                 order="t")
+    ev = np.sort(np.concatenate([blob_stream(a, count, seed=1)[0],
+                                 blob_stream(b, count, seed=2)[0]]), order="t")
     np.save(tmp_path / "ev.npy", ev)
+    return pa, pb
+
+
+def test_track_cli_several_models_and_collided_ids(tmp_path, capsys):
+    from springtrack import cli
+    from springtrack.track import read_csv
+    pa, pb = two_grid_files(tmp_path, 3000)
     out = tmp_path / "t.csv"
     assert cli.main(["track", str(tmp_path / "ev.npy"), "--model", str(pa), "--model", str(pb),
                      "--backend", "reference", "--out", str(out), "--no-progress"]) == 0
@@ -228,3 +236,58 @@ def test_track_cli_several_models_and_collided_ids(tmp_path, capsys):
     assert cli.main(["track", str(tmp_path / "ev.npy"), "--model", str(pa), "--instances", "2",
                      "--out", str(out), "--no-progress"]) != 0
     assert "add --acquire" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("backend", ["fixed", "mcu"])
+def test_the_integer_kernels_refuse_a_set_naming_its_instances(backend):
+    a, b = two_grids()
+    with pytest.raises(ValueError, match=f"backend '{backend}' holds one model instance, not 2 "
+                                         r"\(grid3x3#1, grid3x3#2\).*'cython' and 'reference'"):
+        springtrack.Tracker([a, b], backend=backend)
+
+
+def test_the_float_kernel_holds_a_set_up_to_the_limits():
+    """16 instances of a 16-tracker model: 256 trackers (four mask words) and their
+    connections; each instance takes the events of its own blobs, as in the reference."""
+    specs = [TrackerSpec(f"t{j}", 8.0 + 6.0 * (j % 4), 8.0 + 6.0 * (j // 4), (2.0, 0.0, 2.0))
+             for j in range(16)]
+    conns = [Connection(f"t{j}", f"t{j + 1}", ("euclidean",), 0.05) for j in range(15)]
+    models = []
+    for k in range(MAX_INSTANCES):
+        dx, dy = 40.0 * (k % 8), 40.0 * (k // 8)
+        models.append(ShapeModel("sq", 320, 80, [TrackerSpec(s.id, s.x + dx, s.y + dy, s.sigma)
+                                                 for s in specs], conns))
+    assert sum(len(m.trackers) for m in models) == MAX_SET_TRACKERS
+    evs = [blob_stream(m, 250, rate_hz=20_000, noise=0.0, speed_px_s=(40, 20), seed=k)[0]
+           for k, m in enumerate(models)]
+    ev = np.sort(np.concatenate(evs), order="t", kind="stable")
+    tr, ref = springtrack.Tracker(models), springtrack.Tracker(models, backend="reference")
+    ta, tb = tr.run(ev, 1000), ref.run(ev, 1000)
+    st = tr.state()
+    assert len(st) == MAX_SET_TRACKERS
+    assert (st["activity"].reshape(MAX_INSTANCES, 16).max(axis=1) > 0).all()   # every instance fed
+    assert tr.counters["events_assigned"] > 0.8 * len(ev)
+    assert tr.counters["events_assigned"] == ref.counters["events_assigned"]
+    np.testing.assert_allclose(ta.x, tb.x, rtol=0, atol=1e-9)
+    assert (ta.sensitive == tb.sensitive).all() and not ta.sensitive.all()   # eq. (21) acted
+    with pytest.raises(ModelError, match="exceed the limit of 16"):
+        springtrack.Tracker(models + models[:1])
+
+
+def test_track_cli_several_models_on_the_default_backend(tmp_path, capsys):
+    """``springtrack track --model A --model B --acquire`` without --backend: the float
+    kernel holds both; its rows equal the reference's."""
+    from springtrack import cli
+    from springtrack.track import read_csv
+    pa, pb = two_grid_files(tmp_path, 6000)
+    rows = {}
+    for backend in ("cython", "reference"):
+        out = tmp_path / f"{backend}.csv"
+        args = ["track", str(tmp_path / "ev.npy"), "--model", str(pa), "--model", str(pb),
+                "--acquire", "--out", str(out), "--no-progress"]
+        assert cli.main(args + (["--backend", backend] if backend == "reference" else [])) == 0
+        rows[backend] = read_csv(out)
+    ta, tb = rows["cython"], rows["reference"]
+    assert ta.ids == tb.ids and ta.ids[9] == "grid3x3#2/r0c0"
+    assert np.array_equal(ta.t_us, tb.t_us) and (ta.state == TRACKING).all()
+    np.testing.assert_allclose(ta.x, tb.x, rtol=0, atol=1e-6)

@@ -89,7 +89,7 @@ ST_CLONES static void st_pull(int n, uint64_t pulled, double gx, double gy, doub
 #define ST_FRAME_SCALE_MIN 0.25
 #define ST_FRAME_SCALE_MAX 4.0
 #define ST_FRAME_MIN_SPREAD 0x1p-20
-#define ST_MAX_FIT 64                           /* trackers (MAX_TRACKERS of _kernel.pxd) */
+#define ST_MAX_FIT 64                           /* trackers (MAX_TRACKERS of _kstate.pxd) */
 
 /* [ref] fit_frame: the similarity x -> G + s R (x - G0) that best maps the rest shape onto
  * the means (mx, my), mass-weighted least squares over the trackers of the mask fit (all
@@ -104,7 +104,7 @@ ST_CLONES static void st_pull(int n, uint64_t pulled, double gx, double gy, doub
  * are summed, then centred, a = sum m p.q' - (sum m p).(sum m q') / sum m with
  * q' = mu - r, and likewise b and D; in ST_FIT_LANES interleaved partial sums (a vector),
  * over n rounded up to ST_FIT_LANES: the arrays must hold that many finite entries
- * (KState's hold 64).  The reference sums the centred terms in index order: the two differ
+ * (KState pads its per-tracker arrays for it: TRACKER_PAD).  The reference sums the centred terms in index order: the two differ
  * by rounding. */
 #define ST_FIT_LANES 4
 typedef double st_fit_v __attribute__((vector_size(ST_FIT_LANES * sizeof(double))));
