@@ -19,9 +19,10 @@ there, firing, and nobody follows it) is recalled there, with its rest
 covariance turned by the frame (R Sigma_0 R^T); the active trackers and the
 inactive ones still within their gate, or whose rest position is silent (an occluded
 part, an edge parallel to the motion, a part that stopped, a view that is no similarity of
-the rest shape) are left as they are.  The frame is trusted only when at least
-RECALL_ACTIVE of the instance's trackers are active: after a jump, an exit or a full
-occlusion (most trackers inactive) nothing is recalled and the loss rule decides.
+the rest shape) are left as they are.  The frame is trusted while the loss rule
+(springtrack.loss) would keep the instance: at least 1 / LOSS_ACTIVE_DIV of its trackers
+active (and two); below that -- a jump, an exit, a full occlusion -- nothing is recalled
+and the loss rule decides.
 
     >>> idx, placed = left_behind(model, snap, gate_d2, recent, a_up)   # doctest: +SKIP
 """
@@ -33,9 +34,9 @@ from dataclasses import replace
 import numpy as np
 
 from .acquire import Pose, _Geometry, fit_pose, place
+from .loss import LOSS_ACTIVE_DIV
 from .model import ShapeModel, TrackerSpec
 
-RECALL_ACTIVE = 0.5        # of an instance's trackers active: its frame is trusted
 
 
 def left_behind(model: ShapeModel, snap: dict, gate_d2: float, recent, min_events: float):
@@ -43,12 +44,12 @@ def left_behind(model: ShapeModel, snap: dict, gate_d2: float, recent, min_event
     state ``snap`` (x, y, sxx, sxy, syy, active; one entry per tracker of the instance)
     and ``recent()`` (called only when needed) the events of the last activity time
     constant (fields x, y): (indices, the model placed at the similarity fitted to the
-    active trackers).  No indices (and None) when fewer than RECALL_ACTIVE of them are
+    active trackers).  No indices (and None) when fewer than 1 / LOSS_ACTIVE_DIV of them are
     active or none is left behind."""
     none = np.empty(0, np.intp), None
     active = np.asarray(snap["active"], bool)
     n = len(active)
-    if n < 3 or active.all() or active.sum() < max(RECALL_ACTIVE * n, 2):
+    if n < 3 or active.all() or LOSS_ACTIVE_DIV * active.sum() < n or active.sum() < 2:
         return none
     x, y = (np.asarray(snap[k], float) for k in ("x", "y"))
     geo = _Geometry(model)
