@@ -15,9 +15,11 @@ off it (the mean of four such placements; the face of face_occlusion ends at abo
 * two objects side by side: a face and a grid (--model face --model grid, the float
   kernel holding both), each scored against its own truth.
 
-The face's error is chaotic (a 0.1 px nudge moves it between about 1.3 % and 3.7 %): its
-rows are means over ``--seeds`` scene seeds (the scene's texture, noise and hand), each
-against the same seed placed by hand.  Also: when each instance was lost and
+Placed by hand with the model's covariances the face is bistable (a 0.1 px nudge moves it
+between about 1.3 % and 3.7 %; --acquire starts from covariances measured on the window,
+springtrack.spread, docs/acquisition.md "Placement"): its rows are means over ``--seeds``
+scene seeds (the scene's texture, noise and hand), each against the same seed placed by
+hand.  Also: when each instance was lost and
 re-acquired, relative to the object's return, and the losses on the scenes without any
 disruption (placed wrong), which must be 0.
 

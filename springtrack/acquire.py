@@ -256,6 +256,19 @@ def remove_claimed(img, claimed) -> None:
         img[y0:y1 + 1, x0:x1 + 1][d2 < GATE2] = 0.0
 
 
+def in_claimed_gates(u, claimed):
+    """(n,) bool: which of the points ``u`` (n, 2) px lie inside the gates (d^2 < GATE2,
+    3 sigma) of the trackers ``claimed`` = (mx, my, sxx, sxy, syy) arrays."""
+    out = np.zeros(len(u), bool)
+    for x, y, sxx, sxy, syy in zip(*(np.asarray(a, float) for a in claimed)):
+        det = sxx * syy - sxy * sxy
+        if not (np.isfinite(x) and np.isfinite(y) and det > 0):
+            continue
+        dx, dy = u[:, 0] - x, u[:, 1] - y
+        out |= (syy * dx * dx - 2 * sxy * dx * dy + sxx * dy * dy) / det < GATE2
+    return out
+
+
 def background_density(img) -> float:
     """Median event density of square cells, events/px^2: cells large enough to hold
     BG_EVENTS events at the image's mean density (at least 4x4 px, at most half the

@@ -13,8 +13,9 @@ every backend:
   lost is set LOST (insensitive, its positions kept) and searched for at once;
 * at every multiple of DOUBT_CHECK_US of event time, each tracking instance's share of
   the sensor's events (springtrack.loss.ShareDoubt); an instance in doubt is verified
-  (at most once per ``period``; while the doubt stays and nothing better is found, the
-  waits double up to VERIFY_BACKOFF periods), and every instance every VERIFY_EVERY
+  (at most once per ``period / 2``, the window it searches: each search sees new events;
+  while the doubt stays and nothing better is found, the waits double up to
+  VERIFY_BACKOFF periods), and every instance every VERIFY_EVERY
   periods: a search on the last ``period / 2`` of events; if it finds the model away
   from its trackers and supported MOVED_SUPPORT times more than its trackers are where
   they are (:func:`springtrack.acquire.judge` on the same events), the object moved:
@@ -29,7 +30,8 @@ every backend:
   only when the attempt before found it at the same place: an object sliding into view is not placed half in view,
   where a tracker could not follow it;
 * an instance found is placed there (``place``: positions, covariances and the rest
-  geometry of the placed model, activities 0) and tracks again -- unless it was found
+  geometry of the placed model, activities 0; the kernel's covariances measured on the
+  window, springtrack.spread) and tracks again -- unless it was found
   where its trackers were kept (mean Mahalanobis distance below RESUME_SIGMA: the object
   came back where it was hidden, or stood still), which resume as they were;
 * an instance re-acquired or found moved while its trackers still hold the model's shape
@@ -58,6 +60,7 @@ from .acquire import MIN_EVENTS, Pose, acquire, fit_pose, judge, model_pose, pla
 from .events import EVENT_DTYPE
 from .instances import LOST, SEARCHING, TRACKING
 from .recall import left_behind, recalled
+from .spread import measured_spread
 from .loss import (DOUBT_CHECK_US, LOSS_CHECK_US, MASS_HORIZON_TAU, LossRule, ShareDoubt,
                    counted, event_mass, loss_hold_us)
 
@@ -167,6 +170,7 @@ class Recovery:
         self.tr = tracker
         self.window_us = int(window_us)
         self.period = max(self.window_us // 2, 1)
+        self._verify_span = max(self.period // 2, 1)    # a verification's window of events
         self.bounds = dict(bounds)
         self.ring = EventRing()
         self.rule = None
@@ -198,7 +202,7 @@ class Recovery:
                              loss_hold_us(params), t_first - 1)
         self.doubt = ShareDoubt(len(self.tr.models), params.activity_tau_us, loss_hold_us(params))
         self._verify_next = [0] * len(self.tr.models)
-        self._verify_wait = [self.period] * len(self.tr.models)
+        self._verify_wait = [self._verify_span] * len(self.tr.models)
         self._verify_due = [t_first + VERIFY_EVERY * self.period] * len(self.tr.models)
         self._doubt_at = -(-t_first // DOUBT_CHECK_US) * DOUBT_CHECK_US
         for g in range(len(self.tr.models)):
@@ -352,7 +356,7 @@ class Recovery:
                 self._resumed(t, g, "reacquired")
             else:
                 self._replace(t, g, placed, "acquired" if states[g] == SEARCHING else "reacquired",
-                              pose, snap if states[g] == LOST else None)
+                              pose, snap if states[g] == LOST else None, window, at, claimed)
             mset = self.tr.models
             claimed = [np.concatenate([c, np.asarray(v, float)])
                        for c, v in zip(claimed, placed_gates(model, pose))]
@@ -379,11 +383,16 @@ class Recovery:
         live = np.repeat(live, [i.n for i in self.tr.models])
         return [np.asarray(snap[k], float)[live] for k in ("x", "y", "sxx", "sxy", "syy")]
 
-    def _replace(self, t: int, g: int, placed, kind: str, pose=None, snap=None) -> None:
-        """Instance g placed anew as ``placed`` at t (activities 0, tracking), or moved
-        rigidly onto ``pose`` where its trackers (``snap``) hold the model's shape."""
+    def _replace(self, t: int, g: int, placed, kind: str, pose=None, snap=None,
+                 window=None, at=None, claimed=None) -> None:
+        """Instance g placed anew as ``placed`` at t (activities 0, tracking; the kernel's
+        covariances measured on ``window`` at ``at``, springtrack.spread, ``claimed`` the
+        other instances' gates), or moved rigidly onto ``pose`` where its trackers
+        (``snap``) hold the model's shape."""
         if pose is None or not self._move(g, pose, snap):
             self.tr.models = self.tr.models.replaced(g, placed)
+            if window is not None:
+                placed = measured_spread(placed, window, self.tr.models[g].params, at, claimed)
             self.tr._ib.place(g, placed)
         self.tr._ib.set_state(g, TRACKING)
         self._resumed(t, g, kind)
@@ -453,8 +462,9 @@ class Recovery:
     def _doubt_check(self, t: int) -> None:
         """At doubt check time t (the state holds every event before t): each tracking
         instance's share of the events (springtrack.loss.ShareDoubt); one in doubt is
-        verified, then again a ``period`` later, and while the doubt stays and the
-        searches find nothing better, after waits doubling up to VERIFY_BACKOFF periods."""
+        verified, then again once a verification's window (``period / 2``) of new events
+        is in, and while the doubt stays and the searches find nothing better, after waits
+        doubling up to VERIFY_BACKOFF periods."""
         b = self.tr._ib
         tau = self.tr.models.params.activity_tau_us
         mass, since = self._mass
@@ -480,13 +490,13 @@ class Recovery:
             taken = float(np.sum(snap["activity"][inst.t0:inst.t1]))
             doubt = self.doubt.doubt(t, g, taken, mass, inst.n)
             if not doubt:
-                self._verify_wait[g] = self.period
+                self._verify_wait[g] = self._verify_span
             if (doubt and t >= self._verify_next[g]) or t >= self._verify_due[g]:
                 moved = self._verify(t, g, snap, states)
                 self._verify_due[g] = t + VERIFY_EVERY * self.period
                 if doubt:
                     wait = self._verify_wait[g]
-                    self._verify_wait[g] = (self.period if moved else
+                    self._verify_wait[g] = (self._verify_span if moved else
                                             min(2 * wait, VERIFY_BACKOFF * self.period))
                     self._verify_next[g] = t + wait
 
@@ -520,7 +530,7 @@ class Recovery:
         MOVED_SUPPORT times more than its trackers where they are (and, partly in view, found
         at the same place by the verification before), it moved: lost and re-placed there
         at t (True)."""
-        window = self.ring.window(t - self.period // 2, t)
+        window = self.ring.window(t - self._verify_span, t)
         if len(window) < MIN_EVENTS:
             return False
         self.verifications += 1
@@ -540,7 +550,7 @@ class Recovery:
         if pose.in_view < inst.n and not self._stays_partly_in_view(g, placed):
             return False
         self._apply(t, [g])
-        self._replace(t, g, placed, "reacquired", pose, snap)
+        self._replace(t, g, placed, "reacquired", pose, snap, window, None, claimed)
         return True
 
     def _stays_partly_in_view(self, g: int, placed) -> bool:

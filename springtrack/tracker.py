@@ -398,13 +398,18 @@ class Tracker:
             return ready
         from .acquire import place
         from .reacquire import Recovery
+        from .spread import measured_set
         acq = self.acquisition
         mset = self.models
         for g, pose in enumerate(acq.poses):
             if pose is not None and pose.found:
                 mset = mset.replaced(g, place(mset[g].model, pose))
         self.models = mset
-        self._use(mset)
+        # the kernel starts from the covariances measured on the window (springtrack.spread);
+        # the set keeps the models' own, which the searches use
+        t0 = int(ready["t"][0])
+        found = [g for g, p in enumerate(acq.poses) if p is not None and p.found]
+        self._use(measured_set(mset, ready[ready["t"] < t0 + acq.window_us], t0, found))
         self.recovery = Recovery(self, acq.window_us, acq.bounds)
         self.recovery.start(int(ready["t"][0]), [p is not None and p.found for p in acq.poses])
         return ready

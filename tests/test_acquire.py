@@ -271,9 +271,10 @@ def test_track_acquire_model_placed_off_reaches_the_error_placed_by_hand(tmp_pat
     assert errors["image", "acquire"] <= 1.25 * errors["image", "hand"], errors
     # the structure's own frame (the default) recovers more of a placement 20 deg, 15 % off
     # by itself and tracks the face better by hand (3 s of face_occlusion: 1.28 % against
-    # 2.46 %); an acquired start settles to that more slowly (2.22 % over these 3 s, 1.53
-    # against 1.41 % at 5-8 s), still within the image frame's hand-placed error
-    assert errors["similarity", "acquire"] <= 1.25 * errors["image", "hand"], errors
+    # 2.46 %); acquired, with the covariances measured at the placement (springtrack.spread),
+    # it tracks as placed by hand (1.28 %; with the model's covariances it settled on the
+    # parts' near edges: 2.22 %)
+    assert errors["similarity", "acquire"] <= 1.25 * errors["similarity", "hand"], errors
     assert errors["similarity", "off"] > errors["similarity", "hand"], errors
 
 

@@ -184,7 +184,7 @@ def test_loss_rule_is_the_same_in_every_backend(backend):
     lost_at = tr.changes[1][0]
     stop = int(ef["t"][-1])
     assert stop + loss_hold_us(tr.params) < lost_at < stop + 80_000
-    after = track.t_us > lost_at
+    after = track.t_us >= lost_at                       # a change at T shows from the row at T
     assert (track.state[after] == LOST).all() and (track.state[~after] == TRACKING).all()
     assert np.ptp(track.x[after], axis=0).max() == 0.0   # positions kept
     assert tr.counters["events_valid"] == len(ev)
