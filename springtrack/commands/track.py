@@ -250,6 +250,10 @@ def run(args) -> int:
         print("instances: " + ", ".join(f"{i['label']} {i['state']} (acquired {i['acquired']}, "
                                         f"lost {i['lost']}, reacquired {i['reacquired']})"
                                         for i in tr.instances()))
+        c = tr.counters
+        print(f"recovery: {c['reacquire_attempts']} search(es), {c['verifications']} "
+              f"verification(s), {c['losses_refuted']} loss(es) refuted, {c['moved']} move(s), "
+              f"{c['recalled']} tracker(s) left behind recalled")
     if n:
         watch.finish(tr.state())
         for w in watch.warnings():
