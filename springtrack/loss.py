@@ -172,6 +172,11 @@ class ShareDoubt:
         """Instance g placed or resumed at t: a new level, from a hold after t."""
         self.level[g], self.t[g], self.start[g] = None, None, int(t) + self.hold
 
+    def hold_off(self, g: int, t: int) -> None:
+        """Instance g's activities were reset at t, its place kept (a recall,
+        springtrack.recall): not judged for a hold, its level kept."""
+        self.start[g] = max(self.start[g], int(t) + self.hold)
+
     def doubt(self, t: int, g: int, taken: float, mass: float, n: int) -> bool:
         """At time t, instance g (``n`` trackers, activities summing to ``taken``) with
         the sensor's event ``mass``: in doubt?  Too few events on the sensor (mass below

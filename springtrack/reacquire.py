@@ -52,12 +52,14 @@ how the input is cut into chunks.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
 from .acquire import MIN_EVENTS, Pose, acquire, fit_pose, judge, model_pose, place, placed_gates
 from .events import EVENT_DTYPE
 from .instances import LOST, SEARCHING, TRACKING
+from .recall import left_behind, recalled
 from .spread import measured_spread
 from .loss import (DOUBT_CHECK_US, LOSS_CHECK_US, MASS_HORIZON_TAU, LossRule, ShareDoubt,
                    counted, event_mass, loss_hold_us)
@@ -112,6 +114,16 @@ class EventRing:
             parts = [self.buf["t"][pos:], self.buf["t"][:pos]]
         return np.concatenate([p[np.searchsorted(p, t_lo, "left"):] for p in parts])
 
+    def since(self, t_lo: int) -> np.ndarray:
+        """The events held with t >= t_lo, in order (only those copied)."""
+        cap = len(self.buf)
+        if self.count <= cap:
+            parts = [self.buf[:self.count]]
+        else:
+            pos = self.count % cap
+            parts = [self.buf[pos:], self.buf[:pos]]
+        return np.concatenate([p[np.searchsorted(p["t"], t_lo, "left"):] for p in parts])
+
     def window(self, t_lo: int, t_hi: int) -> np.ndarray:
         """The events held with t_lo <= t < t_hi, in order."""
         ev = self.recent()
@@ -132,6 +144,15 @@ def _where_kept(placed, x, y) -> bool:
     """The placement found lies where a lost instance's trackers were kept: their mean
     Mahalanobis distance below RESUME_SIGMA."""
     return _mahalanobis(placed, x, y) < RESUME_SIGMA
+
+
+def about(pose: Pose, base: Pose) -> Pose:
+    """``pose``, found for a model placed at ``base``, as a pose of the model itself.
+    place(model, base) maps q to base.t + s_b R_b (q - G) and keeps the mass-weighted centre
+    of mass at base.t, so placing that at ``pose`` maps q to
+    pose.t + s R s_b R_b (q - G): angles add (wrapped to [-180, 180)), scales multiply."""
+    ang = (pose.angle_deg + base.angle_deg + 180.0) % 360.0 - 180.0
+    return replace(pose, angle_deg=ang, scale=pose.scale * base.scale)
 
 
 def _grid_at_or_before(t: int, period: int) -> int:
@@ -170,6 +191,8 @@ class Recovery:
         self.moves = 0                      # instances moved rigidly onto a pose found
         self._refine_at = {}                # instance: its refinement search time
         self.refuted = 0                    # losses refuted: found where its trackers are
+        self.recalls = 0                    # trackers left behind recalled (springtrack.recall)
+        self._recall_next = {}              # instance: no recall before this time
 
     def start(self, t_first: int, found) -> None:
         """The instances were placed (``found[g]``) at the window starting at t_first."""
@@ -282,9 +305,9 @@ class Recovery:
         for g in lost:
             inst = self.tr.models[g]
             self.attempts += 1
-            pose = acquire(inst.model, window, at_us=int(window["t"][-1]),
-                           claimed=self._claimed(snap, states, but=g), **self.bounds)
             x, y = (np.asarray(snap[k], float)[inst.t0:inst.t1] for k in ("x", "y"))
+            pose = self._acquire_about(inst.model, x, y, window, at_us=int(window["t"][-1]),
+                                       claimed=self._claimed(snap, states, but=g))
             if pose.found and _where_kept(place(inst.model, pose), x, y):
                 self.rule.reset(g)
                 self.refuted += 1
@@ -317,15 +340,17 @@ class Recovery:
         for g in todo:
             self.attempts += 1
             model = mset[g].model
-            pose = acquire(model, window, at_us=at, claimed=claimed, **self.bounds)
+            inst = mset[g]
+            kept = [np.asarray(snap[k], float)[inst.t0:inst.t1] for k in ("x", "y")]
+            pose = (self._acquire_about(model, *kept, window, at_us=at, claimed=claimed)
+                    if states[g] == LOST else
+                    acquire(model, window, at_us=at, claimed=claimed, **self.bounds))
             if not pose.found:
                 self._partial.pop(g, None)
                 continue
             placed = place(model, pose)
-            inst = mset[g]
             if pose.in_view < inst.n and not self._stays_partly_in_view(g, placed):
                 continue
-            kept = [np.asarray(snap[k], float)[inst.t0:inst.t1] for k in ("x", "y")]
             if states[g] == LOST and _where_kept(placed, *kept):
                 b.set_state(g, TRACKING)          # found where it was kept: resume from there
                 self._resumed(t, g, "reacquired")
@@ -335,6 +360,19 @@ class Recovery:
             mset = self.tr.models
             claimed = [np.concatenate([c, np.asarray(v, float)])
                        for c, v in zip(claimed, placed_gates(model, pose))]
+
+    def _acquire_about(self, model, x, y, window, **kw) -> Pose:
+        """:func:`acquire` of an instance whose trackers are at ``x``, ``y`` (its model
+        ``model``, as last placed): the rotation bounds taken about the rotation of its
+        trackers (:func:`fit_pose`), not about the model's last placement -- an object that
+        turned 200 degrees since it was placed is searched for where it turned to; the
+        scale bounds about its last placement's (the trackers of a lost instance may have
+        crowded together, and their fitted scale says little).  The pose is returned
+        relative to ``model``."""
+        fit = fit_pose(model, x, y)
+        now = Pose(fit.tx, fit.ty, fit.angle_deg, 1.0)
+        pose = acquire(place(model, now), window, **self.bounds, **kw)
+        return about(pose, now)
 
     def _claimed(self, snap, states, but: int | None = None) -> list:
         """The gates (x, y, sxx, sxy, syy) of the tracking instances' trackers (but
@@ -447,6 +485,8 @@ class Recovery:
                 del self._refine_at[g]
                 self._refine(t, g, snap, states)
                 snap = b.snapshot(t)
+            if self._recall(t, g, snap):
+                snap = b.snapshot(t)
             taken = float(np.sum(snap["activity"][inst.t0:inst.t1]))
             doubt = self.doubt.doubt(t, g, taken, mass, inst.n)
             if not doubt:
@@ -459,6 +499,30 @@ class Recovery:
                     self._verify_wait[g] = (self._verify_span if moved else
                                             min(2 * wait, VERIFY_BACKOFF * self.period))
                     self._verify_next[g] = t + wait
+
+    def _recall(self, t: int, g: int, snap) -> bool:
+        """Tracking instance g's trackers left behind (springtrack.recall), recalled to
+        their rest places in the frame of its active trackers: the instance placed with
+        them there and the others as they are, its rest geometry kept (``move`` by the
+        identity); True if any.  Backends that cannot move an instance do not recall."""
+        b = self.tr._ib
+        if not getattr(b, "movable", False) or t < self._recall_next.get(g, 0):
+            return False
+        inst = self.tr.models[g]
+        part = {k: np.asarray(snap[k])[inst.t0:inst.t1]
+                for k in ("x", "y", "sxx", "sxy", "syy", "active")}
+        params = self.tr.models.params
+        idx, placed = left_behind(inst.model, part, params.gate_d2,
+                                  lambda: self.ring.since(t - int(params.activity_tau_us)),
+                                  params.activity_threshold)
+        if not len(idx):
+            return False
+        b.place(g, recalled(inst.model, part, idx, placed))
+        b.move(g, (1.0, 0.0, 0.0, 0.0), inst.model)
+        self.doubt.hold_off(g, t)
+        self._recall_next[g] = t + self.rule.hold_us    # the activities built up again
+        self.recalls += len(idx)
+        return True
 
     def _verify(self, t: int, g: int, snap, states) -> bool:
         """Instance g is in doubt (or due) at t: search for it on the last ``period / 2``
@@ -473,11 +537,11 @@ class Recovery:
         inst = self.tr.models[g]
         model = inst.model
         claimed = self._claimed(snap, states, but=g)
-        pose = acquire(model, window, claimed=claimed, **self.bounds)
+        x, y = (np.asarray(snap[k], float)[inst.t0:inst.t1] for k in ("x", "y"))
+        pose = self._acquire_about(model, x, y, window, claimed=claimed)
         if not pose.found:
             return False
         placed = place(model, pose)
-        x, y = (np.asarray(snap[k], float)[inst.t0:inst.t1] for k in ("x", "y"))
         if _where_kept(placed, x, y):
             return False
         here = judge(model, window, fit_pose(model, x, y), claimed=claimed, at=(x, y))
@@ -505,5 +569,5 @@ class Recovery:
     def counters(self) -> dict:
         kinds = [c[2] for c in self.changes]
         return dict(reacquire_attempts=self.attempts, verifications=self.verifications,
-                    losses_refuted=self.refuted, moved=self.moves, acquired=kinds.count("acquired"),
+                    losses_refuted=self.refuted, moved=self.moves, recalled=self.recalls, acquired=kinds.count("acquired"),
                     lost=kinds.count("lost"), reacquired=kinds.count("reacquired"))

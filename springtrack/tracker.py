@@ -129,17 +129,6 @@ class ReferenceBackend:
         self.ref.move(g, sim, model)
 
 
-def _one_model(model, params, name):
-    """A kernel that holds one model instance: its model and parameters."""
-    if isinstance(model, ModelSet):
-        if len(model) > 1:
-            raise ValueError(f"backend {name!r} holds one model instance, not {len(model)} "
-                             f"({', '.join(i.label for i in model)}): several instances "
-                             f"run on backends 'cython' and 'reference' (docs/acquisition.md)")
-        return model[0].model, model[0].params
-    return model, params
-
-
 def _cython_backend(model, params, option):
     from ._kernel import Kernel
     return Kernel(model, params)         # one ShapeModel or a ModelSet
@@ -150,14 +139,19 @@ def _fixed_backend(model, params, option):
         mod = importlib.import_module("springtrack._fixed")
     except ImportError as e:
         raise ValueError(f"backend 'fixed' is not available in this build: {e}") from None
-    return mod.FixedKernel(*_one_model(model, params, "fixed"))
+    if isinstance(model, ModelSet):                       # one fx_state per instance
+        return mod.FixedSet(model if params is None else model.with_params(params))
+    return mod.FixedKernel(model, params)
 
 
 def _mcu_backend(model, params, option):
     from .mcu import MissingExtra
     try:
-        from .mcu.backend import DEFAULT_TARGET, McuBackend
-        return McuBackend(*_one_model(model, params, "mcu"), target=option or DEFAULT_TARGET)
+        from .mcu.backend import DEFAULT_TARGET, McuBackend, McuSet
+        if isinstance(model, ModelSet):                   # one fx_state per instance
+            return McuSet(model if params is None else model.with_params(params),
+                          target=option or DEFAULT_TARGET)
+        return McuBackend(model, params, target=option or DEFAULT_TARGET)
     except (MissingExtra, RuntimeError) as e:      # no toolchain, a failed build or run
         raise ValueError(f"backend 'mcu': {e}") from None
 
@@ -168,19 +162,12 @@ _FACTORIES = {"reference": lambda m, p, o: ReferenceBackend(m, p), "cython": _cy
 
 
 class _OneInstance:
-    """A kernel of one model instance (cython, fixed, mcu) seen through the instances'
-    interface.  Its state is kept here: while the instance is not tracking, the tracker
-    withholds the events from the kernel (:meth:`withhold`: each fed as an event off the
-    sensor, which moves the kernel's clock and its samples on but reaches no tracker and
-    no spring update), so its trackers are insensitive and keep their positions, as a
-    lost instance's are in the reference.  Placing it builds a new kernel of the placed
-    model; the counters of the kernels it replaced are kept."""
+    """A kernel of one model (fixed, mcu: placed by hand, without acquisition) seen through
+    the instances' interface.  Its one instance tracks throughout: states change only under
+    acquisition, which runs every backend on its kernel of a set (``Tracker._use``)."""
 
     def __init__(self, tracker):
         self.tr = tracker
-        self.state = int(TRACKING)
-        self.withheld = 0                    # events withheld while not tracking
-        self._done: dict = {}                # counters of the kernels replaced
 
     def __getattr__(self, key):
         return getattr(self.tr._b, key)
@@ -195,47 +182,22 @@ class _OneInstance:
         return self.tr._b.frame()
 
     def states(self):
-        return [self.state]
+        return [int(TRACKING)]
 
-    def set_state(self, g, state):
-        self.state = int(state)
-
-    def place(self, g, model):
-        old = self.counters()
-        self.tr._b = make_backend(self.tr.backend_name, model, self.tr.models[g].params)
-        self._done, self.withheld = old, 0
-        self.state = int(TRACKING)
-
-    movable = True          # every one-instance kernel moves its instance rigidly
+    movable = True          # every one-model kernel moves its instance rigidly
 
     def move(self, g, sim, model):
         """Instance g moved rigidly by ``sim`` (springtrack.reference.ReferenceTracker.move),
         ``model`` its model moved by the same similarity."""
         self.tr._b.move(sim, model)
 
-    def withhold(self, ev):
-        """``ev`` as the kernel sees it: as it is while tracking, else off the sensor."""
-        if self.state == TRACKING or not len(ev):
-            return ev
-        out = ev.copy()
-        inside = (out["x"] < self.tr.models.width) & (out["y"] < self.tr.models.height)
-        self.withheld += int(inside.sum())
-        out["x"] = self.tr.models.width
-        return out
-
     def snapshot(self, t):
         snap = self.tr._b.snapshot(t)
-        snap["state"] = np.full(len(snap["x"]), self.state, np.uint8)
+        snap["state"] = np.full(len(snap["x"]), TRACKING, np.uint8)
         return snap
 
     def counters(self):
-        c = dict(self.tr._b.counters())
-        c["events_valid"] += self.withheld        # as the reference counts them
-        c["skipped_outside_sensor"] -= self.withheld
-        for k, v in self._done.items():             # counts of the kernels replaced
-            if isinstance(v, (int, np.integer)) and not isinstance(v, bool):
-                c[k] = c.get(k, 0) + int(v)
-        return c
+        return dict(self.tr._b.counters())
 
 
 def make_backend(name: str, model: ShapeModel, params: Params):
@@ -287,6 +249,7 @@ class Tracker:
             for m in self.models.models:
                 check_inside(m)
         self.backend_name = backend
+        self._acquire = acquire
         self._use(self.models)
         self._sample_us = 0
         self._next_t = UNSET
@@ -301,8 +264,14 @@ class Tracker:
 
     def _use(self, mset: ModelSet) -> None:
         """A backend for ``mset``: ``_b`` the kernel, ``_ib`` the kernel with the
-        instances' interface (states, set_state, place)."""
-        self._b = make_backend(self.backend_name, mset, None)
+        instances' interface (states, set_state, place).  One instance placed by hand runs
+        on the backend's kernel of one model; several, or any with acquisition (whose
+        states change), on its kernel of a set (fixed: FixedSet, mcu: McuSet), which holds
+        a lost instance as the reference does."""
+        if len(mset) > 1 or self._acquire:
+            self._b = make_backend(self.backend_name, mset, None)
+        else:
+            self._b = make_backend(self.backend_name, mset[0].model, mset[0].params)
         self._ib = self._b if hasattr(self._b, "states") else _OneInstance(self)
 
     @property
@@ -428,9 +397,6 @@ class Tracker:
         """Run the backend over ``ev`` in calls of at most SAMPLE_CAP sample rows; yield
         each call's samples as a Track.  With the recovery the backend also samples at the
         loss rule's check times, whose rows go to the recovery first."""
-        one = self._ib if isinstance(self._ib, _OneInstance) else None
-        if one is not None:
-            ev = one.withhold(ev)
         rec = self.recovery
         q = self._sample_us
         p = q if rec is None else rec.sample_period(q)
@@ -446,8 +412,8 @@ class Tracker:
                 self._skipped += _multiples(start, self._next_t, q) - int(np.count_nonzero(t % q == 0))
             if not len(t):
                 continue
-            if one is not None:
-                out["trackers"]["state"] = one.state
+            if isinstance(self._ib, _OneInstance):      # its kernel keeps no states
+                out["trackers"]["state"] = TRACKING
             if rec is not None:      # the loss rule's checks are samples too
                 chk = t % LOSS_CHECK_US == 0
                 rec.rows(t[chk], out["trackers"]["active"][chk])
