@@ -343,7 +343,7 @@ def _run(args) -> int:
         print(f"shutdown: threads stopped in {(time.monotonic() - t_stop) * 1e3:.0f} ms"
               + (f" ({'; '.join(slow)})" if slow else ""), file=sys.stderr, flush=True)
     if not learn_said:
-        _say_learned(engine)
+        _say_learned(engine, args.learn_first_ms)
     if args.record:
         rows = engine.write_record(args.record)
         print(f"record: {rows} rows -> {args.record}", file=sys.stderr)
@@ -387,9 +387,15 @@ def learn_params(args) -> dict | None:
     return read_params(args.params)
 
 
-def _say_learned(engine) -> bool:
-    """Print what the learner found once it has (stderr); True once said."""
+def _say_learned(engine, window_ms: float | None = None) -> bool:
+    """Print what the learner found once it has (stderr); True once said.  With
+    ``window_ms`` (the run ends) a learner still learning says so: nothing was tracked."""
     le = engine.stats()["learn"]
+    if le and le["state"] == "learning" and window_ms is not None:
+        print(f"learn: the source ended within --learn-first-ms {window_ms:g} "
+              f"({le['events']:,} events held): no model learned, nothing tracked",
+              file=sys.stderr, flush=True)
+        return True
     if not le or le["state"] == "learning":
         return False
     if le["state"] == "failed":

@@ -354,3 +354,15 @@ def test_cli_track_learn_first_ms_on_noise_exits_3(tmp_path, capsys):
                 str(tmp_path / "t.csv"), "--no-progress"]) == NoObjectFound.exit_code
     err = capsys.readouterr().err
     assert err.startswith("springtrack track: --learn-first-ms 500 (") and "no object found" in err
+
+
+def test_firmware_sim_says_when_the_source_ends_inside_the_learning_window():
+    import subprocess
+    import sys
+    r = subprocess.run([sys.executable, "-m", "firmware_sim.cli", "run", "--source",
+                        "sim:grid_pull", "--seconds", "0.3", "--learn-first-ms", "1000",
+                        "--max-speed"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "learn: the source ended within --learn-first-ms 1000 (" in r.stderr
+    assert "events held): no model learned, nothing tracked" in r.stderr
+    assert "tracked=0 " in r.stdout and "learn=learning" in r.stdout
