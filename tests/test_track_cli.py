@@ -103,3 +103,17 @@ def test_a_missing_input_is_one_line_naming_the_file(tmp_path, capsys):
         rc, _, err = _cli(cmd, capsys)
         assert rc == 2
         assert err == f"springtrack {cmd[0]}: error: {missing}: No such file or directory\n"
+
+
+def test_sensor_from_takes_the_same_words_in_track_and_firmware_sim():
+    import argparse
+
+    from firmware_sim.cli import build_parser
+    from springtrack.commands import track
+    p = argparse.ArgumentParser()
+    track.add_arguments(p)
+    fw = build_parser()
+    for word in ("file", "source", "model"):
+        assert p.parse_args(["e.npy", "--out", "o.csv", "--sensor-from", word]).sensor_from == word
+        assert fw.parse_args(["run", "--source", "sim:grid_pull",
+                              "--sensor-from", word]).sensor_from == word

@@ -121,8 +121,9 @@ def read_events(reader):
 
 def add_sensor_from(p) -> None:
     """``--sensor-from``, shared by the commands that track a file with a model."""
-    p.add_argument("--sensor-from", choices=["file", "model"],
-                   help="a model whose [sensor] is not the input's is refused; 'file': track "
+    p.add_argument("--sensor-from", choices=["file", "source", "model"],
+                   help="a model whose [sensor] is not the input's is refused; 'file' (or "
+                        "'source', as in firmware-sim): track "
                         "it on the input's sensor (trackers where they are), 'model': keep "
                         "the model's sensor (events outside it skipped and counted)")
 
