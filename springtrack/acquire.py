@@ -52,9 +52,10 @@ Found
 Search
     Coarse to fine.  (1) Coarse: the count image summed into cells of sigma_c =
     R s_min / COARSE_DIV px (R: the model's radius about G); for each tracker size
-    (levels a factor sqrt 2 apart; tracker k at scale s reads the level of
-    sqrt((sigma_k s)^2 + sigma_c^2)) a score image log(1 + excess / threshold) of the
-    Gaussian-blurred count over a background that is either the global density or the
+    (levels o a factor sqrt 2 apart; tracker k at scale s reads the level of its own
+    size sigma_k s) a score image log(1 + excess / threshold) of the count in a gate of
+    that size (its area 2 pi o^2 times the count's density blurred by
+    sqrt(o^2 + sigma_c^2)) over a background that is either the global density or the
     density blurred SURROUND times wider (two searches, whose candidates are pooled:
     the first misses nothing in clean scenes, the second is not drawn to dense clutter);
     every rotation and scale of the bounds, in steps moving the outermost tracker by
@@ -68,11 +69,14 @@ Search
     weighted by each tracker's excess and a Cauchy weight of its residual, so that
     occluded, absent or distracted parts do not pull.  (3) The ``KEEP`` best after the
     annealing go on to convergence; the one of highest score is reported with its
-    support and confidence.
+    support and confidence.  Each refinement (the annealing, the convergence, the pose
+    at ``at_us``) replaces its start only if it scores no more than SCORE_TIE below it:
+    the EM fits where the events' mass is, which on a filled, textured object lies
+    inward of its outline, and can shrink a right pose into a worse one.
 
 Bounds (parameters, with defaults): ``region`` (x0, y0, x1, y1) for G, default the whole
 sensor; ``angle_deg`` (-45, 45); ``scale`` (0.6, 1.6).  The returned pose lies within them.
-Cost: about 11-13 ms of CPU for a face26 in 50 ms of 300 k events/s (docs/benchmarks.md).
+Cost: about 14-16 ms of CPU for a face26 in 50 ms of 300 k events/s (docs/benchmarks.md).
 """
 from __future__ import annotations
 
