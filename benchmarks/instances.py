@@ -6,9 +6,10 @@ and moving about its own place) or of the face (face_occlusion without its hand,
 0.4, moving half as much) side by side on the 304x240 sensor, or one face
 (face_occlusion).  Each row tracks the same events; events/s of CPU time:
 
-* N instances (``springtrack.Tracker([grid] * N)``) on the float kernel (``cython``) and
-  the ``reference``; 8 faces are 208 trackers, four mask words of the float kernel's
-  event assignment (one up to 64 trackers);
+* N instances (``springtrack.Tracker([grid] * N)``) on the float kernel (``cython``), the
+  integer-only one (``fixed``: one state per instance) and the ``reference``; 8 faces
+  are 208 trackers, four mask words of the float kernel's event assignment (one up to
+  64 trackers);
 * ``cython``/``fixed``, one instance, as placed and with ``acquire=True`` (the loss rule
   checked every LOSS_CHECK_US, the event ring, the acquisition of the first window):
   the overhead of springtrack.reacquire on the fast kernels.
@@ -69,7 +70,7 @@ def main() -> None:
             sc = scene(n)
             ev, _ = simulate_all(sc, args.seconds)
             models = sc.initial_models()
-            for backend, repeat in (("cython", args.repeat),
+            for backend, repeat in (("cython", args.repeat), ("fixed", args.repeat),
                                     ("reference", max(1, args.repeat - 2))):
                 r, tr = rate(models, ev, backend, repeat)
                 rows.append(f"| {backend}, {n} × {name} | {n} | {size * n} | {len(ev):,} | "
@@ -89,15 +90,15 @@ def main() -> None:
     body = (f"Machine: {machine()}.  Command: `.venv/bin/python benchmarks/instances.py "
             f"--seconds {args.seconds:g} --repeat {args.repeat}` (CPU time, best of the "
             f"repeats; the machine is shared).\n\n" + "\n".join(rows) + "\n\n"
-            "Several instances run on the float kernel (cython) and the reference; the "
-            "fixed and microcontroller kernels hold one (docs/acquisition.md).  On the float "
+            "Several instances run on every backend (docs/acquisition.md).  On the float "
             "kernel eq. (2) scans only the trackers indexed in the event's 8x8 px cell (one "
-            "mask word per 64 trackers), but every spring update (every spring_period "
-            "events, as in the reference) runs the springs of every tracking instance: N "
-            "instances are N times the spring work per event, which is most of the cost of "
-            "8 faces (320 connections).  The reference's argmin also grows with the "
-            "trackers of all instances.  acquire=True: the loss rule's checks, the doubt "
-            "checks and the verification searches (docs/acquisition.md).")
+            "mask word per 64 trackers); the fixed kernel searches each instance's spatial "
+            "index in turn (one state per instance, docs/fixed_point.md).  Every spring "
+            "update (every spring_period events, as in the reference) runs the springs of "
+            "every tracking instance: N instances are N times the spring work per event, "
+            "which is most of the cost of 8 faces (320 connections).  The reference's argmin "
+            "also grows with the trackers of all instances.  acquire=True: the loss rule's "
+            "checks, the doubt checks and the verification searches (docs/acquisition.md).")
     print(body)
     if not args.no_write:
         write_section("Instances: tracking throughput with 1, 2 and 8 instances", body)

@@ -16,11 +16,14 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import springtrack  # noqa: E402
 from springtrack.commands.mcu import CLOCKS  # noqa: E402
+from springtrack.instances import ModelSet  # noqa: E402
+from springtrack.mcu.backend import McuSet  # noqa: E402
 from springtrack.mcu.build import Capacity, cached_build  # noqa: E402
 from springtrack.mcu.profile import profile_events  # noqa: E402
 from springtrack.mcu.targets import TARGETS  # noqa: E402
 from springtrack.sim.sensor import simulate_all  # noqa: E402
 from springtrack.synthetic import blob_stream  # noqa: E402
+from springtrack.sampling import UNSET  # noqa: E402
 from springtrack.tracker import resolve_params  # noqa: E402
 
 from _report import machine, write_section  # noqa: E402
@@ -50,8 +53,9 @@ def main():
     ap.add_argument("--events", type=int, default=20_000)
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
-    rows, sizes = [], {}
+    rows, sizes, evs = [], {}, {}
     for label, preset, ev in streams(args.events):
+        evs[preset] = ev
         m = springtrack.load_model(preset)
         for tgt in TARGETS:
             t0 = time.perf_counter()
@@ -63,6 +67,15 @@ def main():
             print(f"{label:22s} {tgt:10s} {r['events']:>7,d} events  mean {r['mean']:7.1f}  "
                   f"p99 {r['p99']:7.0f}  springs {100 * r['spring_share']:4.1f} %  "
                   f"loads {r['mix']['loads']:.0f}  ({time.perf_counter() - t0:.1f} s)", flush=True)
+    # several instances (McuSet): the build for face26 with grid3x3, its stack on face events
+    pair = ModelSet([springtrack.load_model("face26"), springtrack.load_model("grid3x3")])
+    for tgt in TARGETS:
+        be = McuSet(pair, target=tgt)
+        be.run(evs["face26"], 1000, UNSET, 1 << 20)
+        b = be.build
+        sizes[("face26 + grid3x3 (2 instances)", tgt)] = (
+            b.flash_bytes, b.ram_bytes, b.objects.get("mcu_state", 0),
+            b.objects.get("mcu_cells", 0), be.emu.stack_used())
     lines = ["| stream | core | events | instructions / event (mean) | p50 | p99 | in spring updates | "
              "top functions (instructions / event) |", "|---|---|---:|---:|---:|---:|---:|---|"]
     for label, preset, tgt, r in rows:

@@ -31,6 +31,10 @@ cdef extern from "csrc/fixed_step.h" nogil:
     enum:
         FX_MAX_TRACKERS
         FX_MAX_CONNECTIONS
+        FX_MAX_INSTANCES
+        FX_MAX_SET_TRACKERS
+        FX_MAX_SET_CONNECTIONS
+        FX_TRACKING
         FX_OK
     const int64_t FX_POS_LIM
     ctypedef struct fx_state:          # the fields this wrapper reads (fixed_step.h)
@@ -57,6 +61,17 @@ cdef extern from "csrc/fixed_step.h" nogil:
         uint16_t x
         uint16_t y
         uint8_t p
+    ctypedef struct fx_set:
+        int32_t ni
+        fx_state* inst[FX_MAX_INSTANCES]
+        int32_t t0[FX_MAX_INSTANCES]
+        int32_t state[FX_MAX_INSTANCES]
+        int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates
+    int fx_set_init(fx_set* g, fx_state** inst, int32_t ni)
+    int fx_set_step(fx_set* g, int64_t t, int32_t x, int32_t y)
+    int64_t fx_set_steps(fx_set* g, const fx_event* ev, int64_t n, int64_t t_stop)
+    void fx_set_springs(fx_set* g)
+    void fx_set_state(fx_set* g, int q, int32_t state)
     int fx_load_model(fx_state* s, const int32_t* w, int32_t nw, uint64_t* cells, int32_t cap)
     int fx_set_params(fx_state* s, const int32_t* w, int32_t nw)
     int fx_move(fx_state* s, const int32_t* w, int32_t nw)
@@ -86,6 +101,10 @@ cdef extern from "csrc/fixed_telemetry.c":
 # fx_event mirrors springtrack.events' Event (same members in the same order)
 assert sizeof(fx_event) == sizeof(Event) == 16
 assert _limits.MAX_TRACKERS == FX_MAX_TRACKERS and _limits.MAX_CONNECTIONS == FX_MAX_CONNECTIONS
+assert (_limits.MAX_INSTANCES == FX_MAX_INSTANCES
+        and _limits.MAX_SET_TRACKERS == FX_MAX_SET_TRACKERS
+        and _limits.MAX_SET_CONNECTIONS == FX_MAX_SET_CONNECTIONS), \
+    "fixed_step.h FX_MAX_INSTANCES / FX_MAX_SET_* disagree with limits.py"
 assert FX_POS_LIM == _limits.POS_LIMIT_PX << 32, "fixed_step.h FX_POS_LIM disagrees with limits.py"
 # the C telemetry packer writes springtrack.wire's layout: the scales must be the same
 assert (_wire.TELE_TRACKER.itemsize == FX_TELE_RECORD
@@ -101,12 +120,11 @@ cdef double Q32_UNIT = 1.0 / 4294967296.0     # Q.32 (activity)
 cdef double Q40_UNIT = 1.0 / 1099511627776.0  # Q.40 (energies)
 
 
-cdef inline void snapshot_row(const fx_state* s, int64_t t, SampleOut* o) noexcept nogil:
-    cdef Py_ssize_t row = o.count, base = row * s.n
-    cdef int i, k, q
-    cdef int64_t a, tot
-    cdef TrackRow* r = o.trackers + base
-    o.t[row] = t
+cdef inline void tracker_rows(const fx_state* s, int64_t t, TrackRow* r,
+                              uint8_t state) noexcept nogil:
+    """The state's trackers at event time t as float64 rows r[0..n)."""
+    cdef int i
+    cdef int64_t a
     for i in range(s.n):
         a = fx_activity(s, i, t)
         r[i].x = s.mx[i] * POS_UNIT
@@ -117,13 +135,28 @@ cdef inline void snapshot_row(const fx_state* s, int64_t t, SampleOut* o) noexce
         r[i].activity = a * Q32_UNIT
         r[i].active = a > s.act_thr
         r[i].sensitive = (s.sensitive_mask >> i) & 1
-        r[i].state = 1
+        r[i].state = state
+
+
+cdef inline void energy_sums(const fx_state* s, int64_t* tot) noexcept nogil:
+    """Adds each kind's energies of the last spring update (Q.40) to tot[0..3)."""
+    cdef int k, q
     fx_energies(<fx_state*>s)     # the kinds the criterion does not use, computed when read
     for q in range(3):
-        tot = 0
         for k in range(s.nc):
-            tot += s.energy[q][k]
-        o.energy[row * 3 + q] = (<double>tot) * Q40_UNIT / s.nc if s.nc > 0 else 0.0
+            tot[q] += s.energy[q][k]
+
+
+cdef inline void snapshot_row(const fx_state* s, int64_t t, SampleOut* o) noexcept nogil:
+    cdef Py_ssize_t row = o.count, base = row * s.n
+    cdef int q
+    cdef int64_t tot[3]
+    o.t[row] = t
+    tracker_rows(s, t, o.trackers + base, 1)
+    tot[0] = tot[1] = tot[2] = 0
+    energy_sums(s, tot)
+    for q in range(3):
+        o.energy[row * 3 + q] = (<double>tot[q]) * Q40_UNIT / s.nc if s.nc > 0 else 0.0
     if o.wire != NULL:
         fx_tele_records(s, t, o.wire + base * FX_TELE_RECORD)
     o.count = row + 1
@@ -298,3 +331,181 @@ cdef class FixedKernel:
                     saturated_position=s.sat_position, saturated_activity=s.sat_activity,
                     saturated_energy=s.sat_energy, saturated_inverse=s.sat_inverse,
                     state_resets=s.n_resets)
+
+
+# ---- several model instances (springtrack.instances) ----------------------------------
+
+cdef void set_snapshot(const void* state, int64_t t, SampleOut* o) noexcept nogil:
+    """One row of every instance's trackers, side by side (an fx_set's states)."""
+    cdef const fx_set* g = <const fx_set*>state
+    cdef const fx_state* s
+    cdef int q, nc = 0
+    cdef int ntot = g.t0[g.ni - 1] + g.inst[g.ni - 1].n
+    cdef Py_ssize_t row = o.count, base = row * ntot
+    cdef int64_t tot[3]
+    o.t[row] = t
+    tot[0] = tot[1] = tot[2] = 0
+    for q in range(g.ni):
+        s = g.inst[q]
+        tracker_rows(s, t, o.trackers + base + g.t0[q], <uint8_t>g.state[q])
+        energy_sums(s, tot)
+        nc += s.nc
+        if o.wire != NULL:
+            fx_tele_records(s, t, o.wire + (base + g.t0[q]) * FX_TELE_RECORD)
+    for q in range(3):
+        o.energy[row * 3 + q] = (<double>tot[q]) * Q40_UNIT / nc if nc > 0 else 0.0
+    o.count = row + 1
+
+
+cdef int set_step(void* state, int64_t t, int x, int y) noexcept nogil:
+    return fx_set_step(<fx_set*>state, t, x, y)
+
+
+cdef Py_ssize_t set_steps(void* state, const Event* ev, Py_ssize_t n,
+                          int64_t t_stop) noexcept nogil:
+    return fx_set_steps(<fx_set*>state, <const fx_event*>ev, n, t_stop)
+
+
+_SET_COUNTERS = ("index_updates", "saturated_position", "saturated_activity",
+                 "saturated_energy", "saturated_inverse", "state_resets")
+
+
+cdef class FixedSet:
+    """Several model instances on the fixed kernel: one FixedKernel (fx_state) per
+    instance, and one event assignment over all of them (csrc/fixed_step.c's fx_set).
+    ``FixedSet(mset)``: a springtrack.instances.ModelSet, each instance with its own
+    parameters.  The backend interface of springtrack.tracker (run, snapshot, energies,
+    frame(g), counters, ...) and the instances' (states, set_state, place, move)."""
+
+    cdef fx_set* g
+    cdef list kernels
+    cdef object mset
+    cdef dict done                        # counters of the kernels place() replaced
+    movable = True
+
+    def __cinit__(self):
+        self.g = <fx_set*>calloc(1, sizeof(fx_set))
+        if self.g == NULL:
+            raise MemoryError()
+
+    def __dealloc__(self):
+        if self.g != NULL:
+            free(self.g)
+            self.g = NULL
+
+    def __init__(self, mset):
+        cdef fx_state* inst[FX_MAX_INSTANCES]
+        if len(mset) > FX_MAX_INSTANCES or mset.n > FX_MAX_SET_TRACKERS \
+                or mset.nc > FX_MAX_SET_CONNECTIONS:
+            raise ValueError(f"{len(mset)} instances of {mset.n} trackers and {mset.nc} "
+                             f"connections exceed the fixed kernel's capacity "
+                             f"({FX_MAX_INSTANCES}, {FX_MAX_SET_TRACKERS}, "
+                             f"{FX_MAX_SET_CONNECTIONS})")
+        self.mset = mset
+        self.kernels = [FixedKernel(i.model, i.params) for i in mset]
+        for q, k in enumerate(self.kernels):
+            inst[q] = <fx_state*>(<FixedKernel>k).state
+        rc = fx_set_init(self.g, inst, len(self.kernels))
+        if rc != FX_OK:
+            raise ValueError(f"fixed kernel: the instances do not load (fx_set_init {rc})")
+        self.done = {}
+
+    cdef Stepper stepper(self):
+        cdef Stepper sp
+        sp.state = self.g
+        sp.step = set_step
+        sp.steps = set_steps
+        sp.snapshot = set_snapshot
+        sp.n = self.mset.n
+        sp.last_t = &self.g.last_t
+        sp.n_back = &self.g.n_back
+        sp.n_outside = &self.g.n_outside
+        sp.wire_records = True
+        return sp
+
+    def run(self, events, long long sample_us, long long next_t, Py_ssize_t cap):
+        """As FixedKernel.run, over every instance's trackers."""
+        return run_array(self.stepper(), events, sample_us, next_t, cap)
+
+    def step(self, long long t, int x, int y):
+        """One event; the winner's index among all trackers, or a NO_/SKIPPED_ code."""
+        return fx_set_step(self.g, t, x, y)
+
+    def springs(self):
+        fx_set_springs(self.g)
+
+    def set_params(self, params):
+        """One Params for every instance, or one per instance (the shared ones equal)."""
+        from springtrack.instances import per_instance
+        plist = per_instance(params, len(self.kernels))
+        self.mset = self.mset.with_params(plist)
+        for k, p in zip(self.kernels, plist):
+            k.set_params(p)
+
+    # ---- the instances' states --------------------------------------------------------
+    def states(self):
+        return [int(self.g.state[q]) for q in range(self.g.ni)]
+
+    def set_state(self, int g, state):
+        fx_set_state(self.g, g, int(state))
+
+    def place(self, int g, model):
+        """Instance g placed as ``model`` (the same trackers and connections): a kernel of
+        it, as loaded (activities 0, the frame at rest), on the set's clock; tracking."""
+        cdef FixedKernel old = self.kernels[g]
+        cdef FixedKernel k
+        self.mset = self.mset.replaced(g, model)
+        for key, v in old.counters().items():
+            if key in _SET_COUNTERS:
+                self.done[key] = self.done.get(key, 0) + v
+        k = FixedKernel(model, self.mset[g].params)
+        cdef fx_state* s = <fx_state*>k.state
+        s.last_t = self.g.last_t
+        s.n_valid = self.g.n_valid
+        s.n_back = self.g.n_back
+        s.n_outside = self.g.n_outside
+        self.kernels[g] = k
+        self.g.inst[g] = s
+        fx_set_state(self.g, g, FX_TRACKING)
+
+    def move(self, int g, sim, model):
+        """Instance g moved rigidly by ``sim`` (FixedKernel.move: fx_move on its state)."""
+        self.kernels[g].move(sim, model)
+        self.mset = self.mset.replaced(g, model)
+
+    # ---- observation ------------------------------------------------------------------
+    def snapshot(self, long long t):
+        parts = [k.snapshot(t) for k in self.kernels]
+        out = {f: np.concatenate([p[f] for p in parts]) for f in parts[0]}
+        out["state"] = np.concatenate([np.full(len(p["x"]), self.g.state[q], np.uint8)
+                                       for q, p in enumerate(parts)])
+        return out
+
+    def telemetry_records(self, long long t):
+        return b"".join(k.telemetry_records(t) for k in self.kernels)
+
+    def energies(self):
+        """(3, nc) array of every instance's energies, in order."""
+        return np.concatenate([k.energies() for k in self.kernels], axis=1)
+
+    @property
+    def mean_energy(self):
+        return self.kernels[0].mean_energy
+
+    def mean_energies(self):
+        return [k.mean_energy for k in self.kernels]
+
+    def frame(self, int g=0):
+        return self.kernels[g].frame()
+
+    @property
+    def last_t(self):
+        return self.g.last_t
+
+    def counters(self):
+        c = dict(events_valid=self.g.n_valid, events_assigned=self.g.n_assigned,
+                 skipped_back_in_time=self.g.n_back, skipped_outside_sensor=self.g.n_outside,
+                 spring_updates=self.g.n_spring_updates)
+        for key in _SET_COUNTERS:
+            c[key] = self.done.get(key, 0) + sum(k.counters()[key] for k in self.kernels)
+        return c

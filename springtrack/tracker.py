@@ -129,17 +129,6 @@ class ReferenceBackend:
         self.ref.move(g, sim, model)
 
 
-def _one_model(model, params, name):
-    """A kernel that holds one model instance: its model and parameters."""
-    if isinstance(model, ModelSet):
-        if len(model) > 1:
-            raise ValueError(f"backend {name!r} holds one model instance, not {len(model)} "
-                             f"({', '.join(i.label for i in model)}): several instances "
-                             f"run on backends 'cython' and 'reference' (docs/acquisition.md)")
-        return model[0].model, model[0].params
-    return model, params
-
-
 def _cython_backend(model, params, option):
     from ._kernel import Kernel
     return Kernel(model, params)         # one ShapeModel or a ModelSet
@@ -150,14 +139,19 @@ def _fixed_backend(model, params, option):
         mod = importlib.import_module("springtrack._fixed")
     except ImportError as e:
         raise ValueError(f"backend 'fixed' is not available in this build: {e}") from None
-    return mod.FixedKernel(*_one_model(model, params, "fixed"))
+    if isinstance(model, ModelSet):                       # one fx_state per instance
+        return mod.FixedSet(model if params is None else model.with_params(params))
+    return mod.FixedKernel(model, params)
 
 
 def _mcu_backend(model, params, option):
     from .mcu import MissingExtra
     try:
-        from .mcu.backend import DEFAULT_TARGET, McuBackend
-        return McuBackend(*_one_model(model, params, "mcu"), target=option or DEFAULT_TARGET)
+        from .mcu.backend import DEFAULT_TARGET, McuBackend, McuSet
+        if isinstance(model, ModelSet):                   # one fx_state per instance
+            return McuSet(model if params is None else model.with_params(params),
+                          target=option or DEFAULT_TARGET)
+        return McuBackend(model, params, target=option or DEFAULT_TARGET)
     except (MissingExtra, RuntimeError) as e:      # no toolchain, a failed build or run
         raise ValueError(f"backend 'mcu': {e}") from None
 
@@ -168,8 +162,8 @@ _FACTORIES = {"reference": lambda m, p, o: ReferenceBackend(m, p), "cython": _cy
 
 
 class _OneInstance:
-    """A kernel of one model instance (cython, fixed, mcu) seen through the instances'
-    interface.  Its state is kept here: while the instance is not tracking, the tracker
+    """A kernel of one model instance (cython, mcu; fixed with one) seen through the
+    instances' interface.  Its state is kept here: while the instance is not tracking, the tracker
     withholds the events from the kernel (:meth:`withhold`: each fed as an event off the
     sensor, which moves the kernel's clock and its samples on but reaches no tracker and
     no spring update), so its trackers are insensitive and keep their positions, as a
@@ -287,6 +281,7 @@ class Tracker:
             for m in self.models.models:
                 check_inside(m)
         self.backend_name = backend
+        self._acquire = acquire
         self._use(self.models)
         self._sample_us = 0
         self._next_t = UNSET
@@ -301,8 +296,14 @@ class Tracker:
 
     def _use(self, mset: ModelSet) -> None:
         """A backend for ``mset``: ``_b`` the kernel, ``_ib`` the kernel with the
-        instances' interface (states, set_state, place)."""
-        self._b = make_backend(self.backend_name, mset, None)
+        instances' interface (states, set_state, place).  One instance placed by hand runs
+        on the backend's kernel of one model; several, or any with acquisition (whose
+        states change), on its kernel of a set (fixed: FixedSet, mcu: McuSet), which holds
+        a lost instance as the reference does."""
+        if len(mset) > 1 or self._acquire:
+            self._b = make_backend(self.backend_name, mset, None)
+        else:
+            self._b = make_backend(self.backend_name, mset[0].model, mset[0].params)
         self._ib = self._b if hasattr(self._b, "states") else _OneInstance(self)
 
     @property

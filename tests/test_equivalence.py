@@ -136,8 +136,8 @@ def first_divergence_is_rounding_noise(model, prm, events) -> bool:
     """Replay kernel and reference event by event to their first disagreement (a different
     winner, a position apart by more than 1e-9 px, or a different sensitivity).  True when
     it is rounding amplified, not an error: eq. (2) decided between two candidates (or at
-    the gate) within 1e-9 in d^2; eqs. (21)-(22) decided on criterion energies all below
-    ENERGY_NOISE; or a position gap that crept up from rounding level under identical
+    the gate) within 1e-9 in d^2; eqs. (21)-(22) or the similarity frame's calm set decided
+    on criterion energies all below ENERGY_NOISE; or a position gap that crept up from rounding level under identical
     decisions (chaotic model).  False for any other disagreement: a genuine failure."""
     from springtrack._kernel import Kernel
     from springtrack.instances import ModelSet
@@ -158,10 +158,18 @@ def first_divergence_is_rounding_noise(model, prm, events) -> bool:
         gap = max(np.abs(np.array(ref.mx) - snap["x"]).max(),
                   np.abs(np.array(ref.my) - snap["y"]).max())
         differ = np.flatnonzero(np.array(ref.sensitive) != snap["sensitive"])
-        if len(differ):
+        def on_noise(trackers):
+            # a spring update whose criterion energies were all rounding noise: eqs.
+            # (21)-(22) and the calm set the similarity frame is fitted to decided on it
             return ref.n_spring_updates > updates and all(
                 max(ref.energy[ref.ekinds[g]][ref.c0[g]:ref.c1[g]], default=0.0) < ENERGY_NOISE
-                for g in {ref.inst[i] for i in differ})
+                for g in {ref.inst[i] for i in trackers})
+        if len(differ):
+            return on_noise(differ)
+        apart = np.flatnonzero(np.maximum(np.abs(np.array(ref.mx) - snap["x"]),
+                                          np.abs(np.array(ref.my) - snap["y"])) > 1e-9)
+        if len(apart) and on_noise(apart):
+            return True
         if gap > 1e-9:
             # same decisions all along: the gap grew out of rounding (chaotic dynamics: a
             # tracker thrown about by springs at the sensor edge) if it crept up, here by

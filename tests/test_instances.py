@@ -238,17 +238,10 @@ def test_track_cli_several_models_and_collided_ids(tmp_path, capsys):
     assert "add --acquire" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("backend", ["fixed", "mcu"])
-def test_the_integer_kernels_refuse_a_set_naming_its_instances(backend):
-    a, b = two_grids()
-    with pytest.raises(ValueError, match=f"backend '{backend}' holds one model instance, not 2 "
-                                         r"\(grid3x3#1, grid3x3#2\).*'cython' and 'reference'"):
-        springtrack.Tracker([a, b], backend=backend)
-
-
 def test_the_float_kernel_holds_a_set_up_to_the_limits():
     """16 instances of a 16-tracker model: 256 trackers (four mask words) and their
-    connections; each instance takes the events of its own blobs, as in the reference."""
+    connections; each instance takes the events of its own blobs, as in the reference;
+    the fixed kernel within its bound of the float kernel."""
     specs = [TrackerSpec(f"t{j}", 8.0 + 6.0 * (j % 4), 8.0 + 6.0 * (j // 4), (2.0, 0.0, 2.0))
              for j in range(16)]
     conns = [Connection(f"t{j}", f"t{j + 1}", ("euclidean",), 0.05) for j in range(15)]
@@ -272,6 +265,14 @@ def test_the_float_kernel_holds_a_set_up_to_the_limits():
     assert (ta.sensitive == tb.sensitive).all() and not ta.sensitive.all()   # eq. (21) acted
     with pytest.raises(ModelError, match="exceed the limit of 16"):
         springtrack.Tracker(models + models[:1])
+    # the integer kernel holds it too (one state per instance), within its bound
+    from fixed_bound import figures, violations
+    fx = springtrack.Tracker(models, backend="fixed")
+    tf = fx.run(ev, 1000)
+    assert fx.counters["events_assigned"] == tr.counters["events_assigned"]
+    assert not violations(figures(ta, tf)), violations(figures(ta, tf))
+    with pytest.raises(ModelError, match="exceed the limit of 16"):
+        springtrack.Tracker(models + models[:1], backend="fixed")
 
 
 def test_track_cli_several_models_on_the_default_backend(tmp_path, capsys):

@@ -59,16 +59,22 @@ def text_mnemonics(res):
     return {m for _, _, m, _ in d.disasm_lite(code, addr)}
 
 
+@pytest.mark.parametrize("instances", [1, 2])
 @pytest.mark.parametrize("target", list(TARGETS))
-def test_elf_needs_no_runtime_and_no_fpu(target):
+def test_elf_needs_no_runtime_and_no_fpu(target, instances):
+    """The build for face26, and for face26 with grid3x3 (several instances: fx_set), which
+    a build for one instance leaves out."""
+    from springtrack.instances import ModelSet
     m = springtrack.load_model("face26")
-    res = cached_build(target, Capacity.of_model(m))
+    res = cached_build(target, Capacity.of_model(m if instances == 1 else
+                                                 ModelSet([m, springtrack.load_model("grid3x3")])))
     syms = symbols(res.elf)
     assert not [n for n, _, shndx in syms if shndx == "SHN_UNDEF"], "undefined symbols"
     bad = [n for n, _, _ in syms if RUNTIME.match(n)]
     assert not bad, f"runtime helpers in the ELF: {bad}"
     funcs = {n for n, t, _ in syms if t == "STT_FUNC"}
     assert {"mcu_main", "fx_steps", "fx_springs", "update_tracker"} <= funcs
+    assert ("fx_set_steps" in funcs) == (instances > 1)
     mn = text_mnemonics(res)
     assert len(mn) > 20
     fpu = {x for x in mn if (x.startswith("v") if res.target.arch == "arm" else
@@ -268,6 +274,74 @@ def test_after_a_reacquisition_the_firmware_moves_as_the_fixed_kernel():
 
 
 # ---- command line ----------------------------------------------------------------------
+# ---- several model instances (springtrack.instances): McuSet == FixedSet ----------------
+SET_CAP = Capacity(trackers=6, connections=8, width=96, height=80, instances=3, set_trackers=18)
+
+
+def run_set(models, params, ev, backend, steps=()):
+    """(tracker, tracks) of a set of ``models`` on ``ev`` cut in len(steps) + 1 parts, each
+    step (a function of the tracker's instances interface) applied between two parts."""
+    tr = Tracker(models, params=params, backend="fixed")
+    if backend == "mcu":
+        from springtrack.mcu.backend import McuSet
+        tr._b = tr._ib = McuSet(tr.models, capacity=SET_CAP)
+    parts = np.array_split(ev, len(steps) + 1)
+    out = [tr.run(parts[0], sample_us=200)]
+    for step, part in zip(steps, parts[1:]):
+        step(tr._ib)
+        out.append(tr.run(part, sample_us=200))
+    return tr, out
+
+
+def assert_same_sets(a, b):
+    (ta, pa), (tb, pb) = a, b
+    for x, y in zip(pa, pb):
+        for f in FIELDS + ("state",):
+            assert np.array_equal(getattr(x, f), getattr(y, f)), f
+    assert ta.counters == tb.counters and ta._ib.states() == tb._ib.states()
+    assert np.array_equal(ta._b.energies(), tb._b.energies())
+    assert ta._ib.mean_energies() == tb._ib.mean_energies()
+    assert all(ta._ib.frame(q) == tb._ib.frame(q) for q in range(len(ta.models)))
+
+
+@settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(st.lists(scenarios(), min_size=2, max_size=3), st.floats(-10.0, 10.0),
+       st.floats(-90.0, 90.0), st.integers(0, 2))
+def test_random_instance_sets_equal_the_host(scs, d, deg, lost):
+    """Two or three random models in one tracker (the first's parameters and stream, which
+    covers the sensor: their trackers compete for its events), with an instance moved, one
+    lost then placed again between parts of the stream: the firmware's set (MCU_SET_INIT)
+    gives the host's FixedSet integers bit for bit."""
+    from moves import similarity
+    models = [m for m, _, _ in scs]
+    _, params, ev = scs[0]
+    lost %= len(models)
+    sim, moved = similarity(models[-1], d, -d, deg, 1.0)
+    back = similarity(models[lost], -d, d, 0.0, 1.0)[1]
+    steps = (lambda ib: ib.move(len(models) - 1, sim, moved),
+             lambda ib: ib.set_state(lost, 2),
+             lambda ib: ib.place(lost, back))
+    assert_same_sets(*(run_set(models, params, ev, b, steps) for b in ("fixed", "mcu")))
+
+
+def test_a_face_and_a_grid_equal_the_host():
+    """A face and a grid with their presets' own parameters, on the build for exactly this
+    set (Capacity.of_model): the rows, states and counters of the host, bit for bit."""
+    from springtrack.model import face26, grid3x3
+    from springtrack.synthetic import blob_stream
+    g = grid3x3(cx=90, cy=120, spacing=30, sigma_px=4, width=400, height=240)
+    f = face26(cx=290, cy=120, scale=110, width=400, height=240)
+    ev = np.sort(np.concatenate([blob_stream(g, 2500, noise=0.1, seed=1)[0],
+                                 blob_stream(f, 5000, noise=0.1, seed=2)[0]]), order="t")
+    runs = []
+    for b in ("fixed", "mcu"):
+        tr = Tracker([g, f], params={"spring_period": 5}, backend=b)
+        runs.append((tr, [tr.run(ev, sample_us=1000)]))
+    assert type(runs[1][0]._b).__name__ == "McuSet" and len(runs[0][1][0]) > 10
+    assert runs[1][0]._b.build.capacity.instances == 2
+    assert_same_sets(*runs)
+
+
 def test_cli_build_prints_flash_and_ram(tmp_path, capsys):
     from springtrack.cli import main
     assert main(["mcu", "build", "--target", "rv32imac", "--out", str(tmp_path), "--model",

@@ -117,7 +117,7 @@ def _two_objects():
     return f, g, Together(f, g)
 
 
-@pytest.mark.parametrize("backend", ["cython", "reference"])
+@pytest.mark.parametrize("backend", ["cython", "fixed", "reference"])
 def test_two_objects_side_by_side_keep_their_identities(backend):
     f, g, both = _two_objects()
     ev, _ = simulate_all(both, 0.4)
@@ -178,7 +178,7 @@ def test_two_objects_one_jumping_the_float_kernel_equals_the_reference():
     assert all(ca[k] == cb[k] for k in cb), (ca, cb)
 
 
-@pytest.mark.parametrize("backend", ["cython", "reference"])
+@pytest.mark.parametrize("backend", ["cython", "fixed", "reference"])
 def test_two_instances_of_one_model_crossing_paths_keep_their_identities(backend):
     """Two grids pass each other (one right, one left, 60 px apart vertically, 10 px
     between their nearest rows while they cross): each instance stays on its own grid."""
@@ -242,7 +242,7 @@ def test_renderer_draws_lost_instances_grey_and_dotted(tmp_path):
         r.close()
 
 
-@pytest.mark.parametrize("backend", ["cython", "reference"])
+@pytest.mark.parametrize("backend", ["cython", "fixed", "reference"])
 def test_changes_and_rows_do_not_depend_on_how_the_input_is_cut(backend):
     sc = Disrupted(face(), hide_s=(0.2, 0.35))
     ev, _ = simulate_all(sc, 0.45)

@@ -26,7 +26,7 @@ the state after all events with t < t_us; a stretch without events is sampled fo
 written as they are taken: memory does not grow with the input's time span.  state: the
 tracker's model instance searching, tracking or lost.
 several objects: --model A --model B tracks both at once (one event assignment, springs
-and energies per instance; backends cython and reference); --instances N holds N instances of each
+and energies per instance; on every backend); --instances N holds N instances of each
 model (with --acquire: each found in turn, the ones found explaining their events away).
 Tracker ids stay as written when unique across the instances, else become NAME#K/ID.
 --acquire: the models' positions are not used; each instance is found (translation,

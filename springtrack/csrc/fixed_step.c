@@ -853,21 +853,20 @@ static inline __attribute__((always_inline)) void candidate(const fx_state *s, i
     }
 }
 
-/* eq. (2) and eqs. (3)-(6) for one valid event at pixel (x, y): the sensitive trackers
-   indexed in the event's cell (mask), in index order, so ties resolve as in the reference's
-   full scan; the winner is updated.  Returns the winner or FX_NO_TRACKER. */
-static inline __attribute__((always_inline)) int assign(fx_state *s, uint64_t mask, int64_t t,
-                                                        int32_t x, int32_t y)
+/* eq. (2) for one valid event at pixel (x, y): the sensitive trackers indexed in the
+   event's cell (mask), in index order, so ties resolve as in the reference's full scan.
+   Returns the best tracker within the gate (its d^2 in *best_d2, which holds the gate on
+   entry) or FX_NO_TRACKER. */
+static inline __attribute__((always_inline)) int search(const fx_state *s, uint64_t mask,
+                                                        int32_t x, int32_t y, uint32_t *best_d2)
 {
-    int64_t fx = shl64(x, FX_POS_FRAC), fy = shl64(y, FX_POS_FRAC);
-    uint32_t best_d2 = s->gate;
     uint64_t m = s->cells[(y >> FX_CELL_SHIFT) * s->gw + (x >> FX_CELL_SHIFT)] & mask;
     int best = FX_NO_TRACKER;
 #if FX_WORD64
     while (m) {                                           /* index order: ties as the reference */
         int i = __builtin_ctzll(m);
         m &= m - 1;
-        candidate(s, i, x, y, &best_d2, &best);
+        candidate(s, i, x, y, best_d2, &best);
     }
 #else
     /* the mask's 32-bit halves in turn (low bits first: the same order), and a build for
@@ -878,12 +877,30 @@ static inline __attribute__((always_inline)) int assign(fx_state *s, uint64_t ma
         while (w) {
             int i = __builtin_ctz(w) + 32 * half;
             w &= w - 1;
-            candidate(s, i, x, y, &best_d2, &best);
+            candidate(s, i, x, y, best_d2, &best);
         }
     }
 #endif
+    return best;
+}
+
+/* eqs. (3)-(6) for the winner `best` of eq. (2) (its d^2 given) */
+static inline __attribute__((always_inline)) void take(fx_state *s, int best, int64_t t,
+                                                      int32_t x, int32_t y, uint32_t d2)
+{
+    update_tracker(s, best, t, shl64(x, FX_POS_FRAC) - s->mx[best],
+                   shl64(y, FX_POS_FRAC) - s->my[best], d2);
+}
+
+/* eq. (2) and eqs. (3)-(6) for one valid event at pixel (x, y): the winner is updated.
+   Returns the winner or FX_NO_TRACKER. */
+static inline __attribute__((always_inline)) int assign(fx_state *s, uint64_t mask, int64_t t,
+                                                        int32_t x, int32_t y)
+{
+    uint32_t best_d2 = s->gate;
+    int best = search(s, mask, x, y, &best_d2);
     if (best >= 0)
-        update_tracker(s, best, t, fx - s->mx[best], fy - s->my[best], best_d2);
+        take(s, best, t, x, y, best_d2);
     return best;
 }
 
@@ -911,43 +928,204 @@ int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y)
     return best;
 }
 
-/* fx_step over a batch, with the event counters, the clock and the sensitive mask kept in
-   registers (the springs are the only other writer of the mask) */
-int64_t fx_steps(fx_state *s, const fx_event *ev, int64_t n, int64_t t_stop)
+/* the batch loop of fx_steps (g NULL: state s) and fx_set_steps (the set g), the event
+   counters, the clock and (for s) the sensitive mask kept in registers (the springs are
+   the only other writer of the mask); inlined into each, so g's tests vanish */
+typedef struct {
+    int64_t k, last_t;
+    int32_t until, n_assigned, n_skipped, n_back;
+} batch;
+
+static inline __attribute__((always_inline)) int set_assign(fx_set *g, int64_t t, int32_t x,
+                                                            int32_t y);
+
+static inline __attribute__((always_inline)) batch steps_loop(fx_state *s, fx_set *g,
+                                                            const fx_event *ev, int64_t n,
+                                                            int64_t t_stop, int64_t last_t,
+                                                            int32_t since_spring)
 {
-    int64_t k, last_t = s->last_t;
-    int32_t n_assigned = 0, n_skipped = 0, n_back = 0;
-    uint32_t width = (uint32_t)s->width, height = (uint32_t)s->height;
-    int32_t until = s->period - s->since_spring;          /* >= 1 */
-    uint64_t mask = s->sensitive_mask;
-    for (k = 0; k < n; k++) {
-        int64_t t = ev[k].t;
-        uint32_t x = ev[k].x, y = ev[k].y;
-        if (st_sample_due(t, t_stop, last_t))
+    const fx_state *s0 = g ? g->inst[0] : s;
+    uint32_t width = (uint32_t)s0->width, height = (uint32_t)s0->height;
+    int32_t period = s0->period;
+    batch o = {0, last_t, period - since_spring, 0, 0, 0};   /* until >= 1 */
+    uint64_t mask = g ? 0 : s->sensitive_mask;
+    for (o.k = 0; o.k < n; o.k++) {
+        int64_t t = ev[o.k].t;
+        uint32_t x = ev[o.k].x, y = ev[o.k].y;
+        if (st_sample_due(t, t_stop, o.last_t))
             break;
-        if (t < last_t) {
-            n_back++;
+        if (t < o.last_t) {
+            o.n_back++;
             continue;
         }
-        last_t = t;
+        o.last_t = t;
         if (x >= width || y >= height) {
-            n_skipped++;
+            o.n_skipped++;
             continue;
         }
-        n_assigned += assign(s, mask, t, (int32_t)x, (int32_t)y) >= 0;
-        if (--until <= 0) {
-            until = s->period;
-            fx_springs(s);
-            mask = s->sensitive_mask;
+        if (g)
+            o.n_assigned += set_assign(g, t, (int32_t)x, (int32_t)y) >= 0;
+        else
+            o.n_assigned += assign(s, mask, t, (int32_t)x, (int32_t)y) >= 0;
+        if (--o.until <= 0) {
+            o.until = period;
+            if (g) {
+                fx_set_springs(g);
+            } else {
+                fx_springs(s);
+                mask = s->sensitive_mask;
+            }
         }
     }
-    s->last_t = last_t;
-    s->since_spring = s->period - until;
-    s->n_valid += k - n_back - n_skipped;
-    s->n_assigned += n_assigned;
-    s->n_back += n_back;
-    s->n_outside += n_skipped;
-    return k;
+    return o;
+}
+
+/* fx_step over a batch */
+int64_t fx_steps(fx_state *s, const fx_event *ev, int64_t n, int64_t t_stop)
+{
+    batch o = steps_loop(s, 0, ev, n, t_stop, s->last_t, s->since_spring);
+    s->last_t = o.last_t;
+    s->since_spring = s->period - o.until;
+    s->n_valid += o.k - o.n_back - o.n_skipped;
+    s->n_assigned += o.n_assigned;
+    s->n_back += o.n_back;
+    s->n_outside += o.n_skipped;
+    return o.k;
+}
+
+/* ---- several model instances (springtrack.instances) ---------------------------------
+   One fx_state per instance: its trackers, connections, gains, criteria, springs,
+   energies, centre of mass and similarity frame are its own.  The set runs one event
+   assignment over all of them, one clock and one spring period. */
+
+/* [ref] step, eq. (2) over the union: each tracking instance's best tracker in turn, one
+   starting from the best d^2 so far so that only a strictly smaller one wins (ties: the
+   lowest instance, and in it the lowest index, as the reference's scan over all
+   trackers); the winner is updated (eqs. 3-6).  Returns its index among all trackers. */
+static inline __attribute__((always_inline)) int set_assign(fx_set *g, int64_t t, int32_t x,
+                                                            int32_t y)
+{
+    uint32_t best_d2 = g->inst[0]->gate;                  /* p_threshold: one for all */
+    int best = FX_NO_TRACKER, owner = 0, q;
+    for (q = 0; q < g->ni; q++) {
+        const fx_state *s = g->inst[q];
+        uint32_t d2 = best_d2;
+        int i;
+        if (g->state[q] != FX_TRACKING)
+            continue;
+        i = search(s, s->sensitive_mask, x, y, &d2);
+        if (i >= 0) {
+            best = i;
+            best_d2 = d2;
+            owner = q;
+        }
+    }
+    if (best < 0)
+        return FX_NO_TRACKER;
+    take(g->inst[owner], best, t, x, y, best_d2);
+    return g->t0[owner] + best;
+}
+
+/* [ref] springs: every tracking instance's springs and criteria (eqs. 7-22) and its guard */
+void fx_set_springs(fx_set *g)
+{
+    int q;
+    g->n_spring_updates++;
+    for (q = 0; q < g->ni; q++)
+        if (g->state[q] == FX_TRACKING)
+            fx_springs(g->inst[q]);
+}
+
+/* the set's clock and event counts, copied into every instance (fx_set_params reads them) */
+static void set_sync(fx_set *g)
+{
+    int q;
+    for (q = 0; q < g->ni; q++) {
+        fx_state *s = g->inst[q];
+        s->last_t = g->last_t;
+        s->n_valid = g->n_valid;
+        s->n_back = g->n_back;
+        s->n_outside = g->n_outside;
+    }
+}
+
+int fx_set_step(fx_set *g, int64_t t, int32_t x, int32_t y)
+{
+    const fx_state *s0 = g->inst[0];
+    int best;
+    if (t < g->last_t) {
+        g->n_back++;
+        set_sync(g);
+        return FX_BACK_IN_TIME;
+    }
+    g->last_t = t;
+    if (x >= s0->width || y >= s0->height || x < 0 || y < 0) {
+        g->n_outside++;
+        set_sync(g);
+        return FX_OUT_OF_SENSOR;
+    }
+    g->n_valid++;
+    set_sync(g);
+    best = set_assign(g, t, x, y);
+    if (best >= 0)
+        g->n_assigned++;
+    if (++g->since_spring >= s0->period) {
+        g->since_spring = 0;
+        fx_set_springs(g);
+    }
+    return best;
+}
+
+/* fx_steps for a set: the same loop, the sampling rule's stop included */
+int64_t fx_set_steps(fx_set *g, const fx_event *ev, int64_t n, int64_t t_stop)
+{
+    batch o = steps_loop(0, g, ev, n, t_stop, g->last_t, g->since_spring);
+    g->last_t = o.last_t;
+    g->since_spring = g->inst[0]->period - o.until;
+    g->n_valid += o.k - o.n_back - o.n_skipped;
+    g->n_assigned += o.n_assigned;
+    g->n_back += o.n_back;
+    g->n_outside += o.n_skipped;
+    set_sync(g);
+    return o.k;
+}
+
+/* Instance q's state (springtrack.instances.InstanceState): a tracking instance's
+   trackers are all sensitive (the next spring update decides eq. 21 again), the others'
+   none, and only tracking instances take events and run their springs. */
+void fx_set_state(fx_set *g, int q, int32_t state)
+{
+    fx_state *s = g->inst[q];
+    g->state[q] = state;
+    s->sensitive_mask = state != FX_TRACKING ? 0
+                        : s->n == 64 ? ~(uint64_t)0 : ((uint64_t)1 << s->n) - 1;
+}
+
+/* A set of the ni loaded states inst[0..ni), all tracking, the clock and counts zero. */
+int fx_set_init(fx_set *g, fx_state *const *inst, int32_t ni)
+{
+    int32_t q, t0 = 0, c = 0;
+    if (ni < 1 || ni > FX_MAX_INSTANCES)
+        return FX_ERR_CAPACITY;
+    for (q = 0; q < ni; q++) {
+        t0 += inst[q]->n;
+        c += inst[q]->nc;
+        if (inst[q]->width != inst[0]->width || inst[q]->height != inst[0]->height)
+            return FX_ERR_RANGE;
+    }
+    if (t0 > FX_MAX_SET_TRACKERS || c > FX_MAX_SET_CONNECTIONS)
+        return FX_ERR_CAPACITY;
+    g->ni = ni;
+    g->since_spring = 0;
+    g->last_t = -((int64_t)1 << 62);
+    g->n_valid = g->n_assigned = g->n_back = g->n_outside = g->n_spring_updates = 0;
+    for (q = 0, t0 = 0; q < ni; q++) {
+        g->inst[q] = inst[q];
+        g->t0[q] = t0;
+        t0 += inst[q]->n;
+        fx_set_state(g, q, FX_TRACKING);
+    }
+    return FX_OK;
 }
 
 /* eq. (6) evaluated lazily at time t, Q.32 */

@@ -46,6 +46,13 @@
 #ifndef FX_MAX_CONNECTIONS
 #define FX_MAX_CONNECTIONS 128
 #endif
+/* several model instances in one tracker (springtrack.limits: MAX_INSTANCES,
+   MAX_SET_TRACKERS, MAX_SET_CONNECTIONS): one fx_state per instance, in an fx_set */
+#ifndef FX_MAX_INSTANCES
+#define FX_MAX_INSTANCES 16
+#endif
+#define FX_MAX_SET_TRACKERS 256
+#define FX_MAX_SET_CONNECTIONS 512
 #define FX_CELL_SHIFT 3                     /* spatial index cells of 8 x 8 px */
 #define FX_POS_FRAC 32                      /* positions Q.32 */
 #define FX_POS_LIM ((int64_t)8192 << 32)    /* |position| < 8192 px */
@@ -168,6 +175,21 @@ typedef struct {
     int32_t since_spring;
 } fx_state;
 
+/* Several model instances (springtrack.instances): one loaded fx_state per instance
+   (its trackers, connections, parameters, springs, energies and similarity frame), and
+   one event assignment over them: eq. (2)'s argmin over the union of the tracking
+   instances' sensitive trackers, ties to the lowest instance, then the lowest index; one
+   clock, one count of valid events and one spring period (the shared parameters:
+   springtrack.instances.SHARED_PARAMS, equal in every instance). */
+enum { FX_SEARCHING = 0, FX_TRACKING = 1, FX_LOST = 2 };   /* instances.InstanceState */
+typedef struct {
+    int32_t ni, since_spring;
+    fx_state *inst[FX_MAX_INSTANCES];
+    int32_t t0[FX_MAX_INSTANCES];             /* instance q's trackers: t0[q] + [0, n) */
+    int32_t state[FX_MAX_INSTANCES];          /* FX_SEARCHING, FX_TRACKING, FX_LOST */
+    int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates;
+} fx_set;
+
 /* one event as springtrack.events.EVENT_DTYPE lays it out (16 bytes, springtrack/events.pxd) */
 typedef struct {
     int64_t t;
@@ -197,6 +219,14 @@ int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y);
    Stepper's steps(), _stepper.pxd) */
 int64_t fx_steps(fx_state *s, const fx_event *ev, int64_t n, int64_t t_stop);
 void fx_springs(fx_state *s);
+/* the set: fx_set_init over ni loaded states (each with its parameters), then fx_set_step
+   / fx_set_steps as fx_step / fx_steps (the winner's index among all trackers); the
+   clock and event counts are copied into every instance */
+int fx_set_init(fx_set *g, fx_state *const *inst, int32_t ni);
+int fx_set_step(fx_set *g, int64_t t, int32_t x, int32_t y);
+int64_t fx_set_steps(fx_set *g, const fx_event *ev, int64_t n, int64_t t_stop);
+void fx_set_springs(fx_set *g);
+void fx_set_state(fx_set *g, int q, int32_t state);
 void fx_energies(fx_state *s);
 void fx_prepare(fx_state *s);
 void fx_refresh(fx_state *s, int i);

@@ -10,6 +10,7 @@ import numpy as np
 
 from .. import fixed_q
 from ..events import EVENT_DTYPE
+from ..instances import TRACKING, per_instance
 from ..track import TRACK_DTYPE, TRACK_FIELDS
 from ..wire import TELE_TRACKER
 from . import emulator as E
@@ -43,9 +44,9 @@ class McuBackend:
                    E.MCU_LOAD_MODEL, "model")
         self.set_params(params)
 
-    def _load(self, buf, words, cmd, what):
+    def _load(self, buf, words, cmd, what, inst: int = 0):
         self.emu.write(buf, words)
-        st = self.emu.call(cmd, nwords=len(words))["status"]
+        st = self.emu.call(cmd, nwords=len(words), inst=inst)["status"]
         if st != 0:
             raise ValueError(f"mcu backend: the {what} does not load (status {st})")
 
@@ -101,7 +102,7 @@ class McuBackend:
         """The first ``count`` integer rows (entry.c) and their TELEMETRY records."""
         w = self.emu.layout["row_words"]
         rows = self.emu.read_array("mcu_rows", np.int64, count * w).reshape(count, w)
-        per = self.emu.layout["trackers"] * TELE_RECORD
+        per = max(self.emu.layout["trackers"], self.emu.layout["set_trackers"]) * TELE_RECORD
         wire = self.emu.read_array("mcu_wire", np.uint8, count * per).reshape(count, per)
         return rows, wire[:, :self.n * TELE_RECORD]
 
@@ -120,7 +121,7 @@ class McuBackend:
         tr["activity"] = per[:, :, 5].astype(np.float64) * Q32_UNIT
         tr["active"] = (per[:, :, 6] & 1).astype(bool)
         tr["sensitive"] = ((per[:, :, 6] >> 1) & 1).astype(bool)
-        tr["state"] = 1
+        tr["state"] = per[:, :, 6] >> 2
         energy = (rows[:, 1:4].astype(np.float64) * Q40_UNIT / self.nc if self.nc
                   else np.zeros((len(rows), 3)))
         return {"t": rows[:, 0].copy(), "trackers": tr, "energy": energy, "wire": wire}
@@ -143,9 +144,12 @@ class McuBackend:
         return {f: tr[f].copy() for f in TRACK_FIELDS}
 
     def energies(self) -> np.ndarray:
-        self.emu.call(E.MCU_ENERGIES)
+        return self._energies(0, self.nc)
+
+    def _energies(self, inst: int, nc: int) -> np.ndarray:
+        self.emu.call(E.MCU_ENERGIES, inst=inst)
         c = self.emu.layout["connections"]
-        e = self.emu.read_array("mcu_energy", np.int64, 3 * c).reshape(3, c)[:, :self.nc]
+        e = self.emu.read_array("mcu_energy", np.int64, 3 * c).reshape(3, c)[:, :nc]
         return e.astype(np.float64) * Q40_UNIT
 
     def _counters(self) -> np.ndarray:
@@ -162,3 +166,74 @@ class McuBackend:
     def counters(self) -> dict:
         c = self._counters()
         return dict(zip(COUNTERS, (int(v) for v in c[:len(COUNTERS)])), state_resets=int(c[13]))
+
+
+class McuSet(McuBackend):
+    """Several model instances (springtrack.instances) in the firmware: one fx_state per
+    instance and one event assignment (entry.c MCU_SET_INIT, csrc/fixed_step.c fx_set),
+    bit for bit springtrack._fixed.FixedSet; its backend and instances' interface."""
+
+    movable = True
+
+    def __init__(self, mset, target: str = DEFAULT_TARGET, count: bool = False,
+                 capacity: Capacity | None = None):
+        self.mset = mset
+        self.model = mset[0].model
+        self.build = cached_build(target, capacity or Capacity.of_model(mset))
+        self.emu = E.Emulator(self.build, count=count)
+        self.n, self.nc = mset.n, mset.nc
+        for q in range(len(mset)):
+            self._load_instance(q)
+        self._load("mcu_words", np.array([len(mset)], np.int32), E.MCU_SET_INIT, "set")
+        self._states = [int(TRACKING)] * len(mset)
+
+    def _load_instance(self, q: int) -> None:
+        m = self.mset[q].model
+        self._load("mcu_words", fixed_q.model_words(m.arrays(), m.width, m.height),
+                   E.MCU_LOAD_MODEL, f"model of instance {self.mset[q].label}", inst=q)
+        self._load("mcu_words", fixed_q.params_words(self.mset[q].params, len(m.connections)),
+                   E.MCU_SET_PARAMS, "parameters", inst=q)
+
+    def set_params(self, params) -> None:
+        """One Params for every instance, or one per instance (the shared ones equal)."""
+        self.mset = self.mset.with_params(per_instance(params, len(self.mset)))
+        for q, inst in enumerate(self.mset):
+            self._load("mcu_words", fixed_q.params_words(inst.params, inst.nc),
+                       E.MCU_SET_PARAMS, "parameters", inst=q)
+
+    def states(self) -> list:
+        return list(self._states)
+
+    def set_state(self, g: int, state) -> None:
+        self.emu.write("mcu_words", np.array([int(state)], np.int32))
+        self.emu.call(E.MCU_SET_STATE, inst=g)
+        self._states[g] = int(state)
+
+    def place(self, g: int, model) -> None:
+        """Instance g loaded again as ``model`` (FixedSet.place), tracking."""
+        self.mset = self.mset.replaced(g, model)
+        self._load_instance(g)
+        self._states[g] = int(TRACKING)
+
+    def move(self, g: int, sim, model) -> None:
+        inst = self.mset[g]
+        words = fixed_q.move_words(sim, model, inst.n, inst.nc)
+        self.emu.write("mcu_words", words)
+        st = self.emu.call(E.MCU_MOVE, nwords=len(words), inst=g)["status"]
+        if st != 0:
+            raise ValueError(f"mcu backend: the move does not load (fx_move {st}): the model "
+                             f"must be the instance's own, moved")
+        self.mset = self.mset.replaced(g, model)
+
+    def energies(self) -> np.ndarray:
+        return np.concatenate([self._energies(q, inst.nc) for q, inst in enumerate(self.mset)],
+                              axis=1)
+
+    def mean_energies(self) -> list:
+        v = self.emu.read_array("mcu_means", np.int64)[:len(self.mset)]
+        return [float(x) * Q40_UNIT for x in v]
+
+    def frame(self, g: int = 0) -> tuple:
+        c, sn, gx, gy = (int(v) for v in self.emu.read_array("mcu_frames", np.int64)
+                         .reshape(-1, 4)[g])
+        return (c / 268435456.0, sn / 268435456.0, gx * POS_UNIT, gy * POS_UNIT)

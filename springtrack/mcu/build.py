@@ -20,6 +20,7 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..limits import MAX_INSTANCES, MAX_SET_TRACKERS
 from . import need
 from .targets import Target, target as get_target
 
@@ -38,14 +39,19 @@ RAM_SECTIONS = (".data", ".bss", ".stack")
 
 @dataclass(frozen=True)
 class Capacity:
-    """What the ELF is built for: trackers and connections of the model, and the sensor
-    (which sizes the spatial index: one 64-bit mask per 8 x 8 px cell)."""
+    """What the ELF is built for: trackers and connections of the model (of the largest,
+    with several instances), the sensor (which sizes the spatial index: one 64-bit mask
+    per 8 x 8 px cell, one index per instance), and the model instances and their trackers
+    in all."""
     trackers: int = 64
     connections: int = 128
     width: int = 1280
     height: int = 720
     events: int = 256          # event buffer (records of 16 bytes)
     rows: int = 4              # snapshot rows per call
+    instances: int = 1
+    set_trackers: int = 0      # trackers of all instances (0: one instance's)
+    states: bool = False       # the set's code (instance states) even for one instance
 
     def check(self):
         if not 1 <= self.trackers <= 64 or not 0 <= self.connections <= 128:
@@ -53,17 +59,33 @@ class Capacity:
                              f"is outside the kernel's 1..64 / 0..128")
         if not (1 <= self.width <= 8192 and 1 <= self.height <= 8192):
             raise ValueError(f"sensor {self.width}x{self.height} is outside 1..8192 px per side")
+        if not 1 <= self.instances <= MAX_INSTANCES or not self.set_trackers <= MAX_SET_TRACKERS:
+            raise ValueError(f"capacity {self.instances} instances / {self.set_trackers} trackers "
+                             f"in all is outside the kernel's 1..{MAX_INSTANCES} / "
+                             f"{MAX_SET_TRACKERS}")
 
     @property
     def cells(self) -> int:
         return (((self.width - 1) >> 3) + 1) * (((self.height - 1) >> 3) + 1)
 
     def defines(self) -> list[str]:
-        return [f"-DFX_MAX_TRACKERS={self.trackers}", f"-DFX_MAX_CONNECTIONS={max(self.connections, 1)}",
-                f"-DMCU_CELLS={self.cells}", f"-DMCU_EVENTS={self.events}", f"-DMCU_ROWS={self.rows}"]
+        d = [f"-DFX_MAX_TRACKERS={self.trackers}", f"-DFX_MAX_CONNECTIONS={max(self.connections, 1)}",
+             f"-DMCU_CELLS={self.cells}", f"-DMCU_EVENTS={self.events}", f"-DMCU_ROWS={self.rows}"]
+        if self.instances > 1 or self.states:
+            d += [f"-DMCU_INSTANCES={self.instances}", f"-DFX_MAX_INSTANCES={self.instances}",
+                  f"-DMCU_SET_TRACKERS={self.set_trackers or self.trackers * self.instances}",
+                  "-DMCU_SET=1"]
+        return d
 
     @classmethod
     def of_model(cls, model, **kw) -> "Capacity":
+        """Exactly ``model``: a ShapeModel, or a springtrack.instances.ModelSet (the set's
+        code, with the instances' states, even for one instance)."""
+        if hasattr(model, "instances"):
+            ms = model.models
+            return cls(max(len(m.trackers) for m in ms), max(len(m.connections) for m in ms),
+                       ms[0].width, ms[0].height, instances=len(ms), set_trackers=model.n,
+                       states=True, **kw)
         return cls(len(model.trackers), len(model.connections), model.width, model.height, **kw)
 
 

@@ -27,15 +27,15 @@ STACK_FILL = 0xA5
 
 # mcu_main commands (entry.c)
 MCU_NOP, MCU_LOAD_MODEL, MCU_SET_PARAMS, MCU_RUN, MCU_STEP, MCU_SNAPSHOT, MCU_ENERGIES, \
-    MCU_SPRINGS, MCU_MOVE = range(9)
+    MCU_SPRINGS, MCU_MOVE, MCU_SET_INIT, MCU_SET_STATE = range(11)
 # mcu_io_t (entry.c): int64 sample_us, next_t, t; int32 cmd, status, nwords, nevents, cap,
-# consumed, rows, pad
+# consumed, rows, inst
 IO = struct.Struct("<qqqiiiiiiii")
 IO_FIELDS = ("sample_us", "next_t", "t", "cmd", "status", "nwords", "nevents", "cap",
-             "consumed", "rows", "pad")
+             "consumed", "rows", "inst")
 # mcu_layout (entry.c)
 LAYOUT_FIELDS = ("trackers", "connections", "events", "rows", "cells", "words", "row_words",
-                 "counters")
+                 "counters", "instances", "set_trackers")
 
 
 # loads (each may take a second cycle) and divisions (multi-cycle) in the mix
