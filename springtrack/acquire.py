@@ -507,8 +507,8 @@ def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DE
         g = geo.g
         return Pose(float(g[0]), float(g[1]), 0.0, 1.0, 0.0, 0.0, False, 0, 0, n_ev)
     # every candidate through the annealing, the best few on to convergence; a refined
-    # pose replaces its start only if it scores at least as well, so the pose returned
-    # is the best one judged
+    # pose replaces its start only if it scores within SCORE_TIE of it, so the pose
+    # returned is the best one judged, within that tie
     start = [_better(ev.judge(*c, n_ev), ev.judge(*ev.refine(c, sig_c, lo, hi,
                                                               len(ANNEAL) + 2), n_ev))
              for c in cands]
