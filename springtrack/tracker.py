@@ -162,19 +162,12 @@ _FACTORIES = {"reference": lambda m, p, o: ReferenceBackend(m, p), "cython": _cy
 
 
 class _OneInstance:
-    """A kernel of one model instance (cython, mcu; fixed with one) seen through the
-    instances' interface.  Its state is kept here: while the instance is not tracking, the tracker
-    withholds the events from the kernel (:meth:`withhold`: each fed as an event off the
-    sensor, which moves the kernel's clock and its samples on but reaches no tracker and
-    no spring update), so its trackers are insensitive and keep their positions, as a
-    lost instance's are in the reference.  Placing it builds a new kernel of the placed
-    model; the counters of the kernels it replaced are kept."""
+    """A kernel of one model (fixed, mcu: placed by hand, without acquisition) seen through
+    the instances' interface.  Its one instance tracks throughout: states change only under
+    acquisition, which runs every backend on its kernel of a set (``Tracker._use``)."""
 
     def __init__(self, tracker):
         self.tr = tracker
-        self.state = int(TRACKING)
-        self.withheld = 0                    # events withheld while not tracking
-        self._done: dict = {}                # counters of the kernels replaced
 
     def __getattr__(self, key):
         return getattr(self.tr._b, key)
@@ -189,47 +182,22 @@ class _OneInstance:
         return self.tr._b.frame()
 
     def states(self):
-        return [self.state]
+        return [int(TRACKING)]
 
-    def set_state(self, g, state):
-        self.state = int(state)
-
-    def place(self, g, model):
-        old = self.counters()
-        self.tr._b = make_backend(self.tr.backend_name, model, self.tr.models[g].params)
-        self._done, self.withheld = old, 0
-        self.state = int(TRACKING)
-
-    movable = True          # every one-instance kernel moves its instance rigidly
+    movable = True          # every one-model kernel moves its instance rigidly
 
     def move(self, g, sim, model):
         """Instance g moved rigidly by ``sim`` (springtrack.reference.ReferenceTracker.move),
         ``model`` its model moved by the same similarity."""
         self.tr._b.move(sim, model)
 
-    def withhold(self, ev):
-        """``ev`` as the kernel sees it: as it is while tracking, else off the sensor."""
-        if self.state == TRACKING or not len(ev):
-            return ev
-        out = ev.copy()
-        inside = (out["x"] < self.tr.models.width) & (out["y"] < self.tr.models.height)
-        self.withheld += int(inside.sum())
-        out["x"] = self.tr.models.width
-        return out
-
     def snapshot(self, t):
         snap = self.tr._b.snapshot(t)
-        snap["state"] = np.full(len(snap["x"]), self.state, np.uint8)
+        snap["state"] = np.full(len(snap["x"]), TRACKING, np.uint8)
         return snap
 
     def counters(self):
-        c = dict(self.tr._b.counters())
-        c["events_valid"] += self.withheld        # as the reference counts them
-        c["skipped_outside_sensor"] -= self.withheld
-        for k, v in self._done.items():             # counts of the kernels replaced
-            if isinstance(v, (int, np.integer)) and not isinstance(v, bool):
-                c[k] = c.get(k, 0) + int(v)
-        return c
+        return dict(self.tr._b.counters())
 
 
 def make_backend(name: str, model: ShapeModel, params: Params):
@@ -429,9 +397,6 @@ class Tracker:
         """Run the backend over ``ev`` in calls of at most SAMPLE_CAP sample rows; yield
         each call's samples as a Track.  With the recovery the backend also samples at the
         loss rule's check times, whose rows go to the recovery first."""
-        one = self._ib if isinstance(self._ib, _OneInstance) else None
-        if one is not None:
-            ev = one.withhold(ev)
         rec = self.recovery
         q = self._sample_us
         p = q if rec is None else rec.sample_period(q)
@@ -447,8 +412,8 @@ class Tracker:
                 self._skipped += _multiples(start, self._next_t, q) - int(np.count_nonzero(t % q == 0))
             if not len(t):
                 continue
-            if one is not None:
-                out["trackers"]["state"] = one.state
+            if isinstance(self._ib, _OneInstance):      # its kernel keeps no states
+                out["trackers"]["state"] = TRACKING
             if rec is not None:      # the loss rule's checks are samples too
                 chk = t % LOSS_CHECK_US == 0
                 rec.rows(t[chk], out["trackers"]["active"][chk])
