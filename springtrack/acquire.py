@@ -52,9 +52,10 @@ Found
 Search
     Coarse to fine.  (1) Coarse: the count image summed into cells of sigma_c =
     R s_min / COARSE_DIV px (R: the model's radius about G); for each tracker size
-    (levels a factor sqrt 2 apart; tracker k at scale s reads the level of
-    sqrt((sigma_k s)^2 + sigma_c^2)) a score image log(1 + excess / threshold) of the
-    Gaussian-blurred count over a background that is either the global density or the
+    (levels o a factor sqrt 2 apart; tracker k at scale s reads the level of its own
+    size sigma_k s) a score image log(1 + excess / threshold) of the count in a gate of
+    that size (its area 2 pi o^2 times the count's density blurred by
+    sqrt(o^2 + sigma_c^2)) over a background that is either the global density or the
     density blurred SURROUND times wider (two searches, whose candidates are pooled:
     the first misses nothing in clean scenes, the second is not drawn to dense clutter);
     every rotation and scale of the bounds, in steps moving the outermost tracker by
@@ -68,11 +69,14 @@ Search
     weighted by each tracker's excess and a Cauchy weight of its residual, so that
     occluded, absent or distracted parts do not pull.  (3) The ``KEEP`` best after the
     annealing go on to convergence; the one of highest score is reported with its
-    support and confidence.
+    support and confidence.  Each refinement (the annealing, the convergence, the pose
+    at ``at_us``) replaces its start only if it scores no more than SCORE_TIE below it:
+    the EM fits where the events' mass is, which on a filled, textured object lies
+    inward of its outline, and can shrink a right pose into a worse one.
 
 Bounds (parameters, with defaults): ``region`` (x0, y0, x1, y1) for G, default the whole
 sensor; ``angle_deg`` (-45, 45); ``scale`` (0.6, 1.6).  The returned pose lies within them.
-Cost: about 11-13 ms of CPU for a face26 in 50 ms of 300 k events/s (docs/benchmarks.md).
+Cost: about 14-16 ms of CPU for a face26 in 50 ms of 300 k events/s (docs/benchmarks.md).
 """
 from __future__ import annotations
 
@@ -108,6 +112,7 @@ KEEP = 3                 # candidates refined to convergence after the annealing
 MAX_ITER = 60            # EM iterations at most after the annealing
 CONVERGED_PX = 0.02      # EM stops when no tracker moves more than this
 CAUCHY = 2.0             # residual scale of the robust weight, in tracker sigmas
+SCORE_TIE = 0.05         # a refinement lowering the score by more is not taken
 MIN_EVENTS = 20          # fewer events in the window: not found without searching
 
 DEFAULT_ANGLE_DEG = (-45.0, 45.0)
@@ -377,9 +382,12 @@ def _coarse(geo: _Geometry, img, rho, region, angles, scales):
         s = min(s * math.exp(step), s_hi)
     th_arr = np.array([p[0] for p in poses])
     s_arr = np.array([p[1] for p in poses])
-    # levels: sigma_eff = sqrt((sigma_k s)^2 + sig_c^2), quantised to sig_c * 2^(j/2)
-    sig_eff = np.sqrt((geo.sigma[None, :] * s_arr[:, None]) ** 2 + sig_c ** 2)
-    lev = np.ascontiguousarray(np.rint(2.0 * np.log2(sig_eff / sig_c)), dtype=np.int32)
+    # levels: the tracker's own size sigma_k s, quantised to o_min * 2^(j/2) (o_min the
+    # smallest at s_lo)
+    own = geo.sigma[None, :] * s_arr[:, None]
+    o_min = float(geo.sigma.min()) * s_lo
+    lev = np.ascontiguousarray(np.maximum(np.rint(2.0 * np.log2(own / o_min)), 0),
+                               dtype=np.int32)
     pad = int(math.ceil(geo.radius * s_hi / c0)) + 2
     # translation cells of the region (cell j's centre is j c0 + (c0 - 1) / 2)
     x0, y0, x1, y1 = region
@@ -401,7 +409,7 @@ def _coarse(geo: _Geometry, img, rho, region, angles, scales):
     rms_q = math.sqrt(float(np.mean((geo.q ** 2).sum(1)))) or 1.0
     chosen, placed = [], np.empty((0, geo.k, 2))
     for surround in SURROUNDS:
-        levels = _levels(cells, c0, sig_c, int(lev.max()) + 1, pad, rho, surround)
+        levels = _levels(cells, c0, sig_c, o_min, int(lev.max()) + 1, pad, rho, surround)
         best_idx = np.zeros((TOP_N, 3), np.int32)
         best = np.full(TOP_N, -np.inf, np.float32)
         score_grid(levels, off, lev, weight, jy1 - jy0, jx1 - jx0, plane, best_idx, best)
@@ -426,18 +434,22 @@ def _coarse(geo: _Geometry, img, rho, region, angles, scales):
     return chosen, sig_c
 
 
-def _levels(cells, c0: int, sig_c: float, n_lev: int, pad: int, rho: float,
-            surround: float):
-    """(n_lev, Hp, Wp) padded coarse score images: level j for trackers of size
-    sig = sig_c 2^(j/2), log(1 + excess / threshold) of the count expected under a
-    tracker of that size (the cells blurred by sig, times 2 pi sig^2) over the
-    background (the global density rho, or with ``surround`` > 0 the density blurred
-    ``surround`` times wider when higher); OUT_OF_VIEW outside the sensor."""
+def _levels(cells, c0: int, sig_c: float, o_min: float, n_lev: int, pad: int,
+            rho: float, surround: float):
+    """(n_lev, Hp, Wp) padded coarse score images: level j for trackers of own size
+    o = o_min 2^(j/2), log(1 + excess / threshold) of the count expected in a tracker's
+    gate of that size (its area 2 pi o^2 times the density of the cells blurred by
+    sqrt(o^2 + sig_c^2)) over the background of the same area (the global density rho,
+    or with ``surround`` > 0 the density blurred ``surround`` times wider when higher);
+    OUT_OF_VIEW outside the sensor.  The area is the tracker's own, not the blur's: a
+    gate no larger than a coarse cell would make a shrunk model's trackers collect as
+    many events as full-sized ones, and pile onto the densest events."""
     ny_c, nx_c = cells.shape
     levels = np.full((n_lev, ny_c + 2 * pad, nx_c + 2 * pad), OUT_OF_VIEW, np.float32)
     for j in range(n_lev):
-        sig = sig_c * 2.0 ** (j / 2)
-        area = 2 * math.pi * sig * sig
+        o = o_min * 2.0 ** (j / 2)
+        sig = math.hypot(o, sig_c)
+        area = 2 * math.pi * o * o
         b = area * rho
         if surround:
             b = area * np.maximum(rho, _density(cells, sig / c0 * surround) / (c0 * c0))
@@ -494,11 +506,15 @@ def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DE
     if not cands:
         g = geo.g
         return Pose(float(g[0]), float(g[1]), 0.0, 1.0, 0.0, 0.0, False, 0, 0, n_ev)
-    # every candidate through the annealing, the best few on to convergence
-    early = [ev.refine(c, sig_c, lo, hi, len(ANNEAL) + 2) for c in cands]
-    scores = [ev.judge(*p, n_ev).score for p in early]
-    kept = [early[i] for i in np.argsort(scores)[::-1][:KEEP]]
-    final = [ev.judge(*ev.refine(p, 0.0, lo, hi, MAX_ITER), n_ev) for p in kept]
+    # every candidate through the annealing, the best few on to convergence; a refined
+    # pose replaces its start only if it scores within SCORE_TIE of it, so the pose
+    # returned is the best one judged, within that tie
+    start = [_better(ev.judge(*c, n_ev), ev.judge(*ev.refine(c, sig_c, lo, hi,
+                                                              len(ANNEAL) + 2), n_ev))
+             for c in cands]
+    kept = sorted(start, key=lambda p: p.score, reverse=True)[:KEEP]
+    final = [_better(p, ev.judge(*ev.refine(_params(p), 0.0, lo, hi, MAX_ITER), n_ev))
+             for p in kept]
     best = max(final, key=lambda p: p.score)
     if at_us is None:
         return best
@@ -506,8 +522,10 @@ def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DE
     near = np.argsort(np.abs(evs["t"] - int(at_us)), kind="stable")[:max(len(evs) // 4, 1)]
     img_at, _ = _evidence_image(evs[np.sort(near)], w, h, claimed)
     ev_at = _Evidence(geo, img_at, background_density(img_at))
-    mid = np.array([best.tx, best.ty, math.radians(best.angle_deg), best.scale])
+    mid = np.array(_params(best))
     q = np.array(ev_at.refine(tuple(mid), 0.0, lo, hi, MAX_ITER))
+    if ev_at.judge(*q, n_ev).score < ev_at.judge(*mid, n_ev).score - SCORE_TIE:
+        return best                  # the refinement on those events lowered the score
     # the refined pose holds at the mean time of the events it saw (t_q), the window's
     # pose at the mean of all (t_m): carry the motion between them on to at_us,
     # pose(at) = q + (q - mid) (at - t_q) / (t_q - t_m)
@@ -519,6 +537,18 @@ def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DE
             q = np.clip(q + (q - mid) * f, lo, hi)
     tx, ty, th, s = (float(v) for v in q)
     return replace(best, tx=tx, ty=ty, angle_deg=math.degrees(th), scale=s)
+
+
+def _params(pose: Pose) -> tuple:
+    """(tx, ty, theta, s) of a pose, as the refinement takes it."""
+    return pose.tx, pose.ty, math.radians(pose.angle_deg), pose.scale
+
+
+def _better(start: Pose, refined: Pose) -> Pose:
+    """The refined pose unless it scores lower than its start by more than SCORE_TIE
+    (the judge's flat top: a pose a few px off can score a hair higher than the EM's
+    precise fit), else the start."""
+    return refined if refined.score >= start.score - SCORE_TIE else start
 
 
 def judge(model, events, pose, *, width: int | None = None, height: int | None = None,
