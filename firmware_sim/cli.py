@@ -65,18 +65,18 @@ def build_parser() -> argparse.ArgumentParser:
                    help="track only the events of this region of the sensor (px); the others "
                         "are counted (outside_roi)")
     m = r.add_mutually_exclusive_group()
-    m.add_argument("--model", help="shape model TOML file")
+    m.add_argument("--model", help="shape model: TOML file or preset name (as --preset)")
     m.add_argument("--preset", help="preset model name (face26, grid3x3)")
     m.add_argument("--learn-first-ms", type=float, metavar="MS",
                    help="learn the model from the stream's first MS ms of event time "
                         "(springtrack learn; docs/learning.md), then track with it from "
                         "where the window ends; --params are written into the learned model")
     r.add_argument("--params", help="TOML file of parameter overrides")
-    r.add_argument("--sensor-from", choices=["source", "model"],
-                   help="a model whose [sensor] is not the camera's is refused; 'source': "
-                        "use it on the camera's sensor (trackers where they are), 'model': "
-                        "keep its sensor (events outside it skipped and counted); applies "
-                        "to uploaded models too")
+    r.add_argument("--sensor-from", choices=["source", "file", "model"],
+                   help="a model whose [sensor] is not the camera's is refused; 'source' "
+                        "(or 'file', as in springtrack track): use it on the camera's sensor "
+                        "(trackers where they are), 'model': keep its sensor (events "
+                        "outside it skipped and counted); applies to uploaded models too")
     r.add_argument("--backend", default="cython", choices=["cython", "fixed", "mcu"],
                    help="tracker kernel: float64 'cython' (default), the integer-only "
                         "'fixed' kernel of docs/fixed_point.md (positions Q.32 px), or 'mcu': "
@@ -94,7 +94,8 @@ def build_parser() -> argparse.ArgumentParser:
                     help="simulated camera serves data as fast as the loop takes it "
                          "(lossless: the reader waits for a free buffer instead of dropping)")
     r.add_argument("--faults", default="", help="comma-separated fault names to inject")
-    r.add_argument("--seconds", type=float, help="duration (default: the scene's / file's)")
+    r.add_argument("--seconds", type=float,
+                   help="duration in seconds (default: the scene's / file's)")
     r.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
     r.add_argument("--telemetry-us", type=int, default=1000, metavar="US",
                    help="telemetry / record period in µs of event time (default 1000)")
@@ -343,7 +344,7 @@ def _run(args) -> int:
         print(f"shutdown: threads stopped in {(time.monotonic() - t_stop) * 1e3:.0f} ms"
               + (f" ({'; '.join(slow)})" if slow else ""), file=sys.stderr, flush=True)
     if not learn_said:
-        _say_learned(engine)
+        _say_learned(engine, args.learn_first_ms)
     if args.record:
         rows = engine.write_record(args.record)
         print(f"record: {rows} rows -> {args.record}", file=sys.stderr)
@@ -387,9 +388,15 @@ def learn_params(args) -> dict | None:
     return read_params(args.params)
 
 
-def _say_learned(engine) -> bool:
-    """Print what the learner found once it has (stderr); True once said."""
+def _say_learned(engine, window_ms: float | None = None) -> bool:
+    """Print what the learner found once it has (stderr); True once said.  With
+    ``window_ms`` (the run ends) a learner still learning says so: nothing was tracked."""
     le = engine.stats()["learn"]
+    if le and le["state"] == "learning" and window_ms is not None:
+        print(f"learn: the source ended within --learn-first-ms {window_ms:g} "
+              f"({le['events']:,} events held): no model learned, nothing tracked",
+              file=sys.stderr, flush=True)
+        return True
     if not le or le["state"] == "learning":
         return False
     if le["state"] == "failed":

@@ -516,6 +516,14 @@ class FirmwareLoop:
             return {}
         return {i["label"]: i["state"] for i in kern.instances()}
 
+    def _instances_line(self) -> str:
+        """Each instance's state and counts of changes (with acquisition), or ''."""
+        kern = self.slot.kernel
+        if not hasattr(kern, "instances"):
+            return ""
+        return ",".join(f"{i['label']}:{i['state']}(acquired={i['acquired']},lost={i['lost']},"
+                        f"reacquired={i['reacquired']})" for i in kern.instances())
+
     def _geometry_drops(self, fc: dict) -> dict:
         """Events lost because they lay outside the sensor: in the words (the decoder's
         ``out_of_geometry``) and before them (a source that re-encoded a larger recording
@@ -545,6 +553,7 @@ class FirmwareLoop:
                 f"max={s['proc_us_per_10ms']['max']:.0f}) state={s['state']} "
                 f"usb={usb or 'ok'} anomalies={an or 'none'} kernel={s['kernel']['backend']}"
                 + (f" learn={s['learn']['state']}" if s["learn"] else "")
+                + (f" instances={inst}" if (inst := self._instances_line()) else "")
                 + (f" saturated={sat}" if (sat := {k[10:]: v for k, v in s["kernel"].items()
                                                     if k.startswith("saturated_") and v}) else ""))
 

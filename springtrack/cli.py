@@ -57,6 +57,8 @@ def main(argv=None) -> int:
             print("interrupted", file=sys.stderr)
             return 130
         except (ValueError, OSError) as e:   # ModelError, ParamError, DecodeError are ValueErrors
+            if isinstance(e, OSError) and e.filename is not None:   # name the file first
+                e = f"{e.filename}: {e.strerror or e}"
             print(f"springtrack {argv[0]}: error: {e}", file=sys.stderr)
             return 2
     args = parser.parse_args(argv)

@@ -33,6 +33,7 @@ class TrackWatch:
         self.model_out_since = np.full(len(self.models), -1, np.int64)
         self.last_xy = None
         self.last_centre = None
+        self.never_found = []                         # instances never placed (finish)
 
     def use_models(self, models) -> None:
         """The models were replaced (placed by acquisition): same trackers."""
@@ -75,13 +76,22 @@ class TrackWatch:
         self.last_xy = (track.x[-1], track.y[-1])
         self.last_centre = centres
 
-    def finish(self, state) -> None:
-        """The tracker's final state (``Tracker.state()``): events after the last sample."""
+    def finish(self, state, never_found=()) -> None:
+        """The tracker's final state (``Tracker.state()``): events after the last sample;
+        ``never_found``: labels of the instances an acquisition never found (their
+        trackers were never placed, so their silence is not the model's fault)."""
         self.received |= np.asarray(state["activity"]) > 0
+        self.never_found = [g for g, inst in enumerate(self.models) if inst.label in never_found]
 
     def warnings(self) -> list[str]:
         out = []
-        never = [i for i, r in zip(self.ids, self.received) if not r]
+        unplaced = np.zeros(len(self.ids), bool)
+        for g in self.never_found:
+            inst = self.models[g]
+            unplaced[inst.t0:inst.t1] = True
+            out.append(f"the model instance {inst.label!r} was never found (searching to the "
+                       f"end): its {inst.t1 - inst.t0} trackers' rows hold unplaced positions")
+        never = [i for i, r, u in zip(self.ids, self.received, unplaced) if not r and not u]
         if never:
             out.append(f"{len(never)} of {len(self.ids)} tracker(s) never received an event: "
                        f"{_names(never)} (nothing moved under them, or the model does not "

@@ -70,3 +70,14 @@ def test_acquire_is_refused_by_a_firmware_without_acquisition():
         assert r.returncode == 6 and "--acquire" in r.stderr
     finally:
         fw.close()
+
+
+def test_firmware_run_reports_each_instance_state_and_changes():
+    """The end-of-run stats line names every instance's state and counts of changes."""
+    r = subprocess.run([sys.executable, "-m", "firmware_sim.cli", "run", "--source",
+                        "sim:face_occlusion", "--preset", "face26", "--acquire", "--max-speed",
+                        "--seconds", "0.3"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    line = r.stdout.strip().splitlines()[-1]
+    assert line.startswith("stats: ")
+    assert "instances=face26#1:tracking(acquired=1,lost=0,reacquired=0)" in line

@@ -179,3 +179,19 @@ def test_firmware_sim_refuses_a_model_that_does_not_fit_the_recording(data_file,
                         f"replay:{path}", "--max-speed", "--model", off_sensor(tmp_path)],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "r0c0 (700, 70)" in r.stderr
+
+
+def test_the_watch_names_an_instance_never_found_instead_of_its_idle_trackers():
+    from springtrack.instances import ModelSet
+    a = grid3x3(cx=100, cy=120, spacing=30)
+    b = grid3x3(cx=200, cy=120, spacing=30)
+    w = TrackWatch(ModelSet([a, b]))
+    act = np.zeros(18)
+    act[:8] = 1.0                                    # #1's r2c2 and all of #2 got nothing
+    w.finish({"activity": act}, never_found=["grid3x3#2"])
+    msgs = w.warnings()
+    assert msgs == ["the model instance 'grid3x3#2' was never found (searching to the end): "
+                    "its 9 trackers' rows hold unplaced positions",
+                    "1 of 18 tracker(s) never received an event: grid3x3#1/r2c2 (nothing moved "
+                    "under them, or the model does not match the recording: check its "
+                    "positions against `springtrack render INPUT --out grid.png`)"]

@@ -208,12 +208,19 @@ def test_cli_learn_on_noise_exits_3(tmp_path, capsys):
     assert not (tmp_path / "m.toml").exists()
 
 
-def test_cli_track_learn_first_ms(tmp_path, capsys):
+def track_learning_first(tmp_path, end_us: int, ms: str = "1000"):
+    """``springtrack track --learn-first-ms ms`` on grid_pull's first ``end_us``: its exit
+    status and the track CSV's path."""
     ev, _ = scene("grid_pull")
-    np.save(tmp_path / "grid.npy", ev[ev["t"] < 1_500_000])
+    np.save(tmp_path / "grid.npy", ev[ev["t"] < end_us])
     csv = tmp_path / "track.csv"
-    assert cli(["track", str(tmp_path / "grid.npy"), "--learn-first-ms", "1000", "--out",
-                str(csv), "--no-progress"]) == 0
+    return cli(["track", str(tmp_path / "grid.npy"), "--learn-first-ms", ms, "--out",
+                str(csv), "--no-progress"]), csv
+
+
+def test_cli_track_learn_first_ms(tmp_path, capsys):
+    rc, csv = track_learning_first(tmp_path, 1_500_000)
+    assert rc == 0
     assert "learned 9 trackers" in capsys.readouterr().err
     from springtrack.track import read_csv
     track = read_csv(csv)
@@ -332,3 +339,30 @@ def test_firmware_learning_on_noise_tracks_nothing_and_says_so():
     assert s["events_tracked"] == 0 and s["learn"]["events"] > 0
     assert s["learn"]["events"] + s["learn"]["untracked"] == s["events_decoded"]
     assert not eng.recorder.blocks and "learn=failed" in eng.stats_line()
+
+
+def test_cli_track_learn_first_ms_longer_than_the_stream(tmp_path, capsys):
+    assert track_learning_first(tmp_path, 300_000)[0] == 2
+    err = capsys.readouterr().err
+    assert "--learn-first-ms 1000: the stream holds" in err and "nothing is left to track" in err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_cli_track_learn_first_ms_on_noise_exits_3(tmp_path, capsys):
+    np.save(tmp_path / "n.npy", noise(1.0))
+    assert cli(["track", str(tmp_path / "n.npy"), "--learn-first-ms", "500", "--out",
+                str(tmp_path / "t.csv"), "--no-progress"]) == NoObjectFound.exit_code
+    err = capsys.readouterr().err
+    assert err.startswith("springtrack track: --learn-first-ms 500 (") and "no object found" in err
+
+
+def test_firmware_sim_says_when_the_source_ends_inside_the_learning_window():
+    import subprocess
+    import sys
+    r = subprocess.run([sys.executable, "-m", "firmware_sim.cli", "run", "--source",
+                        "sim:grid_pull", "--seconds", "0.3", "--learn-first-ms", "1000",
+                        "--max-speed"], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    assert "learn: the source ended within --learn-first-ms 1000 (" in r.stderr
+    assert "events held): no model learned, nothing tracked" in r.stderr
+    assert "tracked=0 " in r.stdout and "learn=learning" in r.stdout

@@ -23,7 +23,7 @@ exit status: 0 model written, 2 bad input, 3 no object found (noise or too few e
 
 def add_arguments(p):
     p.epilog = EPILOG
-    p.add_argument("input", help="event file (.npy, .csv, .raw, .es, .dat)")
+    p.add_argument("input", help="event file (.npy, .csv, .raw, .es, .dat, .aedat4)")
     p.add_argument("--out", required=True, help="output model TOML")
     p.add_argument("--trackers", type=int, metavar="N",
                    help="exactly N trackers (default: as many as the learner finds parts)")
@@ -45,6 +45,7 @@ def run(args) -> int:
     from ..learn import NoObjectFound, learn_model
     if args.trackers is not None and not 1 <= args.trackers <= 64:
         raise ValueError(f"--trackers must be in [1, 64], got {args.trackers}")
+    track_params = read_params(args.params) if args.params else None   # its errors first
     reader = stio.open(args.input)
     raw = reader.read()
     width = reader.width or (int(raw["x"].max()) + 1 if len(raw) else 1)
@@ -57,7 +58,7 @@ def run(args) -> int:
     try:
         res = learn_model(events, trackers=args.trackers, width=width, height=height,
                           names=names, name=args.name or Path(args.input).stem,
-                          track_params=read_params(args.params) if args.params else None)
+                          track_params=track_params)
     except NoObjectFound as e:
         print(f"springtrack learn: {e}", file=sys.stderr)
         return NoObjectFound.exit_code
@@ -111,7 +112,7 @@ def learn_first(source, ms: float, width: int, height: int, name: str = "learned
     """Learn a model from the first ``ms`` milliseconds of a stream of (chunk, total)
     pairs; returns the model and the stream of the events after that window (the
     tracking starts where the learning ended).  Prints what was learned to stderr."""
-    from ..learn import learn_model
+    from ..learn import NoObjectFound, learn_model
     if not ms > 0:
         raise ValueError(f"--learn-first-ms must be positive, got {ms}")
     held, rest, total, t_end = [], None, None, None
@@ -127,8 +128,16 @@ def learn_first(source, ms: float, width: int, height: int, name: str = "learned
             rest = chunk[k:]
             break
     events = np.concatenate(held) if held else np.empty(0, EVENT_DTYPE)
-    res = learn_model(events, width=width, height=height, name=name,
-                      track_params=read_params(params) if params else None)
+    if rest is None:
+        span = (f"{(int(events['t'][-1]) - int(events['t'][0])) / 1e3:g} ms of events"
+                if len(events) else "no events")
+        raise ValueError(f"--learn-first-ms {ms:g}: the stream holds {span}, nothing is left "
+                         f"to track after the learning window; give a shorter window")
+    try:
+        res = learn_model(events, width=width, height=height, name=name,
+                          track_params=read_params(params) if params else None)
+    except NoObjectFound as e:
+        raise NoObjectFound(f"--learn-first-ms {ms:g} ({len(events):,} events): {e}") from None
     m = res.model
     print(f"learned {len(m.trackers)} trackers, {len(m.connections)} springs from the first "
           f"{ms:g} ms ({res.events:,} events, {res.wall_s:.2f} s); "

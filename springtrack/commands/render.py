@@ -40,12 +40,14 @@ def add_arguments(p):
     p.add_argument("--truth", help="ground truth CSV t_us,part,x,y to overlay")
     p.add_argument("--out", required=True, help="output .gif, .mp4, .png or directory; "
                                                 "without --model a picture (.png, .svg, ...)")
-    p.add_argument("--window-us", type=int, default=10_000,
+    p.add_argument("--window-us", type=int, default=10_000, metavar="US",
                    help="events accumulated per frame, µs (default 10000 = 10 ms)")
-    p.add_argument("--every-us", type=int, default=None,
+    p.add_argument("--every-us", type=int, default=None, metavar="US",
                    help="time between frames, µs (default: --window-us)")
-    p.add_argument("--max-frames", type=int, default=2000, help="refuse to render more frames")
-    p.add_argument("--scale", type=float, default=2.0, help="output pixels per sensor pixel")
+    p.add_argument("--max-frames", type=int, default=2000, metavar="N",
+                   help="refuse to render more than N frames (default 2000)")
+    p.add_argument("--scale", type=float, default=2.0, metavar="F",
+                   help="output pixels per sensor pixel (default 2)")
     p.add_argument("--grid", type=int, metavar="PX",
                    help="without --model: labelled grid lines every PX pixels (default: at most "
                         "16 across the sensor)")

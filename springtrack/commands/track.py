@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from ..events import as_events
+from ..limits import MAX_INSTANCES, MAX_SET_TRACKERS
 from ..track import CSV_HEADER
 from ..tracker import profile
 from ..watch import TrackWatch
@@ -36,6 +37,8 @@ window slides by half its length (rows start once one is found).  Then an instan
 trackers fall inactive (fewer than a third active for 3 activity time constants) is lost
 and searched for again every --acquire-ms / 2 in the last --acquire-ms of events; an
 instance not found at the start is searched for the same way.  See docs/acquisition.md.
+exit status: 0 tracked, 1 --acquire found no model, 2 bad input, 3 --learn-first-ms found
+no object (noise or too few events).
 """
 
 
@@ -72,7 +75,8 @@ def add_arguments(p):
 def add_acquire_arguments(p) -> None:
     """--instances and the acquisition's options, shared by track and render."""
     p.add_argument("--instances", type=int, default=1, metavar="N",
-                   help="instances of each model (default 1; more than 1 needs --acquire)")
+                   help="instances of each model (default 1; more than 1 needs --acquire; "
+                        f"at most {MAX_INSTANCES} instances, {MAX_SET_TRACKERS} trackers in all)")
     p.add_argument("--acquire", action="store_true",
                    help="find the models in the events instead of trusting their positions; "
                         "lost instances are searched for again (docs/acquisition.md)")
@@ -92,6 +96,13 @@ def add_acquire_window(p) -> None:
 def tracker_from_args(args, model):
     """The springtrack.Tracker of --params, --backend, --instances and --acquire*."""
     from ..tracker import Tracker
+    n_models = len(model) if isinstance(model, (list, tuple)) else 1
+    if args.instances < 1:
+        raise ValueError(f"--instances must be at least 1, got {args.instances}")
+    if n_models * args.instances > MAX_INSTANCES:
+        raise ValueError(f"--instances {args.instances} of {n_models} model(s) asks for "
+                         f"{n_models * args.instances} instances; the limit is {MAX_INSTANCES} "
+                         f"in all (springtrack/limits.py)")
     if args.instances > 1 and not args.acquire:
         raise ValueError(f"--instances {args.instances} would place {args.instances} copies "
                          f"of each model on the same positions: add --acquire to find each")
@@ -110,8 +121,9 @@ def read_events(reader):
 
 def add_sensor_from(p) -> None:
     """``--sensor-from``, shared by the commands that track a file with a model."""
-    p.add_argument("--sensor-from", choices=["file", "model"],
-                   help="a model whose [sensor] is not the input's is refused; 'file': track "
+    p.add_argument("--sensor-from", choices=["file", "source", "model"],
+                   help="a model whose [sensor] is not the input's is refused; 'file' (or "
+                        "'source', as in firmware-sim): track "
                         "it on the input's sensor (trackers where they are), 'model': keep "
                         "the model's sensor (events outside it skipped and counted)")
 
@@ -121,7 +133,8 @@ def open_stream(args):
     when asked (springtrack.prep); the models --model (a list), each checked against the
     input's sensor (springtrack.geometry: a mismatch or trackers off the sensor is an
     error, unless --sensor-from), or one learned from the stream's first --learn-first-ms
-    (the tracking then starts where the learning window ends)."""
+    (the tracking then starts where the learning window ends); and the Preparer (None
+    without a preparation option), whose counts say what it dropped."""
     from .. import io as stio
     from ..geometry import fit_model
     from ..model import load_model
@@ -152,7 +165,7 @@ def open_stream(args):
         from .learn import learn_first
         model, source = learn_first(source, args.learn_first_ms, width, height,
                                     name=Path(args.input).stem, params=args.params)
-    return model, source
+    return model, source, prep
 
 
 def _prepared(source, prep):
@@ -193,7 +206,12 @@ class Progress:
 def run(args) -> int:
     if args.sample_us <= 0:
         raise ValueError(f"--sample-us must be a positive number of µs, got {args.sample_us}")
-    model, stream = open_stream(args)
+    from ..learn import NoObjectFound
+    try:
+        model, stream, prep = open_stream(args)
+    except NoObjectFound as e:
+        print(f"springtrack track: {e}", file=sys.stderr)
+        return NoObjectFound.exit_code
     tr = tracker_from_args(args, model)
     tr.record(args.sample_us)
     watch = TrackWatch(tr.models)
@@ -234,6 +252,8 @@ def run(args) -> int:
     print(f"events={n} assigned={c['events_assigned']} skipped={skipped} "
           f"(back_in_time={c['skipped_back_in_time']} outside={c['skipped_outside_sensor']}) "
           f"wall_s={wall:.3f} events_per_s={rate:.3g} realtime_factor={rtf:.1f} out={args.out}")
+    if prep is not None:
+        print(f"prepared: {prep.stats.summary()}")
     if args.acquire:
         acq = tr.acquisition
         for g, pose in enumerate(acq.poses):
@@ -255,20 +275,29 @@ def run(args) -> int:
               f"verification(s), {c['losses_refuted']} loss(es) refuted, {c['moved']} move(s), "
               f"{c['recalled']} tracker(s) left behind recalled")
     if n:
-        watch.finish(tr.state())
+        watch.finish(tr.state(), never_found=[i["label"] for i in tr.instances()
+                                              if args.acquire and i["state"] == "searching"])
         for w in watch.warnings():
             print(f"springtrack track: warning: {w}", file=sys.stderr)
     return 0
 
 
 def acquire_bounds(args) -> dict:
-    """The acquisition's bounds from --acquire-angle and --acquire-scale."""
+    """The acquisition's bounds from --acquire-angle and --acquire-scale (--acquire-ms
+    checked with them: each error names the option)."""
     try:
         lo, hi = (float(v) for v in args.acquire_scale.split(","))
     except ValueError:
         raise ValueError(f"--acquire-scale must be LO,HI (e.g. 0.6,1.6), "
                          f"got {args.acquire_scale!r}") from None
-    return {"angle_deg": (-abs(args.acquire_angle), abs(args.acquire_angle)), "scale": (lo, hi)}
+    if not 0 < lo <= hi:
+        raise ValueError(f"--acquire-scale must be LO,HI with 0 < LO <= HI, "
+                         f"got {args.acquire_scale!r}")
+    if not 0 <= args.acquire_angle <= 180:
+        raise ValueError(f"--acquire-angle must be in [0, 180] degrees, got {args.acquire_angle:g}")
+    if not args.acquire_ms > 0:
+        raise ValueError(f"--acquire-ms must be a positive number of ms, got {args.acquire_ms:g}")
+    return {"angle_deg": (-args.acquire_angle, args.acquire_angle), "scale": (lo, hi)}
 
 
 PROFILE_BIN_US = 10_000
