@@ -215,6 +215,24 @@ def cmd_monitor(dev, args) -> int:
     return monitor(dev, seconds=args.seconds, smooth=args.smooth, rate=args.rate)
 
 
+# the device states (STATS ``state``) in which it sends no telemetry, and what to do
+_SILENT_STATES = {
+    "ended": "the device's source has ended (hostctl start replays it)",
+    "idle": "the device is not started (hostctl start)",
+    "stopped": "the device is stopped (hostctl start)",
+    "faulted": "the device is faulted (hostctl stats shows its last error; hostctl reset)",
+}
+
+
+def _why_silent(dev) -> str:
+    """Why a device sent no telemetry, from its STATS state."""
+    try:
+        state = dev.stats().get("state")
+    except HostctlError as e:
+        return f"and its STATS did not answer ({e})"
+    return _SILENT_STATES.get(state, f"the device's state is {state!r}")
+
+
 def cmd_record(dev, args) -> int:
     from .record import save
     from .smooth import Smoother  # noqa: F401 - fail early if filterpy is missing
@@ -227,6 +245,9 @@ def cmd_record(dev, args) -> int:
             snaps += dev.telemetry(seconds=0.2)     # what the link sent with the notice
     except HostctlError as e:          # the device went away: keep what arrived
         failure = e
+    if not snaps and failure is None:
+        raise ValueError(f"no telemetry received in {args.seconds:g} s: "
+                         f"{_why_silent(dev)}")
     summary = save(args.out, snaps, dev.info, smooth={} if args.smooth else None)
     lc = dev.link_counters()
     print(f"recorded {summary['snapshots']} snapshots x {summary['trackers']} trackers "

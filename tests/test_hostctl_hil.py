@@ -289,3 +289,32 @@ def test_hil_tcp_1khz_telemetry_with_commands():
     for k in ("loop.telemetry_dropped", "link.tx_dropped", "link.rx_crc_errors",
               "link.rx_cobs_errors", "link.rx_malformed", "link.rx_lost", "link.handler_errors"):
         assert after[k] == before[k], (k, before[k], after[k], info)
+
+
+def test_hil_record_without_telemetry_says_why(tmp_path):
+    """A recording that receives nothing names the device's state and the way out: not
+    started yet (``--wait-start``), then, once started, its short source run out."""
+    fw = Firmware("--source", "sim:face_occlusion", "--seconds", "0.3", "--pty",
+                  "--wait-start")
+    try:
+        def record():
+            return subprocess.run(hostctl_cmd("--port", fw.path, "record",
+                                              str(tmp_path / "r.csv"), "--seconds", "0.5"),
+                                  capture_output=True, text=True, timeout=60)
+        out = record()
+        assert out.returncode != 0 and "Traceback" not in out.stderr
+        assert "no telemetry received in 0.5 s: the device is not started (hostctl start)" \
+            in out.stderr, out.stderr
+        with Device(fw.path) as dev:
+            dev.start()
+            end = time.monotonic() + 30
+            while dev.stats().get("state") != "ended":
+                assert time.monotonic() < end, "the 0.3 s source did not end"
+                time.sleep(0.1)
+        out = record()
+        assert out.returncode != 0 and "Traceback" not in out.stderr
+        assert "the device's source has ended (hostctl start replays it)" in out.stderr, \
+            out.stderr
+        assert not (tmp_path / "r.csv").exists()
+    finally:
+        fw.close()
