@@ -73,8 +73,9 @@ from springtrack._kstate cimport (KState, MAX_TRACKERS, MAX_CONNECTIONS, MAX_INS
 from springtrack._kstep cimport kstep, ksteps
 from springtrack._kcovariance cimport clamp_and_invert, ST_RHO_MAX, ST_RHO_MAX2
 from springtrack._kindex cimport reindex
-from springtrack._kactivity cimport activity_decay, kactivity, rescale_activity, flush_activity
-from springtrack._ksprings cimport ksprings, init_springs, init_instance, compose_sensitive
+from springtrack._kactivity cimport activity_decay, kactivity, rescale_activity
+from springtrack._ksprings cimport (ksprings, init_springs, init_instance, compose_sensitive,
+                                    rest_trackers)
 
 cdef extern from "springtrack/csrc/springs.h" nogil:
     double st_sum(int n, const double* x)
@@ -276,21 +277,10 @@ cdef class Kernel:
         covariances and the rest geometry from it, activities 0, the frame at rest;
         tracking (springtrack.reference.ReferenceTracker.place)."""
         cdef KState* s = &self.st
-        cdef int i, t0
         cdef int64_t moves = s.n_frame_moves
         self._instance(g)
         self._rest(g, model)
-        flush_activity(s)
-        t0 = s.g_t0[g]
-        for i in range(t0, s.g_t1[g]):
-            s.mx[i] = s.rest_x[i]
-            s.my[i] = s.rest_y[i]
-            s.sxx[i] = s.rest_sxx[i]
-            s.sxy[i] = s.rest_sxy[i]
-            s.syy[i] = s.rest_syy[i]
-            s.act[i] = 0.0
-            clamp_and_invert(s, i)
-            reindex(s, i)
+        rest_trackers(s, g)
         init_instance(s, g)                # the rest terms' coefficients, the frame at rest
         s.n_frame_moves = moves
         self.set_state(g, K_TRACKING)

@@ -17,5 +17,8 @@ cdef void ksprings(KState* s) noexcept nogil
 cdef void init_springs(KState* s) noexcept nogil
 # the same for instance g alone, its state and sensitivity kept (a model placed or moved)
 cdef void init_instance(KState* s, int g) noexcept nogil
+# instance g's trackers at their model's rest state (means, covariances, activities 0),
+# covariances clamped and inverted, re-indexed (a reset, a placing)
+cdef void rest_trackers(KState* s, int g) noexcept nogil
 # the event assignment's words (KState.sensitive) from the instances' isens
 cdef void compose_sensitive(KState* s) noexcept nogil

@@ -215,15 +215,8 @@ cdef void reset_instance(KState* s, int g) noexcept nogil:
     """[ref] _reset_instance, then its covariances clamped and inverted and its trackers
     re-indexed: instance g's tracker state of the model, its state, counters and time
     kept."""
-    cdef int i, k, q, t0 = s.g_t0[g], t1 = s.g_t1[g]
-    flush_activity(s)                  # the increments logged so far, then its own zeroed
-    for i in range(t0, t1):
-        s.mx[i] = s.rest_x[i]
-        s.my[i] = s.rest_y[i]
-        s.sxx[i] = s.rest_sxx[i]
-        s.sxy[i] = s.rest_sxy[i]
-        s.syy[i] = s.rest_syy[i]
-        s.act[i] = 0.0
+    cdef int k, q, t0 = s.g_t0[g], t1 = s.g_t1[g]
+    rest_trackers(s, g)
     for q in range(3):
         for k in range(s.g_c0[g], s.g_c1[g]):
             s.energy[q][k] = 0.0
@@ -231,7 +224,21 @@ cdef void reset_instance(KState* s, int g) noexcept nogil:
     s.isens[g] = all_of(t1 - t0) if s.state[g] == K_TRACKING else 0
     rest_frame(s, g)
     set_frame(s, g, 0.0)
-    for i in range(t0, t1):
+
+
+cdef void rest_trackers(KState* s, int g) noexcept nogil:
+    """Instance g's trackers at their model's rest state: means and covariances, activities
+    0 (the increments logged so far flushed first), covariances clamped and inverted,
+    trackers re-indexed."""
+    cdef int i
+    flush_activity(s)
+    for i in range(s.g_t0[g], s.g_t1[g]):
+        s.mx[i] = s.rest_x[i]
+        s.my[i] = s.rest_y[i]
+        s.sxx[i] = s.rest_sxx[i]
+        s.sxy[i] = s.rest_sxy[i]
+        s.syy[i] = s.rest_syy[i]
+        s.act[i] = 0.0
         clamp_and_invert(s, i)
         reindex(s, i)
 
