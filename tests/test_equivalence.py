@@ -136,15 +136,18 @@ def first_divergence_is_rounding_noise(model, prm, events) -> bool:
     """Replay kernel and reference event by event to their first disagreement (a different
     winner, a position apart by more than 1e-9 px, or a different sensitivity).  True when
     it is rounding amplified, not an error: eq. (2) decided between two candidates (or at
-    the gate) within 1e-9 in d^2; eqs. (21)-(22) or the similarity frame's calm set decided
-    on criterion energies all below ENERGY_NOISE; or a position gap that crept up from rounding level under identical
-    decisions (chaotic model).  False for any other disagreement: a genuine failure."""
+    the gate) within 1e-9 in d^2; eqs. (21)-(22) decided on criterion energies all below
+    ENERGY_NOISE, or the similarity frame's calm set did (at this spring update, or at the
+    one before: the Cartesian springs use the frame one update later); or a position gap
+    that crept up from rounding level under identical decisions (chaotic model).  False
+    for any other disagreement: a genuine failure."""
     from springtrack._kernel import Kernel
     from springtrack.instances import ModelSet
     from springtrack.reference import ReferenceTracker
     mset = ModelSet(model, prm)          # one model or several instances
     ref, ker = ReferenceTracker(mset), Kernel(mset, None)
     last_gap = 0.0
+    noisy_before: set = set()            # instances whose last spring update was on noise
     for t, x, y in zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist()):
         d2 = sorted(ref.ia[i] * (x - ref.mx[i]) ** 2 + ref.ic[i] * (y - ref.my[i]) ** 2
                     + 2.0 * ref.ib[i] * (x - ref.mx[i]) * (y - ref.my[i])
@@ -158,18 +161,19 @@ def first_divergence_is_rounding_noise(model, prm, events) -> bool:
         gap = max(np.abs(np.array(ref.mx) - snap["x"]).max(),
                   np.abs(np.array(ref.my) - snap["y"]).max())
         differ = np.flatnonzero(np.array(ref.sensitive) != snap["sensitive"])
-        def on_noise(trackers):
-            # a spring update whose criterion energies were all rounding noise: eqs.
-            # (21)-(22) and the calm set the similarity frame is fitted to decided on it
-            return ref.n_spring_updates > updates and all(
-                max(ref.energy[ref.ekinds[g]][ref.c0[g]:ref.c1[g]], default=0.0) < ENERGY_NOISE
-                for g in {ref.inst[i] for i in trackers})
+        updated = ref.n_spring_updates > updates
+        # the instances whose criterion energies were all rounding noise at this update:
+        # eqs. (21)-(22) and the calm set the similarity frame is fitted to decided on it
+        noisy = {g for g in range(len(ref.c0)) if updated and max(
+            ref.energy[ref.ekinds[g]][ref.c0[g]:ref.c1[g]], default=0.0) < ENERGY_NOISE}
         if len(differ):
-            return on_noise(differ)
+            return updated and {ref.inst[i] for i in differ} <= noisy
         apart = np.flatnonzero(np.maximum(np.abs(np.array(ref.mx) - snap["x"]),
                                           np.abs(np.array(ref.my) - snap["y"])) > 1e-9)
-        if len(apart) and on_noise(apart):
+        if len(apart) and updated and {ref.inst[i] for i in apart} <= noisy | noisy_before:
             return True
+        if updated:
+            noisy_before = noisy
         if gap > 1e-9:
             # same decisions all along: the gap grew out of rounding (chaotic dynamics: a
             # tracker thrown about by springs at the sensor edge) if it crept up, here by
