@@ -1,7 +1,7 @@
 """Recording telemetry to files.
 
 * ``OUT.csv`` - the track CSV schema of ``springtrack track`` (springtrack.track.CSV_HEADER:
-  ``t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive``), so ``springtrack score``
+  ``t_us,tracker,x,y,sxx,sxy,syy,activity,vx,vy,active,sensitive``), so ``springtrack score``
   reads recordings.  With smoothing, the smoothed states go to a sidecar
   ``OUT.smooth.csv`` (``t_us,tracker,x_s,y_s,vx,vy``) so the main file keeps the schema.
 * ``OUT.npz`` - arrays ``t_us (T,)``, ``ids (K,)``, ``x, y, sxx, sxy, syy, activity,

@@ -30,6 +30,7 @@ from springtrack._kstate cimport (KState, MAX_CONNECTIONS, MAX_SET_TRACKERS, K_T
 from springtrack._kindex cimport reindex
 from springtrack._kcovariance cimport clamp_and_invert
 from springtrack._kactivity cimport flush_activity
+from springtrack._kmotion cimport predict_dt, still
 
 cdef extern from "springtrack/csrc/springs.h" nogil:
     double st_sum(int n, const double* x)
@@ -113,13 +114,20 @@ cdef void ksprings(KState* s) noexcept nogil:
     # re-indexed
     cdef int64_t left[MAX_SET_TRACKERS]
     cdef int g, i, n = s.n
+    cdef int64_t t = s.last_t
+    cdef double lead
     s.n_spring_updates += 1
     for g in range(s.ni):
         if s.state[g] == K_TRACKING:
+            for i in range(s.g_t0[g], s.g_t1[g]):    # [ref] eq. (M1): the springs act on
+                lead = predict_dt(s, i, t)            # the means at the update's time
+                s.mx[i] = s.mx[i] + s.vx[i] * lead
+                s.my[i] = s.my[i] + s.vy[i] * lead
+                s.tm[i] = t
             instance_springs(s, g)
     guard_state(s)
     compose_sensitive(s)
-    st_boxes_left(n, s.mx, s.my, s.sxx, s.syy, s.bcx, s.bcy, s.dev_x, s.dev_y, s.sxx_lim,
+    st_boxes_left(n, s.mx, s.my, s.sxx, s.syy, s.bcx, s.bcy, s.mdev_x, s.mdev_y, s.sxx_lim,
                   s.syy_lim, left)
     for i in range(n):
         if left[i]:
@@ -239,6 +247,7 @@ cdef void rest_trackers(KState* s, int g) noexcept nogil:
         s.sxy[i] = s.rest_sxy[i]
         s.syy[i] = s.rest_syy[i]
         s.act[i] = 0.0
+        still(s, i)
         clamp_and_invert(s, i)
         reindex(s, i)
 

@@ -58,6 +58,7 @@ class ReferenceBackend:
         ref = self.ref
         rows = []
         ts, xs, ys = events["t"].tolist(), events["x"].tolist(), events["y"].tolist()
+        ps = events["p"].tolist()
         if sample_us > 0 and ts and next_t == UNSET:
             next_t = first_sample_time(ts[0], sample_us)
         for k in range(len(ts)):
@@ -71,7 +72,7 @@ class ReferenceBackend:
                         return k, next_t, self._pack(rows)
                     rows.append((next_t, ref.snapshot(next_t), self._mean_energies()))
                     next_t += sample_us
-            ref.step(t, xs[k], ys[k])
+            ref.step(t, xs[k], ys[k], ps[k])
         return len(ts), next_t, (self._pack(rows) if sample_us > 0 else None)
 
     def _mean_energies(self):
@@ -459,7 +460,7 @@ class Tracker:
         return int(self._b.last_t)
 
     def state(self, t: int | None = None) -> np.ndarray:
-        """Per-tracker structured array (id, x, y, sxx, sxy, syy, activity, active,
+        """Per-tracker structured array (id, x, y, sxx, sxy, syy, activity, vx, vy, active,
         sensitive, state) at event time ``t`` (default: the last event's time)."""
         t = self.last_t if t is None else int(t)
         snap = self._ib.snapshot(max(t, 0) if t < -(1 << 60) else t)

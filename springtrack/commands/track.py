@@ -20,7 +20,8 @@ input: .npy structured arrays (fields t, x, y, p), CSV with header t,x,y,p, and 
 camera format springtrack.io reads (EVT 2.0/2.1/3.0 RAW, Event Stream .es, DAT, AEDAT 4);
 - reads an event stream (RAW EVT 2.0/2.1/3.0 with its % header, or .es, .dat, .aedat4) from
 standard input as it arrives, e.g. another stack's live output piped in.
-output CSV header: t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive,state — one row
+output CSV header: t_us,tracker,x,y,sxx,sxy,syy,activity,vx,vy,active,sensitive,state (px, px^2,
+vx and vy in px/s: eq. M7, 0 with the motion model off) — one row
 per tracker at every multiple of --sample-us between the first and the last event, holding
 the state after all events with t < t_us; a stretch without events is sampled for its first
 64 periods only, then from its next event on (docs/algorithm.md, Sampling).  Rows are
