@@ -1,4 +1,4 @@
-"""The motion model (eqs. M1-M7, docs/algorithm.md "Motion and both edges") measured:
+"""The motion model (eqs. M1-M8, docs/algorithm.md "Motion and both edges") measured:
 
 * the real dot of evt2_sample.raw (truth: tests/dot_truth.py): a one-tracker model placed
   on the dot, and found by --acquire, with the motion model off (the paper) and on;

@@ -361,7 +361,7 @@ cdef class Kernel:
         s.smin2 = p.sigma_min_px * p.sigma_min_px
         s.smax2 = p.sigma_max_px * p.sigma_max_px
         s.period = p.spring_period
-        # [ref] the motion model (eqs. M1-M7): 0 turns each part off
+        # [ref] the motion model (eqs. M1-M8): 0 turns each part off
         s.horizon = p.prediction_horizon_us
         tau = p.motion_tau_us
         s.tau_m = tau

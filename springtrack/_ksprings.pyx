@@ -27,7 +27,7 @@ from libc.stdint cimport int64_t, uint64_t
 from springtrack import reference as _ref
 
 from springtrack._kstate cimport (KState, MAX_CONNECTIONS, MAX_SET_TRACKERS, K_TRACKING)
-from springtrack._kindex cimport reindex
+from springtrack._kindex cimport reindex, set_reach
 from springtrack._kcovariance cimport clamp_and_invert
 from springtrack._kactivity cimport flush_activity
 from springtrack._kmotion cimport predict_dt, still
@@ -127,6 +127,8 @@ cdef void ksprings(KState* s) noexcept nogil:
             instance_springs(s, g)
     guard_state(s)
     compose_sensitive(s)
+    for i in range(n):                   # eq. (M8) changed velocities: their reach
+        set_reach(s, i)
     st_boxes_left(n, s.mx, s.my, s.sxx, s.syy, s.bcx, s.bcy, s.mdev_x, s.mdev_y, s.sxx_lim,
                   s.syy_lim, left)
     for i in range(n):
@@ -275,6 +277,29 @@ cdef void set_frame(KState* s, int g, double phi) noexcept nogil:
     s.n_frame_moves += 1
 
 
+cdef inline void pull_velocities(KState* s, int g, uint64_t pulled) noexcept nogil:
+    # [ref] _pull_velocities(g), eq. (M8): the pulled trackers' velocities toward the
+    # mean velocity of the instance's trackers left alone
+    cdef int t0 = s.g_t0[g], n = s.g_t1[g] - s.g_t0[g], j, i
+    cdef double w = 0.0, vx = 0.0, vy = 0.0, a = s.energy_gain[g]
+    if s.tau_m <= 0.0 or pulled == 0:
+        return
+    for j in range(n):
+        if not (pulled >> j) & 1:
+            i = t0 + j
+            w += s.mass[i]
+            vx += s.mass[i] * s.vx[i]
+            vy += s.mass[i] * s.vy[i]
+    if w > 0.0:
+        vx = vx / w
+        vy = vy / w
+    for j in range(n):
+        if (pulled >> j) & 1:
+            i = t0 + j
+            s.vx[i] = s.vx[i] + a * (vx - s.vx[i])
+            s.vy[i] = s.vy[i] + a * (vy - s.vy[i])
+
+
 cdef inline void energy_criteria(KState* s, int g) noexcept nogil:
     # [ref] _energy_criteria(g); masks relative to the instance's first tracker t0
     cdef int t0 = s.g_t0[g], n = s.g_t1[g] - s.g_t0[g], c0 = s.g_c0[g]
@@ -302,6 +327,7 @@ cdef inline void energy_criteria(KState* s, int g) noexcept nogil:
         gy = gy / msum
         st_pull(n, pulled, gx, gy, 1.0, 0.0, s.energy_gain[g], s.gdx0 + t0, s.gdy0 + t0,
                 s.mx + t0, s.my + t0)
+    pull_velocities(s, g, pulled)        # eq. (M8)
     s.isens[g] = calm | s.isolated[g]    # eq. (21): insensitive if all its connections are over
 
 

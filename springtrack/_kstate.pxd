@@ -85,7 +85,7 @@ ctypedef struct KState:
     double rest_sxy[TRACKER_PAD]
     double rest_syy[TRACKER_PAD]
     double pos_lo_x, pos_hi_x, pos_lo_y, pos_hi_y
-    # the motion model (reference.py, eqs. M1-M7; parameters shared by all instances):
+    # the motion model (reference.py, eqs. M1-M8; parameters shared by all instances):
     # H (us), tau_m (0: off), q = 1 / tau_m^3, the velocity variance's bound 1 / tau_m^2,
     # c_h, the half offset's bound
     double horizon, tau_m, q_m, vv_max, c_h, h_max

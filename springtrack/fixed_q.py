@@ -152,11 +152,11 @@ def params_q(p, nc: int) -> dict:
     """The kernel's integer parameters for springtrack.params.Params ``p``, within the
     limits every backend shares (springtrack.limits.check_params, as Params checks)."""
     _limits.check_params(p)
-    # the motion model (reference.py, eqs. M1-M7) is the float kernels' alone so far
+    # the motion model (reference.py, eqs. M1-M8) is the float kernels' alone so far
     on = [f"{k}={getattr(p, k)!r}" for k in MOTION_PARAMS if getattr(p, k) != 0.0]
     if on:
         raise _limits.LimitError(
-            f"{', '.join(on)}: the integer kernel has no motion model (eqs. M1-M7); set "
+            f"{', '.join(on)}: the integer kernel has no motion model (eqs. M1-M8); set "
             f"{' and '.join(f'{k}=0' for k in MOTION_PARAMS)}, or track with --backend "
             f"cython")
     gate = p.gate_d2

@@ -30,14 +30,15 @@ Interpretation choices (docs/algorithm.md explains them):
   trackers no over-threshold connection touches; eq. (22) then pulls toward
   ``G + s R dG0``, and the Cartesian springs of the next update hold the rest offset
   ``s R d0``.
-* The motion model (this project's extension, eqs. M1-M7; docs/algorithm.md, "Motion and
+* The motion model (this project's extension, eqs. M1-M8; docs/algorithm.md, "Motion and
   both edges"): each tracker keeps a velocity v, the half offset h between its part's ON
   and OFF edges, the time t_m its mean refers to and the covariance P of a Kalman filter
   of its position and velocity (per axis, in units of the event spread).  An event is
   gated and weighed (eq. 2) about the mean predicted to its time (M1); the winner's gains
   (M3) come from P (at most alpha1 for the mean): they fall where its events come fast;
   its mean, half offset and velocity move by the event's residual about the edge of its
-  polarity (M4-M7); the springs act on the means predicted to the update's time.  With
+  polarity (M4-M7); the springs act on the means predicted to the update's time, and
+  eq. (22)'s pull takes a pulled tracker's velocity toward its structure's (M8).  With
   motion_tau_us = 0 and polarity_gain = 0 this is the paper's Algorithm 1 exactly.
 * Several model instances (springtrack.instances): their trackers side by side; eq. (2)'s
   argmin runs over the union of the sensitive trackers (ties: lowest index, the first
@@ -143,7 +144,7 @@ class ReferenceTracker:
         self.mx, self.my, self.sxx, self.sxy, self.syy = (list(v) for v in self.rest)
         self.act = [0.0] * self.n
         self.tlast = [0] * self.n
-        # the motion model (eqs. M1-M7): velocity (px/us), half offset between the ON
+        # the motion model (eqs. M1-M8): velocity (px/us), half offset between the ON
         # and OFF edges (px), the time the mean refers to (us), the Kalman covariance
         # [[kpp, kpv], [kpv, kvv]] of position and velocity in units of the event spread
         self.vx = [0.0] * self.n
@@ -257,7 +258,7 @@ class ReferenceTracker:
         self.period = p.spring_period
         self.smin2 = p.sigma_min_px * p.sigma_min_px
         self.smax2 = p.sigma_max_px * p.sigma_max_px
-        # the motion model (eqs. M1-M7): 0 turns each part off.  tau_m sets the Kalman
+        # the motion model (eqs. M1-M8): 0 turns each part off.  tau_m sets the Kalman
         # filter's acceleration noise q = 1 / tau_m^3 (event spreads^2 / us^3) and bounds
         # its velocity variance to 1 / tau_m^2 (a spread per tau_m)
         self.horizon = p.prediction_horizon_us
@@ -611,9 +612,31 @@ class ReferenceTracker:
                 if over_count[i] > 0:
                     self.mx[i] = self.mx[i] + a_en * (gx + self.gdx0[i] - self.mx[i])
                     self.my[i] = self.my[i] + a_en * (gy + self.gdy0[i] - self.my[i])
+        if self.tau_m > 0.0:
+            self._pull_velocities(g, over_count)
         for i in range(t0, t1):
             # eq. (21): insensitive while every connection of the tracker is over
             self.sensitive[i] = not (self.degree[i] > 0 and over_count[i] == self.degree[i])
+
+    def _pull_velocities(self, g: int, over_count: dict) -> None:
+        """eq. (M8), this project's: the velocity of a tracker eq. (22) pulls moves toward
+        the mass-weighted mean velocity of its instance's trackers left alone (0 if none),
+        by the same gain: a tracker pulled back to the structure moves with it, not on
+        with what it followed (an occluder's edge, say)."""
+        w = vx = vy = 0.0
+        for i in range(self.t0[g], self.t1[g]):
+            if over_count[i] == 0:
+                w += self.mass[i]
+                vx += self.mass[i] * self.vx[i]
+                vy += self.mass[i] * self.vy[i]
+        if w > 0.0:
+            vx = vx / w
+            vy = vy / w
+        a = self.egain[g]
+        for i in range(self.t0[g], self.t1[g]):
+            if over_count[i] > 0:
+                self.vx[i] = self.vx[i] + a * (vx - self.vx[i])
+                self.vy[i] = self.vy[i] + a * (vy - self.vy[i])
 
     # ---- instances' states ------------------------------------------------------
     def set_state(self, g: int, state: int) -> None:

@@ -1,4 +1,4 @@
-"""The motion model (eqs. M1-M7 of springtrack/reference.py: velocity, both edges, the
+"""The motion model (eqs. M1-M8 of springtrack/reference.py: velocity, both edges, the
 rate-aware gain) on the real dot of evt2_sample.raw, whose truth is derived here from its
 own events (tests/dot_truth.py), and on fast dark and bright disks of the simulated sensor
 with edge latency (tests/fast_parts.py).  The kernel equals the reference with it on
@@ -111,9 +111,9 @@ def test_the_paper_tracker_lags_a_bright_disk_the_motion_model_does_not():
 
 
 def test_a_still_part_keeps_a_still_velocity_and_the_papers_position():
-    """Still parts: the velocity is noise about 0 (its mean under 300 px/s; each sample's
-    noise is ~2,800 px/s here: 3-px blobs, 50 kev/s, tau_v = 300 us) and the position
-    as close to the part as the paper's tracker's."""
+    """Still parts: the velocity is noise about 0 (its mean under 300 px/s; one sample's
+    speed ~1,400 px/s here: 3-px blobs, 50 kev/s) and the position as close to the part
+    as the paper's tracker's."""
     m = ShapeModel("one", 120, 100, [TrackerSpec("a", 60.0, 50.0, (9.0, 0.0, 9.0))], [])
     ev, _ = blob_stream(m, 50_000, rate_hz=50_000, noise=0.05, speed_px_s=(0, 0), seed=2)
     paper = springtrack.Tracker(m).run(ev, sample_us=1000)
