@@ -11,7 +11,7 @@ import pytest
 import springtrack
 import springtrack.io
 from springtrack.model import ShapeModel, TrackerSpec
-from springtrack.synthetic import blob_stream
+from springtrack.sim.synthetic import blob_stream
 from springtrack.track import read_csv
 
 from dot_truth import dot_truth, track_errors
