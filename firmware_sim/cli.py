@@ -256,8 +256,10 @@ def run(args) -> int:
     # three Python threads (reader, processing, link) share the GIL: hand it over every
     # 0.5 ms instead of 5 ms so the processing thread is never starved for long
     sys.setswitchinterval(0.0005)
-    # SIGTERM ends the run like Ctrl-C: threads stopped, --record written, stats printed
-    handlers = {sig: signal.signal(sig, _terminate) for sig in (signal.SIGTERM, signal.SIGINT)}
+    # SIGTERM and SIGHUP (a closed terminal) end the run like Ctrl-C: threads stopped,
+    # --record closed, stats printed
+    handlers = {sig: signal.signal(sig, _terminate)
+                for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)}
     try:
         return _run(args)
     finally:
@@ -279,7 +281,7 @@ def _run(args) -> int:
     cam = source.device
     engine = FirmwareLoop(source.open_camera, model=default_model(args, source),
                           params=args.params, telemetry_period_us=args.telemetry_us,
-                          nbuf=args.buffers, record=bool(args.record),
+                          nbuf=args.buffers, record=args.record or False,
                           lossless=cam is not None and args.max_speed, biases=biases,
                           profile=source.profile, backend=args.backend, roi=roi,
                           source_counters=source.counters, sensor_from=args.sensor_from,
@@ -346,8 +348,8 @@ def _run(args) -> int:
     if not learn_said:
         _say_learned(engine, args.learn_first_ms)
     if args.record:
-        rows = engine.write_record(args.record)
-        print(f"record: {rows} rows -> {args.record}", file=sys.stderr)
+        engine.recorder.close()
+        print(engine.recorder.summary(), file=sys.stderr)
     for line in source.report():
         print(line, file=sys.stderr)
     if failed is None and _sources.failure(source):
@@ -413,7 +415,7 @@ def _terminate(signum, frame):
 
 def _ignore_signals() -> None:
     """The shutdown runs once: signals from now on are ignored (``run`` restores them)."""
-    for sig in (signal.SIGTERM, signal.SIGINT):
+    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
         signal.signal(sig, signal.SIG_IGN)
 
 

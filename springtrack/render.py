@@ -171,12 +171,12 @@ def render(events: np.ndarray, model, track: Track, out, window_us: int = 10_000
     every_us = every_us or window_us
     if len(track) == 0:
         raise ValueError("render: the track has no samples (is the event file empty?)")
-    times = np.arange(track.t_us[0] + window_us, track.t_us[-1] + 1, every_us)
-    if len(times) == 0:
-        times = track.t_us[-1:]
-    if len(times) > max_frames:
-        raise ValueError(f"render: {len(times)} frames exceed --max-frames {max_frames}; "
+    first, last = int(track.t_us[0]) + window_us, int(track.t_us[-1]) + 1
+    count = max(0, -(-(last - first) // every_us))        # counted before any allocation
+    if count > max_frames:
+        raise ValueError(f"render: {count} frames exceed --max-frames {max_frames}; "
                          f"raise --every-us or --max-frames")
+    times = np.arange(first, last, every_us) if count else track.t_us[-1:]
     if out.suffix == ".png":
         times = times[len(times) // 2: len(times) // 2 + 1]
     rows = np.clip(np.searchsorted(track.t_us, times), 0, len(track) - 1)

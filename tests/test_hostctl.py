@@ -104,7 +104,7 @@ def test_cli_record_csv_matches_the_offline_tracker(served, capsys, tmp_path):
     out = tmp_path / "rec.csv"
     rc, text, _ = run(capsys, "--port", served.path, "record", str(out), "--seconds", "0.4",
                       "--smooth")
-    assert rc == 0 and "lost frames 0" in text
+    assert rc == 0 and "lost device queue 0, device send queue 0, link 0, CRC errors 0, host 0" in text
     rec = read_csv(out)
     assert rec.ids == springtrack.model.face26().ids and len(rec) > 100
     assert np.all(np.diff(rec.t_us) == 1000)

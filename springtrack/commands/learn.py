@@ -41,19 +41,18 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    from .. import io as stio
     from ..learn import NoObjectFound, learn_model
+    from .inputs import read_input
     if args.trackers is not None and not 1 <= args.trackers <= 64:
         raise ValueError(f"--trackers must be in [1, 64], got {args.trackers}")
     track_params = read_params(args.params) if args.params else None   # its errors first
-    reader = stio.open(args.input)
-    raw = reader.read()
-    width = reader.width or (int(raw["x"].max()) + 1 if len(raw) else 1)
-    height = reader.height or (int(raw["y"].max()) + 1 if len(raw) else 1)
+    src = read_input(args.input)
+    raw, width, height = src.events, src.width, src.height
     prep = prepargs.preparer(args, width, height, always=True)
     events = np.concatenate([raw[:0]] + list(prepargs.prepared([raw], prep)))
-    print(f"input     {args.input}: {width}x{height}, {len(raw):,} events; "
-          f"{prep.stats.summary()}; learning on {len(events):,}")
+    print(f"input     {args.input}: {width}x{height}, {len(raw):,} events "
+          f"(decoder {src.stats.summary()}); {prep.stats.summary()}; learning on "
+          f"{len(events):,}")
     names = [s.strip() for s in args.names.split(",")] if args.names else None
     try:
         res = learn_model(events, trackers=args.trackers, width=width, height=height,
@@ -76,13 +75,8 @@ def run(args) -> int:
 
 def read_params(path) -> dict:
     """The tracking parameters a TOML file sets (top level or [params]), validated."""
-    import tomllib
-    from ..params import ParamError, from_mapping
-    with open(path, "rb") as f:
-        try:
-            data = tomllib.load(f)
-        except tomllib.TOMLDecodeError as e:
-            raise ParamError(f"{path}: not valid TOML: {e}") from None
+    from ..params import from_mapping, read_toml
+    data = read_toml(path)
     table = data.get("params", data)
     valid = from_mapping(table, where=str(path)).as_dict()
     return {k: valid[k] for k in table}
