@@ -206,8 +206,8 @@ class Link:
         elif args.port:
             self.port = transport.open_port(args.port)
         else:
-            host, _, p = args.listen.rpartition(":")
-            self.server = transport.TcpServer(host or "127.0.0.1", int(p), key=key)
+            host, p = parse_listen(args.listen)
+            self.server = transport.TcpServer(host, p, key=key)
             print(f"listen: {self.server.url}", flush=True)
         if self.server is not None:
             self.hub = link.Hub(engine, key, on_shutdown=on_shutdown)
@@ -272,6 +272,8 @@ def _run(args) -> int:
     biases = parse_biases(args.bias)
     roi = parse_ints(args.roi, 4, ",", "--roi")
     has_link = bool(args.pty or args.port or args.listen)
+    if args.listen:
+        parse_listen(args.listen)                 # a bad port before anything starts
     if args.wait_start and not has_link:
         raise ValueError("--wait-start needs a host link (--pty, --port or --listen)")
     key = read_key(args.key_file)
@@ -407,6 +409,19 @@ def _say_learned(engine, window_ms: float | None = None) -> bool:
     else:
         print(f"learn: {le['report']}", file=sys.stderr, flush=True)
     return True
+
+
+def parse_listen(value: str) -> tuple[str, int]:
+    """``--listen HOST:PORT`` (or ``:PORT``) as (host, port); a ValueError names the option."""
+    host, _, p = value.rpartition(":")
+    try:
+        port = int(p)
+    except ValueError:
+        port = -1
+    if not 0 <= port <= 65535:
+        raise ValueError(f"--listen {value!r}: give HOST:PORT with a port in 0..65535 (0: any "
+                         f"free port)")
+    return host or "127.0.0.1", port
 
 
 def _terminate(signum, frame):

@@ -55,7 +55,9 @@ def main(argv=None) -> int:
         args = sub.parse_args(argv[1:])
         process_end.catch_sigterm()
         try:
-            return int(mod.run(args) or 0)
+            rc = int(mod.run(args) or 0)
+            sys.stdout.flush()               # a reader gone shows here, not at exit
+            return rc
         except KeyboardInterrupt:
             print("interrupted", file=sys.stderr)
             return 130

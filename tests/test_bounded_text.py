@@ -216,3 +216,17 @@ def test_fuzz_params_text_only_param_errors(text):
         _params.from_mapping(_params.parse_toml(text, "fuzz"))
     except _params.ParamError:
         pass
+
+
+def test_instance_labels_in_tracker_ids_are_safe_for_csv():
+    """Ids shared by several instances are prefixed with the instance's label, made from
+    the model's name (free text): its unsafe characters become '_'."""
+    import dataclasses
+    from springtrack.instances import _labels, unique_ids
+    from springtrack.limits import TRACKER_ID
+    m = dataclasses.replace(_model.grid3x3(), name="=cmd(), a\\nb")
+    labels = _labels([m, m])
+    assert labels == ["_cmd____a_nb#1", "_cmd____a_nb#2"]
+    from types import SimpleNamespace as NS
+    ids = unique_ids([NS(model=m, label=labels[0]), NS(model=m, label=labels[1])])
+    assert all(TRACKER_ID.fullmatch(i.replace("#", "").replace("/", "")) for i in ids)

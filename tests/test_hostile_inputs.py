@@ -133,6 +133,17 @@ def test_learn_memory_follows_the_events_not_a_28_hour_pause(tmp_path):
     assert "MemoryError" not in r.stderr and mib < 600
 
 
+def test_render_memory_follows_the_events_not_a_28_hour_pause(tmp_path):
+    ev, _ = blob_stream(grid3x3(), 30_000, rate_hz=200_000, seed=5)
+    ev["t"][len(ev) // 2:] += 28 * 3600 * 1_000_000
+    src = tmp_path / "pause.npy"
+    np.save(src, ev)
+    r, mib = peak(600, "render", src, "--model", "grid3x3", "--out", tmp_path / "o.png",
+                  timeout=300)
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "MemoryError" not in r.stderr and mib < 600
+
+
 def test_learn_batches_skip_a_long_pause():
     from springtrack.learn import MAX_IDLE_BATCHES, _batches
     ev = np.zeros(4, EVENT_DTYPE)
@@ -184,7 +195,7 @@ def test_out_dash_writes_the_track_csv_to_stdout_and_the_summary_to_stderr(tmp_p
     assert "events=" in r.stderr and not (tmp_path / "-").exists() and not Path("-").exists()
 
 
-def test_info_into_a_closed_pipe_ends_quietly_with_141(tmp_path, grid_events):
+def test_output_into_a_closed_pipe_ends_quietly_with_141(tmp_path, grid_events):
     src = tmp_path / "g.npy"
     np.save(src, grid_events)
     p = subprocess.Popen(CLI + ["track", str(src), "--model", "grid3x3", "--out", "-",
@@ -214,3 +225,57 @@ def test_sigterm_during_track_leaves_a_clearly_marked_csv(tmp_path):
     assert "incomplete (SIGTERM)" in err and "Traceback" not in err
     last = out.read_text().rstrip("\n").splitlines()[-1]
     assert last.startswith(INCOMPLETE_MARK)
+
+
+# ---- the smaller items ------------------------------------------------------------------
+def test_render_model_png_needs_no_imageio(tmp_path, grid_events):
+    src = tmp_path / "g.npy"
+    np.save(src, grid_events)
+    out = tmp_path / "o.png"
+    code = ("import sys; sys.modules['imageio'] = None; sys.modules['imageio.v2'] = None; "
+            "from springtrack.cli import main; sys.exit(main(sys.argv[1:]))")
+    r = subprocess.run([sys.executable, "-c", code, "render", str(src), "--model", "grid3x3",
+                        "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    r = subprocess.run([sys.executable, "-c", code, "render", str(src), "--model", "grid3x3",
+                        "--out", str(tmp_path / "o.gif")], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 2 and "needs imageio" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_listen_port_out_of_range_is_a_clear_error():
+    from fwproc import firmware_cmd
+    r = subprocess.run(firmware_cmd("--source", "sim:face_occlusion", "--listen", "127.0.0.1:99999"),
+                       capture_output=True, text=True, timeout=60)
+    assert r.returncode == 2 and "port in 0..65535" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_score_with_a_time_beyond_int64_is_a_clear_error(tmp_path):
+    truth = tmp_path / "truth.csv"
+    truth.write_text("t_us,part,x,y\n" + "9" * 30 + ",a,1,2\n")
+    track = tmp_path / "track.csv"
+    track.write_text("t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive\n"
+                     + "9" * 30 + ",a,1,2,1,0,1,0,1,1\n")
+    r = cli("score", truth, track)
+    assert r.returncode == 2 and "malformed truth row" in r.stderr and "Traceback" not in r.stderr
+    truth.write_text("t_us,part,x,y\n1000,a,1,2\n")
+    r = cli("score", truth, track)
+    assert r.returncode == 2 and "malformed track row" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_aedat4_decompression_amplification_is_bounded(tmp_path):
+    """A valid file of identical events compresses ~200x with LZ4: its packets beyond
+    aedat4.MAX_RATIO are corrupt packets (counted, warned about), never an allocation."""
+    from springtrack.io import aedat4
+    ev = np.zeros(400_000, EVENT_DTYPE)
+    ev["x"], ev["y"] = 5, 7
+    data = stio.encode_file(ev, 304, 240, "aedat4")
+    assert len(ev) * 16 / len(data) > aedat4.MAX_RATIO      # a real amplification
+    src = _write(tmp_path / "amp.aedat4", data)
+    r = stio.open(src)
+    got = r.read()
+    assert len(got) * 16 <= len(data) * aedat4.MAX_RATIO
+    assert r.stats.anomalies["corrupt_packets"] > 0
+    res = cli("track", src, "--model", "grid3x3", "--out", tmp_path / "t.csv", "--no-progress")
+    assert "warning:" in res.stderr and "corrupt_packets" in res.stderr
