@@ -8,7 +8,7 @@ length and constant memory, and refuses text beyond any of the bounds below with
 naming the bound; text within them parses in bounded time and memory (docs/formats.md,
 "Model and parameter text", has the measured worst case).  The bounds are far above what a
 valid model needs: at most ``limits.MAX_TRACKERS`` trackers of ~8 values and
-``limits.MAX_CONNECTIONS`` connections of ~5.
+``limits.MAX_CONNECTIONS`` connections of ~7, some 1 700 items on 1 200 lines.
 
 Every entry point calls it through :func:`springtrack.params.parse_toml`: the CLI's
 ``--model``/``--params`` files, the Python API (``model.load``/``loads``,
@@ -21,7 +21,10 @@ import re
 MAX_TEXT_BYTES = 256 * 1024     # the whole text (also the link's largest model upload)
 MAX_KEY_SEGMENTS = 8            # parts of one dotted key or table header: a.b.c is 3
 MAX_NESTING = 8                 # arrays and inline tables inside each other
-MAX_ITEMS = 16384               # keys, table headers and array elements, all together
+MAX_ITEMS = 4096                # keys, table headers and array elements, all together
+MAX_LINES = 8192                # lines (tomllib's cost per line, even blank or a comment)
+MAX_MARKS = 8 * MAX_ITEMS       # brackets, dots, commas and '=' outside strings and comments
+                                # (a valid item takes at most a few: 1.5e3, [..], a.b = ...)
 
 # the characters that change the scanner's state; everything else is skipped in one search
 _SIGNIFICANT = re.compile(r"[\"'#\[\]{}=.,\n]")
@@ -78,6 +81,10 @@ def check(text, source: str = "<string>") -> str:
                               f"to {MAX_TEXT_BYTES} bytes")
     if isinstance(text, (bytes, bytearray)):
         text = bytes(text).decode("utf-8")
+    lines = text.count("\n") + 1
+    if lines > MAX_LINES:
+        raise TomlBoundsError(f"{source}: {lines} lines: model and parameter text is limited "
+                              f"to {MAX_LINES} lines; not parsed")
 
     def refuse(what: str, limit: int, pos: int) -> None:
         line = text.count("\n", 0, pos) + 1
@@ -88,7 +95,7 @@ def check(text, source: str = "<string>") -> str:
     key = True                  # reading a key (else a value)
     header = False              # inside a [table] or [[array]] header
     segments = 1
-    items = 0
+    items = marks = 0
     i, n = 0, len(text)
     while True:
         m = _SIGNIFICANT.search(text, i)
@@ -108,6 +115,9 @@ def check(text, source: str = "<string>") -> str:
             if not stack:
                 key, header, segments = True, False, 1
             continue
+        marks += 1
+        if marks > MAX_MARKS:
+            refuse("too many brackets, dots, commas and '=' outside strings", MAX_MARKS, i)
         if key:
             if c == ".":
                 segments += 1

@@ -54,6 +54,9 @@ def test_a_deep_dotted_key_is_refused_before_parsing_by_every_api(tmp_path):
     ("x = [" + "1," * (toml_bounds.MAX_ITEMS + 1) + "]", "too many keys"),
     ("x = '" + "y" * (toml_bounds.MAX_TEXT_BYTES) + "'", "limited to 262144 bytes"),
     ("x = " + "9" * 5000, "not valid TOML"),
+    ("#\n" * toml_bounds.MAX_LINES, "limited to 8192 lines"),
+    ("x = " + "1." * (toml_bounds.MAX_MARKS + 1), "too many brackets, dots"),
+    ("x = " + "[]" * toml_bounds.MAX_MARKS, "too many"),
 ])
 def test_text_beyond_a_bound_is_a_model_error_naming_it(text, match):
     with pytest.raises(_model.ModelError, match=match):
