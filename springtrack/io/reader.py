@@ -10,7 +10,7 @@ import warnings
 import numpy as np
 
 from ..events import EVENT_DTYPE, EventError, as_events, empty_output
-from .detect import FileInfo, sniff
+from .detect import FileInfo
 from .errors import DecodeError
 from .stats import DecodeStats
 
@@ -235,7 +235,7 @@ def _load_csv(path) -> np.ndarray:
         raise DecodeError(f"{path}: line {e.index + 2}: {e.detail}") from None
 
 
-def _is_stream(path) -> bool:
+def is_stream(path) -> bool:
     """A FIFO or character device: it cannot be sniffed and reopened (what detection
     read would be gone, and its writer killed by SIGPIPE), nor sized."""
     try:
@@ -243,19 +243,3 @@ def _is_stream(path) -> bool:
     except OSError:
         return False                 # open() names the problem
     return stat.S_ISFIFO(mode) or stat.S_ISCHR(mode)
-
-
-def open_events(path, format: str | None = None, keep_exposure: bool = False) -> Reader:
-    """Open an event file of any supported format (detected by content); ``"-"``: the event
-    stream on standard input, and a named pipe or character device: the stream it delivers
-    (springtrack.io.stream)."""
-    if isinstance(path, str) and path == "-":
-        from .stream import open_stream
-        return open_stream(format=format)
-    if _is_stream(path):             # a named pipe or a device: read once, as a stream
-        from .stream import open_stream
-        return open_stream(builtins.open(path, "rb"), format=format, name=str(path))
-    info = sniff(path, format)
-    if info.format in ("npy", "csv"):
-        return ArrayReader(path, info)
-    return Reader(path, info, keep_exposure=keep_exposure)
