@@ -145,7 +145,7 @@ def test_render_memory_follows_the_events_not_a_28_hour_pause(tmp_path):
 
 
 def test_learn_batches_skip_a_long_pause():
-    from springtrack.learn import MAX_IDLE_BATCHES, _batches
+    from springtrack.learning.discovery import MAX_IDLE_BATCHES, _batches
     ev = np.zeros(4, EVENT_DTYPE)
     ev["t"] = [0, 10, 10**12, 10**12 + 5]
     got = list(_batches(ev, 0, int(ev["t"][-1]), 1000))
