@@ -18,7 +18,7 @@ from firmware_sim.record import StreamRecorder
 from springtrack import io as stio
 from springtrack import wire
 from springtrack.model import grid3x3
-from springtrack.synthetic import blob_stream
+from springtrack.sim.synthetic import blob_stream
 from springtrack.track import CSV_HEADER
 
 from fwproc import firmware_cmd

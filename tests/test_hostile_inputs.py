@@ -20,7 +20,7 @@ from springtrack import io as stio
 from springtrack.events import EVENT_DTYPE
 from springtrack.io.outputs import INCOMPLETE_MARK
 from springtrack.model import grid3x3
-from springtrack.synthetic import blob_stream
+from springtrack.sim.synthetic import blob_stream
 
 HERE = Path(__file__).resolve().parent
 CLI = [sys.executable, "-m", "springtrack.cli"]
