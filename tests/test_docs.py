@@ -116,3 +116,19 @@ def test_readme_device_commands_run_against_firmware(tmp_path):
             fw.wait(10)
         except subprocess.TimeoutExpired:
             fw.kill()
+
+
+def python_blocks(path):
+    """The fenced ```python blocks of a Markdown file."""
+    return re.findall(r"```python\n(.*?)```", (ROOT / path).read_text(), re.S)
+
+
+@pytest.mark.parametrize("path", ["README.md", "docs/learning.md"])
+def test_python_snippets_run(path, data_file, monkeypatch):
+    """Every Python block of the page runs as written, from the repository root with the
+    real recordings at ../shared/data (as the page says they are)."""
+    data = data_file("dvs.es").parent
+    monkeypatch.chdir(ROOT)
+    for block in python_blocks(path):
+        code = block.replace("../shared/data", str(data))
+        exec(compile(code, f"{path} python block", "exec"), {})

@@ -44,8 +44,10 @@ def add_arguments(p):
 def run(args) -> int:
     from .. import io as stio
     from ..learning.learner import NoObjectFound, learn_model
-    if args.trackers is not None and not 1 <= args.trackers <= 64:
-        raise ValueError(f"--trackers must be in [1, 64], got {args.trackers}")
+    from ..learning.settings import MAX_PARTS
+    if args.trackers is not None and not 1 <= args.trackers <= MAX_PARTS:
+        raise ValueError(f"--trackers must be in [1, {MAX_PARTS}] (one kernel instance holds at "
+                         f"most {MAX_PARTS} trackers), got {args.trackers}")
     track_params = read_params(args.params) if args.params else None   # its errors first
     reader = stio.open(args.input)
     raw = reader.read()
@@ -78,10 +80,17 @@ def run(args) -> int:
 def report(res) -> None:
     """Print the trackers, the springs with their evidence, and the lifecycle."""
     m = res.model
-    life = ", ".join(f"{k} {v}" for k, v in res.lifecycle.items() if v)
+    life = ", ".join(f"{k} {v}" for k, v in res.lifecycle.items()
+                     if v and k not in ("found", "time_scale"))
     print(f"learned   {len(m.trackers)} trackers, {len(m.connections)} springs from "
           f"{res.events:,} events over {(res.t_end_us - res.t_start_us) / 1e3:.1f} ms "
           f"in {res.wall_s:.2f} s ({life})")
+    for line in notes(res):
+        print(f"note      {line}")
+    ev = m.learned
+    print(f"stability {ev['stability']:.2f} = persistence {ev['persistence']:.2f} x coherence "
+          f"{ev['coherence']:.2f} x layout rigidity {ev['layout']:.2f} (1 = parts that lived "
+          f"two grace periods, fired together, in a rigid layout)")
     print("params    " + ", ".join(f"{k}={v}" for k, v in m.params.items()))
     print(f"{'tracker':>8} {'x':>7} {'y':>7} {'sigma_x':>7} {'sigma_y':>7} {'mass':>5} {'events':>7}")
     for t, n in zip(m.trackers, res.counts):
@@ -92,6 +101,36 @@ def report(res) -> None:
     for c, s in zip(m.connections, res.springs):
         print(f"{c.a + '-' + c.b:>17} {'+'.join(c.springs):<20} {c.stiffness:9.5f} "
               f"{s.coactivation:8.3f} {s.rigidity:8.3f} {s.turn_deg:8.1f}")
+
+
+def notes(res) -> list:
+    """What the learner decided for the user: time constants scaled to a short window,
+    parts beyond a kernel instance's capacity reduced, criteria switched off."""
+    from ..learning.settings import MAX_PARTS, LearnParams
+    out = []
+    life = res.lifecycle
+    k = life.get("time_scale", 1.0)
+    if k < 1.0:
+        ref = LearnParams()
+        out.append(f"short window: lifecycle times scaled by {k:g} (grace "
+                   f"{ref.life_tau_us * k / 1e3:g} ms, step {ref.batch_us * k:.0f} µs)")
+    found, n = life.get("found", 0), len(res.model.trackers)
+    if found > n:
+        out.append(f"{found} parts found, reduced to {n} (dropped {life.get('dropped_to_n', 0)} "
+                   f"weakest, merged {life.get('merged_to_n', 0)} pairs)"
+                   + ("; a kernel instance holds at most "
+                      f"{MAX_PARTS}" if found > MAX_PARTS else "")
+                   + "; --trackers N to choose")
+    from ..learning.settings import LAYOUT_RIGID
+    if res.model.learned.get("layout", 1.0) < LAYOUT_RIGID:
+        out.append(f"layout rigidity {res.model.learned['layout']:.2f} < {LAYOUT_RIGID}: the "
+                   f"parts slid against each other (texture, a 3-D object, several objects); "
+                   f"the springs may pull trackers off their parts")
+    s = res.model.params.get("energy_scale")
+    if s is not None and len(res.model.connections) and s > len(res.model.connections):
+        out.append(f"energy_scale {s:g} > {len(res.model.connections)} springs: the occlusion "
+                   f"criteria (eqs. 21-22) are off, as the object's shape changed in the window")
+    return out
 
 
 def learn_first(source, ms: float, width: int, height: int, name: str = "learned",
@@ -127,8 +166,11 @@ def learn_first(source, ms: float, width: int, height: int, name: str = "learned
         raise NoObjectFound(f"--learn-first-ms {ms:g} ({len(events):,} events): {e}") from None
     m = res.model
     print(f"learned {len(m.trackers)} trackers, {len(m.connections)} springs from the first "
-          f"{ms:g} ms ({res.events:,} events, {res.wall_s:.2f} s); "
+          f"{ms:g} ms ({res.events:,} events, {res.wall_s:.2f} s); stability "
+          f"{m.learned['stability']:.2f}; "
           + ", ".join(f"{k}={v}" for k, v in m.params.items()), file=sys.stderr)
+    for line in notes(res):
+        print(f"learn: {line}", file=sys.stderr)
 
     def after():
         if rest is not None:

@@ -36,9 +36,13 @@ window slides by half its length (rows start once one is found).  Then an instan
 trackers fall inactive (fewer than a third active for 3 activity time constants) is lost
 and searched for again every --acquire-ms / 2 in the last --acquire-ms of events; an
 instance not found at the start is searched for the same way.  See docs/acquisition.md.
-exit status: 0 tracked, 1 --acquire found no model, 2 bad input, 3 --learn-first-ms found
+exit status: 0 tracked, 4 tracked but --acquire's find was doubtful (at a search bound or
+confidence below 0.7: a warning says which), 1 --acquire found no model, 2 bad input, 3 --learn-first-ms found
 no object (noise or too few events).
 """
+
+
+DOUBTFUL_EXIT = 4        # tracked, but an acquisition's find was doubtful
 
 
 def add_arguments(p):
@@ -204,6 +208,11 @@ def run(args) -> int:
             print(f"springtrack track: {what} not found in {args.input}; no track rows "
                   f"written", file=sys.stderr)
             return 1
+        doubtful = [p for p in acq.poses if p is not None and p.doubtful]
+        for p in doubtful:
+            print(f"springtrack track: warning: the acquisition is doubtful: {p.doubt}; "
+                  f"check the overlay (springtrack render --track), or widen the search "
+                  f"(--acquire-scale, --acquire-angle)", file=sys.stderr)
         for t, label, kind in tr.changes:
             print(f"instance {label}: {kind} at t={t} us")
         print("instances: " + ", ".join(f"{i['label']} {i['state']} (acquired {i['acquired']}, "
@@ -218,6 +227,8 @@ def run(args) -> int:
                                               if args.acquire and i["state"] == "searching"])
         for w in watch.warnings():
             print(f"springtrack track: warning: {w}", file=sys.stderr)
+    if args.acquire and doubtful:
+        return DOUBTFUL_EXIT
     return 0
 
 

@@ -190,6 +190,21 @@ def event_shares(rec: dict) -> np.ndarray:
     return rec["cnt"].sum(axis=0) / np.maximum(ref.sum(axis=0), 1e-12)
 
 
+def event_weighted_median(values: np.ndarray, counts: np.ndarray) -> float:
+    """The value of the tracker that holds the median event: half of all events went to
+    trackers with this value or a larger one (``values`` sorted by it).  With parts of
+    similar event rates it is the plain median; with one dominant part (a single object
+    and the faint trails it leaves) it is that part's, where the plain median would be a
+    trail's."""
+    if not len(values):
+        return 0.0
+    order = np.argsort(values, kind="stable")
+    c = np.cumsum(np.maximum(counts[order], 0.0))
+    if c[-1] <= 0:
+        return float(np.median(values))
+    return float(values[order][int(np.searchsorted(c, 0.5 * c[-1]))])
+
+
 def awake(rec: dict, tau_us: float, batch_us: int) -> np.ndarray:
     """(N,) each tracker's activity (eq. 6) over the last ``tau_us`` of the samples, over
     its mean activity: near 1 while it follows its part, near 0 once the part has left
