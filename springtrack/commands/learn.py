@@ -43,16 +43,11 @@ def add_arguments(p):
 
 def run(args) -> int:
     from ..learning.learner import NoObjectFound, learn_model
-<<<<<<< HEAD
     from ..learning.settings import MAX_PARTS
+    from .inputs import read_input
     if args.trackers is not None and not 1 <= args.trackers <= MAX_PARTS:
         raise ValueError(f"--trackers must be in [1, {MAX_PARTS}] (one kernel instance holds at "
                          f"most {MAX_PARTS} trackers), got {args.trackers}")
-=======
-    from .inputs import read_input
-    if args.trackers is not None and not 1 <= args.trackers <= 64:
-        raise ValueError(f"--trackers must be in [1, 64], got {args.trackers}")
->>>>>>> main
     track_params = read_params(args.params) if args.params else None   # its errors first
     src = read_input(args.input)
     raw, width, height = src.events, src.width, src.height
