@@ -20,6 +20,10 @@ input: .npy structured arrays (fields t, x, y, p), CSV with header t,x,y,p, and 
 camera format springtrack.io reads (EVT 2.0/2.1/3.0 RAW, Event Stream .es, DAT, AEDAT 4);
 - reads an event stream (RAW EVT 2.0/2.1/3.0 with its % header, or .es, .dat, .aedat4) from
 standard input as it arrives, e.g. another stack's live output piped in.
+live sources (docs/live.md): dv://HOST:PORT a DV network event stream, dv:camera[:SERIAL]
+an attached iniVation camera (both: pip install 'springtrack[dv]'), udp://HOST:PORT events
+in aestream's UDP layout (?geometry=WxH, ?timeout=S); the sensor size from the stream; the
+run ends with the stream, and prints its counts (events, batches, gaps) on stderr.
 output CSV header: t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive,state — one row
 per tracker at every multiple of --sample-us between the first and the last event, holding
 the state after all events with t < t_us; a stretch without events is sampled for its first
@@ -45,7 +49,9 @@ no object (noise or too few events).
 def add_arguments(p):
     p.epilog = EPILOG
     p.add_argument("input", help="event file (.npy, .csv, .raw, .es, .dat, .aedat4), or - for "
-                                 "an event stream (e.g. RAW) on standard input")
+                                 "an event stream (e.g. RAW) on standard input, or a live source URL "
+                                 "(dv://HOST:PORT, dv:camera[:SERIAL], udp://HOST:PORT; "
+                                 "docs/live.md)")
     p.add_argument("--model", action="append",
                    help="shape model: TOML file or preset name (grid3x3, face26); repeat it "
                         "to track several models at once; or --learn-first-ms")
@@ -137,6 +143,7 @@ def open_stream(args):
     without a preparation option), whose counts say what it dropped."""
     from .. import io as stio
     from ..geometry import fit_model
+    from ..live import is_live
     from ..model import load_model
     if (not args.model) == (args.learn_first_ms is None):
         raise ValueError("give either --model or --learn-first-ms")
@@ -149,10 +156,10 @@ def open_stream(args):
         width, height = fitted[0].width, fitted[0].height
     else:
         model = None
-        if args.input == "-":                       # one pass over standard input
+        if args.input == "-" or is_live(args.input):     # one pass over a stream
             if not width or not height:
-                raise ValueError("--learn-first-ms on standard input needs a stream whose "
-                                 "header gives the sensor size")
+                raise ValueError("--learn-first-ms on a stream needs one that gives the "
+                                 "sensor size (a header, or udp://...?geometry=WxH)")
         elif not width or not height:               # .npy, .csv: the events' extent
             ev = reader.read()
             width = int(ev["x"].max()) + 1 if len(ev) else 1

@@ -209,7 +209,11 @@ def _load_csv(path) -> np.ndarray:
 
 def open_events(path, format: str | None = None, keep_exposure: bool = False) -> Reader:
     """Open an event file of any supported format (detected by content); ``"-"``: the event
-    stream on standard input (springtrack.io.stream)."""
+    stream on standard input (springtrack.io.stream); a live source URL (``dv://HOST:PORT``,
+    ``udp://HOST:PORT``, springtrack.live): that stream, connected."""
+    from .. import live
+    if live.is_live(path):
+        return live.open(path)
     if isinstance(path, str) and path == "-":
         from .stream import open_stream
         return open_stream(format=format)
