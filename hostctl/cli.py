@@ -27,6 +27,7 @@ import sys
 import time
 
 from springtrack import wire
+from springtrack.view import add_arguments as add_view_arguments
 from springtrack.wire import Role
 
 from .device import Device, HostctlError
@@ -74,6 +75,10 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--seconds", type=float, default=None, help="stop after S seconds")
     sp.add_argument("--smooth", action="store_true", help="add Kalman-smoothed velocities")
     sp.add_argument("--rate", type=float, default=12.0, help="redraws per second (12)")
+    add_view_arguments(sp)
+    sp.add_argument("--model", metavar="MODEL",
+                    help="with --view: the device's model (TOML file or preset) to draw its "
+                         "springs and name its instances")
     sp = sub.add_parser("record", help="record telemetry to OUT.csv or OUT.npz")
     sp.add_argument("out")
     sp.add_argument("--seconds", type=float, default=10.0, help="duration (10)")
@@ -212,7 +217,18 @@ def cmd_ping(dev, args) -> int:
 
 def cmd_monitor(dev, args) -> int:
     from .monitor import monitor
-    return monitor(dev, seconds=args.seconds, smooth=args.smooth, rate=args.rate)
+    view = None
+    if args.view:
+        from springtrack import view as live_view
+        from springtrack.model import load_model
+        view = live_view.open(args.view, load_model(args.model) if args.model else None,
+                              name="hostctl monitor", every_us=args.view_every_us)
+    try:
+        return monitor(dev, seconds=args.seconds, smooth=args.smooth, rate=args.rate, view=view)
+    finally:
+        if view is not None:
+            view.close()
+            print(f"view: {view.frames} frames -> {args.view}", file=sys.stderr)
 
 
 # the device states (STATS ``state``) in which it sends no telemetry, and what to do

@@ -11,6 +11,7 @@ from ..events import as_events
 from ..limits import MAX_INSTANCES, MAX_SET_TRACKERS
 from ..track import CSV_HEADER
 from ..tracker import profile
+from ..view import add_arguments as add_view_arguments
 from ..watch import TrackWatch
 from . import prepargs
 
@@ -75,6 +76,7 @@ def add_arguments(p):
                    help="time the kernel per 10 ms bin of events (paper Figs. 22-23): a CSV "
                         "t_us,events,proc_us or a plot")
     add_sensor_from(p)
+    add_view_arguments(p)
     prepargs.add_arguments(p)
 
 
@@ -214,6 +216,9 @@ def run(args) -> int:
     if args.sample_us <= 0:
         raise ValueError(f"--sample-us must be a positive number of µs, got {args.sample_us}")
     from ..learn import NoObjectFound
+    if args.view:
+        from ..view import check_target
+        check_target(args.view)
     try:
         model, stream, prep = open_stream(args)
     except NoObjectFound as e:
@@ -222,6 +227,11 @@ def run(args) -> int:
     tr = tracker_from_args(args, model)
     tr.record(args.sample_us)
     watch = TrackWatch(tr.models)
+    view = None
+    if args.view:
+        from .. import view as live_view
+        view = live_view.open(args.view, tr.models, name=f"springtrack track {args.input}",
+                              every_us=args.view_every_us)
     prog = Progress(not args.no_progress)
     start = time.perf_counter()
     n = 0
@@ -234,20 +244,25 @@ def run(args) -> int:
                 continue
             # the rows are written as the kernel takes them: memory bounded by one call's
             # SAMPLE_CAP rows, however many samples a chunk produces
+            if view is not None:
+                view.events(chunk)
             if args.profile:
                 bins.append(profile(tr, chunk, PROFILE_BIN_US,
-                                    sink=lambda rows: _write_rows(rows, tr, watch, out)))
+                                    sink=lambda rows: _write_rows(rows, tr, watch, out, view)))
             else:
                 for part in tr.stream(chunk):
-                    _write_rows(part, tr, watch, out)
+                    _write_rows(part, tr, watch, out, view)
             t_first = int(chunk["t"][0]) if t_first is None else t_first
             t_last = int(chunk["t"][-1])
             n += len(chunk)
             prog.update(n, total, t_last)
         if args.acquire:
             tr.flush()
-            _write_rows(tr.samples(), tr, watch, out)
+            _write_rows(tr.samples(), tr, watch, out, view)
     prog.close()
+    if view is not None:
+        view.close()
+        print(f"view: {view.frames} frames -> {args.view}")
     wall = time.perf_counter() - start
     if args.profile:
         write_profile(args.profile, bins)
@@ -327,12 +342,14 @@ def write_profile(path, bins) -> None:
         f.writelines(f"{a},{b},{c:.3f}\n" for a, b, c in zip(keys.tolist(), ev.tolist(), pu.tolist()))
 
 
-def _write_rows(samples, tr, watch, f):
-    """Samples the tracker took, as CSV rows (the header is already written) and into the
-    end-of-run watch."""
+def _write_rows(samples, tr, watch, f, view=None):
+    """Samples the tracker took, as CSV rows (the header is already written), into the
+    end-of-run watch and the live view."""
     if not len(samples):
         return
     if watch.models is not tr.models:          # placed by the acquisition
         watch.use_models(tr.models)
     watch.add(samples)
     samples.write_rows(f)
+    if view is not None:
+        view.track(samples)
