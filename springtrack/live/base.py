@@ -1,7 +1,7 @@
 """What every live stream shares: the reader interface of ``springtrack.io`` over batches
 that arrive, and the counts that say how the stream went.
 
-A handler yields raw batches (:class:`Batch`: events, or a note that nothing came); the
+A handler's poll returns a :class:`Batch` (events, or a note that nothing came); the
 :class:`LiveReader` turns them into checked EVENT_DTYPE chunks, counts events, batches and
 gaps (the stream silent for longer than ``gap_s`` of wall time, then resumed), and when the
 stream ends -- its sender closed it, the connection dropped, it stayed silent for
@@ -52,13 +52,24 @@ class LiveStats:
                 f"wall_s={self.wall_s:.3f} ended: {self.ended or 'still running'}")
 
 
+MAX_COALESCE = 64        # packets ready at once that one poll joins into one chunk
+
+
 @dataclass
 class Batch:
     """One poll of a stream: ``events`` (a structured array with fields t, x, y, p of any
-    numeric types; None: nothing ready now), ``ended`` (why the stream is over, or None)."""
+    numeric types; None: nothing ready now) from ``packets`` of the sender's packets
+    (a reader that fell behind joins the packets waiting, up to MAX_COALESCE, so its cost
+    per event falls as its backlog grows), ``ended`` (why the stream is over, or None)."""
     events: np.ndarray | None = None
     ended: str | None = None
     bad_bytes: int = 0
+    packets: int = 1
+
+
+def joined(parts: list) -> np.ndarray:
+    """One array of ``parts`` (a list of event arrays)."""
+    return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
 
 def options(url: str, query: str, known: dict) -> dict:
@@ -149,7 +160,7 @@ class LiveReader:
                     except EventError as e:
                         raise EventError(e.index, f"{self.path}: batch {st.batches + 1}: "
                                                   f"{e.detail}") from None
-                    st.batches += 1
+                    st.batches += b.packets
                     st.events += len(ev)
                     yield ev
                 elif b.ended is not None:

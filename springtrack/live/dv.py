@@ -11,18 +11,21 @@ through ``dv-processing`` (the optional extra ``springtrack[dv]``).
 * ``dv:camera`` opens the first attached iniVation camera (DVXplorer, DAVIS, DVS128) with
   ``dv.io.camera.open()``, ``dv:camera:SERIAL`` the one with that serial number.
 
-Each poll takes the batches ready now (``getNextEventBatch``; nothing ready: the reader
-waits ``base.POLL_S``); the stream ends when the reader stops running (the server closed
-or the connection dropped; the camera unplugged).
+A thread (:class:`Drain`) takes the packets as they come (``getNextEventBatch``) into a
+bounded queue; each poll joins those waiting.  The stream ends when the reader stops
+running (the server closed or the connection dropped; the camera unplugged) and the
+packets before that are consumed.
 """
 from __future__ import annotations
 
+import queue
+import threading
 import time
 
 import numpy as np
 
 from ..extras import need
-from .base import GAP_S, Batch, LiveReader, options, positive_seconds
+from .base import GAP_S, MAX_COALESCE, POLL_S, Batch, LiveReader, joined, options, positive_seconds
 
 USAGE = "dv://HOST:PORT | dv:camera[:SERIAL]"
 HELP = ("a DV network event stream (DV's TCP output, dv.io.NetworkWriter), or an attached "
@@ -30,6 +33,7 @@ HELP = ("a DV network event stream (DV's TCP output, dv.io.NetworkWriter), or an
         "pip install 'springtrack[dv]'")
 OPTIONS = {"reconnect": (positive_seconds, 0.0), "gap": (positive_seconds, GAP_S)}
 RETRY_S = 0.2            # wait between connection attempts while reconnecting (s)
+QUEUE_PACKETS = 4096     # packets a reader holds for a consumer that falls behind
 # dv-processing's event record, renamed to the fields as_events reads
 _DV_NAMES = {"timestamp": "t", "x": "x", "y": "y", "polarity": "p"}
 
@@ -87,33 +91,101 @@ def open_camera(dv, serial: str, url: str):
         raise ConnectionError(f"{url}: the camera did not open: {str(e).splitlines()[0]}") from None
 
 
+class Drain:
+    """A thread taking the source's packets as they come into a bounded queue.
+
+    dv-processing's readers read the socket only when asked, and a stream closed while
+    packets wait unread is reset and loses them: the thread keeps asking, so a consumer
+    that starts late or falls behind loses nothing.  The queue holds QUEUE_PACKETS; when
+    it is full the thread waits and TCP's flow control holds the sender back (memory
+    stays bounded).  An item is an event array, or the string saying why the stream ended.
+    """
+
+    def __init__(self, source, url: str, fmt: str, reconnect=None):
+        self.source = source
+        self.url = url
+        self.fmt = fmt
+        self.reconnect = reconnect
+        self.reconnects = 0
+        self.ended: str | None = None     # why the stream ended, once the thread said so
+        self.resolution = tuple(source.getEventResolution())
+        self.queue: queue.Queue = queue.Queue(QUEUE_PACKETS)
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, name=f"springtrack {url}", daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        try:
+            while not self.stop.is_set():
+                batch = self.source.getNextEventBatch()
+                if batch is not None:
+                    self._put(np.array(batch.numpy()))
+                elif self.source.isRunning():
+                    time.sleep(POLL_S)
+                else:
+                    why = self._reconnected()
+                    if why is not None:
+                        self._put(why)
+                        return
+        except Exception as e:            # the reader's own error ends the stream, said
+            self._put(f"the reader failed: {str(e).splitlines()[0]}")
+
+    def _reconnected(self) -> str | None:
+        """None once connected again, else why the stream is over."""
+        new = self.reconnect() if self.reconnect is not None else None
+        if new is None:
+            return ("the sender closed the stream or the connection dropped"
+                    if self.fmt == "dv" else "the camera stopped (unplugged?)")
+        if tuple(new.getEventResolution()) != self.resolution:
+            return (f"reconnected to a {new.getEventResolution()} stream, not "
+                    f"{self.resolution}")
+        self.source = new
+        self.reconnects += 1
+        return None
+
+    def _put(self, item) -> None:
+        while not self.stop.is_set():
+            try:
+                self.queue.put(item, timeout=0.1)
+                return
+            except queue.Full:
+                continue
+
+    def poll(self) -> Batch:
+        parts = []
+        while len(parts) < MAX_COALESCE:
+            try:
+                item = self.queue.get_nowait()
+            except queue.Empty:
+                break
+            if isinstance(item, str):             # the last item: the thread has ended
+                self.ended = item
+                break
+            parts.append(item)
+        if parts:
+            return Batch(as_fields(joined(parts)), packets=len(parts))
+        return Batch(ended=self.ended)
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(timeout=1.0)
+
+
 def _reader(source, url: str, fmt: str, gap_s: float, reconnect=None) -> LiveReader:
-    """A LiveReader polling ``source`` (a NetworkReader or camera); ``reconnect()``
-    returns a new one after a drop (or None: the stream is over)."""
+    """A LiveReader over ``source`` (a NetworkReader or camera) drained by a thread;
+    ``reconnect()`` returns a new source after a drop (or None: the stream is over)."""
     if not source.isEventStreamAvailable():
         raise ValueError(f"{url}: the stream carries no events (frames or IMU only?)")
     w, h = source.getEventResolution()
-    state = {"src": source}
+    drain = Drain(source, url, fmt, reconnect)
     reader: LiveReader
 
     def poll() -> Batch:
-        batch = state["src"].getNextEventBatch()
-        if batch is not None:
-            return Batch(as_fields(batch.numpy()))
-        if state["src"].isRunning():
-            return Batch()
-        new = reconnect() if reconnect is not None else None
-        if new is None:
-            return Batch(ended="the sender closed the stream or the connection dropped"
-                         if fmt == "dv" else "the camera stopped (unplugged?)")
-        if tuple(new.getEventResolution()) != (w, h):
-            return Batch(ended=f"reconnected to a {new.getEventResolution()} stream, "
-                               f"not {w}x{h}")
-        state["src"] = new
-        reader.stats.reconnects += 1
-        return Batch()
+        b = drain.poll()
+        reader.stats.reconnects = drain.reconnects
+        return b
 
-    reader = LiveReader(url, fmt, int(w), int(h), poll, gap_s=gap_s,
+    reader = LiveReader(url, fmt, int(w), int(h), poll, gap_s=gap_s, close=drain.close,
                         header={"camera": source.getCameraName(),
                                 "geometry_source": "the stream's event resolution"})
     return reader

@@ -27,7 +27,7 @@ import time
 
 import numpy as np
 
-from .base import GAP_S, Batch, LiveReader, options, positive_seconds
+from .base import GAP_S, MAX_COALESCE, Batch, LiveReader, joined, options, positive_seconds
 
 USAGE = "udp://HOST:PORT"
 HELP = ("events in UDP datagrams, aestream's layout (docs/live.md): listen on HOST:PORT; "
@@ -175,19 +175,31 @@ def open(target: str, url: str) -> LiveReader:             # noqa: A001
     state = {"last": None}
 
     def poll() -> Batch:
-        try:
-            data = sock.recv(MAX_DATAGRAM)
-        except (socket.timeout, BlockingIOError):
-            last = state["last"]
-            if last is not None and opts["timeout"] and time.monotonic() - last > opts["timeout"]:
-                return Batch(ended=f"no datagram for {opts['timeout']:g} s (?timeout)")
-            return Batch()
-        now = time.monotonic()
-        if not data:
-            return Batch(ended="the sender's end marker (an empty datagram)")
-        state["last"] = now
-        ev, bad = dec.decode(data, now)
-        return Batch(ev, bad_bytes=bad)
+        parts, bad, ended = [], 0, None
+        sock.settimeout(WAIT_S)
+        while len(parts) < MAX_COALESCE:
+            try:
+                data = sock.recv(MAX_DATAGRAM)
+            except (socket.timeout, BlockingIOError):
+                break
+            now = time.monotonic()
+            if not data:
+                ended = "the sender's end marker (an empty datagram)"
+                break
+            state["last"] = now
+            ev, b = dec.decode(data, now)
+            parts.append(ev)
+            bad += b
+            sock.settimeout(0)            # then only what is already waiting
+        if parts:                         # the end marker, if any, ends the next poll
+            state["ended"] = ended
+            return Batch(joined(parts), bad_bytes=bad, packets=len(parts))
+        last = state["last"]
+        if ended or state.get("ended"):
+            return Batch(ended=ended or state["ended"], bad_bytes=bad)
+        if last is not None and opts["timeout"] and time.monotonic() - last > opts["timeout"]:
+            return Batch(ended=f"no datagram for {opts['timeout']:g} s (?timeout)", bad_bytes=bad)
+        return Batch(bad_bytes=bad)
 
     w, h = opts["geometry"] or (None, None)
     reader = LiveReader(url, "udp", w, h, poll, gap_s=opts["gap"], close=sock.close,

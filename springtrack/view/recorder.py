@@ -15,6 +15,7 @@ from ..render import LEGEND, drawn, ellipses_xy
 from ..track import STATE_NAMES, TRACKING_CODE
 
 VIEW_EVERY_US = 10_000        # a frame per 10 ms of event time (render's default window)
+APPLICATION = "springtrack"   # Rerun's application id; the recording is named by the run
 TIMELINE = "event_time"       # seconds of event time
 BACKLOG_US = 1_000_000        # events kept for frames not drawn yet (µs of event time)
 SEARCHING_CODE = STATE_NAMES.index("searching")
@@ -29,8 +30,10 @@ ENTITIES = {
     "sensor/events": "Points2D: the events of the last frame period, class ON / OFF",
     "sensor/trackers": "LineStrips2D: each tracker's 2σ ellipse, class by state, its id",
     "sensor/springs": "LineStrips2D: the springs between trackers of a drawn instance",
-    "instances/LABEL": "Scalars: the instance's state code (0 searching, 1 tracking, 2 lost)",
-    "energy/KIND": "Scalars: mean energy (euclidean, torsional, cartesian; mean from a device)",
+    "instances": "Scalars, a series per instance: its state code (0 searching, 1 tracking, "
+                 "2 lost)",
+    "energy": "Scalars, a series per kind: mean energy (euclidean, torsional, cartesian; "
+              "from a device: mean)",
     "trackers/active": "Scalars: how many trackers are active",
 }
 
@@ -51,7 +54,8 @@ class RerunView:
         self.every_us = int(every_us)
         if self.every_us <= 0:
             raise ValueError(f"the view's frame period must be positive µs, got {every_us}")
-        self.rec = rr.RecordingStream(name)
+        self.rec = rr.RecordingStream(APPLICATION)
+        self.rec.send_recording_name(name)
         if target == "rerun":
             self.rec.spawn()
         else:
@@ -67,7 +71,7 @@ class RerunView:
         self.pending = np.empty(0, EVENT_DTYPE)
         self.next_t = None
         self.frames = 0
-        self._states = None
+        self._named: dict = {}
 
     # ---- feeding -------------------------------------------------------------------
     def events(self, ev: np.ndarray) -> None:
@@ -110,7 +114,7 @@ class RerunView:
         """Log one frame at ``t_us``: the events before it, the trackers ``st`` (arrays
         x, y, sxx, sxy, syy, active, sensitive, state), ``energies`` (name -> value)."""
         rr, rec = self.rr, self.rec
-        rec.set_time(TIMELINE, duration=t_us * 1e-6)
+        rec.set_time(TIMELINE, duration=np.timedelta64(int(t_us), "us"))
         self._draw_events(t_us)
         n = len(st["x"])
         ids = self.ids if len(self.ids) == n else [f"t{k:02d}" for k in range(n)]
@@ -127,12 +131,20 @@ class RerunView:
             [[[st["x"][i], st["y"][i]], [st["x"][j], st["y"][j]]] for i, j in links],
             class_ids=SPRING))
         if self.inst is not None and len(self.inst) == n:
-            for g, label in enumerate(self.labels):
-                rec.log(f"instances/{label}", rr.Scalars(float(state[self.inst == g][0])))
-        for kind, value in energies.items():
-            rec.log(f"energy/{kind}", rr.Scalars(value))
+            self._series("instances", self.labels)
+            rec.log("instances", rr.Scalars([float(state[self.inst == g][0])
+                                             for g in range(len(self.labels))]))
+        if energies:
+            self._series("energy", list(energies))
+            rec.log("energy", rr.Scalars(list(energies.values())))
         rec.log("trackers/active", rr.Scalars(float(np.count_nonzero(st["active"]))))
         self.frames += 1
+
+    def _series(self, entity: str, names: list) -> None:
+        """Name the series of ``entity``'s scalars (once, static)."""
+        if self._named.get(entity) != names:
+            self.rec.log(entity, self.rr.SeriesLines(names=names), static=True)
+            self._named[entity] = list(names)
 
     def _draw_events(self, t_us: int) -> None:
         ev = self.pending
