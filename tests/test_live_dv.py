@@ -171,3 +171,28 @@ def test_io_open_and_the_source_registries_route_live_urls():
     assert sources.usage().count("dv://HOST:PORT") == 1
     with pytest.raises(ConnectionError):
         stio.open(f"dv://127.0.0.1:{free_port()}")
+
+
+def test_a_dropped_stream_reconnects_within_its_window(data_file, tmp_path):
+    """``?reconnect=S``: the first sender goes after 30,000 events, a second comes up on
+    the same port and serves the whole file; the reader connects again, counts it, and
+    reads both (the second's events are back in time: the tracker skips and counts
+    them)."""
+    path = data_file("sample.aedat4")
+    first, url = start_sender(path, "--cut", "30000")
+    port = url.rsplit(":", 1)[1]
+    live = subprocess.Popen(TRACK + [url + "?reconnect=20", "--out", str(tmp_path / "r.csv")]
+                            + MODEL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    first.wait(timeout=60)
+    second = subprocess.Popen([sys.executable, SENDER, "dv", port, str(path)],
+                              stdout=subprocess.PIPE, text=True)
+    assert second.stdout.readline().strip() == "listening"
+    second.wait(timeout=60)
+    out, err = live.communicate(timeout=120)
+    assert live.returncode == 0, err
+    sizes = batch_sizes(path)
+    k = next(i for i in range(len(sizes)) if sum(sizes[:i + 1]) >= 30_000) + 1
+    m = re.search(r"events=(\d+) batches=(\d+) gaps=(\d+) reconnects=(\d+)", err)
+    assert [int(v) for v in m.groups()][:2] == [sum(sizes[:k]) + 111_954, k + len(sizes)]
+    assert int(m.group(4)) == 1
+    assert "back_in_time=" in out and "back_in_time=0 " not in out

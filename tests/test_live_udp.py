@@ -117,3 +117,32 @@ def test_a_udp_stream_that_stops_ends_by_its_timeout_with_its_counts(data_file, 
     cut = (tmp_path / "cut.csv").read_text().splitlines()
     full = (tmp_path / "file.csv").read_text().splitlines()
     assert 1 < len(cut) < len(full) and cut == full[:len(cut)]
+
+
+def test_firmware_sim_tracks_a_udp_stream_as_springtrack_tracks_the_file(data_file, tmp_path):
+    """The layout carries no geometry: firmware-sim takes --geometry; the record equals
+    springtrack track's CSV of the same events (times under the camera counter's range:
+    no re-basing)."""
+    es = rebased_sample(data_file, tmp_path)
+    subprocess.run(TRACK + [str(es), "--out", str(tmp_path / "file.csv")] + MODEL,
+                   capture_output=True, check=True)
+    port = free_port(socket.SOCK_DGRAM)
+    fw = subprocess.Popen([sys.executable, "-m", "firmware_sim.cli", "run", "--source",
+                           f"udp://127.0.0.1:{port}", "--geometry", "320x240", "--model",
+                           "grid3x3", "--sensor-from", "source", "--max-speed", "--record",
+                           str(tmp_path / "fw.csv"), "--stats-every", "0"],
+                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    wait_bound(port)
+    subprocess.run([sys.executable, SENDER, "udp", f"127.0.0.1:{port}", str(es)],
+                   check=True, capture_output=True, timeout=120)
+    out, err = fw.communicate(timeout=120)
+    assert fw.returncode == 0, err
+    assert "udp 320x240 (from --geometry)" in out + err
+    assert (tmp_path / "fw.csv").read_bytes() == (tmp_path / "file.csv").read_bytes()
+
+
+def test_firmware_sim_asks_for_the_geometry_a_udp_stream_lacks():
+    r = subprocess.run([sys.executable, "-m", "firmware_sim.cli", "run", "--source",
+                        f"udp://127.0.0.1:{free_port(socket.SOCK_DGRAM)}", "--max-speed"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "give --geometry WxH" in r.stderr, r.stderr
