@@ -196,3 +196,16 @@ def test_a_dropped_stream_reconnects_within_its_window(data_file, tmp_path):
     assert [int(v) for v in m.groups()][:2] == [sum(sizes[:k]) + 111_954, k + len(sizes)]
     assert int(m.group(4)) == 1
     assert "back_in_time=" in out and "back_in_time=0 " not in out
+
+
+def test_info_describes_a_dv_stream_as_the_file(data_file):
+    path = data_file("sample.aedat4")
+    sender, url = start_sender(path)
+    r = subprocess.run([sys.executable, "-m", "springtrack.cli", "info", url],
+                       capture_output=True, text=True, timeout=120)
+    sender.wait(timeout=30)
+    assert r.returncode == 0, r.stderr
+    assert "geometry  320x240 (from the stream's event resolution)" in r.stdout
+    assert "events    111,954 (55,023 ON)" in r.stdout
+    assert f"decoded   {len(batch_sizes(path))} packets" in r.stdout
+    assert "= 2020-11-16 14:38:13.718345 UTC" in r.stdout

@@ -14,7 +14,8 @@ BIN_US = 10_000
 # timestamps from here on are taken for Unix-epoch microseconds (AEDAT 4 keeps them so):
 # 10**15 us is 2001-09-09, 4 * 10**15 us is 2096
 EPOCH_US = (10**15, 4 * 10**15)
-WORD_UNIT = {"es": "bytes", "aedat4": "packets"}
+WORD_UNIT = {"es": "bytes", "aedat4": "packets", "dv": "packets", "dv-camera": "packets",
+             "udp": "datagrams"}
 
 
 def add_arguments(p):

@@ -44,6 +44,23 @@ class LiveStats:
     wall_s: float = 0.0
     extra: dict = field(default_factory=dict)
 
+    # the counters every reader's stats show (springtrack.io.DecodeStats' names)
+    @property
+    def words(self) -> int:
+        return self.batches
+
+    @property
+    def pending_bytes(self) -> int:
+        return 0
+
+    @property
+    def anomalies(self) -> dict:
+        return {"bad_bytes": self.bad_bytes}
+
+    @property
+    def info(self) -> dict:
+        return {"gaps": self.gaps, "reconnects": self.reconnects}
+
     def summary(self) -> str:
         more = "".join(f" {k}={v}" for k, v in self.extra.items())
         return (f"stream {self.source}: events={self.events} batches={self.batches} "
@@ -106,6 +123,7 @@ class LiveReader:
         self.width = width
         self.height = height
         self.header = dict(header or {})
+        self.event_type = None
         self.options = {}
         self.offset = 0
         self.size_hint = None
