@@ -156,7 +156,7 @@ def test_the_camera_is_opened_through_dv_processing_when_discovered(monkeypatch)
 
 def test_without_dv_processing_the_message_names_the_extra(monkeypatch):
     from springtrack import live
-    from springtrack.extras import MissingExtra
+    from springtrack.live.extras import MissingExtra
     monkeypatch.setitem(sys.modules, "dv_processing", None)
     with pytest.raises(MissingExtra, match=r"pip install 'springtrack\[dv\]'"):
         live.open("dv://127.0.0.1:7777")

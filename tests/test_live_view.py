@@ -137,7 +137,7 @@ def test_view_targets_and_the_missing_extra(tmp_path, monkeypatch):
                        + MODEL, capture_output=True, text=True, cwd=tmp_path)
     assert r.returncode == 2 and "--view must be rerun" in r.stderr
     from springtrack import view
-    from springtrack.extras import MissingExtra
+    from springtrack.live.extras import MissingExtra
     monkeypatch.setitem(sys.modules, "rerun", None)
     with pytest.raises(MissingExtra, match=r"pip install 'springtrack\[view\]'"):
         view.open(str(tmp_path / "v.rrd"), None)

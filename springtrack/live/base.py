@@ -61,6 +61,14 @@ class LiveStats:
     def info(self) -> dict:
         return {"gaps": self.gaps, "reconnects": self.reconnects}
 
+    def warning(self, source) -> str | None:
+        """A warning line naming what the stream dropped (payload that was not whole
+        events), or None if nothing was: every command that reads events prints it."""
+        if not self.bad_bytes:
+            return None
+        return (f"warning: {source}: {self.bad_bytes:,} bytes of the stream were not whole "
+                f"events and were dropped; what they cost is not in the output")
+
     def summary(self) -> str:
         more = "".join(f" {k}={v}" for k, v in self.extra.items())
         return (f"stream {self.source}: events={self.events} batches={self.batches} "

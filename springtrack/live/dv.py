@@ -24,7 +24,7 @@ import time
 
 import numpy as np
 
-from ..extras import need
+from .extras import need
 from .base import GAP_S, MAX_COALESCE, POLL_S, Batch, LiveReader, joined, options, positive_seconds
 
 USAGE = "dv://HOST:PORT | dv:camera[:SERIAL]"

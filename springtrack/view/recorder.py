@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..events import EVENT_DTYPE, as_events
-from ..extras import need
+from ..live.extras import need
 from ..render import LEGEND, drawn, ellipses_xy
 from ..track import STATE_NAMES, TRACKING_CODE
 

@@ -1,4 +1,5 @@
-"""Optional extras: import a package of one, or say which extra installs it.
+"""Optional extras of the live work (dv, view): import a package of one, or say which
+extra installs it.
 
     dv = need("dv_processing", "dv", "dv:// and dv:camera sources")
 
