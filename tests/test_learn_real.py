@@ -28,7 +28,7 @@ RECORDINGS = {
     "rpg_garfield.npy": "model",
     "edvs_pen.npy": "model",
     "davis346.aedat4": "model",
-    "ncars_sample.dat": "none",
+    "ncars_sample.dat": "model",
 }
 
 

@@ -206,19 +206,17 @@ def event_shares(rec: dict) -> np.ndarray:
     return rec["cnt"].sum(axis=0) / np.maximum(ref.sum(axis=0), 1e-12)
 
 
-def event_weighted_median(values: np.ndarray, counts: np.ndarray) -> float:
-    """The value of the tracker that holds the median event: half of all events went to
-    trackers with this value or a larger one (``values`` sorted by it).  With parts of
-    similar event rates it is the plain median; with one dominant part (a single object
-    and the faint trails it leaves) it is that part's, where the plain median would be a
-    trail's."""
+def reference_value(values: np.ndarray, counts: np.ndarray) -> float:
+    """What a part's ``values`` are judged against: the plain median over the parts, or,
+    when one part holds at least half of all events (a single object and the faint
+    trails it leaves), that part's value, where the plain median would be a trail's."""
     if not len(values):
         return 0.0
-    order = np.argsort(values, kind="stable")
-    c = np.cumsum(np.maximum(counts[order], 0.0))
-    if c[-1] <= 0:
-        return float(np.median(values))
-    return float(values[order][int(np.searchsorted(c, 0.5 * c[-1]))])
+    c = np.maximum(counts, 0.0)
+    k = int(np.argmax(c))
+    if c.sum() > 0 and c[k] >= 0.5 * c.sum():
+        return float(values[k])
+    return float(np.median(values))
 
 
 def awake(rec: dict, tau_us: float, batch_us: int) -> np.ndarray:

@@ -12,7 +12,7 @@ from ..limits import MAX_CONNECTIONS, spring_scale
 from ..model import SPRING_BIT, Connection, ShapeModel, TrackerSpec
 from ..params import Params
 from .discovery import (_discover, _keep_cols, _to_count, awake, event_rates, event_shares,
-                        event_weighted_median, quiet_nan)
+                        quiet_nan, reference_value)
 from .pool import Pool
 from .settings import (F, LearnParams, LearnResult, MASS_RANGE, MAX_PARTS, MIN_EVENTS,
                        NoObjectFound, PERSIST_GRACES, PERSIST_MIN, POINT_SIGMA, COHERENCE_MIN)
@@ -72,13 +72,13 @@ def learn_model(events, trackers: int | None = None, width: int | None = None,
     if trackers is None:
         # pieces of parts that no merge joined take a small share of the events, and
         # trackers left behind by their part take none at the end
-        # (both measured against the tracker holding the median event: with one
-        # dominant part, the faint trails it leaves are the many, not the reference)
+        # (both measured against the median part, or a dominant part: with one part
+        # holding half the events, the faint trails it leaves are the many)
         wake = awake(rec, lp.activity_tau_us, lp.batch_us)
         share = event_shares(rec)
         held = rec["cnt"].sum(axis=0)
-        weak = ((share < lp.keep_share * max(1.0, event_weighted_median(share, held)))
-                | (wake < lp.idle_share * event_weighted_median(wake, held)))
+        weak = ((share < lp.keep_share * max(1.0, reference_value(share, held)))
+                | (wake < lp.idle_share * reference_value(wake, held)))
         stats["weak"] = int(weak.sum())
         if weak.any() and not weak.all():
             pool.keep(~weak)

@@ -93,15 +93,15 @@ class LearnParams:
 
     @property
     def reference_window_us(self) -> float:
-        """The shortest window the time constants are meant for: three grace periods
-        (a part must outlive its grace period and then be seen for two more)."""
-        return 3.0 * self.life_tau_us
+        """The shortest window the time constants are meant for: two grace periods
+        (a part born in the window's first half outlives its grace period)."""
+        return 2.0 * self.life_tau_us
 
     def for_window(self, window_us: float) -> "LearnParams":
         """These parameters for a learning window of ``window_us``: the lifecycle's time
         constants (``batch_us``, ``activity_tau_us``, ``life_tau_us``, ``smooth_us``)
         scaled by k = window_us / reference_window_us when the window is shorter than
-        that, so that a part born in the window's first third outlives its grace period
+        that, so that a part born in the window's first half outlives its grace period
         and the window still holds ``reference_window_us / batch_us`` lifecycle steps;
         a longer window keeps them.  Returns ``self`` when nothing changes."""
         k = min(1.0, max(window_us, 1.0) / self.reference_window_us)
