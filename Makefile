@@ -9,7 +9,7 @@ PIP    := $(VENV)/bin/pip
 STAMP  := $(VENV)/.installed
 PYX    := $(shell find springtrack firmware_sim -name '*.pyx' -o -name '*.pxd' -o -name '*.h' | sort)
 
-.PHONY: demo test build bench clean
+.PHONY: demo test build bench clean qemu
 
 $(STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
@@ -24,8 +24,15 @@ build: $(STAMP) $(PYX)
 demo: build
 	$(VENV)/bin/hostctl demo
 
-test: build
+test: build qemu
 	$(PY) -m pytest -q tests; rc=$$?; if [ $$rc -eq 5 ]; then echo "no tests ran"; exit 1; fi; exit $$rc
+
+# the firmware image's tests boot it in QEMU (docs/mcu.md): installed when missing, as root
+# (CI); otherwise those tests say how to install it
+qemu:
+	@command -v qemu-system-arm >/dev/null || { if [ "$$(id -u)" = 0 ]; then \
+	  apt-get update -q && apt-get install -y -q --no-install-recommends qemu-system-arm; \
+	else echo "qemu-system-arm is missing: sudo apt-get install qemu-system-arm"; fi; }
 
 bench: build
 	$(PY) benchmarks/kernel.py

@@ -167,6 +167,15 @@ class Device:
         """Upload a model (ShapeModel, preset name, TOML path or TOML text); returns the
         generation it will carry.  The firmware validates on commit and swaps atomically."""
         text = _model_text(model).encode("utf-8")
+        if self.info.get("model_format") == wire.MODEL_FORMAT_WORDS:
+            text, nc = _local_check("MODEL_COMMIT", words_image, text)
+            gen = self._upload(text)
+            self.info["connections"] = nc
+            return gen
+        return self._upload(text)
+
+    def _upload(self, text: bytes) -> int:
+        """MODEL_BEGIN, the chunks, MODEL_COMMIT: the generation the upload carries."""
         self._command(MsgType.MODEL_BEGIN, wire.encode_model_begin(text))
         step = wire.MODEL_CHUNK_SIZE            # chunks are pipelined: sent together, ACKed
         self._pipelined(MsgType.MODEL_CHUNK,    # together, missing ACKs retried one by one
@@ -178,6 +187,10 @@ class Device:
         """Set one or more parameters; returns the generation of the last change."""
         if name is not None:
             params = {name: value, **params}
+        if self.info.get("model_format") == wire.MODEL_FORMAT_WORDS:
+            image = _local_check("PARAM_SET", params_image, {**self.get(), **params},
+                                 self.info.get("connections", 0))
+            return self._upload(image)
         gen = 0
         for k, v in params.items():
             gen = self._command(MsgType.PARAM_SET, wire.encode_param_set(k, v))
@@ -443,6 +456,39 @@ def _open(url: str, baudrate: int):
         return serial.serial_for_url(url, baudrate=baudrate, timeout=0.05, write_timeout=2.0)
     except (serial.SerialException, ValueError, OSError) as e:
         raise NoSuchPort(f"{url}: cannot open port: {e}") from None
+
+
+def words_image(text: bytes) -> tuple[bytes, int]:
+    """A model's words image (springtrack.wire.encode_image) for a firmware whose INFO says
+    model_format "words" (the microcontroller image, docs/mcu.md): the model parsed and
+    checked as firmware_sim checks an uploaded TOML text, its parameters (defaults, then
+    its [params]) and both converted by springtrack.fixed_q; and its connection count."""
+    from springtrack import fixed_q, model as _model, params as _params
+    m = _model.loads(text, "uploaded model")
+    p = _params.resolve(m)
+    nc = len(m.connections)
+    return wire.encode_image(wire.ImageKind.MODEL, p.as_dict(), fixed_q.params_words(p, nc),
+                             m.name, [t.id for t in m.trackers],
+                             fixed_q.model_words(m.arrays(), m.width, m.height)), nc
+
+
+def params_image(values: dict, nc: int) -> bytes:
+    """A parameters image of ``values`` (all of them, as PARAM_GET gives them, changed) for
+    the running model's ``nc`` connections."""
+    from springtrack import fixed_q, params as _params
+    p = _params.from_mapping(values)
+    return wire.encode_image(wire.ImageKind.PARAMS, p.as_dict(), fixed_q.params_words(p, nc))
+
+
+def _local_check(command: str, convert, *args):
+    """``convert(*args)``; a model or parameter it refuses raises :class:`Nacked` with the
+    code and reason the firmware would give (for a words firmware the host checks first)."""
+    try:
+        return convert(*args)
+    except (ValueError, TypeError, RecursionError) as e:
+        code = getattr(e, "code", Nack.INVALID_MODEL if command == "MODEL_COMMIT"
+                       else Nack.OUT_OF_RANGE)
+        raise Nacked(command, wire.Refusal(0, 0, int(code), str(e))) from None
 
 
 def _model_text(model) -> str:

@@ -990,3 +990,60 @@ def framed_size(payload_len: int, signed: bool = False) -> int:
     """Bytes on the wire for a payload of ``payload_len`` bytes, delimiter included, worst case."""
     body = HEADER.size + payload_len + (SIG_LEN if signed else 0) + CRC.size
     return body + body // 254 + 1 + 1
+
+
+# ---- binary model images (a firmware that cannot parse TOML) ---------------------------
+# A firmware whose INFO says ``model_format: "words"`` (the microcontroller image,
+# springtrack/mcu/firmware/) takes, through MODEL_BEGIN / CHUNK / COMMIT, this image instead
+# of TOML text: the fixed-point kernel's word streams (springtrack.fixed_q), converted and
+# checked against springtrack.limits by the host, and checked again by the firmware:
+#   magic "STWI", u8 image version, u8 kind (ImageKind), u16 kv length, kv list of the
+#   parameters (what PARAM_GET answers)
+#   kind MODEL: str16 model name, u8 tracker count n, n x str8 tracker id,
+#               u32 model word count, the words (fixed_q.model_words, int32)
+#   u32 parameter word count, the words (fixed_q.params_words, int32)
+IMAGE_HDR = struct.Struct("<4sBBH")
+IMAGE_MAGIC = b"STWI"
+IMAGE_VERSION = 1
+MODEL_FORMAT_WORDS = "words"      # INFO's model_format of a firmware that takes images
+
+
+class ImageKind(IntEnum):
+    MODEL = 1             # a model, with its parameters
+    PARAMS = 2            # parameters for the running model
+
+
+def encode_image(kind: ImageKind, params: dict, params_words, name: str = "", ids=(),
+                 model_words=None) -> bytes:
+    """A words image (layout above); ``params`` is the parameters as a dict of plain
+    values, ``*_words`` int32 arrays."""
+    kv = encode_kv(params)
+    out = IMAGE_HDR.pack(IMAGE_MAGIC, IMAGE_VERSION, int(kind), len(kv)) + kv
+    if kind == ImageKind.MODEL:
+        ids = list(ids)
+        if len(ids) > 255:
+            raise WireError(f"a words image carries at most 255 tracker ids, got {len(ids)}")
+        mw = np.asarray(model_words, "<i4")
+        out += (_text(name, "H") + bytes([len(ids)]) + b"".join(_text(i) for i in ids)
+                + struct.pack("<I", len(mw)) + mw.tobytes())
+    pw = np.asarray(params_words, "<i4")
+    return out + struct.pack("<I", len(pw)) + pw.tobytes()
+
+
+def decode_image(data: bytes) -> dict:
+    """The fields of a words image: kind, params, name, ids, model_words, params_words."""
+    c = _Cursor(bytes(data), "words image")
+    magic, version, kind, nkv = c.unpack(IMAGE_HDR.format[1:], "header")
+    if magic != IMAGE_MAGIC or version != IMAGE_VERSION or kind not in (1, 2):
+        raise WireError(f"words image: header {magic!r} v{version} kind {kind} is not "
+                        f"{IMAGE_MAGIC!r} v{IMAGE_VERSION}")
+    out = dict(kind=ImageKind(kind), params=decode_kv(c.take(nkv, "params"), "words image"))
+    if kind == ImageKind.MODEL:
+        out["name"] = c.text("name", "H")
+        out["ids"] = [c.text(f"id {i}") for i in range(c.u8("ids"))]
+        (n,) = c.unpack("I", "model words")
+        out["model_words"] = np.frombuffer(c.take(4 * n, "model words"), "<i4")
+    (n,) = c.unpack("I", "params words")
+    out["params_words"] = np.frombuffer(c.take(4 * n, "params words"), "<i4")
+    c.done()
+    return out

@@ -63,7 +63,9 @@
 #define MCU_MODEL_WORDS (FX_MODEL_HEAD + FX_MODEL_TRACKER * FX_MAX_TRACKERS \
                          + FX_MODEL_CONNECTION * FX_MAX_CONNECTIONS)
 #define MCU_MOVE_WORDS (FX_MOVE_HEAD + MCU_MODEL_WORDS)
+#ifndef MCU_WORDS                       /* a firmware that loads from its own buffer: 1 */
 #define MCU_WORDS (MCU_MOVE_WORDS > FX_PARAMS_WORDS ? MCU_MOVE_WORDS : FX_PARAMS_WORDS)
+#endif
 #define MCU_N_COUNTERS 14
 #define MCU_N_REPLACED 6                /* index_updates .. state_resets of placed instances */
 

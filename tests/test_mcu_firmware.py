@@ -1,0 +1,382 @@
+"""The firmware image (springtrack/mcu/firmware/, docs/mcu.md "The firmware image"):
+``springtrack mcu build --board`` for the QEMU boards, booted by ``springtrack mcu run``
+in qemu-system-arm and steered by hostctl over a pty, as separate processes:
+
+* the image has a vector table, needs no runtime helper and has no FPU instruction;
+* every frame the C link sends is byte for byte what springtrack/wire.py encodes (COBS,
+  CRC-32, the generated codes);
+* hostctl uploads a model (as a words image), starts, records: the recording equals the one
+  of ``firmware-sim run --backend fixed`` on the same events, on an STM32F405 and on the
+  MPS2 boards;
+* hostile frames and bad models are refused as firmware_sim refuses them, and change
+  nothing.
+
+QEMU comes from Debian (qemu-system-arm), installed by ``make test``; without it these tests
+skip, except in CI (CI=true), where they fail."""
+import os
+import shutil
+import struct
+import subprocess
+import sys
+import time
+import zlib
+
+import numpy as np
+import pytest
+
+pytest.importorskip("springtrack._fixed")
+for _mod in ("ziglang", "elftools", "capstone"):
+    pytest.importorskip(_mod, reason="the [mcu] extra is not installed")
+if shutil.which("qemu-system-arm") is None:
+    if os.environ.get("CI") == "true":
+        pytest.fail("qemu-system-arm is missing in CI: `make test` installs it "
+                    "(apt-get install qemu-system-arm)", pytrace=False)
+    pytest.skip("qemu-system-arm is not installed (apt-get install qemu-system-arm; "
+                "`make test` installs it as root)", allow_module_level=True)
+
+import serial  # noqa: E402
+
+from hostctl import Device  # noqa: E402
+from hostctl.device import Nacked, words_image  # noqa: E402
+from springtrack import fixed_q, io as sio, wire  # noqa: E402
+from springtrack.mcu.boards import BOARDS  # noqa: E402
+from springtrack.mcu.image import build_image  # noqa: E402
+from springtrack.mcu.qemu import Qemu  # noqa: E402
+from springtrack.model import face26  # noqa: E402
+from springtrack.sim.sensor import simulate_all  # noqa: E402
+from springtrack.wire import MsgType, Nack  # noqa: E402
+
+from fwproc import Firmware, hostctl_cmd  # noqa: E402
+from test_mcu import RUNTIME, symbols, text_mnemonics  # noqa: E402
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+W, H = 304, 240
+
+
+@pytest.fixture(scope="module")
+def scene(tmp_path_factory):
+    """0.2 s of the face scene as a RAW EVT 2.0 recording (what a Prophesee sensor sends),
+    and face26 on its sensor as a TOML file."""
+    d = tmp_path_factory.mktemp("scene")
+    ev, _ = simulate_all("face_occlusion", 0.2, seed=5)
+    sio.write(d / "face.raw", ev, W, H)
+    (d / "face.toml").write_text(face26(cx=W / 2, cy=H / 2, width=W, height=H).to_toml())
+    return d
+
+
+_images = {}
+
+
+def image(board):
+    """The board's image (built once per test session)."""
+    if board not in _images:
+        import tempfile
+        _images[board] = build_image(board, tempfile.mkdtemp(prefix=f"fw-{board}-"))
+    return _images[board]
+
+
+def springtrack_cmd(*args):
+    exe = os.path.join(os.path.dirname(sys.executable), "springtrack")
+    return ([exe] if os.path.exists(exe) else [sys.executable, "-m", "springtrack.cli"]) + list(args)
+
+
+# ---- the image ------------------------------------------------------------------------
+@pytest.mark.parametrize("board", list(BOARDS))
+def test_image_has_vectors_no_runtime_and_no_fpu(board):
+    res = image(board)
+    from elftools.elf.elffile import ELFFile
+    with open(res.elf, "rb") as f:
+        e = ELFFile(f)
+        text = e.get_section_by_name(".text")
+        sp, pc = struct.unpack_from("<II", text.data())
+        entry = e["e_entry"]
+    b = BOARDS[board]
+    assert text["sh_addr"] == b.flash[0], "the vector table opens the flash"
+    assert b.ram[0] < sp <= b.ram[0] + b.ram[1], "initial stack pointer in RAM"
+    assert pc == entry | 1, "reset vector: the reset handler, Thumb"
+    syms = symbols(res.elf)
+    assert not [n for n, _, shndx in syms if shndx == "SHN_UNDEF"]
+    assert not [n for n, _, _ in syms if RUNTIME.match(n)]
+    assert not {m for m in text_mnemonics(res) if m.startswith("v")}, "FPU instructions"
+    assert res.ram_bytes <= b.ram[1] and res.flash_bytes <= b.flash[1]
+
+
+def test_cli_build_writes_firmware_elf(tmp_path):
+    r = subprocess.run(springtrack_cmd("mcu", "build", "--board", "mps2-an500", "--out",
+                                       str(tmp_path), "--model", "grid3x3"),
+                       capture_output=True, text=True, cwd=ROOT, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert (tmp_path / "firmware.elf").exists()
+    assert "flash_bytes=" in r.stdout.splitlines()[-1]
+    assert "#define MSG_TELEMETRY 64" in (tmp_path / "wire_codes.h").read_text()
+
+
+# ---- the link, frame by frame ----------------------------------------------------------
+def raw_frames(port, seconds=1.0):
+    """The delimited chunks the firmware sent within ``seconds``."""
+    data = b""
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        data += port.read(4096)
+    return [c for c in data.split(b"\x00") if c]
+
+
+def send(port, mtype, seq, payload=b"", **kw):
+    port.write(b"\x00" + wire.encode_frame(mtype, seq, payload, **kw))
+
+
+def test_every_frame_the_c_link_sends_is_what_wire_encodes(scene):
+    """INFO (a JSON of more than 254 bytes without a zero: COBS's 255 code), ACK, NACK,
+    PARAM_VALUE, STATS parts, APPLIED, TELEMETRY and NOTICE: decoded by wire.py and encoded
+    again, each is the same bytes."""
+    with Qemu(image("mps2-an386").elf, "mps2-an386", scene / "face.raw") as q:
+        port = serial.serial_for_url(q.link, timeout=0.05)
+        port.write(b"\x00")
+        send(port, MsgType.HELLO, 1, wire.encode_hello("test"))
+        chunks = raw_frames(port, 0.5)
+        send(port, MsgType.PARAM_GET, 2, wire.encode_param_get([]))
+        send(port, MsgType.STATS, 3)
+        send(port, 0x77, 4)
+        img, _ = words_image((scene / "face.toml").read_bytes())
+        send(port, MsgType.MODEL_BEGIN, 5, wire.encode_model_begin(img))
+        for k, off in enumerate(range(0, len(img), wire.MODEL_CHUNK_SIZE)):
+            send(port, MsgType.MODEL_CHUNK, 6 + k, wire.encode_model_chunk(
+                off, img[off:off + wire.MODEL_CHUNK_SIZE]))
+            chunks += raw_frames(port, 0.05)
+        send(port, MsgType.MODEL_COMMIT, 100, wire.encode_model_begin(img))
+        send(port, MsgType.START, 101)
+        chunks += raw_frames(port, 3.0)
+        port.close()
+    types = {}
+    for c in chunks:
+        f = wire.decode_frame(c)
+        assert c + b"\x00" == wire.encode_frame(f.type, f.seq, f.payload), MsgType(f.type).name
+        types[f.type] = f
+    assert {MsgType.INFO, MsgType.ACK, MsgType.NACK, MsgType.STATS, MsgType.APPLIED,
+            MsgType.TELEMETRY, MsgType.NOTICE} <= set(types)
+    assert len(wire.cobs_decode(next(c for c in chunks if wire.decode_frame(c).type
+                                     == MsgType.INFO))) > 254
+    assert wire.decode_nack(types[MsgType.NACK].payload).code == Nack.UNKNOWN_TYPE
+
+
+# ---- the whole chain, against firmware-sim --------------------------------------------
+def record_api(link, model):
+    with Device(link, timeout=0.5, retries=20) as dev:
+        info = dev.info
+        dev.load_model(model)
+        info = dev.hello()                   # INFO names the uploaded model's trackers
+        dev.start()
+        snaps = []
+        while True:
+            got = list(dev.telemetry(seconds=0.5))
+            snaps += got
+            if dev.stream_ended and not got:
+                break
+        return snaps, info, dev.stats(), dev.link_counters()["lost"]
+
+
+def firmware_sim_fixed(scene):
+    fw = Firmware("--source", f"replay:{scene / 'face.raw'}", "--backend", "fixed",
+                  "--max-speed", "--pty", "--wait-start", "--model", str(scene / "face.toml"))
+    try:
+        return record_api(fw.path, scene / "face.toml")
+    finally:
+        fw.close()
+
+
+def same_snapshots(a, b):
+    assert len(a) == len(b) > 150
+    for x, y in zip(a, b):
+        assert x.t_us == y.t_us and x.mean_energy == y.mean_energy
+        for f in x.trackers.dtype.names:
+            assert np.array_equal(x.trackers[f], y.trackers[f]), (x.t_us, f)
+
+
+@pytest.fixture(scope="module")
+def reference(scene):
+    return firmware_sim_fixed(scene)
+
+
+@pytest.mark.parametrize("board", ["mps2-an386", "mps2-an500"])
+def test_mps2_telemetry_equals_firmware_sim_fixed(scene, reference, board):
+    """hostctl's upload, start and telemetry through the image on an MPS2 board: every
+    snapshot (time, mean energy, every tracker field) equals firmware-sim --backend fixed's
+    on the same recording."""
+    with Qemu(image(board).elf, board, scene / "face.raw") as q:
+        snaps, info, st, lost = record_api(q.link, scene / "face.toml")
+    ref, ref_info, ref_st, _ = reference
+    same_snapshots(snaps, ref)
+    assert lost == 0 and st["state"] == "ended"
+    assert info["trackers"] == ref_info["trackers"]
+    assert st["events_tracked"] == ref_st["events_tracked"] == st["events_decoded"]
+    assert st["kernel.spring_updates"] == ref_st["kernel"]["spring_updates"] \
+        if isinstance(ref_st.get("kernel"), dict) else st["kernel.spring_updates"] > 0
+
+
+def test_cli_chain_on_netduinoplus2_records_what_firmware_sim_fixed_does(scene, tmp_path):
+    """The issue's check, as a user runs it: springtrack mcu build --board netduinoplus2,
+    springtrack mcu run ... --pty, hostctl load-model / start / record: the CSV equals
+    hostctl's recording of firmware-sim run --backend fixed on the same events, byte for
+    byte."""
+    out = tmp_path / "nd"
+    r = subprocess.run(springtrack_cmd("mcu", "build", "--board", "netduinoplus2", "--out",
+                                       str(out)), capture_output=True, text=True, cwd=ROOT,
+                       timeout=600)
+    assert r.returncode == 0, r.stderr
+    csvs = {}
+    for name in ("mcu", "fixed"):
+        if name == "mcu":
+            proc = subprocess.Popen(springtrack_cmd("mcu", "run", str(out / "firmware.elf"),
+                                                    "--board", "netduinoplus2", "--events",
+                                                    str(scene / "face.raw"), "--pty"),
+                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                    cwd=ROOT)
+            line = proc.stdout.readline()
+            assert line.startswith("pty: "), (line, proc.stderr.read() if proc.poll() else "")
+            link, close = line.split()[1], proc
+        else:
+            fw = Firmware("--source", f"replay:{scene / 'face.raw'}", "--backend", "fixed",
+                          "--max-speed", "--pty", "--wait-start")
+            link, close = fw.path, fw
+        try:
+            for verb in (["load-model", str(scene / "face.toml")], ["start"],
+                         ["record", str(tmp_path / f"{name}.csv"), "--until-end",
+                          "--seconds", "120"]):
+                r = subprocess.run(hostctl_cmd("--port", link, "--retries", "20", *verb),
+                                   capture_output=True, text=True, cwd=ROOT, timeout=300)
+                assert r.returncode == 0, (name, verb, r.stdout, r.stderr)
+            r = subprocess.run(hostctl_cmd("--port", link, "shutdown"), capture_output=True,
+                               text=True, cwd=ROOT, timeout=60)
+            assert r.returncode == 0, r.stderr
+            if name == "mcu":
+                assert proc.wait(30) == 0         # SHUTDOWN ends the image, and QEMU
+        finally:
+            if name == "mcu":
+                if proc.poll() is None:
+                    proc.terminate()
+                    proc.wait(10)
+                proc.stdout.close()
+                proc.stderr.close()
+            else:
+                close.close()
+        csvs[name] = (tmp_path / f"{name}.csv").read_bytes()
+    assert csvs["mcu"].count(b"\n") > 150 * 26
+    assert csvs["mcu"] == csvs["fixed"]
+
+
+# ---- hostile input ---------------------------------------------------------------------
+def bad_words_image(scene, **change):
+    """face26's words image with a word changed after the host's checks: what a broken or
+    hostile host could send."""
+    img, _ = words_image((scene / "face.toml").read_bytes())
+    d = wire.decode_image(img)
+    mw = d["model_words"].copy()
+    n = int(mw[0])
+    conn0 = 8 + 16 * n
+    if "stiffness" in change:
+        mw[conn0 + 3] = int(change["stiffness"] * 2 ** 30)
+    if "width" in change:
+        mw[2] = change["width"]
+    if "tracker" in change:
+        mw[conn0] = change["tracker"]
+    if "mass" in change:                         # 1/mass, Q.24
+        mw[8 + 11] = int(2 ** 24 / change["mass"])
+    return wire.encode_image(wire.ImageKind.MODEL, d["params"], d["params_words"],
+                             change.get("name", "face26"), d["ids"], mw)
+
+
+def upload_raw(dev, img):
+    return dev._upload(img)
+
+
+def test_hostile_frames_and_bad_models_are_refused_and_change_nothing(scene):
+    with Qemu(image("mps2-an386").elf, "mps2-an386", scene / "face.raw") as q:
+        # frames before a session, garbage, and a corrupt frame
+        port = serial.serial_for_url(q.link, timeout=0.05)
+        port.write(b"\x00" + bytes(range(1, 200)) + b"\x00")           # bad COBS / CRC
+        good = wire.encode_frame(MsgType.START, 9)
+        port.write(b"\x00" + good[:3] + bytes([good[3] ^ 0x40]) + good[4:])   # a flipped bit
+        port.write(b"\x07" * 2000 + b"\x00")                           # no delimiter: oversize
+        send(port, MsgType.START, 10)                                  # before HELLO
+        send(port, MsgType.STATS, 11, version=2)                       # another version
+        got = [wire.decode_frame(c) for c in raw_frames(port, 1.0)]
+        nacks = [wire.decode_nack(f.payload) for f in got if f.type == MsgType.NACK]
+        assert [n.code for n in nacks] == [Nack.FORBIDDEN, Nack.VERSION_MISMATCH]
+        assert "firmware=v1 host=v2" in nacks[1].reason
+        port.close()
+        with Device(q.link, timeout=0.5, retries=20) as dev:
+            st = dev.stats()
+            assert st["link.crc_errors"] + st["link.cobs_errors"] >= 2
+            assert st["link.oversize"] == 1 and st["link.forbidden"] == 1
+            gen = dev.load_model(scene / "face.toml")
+            cases = {Nack.INVALID_MODEL: [dict(stiffness=0.9), dict(tracker=99),
+                                          dict(mass=1e6)],
+                     Nack.SENSOR_MISMATCH: [dict(width=320)],
+                     Nack.TOO_LONG: [dict(name="n" * 600)]}
+            for code, changes in cases.items():
+                for ch in changes:
+                    with pytest.raises(Nacked) as e:
+                        upload_raw(dev, bad_words_image(scene, **ch))
+                    assert e.value.code == code, (ch, e.value)
+            for payload in (b"", b"\x01\x02", struct.pack("<II", 10 ** 9, 0)):
+                with pytest.raises(Nacked) as e:
+                    dev._command(MsgType.MODEL_BEGIN, payload)
+                assert e.value.code in (Nack.MALFORMED, Nack.OUT_OF_RANGE)
+            with pytest.raises(Nacked) as e:
+                dev._command(MsgType.MODEL_COMMIT, struct.pack("<II", 1, 2))
+            assert e.value.code == Nack.BAD_STATE
+            dev._command(MsgType.MODEL_BEGIN, struct.pack("<II", 16, zlib.crc32(b"x" * 16)))
+            with pytest.raises(Nacked) as e:
+                dev._command(MsgType.MODEL_CHUNK, struct.pack("<I", 10) + b"y" * 10)
+            assert e.value.code == Nack.OUT_OF_RANGE
+            with pytest.raises(Nacked) as e:                      # 6 bytes never sent
+                dev._command(MsgType.MODEL_COMMIT, struct.pack("<II", 16, zlib.crc32(b"x" * 16)))
+            assert e.value.code == Nack.INVALID_MODEL
+            with pytest.raises(Nacked) as e:
+                dev.set(alpha_position=5.0)                       # checked by the host
+            assert e.value.code == Nack.OUT_OF_RANGE
+            st = dev.stats()
+            assert st["generation"] == gen and st["updates_rejected"] == 5
+            assert dev.get("alpha_position") == {"alpha_position": 0.2}
+            dev.start()                                           # still tracks
+            assert len(list(dev.telemetry(seconds=2.0))) > 10
+
+
+def test_bad_models_are_refused_with_firmware_sims_codes(scene):
+    """The same bad models through hostctl: the TOML firmware-sim gets and the words image
+    the MCU image would get are refused with the same code (the host checks a words
+    upload first, with firmware_sim's own model parser)."""
+    m = face26(cx=W / 2, cy=H / 2, width=W, height=H)
+    stiff = m.to_toml().replace("stiffness = 0.02", "stiffness = 0.5")
+    assert stiff != m.to_toml()
+    wide = face26(cx=W / 2, cy=H / 2, width=320, height=240).to_toml()
+    fw = Firmware("--source", f"replay:{scene / 'face.raw'}", "--backend", "fixed",
+                  "--max-speed", "--pty", "--wait-start")
+    codes = {}
+    try:
+        with Device(fw.path, timeout=0.5, retries=20) as dev:
+            for name, text in (("stiff", stiff), ("wide", wide)):
+                with pytest.raises(Nacked) as e:
+                    dev.load_model(text)
+                codes[name] = e.value.code
+    finally:
+        fw.close()
+    with Qemu(image("mps2-an386").elf, "mps2-an386", scene / "face.raw") as q:
+        with Device(q.link, timeout=0.5, retries=20) as dev:
+            with pytest.raises(Nacked) as e:
+                dev.load_model(stiff)
+            assert e.value.code == codes["stiff"] == Nack.INVALID_MODEL
+            with pytest.raises(Nacked) as e:
+                dev.load_model(wide)                              # refused by the firmware
+            assert e.value.code == codes["wide"] == Nack.SENSOR_MISMATCH
+
+
+def test_words_image_round_trips():
+    m = face26()
+    img, nc = words_image(m.to_toml().encode())
+    d = wire.decode_image(img)
+    assert nc == len(m.connections) and d["name"] == m.name
+    assert d["ids"] == [t.id for t in m.trackers]
+    assert np.array_equal(d["model_words"], fixed_q.model_words(m.arrays(), m.width, m.height))
+    with pytest.raises(wire.WireError):
+        wire.decode_image(img[:-1])
