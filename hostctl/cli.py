@@ -8,7 +8,7 @@
     hostctl --port /dev/pts/5 get [NAME ...]
     hostctl --port /dev/pts/5 start | stop | reset | acquire | stats | ping | shutdown
     hostctl --port /dev/pts/5 --role monitor monitor [--seconds S] [--smooth]
-    hostctl --port /dev/pts/5 record OUT.csv|OUT.npz [--seconds S] [--until-end] [--smooth]
+    hostctl --port /dev/pts/5 record OUT.csv|OUT.npz [--seconds S] [--until-end] [--start] [--smooth]
 
 ``--port`` defaults to $HOSTCTL_PORT.  ``--role monitor`` opens a read-only session beside
 the operator's (telemetry, stats, get, ping; docs/protocol.md, "Sessions").  A signed link
@@ -79,6 +79,10 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--seconds", type=float, default=10.0, help="duration (10)")
     sp.add_argument("--until-end", action="store_true",
                     help="stop early when the device says its source has no more data")
+    sp.add_argument("--start", action="store_true",
+                    help="send START once attached, so that the recording holds the stream "
+                         "from its first snapshot (a separate `hostctl start` before it "
+                         "misses what the device sends until the recording attaches)")
     sp.add_argument("--smooth", action="store_true",
                     help="add smoothed positions and velocities (npz arrays / .smooth.csv)")
     return p
@@ -237,6 +241,8 @@ def cmd_record(dev, args) -> int:
     from .record import save
     from .smooth import Smoother  # noqa: F401 - fail early if filterpy is missing
     snaps, failure = [], None
+    if args.start:
+        dev.start()
     try:
         end = time.monotonic() + args.seconds
         while time.monotonic() < end and not (args.until_end and dev.stream_ended):

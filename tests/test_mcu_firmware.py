@@ -89,11 +89,12 @@ def test_image_has_vectors_no_runtime_and_no_fpu(board):
         e = ELFFile(f)
         text = e.get_section_by_name(".text")
         sp, pc = struct.unpack_from("<II", text.data())
-        entry = e["e_entry"]
+        reset = next(s["st_value"] for s in e.get_section_by_name(".symtab").iter_symbols()
+                     if s.name == "reset_handler")
     b = BOARDS[board]
     assert text["sh_addr"] == b.flash[0], "the vector table opens the flash"
     assert b.ram[0] < sp <= b.ram[0] + b.ram[1], "initial stack pointer in RAM"
-    assert pc == entry | 1, "reset vector: the reset handler, Thumb"
+    assert pc == reset | 1, "reset vector: the reset handler, Thumb"
     syms = symbols(res.elf)
     assert not [n for n, _, shndx in syms if shndx == "SHN_UNDEF"]
     assert not [n for n, _, _ in syms if RUNTIME.match(n)]
@@ -215,9 +216,10 @@ def test_mps2_telemetry_equals_firmware_sim_fixed(scene, reference, board):
 
 def test_cli_chain_on_netduinoplus2_records_what_firmware_sim_fixed_does(scene, tmp_path):
     """The issue's check, as a user runs it: springtrack mcu build --board netduinoplus2,
-    springtrack mcu run ... --pty, hostctl load-model / start / record: the CSV equals
-    hostctl's recording of firmware-sim run --backend fixed on the same events, byte for
-    byte."""
+    springtrack mcu run ... --pty, hostctl load-model, then record --start (START sent by
+    the recording process, so that it holds the stream from its first snapshot): the CSV
+    equals hostctl's recording of firmware-sim run --backend fixed on the same events, byte
+    for byte."""
     out = tmp_path / "nd"
     r = subprocess.run(springtrack_cmd("mcu", "build", "--board", "netduinoplus2", "--out",
                                        str(out)), capture_output=True, text=True, cwd=ROOT,
@@ -239,8 +241,8 @@ def test_cli_chain_on_netduinoplus2_records_what_firmware_sim_fixed_does(scene, 
                           "--max-speed", "--pty", "--wait-start")
             link, close = fw.path, fw
         try:
-            for verb in (["load-model", str(scene / "face.toml")], ["start"],
-                         ["record", str(tmp_path / f"{name}.csv"), "--until-end",
+            for verb in (["load-model", str(scene / "face.toml")],
+                         ["record", str(tmp_path / f"{name}.csv"), "--start", "--until-end",
                           "--seconds", "120"]):
                 r = subprocess.run(hostctl_cmd("--port", link, "--retries", "20", *verb),
                                    capture_output=True, text=True, cwd=ROOT, timeout=300)

@@ -23,6 +23,10 @@ class Board:
     uart_base: int            # the host link's UART (QEMU's serial0)
     stream: tuple[int, int]   # origin, bytes of the event stream region
     clock_hz: int             # the core clock the image runs at (UART baud divisor)
+    # ns of QEMU's virtual clock per SysTick tick (its model's system clock): with -icount
+    # shift=0 the instructions per tick, which `springtrack mcu profile --board` counts by;
+    # 0: not known for this model
+    qemu_tick_ns: int = 0
 
     def defines(self) -> list[str]:
         return [f"-DBOARD_UART_{self.uart.upper()}=1", f"-DLINK_UART=0x{self.uart_base:08x}u",
@@ -47,10 +51,10 @@ BOARDS = {
         # (AN500); CMSDK APB UART0 at 0x40004000 is serial0; 25 MHz system clock
         Board("mps2-an386", "cortex-m4", "Arm MPS2 AN386 (Cortex-M4)",
               (0x00000000, 4 * MiB), (0x20000000, 4 * MiB), "cmsdk", 0x40004000,
-              (0x21000000, 16 * MiB), 25_000_000),
+              (0x21000000, 16 * MiB), 25_000_000, 40),
         Board("mps2-an500", "cortex-m7", "Arm MPS2 AN500 (Cortex-M7)",
               (0x00000000, 4 * MiB), (0x20000000, 4 * MiB), "cmsdk", 0x40004000,
-              (0x60000000, 16 * MiB), 25_000_000),
+              (0x60000000, 16 * MiB), 25_000_000, 40),
     )
 }
 

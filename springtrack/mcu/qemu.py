@@ -35,11 +35,14 @@ def qemu_binary() -> str:
     return exe
 
 
-def command(elf, board_name: str, stream_file, link: str) -> list[str]:
-    """QEMU's command line: ``link`` is "pty" or "tcp:HOST:PORT"."""
+def command(elf, board_name: str, stream_file, link: str, icount: bool = False) -> list[str]:
+    """QEMU's command line: ``link`` is "pty" or "tcp:HOST:PORT"; ``icount``: the virtual
+    clock counts instructions, one per ns (the image's SysTick then counts instructions:
+    Board.qemu_tick_ns per tick)."""
     b = get_board(board_name)
     serial = "pty" if link == "pty" else f"{link},server=on,wait=off"
     return [qemu_binary(), "-M", b.name, "-nodefaults", "-display", "none",
+            *(["-icount", "shift=0,sleep=off"] if icount else []),
             "-serial", serial, "-net", "none", "-kernel", str(elf),
             "-semihosting-config", "enable=on,target=native",
             "-device", f"loader,file={stream_file},addr=0x{b.stream[0]:x},force-raw=on"]
@@ -49,14 +52,17 @@ class Qemu:
     """The image running in QEMU; ``link`` is its host link (a pty path or
     socket://HOST:PORT), ``summary`` what the event stream holds.  ``close()`` ends it."""
 
-    def __init__(self, elf, board_name: str, events, listen: str | None = None):
+    def __init__(self, elf, board_name: str, events, listen: str | None = None,
+                 icount: bool = False):
+        """``events``: an event file, or (array, width, height)."""
         b = get_board(board_name)
         self.tmp = tempfile.TemporaryDirectory(prefix="springtrack-qemu-")
-        data, self.summary = stream.pack(events, b.stream[1])
+        data, self.summary = (stream.pack_events(*events, b.stream[1])
+                              if isinstance(events, tuple) else stream.pack(events, b.stream[1]))
         sfile = Path(self.tmp.name) / "stream.bin"
         sfile.write_bytes(data)
         link = "pty" if listen is None else "tcp:" + listen
-        self.proc = subprocess.Popen(command(elf, board_name, sfile, link),
+        self.proc = subprocess.Popen(command(elf, board_name, sfile, link, icount),
                                      stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                                      text=True)
         self.err = ""

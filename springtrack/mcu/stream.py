@@ -43,6 +43,17 @@ def pack(path, capacity: int) -> tuple[bytes, dict]:
     else:
         ev = reader.read()
         words, kind, events = evt2.encode(ev), Format.EVT2, len(ev)
+    return _image(path, words, kind, width, height, events, capacity)
+
+
+def pack_events(events, width: int, height: int, capacity: int) -> tuple[bytes, dict]:
+    """:func:`pack` of an event array (EVENT_DTYPE), encoded as EVT 2.0 words."""
+    from springtrack.io import evt2
+    return _image("events", evt2.encode(events), Format.EVT2, width, height, len(events),
+                  capacity)
+
+
+def _image(path, words: bytes, kind: Format, width: int, height: int, events, capacity: int):
     need = HEADER.size + len(words)
     if need > capacity:
         raise ValueError(f"{path}: {len(words):,} bytes of {kind.name} words do not fit the "

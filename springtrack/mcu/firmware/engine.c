@@ -1,5 +1,6 @@
 /* engine.h: the event stream, its decoder and the kernel's sampling loop. */
 #include "engine.h"
+#include "board.h"
 #include "fixed_step.h"
 #include "fixed_telemetry.h"
 #include "sampling.h"
@@ -287,6 +288,7 @@ int engine_work(void)
 {
     uint32_t k, rows;
     fx_state *s = &mcu_state[0];
+    uint32_t t0 = board_ticks();
     if (eng.state != ST_RUNNING || !eng.loaded || !eng.stream_ok)
         return 0;
     decode();
@@ -303,6 +305,7 @@ int engine_work(void)
     mcu_io.inst = 0;
     mcu_main();
     eng.next_t = mcu_io.next_t;
+    eng.work_ticks += (t0 - board_ticks()) & 0xFFFFFFu;    /* SysTick counts down, 24 bits */
     rows = (uint32_t)mcu_io.rows;
     for (k = 0; k < rows; k++) {
         eng.snapshots++;

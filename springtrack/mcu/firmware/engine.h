@@ -27,6 +27,7 @@ typedef struct {
     uint32_t await_th;
     uint64_t words, events_decoded, events_tracked, gap_skipped, outside_sensor, time_high,
         triggers, others, unknown_type, time_wraps, time_backwards, snapshots, replays;
+    uint64_t work_ticks;                 /* SysTick ticks spent decoding and tracking */
 } engine_t;
 
 extern engine_t eng;
