@@ -60,6 +60,7 @@ def scene(tmp_path_factory):
     d = tmp_path_factory.mktemp("scene")
     ev, _ = simulate_all("face_occlusion", 0.2, seed=5)
     sio.write(d / "face.raw", ev, W, H)
+    sio.write(d / "face21.raw", ev, W, H, format="evt21")      # a GenX320's word format
     (d / "face.toml").write_text(face26(cx=W / 2, cy=H / 2, width=W, height=H).to_toml())
     return d
 
@@ -176,8 +177,8 @@ def record_api(link, model):
         return snaps, info, dev.stats(), dev.link_counters()["lost"]
 
 
-def firmware_sim_fixed(scene):
-    fw = Firmware("--source", f"replay:{scene / 'face.raw'}", "--backend", "fixed",
+def firmware_sim_fixed(scene, recording="face.raw"):
+    fw = Firmware("--source", f"replay:{scene / recording}", "--backend", "fixed",
                   "--max-speed", "--pty", "--wait-start", "--model", str(scene / "face.toml"))
     try:
         return record_api(fw.path, scene / "face.toml")
@@ -193,25 +194,25 @@ def same_snapshots(a, b):
             assert np.array_equal(x.trackers[f], y.trackers[f]), (x.t_us, f)
 
 
-@pytest.fixture(scope="module")
-def reference(scene):
-    return firmware_sim_fixed(scene)
+_references = {}
 
 
-@pytest.mark.parametrize("board", ["mps2-an386", "mps2-an500"])
-def test_mps2_telemetry_equals_firmware_sim_fixed(scene, reference, board):
-    """hostctl's upload, start and telemetry through the image on an MPS2 board: every
-    snapshot (time, mean energy, every tracker field) equals firmware-sim --backend fixed's
-    on the same recording."""
-    with Qemu(image(board).elf, board, scene / "face.raw") as q:
+@pytest.mark.parametrize("board,recording", [("mps2-an386", "face21.raw"),
+                                             ("mps2-an500", "face.raw")])
+def test_mps2_telemetry_equals_firmware_sim_fixed(scene, board, recording):
+    """hostctl's upload, start and telemetry through the image on an MPS2 board, from an
+    EVT 2.1 and an EVT 2.0 recording: every snapshot (time, mean energy, every tracker
+    field) equals firmware-sim --backend fixed's on the same recording."""
+    if recording not in _references:
+        _references[recording] = firmware_sim_fixed(scene, recording)
+    ref, ref_info, ref_st, _ = _references[recording]
+    with Qemu(image(board).elf, board, scene / recording) as q:
         snaps, info, st, lost = record_api(q.link, scene / "face.toml")
-    ref, ref_info, ref_st, _ = reference
     same_snapshots(snaps, ref)
     assert lost == 0 and st["state"] == "ended"
     assert info["trackers"] == ref_info["trackers"]
     assert st["events_tracked"] == ref_st["events_tracked"] == st["events_decoded"]
-    assert st["kernel.spring_updates"] == ref_st["kernel"]["spring_updates"] \
-        if isinstance(ref_st.get("kernel"), dict) else st["kernel.spring_updates"] > 0
+    assert st["decode.outside_sensor"] == st["decode.gap_skipped"] == 0
 
 
 def test_cli_chain_on_netduinoplus2_records_what_firmware_sim_fixed_does(scene, tmp_path):
@@ -371,6 +372,20 @@ def test_bad_models_are_refused_with_firmware_sims_codes(scene):
             with pytest.raises(Nacked) as e:
                 dev.load_model(wide)                              # refused by the firmware
             assert e.value.code == codes["wide"] == Nack.SENSOR_MISMATCH
+
+
+def test_cli_profile_counts_the_image(scene, tmp_path):
+    """springtrack mcu profile --board: the whole image's instructions per event in QEMU
+    (-icount), more than the decoder's share, and its static RAM."""
+    r = subprocess.run(springtrack_cmd("mcu", "profile", str(scene / "face.raw"), "--model",
+                                       str(scene / "face.toml"), "--board", "mps2-an386",
+                                       "--events", "3000"),
+                       capture_output=True, text=True, cwd=ROOT, timeout=900)
+    assert r.returncode == 0, r.stderr
+    last = dict(kv.split("=") for kv in r.stdout.splitlines()[-1].split())
+    assert 300 < float(last["instructions_per_event"]) < 20_000
+    assert 20_000 < int(last["ram_bytes"]) < 128 * 1024
+    assert "of which decoding the words" in r.stdout
 
 
 def test_words_image_round_trips():

@@ -42,10 +42,10 @@ CLOCKS = {
 
 def add_arguments(p):
     p.epilog = EPILOG
+    from ..mcu.boards import BOARDS
     from ..mcu.targets import TARGETS
     sub = p.add_subparsers(dest="action", metavar="ACTION", required=True)
     b = sub.add_parser("build", help="cross-compile the kernel for a core; report flash and RAM")
-    from ..mcu.boards import BOARDS
     what = b.add_mutually_exclusive_group(required=True)
     what.add_argument("--target", choices=list(TARGETS),
                       help="the core: the kernel alone, for the emulator (--backend mcu)")
@@ -76,7 +76,15 @@ def add_arguments(p):
     pr.add_argument("input", help="event file (.npy, .csv, .raw, .es, .dat)")
     pr.add_argument("--model", required=True, help="shape model: TOML file or preset name")
     pr.add_argument("--params", help="TOML file of parameter overrides")
-    pr.add_argument("--target", default="cortex-m4", choices=list(TARGETS), help="the core")
+    where = pr.add_mutually_exclusive_group()
+    where.add_argument("--target", default="cortex-m4", choices=list(TARGETS),
+                       help="the core: the kernel alone, per event, in the emulator")
+    where.add_argument("--board", choices=[b for b, v in BOARDS.items() if v.qemu_tick_ns],
+                       help="the whole firmware image (decoder, kernel, telemetry) in QEMU, "
+                            "counted by instruction (-icount), and its static RAM")
+    pr.add_argument("--sensor", metavar="WxH",
+                    help="--board: size the image's index for this sensor, px, if larger "
+                         "than the model's (e.g. 320x320)")
     pr.add_argument("--events", type=int, default=20_000, metavar="N",
                     help="profile the first N events (default 20000; the emulator runs "
                          "roughly 5 k events/s while counting)")
@@ -116,11 +124,8 @@ def _build_image(args) -> int:
         from ..model import load_model
         cap = Capacity.of_model(load_model(args.model))
     if args.sensor:
-        w, _, h = args.sensor.lower().partition("x")
-        try:
-            cap = dataclasses.replace(cap, width=int(w), height=int(h))
-        except ValueError:
-            raise ValueError(f"--sensor {args.sensor!r}: expected WxH in px, e.g. 320x320") from None
+        w, h = _sensor(args.sensor)
+        cap = dataclasses.replace(cap, width=w, height=h)
     res = build_image(args.board, args.out, cap)
     print(f"board {args.board}: {ELF_NAME}")
     print(res.report())
@@ -171,6 +176,8 @@ def _profile(args) -> int:
             sys.stderr.write(f"\r{k:,}/{total:,} events")
             sys.stderr.flush()
 
+    if args.board:
+        return _profile_image(args, tr, ev)
     r = profile_events(tr.model, tr.params, ev, args.target, progress=progress)
     if sys.stderr.isatty():
         sys.stderr.write("\n")
@@ -193,6 +200,41 @@ def _profile(args) -> int:
     print(f"instructions_per_event={r['mean']:.1f} p99={r['p99']:.0f} "
           f"spring_share={r['spring_share']:.3f} events_per_s={rate:.0f}")
     return 0
+
+
+def _profile_image(args, tr, ev) -> int:
+    from ..mcu.image_profile import profile_image
+    sensor = _sensor(args.sensor) if args.sensor else None
+    r = profile_image(tr.model, tr.params, ev, args.board, sensor)
+    mhz, cpi, source = CLOCKS[r["target"]]
+    mhz = args.clock_mhz or mhz
+    cpi = args.cpi or cpi
+    ipe = r["instructions_per_event"]
+    rate = mhz * 1e6 / (ipe * cpi)
+    c = r["capacity"]
+    print(f"board {args.board} ({r['target']}), model {tr.model.name}: {r['events']:,} events "
+          f"through the image (EVT 2.0 decoding, the kernel, telemetry records), counted in "
+          f"QEMU -icount by SysTick ticks of {r['tick_instructions']} instructions")
+    print(f"instructions per event: {ipe:.1f} (mean), of which decoding the words "
+          f"{r['decode_per_event']:.1f}")
+    print(f"static RAM {r['ram_bytes']:,} bytes for {c.trackers} trackers, {c.connections} "
+          f"connections, a {c.width}x{c.height} sensor (stack {r['stack_bytes']:,}, of which "
+          f"{r['stack_used_bytes']:,} used); flash {r['flash_bytes']:,} bytes")
+    print("largest RAM objects: " + ", ".join(
+        f"{k} {v:,}" for k, v in sorted(r["objects"].items(), key=lambda kv: -kv[1])[:10]))
+    print(f"at {mhz:g} MHz and {cpi:g} cycles per instruction ({source}): "
+          f"{rate / 1e3:,.0f} k events/s")
+    print(f"instructions_per_event={ipe:.1f} ram_bytes={r['ram_bytes']} "
+          f"events_per_s={rate:.0f}")
+    return 0
+
+
+def _sensor(text: str) -> tuple[int, int]:
+    w, _, h = text.lower().partition("x")
+    try:
+        return int(w), int(h)
+    except ValueError:
+        raise ValueError(f"--sensor {text!r}: expected WxH in px, e.g. 320x320") from None
 
 
 ACTIONS = {"build": _build, "run": _run, "profile": _profile}

@@ -47,6 +47,10 @@
 #define MCU_CELLS 14400                 /* spatial index cells: 1280 x 720 px at 8 x 8 */
 #endif
 
+#ifndef MCU_ALL_ENERGIES                /* rows carry every energy kind's sum; 0: only the */
+#define MCU_ALL_ENERGIES 1              /* kind the criterion uses (a firmware's telemetry) */
+#endif
+
 #ifndef MCU_INSTANCES
 #define MCU_INSTANCES 1                 /* model instances (at most FX_MAX_INSTANCES) */
 #endif
@@ -109,7 +113,8 @@ static void instance_row(fx_state *s, int64_t t, int32_t state, int64_t *row, in
 {
     int i, k, q;
     fx_tele_records(s, t, wire);
-    fx_energies(s);                     /* the kinds the criterion does not use, when read */
+    if (MCU_ALL_ENERGIES)
+        fx_energies(s);                 /* the kinds the criterion does not use, when read */
     for (q = 0; q < 3; q++)
         for (k = 0; k < s->nc; k++)
             sums[q] += s->energy[q][k];

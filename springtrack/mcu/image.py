@@ -29,8 +29,9 @@ SOURCES = sorted(FIRMWARE.glob("*.c")) + [HERE / "entry.c", CSRC / "fixed_step.c
 ROOT = HERE.parent.parent                  # for "springtrack/io/evt2_types.h"
 STACK_BYTES = 6144             # face26 uses 4.4 KB (STATS stack_used_bytes)
 # entry.c's I/O buffers: one snapshot row per MCU_RUN, 64 events per batch (the capacity's
-# rows and events), no word buffer (the firmware loads the kernel from its upload buffer)
-IO_DEFINES = ["-DMCU_WORDS=1"]
+# rows and events), no word buffer (the firmware loads the kernel from its upload buffer),
+# only the criterion's energy kind in a row (the one TELEMETRY reports)
+IO_DEFINES = ["-DMCU_WORDS=1", "-DMCU_ALL_ENERGIES=0"]
 ELF_NAME = "firmware.elf"
 # a board image's default capacity: 64 trackers, 128 connections, a 320 x 320 sensor
 # (GenX320); --model sizes it to a model instead
@@ -62,4 +63,4 @@ def build_image(board_name: str, out_dir, capacity: Capacity | None = None) -> B
                        env={**os.environ, "ZIG_GLOBAL_CACHE_DIR": str(cache_root() / "zig")})
     if r.returncode != 0:
         raise RuntimeError(f"building the {b.name} image failed:\n{' '.join(cmd)}\n{r.stderr}")
-    return measure(elf, tgt, cap)
+    return measure(elf, tgt, cap, prefix="")

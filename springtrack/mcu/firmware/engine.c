@@ -192,19 +192,55 @@ static void evt21_word(uint64_t v)
     }
 }
 
-/* decode words until the event buffer has no room for one more word's events */
+/* EVT 2.0 words while the time base is known: change-detection words inline (their fields
+   and checks those of evt2_word), any other word through evt2_word; returns the words used */
+static uint32_t evt2_run(const uint32_t *w, uint32_t nw)
+{
+    uint32_t i = 0, k = nevents, W = eng.width, H = eng.height;
+    int64_t th = eng.th;
+    while (i < nw && k < MCU_EVENTS) {
+        uint32_t v = w[i++], typ = evt2_type(v), x, y;
+        if (typ > EVT2_CD_ON) {
+            evt2_word(v);                /* time high (th changes), trigger, other */
+            th = eng.th;
+            continue;
+        }
+        x = evt2_x(v);
+        y = evt2_y(v);
+        if (x >= W || y >= H) {
+            eng.outside_sensor++;
+            continue;
+        }
+        mcu_events[k].t = th | evt2_t_low(v);
+        mcu_events[k].x = (uint16_t)x;
+        mcu_events[k].y = (uint16_t)y;
+        mcu_events[k].p = (uint8_t)typ;
+        k++;
+    }
+    eng.events_decoded += k - nevents;
+    nevents = k;
+    return i;
+}
+
+/* decode words until the event buffer has no room for one more word's events (the region
+   is read as the camera interface's DMA left it: words are not written while decoded) */
 static void decode(void)
 {
-    const volatile uint8_t *p = (const volatile uint8_t *)STREAM_BASE + STREAM_HDR;
-    uint32_t room = eng.format == STREAM_FMT_EVT2 ? 1 : 32;
+    const uint8_t *p = (const uint8_t *)STREAM_BASE + STREAM_HDR;
+    uint32_t room = eng.format == STREAM_FMT_EVT2 ? 1 : 32, used;
     while (eng.pos + eng.word_bytes <= eng.nbytes && nevents + room <= MCU_EVENTS) {
-        const volatile uint32_t *w = (const volatile uint32_t *)(p + eng.pos);
-        if (eng.format == STREAM_FMT_EVT2)
-            evt2_word(w[0]);
-        else
-            evt21_word((uint64_t)w[0] | (uint64_t)w[1] << 32);
-        eng.pos += eng.word_bytes;
-        eng.words++;
+        const uint32_t *w = (const uint32_t *)(const void *)(p + eng.pos);
+        if (eng.format == STREAM_FMT_EVT2 && !eng.await_th) {
+            used = evt2_run(w, (eng.nbytes - eng.pos) / 4);
+        } else {
+            if (eng.format == STREAM_FMT_EVT2)
+                evt2_word(w[0]);
+            else
+                evt21_word((uint64_t)w[0] | (uint64_t)w[1] << 32);
+            used = 1;
+        }
+        eng.pos += used * eng.word_bytes;
+        eng.words += used;
     }
 }
 
@@ -292,6 +328,7 @@ int engine_work(void)
     if (eng.state != ST_RUNNING || !eng.loaded || !eng.stream_ok)
         return 0;
     decode();
+    eng.decode_ticks += (t0 - board_ticks()) & 0xFFFFFFu;
     if (nevents == 0 && eng.pos + eng.word_bytes > eng.nbytes) {
         eng.state = ST_ENDED;
         proto_stream_ended();

@@ -28,6 +28,7 @@ typedef struct {
     uint64_t words, events_decoded, events_tracked, gap_skipped, outside_sensor, time_high,
         triggers, others, unknown_type, time_wraps, time_backwards, snapshots, replays;
     uint64_t work_ticks;                 /* SysTick ticks spent decoding and tracking */
+    uint64_t decode_ticks;               /* ... of which decoding */
 } engine_t;
 
 extern engine_t eng;

@@ -381,6 +381,7 @@ static void on_stats(const frame_t *f)
     kv_int("updates_rejected", ps.updates_rejected);
     kv_int("stack_used_bytes", fw_stack_used());
     kv_int("work_ticks", (int64_t)eng.work_ticks);
+    kv_int("decode_ticks", (int64_t)eng.decode_ticks);
     kv_int("link.rx_frames", link_counts.frames);
     kv_int("link.rx_bytes", link_counts.bytes);
     kv_int("link.crc_errors", link_counts.crc_errors);
