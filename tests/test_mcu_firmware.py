@@ -388,6 +388,45 @@ def test_cli_profile_counts_the_image(scene, tmp_path):
     assert "of which decoding the words" in r.stdout
 
 
+def test_a_keyed_image_answers_only_signed_frames(scene, tmp_path):
+    """An image built with --key-file: hostctl with the key uploads, starts and receives
+    telemetry over signed frames; without it the device says a key is needed; with a
+    wrong key the signed ping goes unanswered (AuthFailed), and unsigned, forged and
+    replayed frames are dropped and counted."""
+    from hostctl.device import AuthFailed, HostctlError
+    key = b"k" * 32
+    (tmp_path / "key").write_bytes(key)
+    r = subprocess.run(springtrack_cmd("mcu", "build", "--board", "mps2-an386", "--out",
+                                       str(tmp_path / "img"), "--model", str(scene / "face.toml"),
+                                       "--key-file", str(tmp_path / "key")),
+                       capture_output=True, text=True, cwd=ROOT, timeout=600)
+    assert r.returncode == 0, r.stderr
+    with Qemu(tmp_path / "img" / "firmware.elf", "mps2-an386", scene / "face.raw") as q:
+        with pytest.raises(HostctlError, match="requires a key"):
+            Device(q.link, timeout=0.5, retries=20)
+        with pytest.raises(AuthFailed):
+            Device(q.link, timeout=0.3, retries=2, key=b"w" * 32)
+        port = serial.serial_for_url(q.link, timeout=0.05)
+        send(port, MsgType.HELLO, 1, wire.encode_hello("x"))
+        info = wire.decode_info(wire.decode_frame(raw_frames(port, 0.5)[0]).payload)
+        assert info["auth_required"]
+        send(port, MsgType.STATS, 2)                                   # unsigned
+        signer = wire.Signer(key, info["nonce"])
+        frame = wire.encode_frame(MsgType.STATS, 3, signer=signer)
+        port.write(b"\x00" + frame)                                    # authentic
+        assert any(wire.decode_frame(c).type == MsgType.STATS for c in raw_frames(port, 0.5))
+        port.write(b"\x00" + frame)                                    # replayed
+        assert not raw_frames(port, 0.5)
+        port.close()
+        with Device(q.link, timeout=0.5, retries=20, key=key) as dev:
+            dev.load_model(scene / "face.toml")
+            dev.start()
+            assert len(list(dev.telemetry(seconds=2.0))) > 10
+            st = dev.stats()
+    assert st["link.auth_unsigned"] >= 1 and st["link.auth_bad_tag"] >= 1
+    assert st["link.auth_replay"] >= 1
+
+
 def test_words_image_round_trips():
     m = face26()
     img, nc = words_image(m.to_toml().encode())

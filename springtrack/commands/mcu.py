@@ -55,6 +55,10 @@ def add_arguments(p):
                            "kernel; docs/mcu.md)")
     b.add_argument("--out", required=True, metavar="DIR", help="output directory for the ELF")
     b.add_argument("--model", help="size the build for this model (TOML file or preset)")
+    b.add_argument("--key-file",
+                   help="--board: build this HMAC key into the image (at least 16 bytes, as "
+                        "for firmware-sim run --key-file): every host frame but HELLO must be "
+                        "signed; the ELF then holds the key")
     b.add_argument("--sensor", metavar="WxH",
                    help="--board: the largest sensor the image tracks, px (default 320x320, "
                         "or the --model's)")
@@ -104,8 +108,9 @@ def _build(args) -> int:
     from ..mcu.build import Capacity, build
     if args.board:
         return _build_image(args)
-    if args.sensor:
-        raise ValueError("--sensor goes with --board (a --target build is sized by --model)")
+    if args.sensor or args.key_file:
+        raise ValueError("--sensor and --key-file go with --board (a --target build is the "
+                         "kernel alone, sized by --model)")
     cap = Capacity()
     if args.model:
         from ..model import load_model
@@ -126,7 +131,11 @@ def _build_image(args) -> int:
     if args.sensor:
         w, h = _sensor(args.sensor)
         cap = dataclasses.replace(cap, width=w, height=h)
-    res = build_image(args.board, args.out, cap)
+    key = None
+    if args.key_file:
+        from ..wire import read_key_file
+        key = read_key_file(args.key_file)
+    res = build_image(args.board, args.out, cap, key=key)
     print(f"board {args.board}: {ELF_NAME}")
     print(res.report())
     return 0

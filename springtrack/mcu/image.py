@@ -38,8 +38,28 @@ ELF_NAME = "firmware.elf"
 DEFAULT_CAPACITY = Capacity(width=320, height=320)
 
 
-def build_image(board_name: str, out_dir, capacity: Capacity | None = None) -> BuildResult:
-    """Compile and link the image; returns the ELF's path and its flash / RAM use."""
+def key_header(key: bytes | None) -> str:
+    """``link_key.h``: the host link's HMAC key built into the image (none: an unkeyed
+    link).  A key longer than SHA-256's 64-byte block is replaced by its hash, as HMAC
+    (RFC 2104) does itself, so the image's HMAC takes keys of at most 64 bytes."""
+    import hashlib
+    if key is None:
+        return "#define LINK_KEY_LEN 0\nstatic const unsigned char link_key[1] = {0};\n"
+    if len(key) > 64:
+        key = hashlib.sha256(key).digest()
+    body = ", ".join(str(b) for b in key)
+    return (f"/* the host link's key: keep this directory, and the ELF, secret */\n"
+            f"#define LINK_KEY_LEN {len(key)}\n"
+            f"static const unsigned char link_key[{len(key)}] = {{{body}}};\n")
+
+
+def build_image(board_name: str, out_dir, capacity: Capacity | None = None,
+                key: bytes | None = None) -> BuildResult:
+    """Compile and link the image (``key``: the host link's HMAC key, at least
+    wire.MIN_KEY_BYTES; every host frame but HELLO must then be signed); returns the ELF's
+    path and its flash / RAM use."""
+    from .. import wire
+    wire.check_key(key)
     b = get_board(board_name)
     tgt = get_target(b.target)
     cap = dataclasses.replace(capacity or DEFAULT_CAPACITY, events=64, rows=1)
@@ -47,6 +67,7 @@ def build_image(board_name: str, out_dir, capacity: Capacity | None = None) -> B
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "wire_codes.h").write_text(header())
+    (out / "link_key.h").write_text(key_header(key))
     script = out / "firmware.ld"
     script.write_text((FIRMWARE / "firmware.ld").read_text()
                       .replace("@FLASH_ORIGIN@", hex(b.flash[0]))

@@ -6,12 +6,16 @@
  * STATS, SHUTDOWN, HEARTBEAT pings, TELEMETRY, APPLIED and NOTICE.  Replies to the last
  * 16 ACKed commands are kept, so that a retry is answered again and not executed twice.
  * Not here (refused or not sent, docs/mcu.md): PARAM_SET by name (hostctl sends a
- * parameters image instead), ACQUIRE, ENERGIES, the firmware's own HEARTBEAT, signing. */
+ * parameters image instead), ACQUIRE, ENERGIES, the firmware's own HEARTBEAT.  With a key
+ * built in (link_key.h, springtrack mcu build --key-file), every frame but HELLO must be
+ * signed as wire.Signer signs it; others are dropped without an answer and counted. */
 #include "board.h"
 #include "check.h"
 #include "engine.h"
 #include "fixed_step.h"
 #include "link.h"
+#include "link_key.h"
+#include "sha256.h"
 #include "text.h"
 
 #define MODEL_WORDS (FX_MODEL_HEAD + FX_MODEL_TRACKER * FX_MAX_TRACKERS \
@@ -27,7 +31,9 @@ uint32_t fw_stack_used(void);           /* startup.c */
 #define FIRMWARE "springtrack-mcu 0.1 (" BOARD_NAME ", fixed-point kernel)"
 
 static struct {
-    uint8_t session, role, auth_flags;
+    uint8_t session, role, authenticated;
+    uint64_t last_counter;               /* the highest signature counter accepted */
+    uint32_t auth_unsigned, auth_bad_tag, auth_replay, sessions;
     uint16_t tx_seq;
     int32_t rx_last;                     /* -1: expect anything */
     uint8_t nonce[WIRE_NONCE_LEN];
@@ -220,7 +226,7 @@ static void send_info(void)
         b_u16(&b, WIRE_VERSION);
         for (k = 0; k < WIRE_NONCE_LEN; k++)
             b_u8(&b, ps.nonce[k]);
-        b_u8(&b, eng.state == ST_RUNNING ? 2u : 0u);
+        b_u8(&b, (eng.state == ST_RUNNING ? 2u : 0u) | (LINK_KEY_LEN ? 1u : 0u));
         b_u32(&b, eng.generation);
         b_u16(&b, 0);                    /* the JSON's length, filled in below */
         info_json(&b, level);
@@ -232,9 +238,61 @@ static void send_info(void)
     send(MSG_INFO, b.p, b.n);
 }
 
+/* the session nonce: SHA-256 of the key, the SysTick count, the session number and the
+   previous nonce (no hardware random source is used: see docs/mcu.md) */
+static void new_nonce(void)
+{
+    sha256_t c;
+    uint8_t h[32];
+    uint32_t t = board_ticks(), k;
+    sha256_init(&c);
+    sha256_add(&c, link_key, LINK_KEY_LEN);
+    sha256_add(&c, (const uint8_t *)&t, 4);
+    sha256_add(&c, (const uint8_t *)&ps.sessions, 4);
+    sha256_add(&c, ps.nonce, WIRE_NONCE_LEN);
+    sha256_done(&c, h);
+    for (k = 0; k < WIRE_NONCE_LEN; k++)
+        ps.nonce[k] = h[k];
+    ps.sessions++;
+}
+
+/* wire.ReplayGuard.check: 0 if the frame is signed, its tag verifies and its counter is
+   above every counter accepted in this session; else which check failed (counted) */
+static int signature_ok(const frame_t *f)
+{
+    hmac_t m;
+    uint8_t tag[32], diff = 0;
+    uint64_t counter = 0;
+    uint32_t k;
+    if (!f->sig) {
+        ps.auth_unsigned++;
+        return 0;
+    }
+    for (k = 0; k < 8; k++)
+        counter |= (uint64_t)f->sig[k] << (8 * k);
+    hmac_init(&m, link_key, LINK_KEY_LEN);
+    hmac_add(&m, ps.nonce, WIRE_NONCE_LEN);
+    hmac_add(&m, f->header, WIRE_HEADER);
+    hmac_add(&m, f->payload, f->len);
+    hmac_add(&m, f->sig, 8);
+    hmac_done(&m, tag);
+    for (k = 0; k < WIRE_TAG_LEN; k++)   /* constant time */
+        diff |= (uint8_t)(tag[k] ^ f->sig[8 + k]);
+    if (diff) {
+        ps.auth_bad_tag++;
+        return 0;
+    }
+    if (counter <= ps.last_counter) {
+        ps.auth_replay++;
+        return 0;
+    }
+    ps.last_counter = counter;
+    return 1;
+}
+
 static void on_hello(const frame_t *f)
 {
-    uint32_t k, version, nl;
+    uint32_t version, nl;
     if (f->len < 3 || f->len < 3 + f->payload[2]) {
         nack_text(f, NACK_MALFORMED, "HELLO: truncated");
         return;
@@ -252,8 +310,9 @@ static void on_hello(const frame_t *f)
     ps.role = f->len == 4 + nl ? f->payload[3 + nl] : ROLE_OPERATOR;
     ps.session = 1;
     ps.rx_last = f->seq;
-    for (k = 0; k < WIRE_NONCE_LEN; k++)
-        ps.nonce[k] = (uint8_t)(board_ticks() >> (k & 3) * 8) ^ (uint8_t)(k * 37u + ps.tx_seq);
+    new_nonce();
+    ps.authenticated = 0;                /* a keyed session starts with its first authentic */
+    ps.last_counter = 0;                 /* frame */
     send_info();
 }
 
@@ -396,6 +455,9 @@ static void on_stats(const frame_t *f)
     kv_int("link.nacks", ps.nacks);
     kv_int("link.forbidden", ps.forbidden);
     kv_int("link.version_refused", ps.version_refused);
+    kv_int("link.auth_unsigned", ps.auth_unsigned);
+    kv_int("link.auth_bad_tag", ps.auth_bad_tag);
+    kv_int("link.auth_replay", ps.auth_replay);
     kv_text("session.role", !ps.session ? "" : ps.role == ROLE_MONITOR ? "monitor" : "operator");
     send_parts(f, MSG_STATS);
 }
@@ -798,7 +860,11 @@ void proto_frame(const frame_t *f)
         version_nack(f, f->version);
         return;
     }
-    if (f->flags & WIRE_FLAG_SIGNED) {
+    if (LINK_KEY_LEN && f->type != MSG_HELLO) {
+        if (!signature_ok(f))            /* dropped, counted, no answer (no oracle) */
+            return;
+        ps.authenticated = 1;
+    } else if (!LINK_KEY_LEN && (f->flags & WIRE_FLAG_SIGNED)) {
         nack_text(f, NACK_BAD_STATE, "signed frame on a link without a key: the tag cannot "
                   "be checked, refused");
         return;
@@ -863,7 +929,7 @@ void proto_frame(const frame_t *f)
 void proto_telemetry(int64_t t, uint32_t energy_bits, const uint8_t *records, uint32_t n)
 {
     buf_t b = out();
-    if (!ps.session)
+    if (!ps.session || (LINK_KEY_LEN && !ps.authenticated))
         return;                          /* nobody to send it to */
     b_u64(&b, (uint64_t)t);
     b_u16(&b, eng.generation);
@@ -878,7 +944,7 @@ void proto_stream_ended(void)
 {
     static const char text[] = "the source has no more data; the loop is idle (START replays it)";
     buf_t b = out();
-    if (!ps.session)
+    if (!ps.session || (LINK_KEY_LEN && !ps.authenticated))
         return;
     b_u8(&b, NOTICE_STREAM_ENDED);
     b_u16(&b, sizeof text - 1);
