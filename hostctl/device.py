@@ -462,8 +462,9 @@ def words_image(text: bytes) -> tuple[bytes, int]:
     """A model's words image (springtrack.wire.encode_image) for a firmware whose INFO says
     model_format "words" (the microcontroller image, docs/mcu.md): the model parsed and
     checked as firmware_sim checks an uploaded TOML text, its parameters (defaults, then
-    its [params]) and both converted by springtrack.fixed_q; and its connection count."""
-    from springtrack import fixed_q, model as _model, params as _params
+    its [params]) and both converted by springtrack.fixed.q; and its connection count."""
+    from springtrack import model as _model, params as _params
+    from springtrack.fixed import q as fixed_q
     m = _model.loads(text, "uploaded model")
     p = _params.resolve(m)
     nc = len(m.connections)
@@ -475,7 +476,8 @@ def words_image(text: bytes) -> tuple[bytes, int]:
 def params_image(values: dict, nc: int) -> bytes:
     """A parameters image of ``values`` (all of them, as PARAM_GET gives them, changed) for
     the running model's ``nc`` connections."""
-    from springtrack import fixed_q, params as _params
+    from springtrack import params as _params
+    from springtrack.fixed import q as fixed_q
     p = _params.from_mapping(values)
     return wire.encode_image(wire.ImageKind.PARAMS, p.as_dict(), fixed_q.params_words(p, nc))
 

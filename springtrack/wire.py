@@ -850,7 +850,7 @@ def quantise_trackers(trackers) -> np.ndarray:
     snapshots and counts them before they get here).
 
     The quantisation of docs/protocol.md from the float state; the integer-only kernel packs
-    the same layout from its fixed-point state (csrc/fixed_telemetry.c: its scales are
+    the same layout from its fixed-point state (fixed/csrc/fixed_telemetry.c: its scales are
     checked against these at import, its codes within one of these in
     tests/test_fixed_telemetry.py)."""
     tr = trackers
@@ -995,7 +995,7 @@ def framed_size(payload_len: int, signed: bool = False) -> int:
 # ---- binary model images (a firmware that cannot parse TOML) ---------------------------
 # A firmware whose INFO says ``model_format: "words"`` (the microcontroller image,
 # springtrack/mcu/firmware/) takes, through MODEL_BEGIN / CHUNK / COMMIT, this image instead
-# of TOML text: the fixed-point kernel's word streams (springtrack.fixed_q), converted and
+# of TOML text: the fixed-point kernel's word streams (springtrack.fixed.q), converted and
 # checked against springtrack.limits by the host, and checked again by the firmware:
 #   magic "STWI", u8 image version, u8 kind (ImageKind), u16 kv length, kv list of the
 #   parameters (what PARAM_GET answers)

@@ -38,7 +38,8 @@ import serial  # noqa: E402
 
 from hostctl import Device  # noqa: E402
 from hostctl.device import Nacked, words_image  # noqa: E402
-from springtrack import fixed_q, io as sio, wire  # noqa: E402
+from springtrack import io as sio, wire  # noqa: E402
+from springtrack.fixed import q as fixed_q  # noqa: E402
 from springtrack.mcu.boards import BOARDS  # noqa: E402
 from springtrack.mcu.image import build_image  # noqa: E402
 from springtrack.mcu.qemu import Qemu  # noqa: E402

@@ -1,6 +1,6 @@
 """A bootable firmware image for a board (springtrack/mcu/boards.py): start-up code, the
 board's UART, the host link in C and the fixed-point kernel with its event decoder
-(springtrack/mcu/firmware/, entry.c, csrc/fixed_step.c, csrc/fixed_telemetry.c), linked at
+(springtrack/mcu/firmware/, entry.c, fixed/csrc/fixed_step.c, fixed_telemetry.c), linked at
 the board's memory map into ``DIR/firmware.elf``.
 
     >>> res = build_image("netduinoplus2", "out/")             # doctest: +SKIP
@@ -19,13 +19,13 @@ from pathlib import Path
 from .boards import board as get_board
 import dataclasses
 
-from .build import CFLAGS, CSRC, HERE, BuildResult, Capacity, cache_root, measure, zig_cc
+from .build import (CFLAGS, CSRC, FIXED, HERE, SOURCES as KERNEL_SOURCES, BuildResult,
+                    Capacity, cache_root, measure, zig_cc)
 from .targets import target as get_target
 from .wire_header import header
 
 FIRMWARE = HERE / "firmware"
-SOURCES = sorted(FIRMWARE.glob("*.c")) + [HERE / "entry.c", CSRC / "fixed_step.c",
-                                          CSRC / "fixed_telemetry.c"]
+SOURCES = sorted(FIRMWARE.glob("*.c")) + KERNEL_SOURCES     # the kernel's: entry.c and fixed/csrc
 ROOT = HERE.parent.parent                  # for "springtrack/io/evt2_types.h"
 STACK_BYTES = 6144             # face26 uses 4.4 KB (STATS stack_used_bytes)
 # entry.c's I/O buffers: one snapshot row per MCU_RUN, 64 events per batch (the capacity's
@@ -78,7 +78,7 @@ def build_image(board_name: str, out_dir, capacity: Capacity | None = None,
     elf = out / ELF_NAME
     cmd = [*zig_cc(), "-target", tgt.triple, f"-mcpu={tgt.cpu}", *tgt.flags, *CFLAGS,
            "-mfloat-abi=soft", *cap.defines(), *IO_DEFINES, *b.defines(), f"-I{out}", f"-I{FIRMWARE}",
-           f"-I{CSRC}", f"-I{ROOT}", *map(str, SOURCES), "-Wl,-T," + str(script),
+           f"-I{FIXED}", f"-I{CSRC}", f"-I{ROOT}", *map(str, SOURCES), "-Wl,-T," + str(script),
            "-Wl,--gc-sections", "-o", str(elf)]
     r = subprocess.run(cmd, capture_output=True, text=True,
                        env={**os.environ, "ZIG_GLOBAL_CACHE_DIR": str(cache_root() / "zig")})

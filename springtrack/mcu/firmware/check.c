@@ -1,5 +1,5 @@
 /* check.h: springtrack/limits.py's check_model and check_params on the kernel's words
- * (layouts: springtrack/fixed_q.py model_words / params_words, fixed_step.h). */
+ * (layouts: springtrack/fixed/q.py model_words / params_words, fixed_step.h). */
 #include "check.h"
 #include "fixed_step.h"
 #include "wire_codes.h"
@@ -135,7 +135,7 @@ int check_params(const int32_t *w, uint32_t nw, buf_t *why)
     if (w[3] < 31 || w[3] > 62 || w[12] < 1 || w[12] > 62 || w[18] < 1 || w[19] < 0
         || w[19] > 2 || (uint32_t)w[22] > 1 || (uint32_t)w[23] > 1)
         return fail(why, NACK_OUT_OF_RANGE, "parameter words", -1, ": a value outside the "
-                    "kernel's range (springtrack.fixed_q.params_q)");
+                    "kernel's range (springtrack.fixed.q.params_q)");
     /* alpha_position, energy_gain: Q2.30 gains <= 1; the activity threshold positive */
     if ((uint32_t)w[0] > GAIN_ONE || (uint32_t)w[4] > GAIN_ONE || w64(w + 9) < 0
         || w64(w + 14) <= 0 || w64(w + 16) <= w64(w + 14)

@@ -1,6 +1,6 @@
 /* The tracking side of the firmware image: the event stream (a DMA-style memory region,
  * springtrack/mcu/stream.py), its EVT 2.0 / 2.1 decoder fused with the fixed-point kernel
- * (entry.c's MCU_RUN, csrc/fixed_step.c: the host's --backend fixed, compiled for the
+ * (entry.c's MCU_RUN, fixed/csrc/fixed_step.c: the host's --backend fixed, compiled for the
  * core), sampling every ENGINE_PERIOD_US of event time into TELEMETRY frames.
  *   engine_init()      read the stream's header (geometry, format)
  *   engine_load(...)   a checked model and/or parameter words into the kernel
