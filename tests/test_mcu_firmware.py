@@ -24,7 +24,7 @@ import zlib
 import numpy as np
 import pytest
 
-pytest.importorskip("springtrack._fixed")
+pytest.importorskip("springtrack.fixed.kernel")
 for _mod in ("ziglang", "elftools", "capstone"):
     pytest.importorskip(_mod, reason="the [mcu] extra is not installed")
 if shutil.which("qemu-system-arm") is None:
