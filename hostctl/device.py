@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 import serial
 
-from springtrack import wire
+from springtrack import wire, wire_image
 from springtrack.wire import MsgType, Nack, Notice, Role
 
 TELEMETRY_QUEUE = 20_000
@@ -167,8 +167,8 @@ class Device:
         """Upload a model (ShapeModel, preset name, TOML path or TOML text); returns the
         generation it will carry.  The firmware validates on commit and swaps atomically."""
         text = _model_text(model).encode("utf-8")
-        if self.info.get("model_format") == wire.MODEL_FORMAT_WORDS:
-            text, nc = _local_check("MODEL_COMMIT", words_image, text)
+        if self.info.get("model_format") == wire_image.MODEL_FORMAT_WORDS:
+            text, nc = _local_check("MODEL_COMMIT", wire_image.words_image, text)
             gen = self._upload(text)
             self.info["connections"] = nc
             return gen
@@ -187,8 +187,8 @@ class Device:
         """Set one or more parameters; returns the generation of the last change."""
         if name is not None:
             params = {name: value, **params}
-        if self.info.get("model_format") == wire.MODEL_FORMAT_WORDS:
-            image = _local_check("PARAM_SET", params_image, {**self.get(), **params},
+        if self.info.get("model_format") == wire_image.MODEL_FORMAT_WORDS:
+            image = _local_check("PARAM_SET", wire_image.params_image, {**self.get(), **params},
                                  self.info.get("connections", 0))
             return self._upload(image)
         gen = 0
@@ -456,30 +456,6 @@ def _open(url: str, baudrate: int):
         return serial.serial_for_url(url, baudrate=baudrate, timeout=0.05, write_timeout=2.0)
     except (serial.SerialException, ValueError, OSError) as e:
         raise NoSuchPort(f"{url}: cannot open port: {e}") from None
-
-
-def words_image(text: bytes) -> tuple[bytes, int]:
-    """A model's words image (springtrack.wire.encode_image) for a firmware whose INFO says
-    model_format "words" (the microcontroller image, docs/mcu.md): the model parsed and
-    checked as firmware_sim checks an uploaded TOML text, its parameters (defaults, then
-    its [params]) and both converted by springtrack.fixed.q; and its connection count."""
-    from springtrack import model as _model, params as _params
-    from springtrack.fixed import q as fixed_q
-    m = _model.loads(text, "uploaded model")
-    p = _params.resolve(m)
-    nc = len(m.connections)
-    return wire.encode_image(wire.ImageKind.MODEL, p.as_dict(), fixed_q.params_words(p, nc),
-                             m.name, [t.id for t in m.trackers],
-                             fixed_q.model_words(m.arrays(), m.width, m.height)), nc
-
-
-def params_image(values: dict, nc: int) -> bytes:
-    """A parameters image of ``values`` (all of them, as PARAM_GET gives them, changed) for
-    the running model's ``nc`` connections."""
-    from springtrack import params as _params
-    from springtrack.fixed import q as fixed_q
-    p = _params.from_mapping(values)
-    return wire.encode_image(wire.ImageKind.PARAMS, p.as_dict(), fixed_q.params_words(p, nc))
 
 
 def _local_check(command: str, convert, *args):

@@ -37,8 +37,9 @@ if shutil.which("qemu-system-arm") is None:
 import serial  # noqa: E402
 
 from hostctl import Device  # noqa: E402
-from hostctl.device import Nacked, words_image  # noqa: E402
-from springtrack import io as sio, wire  # noqa: E402
+from hostctl.device import Nacked  # noqa: E402
+from springtrack import io as sio, wire, wire_image  # noqa: E402
+from springtrack.wire_image import words_image  # noqa: E402
 from springtrack.fixed import q as fixed_q  # noqa: E402
 from springtrack.mcu.boards import BOARDS  # noqa: E402
 from springtrack.mcu.image import build_image  # noqa: E402
@@ -128,6 +129,18 @@ def send(port, mtype, seq, payload=b"", **kw):
     port.write(b"\x00" + wire.encode_frame(mtype, seq, payload, **kw))
 
 
+def hello(port, seq=1, seconds=30.0):
+    """HELLO, sent again every half second until INFO comes (bytes sent while the image
+    boots are lost); the chunks received, INFO among them."""
+    end, chunks = time.monotonic() + seconds, []
+    while time.monotonic() < end:
+        send(port, MsgType.HELLO, seq, wire.encode_hello("test"))
+        chunks += raw_frames(port, 0.5)
+        if any(wire.decode_frame(c).type == MsgType.INFO for c in chunks):
+            return chunks
+    raise AssertionError("no INFO")
+
+
 def test_every_frame_the_c_link_sends_is_what_wire_encodes(scene):
     """INFO (a JSON of more than 254 bytes without a zero: COBS's 255 code), ACK, NACK,
     PARAM_VALUE, STATS parts, APPLIED, TELEMETRY and NOTICE: decoded by wire.py and encoded
@@ -135,8 +148,7 @@ def test_every_frame_the_c_link_sends_is_what_wire_encodes(scene):
     with Qemu(image("mps2-an386").elf, "mps2-an386", scene / "face.raw") as q:
         port = serial.serial_for_url(q.link, timeout=0.05)
         port.write(b"\x00")
-        send(port, MsgType.HELLO, 1, wire.encode_hello("test"))
-        chunks = raw_frames(port, 0.5)
+        chunks = hello(port)
         send(port, MsgType.PARAM_GET, 2, wire.encode_param_get([]))
         send(port, MsgType.STATS, 3)
         send(port, 0x77, 4)
@@ -273,7 +285,7 @@ def bad_words_image(scene, **change):
     """face26's words image with a word changed after the host's checks: what a broken or
     hostile host could send."""
     img, _ = words_image((scene / "face.toml").read_bytes())
-    d = wire.decode_image(img)
+    d = wire_image.decode_image(img)
     mw = d["model_words"].copy()
     n = int(mw[0])
     conn0 = 8 + 16 * n
@@ -285,7 +297,7 @@ def bad_words_image(scene, **change):
         mw[conn0] = change["tracker"]
     if "mass" in change:                         # 1/mass, Q.24
         mw[8 + 11] = int(2 ** 24 / change["mass"])
-    return wire.encode_image(wire.ImageKind.MODEL, d["params"], d["params_words"],
+    return wire_image.encode_image(wire_image.ImageKind.MODEL, d["params"], d["params_words"],
                              change.get("name", "face26"), d["ids"], mw)
 
 
@@ -297,13 +309,17 @@ def test_hostile_frames_and_bad_models_are_refused_and_change_nothing(scene):
     with Qemu(image("mps2-an386").elf, "mps2-an386", scene / "face.raw") as q:
         # frames before a session, garbage, and a corrupt frame
         port = serial.serial_for_url(q.link, timeout=0.05)
+        end = time.monotonic() + 30                  # up: STATS answered (no session needed)
+        while not any(wire.decode_frame(c).type == MsgType.STATS for c in raw_frames(port, 0.5)):
+            assert time.monotonic() < end, "the image does not answer"
+            send(port, MsgType.STATS, 8)
         port.write(b"\x00" + bytes(range(1, 200)) + b"\x00")           # bad COBS / CRC
         good = wire.encode_frame(MsgType.START, 9)
         port.write(b"\x00" + good[:3] + bytes([good[3] ^ 0x40]) + good[4:])   # a flipped bit
         port.write(b"\x07" * 2000 + b"\x00")                           # no delimiter: oversize
         send(port, MsgType.START, 10)                                  # before HELLO
         send(port, MsgType.STATS, 11, version=2)                       # another version
-        got = [wire.decode_frame(c) for c in raw_frames(port, 1.0)]
+        got = [wire.decode_frame(c) for c in raw_frames(port, 3.0)]
         nacks = [wire.decode_nack(f.payload) for f in got if f.type == MsgType.NACK]
         assert [n.code for n in nacks] == [Nack.FORBIDDEN, Nack.VERSION_MISMATCH]
         assert "firmware=v1 host=v2" in nacks[1].reason
@@ -408,14 +424,14 @@ def test_a_keyed_image_answers_only_signed_frames(scene, tmp_path):
         with pytest.raises(AuthFailed):
             Device(q.link, timeout=0.3, retries=2, key=b"w" * 32)
         port = serial.serial_for_url(q.link, timeout=0.05)
-        send(port, MsgType.HELLO, 1, wire.encode_hello("x"))
-        info = wire.decode_info(wire.decode_frame(raw_frames(port, 0.5)[0]).payload)
+        info = wire.decode_info(next(f for f in map(wire.decode_frame, hello(port))
+                                     if f.type == MsgType.INFO).payload)
         assert info["auth_required"]
         send(port, MsgType.STATS, 2)                                   # unsigned
         signer = wire.Signer(key, info["nonce"])
         frame = wire.encode_frame(MsgType.STATS, 3, signer=signer)
         port.write(b"\x00" + frame)                                    # authentic
-        assert any(wire.decode_frame(c).type == MsgType.STATS for c in raw_frames(port, 0.5))
+        assert any(wire.decode_frame(c).type == MsgType.STATS for c in raw_frames(port, 3.0))
         port.write(b"\x00" + frame)                                    # replayed
         assert not raw_frames(port, 0.5)
         port.close()
@@ -431,9 +447,9 @@ def test_a_keyed_image_answers_only_signed_frames(scene, tmp_path):
 def test_words_image_round_trips():
     m = face26()
     img, nc = words_image(m.to_toml().encode())
-    d = wire.decode_image(img)
+    d = wire_image.decode_image(img)
     assert nc == len(m.connections) and d["name"] == m.name
     assert d["ids"] == [t.id for t in m.trackers]
     assert np.array_equal(d["model_words"], fixed_q.model_words(m.arrays(), m.width, m.height))
     with pytest.raises(wire.WireError):
-        wire.decode_image(img[:-1])
+        wire_image.decode_image(img[:-1])

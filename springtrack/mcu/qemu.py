@@ -1,6 +1,6 @@
 """``springtrack mcu run``: a firmware image (image.py) booted in QEMU's model of its board,
 its host link on a pty or a TCP port, its event stream (stream.py) loaded where the board
-keeps it (boards.py), so that ``hostctl`` steers it as it steers ``firmware-sim``.
+keeps it (boards.py), so that a host steers it over the protocol of docs/protocol.md.
 
     >>> with Qemu(elf, "netduinoplus2", "events.raw") as q:     # doctest: +SKIP
     ...     print(q.link)                                        # /dev/pts/N

@@ -593,7 +593,7 @@ static void on_model_chunk(const frame_t *f)
     ack(f, 0);
 }
 
-/* image fields (wire.decode_image); 0 on a truncated image */
+/* image fields (springtrack.wire_image.decode_image); 0 on a truncated image */
 typedef struct {
     uint32_t kind, kv_at, kv_n, name_at, name_n, ids_at, ids_n, ids_count;
     uint32_t model_at, model_n, params_at, params_n;
@@ -699,7 +699,7 @@ static void commit(const frame_t *f)
     int32_t *model = 0, *params;
     if (!parse_image(&m, up_total)) {
         nack_text(f, NACK_INVALID_MODEL, "not a words image of this firmware's version and "
-                  "capacity (springtrack.wire.encode_image; hostctl sends one when INFO says "
+                  "capacity (springtrack.wire_image.encode_image; hostctl sends one when INFO says "
                   "model_format=words)");
         return;
     }
@@ -918,7 +918,7 @@ void proto_frame(const frame_t *f)
     case MSG_STATS: on_stats(f); break;
     case MSG_PARAM_SET:
         nack_text(f, NACK_BAD_STATE, "this firmware takes parameters as a words image "
-                  "(springtrack.wire.encode_image), which hostctl set sends when INFO says "
+                  "(springtrack.wire_image.encode_image), which hostctl set sends when INFO says "
                   "model_format=words");
         break;
     default: on_simple(f); break;
