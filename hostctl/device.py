@@ -27,7 +27,8 @@ from pathlib import Path
 import numpy as np
 import serial
 
-from springtrack import wire, wire_image
+from springtrack import wire
+from springtrack.mcu import words as wire_image
 from springtrack.wire import MsgType, Nack, Notice, Role
 
 TELEMETRY_QUEUE = 20_000
@@ -179,9 +180,12 @@ class Device:
         """MODEL_BEGIN, the chunks, MODEL_COMMIT: the generation the upload carries."""
         self._command(MsgType.MODEL_BEGIN, wire.encode_model_begin(text))
         step = wire.MODEL_CHUNK_SIZE            # chunks are pipelined: sent together, ACKed
+        # a words firmware reads a UART a byte at a time: two chunks in flight keep the
+        # line's buffer from filling (a write that blocks past the write timeout fails)
+        words = self.info.get("model_format") == wire_image.MODEL_FORMAT_WORDS
         self._pipelined(MsgType.MODEL_CHUNK,    # together, missing ACKs retried one by one
                         [wire.encode_model_chunk(off, text[off:off + step])
-                         for off in range(0, len(text), step)])
+                         for off in range(0, len(text), step)], window=2 if words else 8)
         return self._command(MsgType.MODEL_COMMIT, wire.encode_model_begin(text))
 
     def set(self, name: str | None = None, value=None, **params) -> int:

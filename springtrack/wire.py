@@ -998,4 +998,3 @@ def framed_size(payload_len: int, signed: bool = False) -> int:
     """Bytes on the wire for a payload of ``payload_len`` bytes, delimiter included, worst case."""
     body = HEADER.size + payload_len + (SIG_LEN if signed else 0) + CRC.size
     return body + body // 254 + 1 + 1
-

@@ -13,7 +13,8 @@ import dataclasses
 import tempfile
 import time
 
-from .. import wire, wire_image
+from .. import wire
+from . import words as wire_image
 from ..wire import MsgType
 from .boards import board as get_board
 from .build import Capacity
@@ -34,7 +35,7 @@ class _Link:
         self.ended = False
         self.port.write(b"\x00")
 
-    def request(self, mtype, payload: bytes = b"", timeout: float = 30.0) -> list:
+    def request(self, mtype, payload: bytes = b"", timeout: float = 120.0) -> list:
         """Send; the frames answering it (ACK, INFO, or every STATS part); RuntimeError on
         a NACK or no answer."""
         self.seq = (self.seq + 1) & 0xFFFF

@@ -1,4 +1,4 @@
-"""The C header of the host link's codes and sizes, generated from springtrack/wire.py and wire_image.py so
+"""The C header of the host link's codes and sizes, generated from springtrack/wire.py and mcu/words.py so
 that the firmware image (springtrack/mcu/firmware/) and the Python ends cannot drift:
 ``springtrack mcu build --board`` writes it into the build directory as ``wire_codes.h``
 before compiling (tests/test_mcu_firmware.py compares the C encoder's frames with wire.py's)."""
@@ -6,7 +6,8 @@ from __future__ import annotations
 
 import struct
 
-from .. import wire, wire_image
+from .. import wire
+from . import words as wire_image
 from . import stream
 
 

@@ -34,6 +34,7 @@ static struct {
     uint8_t session, role, authenticated;
     uint64_t last_counter;               /* the highest signature counter accepted */
     uint32_t auth_unsigned, auth_bad_tag, auth_replay, sessions;
+    uint32_t hello_seq, hello_crc;       /* the HELLO that opened the session */
     uint16_t tx_seq;
     int32_t rx_last;                     /* -1: expect anything */
     uint8_t nonce[WIRE_NONCE_LEN];
@@ -307,6 +308,12 @@ static void on_hello(const frame_t *f)
         nack_text(f, NACK_MALFORMED, "HELLO: unknown role or trailing bytes");
         return;
     }
+    if (ps.session && f->seq == ps.hello_seq && crc32(0, f->payload, f->len) == ps.hello_crc) {
+        send_info();                     /* a retried HELLO: the same session, same nonce */
+        return;
+    }
+    ps.hello_seq = f->seq;
+    ps.hello_crc = crc32(0, f->payload, f->len);
     ps.role = f->len == 4 + nl ? f->payload[3 + nl] : ROLE_OPERATOR;
     ps.session = 1;
     ps.rx_last = f->seq;
@@ -593,7 +600,7 @@ static void on_model_chunk(const frame_t *f)
     ack(f, 0);
 }
 
-/* image fields (springtrack.wire_image.decode_image); 0 on a truncated image */
+/* image fields (springtrack.mcu.words.decode_image); 0 on a truncated image */
 typedef struct {
     uint32_t kind, kv_at, kv_n, name_at, name_n, ids_at, ids_n, ids_count;
     uint32_t model_at, model_n, params_at, params_n;
@@ -699,7 +706,7 @@ static void commit(const frame_t *f)
     int32_t *model = 0, *params;
     if (!parse_image(&m, up_total)) {
         nack_text(f, NACK_INVALID_MODEL, "not a words image of this firmware's version and "
-                  "capacity (springtrack.wire_image.encode_image; hostctl sends one when INFO says "
+                  "capacity (springtrack.mcu.words.encode_image; hostctl sends one when INFO says "
                   "model_format=words)");
         return;
     }
@@ -918,7 +925,7 @@ void proto_frame(const frame_t *f)
     case MSG_STATS: on_stats(f); break;
     case MSG_PARAM_SET:
         nack_text(f, NACK_BAD_STATE, "this firmware takes parameters as a words image "
-                  "(springtrack.wire_image.encode_image), which hostctl set sends when INFO says "
+                  "(springtrack.mcu.words.encode_image), which hostctl set sends when INFO says "
                   "model_format=words");
         break;
     default: on_simple(f); break;

@@ -11,7 +11,7 @@ from enum import IntEnum
 
 import numpy as np
 
-from .wire import WireError, _Cursor, _text, decode_kv, encode_kv
+from ..wire import WireError, _Cursor, _text, decode_kv, encode_kv
 
 # A firmware whose INFO says ``model_format: "words"`` (the microcontroller image,
 # springtrack/mcu/firmware/) takes, through MODEL_BEGIN / CHUNK / COMMIT, this image instead
@@ -74,8 +74,8 @@ def words_image(text: bytes) -> tuple[bytes, int]:
     model_format "words" (the microcontroller image, docs/mcu.md): the model parsed and
     checked as firmware_sim checks an uploaded TOML text, its parameters (defaults, then
     its [params]) and both converted by springtrack.fixed.q; and its connection count."""
-    from . import model as _model, params as _params
-    from .fixed import q as fixed_q
+    from .. import model as _model, params as _params
+    from ..fixed import q as fixed_q
     m = _model.loads(text, "uploaded model")
     p = _params.resolve(m)
     nc = len(m.connections)
@@ -87,7 +87,7 @@ def words_image(text: bytes) -> tuple[bytes, int]:
 def params_image(values: dict, nc: int) -> bytes:
     """A parameters image of ``values`` (all of them, as PARAM_GET gives them, changed) for
     the running model's ``nc`` connections."""
-    from . import params as _params
-    from .fixed import q as fixed_q
+    from .. import params as _params
+    from ..fixed import q as fixed_q
     p = _params.from_mapping(values)
     return encode_image(ImageKind.PARAMS, p.as_dict(), fixed_q.params_words(p, nc))
