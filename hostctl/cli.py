@@ -7,8 +7,9 @@
     hostctl --port /dev/pts/5 set alpha_position=0.05 energy_scale=3
     hostctl --port /dev/pts/5 get [NAME ...]
     hostctl --port /dev/pts/5 start | stop | reset | acquire | stats | ping | shutdown
+    hostctl --port /dev/pts/5 get-model OUT.toml                # the model it runs now
     hostctl --port /dev/pts/5 --role monitor monitor [--seconds S] [--smooth]
-    hostctl --port /dev/pts/5 record OUT.csv|OUT.npz [--seconds S] [--until-end] [--smooth]
+    hostctl --port /dev/pts/5 record OUT.csv|OUT.npz [--start] [--seconds S] [--until-end]
 
 ``--port`` defaults to $HOSTCTL_PORT.  ``--role monitor`` opens a read-only session beside
 the operator's (telemetry, stats, get, ping; docs/protocol.md, "Sessions").  A signed link
@@ -17,7 +18,9 @@ the operator's (telemetry, stats, get, ping; docs/protocol.md, "Sessions").  A s
 where other users could read it.  ``shutdown`` ends the firmware program; ``reset`` also
 clears its ``faulted`` state.  Exit codes: 0 ok, 1 other error, 2 usage, 3 no such port,
 4 no answer, 5 protocol version mismatch, 6 command refused (NACK), 7 authentication
-failed (wrong key, or this address locked out after failed attempts).
+failed (wrong key, or this address locked out after failed attempts), 8 (monitor,
+record) a model instance was not found: ``not found`` (its search budget spent) or still
+``searching`` with nothing tracked.
 """
 from __future__ import annotations
 
@@ -31,8 +34,8 @@ from springtrack.wire import Role
 
 from .device import Device, HostctlError
 
-VERBS = ("ports", "demo", "info", "load-model", "set", "get", "start", "stop", "reset",
-         "acquire", "stats", "ping", "monitor", "record", "shutdown")
+VERBS = ("ports", "demo", "info", "load-model", "get-model", "set", "get", "start", "stop",
+         "reset", "acquire", "stats", "ping", "monitor", "record", "shutdown")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -56,6 +59,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub.add_parser("info", help="firmware/protocol versions, geometry, model")
     sp = sub.add_parser("load-model", help="upload a model (preset name or TOML file)")
     sp.add_argument("model")
+    sp = sub.add_parser("get-model", help="download the model the device runs (uploaded, "
+                                          "learned or its own) as TOML")
+    sp.add_argument("out", metavar="OUT.toml", help="file to write (- for standard output)")
     sp = sub.add_parser("set", help="set parameters NAME=VALUE ...")
     sp.add_argument("assignments", nargs="+", metavar="NAME=VALUE")
     sp = sub.add_parser("get", help="show parameters (all if none named)")
@@ -79,6 +85,10 @@ def build_parser() -> argparse.ArgumentParser:
     sp.add_argument("--seconds", type=float, default=10.0, help="duration (10)")
     sp.add_argument("--until-end", action="store_true",
                     help="stop early when the device says its source has no more data")
+    sp.add_argument("--start", action="store_true",
+                    help="start the device once recording (from its first event; a replay "
+                         "that ended is replayed), and stop when its source ends (implies "
+                         "--until-end): a short replay is captured whole")
     sp.add_argument("--smooth", action="store_true",
                     help="add smoothed positions and velocities (npz arrays / .smooth.csv)")
     return p
@@ -171,6 +181,20 @@ def cmd_load_model(dev, args) -> int:
     return 0
 
 
+def cmd_get_model(dev, args) -> int:
+    text = dev.get_model()
+    if args.out == "-":
+        sys.stdout.write(text)
+        return 0
+    with open(args.out, "w", encoding="utf-8") as f:
+        f.write(text)
+    from springtrack.model import loads
+    m = loads(text, args.out)
+    print(f"model {m.name} ({len(m.trackers)} trackers: {m.ids[0]}..{m.ids[-1]}, "
+          f"{len(m.connections)} springs, sensor {m.width}x{m.height}) -> {args.out}")
+    return 0
+
+
 def cmd_set(dev, args) -> int:
     for name, value in parse_assignments(args.assignments).items():
         print(f"{name}={value!r}: generation {dev.set(name, value)}")
@@ -196,6 +220,9 @@ def cmd_stats(dev, args) -> int:
     if "state" in st:
         print(f"state: {st['state']}" + (f"  (last error: {st['last_error']})"
                                          if st.get("last_error") else ""))
+    from .monitor import unfound_line
+    if unfound_line(st):
+        print(f"acquisition: {unfound_line(st)}")
     for k, v in sorted(st.items()):
         print(f"{k}: {v}")
     for k, v in sorted(dev.link_counters().items()):
@@ -215,28 +242,23 @@ def cmd_monitor(dev, args) -> int:
     return monitor(dev, seconds=args.seconds, smooth=args.smooth, rate=args.rate)
 
 
-# the device states (STATS ``state``) in which it sends no telemetry, and what to do
-_SILENT_STATES = {
-    "ended": "the device's source has ended (hostctl start replays it)",
-    "idle": "the device is not started (hostctl start)",
-    "stopped": "the device is stopped (hostctl start)",
-    "faulted": "the device is faulted (hostctl stats shows its last error; hostctl reset)",
-}
-
-
 def _why_silent(dev) -> str:
-    """Why a device sent no telemetry, from its STATS state."""
+    """Why a device sent no telemetry, from its STATS."""
+    from .monitor import why_silent
     try:
-        state = dev.stats().get("state")
+        return why_silent(dev.stats())
     except HostctlError as e:
         return f"and its STATS did not answer ({e})"
-    return _SILENT_STATES.get(state, f"the device's state is {state!r}")
 
 
 def cmd_record(dev, args) -> int:
-    from .record import save
+    from .monitor import NOT_FOUND_EXIT, verdict
+    from .record import device_ids, save
     from .smooth import Smoother  # noqa: F401 - fail early if filterpy is missing
     snaps, failure = [], None
+    if args.start:
+        args.until_end = True
+        dev.start()                    # this session already receives the telemetry
     try:
         end = time.monotonic() + args.seconds
         while time.monotonic() < end and not (args.until_end and dev.stream_ended):
@@ -248,7 +270,8 @@ def cmd_record(dev, args) -> int:
     if not snaps and failure is None:
         raise ValueError(f"no telemetry received in {args.seconds:g} s: "
                          f"{_why_silent(dev)}")
-    summary = save(args.out, snaps, dev.info, smooth={} if args.smooth else None)
+    summary = save(args.out, snaps, dev.info, smooth={} if args.smooth else None,
+                   ids=lambda n: device_ids(dev, n))
     lc = dev.link_counters()
     print(f"recorded {summary['snapshots']} snapshots x {summary['trackers']} trackers "
           f"to {', '.join(summary['files'])}; lost frames {lc['lost']}, "
@@ -256,10 +279,16 @@ def cmd_record(dev, args) -> int:
     if failure is not None:
         print(f"hostctl record: error: {failure} (recording ended early)", file=sys.stderr)
         return failure.exit_code
+    missing = verdict(dev.stats(), summary["tracked"])
+    if missing:
+        print(f"hostctl record: {missing}: the recording's rows say so (state column)",
+              file=sys.stderr)
+        return NOT_FOUND_EXIT
     return 0
 
 
-VERB_FUNCS = {"info": cmd_info, "load-model": cmd_load_model, "set": cmd_set, "get": cmd_get,
+VERB_FUNCS = {"info": cmd_info, "load-model": cmd_load_model, "get-model": cmd_get_model,
+              "set": cmd_set, "get": cmd_get,
               "start": _simple("start"), "stop": _simple("stop"), "reset": _simple("reset"),
               "acquire": _simple("acquire"), "stats": cmd_stats, "ping": cmd_ping,
               "monitor": cmd_monitor, "record": cmd_record, "shutdown": _simple("shutdown")}

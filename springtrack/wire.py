@@ -53,6 +53,7 @@ class MsgType(IntEnum):
     MODEL_BEGIN = 0x10    # H->F  total length + CRC-32 of the model TOML
     MODEL_CHUNK = 0x11    # H->F  offset + bytes
     MODEL_COMMIT = 0x12   # H->F  validate and apply atomically
+    MODEL_GET = 0x13      # H->F request (empty) / F->H the running model's TOML, in parts
     PARAM_SET = 0x20      # H->F  name + typed value
     PARAM_GET = 0x21      # H->F  names (none = all)
     PARAM_VALUE = 0x22    # F->H  names + typed values
@@ -74,10 +75,11 @@ class MsgType(IntEnum):
 HOST_COMMANDS = frozenset({MsgType.HELLO, MsgType.MODEL_BEGIN, MsgType.MODEL_CHUNK,
                            MsgType.MODEL_COMMIT, MsgType.PARAM_SET, MsgType.PARAM_GET,
                            MsgType.START, MsgType.STOP, MsgType.RESET, MsgType.STATS,
-                           MsgType.ACQUIRE, MsgType.SHUTDOWN, MsgType.HEARTBEAT})
+                           MsgType.ACQUIRE, MsgType.SHUTDOWN, MsgType.HEARTBEAT,
+                           MsgType.MODEL_GET})
 # what a read-only session (Role.MONITOR) may send; everything else is the operator's
 MONITOR_COMMANDS = frozenset({MsgType.HELLO, MsgType.PARAM_GET, MsgType.STATS,
-                              MsgType.HEARTBEAT})
+                              MsgType.HEARTBEAT, MsgType.MODEL_GET})
 
 
 class Role(IntEnum):
@@ -720,7 +722,27 @@ def decode_reply_part(payload: bytes, what: str) -> ReplyPart:
     return ReplyPart(seq, part, parts, decode_kv(payload[REPLY_HDR.size:], what))
 
 
-REPLY_TYPES = (MsgType.ACK, MsgType.NACK, MsgType.PARAM_VALUE, MsgType.STATS)
+REPLY_TYPES = (MsgType.ACK, MsgType.NACK, MsgType.PARAM_VALUE, MsgType.STATS,
+               MsgType.MODEL_GET)
+# MODEL_GET's reply: the TOML text cut into pieces of at most this many characters (4
+# UTF-8 bytes each at most: a piece always fits a part), items ``toml.NNNN`` in order
+MODEL_TEXT_PIECE = 200
+
+
+def encode_model_text(text: str) -> dict:
+    """A model's TOML as MODEL_GET reply items (``wire.split_kv`` parts them)."""
+    return {f"toml.{i // MODEL_TEXT_PIECE:04d}": text[i:i + MODEL_TEXT_PIECE]
+            for i in range(0, len(text), MODEL_TEXT_PIECE)}
+
+
+def decode_model_text(items: dict) -> str:
+    """The TOML text of MODEL_GET's reply items (all parts joined)."""
+    keys = sorted(k for k in items if k.startswith("toml."))
+    if keys != [f"toml.{i:04d}" for i in range(len(keys))] or \
+            not all(isinstance(items[k], str) for k in keys):
+        raise WireError(f"MODEL_GET: the reply's pieces {keys[:3]}... are not toml.0000.. "
+                        f"in order")
+    return "".join(items[k] for k in keys)
 
 
 def decode_reply(frame: Frame) -> Ack | Refusal | ReplyPart:
@@ -730,7 +752,7 @@ def decode_reply(frame: Frame) -> Ack | Refusal | ReplyPart:
         return decode_ack(frame.payload)
     if frame.type == MsgType.NACK:
         return decode_nack(frame.payload)
-    if frame.type in (MsgType.PARAM_VALUE, MsgType.STATS):
+    if frame.type in (MsgType.PARAM_VALUE, MsgType.STATS, MsgType.MODEL_GET):
         return decode_reply_part(frame.payload, MsgType(frame.type).name)
     raise WireError(f"message type 0x{frame.type:02x} is not a reply")
 

@@ -7,9 +7,10 @@ from ..prep import DEFAULT_BURST_FRACTION, Preparer
 NAMES = ("start_us", "end_us", "dequantize", "burst_fraction")
 
 
-def add_arguments(p, always: bool = False) -> None:
+def add_arguments(p, always: bool = False, seed: bool = True) -> None:
     """Add the options; ``always``: the command prepares its events even without them
-    (otherwise only when one of them is given)."""
+    (otherwise only when one of them is given); ``seed``: add ``--seed`` (False: the
+    command has its own ``--seed``, which then seeds --dequantize's order too)."""
     when = "" if always else " (any of these options turns the preparation on)"
     g = p.add_argument_group("recording quirks" + when)
     g.add_argument("--start-us", type=int, metavar="US",
@@ -19,8 +20,9 @@ def add_arguments(p, always: bool = False) -> None:
     g.add_argument("--dequantize", action="store_true",
                    help="spread the events of each coarse timestamp tick (detected from the "
                         "data, e.g. 1000 µs) evenly over the tick, in a seeded random order")
-    g.add_argument("--seed", type=int, default=0,
-                   help="seed of --dequantize's order (default 0)")
+    if seed:
+        g.add_argument("--seed", type=int, default=0,
+                       help="seed of --dequantize's order (default 0)")
     g.add_argument("--burst-fraction", type=float, metavar="F",
                    help=f"drop a tick (or 1 ms) in which at least this fraction of the sensor's "
                         f"pixels fire: a full-frame burst (default {DEFAULT_BURST_FRACTION}; "

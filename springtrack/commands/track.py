@@ -91,6 +91,10 @@ def add_acquire_window(p) -> None:
                    help="acquisition searches rotations within +-DEG degrees (default 45)")
     p.add_argument("--acquire-scale", default="0.6,1.6", metavar="LO,HI",
                    help="acquisition searches sizes LO..HI times the model's (default 0.6,1.6)")
+    p.add_argument("--acquire-budget-ms", type=float, metavar="MS",
+                   help="search budget in ms of event time from the first event: a model "
+                        "not found by then is 'not found' and no longer searched for "
+                        "(default: search until the input ends)")
 
 
 def tracker_from_args(args, model):
@@ -110,7 +114,7 @@ def tracker_from_args(args, model):
     backend = f"mcu:{args.mcu_target}" if backend == "mcu" else backend
     return Tracker(model, params=args.params, backend=backend, acquire=args.acquire,
                    acquire_ms=args.acquire_ms, acquire_bounds=acquire_bounds(args),
-                   instances=args.instances)
+                   instances=args.instances, acquire_budget_ms=args.acquire_budget_ms)
 
 
 def read_events(reader):
@@ -262,8 +266,9 @@ def run(args) -> int:
                   f"{args.acquire_ms:g} ms, {acq.events_dropped} events dropped before it")
         if not acq.done:
             what = "the model was" if len(acq.poses) == 1 else "no model instance was"
-            print(f"springtrack track: {what} not found in {args.input}; no track rows "
-                  f"written", file=sys.stderr)
+            print(f"springtrack track: {what} not found in {args.input}; the rows of "
+                  f"{args.out} say where it was searched ('searching', then 'not found')",
+                  file=sys.stderr)
             return 1
         for t, label, kind in tr.changes:
             print(f"instance {label}: {kind} at t={t} us")
@@ -297,6 +302,9 @@ def acquire_bounds(args) -> dict:
         raise ValueError(f"--acquire-angle must be in [0, 180] degrees, got {args.acquire_angle:g}")
     if not args.acquire_ms > 0:
         raise ValueError(f"--acquire-ms must be a positive number of ms, got {args.acquire_ms:g}")
+    budget = getattr(args, "acquire_budget_ms", None)
+    if budget is not None and not budget > 0:
+        raise ValueError(f"--acquire-budget-ms must be a positive number of ms, got {budget:g}")
     return {"angle_deg": (-args.acquire_angle, args.acquire_angle), "scale": (lo, hi)}
 
 
