@@ -130,8 +130,6 @@ class OverlayRenderer:
         self.acq_pts = self.ax.plot([], [], "x", color=ACQUIRED, ms=6, mew=1.5)[0]
         self.text = self.fig.text(0.01, 1 - head.pad / hpx, "", fontsize=head.fs,
                                   family="monospace", va="top", ha="left")
-        self.clock = self.fig.text(0.99, 1 - head.pad / hpx, "", fontsize=head.fs * 0.8,
-                                   family="monospace", va="top", ha="right", color="#555555")
         from matplotlib.lines import Line2D
         handles = [Line2D([], [], color=ACTIVE, lw=2, label="active (2σ)"),
                    Line2D([], [], color=INACTIVE, lw=2, label="inactive"),
@@ -150,7 +148,7 @@ class OverlayRenderer:
               acquired_xy=None, origin_us: int = 0):
         """``acquired_xy`` (K, 2): where acquisitions placed trackers (shown as x);
         ``origin_us``: the recording's first event, from which the header counts time (the
-        recording's own clock in its corner)."""
+        recording's own clock at its end)."""
         from .instances import LOST as LOST_CODE, TRACKING
         from .track import STATE_NAMES
         state = st.get("state")
@@ -188,8 +186,8 @@ class OverlayRenderer:
         self.text.set_text(self.head.wrap(
             f"{self.title}  t = {(t_us - origin_us) / 1e6:.3f} s  events in last "
             f"{window_us / 1000:g} ms: {len(events)}  active {n_act}/{len(self.ids)}"
-            + (f"  {', '.join(gone)}" if gone else "")))
-        self.clock.set_text(f"clock {t_us / 1e6:.6f} s" if origin_us else "")
+            + (f"  {', '.join(gone)}" if gone else "")
+            + (f"  (clock {t_us / 1e6:.6f} s)" if origin_us else "")))
         self.fig.canvas.draw()
         buf = np.asarray(self.fig.canvas.buffer_rgba())
         return buf[..., :3].copy()
@@ -220,7 +218,7 @@ def render(events: np.ndarray, model, track: Track, out, window_us: int = 10_000
     [(t_us, (K, 2) positions)] of placements by the acquisition, each drawn for one
     window after it.  ``out``: .gif/.mp4 (video), .png (one frame: the middle one) or a
     directory (PNGs).  Frame times count from ``origin_us`` (default: the first event),
-    the recording's clock in the header's corner.  Returns the number of frames written."""
+    the recording's clock at the header's end.  Returns the number of frames written."""
     if origin_us is None:
         origin_us = int(events["t"][0]) if len(events) else int(track.t_us[0]) if len(track) else 0
     out = Path(out)

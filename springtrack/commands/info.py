@@ -38,18 +38,22 @@ def summarize(path, format=None, chunk=1 << 20) -> dict:
         w = int(ev["x"].max()) + 1 if len(ev) else 1
         h = int(ev["y"].max()) + 1 if len(ev) else 1
     scan = QuirkScan(w, h)
+    origin = None                # the bins of the peak rate start at the first event
     for ev in reader.chunks(chunk):
         scan.feed(ev)
         t = ev["t"]
+        if not len(t):
+            continue
         n += len(ev)
         p_on += int(np.count_nonzero(ev["p"]))
         lo, hi = int(t.min()), int(t.max())
         t_min = lo if t_min is None else min(t_min, lo)
         t_max = hi if t_max is None else max(t_max, hi)
-        b, c = np.unique(t // BIN_US, return_counts=True)
+        origin = int(t[0]) if origin is None else origin
+        b, c = np.unique((t - origin) // BIN_US, return_counts=True)
         bins.update(dict(zip(b.tolist(), c.tolist())))
     span = (t_max - t_min) if n else 0
-    peak_bin, peak = max(bins.items(), key=lambda kv: kv[1]) if bins else (None, 0)
+    peak_bin, peak = _peak(bins, origin, t_max)
     s = reader.stats
     quirks = scan.finish()
     return {
@@ -58,8 +62,8 @@ def summarize(path, format=None, chunk=1 << 20) -> dict:
         "header": reader.header, "events": n, "on_events": p_on,
         "t_first_us": t_min, "t_last_us": t_max, "span_us": span,
         "mean_rate_ev_s": (n / (span * 1e-6)) if span > 0 else None,
-        "peak_rate_ev_s": peak / (BIN_US * 1e-6),
-        "peak_bin_start_us": None if peak_bin is None else peak_bin * BIN_US,
+        "peak_rate_ev_s": peak,
+        "peak_bin_start_us": None if peak_bin is None else origin + peak_bin * BIN_US,
         "t_epoch_utc": (_utc(t_min), _utc(t_max)) if n and _is_epoch(t_min) else None,
         "words": s.words, "pending_bytes": s.pending_bytes,
         "anomalies": s.anomalies, "info": s.info,
@@ -71,6 +75,24 @@ def summarize(path, format=None, chunk=1 << 20) -> dict:
             "burst_events": quirks.burst_events, "burst_at_us": quirks.burst_at_us,
             "findings": [{"found": f, "do": d} for f, d in quirks.findings()]},
     }
+
+
+def _peak(bins: Counter, origin, t_max) -> tuple:
+    """(bin, events/s) of the densest BIN_US bin from the first event: each bin's events
+    over the time it covers -- a whole bin, but the last only up to the last event, counted
+    when it covers half a bin or more, or is the only one (then the rate is the mean's)."""
+    best, rate = None, 0.0
+    last = max(bins) if bins else None
+    if len(bins) == 1:           # the mean's rate, over the events' span
+        span = t_max - origin
+        return last, bins[last] / (span * 1e-6) if span > 0 else 0.0
+    for b, c in bins.items():
+        cover = BIN_US if b != last else t_max + 1 - (origin + b * BIN_US)
+        if b == last and cover < BIN_US // 2:
+            continue
+        if c / (cover * 1e-6) > rate:
+            best, rate = b, c / (cover * 1e-6)
+    return best, rate
 
 
 def _is_epoch(t_us: int) -> bool:
@@ -107,8 +129,10 @@ def run(args) -> int:
         mean = facts["mean_rate_ev_s"]
         print(f"rate      mean {mean / 1e6:.3f} Mev/s" if mean else "rate      mean n/a",
               end="")
+        short = facts["span_us"] < BIN_US
         print(f", peak {facts['peak_rate_ev_s'] / 1e6:.3f} Mev/s "
-              f"(10 ms bin at {facts['peak_bin_start_us']:,} us)")
+              + ("(the recording is shorter than a 10 ms bin)" if short else
+                 f"(10 ms bin from the first event, at {facts['peak_bin_start_us']:,} us)"))
     unit = WORD_UNIT.get(facts["format"], "words")
     print(f"decoded   {facts['words']:,} {unit}, {facts['pending_bytes']} bytes pending")
     bad = {k: v for k, v in facts["anomalies"].items() if v}
