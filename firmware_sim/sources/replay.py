@@ -23,7 +23,7 @@ import numpy as np
 
 from springtrack.events import as_events
 
-from .. import usb as camusb
+from .. import camera as camusb
 from . import SourceOptions, profile, simulated
 
 USAGE = "replay:FILE"
@@ -90,7 +90,7 @@ def rebased(chunks, stats: dict):
 def prepared(chunks, prep, stats: dict):
     """The events of ``chunks`` through a fresh ``springtrack.prep.Preparer`` (as
     ``springtrack track`` prepares them); its summary in ``stats['prepared']``."""
-    from springtrack.commands.prepargs import prepared as _prepared
+    from springtrack.commands.options import prepared as _prepared
     for ev in _prepared((as_events(c) for c in chunks), prep):
         stats["prepared"] = prep.stats.summary()
         yield ev
