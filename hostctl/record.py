@@ -4,7 +4,8 @@
   ``t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive,state``), so ``springtrack
   score`` reads recordings; the tracker ids are those of the device's model (``hostctl
   get-model``), so ``springtrack render --model`` draws them.  With smoothing, the
-  smoothed states go to a sidecar ``OUT.smooth.csv`` (``t_us,tracker,x_s,y_s,vx,vy``) so the main file keeps the schema.
+  smoothed states go to a sidecar ``OUT.smooth.csv`` (``t_us,tracker,x_s,y_s,vx,vy``) so
+  the main file keeps the schema.
 * ``OUT.npz`` - arrays ``t_us (T,)``, ``ids (K,)``, ``x, y, sxx, sxy, syy, activity,
   active, sensitive (T, K)``, ``generation, mean_energy, seq, host_time (T,)`` and, with
   smoothing, ``smooth_t_us (T',)``, ``x_s, y_s, vx, vy (T', K)``.

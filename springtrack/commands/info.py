@@ -15,6 +15,10 @@ BIN_US = 10_000
 # 10**15 us is 2001-09-09, 4 * 10**15 us is 2096
 EPOCH_US = (10**15, 4 * 10**15)
 WORD_UNIT = {"es": "bytes", "aedat4": "packets"}
+# 10 ms bins kept open for counting: older ones are closed (their count weighed for the
+# peak) once twice as many are open, so memory is constant however long the recording; an
+# event more than BINS_OPEN bins (10 s) back in time starts its bin's count anew
+BINS_OPEN = 1024
 
 
 def add_arguments(p):
@@ -32,6 +36,7 @@ def summarize(path, format=None, chunk=1 << 20) -> dict:
     reader = io.open(path, format=format)
     n, t_min, t_max, p_on = 0, None, None, 0
     bins = Counter()
+    peak_bin, peak = None, 0
     w, h = reader.width, reader.height
     if not (w and h) and reader.format in ("npy", "csv"):      # in memory: their extent
         ev = reader.read()
@@ -52,8 +57,11 @@ def summarize(path, format=None, chunk=1 << 20) -> dict:
         origin = int(t[0]) if origin is None else origin
         b, c = np.unique((t - origin) // BIN_US, return_counts=True)
         bins.update(dict(zip(b.tolist(), c.tolist())))
+        if len(bins) > 2 * BINS_OPEN:
+            peak_bin, peak = _close_bins(bins, max(bins) - BINS_OPEN, peak_bin, peak)
     span = (t_max - t_min) if n else 0
-    peak_bin, peak = _peak(bins, origin, t_max)
+    peak_bin, peak = _close_bins(bins, max(bins) if bins else None, peak_bin, peak)
+    peak_bin, peak = _peak(bins, peak_bin, peak, origin, t_max)     # with the last bin
     s = reader.stats
     quirks = scan.finish()
     return {
@@ -77,22 +85,29 @@ def summarize(path, format=None, chunk=1 << 20) -> dict:
     }
 
 
-def _peak(bins: Counter, origin, t_max) -> tuple:
-    """(bin, events/s) of the densest BIN_US bin from the first event: each bin's events
-    over the time it covers -- a whole bin, but the last only up to the last event, counted
-    when it covers half a bin or more, or is the only one (then the rate is the mean's)."""
-    best, rate = None, 0.0
-    last = max(bins) if bins else None
-    if len(bins) == 1:           # the mean's rate, over the events' span
-        span = t_max - origin
-        return last, bins[last] / (span * 1e-6) if span > 0 else 0.0
-    for b, c in bins.items():
-        cover = BIN_US if b != last else t_max + 1 - (origin + b * BIN_US)
-        if b == last and cover < BIN_US // 2:
-            continue
-        if c / (cover * 1e-6) > rate:
-            best, rate = b, c / (cover * 1e-6)
-    return best, rate
+def _close_bins(bins: Counter, before, peak_bin, peak):
+    """Close the bins older than ``before`` (None: all): (peak bin, its count) so far."""
+    for b in [b for b in bins if before is None or b < before]:
+        c = bins.pop(b)
+        if c > peak:
+            peak_bin, peak = b, c
+    return peak_bin, peak
+
+
+def _peak(last: Counter, peak_bin, peak, origin, t_max) -> tuple:
+    """(bin, events/s) of the densest BIN_US bin from the first event: the closed, whole
+    bins' counts over a bin; the ``last`` one's over the time it covers up to the last
+    event, counted when that is half a bin or more, or when it is the only bin (its rate is
+    then the mean's, over the events' span)."""
+    rate = peak / (BIN_US * 1e-6)
+    for b, c in last.items():
+        start = origin + b * BIN_US
+        if peak_bin is None:                 # the only bin
+            return b, c / ((t_max - start) * 1e-6) if t_max > start else 0.0
+        cover = t_max + 1 - start
+        if cover >= BIN_US // 2 and c / (cover * 1e-6) > rate:
+            peak_bin, rate = b, c / (cover * 1e-6)
+    return peak_bin, rate
 
 
 def _is_epoch(t_us: int) -> bool:
