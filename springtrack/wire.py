@@ -27,7 +27,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from .cobs import CobsError, cobs_decode, cobs_encode   # noqa: F401 - the framing
+from .io.cobs import CobsError, cobs_decode, cobs_encode   # noqa: F401 - the framing
 from .track import STATE_NAMES, TRACK_DTYPE, TRACKING_CODE   # decoded TELEMETRY: track records
 
 PROTOCOL_VERSION = 1

@@ -1,5 +1,5 @@
-"""Consistent Overhead Byte Stuffing (Cheshire & Baker 1999), the host link's framing
-(springtrack.wire): a frame's bytes recoded without 0x00, so that 0x00 ends a frame."""
+"""Consistent Overhead Byte Stuffing (Cheshire & Baker 1999), the byte format of the host
+link's frames (springtrack.wire): bytes recoded without 0x00, so that 0x00 ends a frame."""
 from __future__ import annotations
 
 
