@@ -25,7 +25,7 @@ $(STAMP): pyproject.toml setup.py
 
 # what the tests add: the test tools, dask (the experiments), the microcontroller build
 $(EXTRAS): $(STAMP)
-	$(NO_EXT) $(PIP) install -q --no-build-isolation -e '.[test,plots,sweep,mcu]'
+	$(NO_EXT) $(PIP) install -q --no-build-isolation -e '.[test,plots,sweep,mcu,dv,view]'
 	touch $(EXTRAS)
 
 build: $(STAMP) $(PYX)
