@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from springtrack.reference import covariance_bias
+from springtrack.gate import covariance_bias
 
 HERE = Path(__file__).resolve().parent
 SRC = HERE / "ctrackers"

@@ -1,5 +1,5 @@
 """The synthetic streams the kernel benchmarks share (kernel.py, fixed_speed.py, ab.py):
-``springtrack.synthetic.blob_stream`` of a preset, 300 k events/s of scene time."""
+``springtrack.sim.synthetic.blob_stream`` of a preset, 300 k events/s of scene time."""
 
 SCENES = {
     # preset: (noise fraction, motion)

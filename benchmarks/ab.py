@@ -110,7 +110,7 @@ def main():
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
     import numpy as np
     import springtrack
-    from springtrack.synthetic import blob_stream
+    from springtrack.sim.synthetic import blob_stream
     from _streams import SCENES
     if args.scene:
         from springtrack.sim.sensor import simulate_all

@@ -1,4 +1,4 @@
-"""Acquisition time (springtrack.acquire) vs window length and model size, one core.
+"""Acquisition time (springtrack.acquisition.acquire) vs window length and model size, one core.
 
 Writes the "Acquisition" section of docs/benchmarks.md.  Each row: the model placed at a
 start pose away from where it is written (rotated, scaled, shifted), a window of events
@@ -9,7 +9,7 @@ window's middle.  Streams:
 * face26 and grid3x3 on the simulated sensor (springtrack.sim, face_occlusion and
   grid_inplane scenes, placed by ``Placed``), with the sensor's noise raised so that the
   face stream runs at 300 k events/s;
-* ``springtrack.synthetic.blob_stream`` of models of 9 to 64 trackers (grid3x3, face26,
+* ``springtrack.sim.synthetic.blob_stream`` of models of 9 to 64 trackers (grid3x3, face26,
   and lattices of blobs) at 300 k events/s with 30 % background noise, moving.
 
 Target: a face26 pose from 50 ms of a 300 k events/s scene in under 20 ms of CPU on one
@@ -36,11 +36,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _report import machine, write_section  # noqa: E402
 
-from springtrack.acquire import Pose, acquire, fit_pose, model_pose, place  # noqa: E402
+from springtrack.acquisition.acquire import Pose, acquire, fit_pose, model_pose, place  # noqa: E402
 from springtrack.model import Connection, ShapeModel, TrackerSpec, face26, grid3x3  # noqa: E402
 from springtrack.sim.scenes import Placed, make_scene  # noqa: E402
 from springtrack.sim.sensor import SensorConfig, simulate_all  # noqa: E402
-from springtrack.synthetic import blob_stream, part_positions  # noqa: E402
+from springtrack.sim.synthetic import blob_stream, part_positions  # noqa: E402
 
 WINDOWS_MS = (10, 20, 50, 100, 200)
 START = dict(angle_deg=25.0, scale=0.85, dx=30.0, dy=-20.0)    # the start pose of every row
@@ -149,13 +149,13 @@ def main(argv=None) -> int:
         f"Machine: {machine()}; load average {load[0]:.1f} / {load[1]:.1f} (1 / 5 min) at "
         "the start  ",
         "Each row: the model placed 25 deg, 0.85x and (30, -20) px away from where it is "
-        "written, `springtrack.acquire.acquire` with the default bounds (whole sensor, "
+        "written, `springtrack.acquisition.acquire.acquire` with the default bounds (whole sensor, "
         "+-45 deg, 0.6-1.6x) on the window's events, the thread's CPU time (best and median "
         f"of {args.repeat} runs; the machine is shared), and the pose found against the truth "
         "at the window's middle (the grid's angle modulo its 90 deg symmetry).  Sensor rows: "
         "the simulated sensor (`springtrack.sim`) with its noise raised so that the face "
         "stream runs at about 300 k events/s; blob_stream rows: "
-        "`springtrack.synthetic.blob_stream` at 300 k events/s, 30 % background noise, the "
+        "`springtrack.sim.synthetic.blob_stream` at 300 k events/s, 30 % background noise, the "
         "shape moving (20, -10) px/s and turning 10 deg/s.", "",
         "Time vs window length:", "", *table(sim), "",
         "Time vs model size (50 ms windows):", "", *table(sizes), "",

@@ -35,7 +35,7 @@ from _streams import SCENES  # noqa: E402
 import springtrack  # noqa: E402
 from springtrack.events import as_events  # noqa: E402
 from springtrack.sim.sensor import simulate_all  # noqa: E402
-from springtrack.synthetic import blob_stream  # noqa: E402
+from springtrack.sim.synthetic import blob_stream  # noqa: E402
 
 # the AVX2 peer is compiled with -mavx2: run only where the processor has AVX2
 PEERS = ("plain", "avx2") if "avx2" in cpu_info()[2] else ("plain",)

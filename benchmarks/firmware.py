@@ -36,7 +36,7 @@ import springtrack.io as sio  # noqa: E402
 from springtrack.io.ccam import encode  # noqa: E402
 from springtrack.model import face26  # noqa: E402
 from springtrack.tracker import Tracker, make_backend  # noqa: E402
-from firmware_sim import usb as camusb  # noqa: E402
+from firmware_sim import camera as camusb  # noqa: E402
 from firmware_sim._fused import Fused  # noqa: E402
 from firmware_sim.faults import Faults  # noqa: E402
 from firmware_sim.loop import FirmwareLoop  # noqa: E402

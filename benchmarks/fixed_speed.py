@@ -17,7 +17,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")    # numpy's BLAS threads wou
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import springtrack  # noqa: E402
-from springtrack.synthetic import blob_stream  # noqa: E402
+from springtrack.sim.synthetic import blob_stream  # noqa: E402
 
 from _report import machine, replace_section, write_section  # noqa: E402
 from _streams import SCENES  # noqa: E402  (same streams as the wall-clock benchmark)

@@ -12,7 +12,7 @@ and moving about its own place) or of the face (face_occlusion without its hand,
   64 trackers);
 * ``cython``/``fixed``, one instance, as placed and with ``acquire=True`` (the loss rule
   checked every LOSS_CHECK_US, the event ring, the acquisition of the first window):
-  the overhead of springtrack.reacquire on the fast kernels.
+  the overhead of springtrack.acquisition.recovery on the fast kernels.
 
 Run: .venv/bin/python benchmarks/instances.py [--seconds S] [--no-write]
 """

@@ -38,7 +38,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 import springtrack  # noqa: E402
 from springtrack.events import make  # noqa: E402
-from springtrack.synthetic import blob_stream  # noqa: E402
+from springtrack.sim.synthetic import blob_stream  # noqa: E402
 
 from _ctrackers import PACKED, CTracker  # noqa: E402
 from _report import cpu_info, machine, write_section  # noqa: E402
@@ -53,7 +53,7 @@ SPRINGS_ONLY = "face26 (no event in a gate: spring updates alone)"
 def contenders(preset: str, ev) -> dict:
     """{(backend, frame): (make a fresh tracker, its input)} for one stream."""
     backends = ["cython"]
-    if importlib.util.find_spec("springtrack._fixed") is not None:
+    if importlib.util.find_spec("springtrack.fixed.kernel") is not None:
         backends.append("fixed")
     peers = ["C plain"] + (["C avx2"] if "avx2" in cpu_info()[2] else [])
     packed = np.empty(len(ev), PACKED)
@@ -156,7 +156,7 @@ def main():
         f"Command: `.venv/bin/python benchmarks/kernel.py --events {args.events}`  ",
         f"Machine: {machine()}; load average {load[0]:.1f} / {load[1]:.1f} (1 / 5 min) at "
         f"the start  ",
-        "Streams: `springtrack.synthetic.blob_stream` (300 k events/s of scene time, the "
+        "Streams: `springtrack.sim.synthetic.blob_stream` (300 k events/s of scene time, the "
         "shape drifting and rotating, 62 % background noise), the simulator's "
         "face_occlusion scene, and events outside every gate (spring updates alone); "
         "springs every 55 events; `Tracker.process` on the whole "

@@ -79,7 +79,7 @@ each layout:
 |---|---:|---:|
 {table}
 
-The kernels read any common layout in place (`springtrack._stepper.run_array`: 256 records
+The kernels read any common layout in place (`springtrack.backends.stepper.run_array`: 256 records
 at a time converted into a stack buffer inside the loop, then tracked), so a packed array
 costs a few percent over EVENT_DTYPE instead of a full copy first.  The comparison with
 hand-written C trackers (plain and AVX2) on the same packed array: "Tracker against

@@ -22,7 +22,7 @@ from springtrack.mcu.build import Capacity, cached_build  # noqa: E402
 from springtrack.mcu.profile import profile_events  # noqa: E402
 from springtrack.mcu.targets import TARGETS  # noqa: E402
 from springtrack.sim.sensor import simulate_all  # noqa: E402
-from springtrack.synthetic import blob_stream  # noqa: E402
+from springtrack.sim.synthetic import blob_stream  # noqa: E402
 from springtrack.sampling import UNSET  # noqa: E402
 from springtrack.tracker import resolve_params  # noqa: E402
 

@@ -17,7 +17,7 @@ off it (the mean of four such placements; the face of face_occlusion ends at abo
 
 Placed by hand with the model's covariances the face is bistable (a 0.1 px nudge moves it
 between about 1.3 % and 3.7 %; --acquire starts from covariances measured on the window,
-springtrack.spread, docs/acquisition.md "Placement"): its rows are means over ``--seeds``
+springtrack.acquisition.spread, docs/acquisition.md "Placement"): its rows are means over ``--seeds``
 scene seeds (the scene's texture, noise and hand), each against the same seed placed by
 hand.  Also: when each instance was lost and
 re-acquired, relative to the object's return, and the losses on the scenes without any
@@ -39,7 +39,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _report import machine, write_section  # noqa: E402
 
 import springtrack  # noqa: E402
-from springtrack.acquire import Pose, model_pose, place  # noqa: E402
+from springtrack.acquisition.acquire import Pose, model_pose, place  # noqa: E402
 from springtrack.metrics import tracking_error, truth_from_array  # noqa: E402
 from springtrack.sim.scenes import Disrupted, Placed, Together, make_scene  # noqa: E402
 from springtrack.sim.sensor import simulate_all  # noqa: E402

@@ -16,10 +16,10 @@ evt3      Prophesee Gen4 / IMX636 EVK     ``evt3.pxd``                        up
 
 Decoded change-detection events go into a batch of at most BATCH events (a C array in the
 object, 4 KiB, stays in L1), optionally filtered to a region of interest (the rest counted,
-``outside_roi``), and each batch runs through ``springtrack._stepper.run_events``, the
+``outside_roi``), and each batch runs through ``springtrack.backends.stepper.run_events``, the
 sampled event loop of ``springtrack track``, on the tracker backend's :c:type:`Stepper`
-(springtrack/_stepper.pxd): the float64 kernel (``springtrack._kernel.Kernel``) or the
-integer-only fixed-point kernel (``springtrack._fixed.FixedKernel``).  No Python object,
+(springtrack/backends/stepper.pxd): the float64 kernel (``springtrack.kernel.kernel.Kernel``) or the
+integer-only fixed-point kernel (``springtrack.fixed.kernel.FixedKernel``).  No Python object,
 allocation or GIL per event; the only output is a preallocated snapshot buffer that the
 caller drains.  When that buffer fills mid-batch, the rest of the batch waits in the object
 for the next call.
@@ -44,10 +44,10 @@ from libc.string cimport memcpy
 cimport numpy as cnp
 import numpy as np
 
-from springtrack._kernel cimport Kernel
-from springtrack._fixed cimport FixedKernel
-from springtrack._samples cimport SampleOut, sample_buffers, take_samples
-from springtrack._stepper cimport Stepper, ST_UNSET, run_events
+from springtrack.kernel.kernel cimport Kernel
+from springtrack.fixed.kernel cimport FixedKernel
+from springtrack.backends.samples cimport SampleOut, sample_buffers, take_samples
+from springtrack.backends.stepper cimport Stepper, ST_UNSET, run_events
 from springtrack.sampling import MAX_PERIOD
 from springtrack.events cimport Event
 from springtrack.io.base cimport (DecodeCounts, MAX_WORD, AN_UNKNOWN_TYPE, AN_OUT_OF_GEOMETRY,
@@ -113,14 +113,14 @@ cdef Stepper stepper_of(kernel) except *:
         return (<Kernel>kernel).stepper()
     if isinstance(kernel, FixedKernel):
         return (<FixedKernel>kernel).stepper()
-    raise TypeError(f"the fused loop runs springtrack._kernel.Kernel or "
-                    f"springtrack._fixed.FixedKernel, not {type(kernel).__name__}")
+    raise TypeError(f"the fused loop runs springtrack.kernel.kernel.Kernel or "
+                    f"springtrack.fixed.kernel.FixedKernel, not {type(kernel).__name__}")
 
 
 cdef class Fused:
     """``Fused(kernel, period_us, cap, fmt="ccam", width=0, height=0, legacy=False,
     roi=None)``: decoder + tracker state for one stream; ``kernel`` is a
-    ``springtrack._kernel.Kernel`` or ``springtrack._fixed.FixedKernel``; ``fmt`` a key of
+    ``springtrack.kernel.kernel.Kernel`` or ``springtrack.fixed.kernel.FixedKernel``; ``fmt`` a key of
     :data:`WORD_FORMATS` at the sensor's ``width`` x ``height`` (:func:`native_geometry`);
     ``legacy``: EVT 2.1 in the IMX636 word order; ``roi``: ``(x, y, w, h)`` px, only the
     events inside are tracked (the rest counted, ``outside_roi``).

@@ -4,7 +4,7 @@ acquire=True)`` behind the kernel interface the loop's decoded feed drives
 
 The model slot builds one per model (upload) and per RESET or ACQUIRE, so each starts
 searching: the model's positions are not trusted, it is found in the first window of
-events, then the loss rule and the re-acquisition of springtrack.reacquire run as in
+events, then the loss rule and the re-acquisition of springtrack.acquisition.recovery run as in
 ``springtrack track --acquire``, and the telemetry carries each tracker's instance state
 (``wire.encode_telemetry``'s trailer).  The decoded path (``firmware_sim.feed``) feeds it:
 the acquisition needs the events themselves, which the fused C loop does not keep.

@@ -24,11 +24,11 @@ import time
 
 from springtrack import wire
 from springtrack.wire import Fault
-from springtrack.commands.track import add_acquire_window
+from springtrack.commands.options import add_acquire_window, add_backend_argument
 
 from . import faults as _faults
 from . import sources as _sources
-from . import usb as camusb
+from . import camera as camusb
 from .supervise import Supervisor
 from .throttle import Throttle
 
@@ -77,11 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "(or 'file', as in springtrack track): use it on the camera's sensor "
                         "(trackers where they are), 'model': keep its sensor (events "
                         "outside it skipped and counted); applies to uploaded models too")
-    r.add_argument("--backend", default="cython", choices=["cython", "fixed", "mcu"],
-                   help="tracker kernel: float64 'cython' (default), the integer-only "
-                        "'fixed' kernel of docs/fixed_point.md (positions Q.32 px), or 'mcu': "
-                        "that kernel's Cortex-M4 build run in an emulator (docs/mcu.md; slow, "
-                        "for correctness tests; needs pip install 'springtrack[mcu]')")
+    add_backend_argument(r, firmware=True)
     r.add_argument("--acquire", action="store_true",
                    help="find the model in the events instead of trusting its positions, "
                         "detect its loss and find it again (docs/acquisition.md); the host "
@@ -384,7 +380,7 @@ def learn_params(args) -> dict | None:
     the learned model (the firmware then runs with them)."""
     if args.learn_first_ms is None or not args.params:
         return None
-    from springtrack.commands.learn import read_params
+    from springtrack.commands.options import read_params
     return read_params(args.params)
 
 
@@ -421,7 +417,7 @@ def _acquire(args):
     """The slot's acquisition settings from --acquire*, or None."""
     if not args.acquire:
         return None
-    from springtrack.commands.track import acquire_bounds
+    from springtrack.commands.options import acquire_bounds
     return {"acquire_ms": args.acquire_ms, "bounds": acquire_bounds(args)}
 
 

@@ -7,7 +7,7 @@ import numpy as np
 
 from springtrack.sampling import UNSET
 
-from . import usb as camusb
+from . import camera as camusb
 
 
 class DecodedFeed:

@@ -1,5 +1,5 @@
 """The tracking loop's feed when the model is learned from the stream's start
-(``firmware-sim run --learn-first-ms``): ``springtrack.learn`` on the first milliseconds
+(``firmware-sim run --learn-first-ms``): ``springtrack.learning.learner`` on the first milliseconds
 of the camera's events, then tracking with the learned model from where the window ended.
 
 The learning window needs decoded events, which the fused loop never materialises, so
@@ -22,7 +22,7 @@ from .feed import DecodedFeed
 class LearningFeed(DecodedFeed):
     """``LearningFeed(kernel, period_us, profile, ms, width, height, track_params=None)``:
     :class:`DecodedFeed` whose events of ``[t0, t0 + ms)`` (t0 the first event's time)
-    are held, not tracked; then ``learned`` holds the ``springtrack.learn.LearnResult``
+    are held, not tracked; then ``learned`` holds the ``springtrack.learning.learner.LearnResult``
     (``error`` the message if nothing was found: then nothing is tracked, the events are
     counted, ``events_untracked``, until a host uploads a model), which the loop loads as
     its model (:meth:`set_kernel`) before tracking the events after the window
@@ -89,7 +89,7 @@ class LearningFeed(DecodedFeed):
     def _learn(self) -> None:
         """The window is complete: learn (``learned``, or ``error`` and the events after
         the window are counted, not tracked)."""
-        from springtrack.learn import NoObjectFound, learn_model
+        from springtrack.learning.learner import NoObjectFound, learn_model
         events = np.concatenate(self.held) if self.held else np.empty(0, EVENT_DTYPE)
         self.held, self.n_held = [], 0
         self.events_learned = len(events)

@@ -27,7 +27,7 @@ composes parts that each keep one job:
 * end of stream (:meth:`FirmwareLoop.end_of_stream`): the loop goes idle and tells the
   hosts (NOTICE ``stream_ended``); the next START replays the source (``rewind``).
 * with ``learn_first_ms`` the feed is ``firmware_sim.learning.LearningFeed``: the model
-  is learned from the stream's first milliseconds (springtrack.learn) and swapped in
+  is learned from the stream's first milliseconds (springtrack.learning.learner) and swapped in
   like an upload, then the rest is tracked with it.
 """
 from __future__ import annotations
@@ -44,7 +44,7 @@ from springtrack.wire import Fault, Nack, Notice
 from ._fused import Fused
 from .feed import DecodedFeed
 from .learning import LearningFeed
-from . import usb as camusb
+from . import camera as camusb
 from .engine import UpdateRejected
 from .meter import LoadMeter, LoopCounters
 from .reader import Reader
@@ -66,12 +66,12 @@ class Stopping(Exception):
 
 class FirmwareLoop:
     """The Engine: ``FirmwareLoop(open_camera, model, params, ...)``; ``open_camera()``
-    returns a started ``firmware_sim.usb.Camera`` (called again after a disconnect).
+    returns a started ``firmware_sim.camera.Camera`` (called again after a disconnect).
     ``lossless=True`` (simulated camera at max speed only) makes the reader wait instead of
     shedding; ``record=True`` keeps every snapshot for :meth:`write_record`.  ``profile``
-    (``firmware_sim.usb.PROFILES`` name or DeviceProfile) names the word format and the
+    (``firmware_sim.camera.PROFILES`` name or DeviceProfile) names the word format and the
     sensor's geometry (``width``/``height`` override it), which every model must fit
-    (``springtrack.geometry.fit_model``; ``sensor_from`` "source" or "model" takes a model
+    (``springtrack.sensor_fit.fit_model``; ``sensor_from`` "source" or "model" takes a model
     of another ``[sensor]``, None refuses it: ValueError here, NACK ``sensor_mismatch`` for
     an upload); ``roi`` ``(x, y, w, h)`` tracks only that region; ``source_counters()``
     (optional) returns what the source dropped
@@ -96,7 +96,7 @@ class FirmwareLoop:
         self.profile = camusb.PROFILES[profile] if isinstance(profile, str) else profile
         self.width = width or self.profile.width          # the sensor
         self.height = height or self.profile.height
-        # every model (this one, uploads) must fit the sensor: springtrack.geometry
+        # every model (this one, uploads) must fit the sensor: springtrack.sensor_fit
         self.slot = ModelSlot(backend, model, params, (self.width, self.height), sensor_from,
                               acquire)
         self.applied = AppliedLog()

@@ -28,7 +28,7 @@ from collections import deque
 
 import usb.core
 
-from . import usb as camusb
+from . import camera as camusb
 from .supervise import Supervisor, where
 
 BACKOFF_S = (0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
@@ -39,7 +39,7 @@ class Reader:
     def __init__(self, open_camera, nbuf: int = 16, transfer_bytes: int = camusb.TRANSFER_BYTES,
                  timeout_ms: int = camusb.READ_TIMEOUT_MS, shed: bool = True,
                  supervisor: Supervisor | None = None, on_give_up=None):
-        """``open_camera()`` returns a started :class:`firmware_sim.usb.Camera` (called again
+        """``open_camera()`` returns a started :class:`firmware_sim.camera.Camera` (called again
         after a disconnect).  ``shed=False`` (a simulated camera at max speed only: a real
         camera cannot be paused) waits for a free buffer instead of dropping.
         ``supervisor`` restarts the thread after an unexpected exception; ``on_give_up``

@@ -14,16 +14,12 @@ from dataclasses import dataclass
 
 from springtrack import model as _model
 from springtrack import params as _params
-from springtrack.geometry import fit_model
-from springtrack.tracker import make_backend, resolve_params
+from springtrack.sensor_fit import fit_model
+from springtrack.backends import check_backend_params, make_backend, spec_of
+from springtrack.params import resolve as resolve_params
 from springtrack.wire import Nack
 
 from .engine import UpdateRejected
-
-# the tracker kernels a firmware can run (springtrack.tracker); "mcu" is the fixed kernel's
-# microcontroller build in its emulator (slow: for correctness tests of the whole chain)
-BACKENDS = ("cython", "fixed", "mcu")
-
 
 @dataclass(frozen=True, slots=True)
 class _Build:
@@ -68,7 +64,7 @@ class ModelSlot:
     ``model``/``params`` as for ``springtrack.Tracker``; ``backend`` "cython" (float64),
     "fixed" (integer-only, docs/fixed_point.md) or "mcu" (that kernel's microcontroller build
     in an emulator, docs/mcu.md; "mcu:cortex-m7" names the core); ``sensor``: the camera's
-    (width, height), which every model must fit (``springtrack.geometry.fit_model`` with
+    (width, height), which every model must fit (``springtrack.sensor_fit.fit_model`` with
     ``sensor_from``: None, "source" or "model").  The queue_* methods are thread-safe and
     raise :class:`UpdateRejected`; :meth:`apply` runs in the processing thread.  ``acquire``
     (``{"acquire_ms": ..., "bounds": {...}}``): each kernel built finds its model in the
@@ -76,8 +72,7 @@ class ModelSlot:
 
     def __init__(self, backend: str, model, params=None, sensor=None, sensor_from=None,
                  acquire: dict | None = None):
-        if backend.partition(":")[0] not in BACKENDS:
-            raise ValueError(f"backend {backend!r}: the firmware runs one of {', '.join(BACKENDS)}")
+        spec_of(backend, firmware=True)      # ValueError naming the ones the firmware runs
         self.backend = backend
         self.acquire = acquire               # None, or acquire_ms and bounds: every kernel
         #                                      built searches for its model (AcquiringKernel)
@@ -102,14 +97,12 @@ class ModelSlot:
     def check_kernel_params(self, model, params) -> None:
         """Raise ValueError if this backend's kernel would refuse ``params`` for ``model``:
         the checks its ``set_params`` runs before loading them (the fixed kernel's Q
-        formats, ``springtrack.fixed_q.params_words``, also the microcontroller build's), so
+        formats, ``springtrack.fixed.q.params_words``, also the microcontroller build's), so
         that an accepted update always applies."""
-        if self.backend.partition(":")[0] in ("fixed", "mcu"):
-            from springtrack import fixed_q
-            fixed_q.params_words(params, len(model.connections))
+        check_backend_params(self.backend, model, params)
 
     def fit(self, model):
-        """``model`` checked against the camera's sensor (springtrack.geometry): a
+        """``model`` checked against the camera's sensor (springtrack.sensor_fit): a
         ``SensorError`` (a ModelError) if it does not fit."""
         w, h = self.sensor
         return fit_model(model, w, h, self.sensor_from, what="the camera's sensor",
@@ -139,7 +132,7 @@ class ModelSlot:
             p = resolve_params(m)
             k = self.new_kernel(m, p)
         except (ValueError, TypeError, ArithmeticError) as e:  # ParamError is a ValueError
-            # a model that does not fit the sensor says so (springtrack.geometry's code)
+            # a model that does not fit the sensor says so (springtrack.sensor_fit's code)
             raise UpdateRejected(_model_code(e), _reason(e)) from None
         with self.lock:
             self._last_gen += 1

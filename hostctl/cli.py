@@ -25,15 +25,13 @@ import argparse
 import os
 import sys
 import time
+from dataclasses import dataclass
+from typing import Callable
 
 from springtrack import wire
 from springtrack.wire import Role
 
 from .device import Device, HostctlError
-
-VERBS = ("ports", "demo", "info", "load-model", "set", "get", "start", "stop", "reset",
-         "acquire", "stats", "ping", "monitor", "record", "shutdown")
-
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="hostctl", description=__doc__.split("\n\n")[0],
@@ -49,38 +47,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="session role: operator (default; one at a time, a new one takes "
                         "over) or monitor (read-only)")
     sub = p.add_subparsers(dest="verb", metavar="VERB", required=True)
-    sub.add_parser("ports", help="list serial ports")
-    from .demo import add_arguments as demo_arguments
-    demo_arguments(sub.add_parser("demo", help="end-to-end demo: simulated camera -> firmware-sim "
-                                               "-> this host, scored and drawn"))
-    sub.add_parser("info", help="firmware/protocol versions, geometry, model")
-    sp = sub.add_parser("load-model", help="upload a model (preset name or TOML file)")
-    sp.add_argument("model")
-    sp = sub.add_parser("set", help="set parameters NAME=VALUE ...")
-    sp.add_argument("assignments", nargs="+", metavar="NAME=VALUE")
-    sp = sub.add_parser("get", help="show parameters (all if none named)")
-    sp.add_argument("names", nargs="*")
-    for verb, text in (("start", "start tracking (after the source ended: replay it)"),
-                       ("stop", "stop tracking"),
-                       ("reset", "reset the trackers to the model, clear the faulted state"),
-                       ("acquire", "search for the model in the events again (a firmware "
-                                   "started with --acquire)"),
-                       ("stats", "firmware and link counters"),
-                       ("shutdown", "end the firmware program")):
-        sub.add_parser(verb, help=text)
-    sp = sub.add_parser("ping", help="command round-trip times")
-    sp.add_argument("-n", type=int, default=10)
-    sp = sub.add_parser("monitor", help="live view of the trackers (12 redraws/s)")
-    sp.add_argument("--seconds", type=float, default=None, help="stop after S seconds")
-    sp.add_argument("--smooth", action="store_true", help="add Kalman-smoothed velocities")
-    sp.add_argument("--rate", type=float, default=12.0, help="redraws per second (12)")
-    sp = sub.add_parser("record", help="record telemetry to OUT.csv or OUT.npz")
-    sp.add_argument("out")
-    sp.add_argument("--seconds", type=float, default=10.0, help="duration (10)")
-    sp.add_argument("--until-end", action="store_true",
-                    help="stop early when the device says its source has no more data")
-    sp.add_argument("--smooth", action="store_true",
-                    help="add smoothed positions and velocities (npz arrays / .smooth.csv)")
+    for name, verb in VERBS.items():
+        sp = sub.add_parser(name, help=verb.help)
+        if verb.arguments is not None:
+            verb.arguments(sp)
     return p
 
 
@@ -122,17 +92,15 @@ def read_key(path: str | None) -> bytes | None:
 def main(argv=None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        if args.verb == "ports":
-            return cmd_ports()
-        if args.verb == "demo":
-            from .demo import run_demo
-            return run_demo(args)
+        verb = VERBS[args.verb]
+        if not verb.device:
+            return int(verb.run(args) or 0)
         if not args.port:
             raise HostctlError("no port given: use --port URL or set HOSTCTL_PORT "
                                "(see `hostctl ports`)")
         with Device(args.port, timeout=args.timeout, retries=args.retries,
                     key=read_key(args.key_file), role=Role[args.role.upper()]) as dev:
-            return int(VERB_FUNCS[args.verb](dev, args) or 0)
+            return int(verb.run(dev, args) or 0)
     except HostctlError as e:
         print(f"hostctl {args.verb}: error: {e}", file=sys.stderr)
         return e.exit_code
@@ -143,7 +111,7 @@ def main(argv=None) -> int:
         return 130
 
 
-def cmd_ports() -> int:
+def cmd_ports(args) -> int:
     from serial.tools import list_ports
     ports = list(list_ports.comports())
     for p in ports:
@@ -259,11 +227,67 @@ def cmd_record(dev, args) -> int:
     return 0
 
 
-VERB_FUNCS = {"info": cmd_info, "load-model": cmd_load_model, "set": cmd_set, "get": cmd_get,
-              "start": _simple("start"), "stop": _simple("stop"), "reset": _simple("reset"),
-              "acquire": _simple("acquire"), "stats": cmd_stats, "ping": cmd_ping,
-              "monitor": cmd_monitor, "record": cmd_record, "shutdown": _simple("shutdown")}
+def cmd_demo(args) -> int:
+    from .demo import run_demo
+    return run_demo(args)
 
+
+def _demo_arguments(sp) -> None:
+    from .demo import add_arguments
+    add_arguments(sp)
+
+
+def _arguments(*specs):
+    """A parser filler adding ``specs``: (flags or name, add_argument keywords) pairs."""
+    def add(sp):
+        for flags, kw in specs:
+            sp.add_argument(*((flags,) if isinstance(flags, str) else flags), **kw)
+    return add
+
+
+@dataclass(frozen=True)
+class Verb:
+    help: str
+    run: Callable                   # (args) without a device, else (dev, args) -> exit code
+    arguments: Callable | None = None   # adds the verb's own options to its sub-parser
+    device: bool = True             # opens --port first
+
+
+# the one table of hostctl's verbs, in --help order
+VERBS: dict[str, Verb] = {
+    "ports": Verb("list serial ports", cmd_ports, device=False),
+    "demo": Verb("end-to-end demo: simulated camera -> firmware-sim -> this host, scored and "
+                 "drawn", cmd_demo, _demo_arguments, device=False),
+    "info": Verb("firmware/protocol versions, geometry, model", cmd_info),
+    "load-model": Verb("upload a model (preset name or TOML file)", cmd_load_model,
+                       _arguments(("model", {}))),
+    "set": Verb("set parameters NAME=VALUE ...", cmd_set,
+                _arguments(("assignments", dict(nargs="+", metavar="NAME=VALUE")))),
+    "get": Verb("show parameters (all if none named)", cmd_get,
+                _arguments(("names", dict(nargs="*")))),
+    "start": Verb("start tracking (after the source ended: replay it)", _simple("start")),
+    "stop": Verb("stop tracking", _simple("stop")),
+    "reset": Verb("reset the trackers to the model, clear the faulted state", _simple("reset")),
+    "acquire": Verb("search for the model in the events again (a firmware started with "
+                    "--acquire)", _simple("acquire")),
+    "stats": Verb("firmware and link counters", cmd_stats),
+    "shutdown": Verb("end the firmware program", _simple("shutdown")),
+    "ping": Verb("command round-trip times", cmd_ping,
+                 _arguments(("-n", dict(type=int, default=10)))),
+    "monitor": Verb("live view of the trackers (12 redraws/s)", cmd_monitor, _arguments(
+        ("--seconds", dict(type=float, default=None, help="stop after S seconds")),
+        ("--smooth", dict(action="store_true", help="add Kalman-smoothed velocities")),
+        ("--rate", dict(type=float, default=12.0, help="redraws per second (12)")))),
+    "record": Verb("record telemetry to OUT.csv or OUT.npz", cmd_record, _arguments(
+        ("out", {}),
+        ("--seconds", dict(type=float, default=10.0, help="duration (10)")),
+        ("--until-end", dict(action="store_true",
+                             help="stop early when the device says its source has no more "
+                                  "data")),
+        ("--smooth", dict(action="store_true",
+                          help="add smoothed positions and velocities (npz arrays / "
+                               ".smooth.csv)")))),
+}
 
 if __name__ == "__main__":
     sys.exit(main())

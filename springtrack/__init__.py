@@ -10,11 +10,17 @@ from .params import Params, ParamError
 __version__ = "0.1.0"
 
 __all__ = ["EVENT_DTYPE", "ShapeModel", "ModelError", "load_model", "Params", "ParamError",
-           "Tracker", "__version__"]
+           "Tracker", "learn", "learn_model", "__version__"]
+
+# the facade's heavier names, imported on first use: name -> (module, attribute)
+_LAZY = {"Tracker": ("springtrack.tracker", "Tracker"),
+         "learn": ("springtrack.learning", "learn"),
+         "learn_model": ("springtrack.learning", "learn_model")}
 
 
 def __getattr__(name):
-    if name == "Tracker":
-        from .tracker import Tracker
-        return Tracker
+    if name in _LAZY:
+        import importlib
+        mod, attr = _LAZY[name]
+        return getattr(importlib.import_module(mod), attr)
     raise AttributeError(name)

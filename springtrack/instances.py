@@ -28,7 +28,7 @@ Capacity (:mod:`springtrack.limits`): a model holds at most ``MAX_TRACKERS`` tra
 names the count and the limit; nothing is truncated.
 
 State.  Each instance is :data:`SEARCHING` (not yet placed by an acquisition),
-:data:`TRACKING` or :data:`LOST` (springtrack.loss decides); only a tracking instance's
+:data:`TRACKING` or :data:`LOST` (springtrack.acquisition.loss decides); only a tracking instance's
 trackers are sensitive and only its springs run.
 """
 from __future__ import annotations

@@ -4,15 +4,16 @@ docs/fixed_point.md).
 
 One validation: :class:`springtrack.model.ShapeModel` and :class:`springtrack.params.Params`
 call :func:`check_model` and :func:`check_params` when they are built, and the fixed-point
-kernel's conversion (:mod:`springtrack.fixed_q`) calls the same two functions before it
+kernel's conversion (:mod:`springtrack.fixed.q`) calls the same two functions before it
 converts anything; so a model or a parameter set that is accepted runs on every backend.
-The capacities are mirrored by ``cdef enum`` in ``_kernel.pxd`` and ``csrc/fixed_step.h``
+The capacities are mirrored by ``cdef enum`` in ``kernel/kernel.pxd`` and ``fixed/csrc/fixed_step.h``
 (checked at import).
 """
 from __future__ import annotations
 
 import numpy as np
 
+from .gate import covariance_gain
 from .wire import INFO_NAME_BUDGET, Nack, info_name_bytes
 
 MAX_TRACKERS = 64
@@ -24,7 +25,7 @@ MAX_SET_TRACKERS = 256
 MAX_SET_CONNECTIONS = 512
 
 # Positions: the fixed kernel keeps them in Q.32 px of an int64, saturated at +-2^13 px
-# (csrc/fixed_step.h FX_POS_LIM); every kernel keeps them inside that range.
+# (fixed/csrc/fixed_step.h FX_POS_LIM); every kernel keeps them inside that range.
 POS_LIMIT_PX = 8192
 # Sensor side: a sensor must fit that coordinate range.
 MAX_SENSOR_PX = POS_LIMIT_PX
@@ -173,12 +174,6 @@ def check_model(width: int, height: int, arr: dict, ids=None) -> None:
                 f"mass {m[i]:g} must stay <= {SPRING_LOAD_MAX:g}, or a spring update "
                 f"overshoots (docs/algorithm.md, Limits); lower those stiffnesses or raise "
                 f"the mass")
-
-
-def covariance_gain(p) -> float:
-    """alpha_covariance / covariance_bias: eq. (4)'s weight of a bias-corrected sample."""
-    from .reference import covariance_bias
-    return p.alpha_covariance / covariance_bias(p.alpha_position, p.gate_d2)
 
 
 def check_params(p) -> None:

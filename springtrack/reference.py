@@ -1,6 +1,6 @@
 """The executable specification: Algorithm 1 of Valeiras et al. 2015, float64, one event at a time.
 
-Every line cites the equation it implements.  The Cython kernel (``_kernel.pyx``) translates
+Every line cites the equation it implements.  The Cython kernel (``kernel/kernel.pyx``) translates
 this file and must agree with it to 1e-9 px (tests/test_equivalence.py); keep the two in
 step.  The kernel keeps this file's order of floating-point operations in the per-event
 step (so ties resolve alike) but evaluates exp (eqs. 2, 6) and the springs' atan2, sin and
@@ -16,7 +16,7 @@ Interpretation choices (docs/algorithm.md explains them):
   winner is the sensitive tracker with the smallest Mahalanobis distance d^2 (ties:
   lowest index).  The activity increment of eq. (6) is that same kernel value.
 * eq. (5): the covariance sample is taken about the mean BEFORE the update of eq. (3)
-  and divided by the gate's truncation factor (see :func:`covariance_bias`), so a
+  and divided by the gate's truncation factor (see :func:`springtrack.gate.covariance_bias`), so a
   tracker's ellipse converges to its blob's covariance instead of collapsing.
 * Springs run every ``spring_period`` valid events (paper: 55): all spring
   displacements are computed from the same positions, then applied (Jacobi order);
@@ -35,7 +35,7 @@ Interpretation choices (docs/algorithm.md explains them):
   instance); springs, eq. (13)'s mean energy, eqs. (21)-(22), the centre of mass and the
   similarity frame per instance, each with its own parameters of INSTANCE_PARAMS; only
   tracking instances are sensitive and run their springs (``set_state``; the loss rule
-  that decides a state is springtrack.loss, the same for every backend).
+  that decides a state is springtrack.acquisition.loss, the same for every backend).
 """
 from __future__ import annotations
 
@@ -43,6 +43,7 @@ import math
 
 import numpy as np
 
+from .gate import RHO_MAX, covariance_bias
 from .instances import TRACKING, ModelSet, per_instance
 from .limits import position_box
 from .model import SPRING_BIT, ShapeModel
@@ -50,7 +51,6 @@ from .params import ENERGY_KINDS, Params
 from .sampling import UNSET, first_sample_time, next_sample, sample_due
 
 EUCLIDEAN, TORSIONAL, CARTESIAN = SPRING_BIT["euclidean"], SPRING_BIT["torsional"], SPRING_BIT["cartesian"]
-RHO_MAX = 0.99           # |correlation| bound that keeps a covariance positive definite
 TWO_PI = 2.0 * math.pi
 # The similarity frame (fit_frame): its scale is held to [FRAME_SCALE_MIN, FRAME_SCALE_MAX]
 # (a structure collapsed onto a point or blown apart has lost its object: the frame then
@@ -65,25 +65,6 @@ FRAME_MIN_SPREAD = 2.0 ** -20
 NO_TRACKER = -1          # valid event, no sensitive tracker within its gate
 SKIPPED_BACK_IN_TIME = -2
 SKIPPED_OUT_OF_SENSOR = -3
-
-
-def truncation_factor(h: float) -> float:
-    """kappa(h) = E[x^2 | r^2 < h] for a standard 2-D normal: the per-axis variance kept
-    by a Mahalanobis gate of squared radius h (r^2 is chi-square with 2 dof)."""
-    e = math.exp(-0.5 * h)
-    return (2.0 - (h + 2.0) * e) / (2.0 * (1.0 - e))
-
-
-def covariance_bias(alpha_position: float, gate_d2: float) -> float:
-    """Expected ratio of the gated sample covariance of eq. (5) to the true blob covariance.
-
-    The event offset e = u - mu (pre-update mean) has covariance (1 + J) C, where
-    J = a1 / (2 - a1) is the stationary variance of the mean of eq. (3) (an exponential
-    moving average) in units of C.  The gate keeps |w|^2 < g with w whitened by C, so the
-    expected sample is C (1 + J) kappa(g / (1 + J)).  Dividing the sample by this factor
-    makes Sigma = C the fixed point of eq. (4)."""
-    j = alpha_position / (2.0 - alpha_position)
-    return (1.0 + j) * truncation_factor(gate_d2 / (1.0 + j))
 
 
 def wrap_angle(a: float) -> float:

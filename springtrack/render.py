@@ -18,7 +18,7 @@ from .track import Track
 ACTIVE = "#1a9850"        # green: active and sensitive
 INACTIVE = "#222222"      # black: sensitive but not active
 INSENSITIVE = "#f46d43"   # orange, dashed: insensitive (eq. 21)
-LOST = "#9e9e9e"          # grey, dotted: the instance is lost (springtrack.loss)
+LOST = "#9e9e9e"          # grey, dotted: the instance is lost (springtrack.acquisition.loss)
 ACQUIRED = "#7b3294"      # purple x: where an acquisition placed an instance
 TRUTH = "#ffd92f"
 ON_RGB = np.array([0.85, 0.15, 0.15])

@@ -16,7 +16,7 @@ of event time holds, at each sample time T, the state after all events with t < 
   hours of identical rows.  Within a stretch the state only decays (eq. 6's activity);
   the sample after the stretch shows where it went.
 
-The C loops (``springtrack._stepper.run_events``, used by both kernels' ``run`` and by
+The C loops (``springtrack.backends.stepper.run_events``, used by both kernels' ``run`` and by
 the firmware's fused loop, the kernels' batch steps and the microcontroller build's entry
 point) use the same rule from ``springtrack/csrc/sampling.h``; tests/test_sampling.py
 checks that all agree on streams with backward times, ties and gaps.

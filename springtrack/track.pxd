@@ -1,5 +1,5 @@
 # C view of springtrack.track.TRACK_DTYPE (aligned, 56 bytes): one tracker's state in a
-# sample row.  springtrack._samples checks at import that the two agree field by field.
+# sample row.  springtrack.backends.samples checks at import that the two agree field by field.
 from libc.stdint cimport uint8_t
 
 cdef struct TrackRow:

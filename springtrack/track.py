@@ -31,7 +31,7 @@ BOOL_FIELDS = ("active",                  # A > activity threshold
 CODE_FIELDS = ("state",)                  # the instance's state (instances.InstanceState)
 TRACK_FIELDS = FLOAT_FIELDS + BOOL_FIELDS + CODE_FIELDS
 # one tracker's state; aligned: the C view is TrackRow in track.pxd (checked at import by
-# springtrack._samples, whose sample rows are arrays of it)
+# springtrack.backends.samples, whose sample rows are arrays of it)
 TRACK_DTYPE = np.dtype([(f, "<f8") for f in FLOAT_FIELDS] + [(f, "?") for f in BOOL_FIELDS]
                        + [(f, "u1") for f in CODE_FIELDS], align=True)
 CSV_HEADER = ("t_us", "tracker") + TRACK_FIELDS

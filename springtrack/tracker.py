@@ -5,160 +5,26 @@
     >>> track = tr.run(events, sample_us=1000)               # doctest: +SKIP
     >>> tr.state()                                           # doctest: +SKIP
 
-Backends (same results, different speed):
-
-* ``"cython"``    float64 kernel (``_kernel.pyx``), equal to the reference to 1e-9 px;
-* ``"reference"`` the pure-Python executable specification (``reference.py``), slow;
-* ``"fixed"``     the integer-only kernel, when built (see docs/fixed_point.md);
-* ``"mcu"``       that kernel's microcontroller build (``"mcu:cortex-m7"``, ... names the
-                  core; default Cortex-M4) run in an instruction-set emulator: the same
-                  results as ``"fixed"``, bit for bit, slowly (springtrack/mcu/, the
-                  ``[mcu]`` extra).
-
-Each backend object offers ``run(events, sample_us, next_t, cap)``, ``set_params``,
-``snapshot(t)``, ``energies()``, ``mean_energy``, ``mean_energies()``, ``frame(g)``,
-``last_t`` and ``counters()``, and for the instances' states (springtrack.instances)
-``states()``, ``losses()``, ``set_state(g, state)``, ``place(g, model)`` and
-``enable_loss(on)``.  A backend is made from a ShapeModel and its Params or from a
-``ModelSet`` (params None: each instance's own).
+Backends (same results, different speed) are named in one registry,
+``springtrack.backends.BACKENDS`` (cython, reference, fixed, mcu; "mcu:cortex-m7" names
+the core); each offers the interface of ``springtrack.backends.Backend``.
 """
 from __future__ import annotations
-
-import importlib
 
 import numpy as np
 
 from . import params as _params
+from .backends import make_backend, spec_of
 from .events import as_events, check as check_events
-from .geometry import check_inside
+from .sensor_fit import check_inside
 from .instances import TRACKING, ModelSet
-from .loss import LOSS_CHECK_US
+from .acquisition.loss import LOSS_CHECK_US
 from .model import ShapeModel
 from .params import Params
-from .reference import ReferenceTracker
-from .sampling import MAX_PERIOD, UNSET, first_sample_time, next_sample, sample_due
+from .sampling import MAX_PERIOD, UNSET, first_sample_time
 from .track import STATE_NAMES, TRACK_DTYPE, TRACK_FIELDS, Track
 
-BACKENDS = ("cython", "reference", "fixed", "mcu")
 SAMPLE_CAP = 4096          # sample rows per kernel call; bounds memory for huge time gaps
-
-
-class ReferenceBackend:
-    """Adapts ReferenceTracker to the backend interface; its ``run`` is the kernels'
-    ``run`` (springtrack/_stepper.pyx) in Python, with the same sampling rule
-    (springtrack.sampling)."""
-
-    def __init__(self, model, params):
-        self.ref = ReferenceTracker(model, params)
-
-    def set_params(self, params) -> None:
-        self.ref.set_params(params)
-
-    def run(self, events, sample_us, next_t, cap):
-        ref = self.ref
-        rows = []
-        ts, xs, ys = events["t"].tolist(), events["x"].tolist(), events["y"].tolist()
-        if sample_us > 0 and ts and next_t == UNSET:
-            next_t = first_sample_time(ts[0], sample_us)
-        for k in range(len(ts)):
-            t = ts[k]
-            if sample_us > 0 and sample_due(t, next_t, ref.last_t):
-                while True:
-                    next_t = next_sample(t, next_t, ref.last_t, sample_us)
-                    if t < next_t:
-                        break
-                    if len(rows) >= cap:
-                        return k, next_t, self._pack(rows)
-                    rows.append((next_t, ref.snapshot(next_t), self._mean_energies()))
-                    next_t += sample_us
-            ref.step(t, xs[k], ys[k])
-        return len(ts), next_t, (self._pack(rows) if sample_us > 0 else None)
-
-    def _mean_energies(self):
-        nc = self.ref.nc
-        return [sum(e) / nc if nc else 0.0 for e in self.ref.energy]
-
-    def _pack(self, rows):
-        """Sample rows as the C loops return them (springtrack._samples.sample_buffers)."""
-        tr = np.empty((len(rows), self.ref.n), TRACK_DTYPE)
-        for j, f in enumerate(TRACK_FIELDS):
-            tr[f] = np.array([r[1][j] for r in rows], TRACK_DTYPE[f]).reshape(tr.shape)
-        return {"t": np.array([r[0] for r in rows], np.int64), "trackers": tr,
-                "energy": np.array([r[2] for r in rows], np.float64).reshape(len(rows), 3)}
-
-    def snapshot(self, t):
-        snap = self.ref.snapshot(t)
-        return {f: np.array(v, TRACK_DTYPE[f]) for f, v in zip(TRACK_FIELDS, snap)}
-
-    def energies(self):
-        return np.array(self.ref.energy, dtype=float).reshape(3, self.ref.nc)
-
-    @property
-    def mean_energy(self):
-        return self.ref.mean_energy
-
-    def mean_energies(self):
-        return list(self.ref.mean_energies)
-
-    def frame(self, g: int = 0):
-        return self.ref.frame(g)
-
-    @property
-    def last_t(self):
-        return self.ref.last_t
-
-    def counters(self):
-        r = self.ref
-        return dict(events_valid=r.n_valid, events_assigned=r.n_assigned,
-                    skipped_back_in_time=r.n_back, skipped_outside_sensor=r.n_outside,
-                    spring_updates=r.n_spring_updates, state_resets=r.n_resets)
-
-    # the instances' states (springtrack.instances)
-    def states(self) -> list:
-        return list(self.ref.state)
-
-    def set_state(self, g: int, state: int) -> None:
-        self.ref.set_state(g, state)
-
-    def place(self, g: int, model) -> None:
-        self.ref.place(g, model)
-
-    movable = True
-
-    def move(self, g: int, sim, model) -> None:
-        self.ref.move(g, sim, model)
-
-
-def _cython_backend(model, params, option):
-    from ._kernel import Kernel
-    return Kernel(model, params)         # one ShapeModel or a ModelSet
-
-
-def _fixed_backend(model, params, option):
-    try:
-        mod = importlib.import_module("springtrack._fixed")
-    except ImportError as e:
-        raise ValueError(f"backend 'fixed' is not available in this build: {e}") from None
-    if isinstance(model, ModelSet):                       # one fx_state per instance
-        return mod.FixedSet(model if params is None else model.with_params(params))
-    return mod.FixedKernel(model, params)
-
-
-def _mcu_backend(model, params, option):
-    from .mcu import MissingExtra
-    try:
-        from .mcu.backend import DEFAULT_TARGET, McuBackend, McuSet
-        if isinstance(model, ModelSet):                   # one fx_state per instance
-            return McuSet(model if params is None else model.with_params(params),
-                          target=option or DEFAULT_TARGET)
-        return McuBackend(model, params, target=option or DEFAULT_TARGET)
-    except (MissingExtra, RuntimeError) as e:      # no toolchain, a failed build or run
-        raise ValueError(f"backend 'mcu': {e}") from None
-
-
-# name -> factory(model, params, option); "name:option" passes the option (the mcu's core)
-_FACTORIES = {"reference": lambda m, p, o: ReferenceBackend(m, p), "cython": _cython_backend,
-              "fixed": _fixed_backend, "mcu": _mcu_backend}
 
 
 class _OneInstance:
@@ -200,14 +66,6 @@ class _OneInstance:
         return dict(self.tr._b.counters())
 
 
-def make_backend(name: str, model: ShapeModel, params: Params):
-    base, _, option = name.partition(":")
-    if base not in _FACTORIES or (option and base != "mcu"):
-        raise ValueError(f"unknown backend {name!r}; choose from {', '.join(BACKENDS)} "
-                         f"(mcu:TARGET names a core)")
-    return _FACTORIES[base](model, params, option)
-
-
 def _multiples(a: int, b: int, q: int) -> int:
     """How many multiples of q lie in [a, b)."""
     return -(-b // q) - -(-a // q) if b > a else 0
@@ -222,7 +80,7 @@ class Tracker:
     """Part-based shape tracker. Feed events in time order, in as many chunks as you like.
 
     ``model``: a ShapeModel, a preset name or a TOML path, its trackers on its sensor
-    (``springtrack.geometry.TrackersOutside`` otherwise), or a list of them: several model
+    (``springtrack.sensor_fit.TrackersOutside`` otherwise), or a list of them: several model
     instances in one tracker (springtrack.instances: one event assignment across all,
     springs and energies per instance), ``instances`` copies of each; ``params``: Params,
     a dict of overrides, a TOML path, or None (defaults < model [params] < these, per
@@ -230,14 +88,14 @@ class Tracker:
     counted (:attr:`counters`), never raised.
 
     ``acquire=True``: the models' positions are not trusted; the first ``acquire_ms`` of
-    events are buffered and the instances are found in them (:mod:`springtrack.acquire`;
+    events are buffered and the instances are found in them (:mod:`springtrack.acquisition.acquire`;
     ``acquire_bounds``: its region, angle_deg, scale; each instance found explains its
     events away before the next search), placed there, and tracked from the window's first
     event.  While none is found the window slides by half its length (:attr:`acquisition`
     counts the attempts and the events dropped); call :meth:`flush` at the end of the input
     to try on a last, shorter window.  Then the loss rule watches every instance, and an
     instance not found yet or lost is searched for again in the recent events
-    (:mod:`springtrack.reacquire`); :attr:`changes` lists every change of state with its
+    (:mod:`springtrack.acquisition.recovery`); :attr:`changes` lists every change of state with its
     event time.
     """
 
@@ -258,7 +116,7 @@ class Tracker:
         self.acquisition = None
         self.recovery = None
         if acquire:
-            from .acquire import Acquisition
+            from .acquisition.acquire import Acquisition
             self.acquisition = Acquisition(self.models, int(round(acquire_ms * 1000)),
                                            **(acquire_bounds or {}))
 
@@ -326,7 +184,7 @@ class Tracker:
         """Consume an event array (fields t µs, x, y, p), in time order; the samples taken
         wait for :meth:`samples`.  The kernels read the common layouts as they are (packed
         or aligned records, t int64 or uint64, x/y int16 or uint16, p bool or int:
-        ``springtrack._stepper.layout_of``), converting them block by block inside their
+        ``springtrack.backends.stepper.layout_of``), converting them block by block inside their
         loop; anything else is converted first.  Either way the values are checked
         (``springtrack.events.check``: EventError for the first event out of range)."""
         self._recorded.extend(self.stream(events))
@@ -349,9 +207,9 @@ class Tracker:
 
     def _reads_as_is(self, events) -> bool:
         """The backend's loop reads ``events`` without a conversion first."""
-        if self.backend_name not in ("cython", "fixed"):
+        if not spec_of(self.backend_name)[0].reads_layouts:
             return False
-        from ._stepper import layout_of
+        from .backends.stepper import layout_of
         return layout_of(events) is not None
 
     def flush(self) -> None:
@@ -365,16 +223,16 @@ class Tracker:
         events, from which the loss rule and the re-acquisition take over."""
         if ready is None:
             return ready
-        from .acquire import place
-        from .reacquire import Recovery
-        from .spread import measured_set
+        from .acquisition.acquire import place
+        from .acquisition.recovery import Recovery
+        from .acquisition.spread import measured_set
         acq = self.acquisition
         mset = self.models
         for g, pose in enumerate(acq.poses):
             if pose is not None and pose.found:
                 mset = mset.replaced(g, place(mset[g].model, pose))
         self.models = mset
-        # the kernel starts from the covariances measured on the window (springtrack.spread);
+        # the kernel starts from the covariances measured on the window (springtrack.acquisition.spread);
         # the set keeps the models' own, which the searches use
         t0 = int(ready["t"][0])
         found = [g for g, p in enumerate(acq.poses) if p is not None and p.found]

@@ -850,7 +850,7 @@ def quantise_trackers(trackers) -> np.ndarray:
     snapshots and counts them before they get here).
 
     The quantisation of docs/protocol.md from the float state; the integer-only kernel packs
-    the same layout from its fixed-point state (csrc/fixed_telemetry.c: its scales are
+    the same layout from its fixed-point state (fixed/csrc/fixed_telemetry.c: its scales are
     checked against these at import, its codes within one of these in
     tests/test_fixed_telemetry.py)."""
     tr = trackers

@@ -14,7 +14,7 @@ import numpy as np
 
 from springtrack.metrics import Truth, tracking_error
 from springtrack.model import ShapeModel, load_model
-from springtrack.synthetic import blob_stream, part_positions
+from springtrack.sim.synthetic import blob_stream, part_positions
 from springtrack.tracker import Tracker
 
 BOUNDS = dict(pos_rms_px=0.05, pos_max_px=0.25, cov_rel_max=0.01, active_agree_min=0.999,

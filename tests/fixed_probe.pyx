@@ -1,7 +1,7 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
-# distutils: depends = springtrack/csrc/fixed_step.c springtrack/csrc/fixed_step.h springtrack/csrc/fixed_tables.h
+# distutils: depends = springtrack/fixed/csrc/fixed_step.c springtrack/fixed/csrc/fixed_step.h springtrack/fixed/csrc/fixed_tables.h springtrack/fixed/csrc/fixed_arith.c springtrack/fixed/csrc/fixed_index.c springtrack/fixed/csrc/fixed_tracker.c springtrack/fixed/csrc/fixed_set.c springtrack/fixed/csrc/fixed_spring.c springtrack/fixed/csrc/fixed_frame.c springtrack/fixed/csrc/fixed_update.c springtrack/fixed/csrc/fixed_load.c springtrack/fixed/csrc/fixed_move.c
 """The fixed-point kernel's internals, for the tests (never installed; tests/probes.py
-builds it with setup.py's flags): the integer building blocks of csrc/fixed_step.c and a
+builds it with setup.py's flags): the integer building blocks of fixed/csrc/fixed_step.c and a
 FixedKernel's raw state and spatial index.
 
     fx = probes.load("fixed_probe")
@@ -9,14 +9,14 @@ FixedKernel's raw state and spatial index.
     fx.decay(kernel, dt)                 # one that reads the kernel's parameters
     fx.set_raw(kernel, i, x=8191 << 32)  # drive a tracker to a range limit
 
-csrc/fixed_step.c is compiled into this module as into springtrack._fixed (same source,
+fixed/csrc/fixed_step.c is compiled into this module as into springtrack.fixed.kernel (same source,
 same flags), and works on the FixedKernel's own state.
 """
 from libc.stdint cimport int32_t, int64_t, uint32_t, uint64_t
 
-from springtrack._fixed cimport FixedKernel
+from springtrack.fixed.kernel cimport FixedKernel
 
-cdef extern from "springtrack/csrc/fixed_step.h" nogil:
+cdef extern from "springtrack/fixed/csrc/fixed_step.h" nogil:
     enum:
         FX_MAX_TRACKERS
     ctypedef struct fx_state:            # the members used here (the header has them all)
@@ -40,7 +40,7 @@ cdef extern from "springtrack/csrc/fixed_step.h" nogil:
     void fx_polar(int32_t x, int32_t y, uint32_t* ang, int32_t* len, int32_t* cx, int32_t* cy)
     uint32_t fx_d2(const fx_state* s, int i, int32_t x, int32_t y)
 
-cdef extern from "springtrack/csrc/fixed_step.c":
+cdef extern from "springtrack/fixed/csrc/fixed_step.c":
     pass
 
 
@@ -65,7 +65,7 @@ def set_raw(FixedKernel k, int i, x=None, y=None, act=None):
 
 
 def check_index(FixedKernel k):
-    """The spatial index invariant holds (csrc/fixed_step.c's fx_check_index)."""
+    """The spatial index invariant holds (fixed/csrc/fixed_step.c's fx_check_index)."""
     return bool(fx_check_index(state(k)))
 
 

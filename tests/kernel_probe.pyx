@@ -12,8 +12,8 @@ from libc.stdint cimport int64_t
 
 import numpy as np
 
-from springtrack._kernel cimport Kernel, KState
-from springtrack._kindex cimport reindex
+from springtrack.kernel.kernel cimport Kernel, KState
+from springtrack.kernel.index cimport reindex
 
 cdef extern from "springtrack/csrc/fastmath.h" nogil:
     double st_exp(double x)

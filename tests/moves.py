@@ -7,10 +7,10 @@ import math
 import numpy as np
 
 import springtrack
-from springtrack.acquire import Pose, model_pose, place
+from springtrack.acquisition.acquire import Pose, model_pose, place
 from springtrack.sim.scenes import Disrupted, make_scene
 from springtrack.sim.sensor import simulate_all
-from springtrack.synthetic import blob_stream
+from springtrack.sim.synthetic import blob_stream
 
 
 def similarity(model, dx, dy, deg, k):

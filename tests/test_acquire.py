@@ -1,4 +1,4 @@
-"""Acquisition (springtrack.acquire): the pose of a model found in tens of ms of events of the
+"""Acquisition (springtrack.acquisition.acquire): the pose of a model found in tens of ms of events of the
 project's simulated sensor, from every start pose of the search range; noise alone is not
 found; occluders, partial views and noise do not mislead it; `track --acquire` with a model
 placed 20 deg / 15 % / 30 px off reaches the error of the model placed by hand."""
@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from springtrack.acquire import (Acquisition, Pose, acquire, fit_pose, model_pose, place)
+from springtrack.acquisition.acquire import (Acquisition, Pose, acquire, fit_pose, model_pose, place)
 from springtrack.events import make
 from springtrack.metrics import read_truth_csv, score_track
 from springtrack.model import face26, grid3x3, load
@@ -271,7 +271,7 @@ def test_track_acquire_model_placed_off_reaches_the_error_placed_by_hand(tmp_pat
     assert errors["image", "acquire"] <= 1.25 * errors["image", "hand"], errors
     # the structure's own frame (the default) recovers more of a placement 20 deg, 15 % off
     # by itself and tracks the face better by hand (3 s of face_occlusion: 1.28 % against
-    # 2.46 %); acquired, with the covariances measured at the placement (springtrack.spread),
+    # 2.46 %); acquired, with the covariances measured at the placement (springtrack.acquisition.spread),
     # it tracks as placed by hand (1.28 %; with the model's covariances it settled on the
     # parts' near edges: 2.22 %)
     assert errors["similarity", "acquire"] <= 1.25 * errors["similarity", "hand"], errors

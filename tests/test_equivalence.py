@@ -12,7 +12,7 @@ import springtrack
 from springtrack.events import make
 from springtrack.model import SPRING_KINDS, Connection, ShapeModel, TrackerSpec, face26, grid3x3
 from springtrack.params import ENERGY_KINDS, FRAMES
-from springtrack.synthetic import blob_stream
+from springtrack.sim.synthetic import blob_stream
 
 FIELDS = ("x", "y", "sxx", "sxy", "syy", "activity")
 # Positions (px) and activities within 1e-9 absolute; covariances (px^2, up to ~1e3 on
@@ -141,7 +141,7 @@ def first_divergence_is_rounding_noise(model, prm, events) -> bool:
     one before: the Cartesian springs use the frame one update later); or a position gap
     that crept up from rounding level under identical decisions (chaotic model).  False
     for any other disagreement: a genuine failure."""
-    from springtrack._kernel import Kernel
+    from springtrack.kernel.kernel import Kernel
     from springtrack.instances import ModelSet
     from springtrack.reference import ReferenceTracker
     mset = ModelSet(model, prm)          # one model or several instances
@@ -236,7 +236,7 @@ def test_chunked_processing_equals_whole():
 
 def test_activity_equal_across_rescales_and_a_change_of_tau():
     """The kernel keeps activity as a sum seen from a common time it moves every 32 tau
-    (springtrack/_kernel.pyx kactivity); with tau = 100 us a 2 s stream moves it hundreds
+    (springtrack/kernel/kernel.pyx kactivity); with tau = 100 us a 2 s stream moves it hundreds
     of times, and a tau change mid-stream applies from the change on in all three backends
     (the fixed-point one to its own precision)."""
     model = grid3x3()
@@ -264,7 +264,7 @@ def test_activity_log_gives_the_same_sums_event_by_event():
     flushed when full, before a rescale and at the end of every batch of events); one event
     at a time (Kernel.step, a flush per event) gives bit-identical activities, over logs
     filled many times and rescales of the common time (tau = 200 us)."""
-    from springtrack._kernel import Kernel
+    from springtrack.kernel.kernel import Kernel
     from springtrack.tracker import resolve_params
     m = springtrack.load_model("face26")
     p = resolve_params(m, {"activity_tau_us": 200.0})
@@ -335,7 +335,7 @@ def test_spring_update_equals_reference_while_the_face_turns_round():
     direction; the full atan2 otherwise).  A face turning a whole circle in steps of 0.05 rad
     moves that frame, a tracker thrown 90 degrees off makes the fast path fall back, and
     every spring update equals the reference's, the wrap at +-pi included."""
-    from springtrack._kernel import Kernel
+    from springtrack.kernel.kernel import Kernel
     from springtrack.reference import ReferenceTracker
     from springtrack.tracker import resolve_params
     rng = np.random.default_rng(5)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from hostctl import Device, HostctlError
-from springtrack.acquire import Pose, model_pose, place
+from springtrack.acquisition.acquire import Pose, model_pose, place
 from springtrack.instances import TRACKING
 from springtrack.sim.scenes import make_scene
 from springtrack.wire import Nack

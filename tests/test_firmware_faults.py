@@ -10,7 +10,7 @@ import pytest
 
 from springtrack.sampling import HOLD
 from springtrack.tracker import Tracker
-from firmware_sim import usb as camusb
+from firmware_sim import camera as camusb
 from firmware_sim.faults import FAULT_NAMES, Faults, parse
 from firmware_sim.loop import FirmwareLoop
 from springtrack.sim.sensor import simulate_all

@@ -13,7 +13,7 @@ import pytest
 from hypothesis import given, settings, strategies as st
 
 import springtrack.io as sio
-from springtrack._kernel import Kernel
+from springtrack.kernel.kernel import Kernel
 from springtrack.events import make
 from springtrack.model import face26
 from springtrack.tracker import Tracker

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from springtrack._kernel import Kernel
+from springtrack.kernel.kernel import Kernel
 from springtrack.events import make
 from springtrack.io.ccam import encode
 from springtrack.track import TRACK_FIELDS

@@ -16,7 +16,7 @@ from springtrack import model as _model
 from springtrack import wire
 from springtrack.track import TRACK_FIELDS, Track, read_csv
 from springtrack.tracker import Tracker
-from firmware_sim import usb as camusb
+from firmware_sim import camera as camusb
 from firmware_sim.engine import UpdateRejected
 from firmware_sim.loop import FirmwareLoop
 from springtrack.wire import Nack
@@ -409,7 +409,7 @@ def test_the_engine_refuses_a_model_that_does_not_fit_the_camera(face, tmp_path)
     """Guard rails on the firmware: a model of another [sensor] (unless --sensor-from), or
     with trackers outside its sensor, is refused at start and NACKed when uploaded
     (sensor_mismatch); the running model stays."""
-    from springtrack.geometry import SensorMismatch, TrackersOutside
+    from springtrack.sensor_fit import SensorMismatch, TrackersOutside
     from springtrack.model import face26, grid3x3
     prof = camusb.PROFILES["evt2"]
     opener = lambda: None                               # noqa: E731 - never started here

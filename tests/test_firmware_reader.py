@@ -5,9 +5,9 @@ import time
 
 import numpy as np
 
-from springtrack._kernel import Kernel
+from springtrack.kernel.kernel import Kernel
 from springtrack.tracker import Tracker
-from firmware_sim import usb as camusb
+from firmware_sim import camera as camusb
 from firmware_sim._fused import Fused
 from firmware_sim.reader import Reader
 from springtrack.sim.sensor import simulate_all

@@ -6,7 +6,7 @@ import pytest
 from fixed_bound import (BOUNDS, SIM_SCENES, compare, scene_stream, sim_stream, truth_for,
                          violations)
 
-pytest.importorskip("springtrack._fixed")
+pytest.importorskip("springtrack.fixed.kernel")
 
 N_EVENTS = 150_000
 

@@ -1,4 +1,4 @@
-"""Several model instances on the fixed kernel (springtrack._fixed.FixedSet: one fx_state
+"""Several model instances on the fixed kernel (springtrack.fixed.kernel.FixedSet: one fx_state
 per instance, one event assignment over all): one instance equals FixedKernel bit for
 bit, instances that see no common event equal each alone bit for bit, and random sets
 (two different models, N copies of one, with moves, with a lost instance) stay within
@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 
 import springtrack
-from springtrack import _fixed
+from springtrack.fixed import kernel as _fixed
 from springtrack.instances import LOST, SEARCHING, TRACKING, ModelSet
 from springtrack.model import ShapeModel, TrackerSpec, face26, grid3x3
 from springtrack.params import resolve
-from springtrack.synthetic import blob_stream
+from springtrack.sim.synthetic import blob_stream
 
 from fixed_bound import figures, violations
 from moves import similarity

@@ -1,6 +1,6 @@
 """The fixed-point step is integer-only by construction.
 
-springtrack/csrc/fixed_step.c (the per-event step, the springs and every arithmetic
+springtrack/fixed/csrc/fixed_step.c (the per-event step, the springs and every arithmetic
 helper they use) and fixed_telemetry.c (telemetry records from that state) must compile
 with ``gcc -mgeneral-regs-only``, which on x86-64 rejects any floating-point or SIMD
 operation, and contain no 128-bit integer (tests/test_mcu.py cross-compiles them for
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-CSRC = Path(__file__).resolve().parents[1] / "springtrack" / "csrc"
+CSRC = Path(__file__).resolve().parents[1] / "springtrack" / "fixed" / "csrc"
 UNIT = CSRC / "fixed_step.c"
 UNITS = [UNIT, CSRC / "fixed_telemetry.c"]
 FLAGS = ["-std=c11", "-O2", "-Wall", "-Wextra", "-Werror", "-mgeneral-regs-only", "-c"]
@@ -48,14 +48,14 @@ def test_the_check_rejects_a_float(tmp_path):
 def test_no_float_or_128_bit_type_in_the_fixed_unit():
     """A reader's check: no float/double/long double token, and no 128-bit integer (which
     32-bit cores do not have), in the C units or their headers."""
-    for f in UNITS + [u.with_suffix(".h") for u in UNITS] + [CSRC / "fixed_tables.h"]:
+    for f in sorted(CSRC.glob("*.[ch]")):          # the units, their parts and headers
         code = re.sub(r"/\*.*?\*/", "", f.read_text(), flags=re.S)   # comments may say "float"
         assert not re.search(r"\b(float|double)\b", code), f"{f} mentions a floating-point type"
         assert "__int128" not in code, f"{f} uses a 128-bit integer"
 
 
 def test_tables_header_is_generated_from_fixed_q():
-    """csrc/fixed_tables.h (constant tables, flash on a microcontroller) is what
-    springtrack.fixed_q generates: `python -m springtrack.fixed_q` rewrites it."""
-    from springtrack import fixed_q
+    """fixed/csrc/fixed_tables.h (constant tables, flash on a microcontroller) is what
+    springtrack.fixed.q generates: `python -m springtrack.fixed.q` rewrites it."""
+    from springtrack.fixed import q as fixed_q
     assert (CSRC / "fixed_tables.h").read_text() == fixed_q.tables_header()

@@ -1,4 +1,4 @@
-"""The fixed-point kernel (springtrack/_fixed.pyx + csrc/fixed_step.c): arithmetic
+"""The fixed-point kernel (springtrack/fixed/kernel.pyx + fixed/csrc/fixed_step.c): arithmetic
 building blocks against exact Python integers, hand-computed steps, saturation, the
 backend interface and the telemetry view."""
 import math
@@ -15,9 +15,9 @@ from springtrack.model import Connection, ShapeModel, TrackerSpec
 from springtrack.params import Params
 from springtrack.tracker import Tracker, resolve_params
 
-fixed = pytest.importorskip("springtrack._fixed")
+fixed = pytest.importorskip("springtrack.fixed.kernel")
 FixedKernel = fixed.FixedKernel
-fx = probes.load("fixed_probe")      # csrc/fixed_step.c's building blocks, raw state
+fx = probes.load("fixed_probe")      # fixed/csrc/fixed_step.c's building blocks, raw state
 PX = 1 << 32                 # positions are Q.32 px
 
 
@@ -199,7 +199,7 @@ def test_first_event_by_hand():
     assert k.step(5, 22, 27) == 0
     s = k.snapshot(5)
     assert abs(s["x"][0] - 20.5) <= 2 ** -32 and abs(s["y"][0] - 29.25) <= 2 ** -32
-    from springtrack.reference import covariance_bias
+    from springtrack.gate import covariance_bias
     g = 0.01 / covariance_bias(0.25, p.gate_d2)
     for f, want in (("sxx", 0.99 * 4 + g * 4), ("sxy", g * -6), ("syy", 0.99 * 9 + g * 9)):
         assert abs(s[f][0] - want) < 1e-10, f
@@ -224,7 +224,7 @@ def test_gate_and_skips_by_hand():
 def test_sigma_bounds_and_correlation_clamp():
     """Events on the diagonal drive rho to its 0.99 bound, then (the tracker shrinking onto
     one pixel) sigma to its minimum; the fixed kernel follows the float one throughout."""
-    from springtrack._kernel import Kernel
+    from springtrack.kernel.kernel import Kernel
     m, p = one_tracker(sigma_min_px=0.5, alpha_covariance=0.2)
     kf, kd = FixedKernel(m, p), Kernel(m, p)
     rng = np.random.default_rng(3)
@@ -287,7 +287,8 @@ def test_refuses_by_the_limits_every_backend_shares():
     """The fixed kernel's conversion (fixed_q) checks a model and parameters with
     springtrack.limits' functions, the ones ShapeModel and Params call when built: what a
     format could not hold is refused with the same message either way."""
-    from springtrack import fixed_q, limits
+    from springtrack import limits
+    from springtrack.fixed import q as fixed_q
     m = springtrack.load_model("grid3x3")
     p = Params()
     object.__setattr__(p, "sigma_max_px", 100.0)            # past Params' own check
@@ -437,7 +438,7 @@ def test_index_invariant_holds_throughout_a_stream(changes):
     its variances grown, past the slack fx_reindex noted (box_kept, a sufficient test):
     the exact gate box must still lie inside the indexed box, checked every 500 events of
     a fast, turning face, with fast-changing covariances too, and across spring updates."""
-    from springtrack.synthetic import blob_stream
+    from springtrack.sim.synthetic import blob_stream
     m = springtrack.load_model("face26")
     ev, _ = blob_stream(m, 60_000, rate_hz=300_000, noise=0.3, seed=4, speed_px_s=(40, -20),
                         rot_deg_s=30, wobble_px=6)

@@ -1,5 +1,5 @@
 """The fixed-point kernel's telemetry records come straight from its integer state
-(csrc/fixed_telemetry.c), in springtrack.wire's TELE_TRACKER layout, and agree with
+(fixed/csrc/fixed_telemetry.c), in springtrack.wire's TELE_TRACKER layout, and agree with
 wire.quantise_trackers of the float view of the same state."""
 import numpy as np
 import pytest

@@ -1,4 +1,4 @@
-"""Guard rails between a shape model and the sensor it tracks on (springtrack.geometry):
+"""Guard rails between a shape model and the sensor it tracks on (springtrack.sensor_fit):
 every one triggers on a crafted bad model, in the library, `springtrack track` and the
 firmware (NACK sensor_mismatch over the host link)."""
 from __future__ import annotations
@@ -11,7 +11,7 @@ import pytest
 
 from springtrack import io as stio
 from springtrack.events import make
-from springtrack.geometry import (SensorMismatch, TrackersOutside, check_inside, fit_model,
+from springtrack.sensor_fit import (SensorMismatch, TrackersOutside, check_inside, fit_model,
                                   outside_trackers)
 from springtrack.model import face26, grid3x3, load
 from springtrack.track import Track, read_csv
@@ -143,7 +143,7 @@ def test_the_firmware_nacks_an_uploaded_model_that_does_not_fit_its_camera():
     """Over a real pty with hostctl: a 304 x 240 model, and one with a tracker at x = 700,
     sent to a firmware whose camera is 640 x 480: NACK sensor_mismatch naming the problem,
     the running model untouched."""
-    from firmware_sim import usb as camusb
+    from firmware_sim import camera as camusb
     from firmware_sim.loop import FirmwareLoop
     from hostctl import Device, Nacked
     from test_link import Served

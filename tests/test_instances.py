@@ -9,12 +9,12 @@ import pytest
 import springtrack
 from springtrack.events import make
 from springtrack.instances import LOST, SEARCHING, SHARED_PARAMS, TRACKING, ModelSet
-from springtrack.loss import LOSS_CHECK_US, LossRule, loss_hold_us
+from springtrack.acquisition.loss import LOSS_CHECK_US, LossRule, loss_hold_us
 from springtrack.limits import MAX_INSTANCES, MAX_SET_TRACKERS
 from springtrack.model import Connection, ModelError, ShapeModel, TrackerSpec, face26, grid3x3
 from springtrack.params import Params
 from springtrack.reference import NO_TRACKER, ReferenceTracker
-from springtrack.synthetic import blob_stream
+from springtrack.sim.synthetic import blob_stream
 
 W, H = 400, 240
 

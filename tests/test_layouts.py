@@ -1,11 +1,11 @@
-"""Event arrays of any common layout reach the kernels as they are (springtrack._stepper:
+"""Event arrays of any common layout reach the kernels as they are (springtrack.backends.stepper:
 converted block by block inside the loop): the same track, bit for bit, as EVENT_DTYPE."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from springtrack._stepper import layout_of
+from springtrack.backends.stepper import layout_of
 from springtrack.events import EVENT_DTYPE, as_events
 from springtrack.sim.sensor import simulate_all
 from springtrack.sampling import UNSET

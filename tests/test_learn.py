@@ -1,4 +1,4 @@
-"""The learner (springtrack.learn) on the simulated sensor and on the real biplane: parts
+"""The learner (springtrack.learning.learner) on the simulated sensor and on the real biplane: parts
 found where they are, springs between neighbours, tracking of the rest of the scene
 compared with the hand-made models, determinism, noise, the CLI."""
 from __future__ import annotations
@@ -12,7 +12,7 @@ import pytest
 from springtrack import Tracker
 from springtrack.cli import main as cli
 from springtrack.events import make
-from springtrack.learn import NoObjectFound, learn, learn_model, motion_alpha
+from springtrack.learning.learner import NoObjectFound, learn, learn_model, motion_alpha
 from springtrack.metrics import score_track, truth_from_array
 from springtrack.model import FACE_INTERNAL, ShapeModel, face_layout, load
 from springtrack.sim.scenes import make_scene
@@ -318,7 +318,7 @@ def test_firmware_sim_learn_first_ms_equals_springtrack_track(tmp_path):
 
 def test_firmware_learning_on_noise_tracks_nothing_and_says_so():
     import time
-    from firmware_sim import usb as camusb
+    from firmware_sim import camera as camusb
     from firmware_sim.loop import FirmwareLoop
     from firmware_sim.simcam import SimBackend, SimCamera
     from firmware_sim.sources import events_source

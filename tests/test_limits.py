@@ -166,7 +166,7 @@ def test_the_guard_resets_a_state_that_left_the_box(backend):
     is caught by the next spring update: counted, and the whole state reset to the model,
     the same in the three kernels; tracking goes on from there."""
     import probes
-    from springtrack.synthetic import blob_stream
+    from springtrack.sim.synthetic import blob_stream
     m = grid3x3()
     ev, _ = blob_stream(m, 6000, seed=3)
     for bad in ([math.nan, 5000.0] if backend != "fixed" else [5000.0]):

@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
-pytest.importorskip("springtrack._fixed")
+pytest.importorskip("springtrack.fixed.kernel")
 for _mod in ("ziglang", "unicorn", "capstone", "elftools"):
     pytest.importorskip(_mod, reason="the [mcu] extra is not installed")
 
@@ -28,7 +28,7 @@ from springtrack.mcu.build import Capacity, cached_build, build  # noqa: E402
 from springtrack.mcu.targets import TARGETS  # noqa: E402
 from springtrack import limits  # noqa: E402
 from springtrack.model import SPRING_BIT, Connection, ShapeModel, TrackerSpec  # noqa: E402
-from springtrack.reference import covariance_bias  # noqa: E402
+from springtrack.gate import covariance_bias  # noqa: E402
 from springtrack.sim.sensor import simulate_all  # noqa: E402
 from springtrack.tracker import Tracker  # noqa: E402
 
@@ -328,7 +328,7 @@ def test_a_face_and_a_grid_equal_the_host():
     """A face and a grid with their presets' own parameters, on the build for exactly this
     set (Capacity.of_model): the rows, states and counters of the host, bit for bit."""
     from springtrack.model import face26, grid3x3
-    from springtrack.synthetic import blob_stream
+    from springtrack.sim.synthetic import blob_stream
     g = grid3x3(cx=90, cy=120, spacing=30, sigma_px=4, width=400, height=240)
     f = face26(cx=290, cy=120, scale=110, width=400, height=240)
     ev = np.sort(np.concatenate([blob_stream(g, 2500, noise=0.1, seed=1)[0],
@@ -382,7 +382,7 @@ def test_missing_extra_names_the_install_command(tmp_path, monkeypatch, capsys):
 def run_firmware(ev, backend, model="face26"):
     import threading
     import time
-    from firmware_sim import usb as camusb
+    from firmware_sim import camera as camusb
     from firmware_sim.loop import FirmwareLoop
     from firmware_sim.simcam import SimBackend, SimCamera
     from firmware_sim.sources import events_source

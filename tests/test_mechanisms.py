@@ -9,7 +9,7 @@ from springtrack.events import make
 from springtrack.model import Connection, ShapeModel, TrackerSpec, face26, grid3x3
 from springtrack.reference import ReferenceTracker
 from springtrack.params import Params
-from springtrack.synthetic import blob_stream
+from springtrack.sim.synthetic import blob_stream
 
 
 @pytest.mark.parametrize("a1", [0.001, 0.01, 0.1, 0.3])

@@ -112,7 +112,7 @@ def test_missing_file_is_a_clear_error(tmp_path):
 
 
 def test_kernel_capacity_matches_limits():
-    from springtrack import _kernel  # noqa: F401  (asserts at import)
+    from springtrack.kernel import kernel as _kernel  # noqa: F401  (asserts at import)
 
 
 @pytest.mark.parametrize("changes,needle", [

@@ -14,7 +14,7 @@ import springtrack
 from springtrack.instances import ModelSet
 from springtrack.model import face26
 from springtrack.reference import ReferenceTracker
-from springtrack.synthetic import blob_stream
+from springtrack.sim.synthetic import blob_stream
 
 FIELDS = ("x", "y", "sxx", "sxy", "syy", "activity")
 W, H = 320, 240

@@ -1,4 +1,4 @@
-"""Loss and re-acquisition on the simulated sensor (springtrack.reacquire, springtrack.loss):
+"""Loss and re-acquisition on the simulated sensor (springtrack.acquisition.recovery, springtrack.acquisition.loss):
 a jump, a full occlusion and an exit-and-return each give "lost" then "reacquired"; two
 objects side by side and two instances of one model crossing paths keep their
 identities; the track CSV and the renderer carry the states."""
@@ -69,7 +69,7 @@ def test_a_jump_is_caught_by_the_verification_search_the_same_in_every_backend(b
     share of the events falls (doubt), the search finds the face whole elsewhere and far
     better supported, and it is re-placed there -- sooner than the activity rule's hold
     alone could declare it lost, at the same time in every backend."""
-    from springtrack.loss import loss_hold_us
+    from springtrack.acquisition.loss import loss_hold_us
     sc = Disrupted(face(), at_s=0.3, dx=60.0)
     ev, _ = simulate_all(sc, 0.45)
     tr = springtrack.Tracker(sc.initial_model(), backend=backend, acquire=True)
@@ -99,7 +99,7 @@ def test_a_slow_turn_is_not_a_loss():
 
 
 def test_share_doubt_follows_its_own_level():
-    from springtrack.loss import DOUBT_SHARE, ShareDoubt, event_mass
+    from springtrack.acquisition.loss import DOUBT_SHARE, ShareDoubt, event_mass
     d = ShareDoubt(1, 10_000, 30_000)
     d.reset(0, 0)
     assert not d.doubt(10_000, 0, 5.0, 100.0, 9)            # within the hold: no level yet

@@ -1,5 +1,5 @@
 """Trackers left behind recalled to their place in the frame of the active ones
-(springtrack.recall), searches about the instance's tracked pose (springtrack.reacquire.about),
+(springtrack.acquisition.recall), searches about the instance's tracked pose (springtrack.acquisition.recovery.about),
 and the real biplane found, followed and turned with for the whole second."""
 from __future__ import annotations
 
@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 
 import springtrack
-from springtrack.acquire import Pose, fit_pose, model_pose, place
+from springtrack.acquisition.acquire import Pose, fit_pose, model_pose, place
 from springtrack.cli import main as cli
 from springtrack.model import grid3x3
 from springtrack.params import Params
-from springtrack.reacquire import about
-from springtrack.recall import left_behind, recalled
+from springtrack.acquisition.recovery import about
+from springtrack.acquisition.recall import left_behind, recalled
 
 GATE_D2 = Params().gate_d2
 A_UP = Params().activity_threshold
@@ -159,7 +159,7 @@ def test_biplane_learned_then_tracked_with_acquire_stays_on_the_plane(data_file)
     """Learned from 1-200 ms, tracked from 200 ms with acquisition (default bounds): the
     trackers left behind are recalled (measured: 86-100 % on the plane, mean 98 %, against
     54 % from 600 ms on without the acquisition's driver)."""
-    from springtrack.learn import learn
+    from springtrack.learning.learner import learn
     ev = _biplane(data_file)
     m = learn(ev[ev["t"] < 200_000], width=320, height=240)
     tr = springtrack.Tracker(m, acquire=True)

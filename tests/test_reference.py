@@ -6,9 +6,9 @@ import pytest
 
 from springtrack.model import Connection, ShapeModel, TrackerSpec
 from springtrack.params import Params
+from springtrack.gate import covariance_bias, truncation_factor
 from springtrack.reference import (NO_TRACKER, SKIPPED_BACK_IN_TIME, SKIPPED_OUT_OF_SENSOR,
-                                   ReferenceTracker, covariance_bias, truncation_factor,
-                                   wrap_angle)
+                                   ReferenceTracker, wrap_angle)
 
 NEVER = 10 ** 6   # spring_period that keeps springs out of a test
 

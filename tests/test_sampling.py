@@ -138,7 +138,7 @@ def test_first_sample_time_is_a_ceiling_multiple():
 def test_the_track_row_check_catches_a_layout_that_differs(monkeypatch):
     """_samples checks TrackRow (C) against TRACK_DTYPE at import; a dtype with two fields
     swapped or one missing fails that check."""
-    import springtrack._samples as samples
+    import springtrack.backends.samples as samples
     from springtrack.track import TRACK_DTYPE
     samples._check_track_row()                                     # the real pair agrees
     fields = [(f, TRACK_DTYPE[f]) for f in TRACK_FIELDS]

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from firmware_sim import sources
-from firmware_sim import usb as camusb
+from firmware_sim import camera as camusb
 from firmware_sim.sources import SourceOptions, open_source
 from springtrack import io as stio
 from springtrack.events import make

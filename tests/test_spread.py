@@ -1,4 +1,4 @@
-"""A placed model's covariances measured on the events (springtrack.spread): the steady
+"""A placed model's covariances measured on the events (springtrack.acquisition.spread): the steady
 state of eqs. (2)-(5) on a window, and what it is for -- a face placed a pixel off its
 parts tracks as the one placed exactly, instead of settling on its parts' near edges."""
 import math
@@ -7,14 +7,14 @@ import numpy as np
 import pytest
 
 import springtrack
-from springtrack.acquire import Pose, model_pose, place
+from springtrack.acquisition.acquire import Pose, model_pose, place
 from springtrack.events import make
 from springtrack.model import grid3x3
 from springtrack.params import Params
-from springtrack.reference import covariance_bias
+from springtrack.gate import covariance_bias
 from springtrack.sim.scenes import make_scene
 from springtrack.sim.sensor import simulate_all
-from springtrack.spread import MIN_EVENTS, measured_spread, nearest_events
+from springtrack.acquisition.spread import MIN_EVENTS, measured_spread, nearest_events
 
 
 def _rings(centres, radius, per_ring, rng):

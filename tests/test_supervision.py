@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from firmware_sim import link, transport
-from firmware_sim import usb as camusb
+from firmware_sim import camera as camusb
 from firmware_sim.engine import Snapshot, UpdateRejected
 from firmware_sim.loop import WATCHDOG_S, FirmwareLoop
 from firmware_sim.simcam import SimBackend, SimCamera

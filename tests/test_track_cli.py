@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from springtrack.model import grid3x3
-from springtrack.synthetic import blob_stream, part_positions
+from springtrack.sim.synthetic import blob_stream, part_positions
 from springtrack.track import CSV_HEADER, read_csv
 
 

@@ -14,7 +14,7 @@ import pytest
 import usb.core
 import usb.util
 
-from firmware_sim import usb as camusb
+from firmware_sim import camera as camusb
 from firmware_sim.simcam import SimBackend, SimCamera
 from firmware_sim.sources import events_source
 from springtrack.events import make

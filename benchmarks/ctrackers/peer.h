@@ -1,7 +1,7 @@
 /* A hand-written C tracker: the peer of springtrack's float64 kernel in benchmarks/.
  *
  * Valeiras et al. 2015, Algorithm 1, written from springtrack/reference.py the way a C
- * programmer would write it, independently of springtrack/_kernel.pyx (no spatial index,
+ * programmer would write it, independently of springtrack/kernel/kernel.pyx (no spatial index,
  * no activity log, libm where the reference calls math):
  *   per event   eq. (2): the sensitive tracker with the smallest Mahalanobis d^2 inside
  *               the gate takes it (ties: lowest index); eqs. (3)-(6): its mean,

@@ -17,7 +17,7 @@ import errno
 import usb.backend
 import usb.util
 
-from .. import usb as camusb
+from .. import camera as camusb
 from .device import MAX_PACKET, SimCamera, usb_error
 
 

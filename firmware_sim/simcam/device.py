@@ -26,7 +26,7 @@ import usb.core
 
 from springtrack.events import as_events
 
-from .. import usb as camusb
+from .. import camera as camusb
 from ..faults import Faults
 from .words import ENCODERS, Chunk, burst_chunks
 

@@ -1,7 +1,7 @@
 """Camera sources by URL, as pyserial maps port URLs to handler modules.
 
     src = open_source("sim:face_occlusion", SourceOptions(seconds=5, realtime=False))
-    cam = src.open_camera()          # a firmware_sim.usb.Camera, simulated or real
+    cam = src.open_camera()          # a firmware_sim.camera.Camera, simulated or real
 
 A URL is ``SCHEME:TARGET``.  :data:`SCHEMES` maps each scheme to the module that handles
 it, imported only when a URL names it.  A handler module defines ``USAGE`` (``"sim:SCENE"``),
@@ -26,16 +26,16 @@ from typing import TYPE_CHECKING, Callable
 from springtrack.events import as_events
 
 from .. import faults as _faults
-from .. import usb as camusb
+from .. import camera as camusb
 
 if TYPE_CHECKING:
     from ..simcam import SimCamera
 
 # scheme -> handler module
 SCHEMES: dict[str, str] = {
-    "sim": "firmware_sim.sources.scene",
+    "sim": "firmware_sim.sources.sim",
     "replay": "firmware_sim.sources.replay",
-    "usb": "firmware_sim.sources.hardware",
+    "usb": "firmware_sim.sources.usb",
 }
 
 
@@ -47,7 +47,7 @@ class SourceOptions:
     realtime: bool = True             # simulated: release events at their timestamps
     faults: str | tuple = ()          # fault names (firmware_sim.faults), simulated only
     serial: int | None = None         # the camera's serial (None: the first found)
-    profile: str | None = None        # device profile (firmware_sim.usb.PROFILES); None:
+    profile: str | None = None        # device profile (firmware_sim.camera.PROFILES); None:
                                       # the source's own (replay: the file's format)
     biases: dict = field(default_factory=dict)    # read at every (re)connection
     geometry: tuple[int, int] | None = None     # usb EVT boards: the sensor's width, height

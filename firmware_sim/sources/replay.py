@@ -19,7 +19,7 @@ import numpy as np
 
 from springtrack.events import as_events
 
-from .. import usb as camusb
+from .. import camera as camusb
 from . import SourceOptions, profile, simulated
 
 USAGE = "replay:FILE"

@@ -1,5 +1,5 @@
 """``springtrack learn INPUT --out MODEL.toml``: learn a shape model from a recording's
-events (springtrack.learn), print what it found and optionally draw it."""
+events (springtrack.learning.learner), print what it found and optionally draw it."""
 from __future__ import annotations
 
 import sys
@@ -8,7 +8,8 @@ from pathlib import Path
 import numpy as np
 
 from ..events import EVENT_DTYPE
-from . import prepargs
+from . import options
+from .options import read_params
 
 EPILOG = """\
 method (docs/learning.md): free Gaussian trackers spread over the event clouds (births
@@ -37,12 +38,12 @@ def add_arguments(p):
     p.add_argument("--png-window-us", type=int, default=20_000, metavar="US",
                    help="events drawn under the model, µs before the window's end "
                         "(default 20000)")
-    prepargs.add_arguments(p, always=True)
+    options.add_prep_arguments(p, always=True)
 
 
 def run(args) -> int:
     from .. import io as stio
-    from ..learn import NoObjectFound, learn_model
+    from ..learning.learner import NoObjectFound, learn_model
     if args.trackers is not None and not 1 <= args.trackers <= 64:
         raise ValueError(f"--trackers must be in [1, 64], got {args.trackers}")
     track_params = read_params(args.params) if args.params else None   # its errors first
@@ -50,8 +51,8 @@ def run(args) -> int:
     raw = reader.read()
     width = reader.width or (int(raw["x"].max()) + 1 if len(raw) else 1)
     height = reader.height or (int(raw["y"].max()) + 1 if len(raw) else 1)
-    prep = prepargs.preparer(args, width, height, always=True)
-    events = np.concatenate([raw[:0]] + list(prepargs.prepared([raw], prep)))
+    prep = options.preparer(args, width, height, always=True)
+    events = np.concatenate([raw[:0]] + list(options.prepared([raw], prep)))
     print(f"input     {args.input}: {width}x{height}, {len(raw):,} events; "
           f"{prep.stats.summary()}; learning on {len(events):,}")
     names = [s.strip() for s in args.names.split(",")] if args.names else None
@@ -72,20 +73,6 @@ def run(args) -> int:
                          f"events of the last {args.png_window_us / 1e3:g} ms")
     print(f"wrote {args.out}" + (f", {args.png}" if args.png else ""))
     return 0
-
-
-def read_params(path) -> dict:
-    """The tracking parameters a TOML file sets (top level or [params]), validated."""
-    import tomllib
-    from ..params import ParamError, from_mapping
-    with open(path, "rb") as f:
-        try:
-            data = tomllib.load(f)
-        except tomllib.TOMLDecodeError as e:
-            raise ParamError(f"{path}: not valid TOML: {e}") from None
-    table = data.get("params", data)
-    valid = from_mapping(table, where=str(path)).as_dict()
-    return {k: valid[k] for k in table}
 
 
 def report(res) -> None:
@@ -112,7 +99,7 @@ def learn_first(source, ms: float, width: int, height: int, name: str = "learned
     """Learn a model from the first ``ms`` milliseconds of a stream of (chunk, total)
     pairs; returns the model and the stream of the events after that window (the
     tracking starts where the learning ended).  Prints what was learned to stderr."""
-    from ..learn import NoObjectFound, learn_model
+    from ..learning.learner import NoObjectFound, learn_model
     if not ms > 0:
         raise ValueError(f"--learn-first-ms must be positive, got {ms}")
     held, rest, total, t_end = [], None, None, None

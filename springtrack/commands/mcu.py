@@ -81,7 +81,7 @@ def _profile(args) -> int:
     from .. import io as stio
     from ..mcu.profile import profile_events
     from ..tracker import Tracker
-    from .track import read_events
+    from .options import read_events
     if args.events <= 0:
         raise ValueError(f"--events must be a positive number, got {args.events}")
     tr = Tracker(args.model, params=args.params)

@@ -6,8 +6,7 @@ from __future__ import annotations
 
 import sys
 
-from . import prepargs
-from .track import add_acquire_arguments, add_sensor_from
+from . import options
 
 EPILOG = """\
 colours: events ON red, OFF blue (last --window-us of events); ellipses are 2-sigma:
@@ -29,11 +28,11 @@ def add_arguments(p):
     p.add_argument("--model", action="append",
                    help="shape model TOML or preset name (default: events only); repeat it for "
                         "several models, as for track")
-    add_sensor_from(p)
+    options.add_sensor_from(p)
     p.add_argument("--track", help="track CSV (springtrack track / hostctl record); "
                                    "default: track on the fly")
     p.add_argument("--params", help="parameter TOML for tracking on the fly")
-    add_acquire_arguments(p)
+    options.add_acquire_arguments(p)
     p.add_argument("--show-acquisition", action="store_true",
                    help="mark where each acquisition placed an instance (needs --acquire, "
                         "tracking on the fly)")
@@ -51,7 +50,7 @@ def add_arguments(p):
     p.add_argument("--grid", type=int, metavar="PX",
                    help="without --model: labelled grid lines every PX pixels (default: at most "
                         "16 across the sensor)")
-    prepargs.add_arguments(p)
+    options.add_prep_arguments(p)
 
 
 def load_events(path):
@@ -67,10 +66,10 @@ def load_events(path):
 def prepared(args, events, width, height):
     """The events through the recording-quirk options, if any was given (springtrack.prep)."""
     import numpy as np
-    prep = prepargs.preparer(args, width, height)
+    prep = options.preparer(args, width, height)
     if prep is None:
         return events, None
-    return np.concatenate([events[:0]] + list(prepargs.prepared([events], prep))), prep.stats
+    return np.concatenate([events[:0]] + list(options.prepared([events], prep))), prep.stats
 
 
 def run(args) -> int:
@@ -105,12 +104,12 @@ def events_only(args, events, width, height, stats) -> int:
 
 
 def overlay(args, events, width, height) -> int:
-    from ..geometry import fit_model
+    from ..sensor_fit import fit_model
     from ..instances import ModelSet
     from ..model import load_model
     from ..render import render
     from ..track import TRACK_FIELDS, read_csv
-    from .track import tracker_from_args
+    from .options import tracker_from_args
     models = [fit_model(load_model(m), width, height, args.sensor_from,
                         what=f"{args.input}'s sensor") for m in args.model]
     if args.show_acquisition and (args.track or not args.acquire):

@@ -7,12 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..events import as_events
-from ..limits import MAX_INSTANCES, MAX_SET_TRACKERS
 from ..track import CSV_HEADER
 from ..tracker import profile
 from ..watch import TrackWatch
-from . import prepargs
+from . import options
+from .options import read_events, tracker_from_args
 
 EPILOG = """\
 units: event times are microseconds; positions px; covariances px^2.
@@ -53,90 +52,30 @@ def add_arguments(p):
                    help="learn the model from the stream's first MS ms (springtrack learn), "
                         "then track the rest with it")
     p.add_argument("--params", help="TOML file of parameter overrides (see docs/algorithm.md)")
-    p.add_argument("--backend", default="cython", choices=["cython", "reference", "fixed", "mcu"],
-                   help="cython: fast float64 kernel (default); reference: the pure-Python "
-                        "specification (slow); fixed: integer-only kernel; mcu: that kernel's "
-                        "microcontroller build run in an emulator (same output as fixed, "
-                        "slowly; needs pip install 'springtrack[mcu]')")
+    options.add_backend_argument(p)
     p.add_argument("--mcu-target", default="cortex-m4", metavar="CORE",
                    help="with --backend mcu: cortex-m4 (default), cortex-m7 or rv32imac")
     p.add_argument("--sample-us", type=int, default=1000, metavar="US",
                    help="state sampling period in µs of event time (default 1000)")
     p.add_argument("--out", required=True, help="output track CSV")
-    add_acquire_arguments(p)
+    options.add_acquire_arguments(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--profile", metavar="OUT.csv|OUT.png",
                    help="time the kernel per 10 ms bin of events (paper Figs. 22-23): a CSV "
                         "t_us,events,proc_us or a plot")
-    add_sensor_from(p)
-    prepargs.add_arguments(p)
-
-
-def add_acquire_arguments(p) -> None:
-    """--instances and the acquisition's options, shared by track and render."""
-    p.add_argument("--instances", type=int, default=1, metavar="N",
-                   help="instances of each model (default 1; more than 1 needs --acquire; "
-                        f"at most {MAX_INSTANCES} instances, {MAX_SET_TRACKERS} trackers in all)")
-    p.add_argument("--acquire", action="store_true",
-                   help="find the models in the events instead of trusting their positions; "
-                        "lost instances are searched for again (docs/acquisition.md)")
-    add_acquire_window(p)
-
-
-def add_acquire_window(p) -> None:
-    """--acquire-ms, --acquire-angle and --acquire-scale (track, render, firmware-sim)."""
-    p.add_argument("--acquire-ms", type=float, default=50.0, metavar="MS",
-                   help="acquisition window in ms of event time (default 50)")
-    p.add_argument("--acquire-angle", type=float, default=45.0, metavar="DEG",
-                   help="acquisition searches rotations within +-DEG degrees (default 45)")
-    p.add_argument("--acquire-scale", default="0.6,1.6", metavar="LO,HI",
-                   help="acquisition searches sizes LO..HI times the model's (default 0.6,1.6)")
-
-
-def tracker_from_args(args, model):
-    """The springtrack.Tracker of --params, --backend, --instances and --acquire*."""
-    from ..tracker import Tracker
-    n_models = len(model) if isinstance(model, (list, tuple)) else 1
-    if args.instances < 1:
-        raise ValueError(f"--instances must be at least 1, got {args.instances}")
-    if n_models * args.instances > MAX_INSTANCES:
-        raise ValueError(f"--instances {args.instances} of {n_models} model(s) asks for "
-                         f"{n_models * args.instances} instances; the limit is {MAX_INSTANCES} "
-                         f"in all (springtrack/limits.py)")
-    if args.instances > 1 and not args.acquire:
-        raise ValueError(f"--instances {args.instances} would place {args.instances} copies "
-                         f"of each model on the same positions: add --acquire to find each")
-    backend = getattr(args, "backend", "cython")
-    backend = f"mcu:{args.mcu_target}" if backend == "mcu" else backend
-    return Tracker(model, params=args.params, backend=backend, acquire=args.acquire,
-                   acquire_ms=args.acquire_ms, acquire_bounds=acquire_bounds(args),
-                   instances=args.instances)
-
-
-def read_events(reader):
-    """Yield (event chunk, estimated total events) from a ``springtrack.io`` reader."""
-    total = getattr(reader, "size_hint", None)
-    yield from ((as_events(c), total) for c in reader)
-
-
-def add_sensor_from(p) -> None:
-    """``--sensor-from``, shared by the commands that track a file with a model."""
-    p.add_argument("--sensor-from", choices=["file", "source", "model"],
-                   help="a model whose [sensor] is not the input's is refused; 'file' (or "
-                        "'source', as in firmware-sim): track "
-                        "it on the input's sensor (trackers where they are), 'model': keep "
-                        "the model's sensor (events outside it skipped and counted)")
+    options.add_sensor_from(p)
+    options.add_prep_arguments(p)
 
 
 def open_stream(args):
     """The models and the stream of (chunk, total) to track: the input's events, prepared
     when asked (springtrack.prep); the models --model (a list), each checked against the
-    input's sensor (springtrack.geometry: a mismatch or trackers off the sensor is an
+    input's sensor (springtrack.sensor_fit: a mismatch or trackers off the sensor is an
     error, unless --sensor-from), or one learned from the stream's first --learn-first-ms
     (the tracking then starts where the learning window ends); and the Preparer (None
     without a preparation option), whose counts say what it dropped."""
     from .. import io as stio
-    from ..geometry import fit_model
+    from ..sensor_fit import fit_model
     from ..model import load_model
     if (not args.model) == (args.learn_first_ms is None):
         raise ValueError("give either --model or --learn-first-ms")
@@ -158,7 +97,7 @@ def open_stream(args):
             width = int(ev["x"].max()) + 1 if len(ev) else 1
             height = int(ev["y"].max()) + 1 if len(ev) else 1
     source = read_events(reader)
-    prep = prepargs.preparer(args, width, height)
+    prep = options.preparer(args, width, height)
     if prep is not None:
         source = _prepared(source, prep)
     if model is None:
@@ -176,7 +115,7 @@ def _prepared(source, prep):
         nonlocal total
         for chunk, total in source:
             yield chunk
-    for out in prepargs.prepared(chunks(), prep):
+    for out in options.prepared(chunks(), prep):
         yield out, total
 
 
@@ -206,7 +145,7 @@ class Progress:
 def run(args) -> int:
     if args.sample_us <= 0:
         raise ValueError(f"--sample-us must be a positive number of µs, got {args.sample_us}")
-    from ..learn import NoObjectFound
+    from ..learning.learner import NoObjectFound
     try:
         model, stream, prep = open_stream(args)
     except NoObjectFound as e:
@@ -280,24 +219,6 @@ def run(args) -> int:
         for w in watch.warnings():
             print(f"springtrack track: warning: {w}", file=sys.stderr)
     return 0
-
-
-def acquire_bounds(args) -> dict:
-    """The acquisition's bounds from --acquire-angle and --acquire-scale (--acquire-ms
-    checked with them: each error names the option)."""
-    try:
-        lo, hi = (float(v) for v in args.acquire_scale.split(","))
-    except ValueError:
-        raise ValueError(f"--acquire-scale must be LO,HI (e.g. 0.6,1.6), "
-                         f"got {args.acquire_scale!r}") from None
-    if not 0 < lo <= hi:
-        raise ValueError(f"--acquire-scale must be LO,HI with 0 < LO <= HI, "
-                         f"got {args.acquire_scale!r}")
-    if not 0 <= args.acquire_angle <= 180:
-        raise ValueError(f"--acquire-angle must be in [0, 180] degrees, got {args.acquire_angle:g}")
-    if not args.acquire_ms > 0:
-        raise ValueError(f"--acquire-ms must be a positive number of ms, got {args.acquire_ms:g}")
-    return {"angle_deg": (-args.acquire_angle, args.acquire_angle), "scale": (lo, hi)}
 
 
 PROFILE_BIN_US = 10_000

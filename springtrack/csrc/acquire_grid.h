@@ -1,4 +1,4 @@
-/* The inner loop of the acquisition's coarse search (springtrack/_acquire.pyx, score_grid):
+/* The inner loop of the acquisition's coarse search (springtrack/acquisition/scoring.pyx, score_grid):
  * the score plane of one pose, a weighted sum of shifted rows of per-level score images.
  * Vectorised clones for SSE2 / AVX2 / AVX-512, picked at load time (ST_CLONES). */
 #ifndef SPRINGTRACK_ACQUIRE_GRID_H

@@ -1,4 +1,4 @@
-/* Fast float64 elementary functions for the tracker kernel (springtrack/_kernel.pyx).
+/* Fast float64 elementary functions for the tracker kernel (springtrack/kernel/kernel.pyx).
  *
  * The kernel must equal the float64 reference (springtrack/reference.py, which calls
  * libm through Python's math module) to 1e-9 px, not bit for bit, so these replace the

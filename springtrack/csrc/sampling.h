@@ -11,7 +11,7 @@
  *     that event as at a first one, at the smallest multiple of P >= its time
  *     (st_next_sample).  So the samples of a stream are bounded by its events, not by its
  *     time span (a counter wrap, a paused recording).
- * Used by springtrack/_stepper.pyx (run_events), the kernels' batch steps (_kernel.pyx
+ * Used by springtrack/backends/stepper.pyx (run_events), the kernels' batch steps (kernel/kernel.pyx
  * ksteps, fixed_step.c fx_steps: they stop before the event st_sample_due names),
  * springtrack/mcu/entry.c and, through run_events, firmware_sim/_fused.pyx.  Integer-only,
  * like fixed_step.c.

@@ -1,4 +1,4 @@
-/* The spring update of the tracker kernel (springtrack/_kernel.pyx ksprings) as
+/* The spring update of the tracker kernel (springtrack/kernel/kernel.pyx ksprings) as
  * structure-of-arrays passes over the connections and trackers, branch-free so that GCC
  * vectorises them (clones for SSE2 / AVX2 / AVX-512, picked at load time).
  * springtrack/reference.py springs() and _energy_criteria() are the specification; these
@@ -85,11 +85,11 @@ ST_CLONES static void st_pull(int n, uint64_t pulled, double gx, double gy, doub
     }
 }
 
-/* [ref] FRAME_SCALE_MIN, FRAME_SCALE_MAX, FRAME_MIN_SPREAD (_kernel.pyx checks they agree) */
+/* [ref] FRAME_SCALE_MIN, FRAME_SCALE_MAX, FRAME_MIN_SPREAD (kernel/kernel.pyx checks they agree) */
 #define ST_FRAME_SCALE_MIN 0.25
 #define ST_FRAME_SCALE_MAX 4.0
 #define ST_FRAME_MIN_SPREAD 0x1p-20
-#define ST_MAX_FIT 64                           /* trackers (MAX_TRACKERS of _kstate.pxd) */
+#define ST_MAX_FIT 64                           /* trackers (MAX_TRACKERS of kernel/state.pxd) */
 
 /* [ref] fit_frame: the similarity x -> G + s R (x - G0) that best maps the rest shape onto
  * the means (mx, my), mass-weighted least squares over the trackers of the mask fit (all

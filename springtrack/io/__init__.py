@@ -9,9 +9,22 @@
 from .detect import FORMATS, FileInfo, sniff
 from .base import simd_path
 from .errors import DecodeError
-from .reader import ArrayReader, Reader, make_decoder as decoder, open_events as open
+from .reader import ArrayReader, Reader, make_decoder as decoder
 from .stats import DecodeStats
+from .stream import open_stream
 from .writers import WRITE_FORMATS, encode_file, write
+
+
+def open(path, format: str | None = None, keep_exposure: bool = False) -> Reader:
+    """Open an event file of any supported format (detected by content); ``"-"``: the event
+    stream on standard input (springtrack.io.stream)."""
+    if isinstance(path, str) and path == "-":
+        return open_stream(format=format)
+    info = sniff(path, format)
+    if info.format in ("npy", "csv"):
+        return ArrayReader(path, info)
+    return Reader(path, info, keep_exposure=keep_exposure)
+
 
 __all__ = ["open", "write", "decoder", "DecodeError", "DecodeStats", "Reader", "ArrayReader",
            "FORMATS", "WRITE_FORMATS", "sniff", "FileInfo", "encode_file", "simd_path"]

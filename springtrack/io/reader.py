@@ -9,7 +9,7 @@ import warnings
 import numpy as np
 
 from ..events import EVENT_DTYPE, EventError, as_events, empty_output
-from .detect import FileInfo, sniff
+from .detect import FileInfo
 from .errors import DecodeError
 from .stats import DecodeStats
 
@@ -205,15 +205,3 @@ def _load_csv(path) -> np.ndarray:
         return as_events(rows)                     # the checks of every event source
     except EventError as e:
         raise DecodeError(f"{path}: line {e.index + 2}: {e.detail}") from None
-
-
-def open_events(path, format: str | None = None, keep_exposure: bool = False) -> Reader:
-    """Open an event file of any supported format (detected by content); ``"-"``: the event
-    stream on standard input (springtrack.io.stream)."""
-    if isinstance(path, str) and path == "-":
-        from .stream import open_stream
-        return open_stream(format=format)
-    info = sniff(path, format)
-    if info.format in ("npy", "csv"):
-        return ArrayReader(path, info)
-    return Reader(path, info, keep_exposure=keep_exposure)

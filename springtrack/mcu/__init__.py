@@ -3,7 +3,7 @@ or RV32IMAC built from the same C source as ``--backend fixed`` (springtrack/csr
 bit for bit in an instruction-set emulator.
 
 * :mod:`.targets`   the supported cores (compiler target, emulator model, ISA notes);
-* :mod:`.build`     cross-compiles ``entry.c`` + ``csrc/fixed_step.c`` with the clang of
+* :mod:`.build`     cross-compiles ``entry.c`` + ``fixed/csrc/fixed_step.c`` with the clang of
                     the ``ziglang`` package, reports flash and static RAM;
 * :mod:`.emulator`  loads that ELF into ``unicorn`` and calls its entry point, counting
                     instructions per basic block when asked;

@@ -2,13 +2,13 @@
 ``energies``, ``mean_energy``, ``last_t``, ``counters``) over the microcontroller ELF in
 the emulator, so ``Tracker(model, backend="mcu")`` and ``springtrack track --backend mcu``
 run the very firmware image.  Results equal ``backend="fixed"`` bit for bit: the same C
-source, and the host converts the integer rows to float64 as ``_fixed.pyx`` does.
+source, and the host converts the integer rows to float64 as ``fixed/kernel.pyx`` does.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from .. import fixed_q
+from ..fixed import q as fixed_q
 from ..events import EVENT_DTYPE
 from ..instances import TRACKING, per_instance
 from ..track import TRACK_DTYPE, TRACK_FIELDS
@@ -17,7 +17,7 @@ from . import emulator as E
 from .build import Capacity, cached_build
 
 DEFAULT_TARGET = "cortex-m4"
-POS_UNIT = 1.0 / 4294967296.0        # Q.32 px (as _fixed.pyx)
+POS_UNIT = 1.0 / 4294967296.0        # Q.32 px (as fixed/kernel.pyx)
 COV_UNIT = 1.0 / 1099511627776.0     # Q.40 px^2
 Q32_UNIT = 1.0 / 4294967296.0        # Q.32 (activity)
 Q40_UNIT = 1.0 / 1099511627776.0     # Q.40 (energies)
@@ -107,8 +107,8 @@ class McuBackend:
         return rows, wire[:, :self.n * TELE_RECORD]
 
     def _pack(self, rows: np.ndarray, wire: np.ndarray) -> dict:
-        """Integer rows (entry.c) to the sample dict of springtrack._samples (``t``,
-        ``trackers`` of TRACK_DTYPE, ``energy``), converted as _fixed.pyx's snapshot_row
+        """Integer rows (entry.c) to the sample dict of springtrack.backends.samples (``t``,
+        ``trackers`` of TRACK_DTYPE, ``energy``), converted as fixed/kernel.pyx's snapshot_row
         converts its state; ``wire``: the rows' TELEMETRY records, packed by the firmware."""
         n = self.n
         per = rows[:, 4:4 + 7 * n].reshape(len(rows), n, 7)
@@ -170,8 +170,8 @@ class McuBackend:
 
 class McuSet(McuBackend):
     """Several model instances (springtrack.instances) in the firmware: one fx_state per
-    instance and one event assignment (entry.c MCU_SET_INIT, csrc/fixed_step.c fx_set),
-    bit for bit springtrack._fixed.FixedSet; its backend and instances' interface."""
+    instance and one event assignment (entry.c MCU_SET_INIT, fixed/csrc/fixed_step.c fx_set),
+    bit for bit springtrack.fixed.kernel.FixedSet; its backend and instances' interface."""
 
     movable = True
 

@@ -25,10 +25,10 @@ from . import need
 from .targets import Target, target as get_target
 
 HERE = Path(__file__).resolve().parent
-CSRC = HERE.parent / "csrc"
-SOURCES = [HERE / "entry.c", CSRC / "fixed_step.c", CSRC / "fixed_telemetry.c"]
-HEADERS = [CSRC / "fixed_step.h", CSRC / "fixed_tables.h", CSRC / "fixed_telemetry.h",
-           CSRC / "sampling.h", HERE / "link.ld"]
+CSRC = HERE.parent / "csrc"                  # the C shared by the kernels and loops
+FIXED = HERE.parent / "fixed" / "csrc"       # the fixed-point kernel's C
+SOURCES = [HERE / "entry.c", FIXED / "fixed_step.c", FIXED / "fixed_telemetry.c"]
+HEADERS = [*sorted(FIXED.glob("*.[ch]")), CSRC / "sampling.h", HERE / "link.ld"]
 CFLAGS = ["-std=c11", "-O2", "-ffreestanding", "-fno-builtin", "-nostdlib",
           "-ffunction-sections", "-fdata-sections", "-fno-unwind-tables",
           "-fno-asynchronous-unwind-tables", "-Wall", "-Wextra", "-Werror"]
@@ -134,7 +134,7 @@ def build(target_name: str, out_dir, capacity: Capacity | None = None) -> BuildR
     script.write_text((HERE / "link.ld").read_text().replace("STACK_SIZE;", f"{STACK_BYTES};"))
     elf = out / f"springtrack-{tgt.name}.elf"
     cmd = [*zig_cc(), "-target", tgt.triple, f"-mcpu={tgt.cpu}", *tgt.flags, *CFLAGS,
-           *cap.defines(), f"-I{CSRC}", *map(str, SOURCES), "-Wl,-T," + str(script),
+           *cap.defines(), f"-I{FIXED}", f"-I{CSRC}", *map(str, SOURCES), "-Wl,-T," + str(script),
            "-Wl,--gc-sections", "-Wl,-e,mcu_main", "-o", str(elf)]
     r = subprocess.run(cmd, capture_output=True, text=True,
                        env={**os.environ, "ZIG_GLOBAL_CACHE_DIR": str(cache_root() / "zig")})

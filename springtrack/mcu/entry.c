@@ -1,20 +1,20 @@
-/* Microcontroller entry point of the fixed-point kernel (springtrack/csrc/fixed_step.c).
+/* Microcontroller entry point of the fixed-point kernel (springtrack/fixed/csrc/fixed_step.c).
  *
  * Freestanding: no heap, no libc.  The kernel's state is one fixed-size struct
  * (mcu_state) with its spatial index (mcu_cells); the host (springtrack/mcu/emulator.py,
  * or a firmware's own loop) fills mcu_io and the static buffers below and calls
  * mcu_main(), which carries out mcu_io.cmd:
  *
- *   MCU_LOAD_MODEL  mcu_words[0..nwords): fixed_q.model_words      -> status
- *   MCU_SET_PARAMS  mcu_words[0..nwords): fixed_q.params_words     -> status
+ *   MCU_LOAD_MODEL  mcu_words[0..nwords): fixed.q.model_words      -> status
+ *   MCU_SET_PARAMS  mcu_words[0..nwords): fixed.q.params_words     -> status
  *   MCU_RUN         mcu_events[0..nevents) with sampling every sample_us from next_t
- *                   (springtrack/_stepper.pyx's run_events): at most `cap` rows into
+ *                   (springtrack/backends/stepper.pyx's run_events): at most `cap` rows into
  *                   mcu_rows -> consumed, rows, next_t
  *   MCU_STEP        one event, mcu_events[0] -> status (winner or skip code)
  *   MCU_SNAPSHOT    one row at time t into mcu_rows[0]
  *   MCU_ENERGIES    every kind's energies into mcu_energy
  *   MCU_SPRINGS     one spring update
- *   MCU_MOVE        mcu_words[0..nwords): fixed_q.move_words (the instance moved rigidly
+ *   MCU_MOVE        mcu_words[0..nwords): fixed.q.move_words (the instance moved rigidly
  *                   by a similarity, fx_move)                        -> status
  *   MCU_SET_INIT    instances (springtrack.instances): mcu_words[0] = ni instances loaded
  *                   (MCU_LOAD_MODEL, MCU_SET_PARAMS with inst = 0 .. ni-1) run as one set
@@ -30,7 +30,7 @@
  * sums (Q.40, every instance's), then per tracker (of every instance, in order) x, y
  * (Q.32), sxx, sxy, syy (Q.40), the activity at t (Q.32) and flags (bit 0 active, bit 1
  * sensitive, bits 2-3 its instance's state); beside it, in mcu_wire, the row's TELEMETRY
- * tracker records (csrc/fixed_telemetry.c, springtrack.wire), which a firmware sends to
+ * tracker records (fixed/csrc/fixed_telemetry.c, springtrack.wire), which a firmware sends to
  * the host as they are.
  */
 #include "fixed_step.h"
@@ -150,7 +150,7 @@ static int step(const fx_event *e)
                       : fx_step(&mcu_state[0], e->t, e->x, e->y);
 }
 
-/* springtrack/_stepper.pyx run_events, the sampling rule of csrc/sampling.h: next_t
+/* springtrack/backends/stepper.pyx run_events, the sampling rule of csrc/sampling.h: next_t
    ST_UNSET becomes the first sample time after the first event; before an event for which
    st_sample_due(t, next_t, the last event time), one row per sample time <= t (the state
    after all earlier events), an empty stretch's past its ST_HOLD periods skipped

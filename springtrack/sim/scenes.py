@@ -418,7 +418,7 @@ class Placed(Scene):
 
     def initial_model(self, **kw):
         """The base scene's initial model, placed as the scene is at t = 0."""
-        from springtrack.acquire import fit_pose, place
+        from springtrack.acquisition.acquire import fit_pose, place
         model = self.base.initial_model(**kw)
         xy = self.truth(0.0)
         return place(model, fit_pose(model, xy[:, 0], xy[:, 1]))

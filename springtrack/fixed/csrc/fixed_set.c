@@ -1,0 +1,144 @@
+/* Part of the fixed-point kernel's one translation unit, fixed_step.c, which includes it
+   (the parts share its static inline helpers, so they are not compiled alone): several
+   model instances: one event assignment over their states (fx_set_*). */
+
+/* ---- several model instances (springtrack.instances) ---------------------------------
+   One fx_state per instance: its trackers, connections, gains, criteria, springs,
+   energies, centre of mass and similarity frame are its own.  The set runs one event
+   assignment over all of them, one clock and one spring period. */
+
+/* [ref] step, eq. (2) over the union: each tracking instance's best tracker in turn, one
+   starting from the best d^2 so far so that only a strictly smaller one wins (ties: the
+   lowest instance, and in it the lowest index, as the reference's scan over all
+   trackers); the winner is updated (eqs. 3-6).  Returns its index among all trackers. */
+static inline __attribute__((always_inline)) int set_assign(fx_set *g, int64_t t, int32_t x,
+                                                            int32_t y)
+{
+    uint32_t best_d2 = g->inst[0]->gate;                  /* p_threshold: one for all */
+    int best = FX_NO_TRACKER, owner = 0, q;
+    for (q = 0; q < g->ni; q++) {
+        const fx_state *s = g->inst[q];
+        uint32_t d2 = best_d2;
+        int i;
+        if (g->state[q] != FX_TRACKING)
+            continue;
+        i = search(s, s->sensitive_mask, x, y, &d2);
+        if (i >= 0) {
+            best = i;
+            best_d2 = d2;
+            owner = q;
+        }
+    }
+    if (best < 0)
+        return FX_NO_TRACKER;
+    take(g->inst[owner], best, t, x, y, best_d2);
+    return g->t0[owner] + best;
+}
+
+/* [ref] springs: every tracking instance's springs and criteria (eqs. 7-22) and its guard */
+void fx_set_springs(fx_set *g)
+{
+    int q;
+    g->n_spring_updates++;
+    for (q = 0; q < g->ni; q++)
+        if (g->state[q] == FX_TRACKING)
+            fx_springs(g->inst[q]);
+}
+
+/* the set's clock and event counts, copied into every instance (fx_set_params reads them) */
+static void set_sync(fx_set *g)
+{
+    int q;
+    for (q = 0; q < g->ni; q++) {
+        fx_state *s = g->inst[q];
+        s->last_t = g->last_t;
+        s->n_valid = g->n_valid;
+        s->n_back = g->n_back;
+        s->n_outside = g->n_outside;
+    }
+}
+
+int fx_set_step(fx_set *g, int64_t t, int32_t x, int32_t y)
+{
+    const fx_state *s0 = g->inst[0];
+    int best;
+    if (t < g->last_t) {
+        g->n_back++;
+        set_sync(g);
+        return FX_BACK_IN_TIME;
+    }
+    g->last_t = t;
+    if (x >= s0->width || y >= s0->height || x < 0 || y < 0) {
+        g->n_outside++;
+        set_sync(g);
+        return FX_OUT_OF_SENSOR;
+    }
+    g->n_valid++;
+    set_sync(g);
+    best = set_assign(g, t, x, y);
+    if (best >= 0)
+        g->n_assigned++;
+    if (++g->since_spring >= s0->period) {
+        g->since_spring = 0;
+        fx_set_springs(g);
+    }
+    return best;
+}
+
+/* fx_steps for a set: the same loop, the sampling rule's stop included */
+int64_t fx_set_steps(fx_set *g, const fx_event *ev, int64_t n, int64_t t_stop)
+{
+    batch o = steps_loop(0, g, ev, n, t_stop, g->last_t, g->since_spring);
+    g->last_t = o.last_t;
+    g->since_spring = g->inst[0]->period - o.until;
+    g->n_valid += o.k - o.n_back - o.n_skipped;
+    g->n_assigned += o.n_assigned;
+    g->n_back += o.n_back;
+    g->n_outside += o.n_skipped;
+    set_sync(g);
+    return o.k;
+}
+
+/* Instance q's state (springtrack.instances.InstanceState): a tracking instance's
+   trackers are all sensitive (the next spring update decides eq. 21 again), the others'
+   none, and only tracking instances take events and run their springs. */
+void fx_set_state(fx_set *g, int q, int32_t state)
+{
+    fx_state *s = g->inst[q];
+    g->state[q] = state;
+    s->sensitive_mask = state != FX_TRACKING ? 0
+                        : s->n == 64 ? ~(uint64_t)0 : ((uint64_t)1 << s->n) - 1;
+}
+
+/* A set of the ni loaded states inst[0..ni), all tracking, the clock and counts zero. */
+int fx_set_init(fx_set *g, fx_state *const *inst, int32_t ni)
+{
+    int32_t q, t0 = 0, c = 0;
+    if (ni < 1 || ni > FX_MAX_INSTANCES)
+        return FX_ERR_CAPACITY;
+    for (q = 0; q < ni; q++) {
+        t0 += inst[q]->n;
+        c += inst[q]->nc;
+        if (inst[q]->width != inst[0]->width || inst[q]->height != inst[0]->height)
+            return FX_ERR_RANGE;
+    }
+    if (t0 > FX_MAX_SET_TRACKERS || c > FX_MAX_SET_CONNECTIONS)
+        return FX_ERR_CAPACITY;
+    g->ni = ni;
+    g->since_spring = 0;
+    g->last_t = -((int64_t)1 << 62);
+    g->n_valid = g->n_assigned = g->n_back = g->n_outside = g->n_spring_updates = 0;
+    for (q = 0, t0 = 0; q < ni; q++) {
+        g->inst[q] = inst[q];
+        g->t0[q] = t0;
+        t0 += inst[q]->n;
+        fx_set_state(g, q, FX_TRACKING);
+    }
+    return FX_OK;
+}
+
+/* eq. (6) evaluated lazily at time t, Q.32 */
+int64_t fx_activity(const fx_state *s, int i, int64_t t)
+{
+    return mulsh(s->act[i], decay(s, t - s->tlast[i]), 30);
+}

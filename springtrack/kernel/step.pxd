@@ -1,0 +1,179 @@
+# The float64 kernel's per-event step (Algorithm 1): the most probable sensitive tracker
+# takes the event (eq. 2) and moves toward it (eqs. 3-6); every spring_period valid events
+# the springs act (kernel/springs.pyx).
+#
+#     cdef KState* s = &kernel.st                  # kernel: a springtrack.kernel.kernel.Kernel
+#     with nogil:
+#         r = kstep(s, t, x, y)                    # one event; r >= 0: winning tracker
+#         c = ksteps(s, ev, n, t_stop)             # a batch (the Stepper's steps())
+#
+# Translates springtrack.reference.ReferenceTracker.step() ([ref] marks the lines
+# translated) and keeps its order of floating-point operations, so its decisions match
+# even on exact ties.  Speed without changing a decision: argmin of the Mahalanobis
+# distance d^2 (eq. 2 in the log domain, no exp per tracker) over the spatial index's
+# candidates only (kernel/index.pxd), eq. (6)'s exps logged and batched (kernel/activity.pxd).
+#
+# cdef inline, like the index, the covariance clamp and the activity log it calls: the
+# whole per-event path is compiled as one unit into springtrack.kernel.kernel, which exposes it
+# (Kernel.stepper(), Kernel.step()).  The springs, once per spring_period events, are a
+# call into springtrack.kernel.springs.
+from libc.stdint cimport int64_t, uint64_t
+
+from springtrack.events cimport Event
+from springtrack.backends.stepper cimport st_sample_due
+from springtrack.kernel.state cimport (KState, CELL_SHIFT, K_NO_TRACKER, K_BACK_IN_TIME,
+                                  K_OUT_OF_SENSOR)
+from springtrack.kernel.index cimport check_index
+from springtrack.kernel.covariance cimport clamp_and_invert
+from springtrack.kernel.activity cimport log_activity, flush_activity, rescale_activity
+from springtrack.kernel.springs cimport ksprings
+
+cdef extern from *:
+    """
+    static inline int st_ctz64(unsigned long long v) { return __builtin_ctzll(v); }
+    """
+    int st_ctz64(unsigned long long v) nogil
+
+
+cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double fy, double d2,
+                                bint one) noexcept nogil:
+    # [ref] _update
+    # eq. (6) with eq. (2)'s unnormalised kernel value p = exp(-d2/2) as the increment,
+    # kept rescaled (kernel/activity.pxd): act += p * exp((t - act_t0) / tau), one exp (logged)
+    if t - s.act_t0 > s.act_span:
+        rescale_activity(s, t)
+    log_activity(s, i, -0.5 * d2 + <double>(t - s.act_t0) * s.inv_tau)
+    cdef double dx = fx - s.mx[i]                                    # eq. (5), pre-update mean
+    cdef double dy = fy - s.my[i]
+    # its instance's gains (one instance: the first tracker's, at a constant address)
+    cdef const double* gain = &s.gain[0][0] if one else &s.gain[i][0]
+    cdef double a1 = gain[0], keep = gain[1], g = gain[2]
+    s.mx[i] = s.mx[i] + a1 * dx                                      # eq. (3)
+    s.my[i] = s.my[i] + a1 * dy
+    s.sxx[i] = keep * s.sxx[i] + g * (dx * dx)                       # eq. (4)
+    s.sxy[i] = keep * s.sxy[i] + g * (dx * dy)
+    s.syy[i] = keep * s.syy[i] + g * (dy * dy)
+    clamp_and_invert(s, i)
+    check_index(s, i)
+
+
+cdef inline void scan_word(const KState* s, uint64_t m, int base, double fx, double fy,
+                           int* best, double* best_d2) noexcept nogil:
+    """eq. (2) over the trackers of one mask word (tracker base + bit), in index order:
+    the smallest d^2 below *best_d2 wins (ties: the lowest index)."""
+    cdef int i
+    cdef double dx, dy, d2
+    while m:
+        i = base + st_ctz64(m)
+        m &= m - 1
+        dx = fx - s.mx[i]
+        dy = fy - s.my[i]
+        d2 = s.ia[i] * dx * dx + s.ic[i] * dy * dy + s.ib2[i] * dx * dy
+        if d2 < best_d2[0]:
+            best_d2[0] = d2
+            best[0] = i
+
+
+cdef inline int assign_event(KState* s, int64_t t, int x, int y, bint one) noexcept nogil:
+    """eqs. (2)-(6) for a valid event: the most probable sensitive tracker of every
+    instance takes it (an event feeds at most one tracker of one instance).  ``one``:
+    the state holds one instance (so at most 64 trackers: one mask word), a constant in
+    the callers' loops (ksteps), which then compile this path without the others."""
+    cdef double fx = x, fy = y, dx, dy, d2
+    cdef double best_d2 = s.gate
+    cdef int best = K_NO_TRACKER, i, w
+    # eq. (2): candidates are the sensitive trackers indexed in this event's cell, in
+    # increasing index order (word by word), so ties resolve exactly as in the
+    # reference's full scan: the lowest index, the first instance.
+    cdef Py_ssize_t c = (y >> CELL_SHIFT) * s.gw + (x >> CELL_SHIFT)
+    cdef uint64_t m
+    if one or s.nw == 1:               # up to 64 trackers: one word
+        # scan_word's loop written out: best and best_d2 stay in registers (through
+        # scan_word's pointers, a few instructions more per candidate)
+        m = s.cells[c] & s.sensitive[0]
+        while m:
+            i = st_ctz64(m)
+            m &= m - 1
+            dx = fx - s.mx[i]
+            dy = fy - s.my[i]
+            d2 = s.ia[i] * dx * dx + s.ic[i] * dy * dy + s.ib2[i] * dx * dy
+            if d2 < best_d2:
+                best_d2 = d2
+                best = i
+    else:
+        c *= s.nw
+        for w in range(s.nw):
+            scan_word(s, s.cells[c + w] & s.sensitive[w], w << 6, fx, fy, &best, &best_d2)
+    if best >= 0:
+        update_tracker(s, best, t, fx, fy, best_d2, one)
+        s.n_assigned += 1
+    return best
+
+
+cdef inline Py_ssize_t ksteps_of(KState* s, const Event* ev, Py_ssize_t n, int64_t t_stop,
+                                 bint one) noexcept nogil:
+    """ksteps() for a state of one instance (``one``, a constant) or several."""
+    cdef Py_ssize_t k
+    cdef int64_t t, last_t = s.last_t, n_back = 0, n_outside = 0, n_valid = 0
+    cdef int since = s.since_spring, period = s.period
+    cdef unsigned int x, y, width = s.width, height = s.height
+    for k in range(n):
+        t = ev[k].t
+        if st_sample_due(t, t_stop, last_t):
+            break
+        if t < last_t:
+            n_back += 1
+            continue
+        last_t = t
+        x = ev[k].x
+        y = ev[k].y
+        if x >= width or y >= height:
+            n_outside += 1
+            continue
+        n_valid += 1
+        assign_event(s, t, x, y, one)
+        since += 1
+        if since >= period:
+            since = 0
+            ksprings(s)
+    else:
+        k = n
+    flush_activity(s)
+    s.last_t = last_t
+    s.since_spring = since
+    s.n_back += n_back
+    s.n_outside += n_outside
+    s.n_valid += n_valid
+    return k
+
+
+cdef inline Py_ssize_t ksteps(KState* s, const Event* ev, Py_ssize_t n, int64_t t_stop) noexcept nogil:
+    """kstep() over ev[0..n), stopping before the first event with t >= t_stop that is not
+    back in time (the sampling rule, csrc/sampling.h, with t_stop the next sample time);
+    returns the events processed (the Stepper's steps(), backends/stepper.pxd).
+    The counters and the last time live in locals for the batch and are written back at
+    its end (nothing the step calls reads them).  Two copies of the loop: one instance
+    (the common case, its per-event path as lean as a one-model kernel's) and several."""
+    if s.ni == 1:
+        return ksteps_of(s, ev, n, t_stop, True)
+    return ksteps_of(s, ev, n, t_stop, False)
+
+
+cdef inline int kstep(KState* s, int64_t t, int x, int y) noexcept nogil:
+    """One event (Algorithm 1). Returns the winning tracker, K_NO_TRACKER or a skip code.
+    ksteps() is the same step over a batch, with the counters kept in locals."""
+    if t < s.last_t:
+        s.n_back += 1
+        return K_BACK_IN_TIME
+    s.last_t = t
+    if x >= s.width or y >= s.height or x < 0 or y < 0:
+        s.n_outside += 1
+        return K_OUT_OF_SENSOR
+    s.n_valid += 1
+    cdef int best = assign_event(s, t, x, y, s.ni == 1)
+    flush_activity(s)
+    s.since_spring += 1
+    if s.since_spring >= s.period:
+        s.since_spring = 0
+        ksprings(s)
+    return best

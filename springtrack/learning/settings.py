@@ -1,0 +1,108 @@
+"""The learner's settings, constants and results: ``LearnParams``, ``LearnResult``,
+``LearnedSpring``, ``NoObjectFound`` (springtrack.learning)."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from . import batch as _learn
+from ..model import ShapeModel
+
+
+POOL_CAPACITY = 128           # trackers alive at once during discovery
+COVERED_MIN_LEVEL = 2.0       # Pool.update_level: the least level (contrast thresholds)
+LEVEL_EVERY = 10              # levels (Pool.update_level, BirthField.update_noise) are
+                              # measured every this many batches
+POINT_SIGMA = 1.05            # a tracker narrower than this sigma_min_px both ways: a point
+MASS_RANGE = (0.5, 2.0)       # masses: event share over the median, bounded
+MIN_SAMPLES = 10              # batches a pair must share for a spring
+CONTRAST_MARGIN = 0.05        # contrast_sign: ON-first fraction this far from 1/2 decides
+F = {name: k for k, name in enumerate(_learn.FIELDS)}
+
+
+class NoObjectFound(ValueError):
+    """The events hold no object the learner could model (noise, or too few events)."""
+    exit_code = 3                     # ``springtrack learn``'s exit status for it
+
+
+@dataclass(frozen=True)
+class LearnParams:
+    """The learner's parameters (docs/learning.md); units in the names."""
+    # the free pool, eqs. (2)-(6)
+    alpha_position: float = 0.03       # alpha_1 of the pool: weight of an event in the mean
+    alpha_covariance: float = 0.01     # alpha_2 of the pool: weight in the covariance
+    p_threshold: float = 0.1           # delta_p: the gate exp(-d^2/2) > delta_p
+    activity_tau_us: float = 10_000.0  # tau of eq. (6); also the decay of birth counts
+    sigma_min_px: float = 2.0          # bounds on a part's standard deviations
+    sigma_max_px: float = 16.0
+    batch_us: int = 1000               # lifecycle and sampling period
+    # lifecycle
+    birth_cell_px: int = 4
+    birth_events: float = 8.0          # unassigned events in a 3x3 block of cells ...
+    birth_contrast: float = 5.0        # ... and this many times the background block
+    merge_overlap: float = 0.25        # shared fraction of the smaller tracker's events
+    merge_gap_px: float = 1.5          # neighbours joined by covered pixels, no gap this long
+    death_share: float = 0.05          # of the pool's median recent event count
+    keep_share: float = 0.4            # a part takes this share of the median's events
+    idle_share: float = 0.1            # ... and is awake (awake()) at the end: this share
+                                       #     of the pool's median
+    life_tau_us: float = 50_000.0      # memory of recent counts; grace period after birth
+    # springs
+    min_coactivation: float = 0.5
+    min_rigidity: float = 0.2
+    rigidity_scale: float = 0.5        # deformation (in part sizes) of rigidity 1/2
+    cartesian_turn_deg: float = 10.0
+    lag_fraction: float = 0.1          # alpha_1 (tracking): eq. (3)'s lag, in part sizes
+    stiffness_gain: float = 0.1        # stiffness = gain * alpha_1 (tracking) * rigidity
+    energy_quantile: float = 0.99      # s of eqs. (21)-(22): this quantile of E_ij / mean E,
+    energy_scale_max: float = 4.5      # ... at most this (and at least the default 2.5)
+    smooth_us: int = 20_000            # averaging of directions for the turn measure
+
+    def __post_init__(self):
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise ValueError(f"learn: {f.name} must be a finite number, got {v!r}")
+            if v < 0:
+                raise ValueError(f"learn: {f.name} must not be negative, got {v!r}")
+        if not 0 < self.alpha_position <= 1 or not 0 < self.alpha_covariance <= 1:
+            raise ValueError("learn: alpha_position and alpha_covariance must be in (0, 1]")
+        if not 0 < self.p_threshold < 1:
+            raise ValueError("learn: p_threshold must be in (0, 1)")
+        if not 0 < self.sigma_min_px < self.sigma_max_px:
+            raise ValueError("learn: need 0 < sigma_min_px < sigma_max_px")
+        for name in ("batch_us", "birth_cell_px", "activity_tau_us", "life_tau_us", "smooth_us",
+                     "lag_fraction"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"learn: {name} must be positive")
+
+    @property
+    def gate_d2(self) -> float:
+        return -2.0 * math.log(self.p_threshold)
+
+
+@dataclass
+class LearnedSpring:
+    a: int
+    b: int
+    coactivation: float
+    rigidity: float
+    turn_deg: float
+    kinds: tuple
+
+
+@dataclass
+class LearnResult:
+    """What :func:`learn_model` found: the model and the evidence behind it."""
+    model: ShapeModel
+    events: int                        # events in the window
+    assigned: int                      # of them taken by the final trackers (their histories)
+    t_start_us: int
+    t_end_us: int
+    counts: np.ndarray                 # (N,) events each final tracker (or its pieces) took
+    springs: list                      # LearnedSpring per connection (model order)
+    candidates: list                   # every LearnedSpring considered, kept or not
+    lifecycle: dict = field(default_factory=dict)
+    wall_s: float = 0.0
