@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from springtrack import wire
+from springtrack.view import add_arguments as add_view_arguments
 from springtrack.wire import Role
 
 from .device import Device, HostctlError
@@ -140,8 +141,9 @@ def cmd_load_model(dev, args) -> int:
 
 
 def cmd_set(dev, args) -> int:
-    for name, value in parse_assignments(args.assignments).items():
-        print(f"{name}={value!r}: generation {dev.set(name, value)}")
+    values = parse_assignments(args.assignments)
+    for name, gen in dev.set_all(values).items():           # all or nothing
+        print(f"{name}={values[name]!r}: generation {gen}")
     return 0
 
 
@@ -180,7 +182,29 @@ def cmd_ping(dev, args) -> int:
 
 def cmd_monitor(dev, args) -> int:
     from .monitor import monitor
-    return monitor(dev, seconds=args.seconds, smooth=args.smooth, rate=args.rate)
+    view = None
+    if args.view:
+        from springtrack import view as live_view
+        from springtrack.model import load_model
+        view = live_view.open(args.view, load_model(args.model) if args.model else None,
+                              name="hostctl monitor", every_us=args.view_every_us)
+    try:
+        return monitor(dev, seconds=args.seconds, smooth=args.smooth, rate=args.rate, view=view)
+    finally:
+        if view is not None:
+            view.close()
+            print(f"view: {view.frames} frames -> {args.view}", file=sys.stderr)
+
+
+def _monitor_arguments(sp) -> None:
+    _arguments(
+        ("--seconds", dict(type=float, default=None, help="stop after S seconds")),
+        ("--smooth", dict(action="store_true", help="add Kalman-smoothed velocities")),
+        ("--rate", dict(type=float, default=12.0, help="redraws per second (12)")))(sp)
+    add_view_arguments(sp)
+    sp.add_argument("--model", metavar="MODEL",
+                    help="with --view: the device's model (TOML file or preset) to draw its "
+                         "springs and name its instances")
 
 
 # the device states (STATS ``state``) in which it sends no telemetry, and what to do
@@ -204,7 +228,9 @@ def _why_silent(dev) -> str:
 def cmd_record(dev, args) -> int:
     from .record import save
     from .smooth import Smoother  # noqa: F401 - fail early if filterpy is missing
+    from . import drops
     snaps, failure = [], None
+    dev0, host0 = drops.device_counters(dev), drops.host_counters(dev)
     try:
         end = time.monotonic() + args.seconds
         while time.monotonic() < end and not (args.until_end and dev.stream_ended):
@@ -217,10 +243,13 @@ def cmd_record(dev, args) -> int:
         raise ValueError(f"no telemetry received in {args.seconds:g} s: "
                          f"{_why_silent(dev)}")
     summary = save(args.out, snaps, dev.info, smooth={} if args.smooth else None)
-    lc = dev.link_counters()
+    lost = drops.span(dev0, drops.device_counters(dev) if failure is None else None,
+                      host0, drops.host_counters(dev))
+    text, warn = drops.summary(lost, summary["snapshots"])
     print(f"recorded {summary['snapshots']} snapshots x {summary['trackers']} trackers "
-          f"to {', '.join(summary['files'])}; lost frames {lc['lost']}, "
-          f"CRC errors {lc['crc_errors']}, model-swap drops {summary['dropped']}")
+          f"to {', '.join(summary['files'])}; {text}; model-swap drops {summary['dropped']}")
+    if warn:
+        print(f"hostctl record: warning: the recording is incomplete: {text}", file=sys.stderr)
     if failure is not None:
         print(f"hostctl record: error: {failure} (recording ended early)", file=sys.stderr)
         return failure.exit_code
@@ -274,10 +303,8 @@ VERBS: dict[str, Verb] = {
     "shutdown": Verb("end the firmware program", _simple("shutdown")),
     "ping": Verb("command round-trip times", cmd_ping,
                  _arguments(("-n", dict(type=int, default=10)))),
-    "monitor": Verb("live view of the trackers (12 redraws/s)", cmd_monitor, _arguments(
-        ("--seconds", dict(type=float, default=None, help="stop after S seconds")),
-        ("--smooth", dict(action="store_true", help="add Kalman-smoothed velocities")),
-        ("--rate", dict(type=float, default=12.0, help="redraws per second (12)")))),
+    "monitor": Verb("live view of the trackers (12 redraws/s; --view: in Rerun)", cmd_monitor,
+                    _monitor_arguments),
     "record": Verb("record telemetry to OUT.csv or OUT.npz", cmd_record, _arguments(
         ("out", {}),
         ("--seconds", dict(type=float, default=10.0, help="duration (10)")),

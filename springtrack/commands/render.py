@@ -24,7 +24,8 @@ without --model: one picture (.png, .svg, .pdf, ...) of the events of --start-us
 
 def add_arguments(p):
     p.epilog = EPILOG
-    p.add_argument("input", help="event file (any format springtrack reads)")
+    p.add_argument("input", help="event file (any format springtrack reads), or a live "
+                                 "source URL (dv://HOST:PORT, dv:camera, udp://HOST:PORT; docs/live.md)")
     p.add_argument("--model", action="append",
                    help="shape model TOML or preset name (default: events only); repeat it for "
                         "several models, as for track")
@@ -54,13 +55,11 @@ def add_arguments(p):
 
 
 def load_events(path):
-    """(events, width, height) of a file; the size from its header, else the events'."""
-    from .. import io as stio
-    r = stio.open(path)
-    ev = r.read()
-    w = r.width or (int(ev["x"].max()) + 1 if len(ev) else 1)
-    h = r.height or (int(ev["y"].max()) + 1 if len(ev) else 1)
-    return ev, w, h, bool(r.width and r.height)
+    """(events, width, height, known) of a file; the size from its header, else the
+    events' (springtrack.commands.inputs; the decoder's drops are warned about)."""
+    from .inputs import read_input
+    src = read_input(path)
+    return src.events, src.width, src.height, src.known
 
 
 def prepared(args, events, width, height):
