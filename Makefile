@@ -25,10 +25,10 @@ demo: build
 	$(VENV)/bin/hostctl demo
 
 test: build
-	$(PY) -m pytest -q tests; rc=$$?; if [ $$rc -eq 5 ]; then echo "no tests ran"; exit 1; fi; exit $$rc
+	SPRINGTRACK_ALL_TESTS=1 $(PY) -m pytest -q tests; rc=$$?; if [ $$rc -eq 5 ]; then echo "no tests ran"; exit 1; fi; exit $$rc
 
 bench: build
 	$(PY) benchmarks/kernel.py
 
 clean:
-	rm -rf $(VENV) build springtrack/*.so springtrack/*/*.so firmware_sim/*.so tests/*.so tests/*.c
+	rm -rf $(VENV) build springtrack/*.so springtrack/*/*.so firmware_sim/*.so tests/*.so tests/*.c tests/support/*.so tests/support/*.c

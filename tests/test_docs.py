@@ -2,7 +2,7 @@
 
 Every line starting with `.venv/bin/springtrack` in a fenced block of README.md runs in a
 temporary folder (the tour's own files are made by its first commands). The firmware /
-hostctl lines need a running firmware on a pty; tests/test_hostctl_hil.py runs the same
+hostctl lines need a running firmware on a pty; tests/hostctl/test_hostctl_hil.py runs the same
 verbs against a real firmware-sim process.
 """
 import os
@@ -13,8 +13,9 @@ import sys
 from pathlib import Path
 
 import pytest
+from support import REPO
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 BIN = Path(sys.executable).parent
 
 
@@ -93,6 +94,7 @@ def test_experiments_page_commands_run(tmp_path):
     assert "mean_error_pct=" in r.stdout.splitlines()[-1]
 
 
+@pytest.mark.hil
 def test_readme_device_commands_run_against_firmware(tmp_path):
     """The README's firmware-sim / hostctl lines, against a real firmware-sim process."""
     lines = block_lines(ROOT / "README.md", {"firmware-sim", "hostctl"})

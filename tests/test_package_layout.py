@@ -6,14 +6,15 @@ from __future__ import annotations
 import ast
 import re
 from pathlib import Path
+from support import REPO
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 PACKAGES = ("springtrack", "firmware_sim", "hostctl")
 SOURCE_SUFFIXES = (".py", ".pyx", ".pxd", ".c", ".h")
 MAX_LINES = 1000
 MAX_TOP_MODULES = 20
 # generated, not hand-written: each is rewritten by its generator and a test checks it is
-# what the generator writes (tests/test_fixed_integer_only.py)
+# what the generator writes (tests/springtrack/fixed/test_fixed_integer_only.py)
 GENERATED = {"springtrack/fixed/csrc/fixed_tables.h"}
 
 
@@ -146,3 +147,25 @@ def test_no_hand_written_source_over_1000_lines():
 def test_generated_files_say_so():
     for rel in GENERATED:
         assert "generated" in (ROOT / rel).read_text()[:300]
+
+
+def test_no_test_module_imports_another():
+    """Helpers and fixtures live in tests/support/; a test module imports no test module."""
+    tests = {p.stem for p in (ROOT / "tests").rglob("test_*.py")}
+    bad = []
+    for p in (ROOT / "tests").rglob("*.py"):
+        for node in ast.walk(ast.parse(p.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            bad += [f"{p.relative_to(ROOT)}: {n}" for n in names if n.split(".")[-1] in tests]
+    assert not bad, bad
+
+
+def test_tests_mirror_the_packages():
+    """Test modules sit in the folder of the package they test (tests/springtrack/kernel/
+    for springtrack/kernel/, ...): every sub-folder names a package or sub-package."""
+    for d in (ROOT / "tests").rglob("*"):
+        rel = d.relative_to(ROOT / "tests")
+        if d.is_dir() and rel.parts[0] not in ("support", "__pycache__") \
+                and "__pycache__" not in rel.parts and any(d.glob("test_*.py")):
+            assert (ROOT / rel).is_dir(), f"tests/{rel} mirrors no package folder"
