@@ -2,7 +2,7 @@
 
 Every line starting with `.venv/bin/springtrack` in a fenced block of README.md runs in a
 temporary folder (the tour's own files are made by its first commands). The firmware /
-hostctl lines need a running firmware on a pty; tests/hostctl/test_hostctl_hil.py runs the same
+hostctl lines need a running firmware on a pty; tests/test_hostctl/test_hostctl_hil.py runs the same
 verbs against a real firmware-sim process.
 """
 import os

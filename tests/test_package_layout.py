@@ -14,7 +14,7 @@ SOURCE_SUFFIXES = (".py", ".pyx", ".pxd", ".c", ".h")
 MAX_LINES = 1000
 MAX_TOP_MODULES = 20
 # generated, not hand-written: each is rewritten by its generator and a test checks it is
-# what the generator writes (tests/springtrack/fixed/test_fixed_integer_only.py)
+# what the generator writes (tests/test_springtrack/fixed/test_fixed_integer_only.py)
 GENERATED = {"springtrack/fixed/csrc/fixed_tables.h"}
 
 
@@ -162,10 +162,14 @@ def test_no_test_module_imports_another():
 
 
 def test_tests_mirror_the_packages():
-    """Test modules sit in the folder of the package they test (tests/springtrack/kernel/
-    for springtrack/kernel/, ...): every sub-folder names a package or sub-package."""
-    for d in (ROOT / "tests").rglob("*"):
-        rel = d.relative_to(ROOT / "tests")
-        if d.is_dir() and rel.parts[0] not in ("support", "__pycache__") \
-                and "__pycache__" not in rel.parts and any(d.glob("test_*.py")):
-            assert (ROOT / rel).is_dir(), f"tests/{rel} mirrors no package folder"
+    """Test modules sit in the folder of the package they test: tests/test_springtrack/kernel/
+    for springtrack/kernel/, tests/test_hostctl/ for hostctl/ (``test_`` before a package's
+    name, so that a tests folder never shadows the package it tests on sys.path)."""
+    folders = [d for d in (ROOT / "tests").rglob("*") if d.is_dir()
+               and "__pycache__" not in d.parts and any(d.glob("test_*.py"))]
+    assert len(folders) >= 10
+    for d in folders:
+        rel = d.relative_to(ROOT / "tests").parts
+        assert rel[0].startswith("test_"), f"tests/{'/'.join(rel)}"
+        package = ROOT.joinpath(rel[0][len("test_"):], *rel[1:])
+        assert (package / "__init__.py").is_file(), f"tests/{'/'.join(rel)} mirrors no package"

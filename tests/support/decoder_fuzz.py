@@ -1,5 +1,5 @@
 """Fuzzing of the streaming decoders and the file-format detection, shared by
-tests/springtrack/io/test_io_fuzz.py (a seconds-long slice) and benchmarks/fuzz_decoders.py (1,000,000
+tests/test_springtrack/io/test_io_fuzz.py (a seconds-long slice) and benchmarks/fuzz_decoders.py (1,000,000
 inputs per decoder, recorded in docs/formats.md).
 
 For every decoder (ccam, evt2, evt21 in both word orders, evt3, es dvs/atis, dat, aedat4
@@ -75,7 +75,7 @@ def seeds(rng) -> dict:
 
 def payload_unit(fmt, dec, data) -> int:
     """Words a decoder must report for ``data``: packets for AEDAT 4 (its framing is
-    checked by tests/springtrack/io/test_io_aedat4.py), else whole words."""
+    checked by tests/test_springtrack/io/test_io_aedat4.py), else whole words."""
     return dec.stats.words if fmt == "aedat4" else len(data) // dec.word_size
 
 

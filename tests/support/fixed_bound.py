@@ -4,7 +4,7 @@ it is checked on (docs/fixed_point.md).
 The bound: tracker positions within 0.05 px RMS and 0.25 px max, covariances within 1 %,
 the same trackers active / sensitive at >= 99.9 % of the samples, and the paper's
 tracking error (springtrack.metrics) within 0.1 percentage point.  :func:`compare` runs
-both backends on one event array and returns those figures; tests/springtrack/fixed/test_fixed_accuracy.py
+both backends on one event array and returns those figures; tests/test_springtrack/fixed/test_fixed_accuracy.py
 checks a reduced stream on every run, benchmarks/fixed_accuracy.py the >= 1 M event
 streams whose figures go to docs/fixed_point.md.
 """

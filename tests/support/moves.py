@@ -1,6 +1,6 @@
-"""Moving an instance rigidly in the tests (tests/springtrack/test_move.py, tests/springtrack/mcu/test_mcu.py): a
+"""Moving an instance rigidly in the tests (tests/test_springtrack/test_move.py, tests/test_springtrack/mcu/test_mcu.py): a
 similarity about the model's centre of mass, a stream that follows it, and a tracker run
-through the move; the face of tests/springtrack/acquisition/test_reacquire.py jumping, which a tracker with
+through the move; the face of tests/test_springtrack/acquisition/test_reacquire.py jumping, which a tracker with
 ``acquire=True`` finds moved and moves onto its new place."""
 import math
 
@@ -50,7 +50,7 @@ def run_moved(backend: str, model, params, sim, moved, ev1, ev2):
 
 def jump_run(backend: str, seconds: float = 0.45):
     """(tracker, track) of ``springtrack.Tracker(..., acquire=True)`` on the simulator's
-    face jumping 60 px at 0.3 s (tests/springtrack/acquisition/test_reacquire.py's jump): found moved by the
+    face jumping 60 px at 0.3 s (tests/test_springtrack/acquisition/test_reacquire.py's jump): found moved by the
     verification search, it is moved onto its new place, then refined and moved again."""
     sc = Disrupted(make_scene("face_occlusion", hand_first=100.0), at_s=0.3, dx=60.0)
     ev, _ = simulate_all(sc, seconds)

@@ -3,7 +3,7 @@ peak resident memory: ``python tests/support/peak_rss.py LIMIT_MIB springtrack t
 ...`` prints ``peak_rss_mib N`` as the last line of stderr and exits with the command's
 status.  The process may not allocate more than LIMIT_MIB of data (RLIMIT_DATA), so that
 memory growing with the input's time span fails at once (MemoryError) instead of
-exhausting the machine.  Used by tests/springtrack/test_memory.py."""
+exhausting the machine.  Used by tests/test_springtrack/test_memory.py."""
 import resource
 import sys
 

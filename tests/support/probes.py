@@ -3,7 +3,7 @@
 They are not part of the package (nothing installed calls them): setup.py compiles them,
 with the package's own flags and headers, only when ``SPRINGTRACK_TEST_EXTENSIONS=1``.
 :func:`load` does that on first use in a test session (a no-op when they are up to date),
-so ``pytest tests/springtrack/test_x.py`` works on a fresh build.
+so ``pytest tests/test_springtrack/test_x.py`` works on a fresh build.
 
     kp = probes.load("kernel_probe")     # tests/support/kernel_probe.pyx
 """

@@ -1,7 +1,7 @@
 """Several model instances in one tracker (springtrack.instances) in the reference, the
 specification: one event assignment over the union, springs and criteria per instance,
 ids, limits, parameters, and the loss rule; the float kernel holds them too
-(tests/springtrack/kernel/test_equivalence.py holds it to the reference), the fixed and mcu kernels refuse
+(tests/test_springtrack/kernel/test_equivalence.py holds it to the reference), the fixed and mcu kernels refuse
 a set."""
 import numpy as np
 import pytest

@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from support import probes
 import springtrack
 from springtrack.model import Connection, ShapeModel, TrackerSpec, face26, grid3x3
 from springtrack.params import Params
 from springtrack.reference import FRAME_SCALE_MAX, FRAME_SCALE_MIN, ReferenceTracker
+from support.springs import Springs, pose
 
 SIMILARITY = dict(pull_frame="similarity", cartesian_frame="similarity")
 IMAGE = dict(pull_frame="image", cartesian_frame="image")
@@ -19,49 +19,6 @@ FRAMES = {"similarity": SIMILARITY, "image": IMAGE}
 # positions after one spring update: the float kernel equals the reference to rounding,
 # the fixed-point kernel to its Q.16 fit (docs/fixed_point.md)
 BACKENDS = {"reference": 1e-9, "cython": 1e-9, "fixed": 1e-4}
-
-
-def pose(model, angle, scale, shift=(0.0, 0.0)):
-    """The model's rest positions turned by ``angle`` rad and scaled by ``scale`` about its
-    centre of mass G0, then shifted: the same shape, rigidly moved and scaled."""
-    a = model.arrays()
-    c, s = scale * math.cos(angle), scale * math.sin(angle)
-    g0x, g0y = a["x"][0] - a["gdx0"][0], a["y"][0] - a["gdy0"][0]
-    return (g0x + shift[0] + c * a["gdx0"] - s * a["gdy0"],
-            g0y + shift[1] + s * a["gdx0"] + c * a["gdy0"])
-
-
-class Springs:
-    """One backend's spring update on a placed configuration (no events)."""
-
-    def __init__(self, backend, model, params):
-        self.backend, self.model = backend, model
-        self.tr = springtrack.Tracker(model, params, backend=backend)
-
-    def place(self, x, y):
-        b = self.tr._b
-        for i in range(len(x)):
-            if self.backend == "reference":
-                b.ref.mx[i], b.ref.my[i] = float(x[i]), float(y[i])
-            elif self.backend == "cython":
-                probes.load("kernel_probe").place(b, i, float(x[i]), float(y[i]))
-            else:
-                probes.load("fixed_probe").set_raw(b, i, x=int(round(x[i] * 2 ** 32)),
-                                                   y=int(round(y[i] * 2 ** 32)))
-
-    def update(self, x=None, y=None, times=1):
-        """Place the trackers (if given) and run a spring update, ``times`` times over;
-        return the positions after the last.  The Cartesian springs use the frame fitted
-        at the update before, so a configuration placed anew settles that frame in a few
-        updates."""
-        for _ in range(times - 1):
-            self.update(x, y)
-        if x is not None:
-            self.place(x, y)
-        b = self.tr._b
-        (b.ref if self.backend == "reference" else b).springs()
-        st = self.tr.state(0)
-        return st["x"], st["y"]
 
 
 def weighted_model(stiffness=0.0):
@@ -234,14 +191,18 @@ def test_a_grid_turning_90_degrees_each_way_stays_tracked(spinning_grid, frame, 
                                                           s):
     """The paper's grid values (alpha1 = 0.02, alpha2 = 5e-5, its spring kinds, alpha and s)
     on a grid turning through +-90 deg in the image plane: in the similarity frame every
-    tracker stays within 5 px of its part at every sample (parts are 50 px apart); in the
-    image frame eq. (22) (and stiff Cartesian springs) drag the grid back upright."""
+    tracker stays within 5 px of its part at every sample (parts are 50 px apart; 1.6-1.7 px
+    measured).  In the image frame eq. (22) (Euclidean + torsional springs) and stiff
+    Cartesian springs (alpha 0.016) drag the grid back upright (104 and 160 px); soft
+    Cartesian springs (alpha 0.001) hold their image-frame rest offsets too weakly to, and
+    every tracker stays within 5 px (4.2 px measured)."""
     from springtrack.metrics import score_track
     scene, ev, truth = spinning_grid
     model = scene.initial_model(stiffness=alpha, springs=springs)
     track = springtrack.Tracker(model, dict(FRAMES[frame], energy_scale=s)).run(ev, 1000)
     err = score_track(truth, track).err_px
-    if frame == "similarity":
+    assert err.shape == (9999, 9)                        # every sample of every part scored
+    if frame == "similarity" or (springs == ("cartesian",) and alpha < 0.01):
         assert err.max() < 5.0, err.max()
-    elif springs != ("cartesian",) or alpha > 0.01:
+    else:
         assert err.max() > 25.0, err.max()               # some tracker lost its part

@@ -3,7 +3,7 @@
 springtrack/fixed/csrc/fixed_step.c (the per-event step, the springs and every arithmetic
 helper they use) and fixed_telemetry.c (telemetry records from that state) must compile
 with ``gcc -mgeneral-regs-only``, which on x86-64 rejects any floating-point or SIMD
-operation, and contain no 128-bit integer (tests/springtrack/mcu/test_mcu.py cross-compiles them for
+operation, and contain no 128-bit integer (tests/test_springtrack/mcu/test_mcu.py cross-compiles them for
 32-bit cores and inspects the linked symbols).  A control case shows the check does fail when a
 float slips in.
 """

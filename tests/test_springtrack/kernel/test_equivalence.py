@@ -132,6 +132,22 @@ def params(draw):
 ENERGY_NOISE = 1e-20
 
 
+# How often the random tests excused a divergence as rounding noise, per test: [examples
+# run, excused], counted over the session and bounded by test_excusals_are_counted_and_rare
+# (the last tests of this module).  Measured: none in 263 random models and 90 random
+# instance sets (2026-11-28); an excused case found later is pinned as an @example of its
+# test, with the classification it must keep.
+EXCUSALS = {"models": [0, 0], "instance_sets": [0, 0]}
+MAX_EXCUSED_SHARE = 0.05
+MIN_RUNS = 20          # below this many examples the share says nothing
+
+
+def excused(kind: str, is_noise: bool) -> bool:
+    """Count one excusal of ``kind`` when ``is_noise``; returns ``is_noise``."""
+    EXCUSALS[kind][1] += bool(is_noise)
+    return is_noise
+
+
 def first_divergence_is_rounding_noise(model, prm, events) -> bool:
     """Replay kernel and reference event by event to their first disagreement (a different
     winner, a position apart by more than 1e-9 px, or a different sensitivity).  True when
@@ -186,6 +202,7 @@ def first_divergence_is_rounding_noise(model, prm, events) -> bool:
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(models(), params(), st.integers(0, 2 ** 31))
 def test_kernel_equals_reference_on_random_models(model, prm, seed):
+    EXCUSALS["models"][0] += 1
     ev, _ = blob_stream(model, 3000, rate_hz=100_000, noise=0.3, speed_px_s=(30, -20),
                         rot_deg_s=20, seed=seed)
     rng = np.random.default_rng(seed)
@@ -198,7 +215,7 @@ def test_kernel_equals_reference_on_random_models(model, prm, seed):
         assert_same(model, prm, ev, sample_us=500)
     except AssertionError:
         # not comparable: the reference decided on its own rounding (see ENERGY_NOISE)
-        assume(not first_divergence_is_rounding_noise(model, prm, ev))
+        assume(not excused("models", first_divergence_is_rounding_noise(model, prm, ev)))
         raise
 
 
@@ -411,6 +428,7 @@ def test_kernel_equals_reference_on_random_instance_sets(drawn, seed):
     """Random sets: an event feeds one tracker of one instance (ties: the lowest index),
     springs and criteria per instance with its own parameters; up to 4 x 3 x 12 trackers,
     so beyond one mask word too."""
+    EXCUSALS["instance_sets"][0] += 1
     ms, copies, shared = drawn
     rng = np.random.default_rng(seed)
     parts = [blob_stream(m, 1500, rate_hz=100_000, noise=0.3,
@@ -421,8 +439,8 @@ def test_kernel_equals_reference_on_random_instance_sets(drawn, seed):
         assert_same(ms, shared, ev, sample_us=500, instances=copies)
     except AssertionError:
         # not comparable: the reference decided on its own rounding (see ENERGY_NOISE)
-        assume(not first_divergence_is_rounding_noise([m for m in ms for _ in range(copies)],
-                                                      shared, ev))
+        assume(not excused("instance_sets", first_divergence_is_rounding_noise(
+            [m for m in ms for _ in range(copies)], shared, ev)))
         raise
 
 
@@ -471,3 +489,13 @@ def test_instances_lost_moved_and_placed_mid_stream_equal_the_reference(faces):
     assert a._ib.states() == [TRACKING] * len(ms)
     assert a.counters["events_assigned"] > 0.5 * len(ev)
     assert kp.check_index(a._b)
+
+
+@pytest.mark.parametrize("kind", list(EXCUSALS))
+def test_excusals_are_counted_and_rare(kind):
+    """The random tests above excused at most MAX_EXCUSED_SHARE of their examples as
+    rounding noise in this session (run after them: this module's order)."""
+    runs, n = EXCUSALS[kind]
+    if runs < MIN_RUNS:
+        pytest.skip(f"the {kind} test ran {runs} examples in this session")
+    assert n <= MAX_EXCUSED_SHARE * runs, f"{n} of {runs} {kind} examples excused"
