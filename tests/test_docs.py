@@ -37,6 +37,7 @@ def test_readme_has_the_two_setup_commands():
     assert "make demo" in quick and "make test" in quick
 
 
+@pytest.mark.slow
 def test_readme_tour_commands_run(tmp_path, data_file):
     data_dir = data_file("evt3_sample.raw").parent
     cmds = tour_commands()
@@ -94,6 +95,7 @@ def test_experiments_page_commands_run(tmp_path):
     assert "mean_error_pct=" in r.stdout.splitlines()[-1]
 
 
+@pytest.mark.slow
 @pytest.mark.hil
 def test_readme_device_commands_run_against_firmware(tmp_path):
     """The README's firmware-sim / hostctl lines, against a real firmware-sim process."""

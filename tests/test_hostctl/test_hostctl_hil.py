@@ -62,6 +62,7 @@ def test_hil_model_upload_and_param_change_seen_at_reported_time(realtime_fw):
         assert dev.link_counters()["crc_errors"] == 0
 
 
+@pytest.mark.slow
 @pytest.mark.hil
 def test_hil_record_matches_springtrack_track(tmp_path):
     """``--port URL --wait-start``: the test opens the pty, connects and sends START; the
@@ -200,6 +201,7 @@ def test_hil_corrupted_link_drops_counts_and_resyncs(realtime_fw):
     assert fw["link.handler_errors"] == 0
 
 
+@pytest.mark.slow
 @pytest.mark.hil
 def test_hil_monitor_cli(realtime_fw):
     with Device(realtime_fw.path) as dev:           # the firmware is streaming (slow start
@@ -283,6 +285,7 @@ def test_hil_tcp_1khz_telemetry_with_commands():
         assert after[k] == before[k], (k, before[k], after[k], info)
 
 
+@pytest.mark.slow
 @pytest.mark.hil
 def test_hil_record_without_telemetry_says_why(tmp_path):
     """A recording that receives nothing names the device's state and the way out: not

@@ -66,6 +66,7 @@ def test_a_47_byte_csv_with_a_10_10_us_gap(tmp_path):
     assert list(tr.t_us) == list(range(0, sampling.HOLD * P + 1, P)) + [10 ** 10]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("fmt,gap_us", [("evt2", (1 << 34) + 12_345),     # a 28-bit wrap
                                         ("evt3", (1 << 24) + 12_345)])    # a 12-bit wrap
 def test_raw_files_with_repeated_wraps(tmp_path, fmt, gap_us):

@@ -89,6 +89,7 @@ def test_info_on_the_real_biplane_names_its_quirks(data_file):
     assert "quirks    none (timestamps in 1 us steps" in r.stdout
 
 
+@pytest.mark.slow
 def test_the_biplane_tracks_as_delivered_with_dequantize(data_file, tmp_path):
     """A model of the plane (learned on 1..100 ms), tracked over the whole file as
     delivered: without preparation the full-frame burst at t = 0 throws its trackers off in

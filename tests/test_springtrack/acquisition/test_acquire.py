@@ -245,6 +245,7 @@ def _run(*args):
     return r.stdout
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("scene, seconds", [("face_occlusion", 3.0), ("grid_pull", 3.0)])
 def test_track_acquire_model_placed_off_reaches_the_error_placed_by_hand(tmp_path, scene,
                                                                        seconds):

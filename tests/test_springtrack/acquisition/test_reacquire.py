@@ -25,6 +25,7 @@ def mean_px(track, truth_xy, t_us, cols=slice(None)):
                                   track.y[k, cols] - truth_xy[:, 1])))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("what", ["occlusion", "exit"])
 def test_hidden_or_gone_then_back_is_lost_then_reacquired_within_50ms(what):
     sc = {"occlusion": Disrupted(face(), hide_s=(0.5, 0.8)),
@@ -63,6 +64,7 @@ def test_a_jump_is_lost_then_reacquired_at_once():
     assert mean_px(track, sc.truth(0.95), 950_000) < FACE_PX
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("backend", ["cython", "fixed", "reference"])
 def test_a_jump_is_caught_by_the_verification_search_the_same_in_every_backend(backend):
     """The trackers left behind stop taking events while the face's events go on: its
@@ -149,6 +151,7 @@ def assert_same_rows(ta, tb):
     assert (ta.sensitive == tb.sensitive).all() and (ta.active == tb.active).all()
 
 
+@pytest.mark.slow
 def test_a_lost_instance_in_the_float_kernel_is_held_as_in_the_reference():
     """The face hidden for 200 ms: lost, then found where it was kept.  While lost the
     float kernel holds it as the reference does (insensitive, its springs off, the spring
@@ -162,6 +165,7 @@ def test_a_lost_instance_in_the_float_kernel_is_held_as_in_the_reference():
     assert_same_rows(ta, tb)
 
 
+@pytest.mark.slow
 def test_two_objects_one_jumping_the_float_kernel_equals_the_reference():
     """A face and a grid; the face jumps 60 px: lost and re-acquired (moved or re-placed)
     while the grid tracks on.  The float kernel holding both makes the same changes at the
@@ -178,6 +182,7 @@ def test_two_objects_one_jumping_the_float_kernel_equals_the_reference():
     assert all(ca[k] == cb[k] for k in cb), (ca, cb)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("backend", ["cython", "fixed", "reference"])
 def test_two_instances_of_one_model_crossing_paths_keep_their_identities(backend):
     """Two grids pass each other (one right, one left, 60 px apart vertically, 10 px
@@ -242,6 +247,7 @@ def test_renderer_draws_lost_instances_grey_and_dotted(tmp_path):
         r.close()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("backend", ["cython", "fixed", "reference"])
 def test_changes_and_rows_do_not_depend_on_how_the_input_is_cut(backend):
     sc = Disrupted(face(), hide_s=(0.2, 0.35))
@@ -260,6 +266,7 @@ def test_changes_and_rows_do_not_depend_on_how_the_input_is_cut(backend):
         assert np.array_equal(track.x, runs[0][1].x) and np.array_equal(track.state, runs[0][1].state)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", [8, 10])
 def test_a_jump_is_followed_as_well_as_before_it_moved_rigidly_not_replaced(seed):
     """After a jump the re-acquired face is moved rigidly onto the pose found, keeping its

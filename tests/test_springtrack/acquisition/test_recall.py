@@ -126,6 +126,7 @@ def _plane_turn(ev, times):
     return np.interp(times, list(t_axis), axis) - axis[0]
 
 
+@pytest.mark.slow
 def test_biplane_learned_is_found_followed_and_turned_with_for_the_whole_second(data_file, tmp_path):
     """Learned from 1-200 ms, then ``track --acquire`` from the start (default bounds):
     found at once, tracking at every 50 ms, its trackers on the plane (measured: 93-100 %),

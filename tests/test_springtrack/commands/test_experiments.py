@@ -53,6 +53,7 @@ def test_plan_covers_every_experiment():
     assert {c["frame"] for c in scenes} == {"image", "similarity"}
 
 
+@pytest.mark.slow
 def test_tiny_plan_end_to_end_with_dask(tmp_path):
     distributed = pytest.importorskip("dask.distributed")
     plan = xp.Plan(grid_seconds=1.0, face_seconds=1.0, rot_alphas=(0.004,), s_values=(4.5, 1e6),

@@ -45,6 +45,7 @@ def test_grid_spacing_is_round_and_readable():
     assert grid_step(2048) == 200
 
 
+@pytest.mark.slow
 def test_render_without_a_model_draws_the_window_of_events(tmp_path):
     ev = np.concatenate([square(10, 10, 5, t0=0), square(200, 100, 5, t0=50_000)])
     src = tmp_path / "rec.raw"
@@ -59,6 +60,7 @@ def test_render_without_a_model_draws_the_window_of_events(tmp_path):
         assert r.returncode == 2 and msg in r.stderr, r.stderr
 
 
+@pytest.mark.slow
 def test_render_with_a_model_checks_it_against_the_recording(tmp_path):
     ev = square(150, 110, 8)
     src = tmp_path / "rec640.raw"
@@ -71,6 +73,7 @@ def test_render_with_a_model_checks_it_against_the_recording(tmp_path):
     assert (tmp_path / "f.png").stat().st_size > 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["evt3_sample.raw", "dvs.es"])
 def test_render_a_real_recording_without_a_model(data_file, tmp_path, name):
     out = tmp_path / "real.png"

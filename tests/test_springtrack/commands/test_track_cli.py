@@ -11,6 +11,7 @@ from springtrack.sim.synthetic import blob_stream, part_positions
 from springtrack.track import CSV_HEADER, read_csv
 
 
+@pytest.mark.slow
 def test_track_cli_follows_a_moving_grid(tmp_path):
     m = grid3x3()
     ev, _ = blob_stream(m, 200_000, rate_hz=200_000, speed_px_s=(15, 8), noise=0.2, seed=4)

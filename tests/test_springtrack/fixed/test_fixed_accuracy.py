@@ -41,6 +41,7 @@ def test_tracking_error_metric_agrees(preset):
     assert res["metric_diff_pp"] < BOUNDS["metric_diff_pp"], res
 
 
+@pytest.mark.slow
 def test_face_steady_energy_decisions_agree():
     """face26-steady (benchmarks/fixed_accuracy.py's 2 M-event stream) in the default
     (similarity) frame: its first 400 k events hold an energy criterion (eqs. 21-22)

@@ -29,6 +29,7 @@ def compile_c(src: Path, out: Path) -> subprocess.CompletedProcess:
                           capture_output=True, text=True)
 
 
+@pytest.mark.slow
 @needs_gcc
 @pytest.mark.parametrize("unit", UNITS, ids=lambda u: u.name)
 def test_fixed_units_compile_with_general_regs_only(tmp_path, unit):

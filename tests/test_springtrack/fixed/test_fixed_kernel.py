@@ -76,6 +76,7 @@ def test_gauss_edges():
     assert abs(fx.gauss(2 << 27) - math.exp(-1.0) * 2 ** 30) <= 2.1
 
 
+@pytest.mark.slow
 @settings(max_examples=400, deadline=None)
 @given(st.integers(0, 2 ** 64 - 1), st.integers(1, 2 ** 32 - 1))
 def test_udiv64_from_32_bit_divisions(n, d):
@@ -84,6 +85,7 @@ def test_udiv64_from_32_bit_divisions(n, d):
     assert fx.udiv64(n, d) == (n // d, n % d)
 
 
+@pytest.mark.slow
 @settings(max_examples=600, deadline=None)
 @given(st.integers(1, 2 ** 32 - 1), st.data())
 def test_divlu32_is_exact(v, data):
@@ -145,6 +147,7 @@ def test_decay_edges():
         assert abs(fx.decay(k, dt) - want) <= (1e-7 + math.log(2) * dt * 2 ** -41) * want + 1
 
 
+@pytest.mark.slow
 @settings(max_examples=400, deadline=None)
 @given(st.integers(-(2 ** 31), 2 ** 31), st.integers(-(2 ** 31), 2 ** 31))
 def test_atan2_matches_math(y, x):

@@ -42,6 +42,7 @@ def test_sample_equals_aedat_package(data_file):
     np.testing.assert_array_equal(sio.open(path).read(), aedat_events(path))
 
 
+@pytest.mark.slow
 def test_sample_any_chunking(data_file):
     r = sio.open(data_file("sample.aedat4"))
     whole = r.read()
@@ -56,6 +57,7 @@ def test_sample_any_chunking(data_file):
         np.testing.assert_array_equal(np.concatenate(list(r.chunks(size))), whole)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("compression", COMPRESSIONS)
 def test_writer_read_by_aedat_package(tmp_path, data_file, compression):
     ev = sio.open(data_file("sample.aedat4")).read()

@@ -305,6 +305,7 @@ def test_evt3_block_path_equals_word_by_word(seed):
     assert s.info["time_low_backwards"] > 100 and s.anomalies["unknown_type"] > 10
 
 
+@pytest.mark.slow
 def test_evt3_block_path_on_the_recording(data_file):
     """The real EVT 3.0 recording decoded whole (blocks) and one word per call (never a
     block): the same events and counters."""

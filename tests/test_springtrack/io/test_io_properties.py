@@ -8,6 +8,7 @@ from hypothesis import HealthCheck, given, settings, strategies as st
 import springtrack.io as sio
 from springtrack.io import ccam, dat, es, evt2, evt3
 from springtrack.events import EVENT_DTYPE, make
+import pytest
 
 SETTINGS = settings(max_examples=60, deadline=None,
                     suppress_health_check=[HealthCheck.too_slow])
@@ -45,6 +46,7 @@ def test_evt2_round_trip(ev, cuts):
     np.testing.assert_array_equal(out, ev)
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(event_arrays(width=2048, height=2048, max_gap=1 << 26), CUTS)
 def test_evt3_round_trip(ev, cuts):

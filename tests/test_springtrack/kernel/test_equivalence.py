@@ -199,6 +199,7 @@ def first_divergence_is_rounding_noise(model, prm, events) -> bool:
     return False
 
 
+@pytest.mark.slow
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(models(), params(), st.integers(0, 2 ** 31))
 def test_kernel_equals_reference_on_random_models(model, prm, seed):
@@ -219,6 +220,7 @@ def test_kernel_equals_reference_on_random_models(model, prm, seed):
         raise
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("frame", FRAMES)
 @pytest.mark.parametrize("preset,motion", [("grid3x3", dict(speed_px_s=(15, 8), rot_deg_s=10)),
                                            ("face26", dict(speed_px_s=(10, -5), rot_deg_s=-8,
@@ -297,6 +299,7 @@ def test_activity_log_gives_the_same_sums_event_by_event():
     assert a["activity"].max() > 0.5
 
 
+@pytest.mark.slow
 def test_kernel_equals_reference_beyond_64_connections():
     """More than 64 connections (the kernel's energy criteria, eqs. 21-22, reduce per-
     connection end masks, csrc/springs.h st_over_ends); a ring of
@@ -422,6 +425,7 @@ def instance_sets(draw):
     return ms, draw(st.integers(1, 3)), shared
 
 
+@pytest.mark.slow
 @settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(instance_sets(), st.integers(0, 2 ** 31))
 def test_kernel_equals_reference_on_random_instance_sets(drawn, seed):
@@ -457,6 +461,7 @@ def _faces_and_grid(width=400, height=240, faces=3):
     return ms, ev
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("faces", [1, 3])
 def test_instances_lost_moved_and_placed_mid_stream_equal_the_reference(faces):
     """Faces and a grid (35 trackers: one mask word; 87: two, the third face straddling

@@ -183,6 +183,7 @@ def spinning_grid():
     return scene, ev, truth_from_array(truth)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("springs,alpha,s", [(("euclidean", "torsional"), 0.001, 4.0),
                                              (("cartesian",), 0.001, 4.5),
                                              (("cartesian",), 0.016, 4.5)])

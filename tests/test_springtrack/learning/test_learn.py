@@ -77,6 +77,7 @@ def errors(name, model, learn_us):
 
 
 # ---- the grid ----------------------------------------------------------------------------
+@pytest.mark.slow
 def test_grid_from_one_second_finds_the_nine_blobs():
     res = learned("grid_pull", GRID_LEARN_US)
     m = res.model
@@ -113,6 +114,7 @@ def test_grid_learned_model_tracks_within_1_5x_the_hand_model():
     assert ours <= 1.5 * hand, (ours, hand)
 
 
+@pytest.mark.slow
 def test_trackers_option_gives_exactly_n():
     ev, _ = scene("grid_pull")
     for n in (6, 12):
@@ -121,6 +123,7 @@ def test_trackers_option_gives_exactly_n():
 
 
 # ---- the face ----------------------------------------------------------------------------
+@pytest.mark.slow
 def test_face_from_0_8_s_puts_26_trackers_on_the_parts():
     res = learned("face_occlusion", FACE_LEARN_US, 26)
     m = res.model
@@ -296,6 +299,7 @@ def test_cli_biplane_learned_then_tracked_as_delivered(data_file, tmp_path, caps
 
 
 # ---- the firmware ------------------------------------------------------------------------
+@pytest.mark.slow
 def test_firmware_sim_learn_first_ms_equals_springtrack_track(tmp_path):
     """firmware-sim learns from the camera's first second and tracks the rest exactly as
     ``springtrack track --learn-first-ms`` does offline (the same model, bit for bit the

@@ -60,6 +60,7 @@ def text_mnemonics(res):
     return {m for _, _, m, _ in d.disasm_lite(code, addr)}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("instances", [1, 2])
 @pytest.mark.parametrize("target", list(TARGETS))
 def test_elf_needs_no_runtime_and_no_fpu(target, instances):
@@ -84,6 +85,7 @@ def test_elf_needs_no_runtime_and_no_fpu(target, instances):
     assert 0 < res.flash_bytes < 128 * 1024 and 0 < res.ram_bytes < 96 * 1024
 
 
+@pytest.mark.slow
 def test_control_a_double_needs_a_helper_the_build_cannot_link(tmp_path, monkeypatch):
     """One line of double arithmetic in the same unit asks for a soft-float helper, which
     a build without any runtime cannot link: the checks above can fail."""
@@ -160,6 +162,7 @@ def track(model, params, ev, backend, sample_us=200):
     return tr, out
 
 
+@pytest.mark.slow
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(scenarios())
 def test_random_models_and_streams_equal_the_host(sc):
@@ -173,6 +176,7 @@ def test_random_models_and_streams_equal_the_host(sc):
     assert a_tr._b.mean_energy == b_tr._b.mean_energy and a_tr.last_t == b_tr.last_t
 
 
+@pytest.mark.slow
 def test_parameter_change_and_snapshot_equal_the_host():
     """set_params between events (a new tau rescales activities, a new kind of criterion),
     single steps and snapshots: the same integers on both."""
@@ -210,6 +214,7 @@ def test_face_scene_csv_is_byte_identical(tmp_path, target):
     assert outs["mcu"] == outs["fixed"]
 
 
+@pytest.mark.slow
 def test_grid_scene_equals_the_host():
     ev, _ = simulate_all("grid_rot_y", 0.25, seed=6)
     m = springtrack.load_model("grid3x3")
@@ -233,6 +238,7 @@ def assert_same(a, b):
     assert ta.counters == tb.counters and np.array_equal(ta._b.energies(), tb._b.energies())
 
 
+@pytest.mark.slow
 @settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(scenarios(), st.floats(-15.0, 15.0), st.floats(-15.0, 15.0), st.floats(-180.0, 180.0),
        st.floats(0.8, 1.25))
@@ -263,6 +269,7 @@ def test_a_move_of_the_face_equals_the_host():
     assert_same(*[(tr, t1, mid, t2) for t1, mid, t2, tr in runs])
 
 
+@pytest.mark.slow
 def test_after_a_reacquisition_the_firmware_moves_as_the_fixed_kernel():
     """``acquire=True`` on the face jumping 60 px (found moved, moved onto its new place,
     refined): the firmware's track is the host fixed kernel's bit for bit."""
@@ -305,6 +312,7 @@ def assert_same_sets(a, b):
     assert all(ta._ib.frame(q) == tb._ib.frame(q) for q in range(len(ta.models)))
 
 
+@pytest.mark.slow
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.lists(scenarios(), min_size=2, max_size=3), st.floats(-10.0, 10.0),
        st.floats(-90.0, 90.0), st.integers(0, 2))
@@ -325,6 +333,7 @@ def test_random_instance_sets_equal_the_host(scs, d, deg, lost):
     assert_same_sets(*(run_set(models, params, ev, b, steps) for b in ("fixed", "mcu")))
 
 
+@pytest.mark.slow
 def test_a_face_and_a_grid_equal_the_host():
     """A face and a grid with their presets' own parameters, on the build for exactly this
     set (Capacity.of_model): the rows, states and counters of the host, bit for bit."""
@@ -343,6 +352,7 @@ def test_a_face_and_a_grid_equal_the_host():
     assert_same_sets(*runs)
 
 
+@pytest.mark.slow
 def test_cli_build_prints_flash_and_ram(tmp_path, capsys):
     from springtrack.cli import main
     assert main(["mcu", "build", "--target", "rv32imac", "--out", str(tmp_path), "--model",
@@ -421,6 +431,7 @@ def test_firmware_loop_with_the_mcu_build_equals_the_fixed_kernel():
                                                                  if k != "backend"}
 
 
+@pytest.mark.slow
 @pytest.mark.hil
 def test_hil_chain_with_the_mcu_build_records_what_the_fixed_kernel_does(tmp_path):
     """The whole hardware-in-the-loop chain as separate processes: firmware-sim (simulated
