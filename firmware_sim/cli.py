@@ -202,8 +202,8 @@ class Link:
         elif args.port:
             self.port = transport.open_port(args.port)
         else:
-            host, _, p = args.listen.rpartition(":")
-            self.server = transport.TcpServer(host or "127.0.0.1", int(p), key=key)
+            host, p = parse_listen(args.listen)
+            self.server = transport.TcpServer(host, p, key=key)
             print(f"listen: {self.server.url}", flush=True)
         if self.server is not None:
             self.hub = link.Hub(engine, key, on_shutdown=on_shutdown)
@@ -252,8 +252,10 @@ def run(args) -> int:
     # three Python threads (reader, processing, link) share the GIL: hand it over every
     # 0.5 ms instead of 5 ms so the processing thread is never starved for long
     sys.setswitchinterval(0.0005)
-    # SIGTERM ends the run like Ctrl-C: threads stopped, --record written, stats printed
-    handlers = {sig: signal.signal(sig, _terminate) for sig in (signal.SIGTERM, signal.SIGINT)}
+    # SIGTERM and SIGHUP (a closed terminal) end the run like Ctrl-C: threads stopped,
+    # --record closed, stats printed
+    handlers = {sig: signal.signal(sig, _terminate)
+                for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)}
     try:
         return _run(args)
     finally:
@@ -266,6 +268,8 @@ def _run(args) -> int:
     biases = parse_biases(args.bias)
     roi = parse_ints(args.roi, 4, ",", "--roi")
     has_link = bool(args.pty or args.port or args.listen)
+    if args.listen:
+        parse_listen(args.listen)                 # a bad port before anything starts
     if args.wait_start and not has_link:
         raise ValueError("--wait-start needs a host link (--pty, --port or --listen)")
     key = read_key(args.key_file)
@@ -275,7 +279,7 @@ def _run(args) -> int:
     cam = source.device
     engine = FirmwareLoop(source.open_camera, model=default_model(args, source),
                           params=args.params, telemetry_period_us=args.telemetry_us,
-                          nbuf=args.buffers, record=bool(args.record),
+                          nbuf=args.buffers, record=args.record or False,
                           lossless=cam is not None and args.max_speed, biases=biases,
                           profile=source.profile, backend=args.backend, roi=roi,
                           source_counters=source.counters, sensor_from=args.sensor_from,
@@ -342,8 +346,8 @@ def _run(args) -> int:
     if not learn_said:
         _say_learned(engine, args.learn_first_ms)
     if args.record:
-        rows = engine.write_record(args.record)
-        print(f"record: {rows} rows -> {args.record}", file=sys.stderr)
+        engine.recorder.close()
+        print(engine.recorder.summary(), file=sys.stderr)
     for line in source.report():
         print(line, file=sys.stderr)
     if failed is None and _sources.failure(source):
@@ -403,13 +407,26 @@ def _say_learned(engine, window_ms: float | None = None) -> bool:
     return True
 
 
+def parse_listen(value: str) -> tuple[str, int]:
+    """``--listen HOST:PORT`` (or ``:PORT``) as (host, port); a ValueError names the option."""
+    host, _, p = value.rpartition(":")
+    try:
+        port = int(p)
+    except ValueError:
+        port = -1
+    if not 0 <= port <= 65535:
+        raise ValueError(f"--listen {value!r}: give HOST:PORT with a port in 0..65535 (0: any "
+                         f"free port)")
+    return host or "127.0.0.1", port
+
+
 def _terminate(signum, frame):
     raise KeyboardInterrupt
 
 
 def _ignore_signals() -> None:
     """The shutdown runs once: signals from now on are ignored (``run`` restores them)."""
-    for sig in (signal.SIGTERM, signal.SIGINT):
+    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
         signal.signal(sig, signal.SIG_IGN)
 
 

@@ -140,8 +140,9 @@ def cmd_load_model(dev, args) -> int:
 
 
 def cmd_set(dev, args) -> int:
-    for name, value in parse_assignments(args.assignments).items():
-        print(f"{name}={value!r}: generation {dev.set(name, value)}")
+    values = parse_assignments(args.assignments)
+    for name, gen in dev.set_all(values).items():           # all or nothing
+        print(f"{name}={values[name]!r}: generation {gen}")
     return 0
 
 
@@ -204,7 +205,9 @@ def _why_silent(dev) -> str:
 def cmd_record(dev, args) -> int:
     from .record import save
     from .smooth import Smoother  # noqa: F401 - fail early if filterpy is missing
+    from . import drops
     snaps, failure = [], None
+    dev0, host0 = drops.device_counters(dev), drops.host_counters(dev)
     try:
         end = time.monotonic() + args.seconds
         while time.monotonic() < end and not (args.until_end and dev.stream_ended):
@@ -217,10 +220,13 @@ def cmd_record(dev, args) -> int:
         raise ValueError(f"no telemetry received in {args.seconds:g} s: "
                          f"{_why_silent(dev)}")
     summary = save(args.out, snaps, dev.info, smooth={} if args.smooth else None)
-    lc = dev.link_counters()
+    lost = drops.span(dev0, drops.device_counters(dev) if failure is None else None,
+                      host0, drops.host_counters(dev))
+    text, warn = drops.summary(lost, summary["snapshots"])
     print(f"recorded {summary['snapshots']} snapshots x {summary['trackers']} trackers "
-          f"to {', '.join(summary['files'])}; lost frames {lc['lost']}, "
-          f"CRC errors {lc['crc_errors']}, model-swap drops {summary['dropped']}")
+          f"to {', '.join(summary['files'])}; {text}; model-swap drops {summary['dropped']}")
+    if warn:
+        print(f"hostctl record: warning: the recording is incomplete: {text}", file=sys.stderr)
     if failure is not None:
         print(f"hostctl record: error: {failure} (recording ended early)", file=sys.stderr)
         return failure.exit_code

@@ -33,6 +33,8 @@ trackers are sensitive and only its springs run.
 """
 from __future__ import annotations
 
+import re
+
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -229,12 +231,15 @@ def _check_shared(models, plist) -> None:
 
 
 def _labels(models) -> list:
-    """``name#k``: k the 1-based number of the instance among those of its model's name."""
+    """``name#k``: k the 1-based number of the instance among those of its model's name;
+    the name's characters outside the tracker ids' safe set (springtrack.limits.TRACKER_ID)
+    become ``_``, since a label prefixes ids that name CSV columns."""
     seen: dict = {}
     out = []
     for m in models:
         seen[m.name] = seen.get(m.name, 0) + 1
-        out.append(f"{m.name}#{seen[m.name]}")
+        safe = re.sub(r"[^A-Za-z0-9_.\-]", "_", m.name)
+        out.append(f"{'_' + safe[1:] if safe[:1] in ('-', '.') else safe}#{seen[m.name]}")
     return out
 
 

@@ -171,14 +171,15 @@ def render(events: np.ndarray, model, track: Track, out, window_us: int = 10_000
     every_us = every_us or window_us
     if len(track) == 0:
         raise ValueError("render: the track has no samples (is the event file empty?)")
-    times = np.arange(track.t_us[0] + window_us, track.t_us[-1] + 1, every_us)
-    if len(times) == 0:
-        times = track.t_us[-1:]
-    if len(times) > max_frames:
-        raise ValueError(f"render: {len(times)} frames exceed --max-frames {max_frames}; "
+    first, last = int(track.t_us[0]) + window_us, int(track.t_us[-1]) + 1
+    count = max(0, -(-(last - first) // every_us))        # counted before any allocation
+    if out.suffix == ".png":                                # the middle frame only
+        times = np.array([first + every_us * (count // 2)]) if count else track.t_us[-1:]
+    elif count > max_frames:
+        raise ValueError(f"render: {count} frames exceed --max-frames {max_frames}; "
                          f"raise --every-us or --max-frames")
-    if out.suffix == ".png":
-        times = times[len(times) // 2: len(times) // 2 + 1]
+    else:
+        times = np.arange(first, last, every_us) if count else track.t_us[-1:]
     rows = np.clip(np.searchsorted(track.t_us, times), 0, len(track) - 1)
     r = OverlayRenderer(model, scale=scale, title=title)
     t_ev = events["t"]
@@ -186,7 +187,11 @@ def render(events: np.ndarray, model, track: Track, out, window_us: int = 10_000
     writer = None
     try:
         if out.suffix in (".gif", ".mp4"):
-            import imageio.v2 as iio
+            try:
+                import imageio.v2 as iio
+            except ImportError:
+                raise ValueError(f"{out}: writing {out.suffix} needs imageio: pip install "
+                                 f"'springtrack[plots]', or write a .png") from None
             fps = max(1, min(50, int(round(1e6 / every_us))))
             writer = (iio.get_writer(out, mode="I", duration=every_us / 1000.0, loop=0)
                       if out.suffix == ".gif" else iio.get_writer(out, fps=fps))
@@ -218,8 +223,9 @@ def render(events: np.ndarray, model, track: Track, out, window_us: int = 10_000
 
 
 def _save_png(path, img):
-    import imageio.v2 as iio
-    iio.imwrite(path, img)
+    """One PNG, through matplotlib (which render needs anyway): no imageio for pictures."""
+    from matplotlib.image import imsave
+    imsave(path, img)
 
 
 def _truth_xy(truth, ids, t):

@@ -150,7 +150,7 @@ def read_csv(path) -> Track:
         code = {name: k for k, name in enumerate(STATE_NAMES)}
         states = np.array([code[r[_STATE_AT]] if with_state else TRACKING_CODE for r in rows],
                           np.uint8)
-    except (ValueError, IndexError, KeyError) as e:
+    except (ValueError, IndexError, KeyError, OverflowError) as e:   # Overflow: t beyond int64
         raise ValueError(f"{path}: malformed track row: {e}") from None
     ids = list(dict.fromkeys(names))
     times = np.unique(t)

@@ -346,12 +346,17 @@ class FrameReader:
 
 class SeqTracker:
     """Counts frames lost in one direction from gaps in the 16-bit sequence numbers: the gap
-    ``(seq - last - 1) mod 2^16``; gaps of 2^15 or more are reordering, not loss."""
+    ``(seq - last - 1) mod 2^16``; gaps of 2^15 or more are reordering, not loss.  Gaps
+    above ``max_gap`` (a direction that cannot lose that many, such as a host's commands)
+    are a peer that skipped ahead (random or hostile sequence numbers): counted in
+    ``jumps``, not as lost frames."""
 
-    def __init__(self):
+    def __init__(self, max_gap: int = 0x7FFF):
         self.last: int | None = None
         self.lost = 0
         self.duplicates = 0
+        self.jumps = 0
+        self.max_gap = max_gap
 
     def restart(self, seq: int | None = None) -> None:
         """A new session: expect anything next (``seq``: the frame that opened it)."""
@@ -368,6 +373,9 @@ class SeqTracker:
             return 0
         self.last = seq
         if gap >= 0x8000:            # far behind: a stale or reordered frame, not a loss
+            return 0
+        if gap > self.max_gap:
+            self.jumps += 1
             return 0
         self.lost += gap
         return gap

@@ -166,8 +166,21 @@ def open(target: str, opts: SourceOptions, url: str):
                          f"outside it are dropped (counted in geometry_drops); omit --profile "
                          f"to replay at the recording's own geometry")
 
+    readers = [reader]                  # the file's reader of this replay, and the totals of
+    before = {}                         # the decoder's anomalies of the replays before it
+
+    def file_anomalies() -> dict:
+        out = dict(before)
+        for k, v in readers[-1].stats.bad.items():
+            out[k] = out.get(k, 0) + v
+        return out
+
     def source(rd):
         """What the simulated camera serves from reader ``rd`` (again at every replay)."""
+        if rd is not readers[-1]:
+            before.update(file_anomalies())
+            readers.append(rd)
+            del readers[:-1]
         if as_is:
             chunks = word_chunks(rd)
             return chunks if opts.seconds is None else limit_chunk_seconds(chunks, opts.seconds)
@@ -176,6 +189,13 @@ def open(target: str, opts: SourceOptions, url: str):
 
     def report() -> list[str]:
         out = []
+        bad = file_anomalies()
+        if bad and not as_is:           # (as recorded, the camera's decoder counts them)
+            out.append(f"replay: warning: decoding {target} ({reader.format}) met "
+                       f"{sum(bad.values())} anomalies ("
+                       + ", ".join(f"{k} {v}" for k, v in bad.items())
+                       + "): their events never reached the camera (`springtrack info` "
+                       f"describes them)")
         if stats.get("t_offset_us"):
             out.append(f"replay: times re-based by -{stats['t_offset_us']} us (the recording "
                        f"starts after the camera counter's {REBASE_FROM_US} us): tracks and "
@@ -186,4 +206,6 @@ def open(target: str, opts: SourceOptions, url: str):
                 f"({stats['outside_sensor'] / max(stats['events_in'], 1):.1%}) lay outside the "
                 f"{prof.width}x{prof.height} sensor and were dropped before encoding"]
     return simulated(url, source(reader), opts, prof, restart=lambda: source(_reader(target)),
-                     report=report, counters=lambda: dict(stats), notes=notes)
+                     report=report, notes=notes,
+                     counters=lambda: dict(stats, file_anomalies=(
+                         0 if as_is else sum(file_anomalies().values()))))

@@ -15,6 +15,10 @@ BIN_US = 10_000
 # 10**15 us is 2001-09-09, 4 * 10**15 us is 2096
 EPOCH_US = (10**15, 4 * 10**15)
 WORD_UNIT = {"es": "bytes", "aedat4": "packets"}
+# 10 ms bins kept open for counting: older ones are closed (their count weighed for the
+# peak) once twice as many are open, so memory is constant however long the recording; an
+# event more than BINS_OPEN bins (10 s) back in time starts its bin's count anew
+BINS_OPEN = 1024
 
 
 def add_arguments(p):
@@ -32,6 +36,7 @@ def summarize(path, format=None, chunk=1 << 20) -> dict:
     reader = io.open(path, format=format)
     n, t_min, t_max, p_on = 0, None, None, 0
     bins = Counter()
+    peak_bin, peak = None, 0
     w, h = reader.width, reader.height
     if not (w and h) and reader.format in ("npy", "csv"):      # in memory: their extent
         ev = reader.read()
@@ -48,8 +53,10 @@ def summarize(path, format=None, chunk=1 << 20) -> dict:
         t_max = hi if t_max is None else max(t_max, hi)
         b, c = np.unique(t // BIN_US, return_counts=True)
         bins.update(dict(zip(b.tolist(), c.tolist())))
+        if len(bins) > 2 * BINS_OPEN:
+            peak_bin, peak = _close_bins(bins, max(bins) - BINS_OPEN, peak_bin, peak)
     span = (t_max - t_min) if n else 0
-    peak_bin, peak = max(bins.items(), key=lambda kv: kv[1]) if bins else (None, 0)
+    peak_bin, peak = _close_bins(bins, None, peak_bin, peak)
     s = reader.stats
     quirks = scan.finish()
     return {
@@ -71,6 +78,15 @@ def summarize(path, format=None, chunk=1 << 20) -> dict:
             "burst_events": quirks.burst_events, "burst_at_us": quirks.burst_at_us,
             "findings": [{"found": f, "do": d} for f, d in quirks.findings()]},
     }
+
+
+def _close_bins(bins: Counter, before, peak_bin, peak):
+    """Close the bins older than ``before`` (None: all): (peak bin, its count) so far."""
+    for b in [b for b in bins if before is None or b < before]:
+        c = bins.pop(b)
+        if c > peak:
+            peak_bin, peak = b, c
+    return peak_bin, peak
 
 
 def _is_epoch(t_us: int) -> bool:

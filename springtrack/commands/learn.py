@@ -42,19 +42,18 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    from .. import io as stio
     from ..learning.learner import NoObjectFound, learn_model
+    from .inputs import read_input
     if args.trackers is not None and not 1 <= args.trackers <= 64:
         raise ValueError(f"--trackers must be in [1, 64], got {args.trackers}")
     track_params = read_params(args.params) if args.params else None   # its errors first
-    reader = stio.open(args.input)
-    raw = reader.read()
-    width = reader.width or (int(raw["x"].max()) + 1 if len(raw) else 1)
-    height = reader.height or (int(raw["y"].max()) + 1 if len(raw) else 1)
+    src = read_input(args.input)
+    raw, width, height = src.events, src.width, src.height
     prep = options.preparer(args, width, height, always=True)
     events = np.concatenate([raw[:0]] + list(options.prepared([raw], prep)))
-    print(f"input     {args.input}: {width}x{height}, {len(raw):,} events; "
-          f"{prep.stats.summary()}; learning on {len(events):,}")
+    print(f"input     {args.input}: {width}x{height}, {len(raw):,} events "
+          f"(decoder {src.stats.summary()}); {prep.stats.summary()}; learning on "
+          f"{len(events):,}")
     names = [s.strip() for s in args.names.split(",")] if args.names else None
     try:
         res = learn_model(events, trackers=args.trackers, width=width, height=height,

@@ -131,13 +131,8 @@ def add_backend_argument(p, firmware: bool = False) -> None:
 
 def read_params(path) -> dict:
     """The tracking parameters a TOML file sets (top level or [params]), validated."""
-    import tomllib
-    from ..params import ParamError, from_mapping
-    with open(path, "rb") as f:
-        try:
-            data = tomllib.load(f)
-        except tomllib.TOMLDecodeError as e:
-            raise ParamError(f"{path}: not valid TOML: {e}") from None
+    from ..params import from_mapping, read_toml
+    data = read_toml(path)
     table = data.get("params", data)
     valid = from_mapping(table, where=str(path)).as_dict()
     return {k: valid[k] for k in table}

@@ -54,13 +54,11 @@ def add_arguments(p):
 
 
 def load_events(path):
-    """(events, width, height) of a file; the size from its header, else the events'."""
-    from .. import io as stio
-    r = stio.open(path)
-    ev = r.read()
-    w = r.width or (int(ev["x"].max()) + 1 if len(ev) else 1)
-    h = r.height or (int(ev["y"].max()) + 1 if len(ev) else 1)
-    return ev, w, h, bool(r.width and r.height)
+    """(events, width, height, known) of a file; the size from its header, else the
+    events' (springtrack.commands.inputs; the decoder's drops are warned about)."""
+    from .inputs import read_input
+    src = read_input(path)
+    return src.events, src.width, src.height, src.known
 
 
 def prepared(args, events, width, height):

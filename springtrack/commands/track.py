@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..io.outputs import text_output
 from ..track import CSV_HEADER
 from ..tracker import profile
 from ..watch import TrackWatch
@@ -37,7 +38,8 @@ trackers fall inactive (fewer than a third active for 3 activity time constants)
 and searched for again every --acquire-ms / 2 in the last --acquire-ms of events; an
 instance not found at the start is searched for the same way.  See docs/acquisition.md.
 exit status: 0 tracked, 1 --acquire found no model, 2 bad input, 3 --learn-first-ms found
-no object (noise or too few events).
+no object (noise or too few events), 141 standard output closed early (a pipe's reader
+went away), 143 SIGTERM (the CSV's last line then says '# INCOMPLETE').
 """
 
 
@@ -57,7 +59,8 @@ def add_arguments(p):
                    help="with --backend mcu: cortex-m4 (default), cortex-m7 or rv32imac")
     p.add_argument("--sample-us", type=int, default=1000, metavar="US",
                    help="state sampling period in µs of event time (default 1000)")
-    p.add_argument("--out", required=True, help="output track CSV")
+    p.add_argument("--out", required=True, help="output track CSV ('-': standard output; "
+                                                 "the summary then goes to standard error)")
     options.add_acquire_arguments(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--profile", metavar="OUT.csv|OUT.png",
@@ -73,7 +76,8 @@ def open_stream(args):
     input's sensor (springtrack.sensor_fit: a mismatch or trackers off the sensor is an
     error, unless --sensor-from), or one learned from the stream's first --learn-first-ms
     (the tracking then starts where the learning window ends); and the Preparer (None
-    without a preparation option), whose counts say what it dropped."""
+    without a preparation option), whose counts say what it dropped; and the reader, whose
+    ``stats`` say what its decoder dropped."""
     from .. import io as stio
     from ..sensor_fit import fit_model
     from ..model import load_model
@@ -104,7 +108,7 @@ def open_stream(args):
         from .learn import learn_first
         model, source = learn_first(source, args.learn_first_ms, width, height,
                                     name=Path(args.input).stem, params=args.params)
-    return model, source, prep
+    return model, source, prep, reader
 
 
 def _prepared(source, prep):
@@ -147,7 +151,7 @@ def run(args) -> int:
         raise ValueError(f"--sample-us must be a positive number of µs, got {args.sample_us}")
     from ..learning.learner import NoObjectFound
     try:
-        model, stream, prep = open_stream(args)
+        model, stream, prep, reader = open_stream(args)
     except NoObjectFound as e:
         print(f"springtrack track: {e}", file=sys.stderr)
         return NoObjectFound.exit_code
@@ -158,7 +162,7 @@ def run(args) -> int:
     start = time.perf_counter()
     n = 0
     t_first = t_last = None
-    with open(args.out, "w", newline="") as out:
+    with text_output(args.out, "track CSV") as out:
         out.write(",".join(CSV_HEADER) + "\n")
         bins = []
         for chunk, total in stream:
@@ -190,7 +194,11 @@ def run(args) -> int:
     skipped = c["skipped_back_in_time"] + c["skipped_outside_sensor"]
     print(f"events={n} assigned={c['events_assigned']} skipped={skipped} "
           f"(back_in_time={c['skipped_back_in_time']} outside={c['skipped_outside_sensor']}) "
-          f"wall_s={wall:.3f} events_per_s={rate:.3g} realtime_factor={rtf:.1f} out={args.out}")
+          f"wall_s={wall:.3f} events_per_s={rate:.3g} realtime_factor={rtf:.1f} out={args.out} "
+          f"decoder_{reader.stats.summary()}")
+    warn = reader.stats.warning(args.input)
+    if warn:
+        print(warn, file=sys.stderr)
     if prep is not None:
         print(f"prepared: {prep.stats.summary()}")
     if args.acquire:

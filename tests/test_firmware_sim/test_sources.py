@@ -112,7 +112,8 @@ def test_replay_with_a_smaller_profile_drops_events_and_says_so_everywhere(tmp_p
     keep = ev[ev["x"] < 304]
     assert np.array_equal(read_all(src), keep)
     dropped = len(ev) - len(keep)
-    assert src.counters() == {"outside_sensor": dropped, "events_in": len(ev), "t_offset_us": 0}
+    assert src.counters() == {"outside_sensor": dropped, "events_in": len(ev), "t_offset_us": 0,
+                              "file_anomalies": 0}
     assert src.report() == [f"replay: warning: {dropped} of {len(ev)} events "
                             f"({dropped / len(ev):.1%}) lay outside the 304x240 sensor and "
                             f"were dropped before encoding"]

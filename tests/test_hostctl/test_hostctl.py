@@ -104,7 +104,7 @@ def test_cli_record_csv_matches_the_offline_tracker(served, capsys, tmp_path):
     out = tmp_path / "rec.csv"
     rc, text, _ = run(capsys, "--port", served.path, "record", str(out), "--seconds", "0.4",
                       "--smooth")
-    assert rc == 0 and "lost frames 0" in text
+    assert rc == 0 and "lost device queue 0, device send queue 0, link 0, CRC errors 0, host 0" in text
     rec = read_csv(out)
     assert rec.ids == springtrack.model.face26().ids and len(rec) > 100
     assert np.all(np.diff(rec.t_us) == 1000)
@@ -205,3 +205,35 @@ def test_smoothed_velocity_within_10_percent_of_the_scene():
     assert np.all(np.abs(vx - speed) <= 0.1 * speed), (vx.min(), vx.max())
     assert np.all(np.abs(vy) <= 0.1 * speed)
     assert math.isclose(np.mean(vx), speed, rel_tol=0.05)
+
+
+def test_cli_set_is_all_or_nothing(served, capsys):
+    """``set A=ok B=bad`` once exited 6 with A already changed on the device."""
+    p = served.path
+    rc, before, _ = run(capsys, "--port", p, "get", "alpha_position")
+    assert rc == 0 and "0.05" not in before
+    rc, _, err = run(capsys, "--port", p, "set", "alpha_position=0.05", "sigma_max_px=1e12")
+    assert rc == 6 and "out_of_range" in err and "nothing changed (alpha_position set back)" in err
+    served.engine.step()
+    assert run(capsys, "--port", p, "get", "alpha_position")[1] == before
+    rc, _, err = run(capsys, "--port", p, "set", "alpha_position=0.05", "nope=1")
+    assert rc == 6 and "unknown" in err                  # refused before anything is set
+    served.engine.step()
+    assert run(capsys, "--port", p, "get", "alpha_position")[1] == before
+
+
+def test_record_summary_splits_drops_by_place_and_warns():
+    from hostctl import drops
+    before = dict(device_queue=10, device_link=3)
+    after = dict(device_queue=466, device_link=5)
+    host0, host1 = dict(lost=3, crc_errors=0, host=0), dict(lost=8, crc_errors=1, host=2)
+    d = drops.span(before, after, host0, host1)
+    assert (d["device_queue"], d["device_link"], d["link"], d["crc_errors"], d["host"]) == \
+        (456, 2, 3, 1, 2)
+    text, warn = drops.summary(d, 339)
+    assert warn and "device queue 456" in text and "link 3" in text and "host 2" in text
+    assert "57.7% of the span's snapshots missing" in text
+    text, warn = drops.summary(drops.span(None, after, host0, host0), 10)
+    assert warn and "unknown" in text
+    text, warn = drops.summary(drops.span(before, before, host0, host0), 10)
+    assert not warn and text == "lost device queue 0, device send queue 0, link 0, CRC errors 0, host 0"
