@@ -43,3 +43,25 @@ def read_frames(port, want, timeout=2.0):
         got += [f for f in r.feed(port.read(max(1, port.in_waiting)))
                 if f.type not in (MsgType.HEARTBEAT, MsgType.TELEMETRY, MsgType.APPLIED)]
     return got
+
+
+class TcpServed:
+    """A link hub serving TCP connections in a background thread; ``lines``: its log."""
+
+    def __init__(self, engine, key=None, **limits):
+        self.engine = engine
+        self.srv = transport.TcpServer("127.0.0.1", 0, key=key)
+        self.url = self.srv.url
+        self.lines: list[str] = []
+        self.hub = link.Hub(engine, key, log=self.lines.append)
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self.hub.serve_tcp, args=(self.srv, self.stop),
+                                       kwargs=limits, daemon=True)
+        self.thread.start()
+
+    def close(self):
+        self.stop.set()
+        self.thread.join(5)
+        assert not self.thread.is_alive()
+        self.srv.close()
+        self.engine.close()

@@ -7,14 +7,13 @@ from __future__ import annotations
 
 import socket
 import subprocess
-import threading
 import time
 
 import pytest
 
-from firmware_sim import link, transport
+from firmware_sim import link
 from firmware_sim.throttle import LOG_EVERY_S
-from hostctl import AuthFailed, Device, HostctlError, Nacked, Role
+from hostctl import AuthFailed, Device, Nacked, Role
 from springtrack import model as _model
 from springtrack import wire
 from springtrack.wire import MsgType, Nack, Notice
@@ -22,30 +21,9 @@ from springtrack.wire import MsgType, Nack, Notice
 from support.fwproc import Firmware, firmware_cmd, hostctl_cmd
 from support.engine import SimEngine
 from support.wait import wait_for
+from support.link import TcpServed
 
 KEY = b"0123456789abcdef0123456789abcdef"
-
-
-class TcpServed:
-    """A link hub serving TCP connections in a background thread; ``lines``: its log."""
-
-    def __init__(self, engine, key=None, **limits):
-        self.engine = engine
-        self.srv = transport.TcpServer("127.0.0.1", 0, key=key)
-        self.url = self.srv.url
-        self.lines: list[str] = []
-        self.hub = link.Hub(engine, key, log=self.lines.append)
-        self.stop = threading.Event()
-        self.thread = threading.Thread(target=self.hub.serve_tcp, args=(self.srv, self.stop),
-                                       kwargs=limits, daemon=True)
-        self.thread.start()
-
-    def close(self):
-        self.stop.set()
-        self.thread.join(5)
-        assert not self.thread.is_alive()
-        self.srv.close()
-        self.engine.close()
 
 
 @pytest.fixture

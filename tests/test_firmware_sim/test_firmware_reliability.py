@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import signal
 import subprocess
-import time
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +20,8 @@ from springtrack.model import grid3x3
 from springtrack.sim.synthetic import blob_stream
 from springtrack.track import CSV_HEADER
 
-from fwproc import firmware_cmd
+from support.fwproc import firmware_cmd
+from support.wait import wait_for
 
 
 def es_with_garbage(path) -> int:
@@ -36,6 +36,7 @@ def es_with_garbage(path) -> int:
     return int((ev["x"] >= small).sum())
 
 
+@pytest.mark.hil
 def test_a_replayed_files_decoder_drops_reach_the_stats_line(tmp_path):
     src = tmp_path / "small.es"
     lost = es_with_garbage(src)
@@ -56,6 +57,7 @@ def test_stream_recorder_refuses_an_unwritable_path_at_once(tmp_path):
         StreamRecorder(tmp_path / "no" / "such" / "dir.csv")
 
 
+@pytest.mark.hil
 def test_firmware_record_is_on_disk_while_it_runs_and_survives_sigkill(tmp_path):
     out = tmp_path / "rec.csv"
     bad = subprocess.run(firmware_cmd("--source", "sim:face_occlusion", "--seconds", "1",
@@ -66,9 +68,8 @@ def test_firmware_record_is_on_disk_while_it_runs_and_survives_sigkill(tmp_path)
                                       "--record", str(out)),
                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        end = time.monotonic() + 60
-        while time.monotonic() < end and (not out.exists() or out.stat().st_size < 20_000):
-            time.sleep(0.1)
+        wait_for(lambda: out.exists() and out.stat().st_size >= 20_000, timeout=60,
+                 what="20 kB of the record on disk", interval=0.1)
         p.send_signal(signal.SIGKILL)
         p.wait(10)
     finally:

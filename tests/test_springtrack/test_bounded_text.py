@@ -8,7 +8,6 @@ from __future__ import annotations
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -20,10 +19,11 @@ from springtrack import params as _params
 from springtrack import toml_bounds
 from springtrack.wire import Nack
 
-from test_sessions import TcpServed
-from test_link_engine import SimEngine
+from support.link import TcpServed
+from support.engine import SimEngine
+from support import REPO
 
-HERE = Path(__file__).resolve().parent
+HERE = REPO / "tests" / "support"
 GOOD = _model.grid3x3().to_toml()
 
 

@@ -10,7 +10,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import numpy as np
@@ -21,8 +20,10 @@ from springtrack.events import EVENT_DTYPE
 from springtrack.io.outputs import INCOMPLETE_MARK
 from springtrack.model import grid3x3
 from springtrack.sim.synthetic import blob_stream
+from support import REPO
+from support.wait import wait_for
 
-HERE = Path(__file__).resolve().parent
+HERE = REPO / "tests" / "support"
 CLI = [sys.executable, "-m", "springtrack.cli"]
 
 
@@ -216,9 +217,8 @@ def test_sigterm_during_track_leaves_a_clearly_marked_csv(tmp_path):
     p = subprocess.Popen(CLI + ["track", str(src), "--model", "grid3x3", "--out", str(out),
                                 "--no-progress", "--sample-us", "100"],
                          stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    end = time.monotonic() + 60
-    while (not out.exists() or out.stat().st_size < 50_000) and time.monotonic() < end:
-        time.sleep(0.05)
+    wait_for(lambda: out.exists() and out.stat().st_size >= 50_000, timeout=60,
+             what="50 kB of the track written", interval=0.05)
     p.send_signal(signal.SIGTERM)
     _, err = p.communicate(timeout=60)
     assert p.returncode == 143, err
@@ -244,8 +244,9 @@ def test_render_model_png_needs_no_imageio(tmp_path, grid_events):
     assert r.returncode == 2 and "needs imageio" in r.stderr and "Traceback" not in r.stderr
 
 
+@pytest.mark.hil
 def test_listen_port_out_of_range_is_a_clear_error():
-    from fwproc import firmware_cmd
+    from support.fwproc import firmware_cmd
     r = subprocess.run(firmware_cmd("--source", "sim:face_occlusion", "--listen", "127.0.0.1:99999"),
                        capture_output=True, text=True, timeout=60)
     assert r.returncode == 2 and "port in 0..65535" in r.stderr and "Traceback" not in r.stderr
