@@ -641,8 +641,7 @@ class LinkServer:
         except wire.WireError as e:
             self._nack(frame, Nack.MALFORMED, str(e))
         except Exception as e:                       # noqa: BLE001 - never crash the firmware
-            self.counts["handler_errors"] += 1
-            self._nack(frame, Nack.INTERNAL, f"{type(e).__name__}: {e}")
+            self._internal(frame, e)
         if self.deferred is not None and self.deferred[0] is frame:
             self.deferred = (frame, key, self.deferred[2])          # answered later
             return
@@ -669,9 +668,16 @@ class LinkServer:
         except UpdateRejected as e:
             self._nack(frame, e.code, str(e))
         except Exception as e:                       # noqa: BLE001 - never crash the firmware
-            self.counts["handler_errors"] += 1
-            self._nack(frame, Nack.INTERNAL, f"{type(e).__name__}: {e}")
+            self._internal(frame, e)
         self._cache(key)
+
+    def _internal(self, frame, e: Exception) -> None:
+        """An exception inside a handler: NACK INTERNAL, counted, and logged (a defect)."""
+        self.counts["handler_errors"] += 1
+        what = f"{type(e).__name__}: {e}"
+        name = MsgType(frame.type).name if frame.type in MsgType._value2member_map_ else frame.type
+        self.hub.log("handler", f"{name} from {self.peer or 'the host'} raised {what[:300]}")
+        self._nack(frame, Nack.INTERNAL, what)
 
     def _reply(self, mtype, payload=b"") -> None:
         raw = self.send(mtype, payload)
