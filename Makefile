@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml setup.py
 	$(PYTHON) -m venv $(VENV)
 	$(PIP) install -q --upgrade pip
 	$(PIP) install -q "setuptools>=64" wheel "cython>=3.0" "numpy>=1.24"
-	$(PIP) install -q --no-build-isolation -e '.[test,plots,sweep,mcu]'
+	$(PIP) install -q --no-build-isolation -e '.[test,plots,sweep,mcu,dv,view]'
 	touch $(STAMP)
 
 build: $(STAMP) $(PYX)

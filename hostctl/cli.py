@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 from springtrack import wire
+from springtrack.view import add_arguments as add_view_arguments
 from springtrack.wire import Role
 
 from .device import Device, HostctlError
@@ -181,7 +182,29 @@ def cmd_ping(dev, args) -> int:
 
 def cmd_monitor(dev, args) -> int:
     from .monitor import monitor
-    return monitor(dev, seconds=args.seconds, smooth=args.smooth, rate=args.rate)
+    view = None
+    if args.view:
+        from springtrack import view as live_view
+        from springtrack.model import load_model
+        view = live_view.open(args.view, load_model(args.model) if args.model else None,
+                              name="hostctl monitor", every_us=args.view_every_us)
+    try:
+        return monitor(dev, seconds=args.seconds, smooth=args.smooth, rate=args.rate, view=view)
+    finally:
+        if view is not None:
+            view.close()
+            print(f"view: {view.frames} frames -> {args.view}", file=sys.stderr)
+
+
+def _monitor_arguments(sp) -> None:
+    _arguments(
+        ("--seconds", dict(type=float, default=None, help="stop after S seconds")),
+        ("--smooth", dict(action="store_true", help="add Kalman-smoothed velocities")),
+        ("--rate", dict(type=float, default=12.0, help="redraws per second (12)")))(sp)
+    add_view_arguments(sp)
+    sp.add_argument("--model", metavar="MODEL",
+                    help="with --view: the device's model (TOML file or preset) to draw its "
+                         "springs and name its instances")
 
 
 # the device states (STATS ``state``) in which it sends no telemetry, and what to do
@@ -280,10 +303,8 @@ VERBS: dict[str, Verb] = {
     "shutdown": Verb("end the firmware program", _simple("shutdown")),
     "ping": Verb("command round-trip times", cmd_ping,
                  _arguments(("-n", dict(type=int, default=10)))),
-    "monitor": Verb("live view of the trackers (12 redraws/s)", cmd_monitor, _arguments(
-        ("--seconds", dict(type=float, default=None, help="stop after S seconds")),
-        ("--smooth", dict(action="store_true", help="add Kalman-smoothed velocities")),
-        ("--rate", dict(type=float, default=12.0, help="redraws per second (12)")))),
+    "monitor": Verb("live view of the trackers (12 redraws/s; --view: in Rerun)", cmd_monitor,
+                    _monitor_arguments),
     "record": Verb("record telemetry to OUT.csv or OUT.npz", cmd_record, _arguments(
         ("out", {}),
         ("--seconds", dict(type=float, default=10.0, help="duration (10)")),

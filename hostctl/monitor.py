@@ -72,7 +72,9 @@ def render(dev, snap, ids, smooth, rates: dict, stats: dict | None = None) -> st
 
 
 def monitor(dev, seconds: float | None = None, smooth: bool = False, rate: float = 12.0,
-            out=None) -> int:
+            out=None, view=None) -> int:
+    """Redraw the terminal view ``rate`` times a second for ``seconds`` (None: until
+    interrupted); every snapshot also goes to ``view`` (a springtrack.view.RerunView)."""
     out = out or sys.stdout
     period = 1.0 / max(rate, 1e-3)
     end = None if seconds is None else time.monotonic() + seconds
@@ -95,6 +97,8 @@ def monitor(dev, seconds: float | None = None, smooth: bool = False, rate: float
                 smoother = Smoother(len(snap.trackers)) if smooth else None
             if smoother is not None:
                 smoother.update(snap.t_us, snap.trackers["x"], snap.trackers["y"])
+            if view is not None:
+                view.telemetry(snap.t_us, snap.trackers, snap.mean_energy)
             last = snap
         now = time.monotonic()
         if now - t_rate >= 0.5:

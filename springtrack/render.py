@@ -19,11 +19,19 @@ ACTIVE = "#1a9850"        # green: active and sensitive
 INACTIVE = "#222222"      # black: sensitive but not active
 INSENSITIVE = "#f46d43"   # orange, dashed: insensitive (eq. 21)
 LOST = "#9e9e9e"          # grey, dotted: the instance is lost (springtrack.acquisition.loss)
+SPRING = "#888888"        # grey line: a spring between two trackers
 ACQUIRED = "#7b3294"      # purple x: where an acquisition placed an instance
 TRUTH = "#ffd92f"
 ON_RGB = np.array([0.85, 0.15, 0.15])
 OFF_RGB = np.array([0.15, 0.35, 0.9])
 BG = 0.96
+# the legend of every picture of a track (these figures, the live view): label, colour
+LEGEND = (("active (2σ)", ACTIVE), ("inactive", INACTIVE), ("insensitive", INSENSITIVE),
+          ("lost", LOST), ("spring", SPRING), ("ON", ON_RGB), ("OFF", OFF_RGB))
+LEGEND_STYLE = {"active (2σ)": {"lw": 2}, "inactive": {"lw": 2},
+                "insensitive": {"lw": 2, "ls": "--"}, "lost": {"lw": 2, "ls": ":"},
+                "spring": {"lw": 1}, "ON": {"marker": "s", "ls": ""},
+                "OFF": {"marker": "s", "ls": ""}}
 
 
 def _mpl():
@@ -45,15 +53,23 @@ def event_image(ev: np.ndarray, width: int, height: int) -> np.ndarray:
 
 
 def ellipse_xy(x, y, sxx, sxy, syy, nsig=2.0, n=40):
-    """Points of the nsig-sigma ellipse of a 2-D Gaussian."""
-    vals, vecs = np.linalg.eigh(np.array([[sxx, sxy], [sxy, syy]]))
+    """Points of the nsig-sigma ellipse of a 2-D Gaussian: (xs, ys), n each."""
+    pts = ellipses_xy([x], [y], [sxx], [sxy], [syy], nsig, n)[0]
+    return pts[:, 0], pts[:, 1]
+
+
+def ellipses_xy(x, y, sxx, sxy, syy, nsig=2.0, n=40) -> np.ndarray:
+    """Points of the nsig-sigma ellipses of K 2-D Gaussians (arrays of K): (K, n, 2)."""
+    cov = np.stack([np.stack([sxx, sxy], -1), np.stack([sxy, syy], -1)], -2)    # (K, 2, 2)
+    vals, vecs = np.linalg.eigh(cov.astype(np.float64))
     a = np.linspace(0, 2 * math.pi, n)
-    circ = np.stack([np.cos(a), np.sin(a)]) * (nsig * np.sqrt(np.maximum(vals, 0)))[:, None]
-    pts = vecs @ circ
-    return x + pts[0], y + pts[1]
+    circ = np.stack([np.cos(a), np.sin(a)])[None] * (nsig * np.sqrt(np.maximum(vals, 0)))[..., None]
+    pts = vecs @ circ                                                            # (K, 2, n)
+    return np.stack([np.asarray(x, np.float64)[:, None] + pts[:, 0],
+                     np.asarray(y, np.float64)[:, None] + pts[:, 1]], -1)
 
 
-def _drawn(models):
+def drawn(models):
     """(width, height, ids, links, instance of each tracker, labels) of a model or a
     ``springtrack.instances.ModelSet``."""
     from .instances import ModelSet
@@ -74,7 +90,7 @@ class OverlayRenderer:
     def __init__(self, model, scale: float = 2.0, title: str = ""):
         plt = _mpl()
         self.plt = plt
-        w, h, self.ids, self.links, self.inst, self.labels = _drawn(model)
+        w, h, self.ids, self.links, self.inst, self.labels = drawn(model)
         self.fig = plt.figure(figsize=(w * scale / 100, (h + 28) * scale / 100), dpi=100)
         self.ax = self.fig.add_axes([0, 0, 1, h / (h + 28)])
         self.ax.set_xlim(-0.5, w - 0.5)
@@ -82,20 +98,15 @@ class OverlayRenderer:
         self.ax.set_axis_off()
         self.img = self.ax.imshow(np.full((h, w, 3), BG), interpolation="nearest")
         self.width, self.height = w, h
-        self.link_lines = [self.ax.plot([], [], "-", color="#888888", lw=0.8)[0] for _ in self.links]
+        self.link_lines = [self.ax.plot([], [], "-", color=SPRING, lw=0.8)[0] for _ in self.links]
         self.ell = [self.ax.plot([], [], "-", lw=1.4)[0] for _ in self.ids]
         self.truth_pts = self.ax.plot([], [], "+", color=TRUTH, ms=7, mew=1.5)[0]
         self.acq_pts = self.ax.plot([], [], "x", color=ACQUIRED, ms=6, mew=1.5)[0]
         self.text = self.fig.text(0.01, 1 - 14 / (h + 28), "", fontsize=9 * scale / 2,
                                   family="monospace", va="center")
         from matplotlib.lines import Line2D
-        handles = [Line2D([], [], color=ACTIVE, lw=2, label="active (2σ)"),
-                   Line2D([], [], color=INACTIVE, lw=2, label="inactive"),
-                   Line2D([], [], color=INSENSITIVE, lw=2, ls="--", label="insensitive"),
-                   Line2D([], [], color=LOST, lw=2, ls=":", label="lost"),
-                   Line2D([], [], color="#888888", lw=1, label="spring"),
-                   Line2D([], [], color=ON_RGB, marker="s", ls="", label="ON"),
-                   Line2D([], [], color=OFF_RGB, marker="s", ls="", label="OFF")]
+        handles = [Line2D([], [], color=colour, label=label, **LEGEND_STYLE[label])
+                   for label, colour in LEGEND]
         self.fig.legend(handles=handles, loc="upper right", ncol=7, fontsize=6.5 * scale / 2,
                         frameon=False, handlelength=1.2, columnspacing=0.8)
         self.title = title

@@ -67,15 +67,17 @@ def _inside(chunks, width: int, height: int, stats: dict):
         yield ev[keep] if not keep.all() else ev
 
 
-def rebased(chunks, stats: dict):
-    """Events re-based to start at 0 (``stats['t_offset_us']``, subtracted) if the first
-    one is at ``REBASE_FROM_US`` or later, else as they are."""
+def rebased(chunks, stats: dict, unit_us: int = 1):
+    """Events re-based to start within ``unit_us`` of 0 (``stats['t_offset_us']``, a
+    multiple of ``unit_us``, subtracted) if the first one is at ``REBASE_FROM_US`` or
+    later, else as they are."""
     offset = None
     for ev in chunks:
         if len(ev) == 0:
             continue
         if offset is None:
-            offset = int(ev["t"][0]) if ev["t"][0] >= REBASE_FROM_US else 0
+            t0 = int(ev["t"][0])
+            offset = t0 - t0 % unit_us if t0 >= REBASE_FROM_US else 0
             stats["t_offset_us"] = offset
         if offset:
             ev = ev.copy()

@@ -14,7 +14,8 @@ BIN_US = 10_000
 # timestamps from here on are taken for Unix-epoch microseconds (AEDAT 4 keeps them so):
 # 10**15 us is 2001-09-09, 4 * 10**15 us is 2096
 EPOCH_US = (10**15, 4 * 10**15)
-WORD_UNIT = {"es": "bytes", "aedat4": "packets"}
+WORD_UNIT = {"es": "bytes", "aedat4": "packets", "dv": "packets", "dv-camera": "packets",
+             "udp": "datagrams"}
 # 10 ms bins kept open for counting: older ones are closed (their count weighed for the
 # peak) once twice as many are open, so memory is constant however long the recording; an
 # event more than BINS_OPEN bins (10 s) back in time starts its bin's count anew

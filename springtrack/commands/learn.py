@@ -24,7 +24,8 @@ exit status: 0 model written, 2 bad input, 3 no object found (noise or too few e
 
 def add_arguments(p):
     p.epilog = EPILOG
-    p.add_argument("input", help="event file (.npy, .csv, .raw, .es, .dat, .aedat4)")
+    p.add_argument("input", help="event file (.npy, .csv, .raw, .es, .dat, .aedat4), or a live "
+                                 "source URL (dv://HOST:PORT, dv:camera, udp://HOST:PORT; docs/live.md)")
     p.add_argument("--out", required=True, help="output model TOML")
     p.add_argument("--trackers", type=int, metavar="N",
                    help="exactly N trackers (default: as many as the learner finds parts)")

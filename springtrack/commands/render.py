@@ -24,7 +24,8 @@ without --model: one picture (.png, .svg, .pdf, ...) of the events of --start-us
 
 def add_arguments(p):
     p.epilog = EPILOG
-    p.add_argument("input", help="event file (any format springtrack reads)")
+    p.add_argument("input", help="event file (any format springtrack reads), or a live "
+                                 "source URL (dv://HOST:PORT, dv:camera, udp://HOST:PORT; docs/live.md)")
     p.add_argument("--model", action="append",
                    help="shape model TOML or preset name (default: events only); repeat it for "
                         "several models, as for track")

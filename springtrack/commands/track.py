@@ -10,6 +10,7 @@ import numpy as np
 from ..io.outputs import text_output
 from ..track import CSV_HEADER
 from ..tracker import profile
+from ..view import add_arguments as add_view_arguments
 from ..watch import TrackWatch
 from . import options
 from .options import read_events, tracker_from_args
@@ -20,6 +21,10 @@ input: .npy structured arrays (fields t, x, y, p), CSV with header t,x,y,p, and 
 camera format springtrack.io reads (EVT 2.0/2.1/3.0 RAW, Event Stream .es, DAT, AEDAT 4);
 - reads an event stream (RAW EVT 2.0/2.1/3.0 with its % header, or .es, .dat, .aedat4) from
 standard input as it arrives, e.g. another stack's live output piped in.
+live sources (docs/live.md): dv://HOST:PORT a DV network event stream, dv:camera[:SERIAL]
+an attached iniVation camera (both: pip install 'springtrack[dv]'), udp://HOST:PORT events
+in aestream's UDP layout (?geometry=WxH, ?timeout=S); the sensor size from the stream; the
+run ends with the stream, and prints its counts (events, batches, gaps) on stderr.
 output CSV header: t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive,state — one row
 per tracker at every multiple of --sample-us between the first and the last event, holding
 the state after all events with t < t_us; a stretch without events is sampled for its first
@@ -46,7 +51,9 @@ went away), 143 SIGTERM (the CSV's last line then says '# INCOMPLETE').
 def add_arguments(p):
     p.epilog = EPILOG
     p.add_argument("input", help="event file (.npy, .csv, .raw, .es, .dat, .aedat4), or - for "
-                                 "an event stream (e.g. RAW) on standard input")
+                                 "an event stream (e.g. RAW) on standard input, or a live source URL "
+                                 "(dv://HOST:PORT, dv:camera[:SERIAL], udp://HOST:PORT; "
+                                 "docs/live.md)")
     p.add_argument("--model", action="append",
                    help="shape model: TOML file or preset name (grid3x3, face26); repeat it "
                         "to track several models at once; or --learn-first-ms")
@@ -67,6 +74,7 @@ def add_arguments(p):
                    help="time the kernel per 10 ms bin of events (paper Figs. 22-23): a CSV "
                         "t_us,events,proc_us or a plot")
     options.add_sensor_from(p)
+    add_view_arguments(p)
     options.add_prep_arguments(p)
 
 
@@ -79,6 +87,7 @@ def open_stream(args):
     without a preparation option), whose counts say what it dropped; and the reader, whose
     ``stats`` say what its decoder dropped."""
     from .. import io as stio
+    from ..live import is_live
     from ..sensor_fit import fit_model
     from ..model import load_model
     if (not args.model) == (args.learn_first_ms is None):
@@ -92,10 +101,10 @@ def open_stream(args):
         width, height = fitted[0].width, fitted[0].height
     else:
         model = None
-        if args.input == "-":                       # one pass over standard input
+        if args.input == "-" or is_live(args.input):     # one pass over a stream
             if not width or not height:
-                raise ValueError("--learn-first-ms on standard input needs a stream whose "
-                                 "header gives the sensor size")
+                raise ValueError("--learn-first-ms on a stream needs one that gives the "
+                                 "sensor size (a header, or udp://...?geometry=WxH)")
         elif not width or not height:               # .npy, .csv: the events' extent
             ev = reader.read()
             width = int(ev["x"].max()) + 1 if len(ev) else 1
@@ -150,6 +159,9 @@ def run(args) -> int:
     if args.sample_us <= 0:
         raise ValueError(f"--sample-us must be a positive number of µs, got {args.sample_us}")
     from ..learning.learner import NoObjectFound
+    if args.view:
+        from ..view import check_target
+        check_target(args.view)
     try:
         model, stream, prep, reader = open_stream(args)
     except NoObjectFound as e:
@@ -158,6 +170,11 @@ def run(args) -> int:
     tr = tracker_from_args(args, model)
     tr.record(args.sample_us)
     watch = TrackWatch(tr.models)
+    view = None
+    if args.view:
+        from .. import view as live_view
+        view = live_view.open(args.view, tr.models, name=f"springtrack track {args.input}",
+                              every_us=args.view_every_us)
     prog = Progress(not args.no_progress)
     start = time.perf_counter()
     n = 0
@@ -170,20 +187,25 @@ def run(args) -> int:
                 continue
             # the rows are written as the kernel takes them: memory bounded by one call's
             # SAMPLE_CAP rows, however many samples a chunk produces
+            if view is not None:
+                view.events(chunk)
             if args.profile:
                 bins.append(profile(tr, chunk, PROFILE_BIN_US,
-                                    sink=lambda rows: _write_rows(rows, tr, watch, out)))
+                                    sink=lambda rows: _write_rows(rows, tr, watch, out, view)))
             else:
                 for part in tr.stream(chunk):
-                    _write_rows(part, tr, watch, out)
+                    _write_rows(part, tr, watch, out, view)
             t_first = int(chunk["t"][0]) if t_first is None else t_first
             t_last = int(chunk["t"][-1])
             n += len(chunk)
             prog.update(n, total, t_last)
         if args.acquire:
             tr.flush()
-            _write_rows(tr.samples(), tr, watch, out)
+            _write_rows(tr.samples(), tr, watch, out, view)
     prog.close()
+    if view is not None:
+        view.close()
+        print(f"view: {view.frames} frames -> {args.view}")
     wall = time.perf_counter() - start
     if args.profile:
         write_profile(args.profile, bins)
@@ -249,12 +271,14 @@ def write_profile(path, bins) -> None:
         f.writelines(f"{a},{b},{c:.3f}\n" for a, b, c in zip(keys.tolist(), ev.tolist(), pu.tolist()))
 
 
-def _write_rows(samples, tr, watch, f):
-    """Samples the tracker took, as CSV rows (the header is already written) and into the
-    end-of-run watch."""
+def _write_rows(samples, tr, watch, f, view=None):
+    """Samples the tracker took, as CSV rows (the header is already written), into the
+    end-of-run watch and the live view."""
     if not len(samples):
         return
     if watch.models is not tr.models:          # placed by the acquisition
         watch.use_models(tr.models)
     watch.add(samples)
     samples.write_rows(f)
+    if view is not None:
+        view.track(samples)
