@@ -13,7 +13,7 @@ import pyarrow as pa
 import pytest
 import rerun.chunk as rrc
 
-from fwproc import Firmware, hostctl_cmd
+from support.fwproc import Firmware, hostctl_cmd
 from support.live_senders import free_port
 from springtrack import io as stio
 from springtrack.render import LEGEND
@@ -108,6 +108,7 @@ def test_a_live_dv_stream_viewed_to_an_rrd_holds_the_track(data_file, tmp_path):
         [12] * len(frames)                          # grid3x3: 12 springs
 
 
+@pytest.mark.hil
 def test_hostctl_monitor_views_a_devices_telemetry(tmp_path):
     fw = Firmware("--source", "sim:face_occlusion", "--seconds", "30", "--pty")
     try:
