@@ -215,6 +215,10 @@ class Device:
     def stats(self) -> dict:
         return self._parts(MsgType.STATS, b"", MsgType.STATS)
 
+    def get_model(self) -> str:
+        """The device's running model (uploaded, learned or its own) as TOML text."""
+        return wire.decode_model_text(self._parts(MsgType.MODEL_GET, b"", MsgType.MODEL_GET))
+
     def start(self) -> None:
         """Start (or, after the source ended, replay) the stream."""
         self.stream_ended = False

@@ -307,8 +307,16 @@ def test_hil_record_without_telemetry_says_why(tmp_path):
                      interval=0.1)
         out = record()
         assert out.returncode != 0 and "Traceback" not in out.stderr
-        assert "the device's source has ended (hostctl start replays it)" in out.stderr, \
-            out.stderr
+        assert "the device's source has ended (`hostctl record --start` replays it" \
+            in out.stderr, out.stderr
         assert not (tmp_path / "r.csv").exists()
+        # the way out it names: the whole 0.3 s replay, from its first sample to its last
+        out = subprocess.run(hostctl_cmd("--port", fw.path, "record", str(tmp_path / "r.csv"),
+                                         "--start", "--seconds", "30"),
+                             capture_output=True, text=True, timeout=60)
+        assert out.returncode == 0, out.stderr
+        t = np.unique(read_csv(tmp_path / "r.csv").t_us)
+        # (a replay goes on from the camera clock's last time)
+        assert t[-1] - t[0] >= 299_000 and np.all(np.diff(t) == 1000), t
     finally:
         fw.close()

@@ -74,3 +74,14 @@ def test_info_evt21_shows_word_order(tmp_path, capsys):
     assert "format    evt21" in out and "geometry  320x320" in out
     assert "endianness: legacy" in out and "events    100 (50 ON)" in out
     assert "Unix-epoch" not in out
+
+
+def test_info_peak_rate_is_never_below_the_mean_on_a_short_recording(data_file):
+    """evt3_sample.raw spans 8.8 ms, less than one 10 ms bin: the peak is the mean, not
+    the count of a bin the recording only partly covers."""
+    f = summarize(data_file("evt3_sample.raw"))
+    assert f["span_us"] < 10_000
+    assert f["peak_rate_ev_s"] >= f["mean_rate_ev_s"] * (1 - 1e-12)
+    g = summarize(data_file("evt2_sample.raw"))      # 50 ms: whole bins from the first event
+    assert g["peak_rate_ev_s"] >= g["mean_rate_ev_s"]
+    assert (g["peak_bin_start_us"] - g["t_first_us"]) % 10_000 == 0
