@@ -35,7 +35,7 @@ demo: build
 	$(VENV)/bin/hostctl demo
 
 test: $(EXTRAS) build qemu
-	$(PY) -m pytest -q tests; rc=$$?; if [ $$rc -eq 5 ]; then echo "no tests ran"; exit 1; fi; exit $$rc
+	SPRINGTRACK_ALL_TESTS=1 $(PY) -m pytest -q tests; rc=$$?; if [ $$rc -eq 5 ]; then echo "no tests ran"; exit 1; fi; exit $$rc
 
 # the firmware image's tests boot it in QEMU (docs/mcu.md): installed when missing, as root
 # (CI); otherwise those tests say how to install it
@@ -48,4 +48,4 @@ bench: build
 	$(PY) benchmarks/kernel.py
 
 clean:
-	rm -rf $(VENV) build springtrack/*.so springtrack/*/*.so firmware_sim/*.so tests/*.so tests/*.c
+	rm -rf $(VENV) build springtrack/*.so springtrack/*/*.so firmware_sim/*.so tests/*.so tests/*.c tests/support/*.so tests/support/*.c

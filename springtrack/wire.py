@@ -840,7 +840,7 @@ def quantise_trackers(trackers) -> np.ndarray:
     The quantisation of docs/protocol.md from the float state; the integer-only kernel packs
     the same layout from its fixed-point state (fixed/csrc/fixed_telemetry.c: its scales are
     checked against these at import, its codes within one of these in
-    tests/test_fixed_telemetry.py)."""
+    tests/test_springtrack/fixed/test_fixed_telemetry.py)."""
     tr = trackers
     bad = [k for k in NUMERIC_FIELDS if not np.all(np.isfinite(np.asarray(tr[k], float)))]
     if bad:

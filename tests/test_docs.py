@@ -2,7 +2,7 @@
 
 Every line starting with `.venv/bin/springtrack` in a fenced block of README.md runs in a
 temporary folder (the tour's own files are made by its first commands). The firmware /
-hostctl lines need a running firmware on a pty; tests/test_hostctl_hil.py runs the same
+hostctl lines need a running firmware on a pty; tests/test_hostctl/test_hostctl_hil.py runs the same
 verbs against a real firmware-sim process.
 """
 import os
@@ -13,8 +13,9 @@ import sys
 from pathlib import Path
 
 import pytest
+from support import REPO
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 BIN = Path(sys.executable).parent
 
 
@@ -43,6 +44,7 @@ def test_readme_has_the_two_setup_commands():
     assert "make demo" in quick and "make test" in quick
 
 
+@pytest.mark.slow
 def test_readme_tour_commands_run(tmp_path, data_file):
     data_dir = data_file("evt3_sample.raw").parent
     cmds = tour_commands()
@@ -101,6 +103,8 @@ def test_experiments_page_commands_run(tmp_path):
     assert "mean_error_pct=" in r.stdout.splitlines()[-1]
 
 
+@pytest.mark.slow
+@pytest.mark.hil
 def test_readme_device_commands_run_against_firmware(tmp_path, data_file):
     """The README's device block against a real firmware-sim process on the real replay it
     names: the hostctl lines in order (each exits 0), and the springtrack lines between
