@@ -2,6 +2,8 @@
 checks that it needs no runtime helper and has no FPU instruction."""
 import re
 
+# symbols a floating-point, 128-bit or 64-bit division need from a runtime (libgcc,
+# compiler-rt, the ARM EABI): none may appear
 RUNTIME = re.compile(r"^__(aeabi_|.*(sf|df|tf|ti|di)[0-9]?$|.*float|.*fix|.*extend|.*trunc)")
 
 
@@ -24,6 +26,3 @@ def text_mnemonics(res):
     else:
         d = cs.Cs(cs.CS_ARCH_RISCV, cs.CS_MODE_RISCV32 | cs.CS_MODE_RISCVC)
     return {m for _, _, m, _ in d.disasm_lite(code, addr)}
-
-
-@pytest.mark.slow

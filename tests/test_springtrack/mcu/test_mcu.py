@@ -35,8 +35,8 @@ from support.elf import RUNTIME, symbols, text_mnemonics  # noqa: E402
 from support.wait import wait_drained
 
 FIELDS = ("t_us", "x", "y", "sxx", "sxy", "syy", "activity", "active", "sensitive", "energy")
-# symbols a floating-point, 128-bit or 64-bit division need from a runtime (libgcc,
-# compiler-rt, the ARM EABI): none may appear
+
+@pytest.mark.slow
 @pytest.mark.parametrize("instances", [1, 2])
 @pytest.mark.parametrize("target", list(TARGETS))
 def test_elf_needs_no_runtime_and_no_fpu(target, instances):
