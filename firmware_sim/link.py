@@ -803,6 +803,11 @@ class LinkServer:
         items = {n: params[n] for n in (names or params)}
         self._reply_parts(MsgType.PARAM_VALUE, f, items)
 
+    def on_model_get(self, f) -> None:
+        if f.payload:
+            raise wire.WireError(f"MODEL_GET: a request has an empty payload, got {len(f.payload)} bytes")
+        self._reply_parts(MsgType.MODEL_GET, f, wire.encode_model_text(self.engine.model_text()))
+
     def on_stats(self, f) -> None:
         if f.payload:
             raise wire.WireError(f"STATS: a request has an empty payload, got {len(f.payload)} bytes")
@@ -852,6 +857,7 @@ HANDLERS = {
     MsgType.PARAM_SET: LinkServer.on_param_set,
     MsgType.PARAM_GET: LinkServer.on_param_get,
     MsgType.STATS: LinkServer.on_stats,
+    MsgType.MODEL_GET: LinkServer.on_model_get,
     MsgType.START: LinkServer.on_simple,
     MsgType.STOP: LinkServer.on_simple,
     MsgType.RESET: LinkServer.on_simple,

@@ -195,6 +195,7 @@ class FirmwareLoop:
             if self.ended:
                 return
             self.stop()
+            self._finish_kernel()
             self.ended = True
         self.supervisor.notice(Notice.STREAM_ENDED, "the source has no more data; the loop is "
                                                     "idle (START replays it)")
@@ -399,11 +400,24 @@ class FirmwareLoop:
         self._apply_pending()
         self.learner.track_rest(sink=self._emit)
 
+    def _finish_kernel(self) -> None:
+        """The source ended (the loop stopped): a kernel that still searches for its model
+        ends its search (``AcquiringKernel.finish``: found, or not found), and the rows that
+        makes go out like the others."""
+        finish = getattr(self.kernel, "finish", None)
+        out = finish() if finish is not None else None
+        if out is not None:
+            self._queue(out)
+
     def _emit(self, out: dict) -> None:
         """One part of the snapshots a feed took (at most the fused loop's capacity in rows):
         checked, recorded, queued for the link.  Processing thread."""
         if self.stop_event.is_set():
             raise Stopping()
+        self._queue(out)
+
+    def _queue(self, out: dict) -> None:
+        """Sample rows checked, recorded and queued for the link."""
         if not self.fused.native_records:       # the fixed kernel's state is integer
             ok = finite_rows(out["trackers"])
             if not ok.all():
@@ -466,6 +480,10 @@ class FirmwareLoop:
                         trackers=list(self.model.ids), running=self.running,
                         learning=self.learner is not None and self.learner.learning,
                         generation=self.generation, telemetry_period_us=self.period)
+
+    def model_text(self) -> str:
+        with self.slot.lock:
+            return self.model.to_toml()
 
     def stats(self) -> dict:
         fc = self.fused.counters()

@@ -54,6 +54,9 @@ class SourceOptions:
                                       # the source's own (replay: the file's format)
     biases: dict = field(default_factory=dict)    # read at every (re)connection
     geometry: tuple[int, int] | None = None     # usb EVT boards: the sensor's width, height
+    # replay: the recording's preparation (springtrack.prep, the options of springtrack
+    # track): (width, height) -> a Preparer, or None to replay the recording as it is
+    prepare: Callable[[int, int], object] | None = None
 
 
 @dataclass

@@ -9,6 +9,10 @@
 * ``--profile NAME`` re-encodes any file for that camera (e.g. ``ccam_atis``, the
   304 x 240 ATIS): events outside its sensor are dropped before encoding, counted, and
   reported at start, in every statistics line (``geometry_drops``) and at the end.
+* The recording-quirk options of ``springtrack track`` (``--start-us``, ``--end-us``,
+  ``--dequantize``, ``--burst-fraction``: ``SourceOptions.prepare``) prepare the events
+  as that command does (springtrack.prep), before the camera: a file of words is then
+  re-encoded in its own format.
 """
 from __future__ import annotations
 
@@ -85,6 +89,16 @@ def rebased(chunks, stats: dict, unit_us: int = 1):
         yield ev
 
 
+def prepared(chunks, prep, stats: dict):
+    """The events of ``chunks`` through a fresh ``springtrack.prep.Preparer`` (as
+    ``springtrack track`` prepares them); its summary in ``stats['prepared']``."""
+    from springtrack.commands.options import prepared as _prepared
+    for ev in _prepared((as_events(c) for c in chunks), prep):
+        stats["prepared"] = prep.stats.summary()
+        yield ev
+    stats["prepared"] = prep.stats.summary()
+
+
 def word_chunks(reader, nbytes: int = READ_BYTES):
     """The file's words as they are, in chunks of ``nbytes`` released packet by packet
     (their event times from the file's own decoder)."""
@@ -148,10 +162,10 @@ def open(target: str, opts: SourceOptions, url: str):
     if not target:
         raise ValueError(f"--source {url!r}: name the file to replay: {USAGE}")
     reader = _reader(target)
-    as_is = opts.profile is None and reader.format in WORD_PROFILES
-    name = (WORD_PROFILES[reader.format] if as_is
-            else opts.profile or REENCODE_PROFILE)
+    as_is = opts.profile is None and reader.format in WORD_PROFILES and opts.prepare is None
+    name = (opts.profile or WORD_PROFILES.get(reader.format) or REENCODE_PROFILE)
     fw, fh, where = _geometry(reader, name)
+    prep = opts.prepare
     prof = profile(name, fw, fh, reader.options.get("legacy") if as_is else None)
     stats: dict = {}
     notes = []
@@ -186,11 +200,12 @@ def open(target: str, opts: SourceOptions, url: str):
         if as_is:
             chunks = word_chunks(rd)
             return chunks if opts.seconds is None else limit_chunk_seconds(chunks, opts.seconds)
-        events = rd if opts.seconds is None else limit_seconds(rd, opts.seconds)
+        events = rd if prep is None else prepared(rd, prep(fw, fh), stats)
+        events = events if opts.seconds is None else limit_seconds(events, opts.seconds)
         return rebased(_inside(events, prof.width, prof.height, stats), stats)
 
     def report() -> list[str]:
-        out = []
+        out = [f"prepared: {stats['prepared']}"] if stats.get("prepared") else []
         bad = file_anomalies()
         if bad and not as_is:           # (as recorded, the camera's decoder counts them)
             out.append(f"replay: warning: decoding {target} ({reader.format}) met "

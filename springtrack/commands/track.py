@@ -235,8 +235,9 @@ def run(args) -> int:
                   f"{args.acquire_ms:g} ms, {acq.events_dropped} events dropped before it")
         if not acq.done:
             what = "the model was" if len(acq.poses) == 1 else "no model instance was"
-            print(f"springtrack track: {what} not found in {args.input}; no track rows "
-                  f"written", file=sys.stderr)
+            print(f"springtrack track: {what} not found in {args.input}; the rows of "
+                  f"{args.out} say where it was searched ('searching', then 'not found')",
+                  file=sys.stderr)
             return 1
         doubtful = [p for p in acq.poses if p is not None and p.doubtful]
         for p in doubtful:
