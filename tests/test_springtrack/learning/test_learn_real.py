@@ -79,7 +79,7 @@ def dot_truth(ev, step_us: int = 200):
 
 
 @pytest.mark.xfail(strict=True, reason="the learner keeps the dot's trail of late ON events "
-                   "as parts of their own (6 parts from 10 ms; docs/learning.md, Limits)")
+                   "as parts of their own (3 parts from 10 ms; docs/learning.md, Limits)")
 def test_dot_learned_from_10_ms_is_one_part_on_its_circle(data_file):
     ev = stio.open(data_file("evt2_sample.raw")).read()
     cx, cy, r = dot_truth(ev)
