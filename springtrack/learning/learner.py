@@ -67,7 +67,9 @@ def learn_model(events, trackers: int | None = None, width: int | None = None,
         raise NoObjectFound(f"no object found: no tracker lived through its grace period of "
                             f"{lp.life_tau_us / 1e3:g} ms in {len(ev):,} events over "
                             f"{(t1 - t0) / 1e3:g} ms ({stats['born']} born, "
-                            f"{stats['died']} died)")
+                            f"{stats['died']} died); try a longer window (--end-us, "
+                            f"--learn-first-ms) or a shorter grace period (--learn-param "
+                            f"life_tau_us=US)")
     rec = history.series(pool.book["uid"][:pool.n], pool.lineage)
     if trackers is None:
         # pieces of parts that no merge joined take a small share of the events, and
