@@ -19,6 +19,7 @@ POINT_SIGMA = 1.05            # a tracker narrower than this sigma_min_px both w
 MASS_RANGE = (0.5, 2.0)       # masses: event share over the median, bounded
 MIN_SAMPLES = 10              # batches a pair must share for a spring
 CONTRAST_MARGIN = 0.05        # contrast_sign: ON-first fraction this far from 1/2 decides
+CONTRAST_MIN_EVENTS = 2       # contrast_sign: pixels with at least this many events
 MIN_EVENTS = 2000             # a learning window with fewer events holds no object
 TIME_FIELDS = ("batch_us", "activity_tau_us", "life_tau_us", "smooth_us")
 MIN_BATCH_US = 20             # the shortest lifecycle step a scaled window gets
