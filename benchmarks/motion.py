@@ -1,8 +1,8 @@
 """The motion model (eqs. M1-M8, docs/algorithm.md "Motion and both edges") measured:
 
-* the real dot of evt2_sample.raw (truth: tests/dot_truth.py): a one-tracker model placed
+* the real dot of evt2_sample.raw (truth: tests/support/dot_truth.py): a one-tracker model placed
   on the dot, and found by --acquire, with the motion model off (the paper) and on;
-* fast disks on the simulated sensor with edge latency (tests/fast_parts.py), dark and
+* fast disks on the simulated sensor with edge latency (tests/support/fast_parts.py), dark and
   bright, 1,000-30,000 px/s: the median error and the highest speed tracked within 2 px;
 * the paper's scenes (springtrack.sim.scenes, seed 0, their default length) tracked by
   their preset models placed where they start, scored as ``springtrack score`` does: the
@@ -33,8 +33,8 @@ from springtrack.sim.scenes import make_scene             # noqa: E402
 from springtrack.sim.sensor import simulate_all           # noqa: E402
 
 from _report import machine, write_section                # noqa: E402
-from dot_truth import dot_truth, track_errors             # noqa: E402
-from fast_parts import errors, fast_disk                  # noqa: E402
+from support.dot_truth import dot_truth, track_errors             # noqa: E402
+from support.fast_parts import errors, fast_disk                  # noqa: E402
 
 MOTION = dict(motion_tau_us=1000.0, polarity_gain=1.0)
 OFF = dict(motion_tau_us=0.0, polarity_gain=0.0)

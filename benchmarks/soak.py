@@ -2,7 +2,7 @@
 answerable, send nothing non-finite, and stay under a memory ceiling.  The summary
 replaces the "Soak" section of docs/benchmarks.md.
 
-    .venv/bin/python benchmarks/soak.py [--minutes 10] [--seed 1] [--memory-mb 512]
+    .venv/bin/python benchmarks/soak.py [--minutes 10 | --hours H] [--seed 1] [--memory-mb 512]
                                         [--no-write]
 
 The firmware: ``firmware-sim run --source sim:face_occlusion --seconds 30 --realtime
@@ -415,8 +415,10 @@ def report(soak: Soak, r: dict, ceiling: float) -> tuple[str, bool]:
     ok = ok_finite and ok_answer and ok_mem and r["exit"] == 0 and not soak.problems
     g = st.get
     lines = [
-        f"Machine: {machine()}.  Command: `.venv/bin/python benchmarks/soak.py --minutes "
-        f"{soak.args.minutes:g} --seed {soak.args.seed} --memory-mb {ceiling:g}"
+        f"Machine: {machine()}.  Command: `.venv/bin/python benchmarks/soak.py "
+        + (f"--hours {soak.args.hours:g}" if soak.args.hours is not None
+           else f"--minutes {soak.args.minutes:g}")
+        + f" --seed {soak.args.seed} --memory-mb {ceiling:g}"
         f"{'' if soak.args.traffic == ','.join(TRAFFIC) else ' --traffic ' + soak.args.traffic}` "
         f"({time.strftime('%Y-%m-%d')}), {r['wall'] / 60:.1f} min wall; firmware `{soak.cmd}`. "
         f"Load average at start {r['load0']}, at end {r['load1']} (a shared 2-core machine: "

@@ -24,6 +24,7 @@ import time
 
 from springtrack import wire
 from springtrack.wire import Fault
+from springtrack.commands import options
 from springtrack.commands.options import add_acquire_window, add_backend_argument
 
 from . import faults as _faults
@@ -71,7 +72,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="learn the model from the stream's first MS ms of event time "
                         "(springtrack learn; docs/learning.md), then track with it from "
                         "where the window ends; --params are written into the learned model")
-    r.add_argument("--params", help="TOML file of parameter overrides")
+    r.add_argument("--params", help="TOML file of parameter overrides (its [learn] table: "
+                                    "the learner's, with --learn-first-ms)")
+    options.add_learn_arguments(r)
     r.add_argument("--sensor-from", choices=["source", "file", "model"],
                    help="a model whose [sensor] is not the camera's is refused; 'source' "
                         "(or 'file', as in springtrack track): use it on the camera's sensor "
@@ -92,7 +95,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--faults", default="", help="comma-separated fault names to inject")
     r.add_argument("--seconds", type=float,
                    help="duration in seconds (default: the scene's / file's)")
-    r.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
+    r.add_argument("--seed", type=int, default=0,
+                   help="simulation seed, and of --dequantize's order (default 0)")
     r.add_argument("--telemetry-us", type=int, default=1000, metavar="US",
                    help="telemetry / record period in µs of event time (default 1000)")
     r.add_argument("--record", metavar="OUT.csv", help="write every snapshot as a track CSV")
@@ -113,6 +117,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--wait-start", action="store_true",
                    help="with a host link: open the camera only when the host sends START "
                         "(e.g. after uploading a model), instead of at once")
+    options.add_prep_arguments(r, seed=False)
     return p
 
 
@@ -150,7 +155,19 @@ def open_source(args, biases: dict) -> _sources.CameraSource:
     return _sources.open_source(args.source, _sources.SourceOptions(
         seconds=args.seconds, seed=args.seed, realtime=not args.max_speed, faults=args.faults,
         serial=args.serial, profile=args.profile, biases=biases,
-        geometry=parse_ints(args.geometry, 2, "x", "--geometry")))
+        geometry=parse_ints(args.geometry, 2, "x", "--geometry"), prepare=_prepare(args)))
+
+
+def _prepare(args):
+    """The replay's preparation from the recording-quirk options (springtrack track's), or
+    None; refused for a source that is not a recording."""
+    if not options.wanted(args):
+        return None
+    if not args.source.startswith("replay:"):
+        raise ValueError(f"--start-us, --end-us, --dequantize and --burst-fraction prepare a "
+                         f"recording: use them with --source replay:FILE, not {args.source}")
+    options.preparer(args, 1, 1)       # its errors now, naming the values
+    return lambda w, h: options.preparer(args, w, h)
 
 
 def default_model(args, source: _sources.CameraSource):
@@ -285,7 +302,7 @@ def _run(args) -> int:
                           source_counters=source.counters, sensor_from=args.sensor_from,
                           supervisor=Supervisor(), rewind=source.rewind,
                           acquire=_acquire(args), learn_first_ms=args.learn_first_ms,
-                          learn_params=learn_params(args))
+                          learn_params=learn_params(args), learner=learner_params(args))
     throttle = Throttle()             # the program's own log lines
     stop = threading.Event()          # ends the link
     quit_now = threading.Event()      # a host sent SHUTDOWN
@@ -315,6 +332,7 @@ def _run(args) -> int:
                     quiet += 1
                     if quiet >= 3:
                         if link is None:
+                            engine.end_of_stream()      # a search still running ends
                             break
                         quiet = 0
                         _end_of_stream(engine, source)
@@ -388,6 +406,17 @@ def learn_params(args) -> dict | None:
     return read_params(args.params)
 
 
+def learner_params(args) -> dict | None:
+    """With --learn-first-ms: the learner's parameters (--params [learn], --learn-param)."""
+    if args.learn_first_ms is None:
+        if args.learn_param:
+            raise ValueError("--learn-param needs --learn-first-ms (the device learns nothing "
+                             "without it)")
+        return None
+    from springtrack.commands.options import learn_params as read
+    return read(args)
+
+
 def _say_learned(engine, window_ms: float | None = None) -> bool:
     """Print what the learner found once it has (stderr); True once said.  With
     ``window_ms`` (the run ends) a learner still learning says so: nothing was tracked."""
@@ -435,7 +464,8 @@ def _acquire(args):
     if not args.acquire:
         return None
     from springtrack.commands.options import acquire_bounds
-    return {"acquire_ms": args.acquire_ms, "bounds": acquire_bounds(args)}
+    return {"acquire_ms": args.acquire_ms, "bounds": acquire_bounds(args),
+            "budget_ms": args.acquire_budget_ms}
 
 
 def main(argv=None) -> int:

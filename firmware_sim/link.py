@@ -641,8 +641,7 @@ class LinkServer:
         except wire.WireError as e:
             self._nack(frame, Nack.MALFORMED, str(e))
         except Exception as e:                       # noqa: BLE001 - never crash the firmware
-            self.counts["handler_errors"] += 1
-            self._nack(frame, Nack.INTERNAL, f"{type(e).__name__}: {e}")
+            self._internal(frame, e)
         if self.deferred is not None and self.deferred[0] is frame:
             self.deferred = (frame, key, self.deferred[2])          # answered later
             return
@@ -669,9 +668,16 @@ class LinkServer:
         except UpdateRejected as e:
             self._nack(frame, e.code, str(e))
         except Exception as e:                       # noqa: BLE001 - never crash the firmware
-            self.counts["handler_errors"] += 1
-            self._nack(frame, Nack.INTERNAL, f"{type(e).__name__}: {e}")
+            self._internal(frame, e)
         self._cache(key)
+
+    def _internal(self, frame, e: Exception) -> None:
+        """An exception inside a handler: NACK INTERNAL, counted, and logged (a defect)."""
+        self.counts["handler_errors"] += 1
+        what = f"{type(e).__name__}: {e}"
+        name = MsgType(frame.type).name if frame.type in MsgType._value2member_map_ else frame.type
+        self.hub.log("handler", f"{name} from {self.peer or 'the host'} raised {what[:300]}")
+        self._nack(frame, Nack.INTERNAL, what)
 
     def _reply(self, mtype, payload=b"") -> None:
         raw = self.send(mtype, payload)
@@ -797,6 +803,11 @@ class LinkServer:
         items = {n: params[n] for n in (names or params)}
         self._reply_parts(MsgType.PARAM_VALUE, f, items)
 
+    def on_model_get(self, f) -> None:
+        if f.payload:
+            raise wire.WireError(f"MODEL_GET: a request has an empty payload, got {len(f.payload)} bytes")
+        self._reply_parts(MsgType.MODEL_GET, f, wire.encode_model_text(self.engine.model_text()))
+
     def on_stats(self, f) -> None:
         if f.payload:
             raise wire.WireError(f"STATS: a request has an empty payload, got {len(f.payload)} bytes")
@@ -846,6 +857,7 @@ HANDLERS = {
     MsgType.PARAM_SET: LinkServer.on_param_set,
     MsgType.PARAM_GET: LinkServer.on_param_get,
     MsgType.STATS: LinkServer.on_stats,
+    MsgType.MODEL_GET: LinkServer.on_model_get,
     MsgType.START: LinkServer.on_simple,
     MsgType.STOP: LinkServer.on_simple,
     MsgType.RESET: LinkServer.on_simple,

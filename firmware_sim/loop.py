@@ -79,7 +79,8 @@ class FirmwareLoop:
     before the camera (``events_in``, ``outside_sensor``), reported in the statistics.
     ``learn_first_ms``: learn the model from the stream's first milliseconds instead
     (``model`` only holds the slot until then and tracks nothing; ``learn_params``: tracking
-    parameters written into the learned model, as ``springtrack learn --params``)."""
+    parameters written into the learned model, as ``springtrack learn --params``;
+    ``learner``: the learner's parameter overrides, as ``--learn-param``)."""
 
     def __init__(self, open_camera, model="face26", params=None, telemetry_period_us: int = 1000,
                  nbuf: int = 64, piece_bytes: int = 16384, telemetry_queue: int = 4096,
@@ -89,7 +90,7 @@ class FirmwareLoop:
                  backend: str = "cython", roi=None, source_counters=None, sensor_from=None,
                  supervisor: Supervisor | None = None, rewind=None,
                  acquire: dict | None = None, learn_first_ms: float | None = None,
-                 learn_params: dict | None = None):
+                 learn_params: dict | None = None, learner: dict | None = None):
         """``rewind()``: called by the START that follows :meth:`end_of_stream`, to serve
         the source again from its beginning (None: START after the end resumes reading)."""
         if telemetry_period_us <= 0:
@@ -107,7 +108,7 @@ class FirmwareLoop:
                 raise ValueError("--roi and --learn-first-ms cannot be combined")
             self.fused = self.learner = LearningFeed(
                 self.slot.kernel, telemetry_period_us, self.profile, learn_first_ms,
-                self.width, self.height, learn_params)
+                self.width, self.height, learn_params, learner)
         elif not backend.startswith("mcu") and acquire is None:
             self.fused = Fused(self.slot.kernel, telemetry_period_us, 512, fmt=self.profile.fmt,
                                width=self.width, height=self.height,
@@ -195,6 +196,7 @@ class FirmwareLoop:
             if self.ended:
                 return
             self.stop()
+            self._finish_kernel()
             self.ended = True
         self.supervisor.notice(Notice.STREAM_ENDED, "the source has no more data; the loop is "
                                                     "idle (START replays it)")
@@ -399,11 +401,24 @@ class FirmwareLoop:
         self._apply_pending()
         self.learner.track_rest(sink=self._emit)
 
+    def _finish_kernel(self) -> None:
+        """The source ended (the loop stopped): a kernel that still searches for its model
+        ends its search (``AcquiringKernel.finish``: found, or not found), and the rows that
+        makes go out like the others."""
+        finish = getattr(self.kernel, "finish", None)
+        out = finish() if finish is not None else None
+        if out is not None:
+            self._queue(out)
+
     def _emit(self, out: dict) -> None:
         """One part of the snapshots a feed took (at most the fused loop's capacity in rows):
         checked, recorded, queued for the link.  Processing thread."""
         if self.stop_event.is_set():
             raise Stopping()
+        self._queue(out)
+
+    def _queue(self, out: dict) -> None:
+        """Sample rows checked, recorded and queued for the link."""
         if not self.fused.native_records:       # the fixed kernel's state is integer
             ok = finite_rows(out["trackers"])
             if not ok.all():
@@ -466,6 +481,10 @@ class FirmwareLoop:
                         trackers=list(self.model.ids), running=self.running,
                         learning=self.learner is not None and self.learner.learning,
                         generation=self.generation, telemetry_period_us=self.period)
+
+    def model_text(self) -> str:
+        with self.slot.lock:
+            return self.model.to_toml()
 
     def stats(self) -> dict:
         fc = self.fused.counters()

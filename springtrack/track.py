@@ -43,8 +43,8 @@ _VELOCITY = ("vx", "vy")
 _CSV_NO_VELOCITY = tuple(h for h in CSV_HEADER if h not in _VELOCITY)
 _FLAGS_AT = 2 + len(FLOAT_FIELDS)           # CSV column of the first flag
 _STATE_AT = _FLAGS_AT + len(BOOL_FIELDS)    # CSV column of the state
-# the instance states' names in the CSV, by code (instances.STATE_NAMES)
-STATE_NAMES = ("searching", "tracking", "lost")
+# the instance states' names in the CSV, by code (instances.InstanceState)
+STATE_NAMES = ("searching", "tracking", "lost", "not found")
 TRACKING_CODE = STATE_NAMES.index("tracking")
 
 

@@ -93,6 +93,9 @@ KAPPA = 0.5              # support: excess >= KAPPA b + Z sqrt(b) + N_MIN over t
 Z = 3.0                  # count b in the gate: a contrast, a significance (Poisson standard
 N_MIN = 3.0              # deviations) and a floor (events)
 FOUND_FRACTION = 0.5     # of the in-view trackers supported
+CONFIDENT = 0.7          # a find below this confidence is doubtful
+BOUND_TOL = 0.01         # a pose this close to a search bound (relative scale, or
+                         # this fraction of the angle range) ended at the bound
 MIN_IN_VIEW = 0.5        # of all trackers in view
 FLAT2 = 4.0              # tracker weight 1 within d^2 <= 4 (2 sigma), then tapering
 GATE2 = 9.0              # linearly in d^2 to 0 at the gate d^2 = 9 (3 sigma)
@@ -132,9 +135,15 @@ class Pose:
     supported: int = 0         # trackers supported
     in_view: int = 0           # trackers whose placed mean is inside the sensor
     events: int = 0            # events of the window inside the sensor
+    doubt: str = ""            # why a find is doubtful (see :func:`with_doubt`), or ""
+
+    @property
+    def doubtful(self) -> bool:
+        return self.found and bool(self.doubt)
 
     def __str__(self) -> str:
-        verdict = "found" if self.found else "NOT found"
+        verdict = ("found" if not self.doubtful else f"found, DOUBTFUL ({self.doubt})") \
+            if self.found else "NOT found"
         return (f"{verdict}: tx={self.tx:.1f} ty={self.ty:.1f} angle={self.angle_deg:.1f} deg "
                 f"scale={self.scale:.3f} confidence={self.confidence:.2f} "
                 f"({self.supported}/{self.in_view} trackers supported, score {self.score:.2f}, "
@@ -515,7 +524,7 @@ def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DE
     kept = sorted(start, key=lambda p: p.score, reverse=True)[:KEEP]
     final = [_better(p, ev.judge(*ev.refine(_params(p), 0.0, lo, hi, MAX_ITER), n_ev))
              for p in kept]
-    best = max(final, key=lambda p: p.score)
+    best = with_doubt(max(final, key=lambda p: p.score), angles, scales)
     if at_us is None:
         return best
     evs = as_events(events)
@@ -536,7 +545,32 @@ def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DE
         if 0 < f <= 1:
             q = np.clip(q + (q - mid) * f, lo, hi)
     tx, ty, th, s = (float(v) for v in q)
-    return replace(best, tx=tx, ty=ty, angle_deg=math.degrees(th), scale=s)
+    return with_doubt(replace(best, tx=tx, ty=ty, angle_deg=math.degrees(th), scale=s,
+                              doubt=""), angles, scales)
+
+
+def with_doubt(pose: Pose, angles, scales) -> Pose:
+    """``pose`` with its ``doubt`` said when it was found but the search ended at one of
+    its bounds (the object may lie beyond it: another scale or turn than searched) or
+    its confidence is below CONFIDENT (fewer than 70 % of the in-view trackers
+    supported: part of the model, or another object, may have been matched)."""
+    if not pose.found:
+        return pose
+    why = []
+    for lo_hi, v, name in ((scales, pose.scale, "scale"),):
+        for b in lo_hi:
+            if abs(v - b) <= BOUND_TOL * b:
+                why.append(f"{name} {v:.3f} at the search bound {b:g}")
+    span = angles[1] - angles[0]
+    if span < 2 * math.pi - 1e-9:
+        a = math.radians(pose.angle_deg)
+        for b in angles:
+            if abs(a - b) <= BOUND_TOL * span:
+                why.append(f"angle {pose.angle_deg:.1f} deg at the search bound "
+                           f"{math.degrees(b):g}")
+    if pose.confidence < CONFIDENT:
+        why.append(f"confidence {pose.confidence:.2f} < {CONFIDENT}")
+    return replace(pose, doubt="; ".join(why)) if why else pose
 
 
 def _params(pose: Pose) -> tuple:
@@ -586,19 +620,32 @@ class Acquisition:
     buffered event (the window and what followed it) for the tracker to process from the
     window's start; :attr:`poses` are the poses found (one per instance; ``found`` False
     for one not found), :attr:`pose` the first instance's.  :attr:`attempts` counts the
-    windows tried, :attr:`events_dropped` the events that slid out of the window unfound.
+    windows tried, :attr:`events_dropped` the events that slid out of the window unfound
+    (their times wait in :meth:`take_dropped`, for the caller's rows of the search).
+
+    ``budget_us``: the search budget in µs of event time from the first event; once a
+    window ending past it is tried in vain, or at :meth:`finish`, the search is
+    :attr:`exhausted` (the instances are *not found*): later events are dropped unsearched.
+    None: search until the input ends.
     """
 
-    def __init__(self, models, window_us: int = 50_000, **bounds):
+    def __init__(self, models, window_us: int = 50_000, budget_us: int | None = None,
+                 **bounds):
         window_us = int(window_us)
         if window_us <= 0:
             raise ValueError(f"acquisition window must be a positive number of µs, got {window_us}")
+        if budget_us is not None and int(budget_us) <= 0:
+            raise ValueError(f"acquisition budget must be a positive number of µs, got {budget_us}")
         self.models = models if isinstance(models, ModelSet) else ModelSet(models)
         self.window_us, self.bounds = window_us, bounds
+        self.budget_us = None if budget_us is None else int(budget_us)
         self.poses: list = [None] * len(self.models)
         self.attempts = 0
         self.events_dropped = 0
+        self.exhausted = False          # the budget is spent (or the input ended) unfound
+        self._first_t: int | None = None
         self._buf: list[np.ndarray] = []
+        self._dropped: list[np.ndarray] = []     # times of the events let go, not yet taken
 
     @property
     def model(self) -> ShapeModel:
@@ -615,8 +662,14 @@ class Acquisition:
     def feed(self, events):
         """Add events (in time order); the buffered events once an instance is found."""
         ev = as_events(events)
-        if len(ev):
-            self._buf.append(ev)
+        if not len(ev):
+            return None
+        if self.exhausted:
+            self._drop(ev["t"])
+            return None
+        if self._first_t is None:
+            self._first_t = int(ev["t"][0])
+        self._buf.append(ev)
         # the buffer is joined only when it spans a window (cheap for chunks of any size)
         while self._buf and int(self._buf[-1]["t"][-1]) - int(self._buf[0]["t"][0]) \
                 >= self.window_us:
@@ -625,21 +678,45 @@ class Acquisition:
             found = self._try(buf[:int(np.searchsorted(buf["t"], t0 + self.window_us))])
             if found is not None:
                 return found
+            if self.budget_us is not None and \
+                    t0 + self.window_us - self._first_t >= self.budget_us:
+                self.exhausted = True
+                self._drop(buf["t"])
+                self._buf = []
+                break
             cut = max(int(np.searchsorted(buf["t"], t0 + self.window_us // 2)), 1)
-            self.events_dropped += cut
+            self._drop(buf["t"][:cut])
             self._buf = [buf[cut:]] if cut < len(buf) else []
         return None
+
+    def _drop(self, t) -> None:
+        """Let events go unfound (their times kept for :meth:`take_dropped`)."""
+        self.events_dropped += len(t)
+        self._dropped.append(np.array(t, np.int64))
+
+    @property
+    def first_kept_t(self) -> int | None:
+        """The time of the first event still buffered, None when none is."""
+        return int(self._buf[0]["t"][0]) if self._buf else None
+
+    def take_dropped(self) -> np.ndarray:
+        """The times of the events let go since the last call (int64, in order)."""
+        out = np.concatenate(self._dropped) if self._dropped else np.empty(0, np.int64)
+        self._dropped = []
+        return out
 
     def finish(self):
         """End of input: try once on what is buffered (shorter than a window); the
         buffered events if found, else ``None`` (they are counted as dropped)."""
         if not self._buf:
+            self.exhausted = not self.done
             return None
         buf = self._joined()
         found = self._try(buf)
         if found is None:
-            self.events_dropped += len(buf)
+            self._drop(buf["t"])
             self._buf = []
+            self.exhausted = True
         return found
 
     def _joined(self):

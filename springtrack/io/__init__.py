@@ -20,7 +20,11 @@ from .writers import WRITE_FORMATS, encode_file, write
 def open(path, format: str | None = None, keep_exposure: bool = False) -> Reader:
     """Open an event file of any supported format (detected by content); ``"-"``: the event
     stream on standard input, and a named pipe or character device: the stream it delivers
-    (springtrack.io.stream)."""
+    (springtrack.io.stream); a live source URL (``dv://HOST:PORT``, ``udp://HOST:PORT``,
+    springtrack.live): that stream, connected."""
+    from .. import live
+    if live.is_live(path):
+        return live.open(path)
     if isinstance(path, str) and path == "-":
         return open_stream(format=format)
     if is_stream(path):              # a named pipe or a device: read once, as a stream

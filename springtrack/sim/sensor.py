@@ -258,15 +258,18 @@ class Sensor:
         return ev[np.argsort(ev["t"], kind="stable")]
 
 
-def truth_between(scene: Scene, t0_us: int, t1_us: int) -> np.ndarray:
-    """Ground truth at every multiple of TRUTH_PERIOD_US in [t0_us, t1_us)."""
+def truth_between(scene: Scene, t0_us: int, t1_us: int, shown=None) -> np.ndarray:
+    """Ground truth at every multiple of TRUTH_PERIOD_US in [t0_us, t1_us); ``shown``, if
+    given, maps those times (us array) to the scene times (s) whose pose is seen then."""
     first = -(-t0_us // TRUTH_PERIOD_US) * TRUTH_PERIOD_US
     times = np.arange(first, t1_us, TRUTH_PERIOD_US, dtype=np.int64)
     k = len(scene.part_ids)
     out = np.empty(len(times) * k, TRUTH_DTYPE)
     if not len(times):
         return out
-    xy = np.stack([scene.truth(t * 1e-6) for t in times])      # (T, K, 2)
+    seen = times * 1e-6 if shown is None else shown(times)
+    cache = {}
+    xy = np.stack([cache.setdefault(t, scene.truth(t)) for t in seen.tolist()])  # (T, K, 2)
     out["t"] = np.repeat(times, k)
     out["part"] = np.tile(np.array(scene.part_ids), len(times))
     out["x"] = xy[:, :, 0].ravel()
