@@ -12,6 +12,7 @@ import springtrack
 import springtrack.io
 from springtrack.model import ShapeModel, TrackerSpec
 from springtrack.sim.synthetic import blob_stream
+from springtrack.commands.track import DOUBTFUL_EXIT
 from springtrack.track import read_csv
 
 from support.dot_truth import dot_truth, track_errors
@@ -61,8 +62,10 @@ def _track(path, model, tmp_path, capsys, *extra):
     from springtrack.cli import main
     out = tmp_path / "track.csv"
     rc = main(["track", str(path), "--model", str(model), "--out", str(out), *extra])
-    capsys.readouterr()
-    assert rc == 0
+    err = capsys.readouterr().err
+    # a one-tracker model's scale is not seen in its events: --acquire reports its find at
+    # the scale bound as doubtful (exit 4) and tracks on
+    assert rc == 0 or ("--acquire" in extra and rc == DOUBTFUL_EXIT and "doubtful" in err), rc
     return read_csv(out)
 
 
