@@ -19,12 +19,12 @@ NEW = dict(x=np.array([40.5, 250.25, 160.0]), y=np.array([30.0, 200.75, 120.5]),
            syy=np.array([12.0, 16.0, 25.0]))
 
 
-def run_relocated(backend: str, n: int = 20000):
+def run_relocated(backend: str, n: int = 20000, **params):
     """(state just before, state just after the relocation, track after, tracker)."""
     f = face26(width=W, height=H)
     ev, _ = blob_stream(f, n, seed=4)
     half = len(ev) // 2
-    tr = springtrack.Tracker(f, {"spring_period": 5}, backend=backend)
+    tr = springtrack.Tracker(f, {"spring_period": 5, **params}, backend=backend)
     tr.run(ev[:half], 1000)
     t = int(ev["t"][half - 1])
     before = tr.state(t)
@@ -44,9 +44,19 @@ def test_relocate_moves_only_the_trackers_named_and_keeps_the_others_activities(
     assert before["activity"][others].min() > 0                  # not blanked
 
 
-@pytest.mark.parametrize("backend", ["cython"])
-def test_relocate_in_the_float_kernel_equals_the_reference(backend):
-    (b0, b1, b2, tb), (r0, r1, r2, tr) = run_relocated(backend), run_relocated("reference")
+def test_a_relocated_trackers_motion_starts_again_and_the_others_keep_theirs():
+    before, after, _, _ = run_relocated("reference", motion_tau_us=20_000.0)
+    others = np.setdiff1d(np.arange(26), IDX)
+    assert np.all(after["vx"][IDX] == 0.0) and np.all(after["vy"][IDX] == 0.0)
+    assert np.any(before["vx"][IDX] != 0.0)
+    np.testing.assert_array_equal(after["vx"][others], before["vx"][others])
+
+
+@pytest.mark.parametrize("params", [{}, {"motion_tau_us": 20_000.0}])
+def test_relocate_in_the_float_kernel_equals_the_reference(params):
+    """With the motion model too: a relocated tracker's motion starts again as placed."""
+    (b0, b1, b2, tb), (r0, r1, r2, tr) = (run_relocated(b, **params)
+                                          for b in ("cython", "reference"))
     for fld in FIELDS:
         np.testing.assert_allclose(b1[fld], r1[fld], rtol=0, atol=1e-9, err_msg=fld)
         np.testing.assert_allclose(getattr(b2, fld), getattr(r2, fld), rtol=0, atol=1e-9,
