@@ -104,6 +104,20 @@ def test_fast_disks_with_edge_latency_are_followed_within_2_px(dark, speed):
     assert abs(np.median(along) - speed) < 0.1 * speed
 
 
+@pytest.mark.parametrize("dark", [True, False], ids=["dark", "bright"])
+def test_a_fast_disk_found_by_acquire_is_never_lost(dark):
+    """--acquire on a disk circling at 13,000 px/s: with the motion model its tracker's
+    prediction keeps it on the disk, so the loss rule (activity, springtrack.acquisition.loss)
+    never fires nor doubts it, and it stays within 2 px (the paper's tracker, also never
+    lost, lags by 2.5-4.5 px)."""
+    ev, scene, model = fast_disk(13_000, dark, seconds=0.5)
+    tr = springtrack.Tracker(model, MOTION, acquire=True)
+    e = errors(scene, tr.run(ev, sample_us=200))[5:]
+    c = tr.recovery.counters()
+    assert (c["acquired"], c["lost"], c["verifications"], c["moved"]) == (1, 0, 0, 0), c
+    assert np.mean(e <= 2.0) >= 0.95, np.median(e)
+
+
 def test_the_paper_tracker_lags_a_bright_disk_the_motion_model_does_not():
     ev, scene, model = fast_disk(5000, dark=False)
     paper = np.median(errors(scene, springtrack.Tracker(model).run(ev, sample_us=200))[5:])
