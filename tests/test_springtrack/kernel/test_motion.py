@@ -18,7 +18,7 @@ from springtrack.track import read_csv
 from support.dot_truth import dot_model_toml, dot_truth, track_errors
 from support.fast_parts import errors, fast_disk
 
-# the motion model on (the parameters docs/algorithm.md, "Motion and both edges", names)
+# the motion model on (the parameters docs/motion.md names)
 MOTION = dict(motion_tau_us=1000.0, polarity_gain=1.0)
 MOTION_TOML = "[params]\n" + "".join(f"{k} = {v!r}\n" for k, v in MOTION.items())
 DOT_SPEED = 12_950.0          # px/s, the truth's radius times its rate
