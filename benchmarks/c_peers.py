@@ -38,7 +38,7 @@ from springtrack.sim.sensor import simulate_all  # noqa: E402
 from springtrack.sim.synthetic import blob_stream  # noqa: E402
 
 # the AVX2 peer is compiled with -mavx2: run only where the processor has AVX2
-PEERS = ("plain", "avx2") if "avx2" in cpu_info()[2] else ("plain",)
+PEERS = ("plain", "simd") if "avx2" in cpu_info()[2] else ("plain",)
 
 
 def packed(ev) -> np.ndarray:
@@ -101,7 +101,7 @@ def main():
             rows.append((label, k, len(ev), best, med, ours[0] / best, ours[1] / med))
             print(f"{label:30s} {k:32s} {best / 1e6:7.2f} M ev/s best, {med / 1e6:7.2f} median",
                   flush=True)
-        vec = rate.get("C peer: avx2", (np.nan, np.nan))
+        vec = rate.get("C peer: simd", (np.nan, np.nan))
         verdict.append((label, ours[0] / rate["C peer: plain"][0], ours[0] / vec[0],
                         ours[1] / rate["C peer: plain"][1], ours[1] / vec[1]))
     load1 = os.getloadavg()
@@ -115,7 +115,7 @@ def main():
                       f"{rm:.2f} |" for lab, k, n, b, m, rb, rm in rows)
     worst_plain = min(min(v[1], v[3]) for v in verdict)
     worst_avx2 = min(min(v[2], v[4]) for v in verdict)
-    cc = " ".join(compile_command("avx2", Path("avx2.so")))
+    cc = " ".join(compile_command("simd", Path("simd.so")))
     cc = cc.replace(str(Path(__file__).resolve().parent) + "/", "benchmarks/")
     body = f"""
 Command: `.venv/bin/python benchmarks/c_peers.py --events {args.events} --repeat {args.repeat}`

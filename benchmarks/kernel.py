@@ -11,7 +11,7 @@ A third stream is the simulator's face_occlusion scene (springtrack.sim.sensor),
 demo and the firmware track: most of its events fall on the face, so far more are assigned.
 
 Contenders: springtrack's float (cython) and fixed-point kernels through
-``Tracker.process``, and the C peers of benchmarks/ctrackers (plain C; AVX2 where the
+``Tracker.process``, and the C peers of benchmarks/ctrackers (plain C; SIMD where the
 processor has it) on the same events packed as expelliarmus holds them, each with
 pull_frame = cartesian_frame = similarity (the default) and = image (the paper's rule):
 the difference is what the similarity frame's fit costs, per event and per spring update.
@@ -55,7 +55,7 @@ def contenders(preset: str, ev) -> dict:
     backends = ["cython"]
     if importlib.util.find_spec("springtrack.fixed.kernel") is not None:
         backends.append("fixed")
-    peers = ["C plain"] + (["C avx2"] if "avx2" in cpu_info()[2] else [])
+    peers = ["C plain"] + (["C simd"] if "avx2" in cpu_info()[2] else [])
     packed = np.empty(len(ev), PACKED)
     for f in ("t", "x", "y", "p"):
         packed[f] = ev[f]
@@ -164,7 +164,7 @@ def main():
         "and in wall-clock time (the machine is shared: wall time includes other jobs), "
         "all contenders of a stream alternating run by run. "
         "Contenders: the float (`cython`) and fixed-point (`fixed`) kernels, and the "
-        "hand-written C peers of `benchmarks/ctrackers` (`C plain`, `C avx2`: see "
+        "hand-written C peers of `benchmarks/ctrackers` (`C plain`, `C simd`: see "
         "\"Tracker against hand-written C\") on the same events packed as expelliarmus "
         "holds them, each in both frames of eq. (22) and the Cartesian springs "
         "(`pull_frame = cartesian_frame`: `similarity`, the default, or `image`, the "
