@@ -33,7 +33,9 @@ def add_arguments(p):
                    help="tracker ids, comma-separated, in reading order (default p00, p01, ...)")
     p.add_argument("--name", help="model name (default: the input file's stem)")
     p.add_argument("--params", help="TOML file of tracking parameters to write into the "
-                                    "model instead of the learned ones (see docs/algorithm.md)")
+                                    "model instead of the learned ones (see docs/algorithm.md); "
+                                    "its [learn] table sets the learner's parameters")
+    options.add_learn_arguments(p)
     p.add_argument("--png", metavar="PICTURE.png",
                    help="draw the learned model over the last --png-window-us of events")
     p.add_argument("--png-window-us", type=int, default=20_000, metavar="US",
@@ -50,6 +52,7 @@ def run(args) -> int:
         raise ValueError(f"--trackers must be in [1, {MAX_PARTS}] (one kernel instance holds at "
                          f"most {MAX_PARTS} trackers), got {args.trackers}")
     track_params = read_params(args.params) if args.params else None   # its errors first
+    learner = options.learn_params(args)
     src = read_input(args.input)
     raw, width, height = src.events, src.width, src.height
     prep = options.preparer(args, width, height, always=True)
@@ -61,7 +64,7 @@ def run(args) -> int:
     try:
         res = learn_model(events, trackers=args.trackers, width=width, height=height,
                           names=names, name=args.name or Path(args.input).stem,
-                          track_params=track_params)
+                          params=learner, track_params=track_params)
     except NoObjectFound as e:
         print(f"springtrack learn: {e}", file=sys.stderr)
         return NoObjectFound.exit_code
@@ -134,10 +137,12 @@ def notes(res) -> list:
 
 
 def learn_first(source, ms: float, width: int, height: int, name: str = "learned",
-                params=None):
+                params=None, learner: dict | None = None):
     """Learn a model from the first ``ms`` milliseconds of a stream of (chunk, total)
     pairs; returns the model and the stream of the events after that window (the
-    tracking starts where the learning ended).  Prints what was learned to stderr."""
+    tracking starts where the learning ended).  ``params``: a --params TOML path
+    (tracking parameters written into the model); ``learner``: the learner's parameter
+    overrides (:func:`options.learn_params`).  Prints what was learned to stderr."""
     from ..learning.learner import NoObjectFound, learn_model
     if not ms > 0:
         raise ValueError(f"--learn-first-ms must be positive, got {ms}")
@@ -160,7 +165,7 @@ def learn_first(source, ms: float, width: int, height: int, name: str = "learned
         raise ValueError(f"--learn-first-ms {ms:g}: the stream holds {span}, nothing is left "
                          f"to track after the learning window; give a shorter window")
     try:
-        res = learn_model(events, width=width, height=height, name=name,
+        res = learn_model(events, width=width, height=height, name=name, params=learner,
                           track_params=read_params(params) if params else None)
     except NoObjectFound as e:
         raise NoObjectFound(f"--learn-first-ms {ms:g} ({len(events):,} events): {e}") from None

@@ -64,7 +64,9 @@ def add_arguments(p):
     p.add_argument("--learn-first-ms", type=float, metavar="MS",
                    help="learn the model from the stream's first MS ms (springtrack learn), "
                         "then track the rest with it")
-    p.add_argument("--params", help="TOML file of parameter overrides (see docs/algorithm.md)")
+    p.add_argument("--params", help="TOML file of parameter overrides (see docs/algorithm.md); "
+                                    "with --learn-first-ms its [learn] table sets the learner's")
+    options.add_learn_arguments(p)
     options.add_backend_argument(p)
     p.add_argument("--mcu-target", default="cortex-m4", metavar="CORE",
                    help="with --backend mcu: cortex-m4 (default), cortex-m7 or rv32imac")
@@ -120,7 +122,8 @@ def open_stream(args):
     if model is None:
         from .learn import learn_first
         model, source = learn_first(source, args.learn_first_ms, width, height,
-                                    name=Path(args.input).stem, params=args.params)
+                                    name=Path(args.input).stem, params=args.params,
+                                    learner=options.learn_params(args))
     return model, source, prep, reader
 
 

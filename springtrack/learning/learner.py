@@ -67,7 +67,9 @@ def learn_model(events, trackers: int | None = None, width: int | None = None,
         raise NoObjectFound(f"no object found: no tracker lived through its grace period of "
                             f"{lp.life_tau_us / 1e3:g} ms in {len(ev):,} events over "
                             f"{(t1 - t0) / 1e3:g} ms ({stats['born']} born, "
-                            f"{stats['died']} died)")
+                            f"{stats['died']} died); try a longer window (--end-us, "
+                            f"--learn-first-ms) or a shorter grace period (--learn-param "
+                            f"life_tau_us=US)")
     rec = history.series(pool.book["uid"][:pool.n], pool.lineage)
     if trackers is None:
         # pieces of parts that no merge joined take a small share of the events, and
@@ -174,7 +176,7 @@ def similarity_fit(z: np.ndarray, ref: np.ndarray, w: np.ndarray):
 
 
 def steady_positions(rec: dict, x_end: np.ndarray, y_end: np.ndarray, size_px: float,
-               rounds: int = 3):
+               rounds: int = 3, gate: float = 1.0):
     """The final positions (x, y) (N,), each tracker caught off its part at the window's
     end put back where the object's shape over the window places it.
 
@@ -190,7 +192,10 @@ def steady_positions(rec: dict, x_end: np.ndarray, y_end: np.ndarray, size_px: f
     there, and a tracker farther than ``size_px`` (a part's size) from its place takes
     it; the others keep their final positions (where the parts are: a perspective view
     is not a similarity).  When most samples are no similarity of one shape (the median
-    d over ``size_px``: a 3-D turn, a deforming object), the final positions stay.
+    d over ``gate`` x ``size_px``, the reach of a tracker's gate, eq. (2): a 3-D turn, a
+    deforming object), the final positions stay.  (A part seen through its edges -- its
+    leading and trailing edges fire apart, its trackers slide along them as the motion
+    turns -- stays within that reach; a turn in depth does not.)
 
     Returns (x, y, one_shape): one_shape False when the object's shape itself changed."""
     X, Y = rec["x"], rec["y"]
@@ -209,7 +214,7 @@ def steady_positions(rec: dict, x_end: np.ndarray, y_end: np.ndarray, size_px: f
         inv = np.where(ok, 1.0 / np.where(ok, a, 1.0), 0.0)
         est = rbar[:, None] + (z - zbar[:, None]) * inv[:, None]              # (T, N)
         d2 = (w0 * np.abs(est - shape[None, :]) ** 2).sum(axis=1) / ws
-        if np.median(d2[ok]) > size_px ** 2:
+        if np.median(d2[ok]) > (gate * size_px) ** 2:
             return x_end, y_end, False    # not one shape: the one at the end
         w = w0 * (ok * np.exp(-0.5 * d2 / size_px ** 2))[:, None]
         tot = w.sum(axis=0)
@@ -296,7 +301,8 @@ def _build_model(pool, rec, counts, lp, track_params, width, height, names, name
     n = pool.n
     st = pool.st
     sig = np.sqrt(0.5 * (st[F["sxx"], :n] + st[F["syy"], :n]))
-    x, y, one_shape = steady_positions(rec, pool.x.copy(), pool.y.copy(), float(np.median(sig)))
+    x, y, one_shape = steady_positions(rec, pool.x.copy(), pool.y.copy(), float(np.median(sig)),
+                                       gate=math.sqrt(lp.gate_d2))
     order = reading_order(x, y, float(np.median(sig)))
     if names is not None:
         names = list(names)
