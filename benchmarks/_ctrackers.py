@@ -27,10 +27,11 @@ from springtrack.gate import covariance_bias
 
 HERE = Path(__file__).resolve().parent
 SRC = HERE / "ctrackers"
-# kind: (source, -march); "simd-avx2" is the SIMD peer's AVX2 build (for machines without
-# AVX-512, and for the test that both builds track alike)
+# kind: (source, -march); the -avx2 kinds are the builds for AVX2 (x86-64-v3), where the
+# processor or valgrind (benchmarks/_counts.py) has no AVX-512, and for the test that
+# both builds track alike
 PEERS = {"plain": ("plain.c", "native"), "simd": ("simd.c", "native"),
-         "simd-avx2": ("simd.c", "x86-64-v3")}
+         "plain-avx2": ("plain.c", "x86-64-v3"), "simd-avx2": ("simd.c", "x86-64-v3")}
 # the packed record of expelliarmus / tonic / numpy files (peer.h PeerEvent)
 PACKED = np.dtype([("t", "<i8"), ("x", "<i2"), ("y", "<i2"), ("p", "u1")])
 
@@ -141,13 +142,14 @@ class CTracker:
         return self.lib.peer_isa().decode()
 
 
-def agreement(kind: str, preset: str, events: np.ndarray, sample_us: int = 1000) -> dict:
-    """How closely the peer tracks like springtrack's float64 kernel on ``events`` (PACKED):
+def agreement(kind: str, model, params, events: np.ndarray, sample_us: int = 1000) -> dict:
+    """How closely the peer tracks like springtrack's float64 kernel on ``events`` (PACKED),
+    both on ``model`` (a preset name or ShapeModel) with ``params`` (None: the defaults):
     both sampled every ``sample_us`` (the state after all events with t < the sample time),
     the largest differences over all samples and trackers: positions (px), covariances
     relative to their size, activities relative; and whether the counters agree."""
     import springtrack
-    ref = springtrack.Tracker(preset)
+    ref = springtrack.Tracker(model, params)
     track = ref.run(events, sample_us=sample_us)
     peer = CTracker(kind, ref.model, ref.params)
     cuts = np.searchsorted(events["t"], track.t_us, side="left")

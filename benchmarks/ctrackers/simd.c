@@ -21,7 +21,7 @@ static inline int scan(const Peer *s, uint64_t cand, double fx, double fy, doubl
     const __m512i eight = _mm512_set1_epi64(8);
     if (!cand)                              /* decided by the cell's mask alone */
         return -1;
-    int nb = ((63 - __builtin_clzll(cand)) >> 3) + 1;       /* up to the last candidate */
+    int nb = (s->n + 7) >> 3;
     for (int b = 0; b < nb; b++) {
         __mmask8 km = (__mmask8)(cand >> (8 * b));
         __m512d dx = _mm512_sub_pd(X, _mm512_load_pd(s->mx + 8 * b));
