@@ -57,6 +57,11 @@ class _OneInstance:
         ``model`` its model moved by the same similarity."""
         self.tr._b.move(sim, model)
 
+    def relocate(self, g, idx, x, y, sxx, sxy, syy):
+        """Instance g's trackers ``idx`` put elsewhere, the others kept
+        (springtrack.reference.ReferenceTracker.relocate)."""
+        self.tr._b.relocate(idx, x, y, sxx, sxy, syy)
+
     def snapshot(self, t):
         snap = self.tr._b.snapshot(t)
         snap["state"] = np.full(len(snap["x"]), TRACKING, np.uint8)
