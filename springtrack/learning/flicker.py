@@ -3,7 +3,8 @@ light fire at 100 or 120 Hz, so a still scene gives events -- and a learner part
 nothing moving (``springtrack learn`` says so; the model's ``[learned]`` table keeps it).
 
 The event rate in 1 ms bins, its power spectrum, and the share of the power (above 5 Hz)
-within a few Hz of the first three harmonics of 100 Hz and of 120 Hz: the larger share,
+within a few Hz of the first three harmonics of 100 Hz and of 120 Hz, over the window's
+first second: the larger share,
 when the window is long enough to tell (``MIN_SPAN_US``), is the flicker's."""
 from __future__ import annotations
 
@@ -12,6 +13,9 @@ import numpy as np
 MAINS_HZ = (100.0, 120.0)     # twice the mains frequency: what a lamp's light does
 HARMONICS = 3
 MIN_SPAN_US = 100_000         # shorter windows cannot tell 100 Hz from a motion's own rhythm
+MAX_SPAN_US = 1_000_000       # the rate is looked at over the window's first second at most
+                              # (flicker is steady; the memory stays 1000 bins whatever the
+                              # window's span, pauses included)
 FLICKER_SHARE = 0.5           # at least this share of the rate's power: flicker
 
 
@@ -20,6 +24,7 @@ def mains_flicker(t_us: np.ndarray) -> tuple[float, float]:
     the events' times ``t_us`` (sorted); (0, 0) for a window shorter than MIN_SPAN_US."""
     if len(t_us) < 2 or int(t_us[-1]) - int(t_us[0]) < MIN_SPAN_US:
         return 0.0, 0.0
+    t_us = t_us[:int(np.searchsorted(t_us, t_us[0] + MAX_SPAN_US))]
     bins = ((t_us - t_us[0]) // 1000).astype(np.int64)
     rate = np.bincount(bins).astype(float)
     rate -= rate.mean()

@@ -27,3 +27,10 @@ def test_a_steady_rate_or_another_rhythm_is_no_flicker():
 def test_a_short_window_cannot_tell():
     assert mains_flicker(pulsed(100.0, seconds=0.05)) == (0.0, 0.0)
     assert mains_flicker(np.zeros(0, np.int64)) == (0.0, 0.0)
+
+
+def test_memory_is_bounded_by_a_second_of_bins_not_the_span():
+    """A 28-hour pause after a flickering second: the same answer as the second alone."""
+    t = pulsed(100.0, seconds=1.2)
+    paused = np.concatenate([t, t[-1] + 28 * 3600 * 1_000_000 + t])
+    assert mains_flicker(paused) == mains_flicker(t[t < t[0] + 1_000_000])
