@@ -214,7 +214,9 @@ class Tracker:
             yield from self._track(ev)
             return
         if self._reads_as_is(events):
-            check_events(events)
+            from .backends.stepper import in_range
+            if not in_range(events):       # one pass; else field by field, naming the first
+                check_events(events)
         else:
             events = as_events(events)
         yield from self._track(events)
