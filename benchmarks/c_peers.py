@@ -183,6 +183,20 @@ def main():
                          time.perf_counter() - t_start))
 
 
+def reading(counts) -> str:
+    """One sentence per counted stream: the float kernel's counts beside the plain peer's."""
+    out = []
+    for label in COUNT_STREAMS:
+        f, p = counts.get((label, FLOAT)), counts.get((label, "C peer: plain"))
+        if not (f and p):
+            continue
+        out.append(f"{label}: the float kernel runs {f['Ir'] / p['Ir']:.2f}x the plain peer's "
+                   f"instructions, with {(f['D1mr'] + f['D1mw']) / max(p['D1mr'] + p['D1mw'], 1e-9):.1f}x "
+                   f"its L1 data misses and {(f['Bcm'] + f['Bim']) / max(p['Bcm'] + p['Bim'], 1e-9):.2f}x "
+                   f"its branch mispredictions.")
+    return ("\n" + "  ".join(out) + "\n") if out else ""
+
+
 def report(args, checks, rows, counts, perf_why, cg_why, load0, load1, seconds) -> str:
     def ratio(rate, k, peer, i):
         return rate[k][i] / rate[peer][i] if peer in rate else float("nan")
@@ -213,7 +227,7 @@ def report(args, checks, rows, counts, perf_why, cg_why, load0, load1, seconds) 
             f"| {lab} | {name} | {c['Ir']:.0f} | {c['D1mr'] + c['D1mw']:.2f} | "
             f"{c['DLmr'] + c['DLmw']:.3f} | {c['Bcm'] + c['Bim']:.2f} |"
             for (lab, name), c in counts.items())
-        where = f"""`perf stat`: {perf_why or 'available'}.  Instead: callgrind
+        where = f"""{perf_why or '`perf stat` is available but not used here'}.  Instead: callgrind
 (`benchmarks/_counts.py`: valgrind's instruction counts, its simulated caches and branch
 predictor) around the `process` call of each contender, on the first {args.count:,} events of
 each stream; valgrind has no AVX-512, so the kernels run their AVX2 clones and the peers their
@@ -222,10 +236,10 @@ AVX2 builds (`-march=x86-64-v3`).  Per event:
 | stream | contender | instructions | L1 data misses | last-level misses | branch mispredictions |
 |---|---|---:|---:|---:|---:|
 {count_rows}
-"""
+{reading(counts)}"""
     else:
-        where = (f"`perf stat`: {perf_why or 'available'}; callgrind: {cg_why}.  Where the "
-                 f"time goes is not measured in this run.")
+        where = (f"{perf_why or '`perf stat` is available but not used here'}; callgrind: "
+                 f"{cg_why}.  Where the time goes is not measured in this run.")
     return f"""
 Command: `.venv/bin/python benchmarks/c_peers.py --events {args.events} --sim-seconds {args.sim_seconds:g} --repeat {args.repeat}`
 ({datetime.date.today().isoformat()}, {seconds / 60:.0f} min)
