@@ -313,6 +313,9 @@ class ReferenceTracker:
 
     def _update(self, i: int, t: int, fx: float, fy: float, d2: float, pol: int) -> None:
         p = math.exp(-0.5 * d2)                                     # eq. (2), unnormalised
+        # eq. (M1): the mean predicted to t from the tracker's last event before this one,
+        # up to H after it: the mean eq. (2) gated the event about
+        lead = self.predict_dt(i, t)
         if self.tau_m > 0.0:
             gain, kv = self._kalman(i, t)                            # eq. (M3)
         else:
@@ -320,8 +323,7 @@ class ReferenceTracker:
         # eq. (6): activity decays exponentially since this tracker's last event
         self.act[i] = self.act[i] * math.exp(-(t - self.tlast[i]) / self.tau) + p
         self.tlast[i] = t
-        lead = self.predict_dt(i, t)                                 # eq. (M1): the mean
-        px = self.mx[i] + self.vx[i] * lead                          # predicted to t
+        px = self.mx[i] + self.vx[i] * lead                          # eq. (M1)
         py = self.my[i] + self.vy[i] * lead
         self.tm[i] = t
         dx = fx - px                                                 # eq. (5): offset from the

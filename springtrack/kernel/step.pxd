@@ -59,10 +59,10 @@ cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double f
         s.mx[i] = s.mx[i] + a1 * dx                                  # eq. (3)
         s.my[i] = s.my[i] + a1 * dy
     else:
-        a1 = motion_gain(s, i, t, gain[0], &kv)                      # eq. (M3)
         lead = predict_dt(s, i, t)                                   # eq. (M1): the mean
-        px = s.mx[i] + s.vx[i] * lead                                # predicted to t
-        py = s.my[i] + s.vy[i] * lead
+        a1 = motion_gain(s, i, t, gain[0], &kv)                      # eq. (M3)
+        px = s.mx[i] + s.vx[i] * lead                                # predicted to t, as
+        py = s.my[i] + s.vy[i] * lead                                # eq. (2) gated it
         s.tm[i] = t
         dx = fx - px                                                 # eq. (5), pre-update
         dy = fy - py                                                 # (predicted) mean

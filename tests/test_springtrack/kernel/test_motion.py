@@ -118,6 +118,34 @@ def test_a_fast_disk_found_by_acquire_is_never_lost(dark):
     assert np.mean(e <= 2.0) >= 0.95, np.median(e)
 
 
+@pytest.mark.parametrize("backend", ["reference", "cython"])
+def test_after_a_gap_the_update_predicts_no_further_than_the_gate(backend):
+    """eq. (M1): an event after its tracker was silent for longer than H is weighed about
+    the mean carried at most H along the velocity -- the mean eq. (2) gated it about --
+    not across the whole gap (a 100 Hz screen's bursts, 10 ms apart, read as motion would
+    otherwise carry a disc's tracker 10 ms along a velocity it does not have: lost)."""
+    from springtrack.events import EVENT_DTYPE
+    m = ShapeModel("one", 400, 100, [TrackerSpec("a", 50.0, 50.0, (9.0, 0.0, 9.0))], [])
+    rng = np.random.default_rng(1)
+    t = np.arange(0, 20_000, 10)                                   # 100 kev/s for 20 ms
+    ev = np.zeros(len(t) + 1, EVENT_DTYPE)
+    ev["t"][:-1] = t
+    ev["x"][:-1] = np.rint(50 + 0.002 * t + rng.normal(0, 2, len(t)))    # 2,000 px/s
+    ev["y"][:-1] = np.rint(50 + rng.normal(0, 2, len(t)))
+    tr = springtrack.Tracker(m, MOTION, backend=backend)
+    tr.process(ev[:-1])
+    before = tr.state(int(t[-1]))
+    horizon = springtrack.Tracker(m).params.prediction_horizon_us
+    at_gate = float(before["x"][0]) + float(before["vx"][0]) * 1e-6 * horizon
+    ev["t"][-1] = t[-1] + 10_000                                   # silent for 10 ms
+    ev["x"][-1] = round(at_gate)
+    ev["y"][-1] = 50
+    tr.process(ev[-1:])
+    after = tr.state(int(ev["t"][-1]))
+    assert 1500 < before["vx"][0] < 2500
+    assert abs(after["x"][0] - at_gate) < 1.0, (after["x"][0], at_gate)
+
+
 def test_the_paper_tracker_lags_a_bright_disk_the_motion_model_does_not():
     ev, scene, model = fast_disk(5000, dark=False)
     paper = np.median(errors(scene, springtrack.Tracker(model).run(ev, sample_us=200))[5:])
