@@ -27,9 +27,14 @@ Interpretation choices (docs/algorithm.md explains them):
 * ``pull_frame`` / ``cartesian_frame`` = "similarity": once per spring update, after the
   spring step, the similarity (scale s, rotation R, translation) that best maps the rest
   shape onto the trackers is fitted (mass-weighted Procrustes, ``fit_frame``) over the
-  trackers no over-threshold connection touches; eq. (22) then pulls toward
-  ``G + s R dG0``, and the Cartesian springs of the next update hold the rest offset
-  ``s R d0``.
+  trackers no over-threshold connection touches, then refitted without the trackers that
+  disagree with it (squared distance to where the frame puts them over ``s`` times the fit
+  set's mass-weighted mean: eq. (21)'s test on the frame's residuals, up to
+  ``FRAME_REFITS`` times): a part pulled away, occluded or sliding moves neither the
+  frame nor, through it, the others.  Eq. (22) pulls such a disagreeing tracker as it
+  pulls one at an over-threshold connection (eq. 21's sensitivity stays the
+  connections' verdict), toward ``G + s R dG0``; the Cartesian springs of the next
+  update hold the rest offset ``s R d0``.
 * Several model instances (springtrack.instances): their trackers side by side; eq. (2)'s
   argmin runs over the union of the sensitive trackers (ties: lowest index, the first
   instance); springs, eq. (13)'s mean energy, eqs. (21)-(22), the centre of mass and the
@@ -60,6 +65,12 @@ TWO_PI = 2.0 * math.pi
 FRAME_SCALE_MIN = 0.25
 FRAME_SCALE_MAX = 4.0
 FRAME_MIN_SPREAD = 2.0 ** -20
+# Refits of the frame without its disagreeing trackers (fit_frame): two find a pulled part
+# and then a second one the first fit hid.
+FRAME_REFITS = 2
+# A residual no larger than FRAME_AGREE_PX2 (px^2: 1/4 px) always agrees: below it the
+# residuals are the means' rounding and jitter, not a part that left its place.
+FRAME_AGREE_PX2 = 2.0 ** -4
 
 # Result codes of step(): >= 0 is the index of the tracker that took the event.
 NO_TRACKER = -1          # valid event, no sensitive tracker within its gate
@@ -284,26 +295,59 @@ class ReferenceTracker:
         self.ic[i] = sxx * inv_det
 
     # ---- springs and energy criteria (every spring_period events) ------------
-    def fit_frame(self, calm: list, g: int = 0) -> None:
-        """The similarity x -> G + s R (x - G0) that best maps instance g's rest shape onto
-        its current means, in the mass-weighted least-squares sense (Procrustes, closed
-        form).
+    def fit_frame(self, calm: list, g: int = 0) -> list:
+        """Instance g's similarity frame (``_fit_similarity``) fitted to the trackers that
+        agree with the structure; returns those that disagree.
 
         Fit set F: the trackers ``calm`` marks (indexed like all trackers) -- at a spring
         update, those no connection over the energy threshold touches (eqs. 21-22 leave
-        them alone), so that trackers an occluder drags do not drag the frame.  With fewer
-        than 2 trackers in F the fit uses all of the instance's trackers.  With rest
-        offsets p_i = dG0_i - pbar and current offsets q_i = mu_i - qbar about F's weighted
-        centroids pbar (rest, relative to G0) and qbar (current):
-            a = sum m p.q,  b = sum m p x q,  D = sum m |p|^2,  s R = [[a, -b], [b, a]] / D
-        and G = qbar - s R pbar, the image of the rest centre of mass G0.  D below
-        FRAME_MIN_SPREAD times sum m (all of F's rest points together) gives s R = I; the
-        scale sqrt(a^2 + b^2) / D is held to [FRAME_SCALE_MIN, FRAME_SCALE_MAX]."""
-        mass, mx, my = self.mass, self.mx, self.my
+        them alone) -- or all of the instance's trackers if fewer than 2.  Then, up to
+        FRAME_REFITS times: each tracker's squared residual r_i^2 = |mu_i - (G + s R dG0_i)|^2,
+        and eq. (21)'s test with the criteria's scale s on them: a tracker with
+        r_i^2 > s sum_F m r^2 / sum_F m and r_i^2 > FRAME_AGREE_PX2 disagrees; if some do
+        and at least 2 trackers are
+        left, F loses them and the frame is refitted.  With s at or above the instance's
+        connection count no connection is ever over the threshold and no tracker is
+        tested (as the criteria, which never act then).  Returns the trackers F lost, in
+        index order."""
         mine = range(self.t0[g], self.t1[g])
         fit = [i for i in mine if calm[i]]
         if len(fit) < 2:
-            fit = mine
+            fit = list(mine)
+        self._fit_similarity(fit, g)
+        lost = []
+        if not self.escale[g] < self.c1[g] - self.c0[g]:
+            return lost
+        for _ in range(FRAME_REFITS):
+            c, sn, gx, gy = self.fc[g], self.fs[g], self.fgx[g], self.fgy[g]
+            r2 = {}
+            w = total = 0.0
+            for i in fit:
+                ex = self.mx[i] - (gx + (c * self.gdx0[i] - sn * self.gdy0[i]))   # mu - (G + s R dG0)
+                ey = self.my[i] - (gy + (sn * self.gdx0[i] + c * self.gdy0[i]))
+                r2[i] = ex * ex + ey * ey
+                w += self.mass[i]
+                total += self.mass[i] * r2[i]
+            thr = max(self.escale[g] * (total / w), FRAME_AGREE_PX2)  # eq. (21)'s test on r^2
+            keep = [i for i in fit if not r2[i] > thr]
+            if len(keep) == len(fit) or len(keep) < 2:
+                break
+            lost += [i for i in fit if r2[i] > thr]
+            fit = keep
+            self._fit_similarity(fit, g)
+        return sorted(lost)
+
+    def _fit_similarity(self, fit: list, g: int) -> None:
+        """The similarity x -> G + s R (x - G0) that best maps the rest shape of the
+        trackers ``fit`` (at least 2 of instance g's) onto their current means, in the
+        mass-weighted least-squares sense (Procrustes, closed form).  With rest offsets
+        p_i = dG0_i - pbar and current offsets q_i = mu_i - qbar about the set's weighted
+        centroids pbar (rest, relative to G0) and qbar (current):
+            a = sum m p.q,  b = sum m p x q,  D = sum m |p|^2,  s R = [[a, -b], [b, a]] / D
+        and G = qbar - s R pbar, the image of the rest centre of mass G0.  D below
+        FRAME_MIN_SPREAD times sum m (all of the set's rest points together) gives s R = I;
+        the scale sqrt(a^2 + b^2) / D is held to [FRAME_SCALE_MIN, FRAME_SCALE_MAX]."""
+        mass, mx, my = self.mass, self.mx, self.my
         w = px = py = qx = qy = 0.0
         for i in fit:                                                # weighted centroids
             m = mass[i]
@@ -458,15 +502,17 @@ class ReferenceTracker:
                 over_count[self.ca[k]] += 1
                 over_count[self.cb[k]] += 1
         a_en = self.egain[g]
+        disagree = set()
         if self.pull_sim[g] or self.car_sim[g]:
-            # the frame, fitted to the trackers this update leaves alone; the Cartesian
-            # springs use it at the next update (this one's energies decided who is calm)
-            self.fit_frame({i: c == 0 for i, c in over_count.items()}, g)
+            # the frame, fitted to the trackers this update leaves alone and that agree
+            # with it (eq. 22 pulls those that do not); the Cartesian springs use it at
+            # the next update (this one's energies decided who is calm)
+            disagree = set(self.fit_frame({i: c == 0 for i, c in over_count.items()}, g))
         if self.pull_sim[g]:
             # eq. (22) in the fitted frame: pull toward G + s R dG0 (fit_frame)
             fc, fs, fgx, fgy = self.fc[g], self.fs[g], self.fgx[g], self.fgy[g]
             for i in range(t0, t1):
-                if over_count[i] > 0:
+                if over_count[i] > 0 or i in disagree:
                     tx = fgx + (fc * self.gdx0[i] - fs * self.gdy0[i])
                     ty = fgy + (fs * self.gdx0[i] + fc * self.gdy0[i])
                     self.mx[i] = self.mx[i] + a_en * (tx - self.mx[i])
@@ -484,7 +530,7 @@ class ReferenceTracker:
             gx = gx / msum
             gy = gy / msum
             for i in range(t0, t1):
-                if over_count[i] > 0:
+                if over_count[i] > 0 or i in disagree:
                     self.mx[i] = self.mx[i] + a_en * (gx + self.gdx0[i] - self.mx[i])
                     self.my[i] = self.my[i] + a_en * (gy + self.gdy0[i] - self.my[i])
         for i in range(t0, t1):

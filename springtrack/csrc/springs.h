@@ -17,6 +17,8 @@
  *                           as bit masks (no branch)
  *   st_fit_frame            the similarity frame of eq. (22) and eqs. (18)-(20): the
  *                           mass-weighted Procrustes fit of the rest shape to the means
+ *   st_frame_disagree       the trackers of a fit set that disagree with its frame
+ *                           (eq. 21's test on the frame's residuals)
  *   st_turn_offsets         eq. (18)'s rest offsets in that frame, s R d0
  *   st_pull                 eq. (22): the pull of the former toward G + s R dG0
  *   st_boxes_left           which trackers' gate boxes left their indexed boxes
@@ -89,6 +91,7 @@ ST_CLONES static void st_pull(int n, uint64_t pulled, double gx, double gy, doub
 #define ST_FRAME_SCALE_MIN 0.25
 #define ST_FRAME_SCALE_MAX 4.0
 #define ST_FRAME_MIN_SPREAD 0x1p-20
+#define ST_FRAME_AGREE_PX2 0x1p-4                     /* [ref] FRAME_AGREE_PX2 */
 #define ST_MAX_FIT 64                           /* trackers (MAX_TRACKERS of kernel/state.pxd) */
 
 /* [ref] fit_frame: the similarity x -> G + s R (x - G0) that best maps the rest shape onto
@@ -190,6 +193,40 @@ ST_CLONES static void st_fit_frame(int n, uint64_t fit, const double *restrict m
     *sn = ss;
     *gx = qx - (cc * px - ss * py);                      /* G = qbar - s R pbar */
     *gy = qy - (ss * px + cc * py);
+}
+
+/* [ref] fit_frame's test: the trackers of the mask fit (all n if it holds fewer than 2,
+ * as st_fit_frame) whose squared residual r^2 = |mu - (G + s R dG0)|^2 in the frame
+ * (c, sn, gx, gy) exceeds scale times the set's mass-weighted mean r^2 and
+ * ST_FRAME_AGREE_PX2; summed in index order as the reference. */
+static inline uint64_t st_frame_disagree(int n, uint64_t fit, double scale,
+                                  const double *restrict mass, const double *restrict gdx0,
+                                  const double *restrict gdy0, const double *restrict mx,
+                                  const double *restrict my, double c, double sn, double gx,
+                                  double gy)
+{
+    double r2[ST_MAX_FIT], w = 0.0, total = 0.0, ex, ey, thr;
+    uint64_t all = n >= 64 ? ~(uint64_t)0 : ((uint64_t)1 << n) - 1, out = 0;
+    int i;
+    fit &= all;
+    if (__builtin_popcountll(fit) < 2)
+        fit = all;
+    for (i = 0; i < n; i++) {
+        if (!((fit >> i) & 1))
+            continue;
+        ex = mx[i] - (gx + (c * gdx0[i] - sn * gdy0[i]));     /* mu - (G + s R dG0) */
+        ey = my[i] - (gy + (sn * gdx0[i] + c * gdy0[i]));
+        r2[i] = ex * ex + ey * ey;
+        w += mass[i];
+        total += mass[i] * r2[i];
+    }
+    thr = scale * (total / w);                                /* eq. (21)'s test on r^2 */
+    if (thr < ST_FRAME_AGREE_PX2)
+        thr = ST_FRAME_AGREE_PX2;
+    for (i = 0; i < n; i++)
+        if (((fit >> i) & 1) && r2[i] > thr)
+            out |= (uint64_t)1 << i;
+    return out;
 }
 
 /* eq. (18)'s rest offsets in the similarity frame: (odx, ody) = s R (dx0, dy0) */

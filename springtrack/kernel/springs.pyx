@@ -37,10 +37,14 @@ cdef extern from "springtrack/csrc/springs.h" nogil:
                       uint64_t* pulled, uint64_t* calm)
     void st_pull(int n, uint64_t pulled, double gx, double gy, double c, double sn, double gain,
                  const double* gdx0, const double* gdy0, double* mx, double* my)
-    double ST_FRAME_SCALE_MIN, ST_FRAME_SCALE_MAX, ST_FRAME_MIN_SPREAD
+    double ST_FRAME_SCALE_MIN, ST_FRAME_SCALE_MAX, ST_FRAME_MIN_SPREAD, ST_FRAME_AGREE_PX2
     void st_fit_frame(int n, uint64_t fit, const double* mass, const double* gdx0,
                       const double* gdy0, const double* mx, const double* my, double rx,
                       double ry, double* c, double* sn, double* gx, double* gy)
+    int popcount "__builtin_popcountll"(uint64_t m)
+    uint64_t st_frame_disagree(int n, uint64_t fit, double scale, const double* mass,
+                               const double* gdx0, const double* gdy0, const double* mx,
+                               const double* my, double c, double sn, double gx, double gy)
     void st_turn_offsets(int n, double c, double sn, const double* dx0, const double* dy0,
                          double* odx, double* ody)
     void st_torsion_angles(int n, const double* rx, const double* ry, const double* rdx,
@@ -63,10 +67,12 @@ cdef extern from "springtrack/csrc/springs.h" nogil:
                        const double* dev_x, const double* dev_y, const double* sxx_lim,
                        const double* syy_lim, int64_t* out)
 
-assert (_ref.FRAME_SCALE_MIN, _ref.FRAME_SCALE_MAX, _ref.FRAME_MIN_SPREAD) == (
-    ST_FRAME_SCALE_MIN, ST_FRAME_SCALE_MAX, ST_FRAME_MIN_SPREAD), "springs.h disagrees with reference.py"
+assert (_ref.FRAME_SCALE_MIN, _ref.FRAME_SCALE_MAX, _ref.FRAME_MIN_SPREAD,
+        _ref.FRAME_AGREE_PX2) == (ST_FRAME_SCALE_MIN, ST_FRAME_SCALE_MAX, ST_FRAME_MIN_SPREAD,
+                                  ST_FRAME_AGREE_PX2), "springs.h disagrees with reference.py"
 
 cdef double TWO_PI = 2.0 * M_PI
+cdef int FRAME_REFITS = _ref.FRAME_REFITS
 # The frame of eq. (14)'s fast path (st_torsion_angles_framed) follows the mean angle once
 # it is this far (rad) from it: connections within 3 pi/8 - pi/16 of the mean angle then
 # stay on the fast path.
@@ -266,6 +272,33 @@ cdef void set_frame(KState* s, int g, double phi) noexcept nogil:
     s.n_frame_moves += 1
 
 
+cdef uint64_t fit_frame(KState* s, int g, uint64_t fit) noexcept nogil:
+    """[ref] fit_frame: instance g's frame fitted to the trackers of the mask fit, refitted
+    up to FRAME_REFITS times without those that disagree with it; returns those."""
+    cdef int t0 = s.g_t0[g], n = s.g_t1[g] - s.g_t0[g], r
+    cdef uint64_t lost = 0, out, all = all_of(n)
+    fit &= all
+    if popcount(fit) < 2:
+        fit = all
+    st_fit_frame(n, fit, s.mass + t0, s.gdx0 + t0, s.gdy0 + t0, s.mx + t0, s.my + t0,
+                 s.sim_gx[g], s.sim_gy[g], &s.sim_c[g], &s.sim_s[g], &s.sim_gx[g],
+                 &s.sim_gy[g])
+    if not s.energy_scale[g] < s.g_c1[g] - s.g_c0[g]:
+        return lost
+    for r in range(FRAME_REFITS):
+        out = st_frame_disagree(n, fit, s.energy_scale[g], s.mass + t0, s.gdx0 + t0,
+                                s.gdy0 + t0, s.mx + t0, s.my + t0, s.sim_c[g], s.sim_s[g],
+                                s.sim_gx[g], s.sim_gy[g])
+        if out == 0 or popcount(fit & ~out) < 2:
+            break
+        lost |= out
+        fit &= ~out
+        st_fit_frame(n, fit, s.mass + t0, s.gdx0 + t0, s.gdy0 + t0, s.mx + t0, s.my + t0,
+                     s.sim_gx[g], s.sim_gy[g], &s.sim_c[g], &s.sim_s[g], &s.sim_gx[g],
+                     &s.sim_gy[g])
+    return lost
+
+
 cdef inline void energy_criteria(KState* s, int g) noexcept nogil:
     # [ref] _energy_criteria(g); masks relative to the instance's first tracker t0
     cdef int t0 = s.g_t0[g], n = s.g_t1[g] - s.g_t0[g], c0 = s.g_c0[g]
@@ -278,10 +311,8 @@ cdef inline void energy_criteria(KState* s, int g) noexcept nogil:
     s.mean_energy[g] = st_sum(nc, e) / nc                            # eq. (13)
     thr = s.energy_scale[g] * s.mean_energy[g]
     st_over_ends(nc, e, thr, s.ends + c0, &pulled, &calm)
-    if s.pull_sim[g] or s.car_sim[g]:    # [ref] fit_frame over the trackers left alone
-        st_fit_frame(n, ~pulled, s.mass + t0, s.gdx0 + t0, s.gdy0 + t0, s.mx + t0,
-                     s.my + t0, s.sim_gx[g], s.sim_gy[g], &s.sim_c[g], &s.sim_s[g],
-                     &s.sim_gx[g], &s.sim_gy[g])
+    if s.pull_sim[g] or s.car_sim[g]:    # [ref] fit_frame over the trackers left alone,
+        pulled |= fit_frame(s, g, ~pulled)   # then without those eq. (22) pulls too
     if s.pull_sim[g]:                    # eq. (22) toward G + s R dG0, the fitted frame
         st_pull(n, pulled, s.sim_gx[g], s.sim_gy[g], s.sim_c[g], s.sim_s[g], s.energy_gain[g],
                 s.gdx0 + t0, s.gdy0 + t0, s.mx + t0, s.my + t0)

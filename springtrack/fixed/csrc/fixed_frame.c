@@ -1,7 +1,7 @@
 /* Part of the fixed-point kernel's one translation unit, fixed_step.c, which includes it
    (the parts share its static inline helpers, so they are not compiled alone): the
-   similarity frame (pull_frame, cartesian_frame = "similarity"): its fit and the targets
-   and rest offsets in it. */
+   similarity frame (pull_frame, cartesian_frame = "similarity"): its fit, its refits
+   without the trackers that disagree with it, and the targets and rest offsets in it. */
 
 /* ---- the similarity frame (pull_frame, cartesian_frame = "similarity") --------------
    [ref] fit_frame.  Every product is a 32 x 32 -> 64-bit one (smul), every division an
@@ -14,6 +14,8 @@
 #define FRAME_SCALE_MIN_Q ((int32_t)1 << 26)          /* [ref] FRAME_SCALE_MIN = 1/4, Q.28 */
 #define FRAME_SCALE_MAX_Q ((int32_t)1 << 30)          /* [ref] FRAME_SCALE_MAX = 4, Q.28 */
 #define FRAME_SPREAD_SHIFT 20                         /* [ref] FRAME_MIN_SPREAD = 2^-20 */
+#define FRAME_REFITS 2                                /* [ref] FRAME_REFITS */
+#define FRAME_AGREE_Q ((int64_t)1 << 14)              /* [ref] FRAME_AGREE_PX2 = 2^-4, Q.18 px^2 */
 
 /* the index of the lowest set bit of m != 0 (two 32-bit halves) */
 static inline int lowest_bit(uint64_t m)
@@ -162,6 +164,76 @@ static inline void frame_target(const fx_state *s, int i, int64_t *tx, int64_t *
 {
     *tx = s->frame_gx + (frame_scale(s->frame_c, s->gdx0[i]) - frame_scale(s->frame_s, s->gdy0[i]));
     *ty = s->frame_gy + (frame_scale(s->frame_s, s->gdx0[i]) + frame_scale(s->frame_c, s->gdy0[i]));
+}
+
+/* [ref] fit_frame's test: the trackers of `fit` (all if it holds fewer than 2, as
+   fit_frame) whose squared residual r^2 = |mu - (G + s R dG0)|^2 in the last fitted frame
+   exceeds energy_scale times the set's mass-weighted mean r^2 and FRAME_AGREE_PX2.  Residuals in Q.12 px held
+   to +-2^30 (2^18 px: beyond any position box), r^2 in Q.24 px^2 (< 2^61) and 2^-6 of
+   it summed (64 of them in int64), each weighted by mq (Q.24); the mean = sum / sum mq. */
+static __attribute__((noinline)) uint64_t frame_disagree(fx_state *s, uint64_t fit)
+{
+    int n = s->n, i;
+    uint64_t all = n == 64 ? ~(uint64_t)0 : ((uint64_t)1 << n) - 1, m, out = 0;
+    int64_t r2[FX_MAX_TRACKERS], total = 0, mean, thr;
+    uint32_t W = 0, rem;
+    const int64_t lim = (int64_t)1 << 30;
+    fit &= all;
+    if ((fit & (fit - 1)) == 0)                       /* fewer than 2: all of them */
+        fit = all;
+    for (m = fit; m; m &= m - 1) {
+        int64_t tx, ty, ex, ey;
+        i = lowest_bit(m);
+        frame_target(s, i, &tx, &ty);
+        ex = rshr(s->mx[i] - tx, 20);                 /* mu - (G + s R dG0), Q.12 */
+        ey = rshr(s->my[i] - ty, 20);
+        ex = ex > lim ? lim : ex < -lim ? -lim : ex;
+        ey = ey > lim ? lim : ey < -lim ? -lim : ey;
+        r2[i] = (smul((int32_t)ex, (int32_t)ex) + smul((int32_t)ey, (int32_t)ey)) >> 6;
+        total += s->equal_mass ? r2[i] : mulsh(r2[i], s->mq[i], 24);
+        W += s->equal_mass ? 1 : s->mq[i];            /* <= 2^30 */
+    }
+    /* the mean r^2 (Q.18 px^2): sum / count, or sum 2^24 / sum mq in two steps */
+    if (s->equal_mass) {
+        mean = (int64_t)udiv64((uint64_t)total, W, &rem);
+    } else {
+        mean = (int64_t)udiv64((uint64_t)total, W, &rem);
+        mean = shl64(mean, 24) + (int64_t)udiv64((uint64_t)rem << 24, W, &rem);
+    }
+    thr = mulsh(mean, s->escale, s->escale_sh);       /* eq. (21)'s test on r^2 */
+    if (thr < FRAME_AGREE_Q)
+        thr = FRAME_AGREE_Q;
+    for (m = fit; m; m &= m - 1) {
+        i = lowest_bit(m);
+        out |= (uint64_t)(r2[i] > thr) << i;
+    }
+    return out;
+}
+
+/* [ref] fit_frame: the frame fitted to `fit`, then refitted up to FRAME_REFITS times
+   without the trackers that disagree with it (frame_disagree), at least 2 left; returns
+   those.  Not called when energy_scale >= nc (escale_never: the reference tests no
+   tracker then). */
+static uint64_t fit_frame_agreeing(fx_state *s, uint64_t fit)
+{
+    uint64_t all = s->n == 64 ? ~(uint64_t)0 : ((uint64_t)1 << s->n) - 1, lost = 0, out;
+    fit &= all;
+    if ((fit & (fit - 1)) == 0)
+        fit = all;
+    fit_frame(s, fit);
+    if (s->escale_never)
+        return 0;
+    for (int r = 0; r < FRAME_REFITS; r++) {
+        uint64_t left;
+        out = frame_disagree(s, fit);
+        left = fit & ~out;
+        if (out == 0 || (left & (left - 1)) == 0)     /* none, or fewer than 2 left */
+            break;
+        lost |= out;
+        fit = left;
+        fit_frame(s, fit);
+    }
+    return lost;
 }
 
 /* eq. (18)'s rest offset of connection k in the frame the Cartesian springs use (car_c,

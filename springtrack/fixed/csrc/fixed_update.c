@@ -58,7 +58,7 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
     if (n == 0)
         return;
     if (nc > 0 && (s->pull_sim || s->car_sim))          /* [ref] fit_frame, the calm ones */
-        fit_frame(s, ~pulled);
+        pulled |= fit_frame_agreeing(s, ~pulled);         /* eq. (22) pulls those that disagree */
     /* centre of mass G = x0 + sum m_i (x_i - x0) / sum m_i, rounded half up */
     if (s->pull_sim) {
         gx = gy = 0;                                      /* eq. (22) uses the frame's G */
