@@ -4,9 +4,9 @@ Every ``*.pyx`` below ``springtrack/`` and ``firmware_sim/`` is compiled, so add
 kernel or a decoder needs no edit here.  ``-ffp-contract=off`` keeps the float64
 kernel bit-compatible with the pure-Python reference (no fused multiply-add).
 
-With ``SPRINGTRACK_TEST_EXTENSIONS=1`` the test-only modules ``tests/*.pyx`` (kernel
+With ``SPRINGTRACK_TEST_EXTENSIONS=1`` the test-only modules ``tests/support/*.pyx`` (kernel
 internals exposed to the tests, never installed) are compiled too, with the same flags;
-the tests do this themselves on first use (tests/probes.py).
+the tests do this themselves on first use (tests/support/probes.py).
 """
 import glob
 import os

@@ -1,7 +1,7 @@
 """Fixed-point kernel accuracy against the float64 kernel, >= 1 M events per scene.
 
 Run: .venv/bin/python benchmarks/fixed_accuracy.py [--events N] [--sim-seconds S] [--no-write]
-Streams: SCENES of tests/fixed_bound.py (structured synthetic grid3x3 and face26
+Streams: SCENES of tests/support/fixed_bound.py (structured synthetic grid3x3 and face26
 scenes, plain and "steady": the parts move smoothly, 30 % uniform noise, 300 k events/s),
 and SIM_SCENES (the simulator's face_occlusion and grid scenes with the paper's
 per-experiment values, S seconds each), sampled every 1 ms, in the default parameters'
@@ -21,7 +21,7 @@ import numpy as np
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))     # the bound the tests check, on longer streams
-from fixed_bound import (BOUNDS, SCENES, SIM_SCENES, compare, scene_stream, sim_stream,  # noqa: E402
+from support.fixed_bound import (BOUNDS, SCENES, SIM_SCENES, compare, scene_stream, sim_stream,  # noqa: E402
                          truth_for, violations)
 
 from _report import machine, replace_section, write_section  # noqa: E402
@@ -89,7 +89,7 @@ def main():
         f"Command: `.venv/bin/python benchmarks/fixed_accuracy.py --events {args.events} "
         f"--seed {args.seed} --sim-seconds {args.sim_seconds:g}`  ",
         f"Machine: {machine()}  ",
-        "Streams: `SCENES` of `tests/fixed_bound.py` (structured synthetic scenes, 30 % noise, "
+        "Streams: `SCENES` of `tests/support/fixed_bound.py` (structured synthetic scenes, 30 % noise, "
         "300 k events/s) and its `SIM_SCENES` (the simulator's scenes, seed 0, with the "
         "paper's per-experiment springs, stiffness and s), both kernels on the same events, "
         "samples every 1 ms, the default parameters otherwise (the similarity frame of eq. (22) "

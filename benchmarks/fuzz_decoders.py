@@ -1,4 +1,4 @@
-"""Fuzz the streaming decoders and the file-format detection (tests/decoder_fuzz.py) with
+"""Fuzz the streaming decoders and the file-format detection (tests/support/decoder_fuzz.py) with
 --inputs random and mutated inputs per decoder (default 1,000,000) and --header-inputs
 mutated file headers; prints one line per decoder, optionally records them in
 docs/formats.md (section "Fuzzing").
@@ -16,7 +16,7 @@ import numpy as np
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "tests"))
-from decoder_fuzz import DECODERS, fuzz_decoder, fuzz_headers, seeds  # noqa: E402
+from support.decoder_fuzz import DECODERS, fuzz_decoder, fuzz_headers, seeds  # noqa: E402
 
 from _report import replace_section  # noqa: E402
 

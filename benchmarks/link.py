@@ -7,7 +7,7 @@ docs/benchmarks.md.
 ``--target firmware-sim`` (default when ``firmware-sim run`` exists) starts
 ``firmware-sim run --source sim:face_occlusion --pty`` as a separate process;
 ``test-engine`` starts a process serving the link with the Tracker-backed engine of
-tests/test_link_engine.py (the same firmware_sim.link server, a simpler tracking loop).
+tests/support/engine.py (the same firmware_sim.link server, a simpler tracking loop).
 """
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ SECTION = "## Host link"
 TEST_ENGINE = """
 import sys, threading
 sys.path.insert(0, {tests!r})
-from test_link_engine import SimEngine
+from support.engine import SimEngine
 from firmware_sim import link, transport
 port = transport.PtyPort()
 eng = SimEngine(seconds={scene_s}).run()

@@ -2,7 +2,7 @@
 answerable, send nothing non-finite, and stay under a memory ceiling.  The summary
 replaces the "Soak" section of docs/benchmarks.md.
 
-    .venv/bin/python benchmarks/soak.py [--minutes 10] [--seed 1] [--memory-mb 512]
+    .venv/bin/python benchmarks/soak.py [--minutes 10 | --hours H] [--seed 1] [--memory-mb 512]
                                         [--no-write]
 
 The firmware: ``firmware-sim run --source sim:face_occlusion --seconds 30 --realtime
@@ -162,8 +162,13 @@ class Soak:
         # ShapeModel refuses to hold the first two
         nan = re.sub(r"stiffness = [0-9.e-]+", "stiffness = 0.5", face.to_toml())
         long = grid.to_toml().replace(f'name = "{grid.name}"', 'name = "' + "n" * 1200 + '"')
+        # a 120 KB dotted key (tomllib's cost is quadratic in its depth: refused before it
+        # parses) and hostile types (a number for the trackers, a list for a spring's end)
+        deep = ".".join(["a"] * 60_000) + " = 1\n"
+        types = grid.to_toml().replace('a = "r0c0"', "a = [1]", 1) + "trackers = 5\n"
         models = [("face26", face), ("grid3x3", grid), ("nan", nan), ("long_name", long),
-                  ("broken", "[[trackers]]\nid = 1\n[[[")]
+                  ("broken", "[[trackers]]\nid = 1\n[[["), ("deep_key", deep),
+                  ("hostile_types", types)]
         params = [("energy_gain", lambda: rng.uniform(0.01, 0.2)),
                   ("alpha_position", lambda: rng.uniform(0.01, 0.2)),
                   ("alpha_position", lambda: 3.0), ("sigma_max_px", lambda: 1e12),
@@ -180,11 +185,12 @@ class Soak:
                     dev.start()
                     continue
                 k = rng.randrange(10)
+                model_name = None
                 try:
                     if k < 3:
-                        name, m = rng.choice(models)
+                        model_name, m = rng.choice(models)
                         dev.load_model(m)
-                        self.count(f"operator.model_accepted.{name}")
+                        self.count(f"operator.model_accepted.{model_name}")
                     elif k < 8:
                         name, value = rng.choice(params)
                         dev.set(name, value())
@@ -198,6 +204,8 @@ class Soak:
                         self.count("operator.stop_start")
                 except Nacked as e:
                     self.count(f"operator.nack.{wire.Nack(e.code).name.lower()}")
+                    if model_name is not None:
+                        self.count(f"operator.model_refused.{model_name}")
 
     def monitor(self):
         with self.device(role=Role.MONITOR, name="monitor") as dev:
@@ -397,6 +405,9 @@ def report(soak: Soak, r: dict, ceiling: float) -> tuple[str, bool]:
         soak.problem(f"STATS counter `{k}` = {st[k]} is not explained (soak.py COUNTERS)")
     for k in (k for k in MUST_BE_ZERO if st.get(k)):
         soak.problem(f"STATS counter `{k}` = {st[k]}: must be 0")
+    for name in ("nan", "long_name", "broken", "deep_key", "hostile_types"):
+        if c[f"operator.model_accepted.{name}"]:
+            soak.problem(f"the hostile model `{name}` was accepted")
     if c["monitor.time_not_increasing"]:
         soak.problem(f"{c['monitor.time_not_increasing']} snapshots did not advance in time")
     for k in (k for k in c if explain(TRAFFIC_MEANING, k) is None):
@@ -404,8 +415,10 @@ def report(soak: Soak, r: dict, ceiling: float) -> tuple[str, bool]:
     ok = ok_finite and ok_answer and ok_mem and r["exit"] == 0 and not soak.problems
     g = st.get
     lines = [
-        f"Machine: {machine()}.  Command: `.venv/bin/python benchmarks/soak.py --minutes "
-        f"{soak.args.minutes:g} --seed {soak.args.seed} --memory-mb {ceiling:g}"
+        f"Machine: {machine()}.  Command: `.venv/bin/python benchmarks/soak.py "
+        + (f"--hours {soak.args.hours:g}" if soak.args.hours is not None
+           else f"--minutes {soak.args.minutes:g}")
+        + f" --seed {soak.args.seed} --memory-mb {ceiling:g}"
         f"{'' if soak.args.traffic == ','.join(TRAFFIC) else ' --traffic ' + soak.args.traffic}` "
         f"({time.strftime('%Y-%m-%d')}), {r['wall'] / 60:.1f} min wall; firmware `{soak.cmd}`. "
         f"Load average at start {r['load0']}, at end {r['load1']} (a shared 2-core machine: "
@@ -500,6 +513,7 @@ TRAFFIC_MEANING = {
     "probe.unanswered": "probes never answered (must be 0)",
     "operator.model_accepted.": "models the operator uploaded and the firmware accepted, by model",
     "operator.nack.": "operator commands NACKed (hostile on purpose), by code",
+    "operator.model_refused.": "models the operator uploaded and the firmware refused, by model",
     "operator.param.acked": "parameter changes ACKed",
     "operator.reset": "RESETs",
     "operator.stop_start": "STOP then START",
@@ -554,6 +568,8 @@ COUNTERS = {
     "anomalies.skipped_after_gap": "events discarded while waiting for a time base after a gap",
     "anomalies.tracker_back_in_time": "events older than the tracker's last, refused",
     "anomalies.tracker_outside_sensor": "events outside the model's sensor, refused",
+    "anomalies.replay_file": "anomalies of the decoder that read a replayed file (none here: "
+                             "a simulated scene)",
     "loop.pieces": "pieces of transfers handed to the kernel",
     "loop.snapshots": "telemetry snapshots taken (1 kHz of event time; a jump in time is "
                       "sampled for HOLD periods)",
@@ -583,7 +599,13 @@ COUNTERS = {
     "supervisor.threads_stopped": "threads stopped after failing too often (must be 0)",
     "supervisor.reported_": "ERROR frames sent, by code",
     "link.rx_frames": "frames received from every host",
-    "link.rx_lost": "frames missing by sequence number (the fuzzers' random sequence numbers)",
+    "link.rx_lost": "frames missing by sequence number (gaps of at most 256: more is a jump)",
+    "link.rx_seq_jumps": "sequence numbers that jumped ahead by more than 256 (the fuzzers' "
+                         "random sequence numbers), not counted as lost",
+    "link.uploads_validated": "model uploads validated off the link's thread",
+    "link.uploads_over_budget": "uploads whose validation overran its time budget, refused "
+                                "busy (must be 0 for legal uploads)",
+    "link.uploads_busy": "uploads refused busy while another was being validated",
     "link.rx_retries": "repeated frames answered from the reply cache",
     "link.rx_bytes": "bytes received",
     "link.rx_crc_errors": "frames with a bad CRC dropped",
@@ -613,7 +635,8 @@ COUNTERS = {
     "link.auth_bad_tag": "frames with a wrong signature dropped (lifetime)",
     "link.auth_replay": "replayed frames dropped (lifetime)",
     "link.auth_disconnects": "connections closed after 8 failed authentications",
-    "link.auth_lockouts": "connections refused while their address was locked out",
+    "link.auth_lockouts": "connections from a locked-out address, admitted on probation (closed "
+                          "at their first failed authentication)",
     "link.telemetry_errors": "snapshots that could not be encoded (must be 0)",
     "link.session_faults": "sessions closed because their handling raised (must be 0)",
 }
@@ -622,6 +645,8 @@ COUNTERS = {
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--minutes", type=float, default=10.0)
+    ap.add_argument("--hours", type=float, default=None, help="the soak's length in hours "
+                                                              "(instead of --minutes)")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--memory-mb", type=float, default=512.0,
                     help="resident memory ceiling of the firmware process (MB)")
@@ -631,6 +656,8 @@ def main(argv=None) -> int:
                     help="a progress line on stderr every S seconds (60)")
     ap.add_argument("--no-write", action="store_true", help="print, do not update the docs")
     args = ap.parse_args(argv)
+    if args.hours is not None:
+        args.minutes = args.hours * 60
     soak = Soak(args)
     try:
         r = soak.run()

@@ -7,7 +7,9 @@ searching: the model's positions are not trusted, it is found in the first windo
 events, then the loss rule and the re-acquisition of springtrack.acquisition.recovery run as in
 ``springtrack track --acquire``, and the telemetry carries each tracker's instance state
 (``wire.encode_telemetry``'s trailer).  The decoded path (``firmware_sim.feed``) feeds it:
-the acquisition needs the events themselves, which the fused C loop does not keep.
+the acquisition needs the events themselves, which the fused C loop does not keep.  While the model is not
+found the telemetry shows it at its place, insensitive, ``searching``; at the source's end
+(:meth:`finish`) or once ``budget_ms`` of event time is searched in vain, ``not found``.
 """
 from __future__ import annotations
 
@@ -24,9 +26,10 @@ class AcquiringKernel:
     native_records = False           # telemetry quantised from the float rows
 
     def __init__(self, model, params, backend: str = "cython", acquire_ms: float = 50.0,
-                 bounds: dict | None = None):
+                 bounds: dict | None = None, budget_ms: float | None = None):
         self.tracker = Tracker(model, params, backend=backend, acquire=True,
-                               acquire_ms=acquire_ms, acquire_bounds=bounds)
+                               acquire_ms=acquire_ms, acquire_bounds=bounds,
+                               acquire_budget_ms=budget_ms)
         self._period = None
 
     def run(self, events, sample_us, next_t, cap):
@@ -35,15 +38,27 @@ class AcquiringKernel:
         if self._period is None:
             self._period = int(sample_us)
             self.tracker.record(self._period)
-        parts = list(self.tracker.stream(events))
+        return len(events), next_t, self._rows(list(self.tracker.stream(events)))
+
+    def finish(self):
+        """The source ended: a search still running tries its last, shorter window, and
+        ends (found, or not found); the sample rows that makes, or None."""
+        if self._period is None:
+            return None
+        self.tracker.flush()
+        return self._rows([self.tracker.samples()])
+
+    def _rows(self, parts):
+        """Tracks as the C loops' sample rows (None if none)."""
+        parts = [p for p in parts if len(p)]
         if not parts:
-            return len(events), next_t, None
+            return None
         t = np.concatenate([p.t_us for p in parts])
         tr = np.empty((len(t), len(self.tracker.ids)), TRACK_DTYPE)
         for f in TRACK_FIELDS:
             tr[f] = np.concatenate([getattr(p, f) for p in parts])
         energy = np.concatenate([p.energy for p in parts])
-        return len(events), next_t, {"t": t, "trackers": tr, "energy": energy}
+        return {"t": t, "trackers": tr, "energy": energy}
 
     def set_params(self, params) -> None:
         self.tracker.set_params(params)

@@ -24,6 +24,7 @@ import time
 
 from springtrack import wire
 from springtrack.wire import Fault
+from springtrack.commands import options
 from springtrack.commands.options import add_acquire_window, add_backend_argument
 
 from . import faults as _faults
@@ -92,7 +93,8 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--faults", default="", help="comma-separated fault names to inject")
     r.add_argument("--seconds", type=float,
                    help="duration in seconds (default: the scene's / file's)")
-    r.add_argument("--seed", type=int, default=0, help="simulation seed (default 0)")
+    r.add_argument("--seed", type=int, default=0,
+                   help="simulation seed, and of --dequantize's order (default 0)")
     r.add_argument("--telemetry-us", type=int, default=1000, metavar="US",
                    help="telemetry / record period in µs of event time (default 1000)")
     r.add_argument("--record", metavar="OUT.csv", help="write every snapshot as a track CSV")
@@ -113,6 +115,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--wait-start", action="store_true",
                    help="with a host link: open the camera only when the host sends START "
                         "(e.g. after uploading a model), instead of at once")
+    options.add_prep_arguments(r, seed=False)
     return p
 
 
@@ -150,7 +153,19 @@ def open_source(args, biases: dict) -> _sources.CameraSource:
     return _sources.open_source(args.source, _sources.SourceOptions(
         seconds=args.seconds, seed=args.seed, realtime=not args.max_speed, faults=args.faults,
         serial=args.serial, profile=args.profile, biases=biases,
-        geometry=parse_ints(args.geometry, 2, "x", "--geometry")))
+        geometry=parse_ints(args.geometry, 2, "x", "--geometry"), prepare=_prepare(args)))
+
+
+def _prepare(args):
+    """The replay's preparation from the recording-quirk options (springtrack track's), or
+    None; refused for a source that is not a recording."""
+    if not options.wanted(args):
+        return None
+    if not args.source.startswith("replay:"):
+        raise ValueError(f"--start-us, --end-us, --dequantize and --burst-fraction prepare a "
+                         f"recording: use them with --source replay:FILE, not {args.source}")
+    options.preparer(args, 1, 1)       # its errors now, naming the values
+    return lambda w, h: options.preparer(args, w, h)
 
 
 def default_model(args, source: _sources.CameraSource):
@@ -202,8 +217,8 @@ class Link:
         elif args.port:
             self.port = transport.open_port(args.port)
         else:
-            host, _, p = args.listen.rpartition(":")
-            self.server = transport.TcpServer(host or "127.0.0.1", int(p), key=key)
+            host, p = parse_listen(args.listen)
+            self.server = transport.TcpServer(host, p, key=key)
             print(f"listen: {self.server.url}", flush=True)
         if self.server is not None:
             self.hub = link.Hub(engine, key, on_shutdown=on_shutdown)
@@ -252,8 +267,10 @@ def run(args) -> int:
     # three Python threads (reader, processing, link) share the GIL: hand it over every
     # 0.5 ms instead of 5 ms so the processing thread is never starved for long
     sys.setswitchinterval(0.0005)
-    # SIGTERM ends the run like Ctrl-C: threads stopped, --record written, stats printed
-    handlers = {sig: signal.signal(sig, _terminate) for sig in (signal.SIGTERM, signal.SIGINT)}
+    # SIGTERM and SIGHUP (a closed terminal) end the run like Ctrl-C: threads stopped,
+    # --record closed, stats printed
+    handlers = {sig: signal.signal(sig, _terminate)
+                for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)}
     try:
         return _run(args)
     finally:
@@ -266,6 +283,8 @@ def _run(args) -> int:
     biases = parse_biases(args.bias)
     roi = parse_ints(args.roi, 4, ",", "--roi")
     has_link = bool(args.pty or args.port or args.listen)
+    if args.listen:
+        parse_listen(args.listen)                 # a bad port before anything starts
     if args.wait_start and not has_link:
         raise ValueError("--wait-start needs a host link (--pty, --port or --listen)")
     key = read_key(args.key_file)
@@ -275,7 +294,7 @@ def _run(args) -> int:
     cam = source.device
     engine = FirmwareLoop(source.open_camera, model=default_model(args, source),
                           params=args.params, telemetry_period_us=args.telemetry_us,
-                          nbuf=args.buffers, record=bool(args.record),
+                          nbuf=args.buffers, record=args.record or False,
                           lossless=cam is not None and args.max_speed, biases=biases,
                           profile=source.profile, backend=args.backend, roi=roi,
                           source_counters=source.counters, sensor_from=args.sensor_from,
@@ -311,6 +330,7 @@ def _run(args) -> int:
                     quiet += 1
                     if quiet >= 3:
                         if link is None:
+                            engine.end_of_stream()      # a search still running ends
                             break
                         quiet = 0
                         _end_of_stream(engine, source)
@@ -342,8 +362,8 @@ def _run(args) -> int:
     if not learn_said:
         _say_learned(engine, args.learn_first_ms)
     if args.record:
-        rows = engine.write_record(args.record)
-        print(f"record: {rows} rows -> {args.record}", file=sys.stderr)
+        engine.recorder.close()
+        print(engine.recorder.summary(), file=sys.stderr)
     for line in source.report():
         print(line, file=sys.stderr)
     if failed is None and _sources.failure(source):
@@ -403,13 +423,26 @@ def _say_learned(engine, window_ms: float | None = None) -> bool:
     return True
 
 
+def parse_listen(value: str) -> tuple[str, int]:
+    """``--listen HOST:PORT`` (or ``:PORT``) as (host, port); a ValueError names the option."""
+    host, _, p = value.rpartition(":")
+    try:
+        port = int(p)
+    except ValueError:
+        port = -1
+    if not 0 <= port <= 65535:
+        raise ValueError(f"--listen {value!r}: give HOST:PORT with a port in 0..65535 (0: any "
+                         f"free port)")
+    return host or "127.0.0.1", port
+
+
 def _terminate(signum, frame):
     raise KeyboardInterrupt
 
 
 def _ignore_signals() -> None:
     """The shutdown runs once: signals from now on are ignored (``run`` restores them)."""
-    for sig in (signal.SIGTERM, signal.SIGINT):
+    for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
         signal.signal(sig, signal.SIG_IGN)
 
 
@@ -418,7 +451,8 @@ def _acquire(args):
     if not args.acquire:
         return None
     from springtrack.commands.options import acquire_bounds
-    return {"acquire_ms": args.acquire_ms, "bounds": acquire_bounds(args)}
+    return {"acquire_ms": args.acquire_ms, "bounds": acquire_bounds(args),
+            "budget_ms": args.acquire_budget_ms}
 
 
 def main(argv=None) -> int:

@@ -47,6 +47,9 @@ class Engine(Protocol):
 
     def get_params(self) -> dict: ...
 
+    def model_text(self) -> str:
+        """The running model (uploaded, learned or the start's) as TOML, with its ids."""
+
     def start(self) -> None: ...
 
     def stop(self) -> None: ...

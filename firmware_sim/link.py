@@ -24,8 +24,11 @@ FORBIDDEN).  On a keyed link a session gets its role, telemetry and answers only
 its first authentic frame: before that, nothing but HELLO/INFO.  TCP connections are
 closed after ``pending_timeout_s`` without an authenticated HELLO, after ``idle_timeout_s``
 without any frame, and after ``MAX_AUTH_FAILURES`` failed authentications (the peer's
-address is then locked out for a growing time); authentication failures are counted for the
-device's lifetime and logged with the peer's address, at most one line per second.
+address is then locked out for a growing time: its connections are still accepted, since
+the operator may share the address, but each is closed at its first failed authentication,
+which locks the address out again; a host with the key always gets in); authentication
+failures are counted for the device's lifetime and logged with the peer's address, at most
+one line per second.
 
 Robustness rules (docs/protocol.md, "Reliability"): a frame with a bad CRC/COBS is
 dropped and counted; a malformed, unknown or refused command gets a NACK and changes
@@ -52,13 +55,14 @@ from collections import OrderedDict
 import numpy as np
 import serial
 
-from springtrack import wire
+from springtrack import toml_bounds, wire
 from springtrack.wire import MsgType, Nack, Notice, Role
 
 from .engine import UpdateRejected
 from .throttle import Throttle
+from .validation import Validation
 
-MAX_MODEL_BYTES = 256 * 1024
+MAX_MODEL_BYTES = toml_bounds.MAX_TEXT_BYTES
 REPLY_CACHE = 16
 TX_TELEMETRY_LIMIT = 32 * 1024      # unwritten bytes above which no snapshot is taken
 TX_REPLY_LIMIT = 1024 * 1024        # bytes queued before even replies are dropped (a host
@@ -72,6 +76,8 @@ MAX_AUTH_FAILURES = 8               # failed authentications before a connection
 LOCKOUT_S = (1.0, 2.0, 5.0, 10.0, 30.0, 60.0)   # address lock-out after closing k times
 LOCKOUT_FORGET_S = 600.0            # offences older than this are forgotten
 POLL_S = 0.002                      # the link loop's wait for input
+RX_MAX_GAP = 256                    # a host pipelines a few commands: a larger gap in its
+                                    # sequence numbers is a jump (rx_seq_jumps), not a loss
 
 
 def _stderr(line: str) -> None:
@@ -95,8 +101,10 @@ class Hub:
         self.counts = dict(sessions_opened=0, sessions_closed=0, sessions_refused=0,
                            sessions_evicted=0, pending_timeouts=0, idle_timeouts=0, operator_takeovers=0,
                            auth_unsigned=0, auth_bad_tag=0, auth_replay=0, auth_disconnects=0,
-                           auth_lockouts=0, telemetry_errors=0, session_faults=0)
+                           auth_lockouts=0, telemetry_errors=0, session_faults=0,
+                           uploads_validated=0, uploads_over_budget=0, uploads_busy=0)
         self.closed: dict = {}
+        self.validation: Validation | None = None     # the upload being validated
         self.peers: dict[str, dict] = {}     # address -> offences, locked_until
         self.throttle = Throttle()           # at most one log line of a kind per second
 
@@ -164,6 +172,17 @@ class Hub:
             for a in sorted(self.peers, key=lambda a: self.peers[a]["locked_until"])[:512]:
                 del self.peers[a]
         return s
+
+    def validate(self, text: str) -> Validation:
+        """Start validating an uploaded model text off the link's thread; one at a time per
+        firmware (bounded memory): BUSY while another is still running."""
+        if self.validation is not None and not self.validation.done.is_set():
+            self.counts["uploads_busy"] += 1
+            raise UpdateRejected(Nack.BUSY, "another model upload is being validated: retry "
+                                            "in a second")
+        self.validation = Validation(text)
+        self.counts["uploads_validated"] += 1
+        return self.validation
 
     # ---- the engine's outputs, fanned out ------------------------------------------------
     def pump(self) -> None:
@@ -301,7 +320,7 @@ class Hub:
             elif now - s.last_rx > idle_timeout_s:
                 self.counts["idle_timeouts"] += 1
                 s.close_soon(f"idle for {idle_timeout_s:g} s (send a HEARTBEAT to stay)")
-            elif s.auth_failures >= MAX_AUTH_FAILURES:
+            elif s.auth_failures >= (1 if s.probation else MAX_AUTH_FAILURES):
                 self.counts["auth_disconnects"] += 1
                 ban = self.punish(s.address)
                 self.log("auth", f"closing {s.peer}: {s.auth_failures} authentication "
@@ -315,13 +334,13 @@ class Hub:
         if port is None:
             return
         address = port.name.split()[-1].rsplit(":", 1)[0]
+        # a locked-out address is not refused (the operator may share it: loopback, NAT),
+        # its connections are on probation: closed at their first failed authentication
         wait = self.locked_out(address)
         if wait > 0:
             self.counts["auth_lockouts"] += 1
-            self.log("lockout", f"connection from {address} refused: locked out for "
-                                f"{wait:.1f} s more after failed authentications")
-            port.close()
-            return
+            self.log("lockout", f"connection from {address} on probation for {wait:.1f} s "
+                                f"more after failed authentications: one failure closes it")
         if len(self.sessions) >= 2 * self.max_sessions:    # connections, not sessions:
             pending = [s for s in self.sessions if not s.authenticated_role]
             if not pending:                              # (cannot happen: at most
@@ -332,7 +351,9 @@ class Hub:
             self.counts["pending_timeouts"] += 1
             self.remove(old, "evicted: too many connections without a session")
             old.port.close()
-        self.sessions.append(LinkServer(port, self.engine, hub=self, heartbeat_s=heartbeat_s))
+        session = LinkServer(port, self.engine, hub=self, heartbeat_s=heartbeat_s)
+        session.probation = wait > 0
+        self.sessions.append(session)
         self.counts["sessions_opened"] += 1
 
     def admit(self, session) -> str:
@@ -400,14 +421,16 @@ class LinkServer:
         self.nonce = os.urandom(wire.NONCE_LEN)
         self.guard = wire.ReplayGuard(hub.key, self.nonce) if hub.key else None
         self.reader = wire.FrameReader()
-        self.rx_seq = wire.SeqTracker()
+        self.rx_seq = wire.SeqTracker(max_gap=RX_MAX_GAP)
         self.tx_seq = int.from_bytes(os.urandom(2), "little")
         self.txq = bytearray()
         self.replies: OrderedDict = OrderedDict()
         self.upload = None
+        self.deferred = None                   # (MODEL_COMMIT frame, its cache key, Validation)
         self.role: Role | None = None          # asked for in HELLO (None: no HELLO yet)
         self.authenticated = self.guard is None
         self.auth_failures = 0
+        self.probation = False                 # closed at its first failed authentication
         self.report_cursor = 0
         self.heartbeat_s = heartbeat_s
         self.t0 = time.monotonic()
@@ -495,7 +518,9 @@ class LinkServer:
                 self.handle(frame)
 
     def tick(self, now: float) -> None:
-        """Heartbeat and write."""
+        """Heartbeat, a validated upload's answer, and write."""
+        if self.deferred is not None:
+            self._answer_upload(now)
         if self.receiving and now >= self.next_beat:
             self.next_beat = now + self.heartbeat_s
             self.send(MsgType.HEARTBEAT, wire.encode_heartbeat(**self._beat()))
@@ -514,6 +539,7 @@ class LinkServer:
     def stats(self) -> dict:
         c = dict(self.counts)
         c.update({f"rx_{k}": v for k, v in self.reader.counts.items() if k != "frames"})
+        c["rx_seq_jumps"] = self.rx_seq.jumps
         return c
 
     # ---- sending ----------------------------------------------------------------
@@ -601,6 +627,9 @@ class LinkServer:
             for raw in self.replies[key]:
                 self._send_raw(raw)
             return
+        if self.deferred is not None and key == self.deferred[1]:   # answered when validated
+            self.counts["rx_retries"] += 1
+            return
         if frame.type == MsgType.HELLO:              # a new session: expect anything next
             self.rx_seq.restart(frame.seq)
         else:
@@ -612,11 +641,43 @@ class LinkServer:
         except wire.WireError as e:
             self._nack(frame, Nack.MALFORMED, str(e))
         except Exception as e:                       # noqa: BLE001 - never crash the firmware
-            self.counts["handler_errors"] += 1
-            self._nack(frame, Nack.INTERNAL, f"{type(e).__name__}: {e}")
+            self._internal(frame, e)
+        if self.deferred is not None and self.deferred[0] is frame:
+            self.deferred = (frame, key, self.deferred[2])          # answered later
+            return
+        self._cache(key)
+
+    def _cache(self, key) -> None:
         self.replies[key] = self._sent
         while len(self.replies) > REPLY_CACHE:
             self.replies.popitem(last=False)
+
+    def _answer_upload(self, now: float) -> None:
+        """The answer to a MODEL_COMMIT once its validation has finished (or overrun its
+        budget): the engine loads the validated model's canonical text (ACK with its
+        generation), or a NACK says why not."""
+        frame, key, job = self.deferred
+        if not job.done.is_set() and not job.overdue(now):
+            return
+        self.deferred = None
+        self._sent = []
+        try:
+            if job.overdue(now):
+                self.hub.counts["uploads_over_budget"] += 1
+            self._ack(frame, self.engine.load_model(job.result()))
+        except UpdateRejected as e:
+            self._nack(frame, e.code, str(e))
+        except Exception as e:                       # noqa: BLE001 - never crash the firmware
+            self._internal(frame, e)
+        self._cache(key)
+
+    def _internal(self, frame, e: Exception) -> None:
+        """An exception inside a handler: NACK INTERNAL, counted, and logged (a defect)."""
+        self.counts["handler_errors"] += 1
+        what = f"{type(e).__name__}: {e}"
+        name = MsgType(frame.type).name if frame.type in MsgType._value2member_map_ else frame.type
+        self.hub.log("handler", f"{name} from {self.peer or 'the host'} raised {what[:300]}")
+        self._nack(frame, Nack.INTERNAL, what)
 
     def _reply(self, mtype, payload=b"") -> None:
         raw = self.send(mtype, payload)
@@ -726,7 +787,7 @@ class LinkServer:
             text = up["buf"].decode("utf-8")
         except UnicodeDecodeError as e:
             raise UpdateRejected(Nack.INVALID_MODEL, f"model text is not UTF-8: {e}") from None
-        self._ack(f, self.engine.load_model(text))
+        self.deferred = (f, None, self.hub.validate(text))     # answered by tick()
 
     def on_param_set(self, f) -> None:
         name, value = wire.decode_param_set(f.payload)
@@ -741,6 +802,11 @@ class LinkServer:
                                                  f"known: {', '.join(params)}")
         items = {n: params[n] for n in (names or params)}
         self._reply_parts(MsgType.PARAM_VALUE, f, items)
+
+    def on_model_get(self, f) -> None:
+        if f.payload:
+            raise wire.WireError(f"MODEL_GET: a request has an empty payload, got {len(f.payload)} bytes")
+        self._reply_parts(MsgType.MODEL_GET, f, wire.encode_model_text(self.engine.model_text()))
 
     def on_stats(self, f) -> None:
         if f.payload:
@@ -791,6 +857,7 @@ HANDLERS = {
     MsgType.PARAM_SET: LinkServer.on_param_set,
     MsgType.PARAM_GET: LinkServer.on_param_get,
     MsgType.STATS: LinkServer.on_stats,
+    MsgType.MODEL_GET: LinkServer.on_model_get,
     MsgType.START: LinkServer.on_simple,
     MsgType.STOP: LinkServer.on_simple,
     MsgType.RESET: LinkServer.on_simple,

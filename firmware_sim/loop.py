@@ -48,7 +48,7 @@ from . import camera as camusb
 from .engine import UpdateRejected
 from .meter import LoadMeter, LoopCounters
 from .reader import Reader
-from .record import Recorder
+from .record import Recorder, StreamRecorder
 from .slot import AppliedLog, ApplyFailed, ModelSlot
 from .supervise import Supervisor, where
 from .telemetry import Block, TelemetryQueue
@@ -68,7 +68,8 @@ class FirmwareLoop:
     """The Engine: ``FirmwareLoop(open_camera, model, params, ...)``; ``open_camera()``
     returns a started ``firmware_sim.camera.Camera`` (called again after a disconnect).
     ``lossless=True`` (simulated camera at max speed only) makes the reader wait instead of
-    shedding; ``record=True`` keeps every snapshot for :meth:`write_record`.  ``profile``
+    shedding; ``record=True`` keeps every snapshot for :meth:`write_record`, ``record=PATH``
+    writes them to that CSV as they come (firmware_sim.record).  ``profile``
     (``firmware_sim.camera.PROFILES`` name or DeviceProfile) names the word format and the
     sensor's geometry (``width``/``height`` override it), which every model must fit
     (``springtrack.sensor_fit.fit_model``; ``sensor_from`` "source" or "model" takes a model
@@ -130,7 +131,8 @@ class FirmwareLoop:
         self.biases = biases if biases is not None else {}
         self.biases.update(camusb.check_biases(self.biases))
         self.telemetry = TelemetryQueue(telemetry_queue)
-        self.recorder = Recorder() if record else None
+        self.recorder = (None if not record else Recorder() if record is True
+                         else StreamRecorder(record))
         self.counters = LoopCounters()
         self.in_transfer = False          # the processing thread is inside a transfer
         self.meter = LoadMeter()
@@ -193,6 +195,7 @@ class FirmwareLoop:
             if self.ended:
                 return
             self.stop()
+            self._finish_kernel()
             self.ended = True
         self.supervisor.notice(Notice.STREAM_ENDED, "the source has no more data; the loop is "
                                                     "idle (START replays it)")
@@ -397,11 +400,24 @@ class FirmwareLoop:
         self._apply_pending()
         self.learner.track_rest(sink=self._emit)
 
+    def _finish_kernel(self) -> None:
+        """The source ended (the loop stopped): a kernel that still searches for its model
+        ends its search (``AcquiringKernel.finish``: found, or not found), and the rows that
+        makes go out like the others."""
+        finish = getattr(self.kernel, "finish", None)
+        out = finish() if finish is not None else None
+        if out is not None:
+            self._queue(out)
+
     def _emit(self, out: dict) -> None:
         """One part of the snapshots a feed took (at most the fused loop's capacity in rows):
         checked, recorded, queued for the link.  Processing thread."""
         if self.stop_event.is_set():
             raise Stopping()
+        self._queue(out)
+
+    def _queue(self, out: dict) -> None:
+        """Sample rows checked, recorded and queued for the link."""
         if not self.fused.native_records:       # the fixed kernel's state is integer
             ok = finite_rows(out["trackers"])
             if not ok.all():
@@ -465,6 +481,10 @@ class FirmwareLoop:
                         learning=self.learner is not None and self.learner.learning,
                         generation=self.generation, telemetry_period_us=self.period)
 
+    def model_text(self) -> str:
+        with self.slot.lock:
+            return self.model.to_toml()
+
     def stats(self) -> dict:
         fc = self.fused.counters()
         rc = dict(self.reader.counts)
@@ -491,7 +511,7 @@ class FirmwareLoop:
                         outside_roi=fc["outside_roi"]),
             geometry_drops=self._geometry_drops(fc),
             source=self.source_counters(),
-            anomalies=fc["anomalies"],
+            anomalies=self._anomalies(fc),
             loop=dict(self.counters.as_dict(), telemetry_dropped=self.telemetry.dropped,
                       generation=self.generation, last_t_us=int(self.fused.last_t)),
             kernel=self.slot.kernel_counters(),
@@ -523,6 +543,13 @@ class FirmwareLoop:
             return ""
         return ",".join(f"{i['label']}:{i['state']}(acquired={i['acquired']},lost={i['lost']},"
                         f"reacquired={i['reacquired']})" for i in kern.instances())
+
+    def _anomalies(self, fc: dict) -> dict:
+        """The camera decoder's anomalies, the kernel's skips, and (``replay_file``) those
+        of the decoder that read a replayed file before re-encoding it."""
+        an = dict(fc["anomalies"])
+        an["replay_file"] = int(self.source_counters().get("file_anomalies", 0))
+        return an
 
     def _geometry_drops(self, fc: dict) -> dict:
         """Events lost because they lay outside the sensor: in the words (the decoder's

@@ -37,6 +37,7 @@ class LoadMeter:
     def __init__(self):
         self.windows: deque = deque(maxlen=4096)   # processing µs per 10 ms of events
         self._t0 = None
+        self._t1 = None                            # the last event time accounted
         self._ns = 0
         self._rate: deque = deque(maxlen=64)       # (wall s, events tracked)
 
@@ -47,6 +48,7 @@ class LoadMeter:
             return
         if self._t0 is None:
             self._t0 = t_us
+        self._t1 = t_us
         self._ns += dt_ns
         if t_us - self._t0 >= WINDOW_US:
             span = t_us - self._t0
@@ -62,6 +64,13 @@ class LoadMeter:
         return (e1 - e0) / (w1 - w0) if w1 > w0 else 0.0
 
     def proc_us_per_10ms(self) -> dict:
-        win = np.array(list(self.windows) or [0.0])     # list(): atomic copy under the GIL
+        """last, mean, p99, max over the windows closed; before the first closes (a stream
+        shorter than a window) the open one, scaled to a window from the event time it
+        spans (its processing time as it is when it spans none)."""
+        win = list(self.windows)                          # list(): atomic copy under the GIL
+        if not win:
+            span = (self._t1 - self._t0) if self._t0 is not None else 0
+            win = [self._ns / 1e3 * (WINDOW_US / span if span > 0 else 1.0)]
+        win = np.array(win)
         return dict(last=float(win[-1]), mean=float(win.mean()),
                     p99=float(np.percentile(win, 99)), max=float(win.max()))

@@ -101,12 +101,21 @@ class ModelSlot:
         that an accepted update always applies."""
         check_backend_params(self.backend, model, params)
 
-    def fit(self, model):
+    def fit(self, model, uploaded: bool = False):
         """``model`` checked against the camera's sensor (springtrack.sensor_fit): a
-        ``SensorError`` (a ModelError) if it does not fit."""
+        ``SensorError`` (a ModelError) if it does not fit.  The rule is the one the
+        firmware was started with (``--sensor-from``): none refuses a mismatch, for the
+        model it starts with as for an upload; an ``uploaded`` model's refusal names the
+        host's way out first."""
         w, h = self.sensor
+        way_out = None
+        if uploaded:
+            way_out = (f"upload a model made for {w}x{h} (its [sensor] width = {w}, height = "
+                       f"{h} and its trackers inside), or restart the firmware with "
+                       f"`firmware-sim run --sensor-from source` (uploads used on the camera's "
+                       f"sensor, trackers where they are) or `--sensor-from model`")
         return fit_model(model, w, h, self.sensor_from, what="the camera's sensor",
-                         source_word="source")
+                         source_word="source", way_out=way_out)
 
     @property
     def pending(self) -> bool:
@@ -128,7 +137,7 @@ class ModelSlot:
             # a ModelError names its code (a name INFO cannot carry: too_long)
             raise UpdateRejected(_model_code(e), _reason(e)) from None
         try:
-            m = self.fit(m)
+            m = self.fit(m, uploaded=True)
             p = resolve_params(m)
             k = self.new_kernel(m, p)
         except (ValueError, TypeError, ArithmeticError) as e:  # ParamError is a ValueError

@@ -7,8 +7,9 @@
     hostctl --port /dev/pts/5 set alpha_position=0.05 energy_scale=3
     hostctl --port /dev/pts/5 get [NAME ...]
     hostctl --port /dev/pts/5 start | stop | reset | acquire | stats | ping | shutdown
+    hostctl --port /dev/pts/5 get-model OUT.toml                # the model it runs now
     hostctl --port /dev/pts/5 --role monitor monitor [--seconds S] [--smooth]
-    hostctl --port /dev/pts/5 record OUT.csv|OUT.npz [--seconds S] [--until-end] [--smooth]
+    hostctl --port /dev/pts/5 record OUT.csv|OUT.npz [--start] [--seconds S] [--until-end] [--smooth]
 
 ``--port`` defaults to $HOSTCTL_PORT.  ``--role monitor`` opens a read-only session beside
 the operator's (telemetry, stats, get, ping; docs/protocol.md, "Sessions").  A signed link
@@ -17,7 +18,9 @@ the operator's (telemetry, stats, get, ping; docs/protocol.md, "Sessions").  A s
 where other users could read it.  ``shutdown`` ends the firmware program; ``reset`` also
 clears its ``faulted`` state.  Exit codes: 0 ok, 1 other error, 2 usage, 3 no such port,
 4 no answer, 5 protocol version mismatch, 6 command refused (NACK), 7 authentication
-failed (wrong key, or this address locked out after failed attempts).
+failed (wrong key, or this address locked out after failed attempts), 8 (monitor,
+record) a model instance was not found: ``not found`` (its search budget spent) or still
+``searching`` with nothing tracked.
 """
 from __future__ import annotations
 
@@ -29,9 +32,11 @@ from dataclasses import dataclass
 from typing import Callable
 
 from springtrack import wire
+from springtrack.view import add_arguments as add_view_arguments
 from springtrack.wire import Role
 
 from .device import Device, HostctlError
+
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="hostctl", description=__doc__.split("\n\n")[0],
@@ -139,9 +144,24 @@ def cmd_load_model(dev, args) -> int:
     return 0
 
 
+def cmd_get_model(dev, args) -> int:
+    text = dev.get_model()
+    if args.out == "-":
+        sys.stdout.write(text)
+        return 0
+    with open(args.out, "w", encoding="utf-8") as f:
+        f.write(text)
+    from springtrack.model import loads
+    m = loads(text, args.out)
+    print(f"model {m.name} ({len(m.trackers)} trackers: {m.ids[0]}..{m.ids[-1]}, "
+          f"{len(m.connections)} springs, sensor {m.width}x{m.height}) -> {args.out}")
+    return 0
+
+
 def cmd_set(dev, args) -> int:
-    for name, value in parse_assignments(args.assignments).items():
-        print(f"{name}={value!r}: generation {dev.set(name, value)}")
+    values = parse_assignments(args.assignments)
+    for name, gen in dev.set_all(values).items():           # all or nothing
+        print(f"{name}={values[name]!r}: generation {gen}")
     return 0
 
 
@@ -164,6 +184,9 @@ def cmd_stats(dev, args) -> int:
     if "state" in st:
         print(f"state: {st['state']}" + (f"  (last error: {st['last_error']})"
                                          if st.get("last_error") else ""))
+    from .monitor import unfound_line
+    if unfound_line(st):
+        print(f"acquisition: {unfound_line(st)}")
     for k, v in sorted(st.items()):
         print(f"{k}: {v}")
     for k, v in sorted(dev.link_counters().items()):
@@ -180,31 +203,50 @@ def cmd_ping(dev, args) -> int:
 
 def cmd_monitor(dev, args) -> int:
     from .monitor import monitor
-    return monitor(dev, seconds=args.seconds, smooth=args.smooth, rate=args.rate)
+    view = None
+    if args.view:
+        from springtrack import view as live_view
+        from springtrack.model import load_model
+        view = live_view.open(args.view, load_model(args.model) if args.model else None,
+                              name="hostctl monitor", every_us=args.view_every_us)
+    try:
+        return monitor(dev, seconds=args.seconds, smooth=args.smooth, rate=args.rate, view=view)
+    finally:
+        if view is not None:
+            view.close()
+            print(f"view: {view.frames} frames -> {args.view}", file=sys.stderr)
 
 
-# the device states (STATS ``state``) in which it sends no telemetry, and what to do
-_SILENT_STATES = {
-    "ended": "the device's source has ended (hostctl start replays it)",
-    "idle": "the device is not started (hostctl start)",
-    "stopped": "the device is stopped (hostctl start)",
-    "faulted": "the device is faulted (hostctl stats shows its last error; hostctl reset)",
-}
+def _monitor_arguments(sp) -> None:
+    _arguments(
+        ("--seconds", dict(type=float, default=None, help="stop after S seconds")),
+        ("--smooth", dict(action="store_true", help="add Kalman-smoothed velocities")),
+        ("--rate", dict(type=float, default=12.0, help="redraws per second (12)")))(sp)
+    add_view_arguments(sp)
+    sp.add_argument("--model", metavar="MODEL",
+                    help="with --view: the device's model (TOML file or preset) to draw its "
+                         "springs and name its instances")
 
 
 def _why_silent(dev) -> str:
-    """Why a device sent no telemetry, from its STATS state."""
+    """Why a device sent no telemetry, from its STATS."""
+    from .monitor import why_silent
     try:
-        state = dev.stats().get("state")
+        return why_silent(dev.stats())
     except HostctlError as e:
         return f"and its STATS did not answer ({e})"
-    return _SILENT_STATES.get(state, f"the device's state is {state!r}")
 
 
 def cmd_record(dev, args) -> int:
-    from .record import save
+    from .monitor import NOT_FOUND_EXIT, verdict
+    from .record import device_ids, save
     from .smooth import Smoother  # noqa: F401 - fail early if filterpy is missing
+    from . import drops
     snaps, failure = [], None
+    dev0, host0 = drops.device_counters(dev), drops.host_counters(dev)
+    if args.start:
+        args.until_end = True
+        dev.start()                    # this session already receives the telemetry
     try:
         end = time.monotonic() + args.seconds
         while time.monotonic() < end and not (args.until_end and dev.stream_ended):
@@ -216,14 +258,23 @@ def cmd_record(dev, args) -> int:
     if not snaps and failure is None:
         raise ValueError(f"no telemetry received in {args.seconds:g} s: "
                          f"{_why_silent(dev)}")
-    summary = save(args.out, snaps, dev.info, smooth={} if args.smooth else None)
-    lc = dev.link_counters()
+    summary = save(args.out, snaps, dev.info, smooth={} if args.smooth else None,
+                   ids=lambda n: device_ids(dev, n))
+    lost = drops.span(dev0, drops.device_counters(dev) if failure is None else None,
+                      host0, drops.host_counters(dev))
+    text, warn = drops.summary(lost, summary["snapshots"])
     print(f"recorded {summary['snapshots']} snapshots x {summary['trackers']} trackers "
-          f"to {', '.join(summary['files'])}; lost frames {lc['lost']}, "
-          f"CRC errors {lc['crc_errors']}, model-swap drops {summary['dropped']}")
+          f"to {', '.join(summary['files'])}; {text}; model-swap drops {summary['dropped']}")
+    if warn:
+        print(f"hostctl record: warning: the recording is incomplete: {text}", file=sys.stderr)
     if failure is not None:
         print(f"hostctl record: error: {failure} (recording ended early)", file=sys.stderr)
         return failure.exit_code
+    missing = verdict(dev.stats(), summary["tracked"])
+    if missing:
+        print(f"hostctl record: {missing}: the recording's rows say so (state column)",
+              file=sys.stderr)
+        return NOT_FOUND_EXIT
     return 0
 
 
@@ -261,6 +312,10 @@ VERBS: dict[str, Verb] = {
     "info": Verb("firmware/protocol versions, geometry, model", cmd_info),
     "load-model": Verb("upload a model (preset name or TOML file)", cmd_load_model,
                        _arguments(("model", {}))),
+    "get-model": Verb("download the model the device runs (uploaded, learned or its own) "
+                      "as TOML", cmd_get_model,
+                      _arguments(("out", dict(metavar="OUT.toml",
+                                              help="file to write (- for standard output)")))),
     "set": Verb("set parameters NAME=VALUE ...", cmd_set,
                 _arguments(("assignments", dict(nargs="+", metavar="NAME=VALUE")))),
     "get": Verb("show parameters (all if none named)", cmd_get,
@@ -274,16 +329,18 @@ VERBS: dict[str, Verb] = {
     "shutdown": Verb("end the firmware program", _simple("shutdown")),
     "ping": Verb("command round-trip times", cmd_ping,
                  _arguments(("-n", dict(type=int, default=10)))),
-    "monitor": Verb("live view of the trackers (12 redraws/s)", cmd_monitor, _arguments(
-        ("--seconds", dict(type=float, default=None, help="stop after S seconds")),
-        ("--smooth", dict(action="store_true", help="add Kalman-smoothed velocities")),
-        ("--rate", dict(type=float, default=12.0, help="redraws per second (12)")))),
+    "monitor": Verb("live view of the trackers (12 redraws/s; --view: in Rerun)", cmd_monitor,
+                    _monitor_arguments),
     "record": Verb("record telemetry to OUT.csv or OUT.npz", cmd_record, _arguments(
         ("out", {}),
         ("--seconds", dict(type=float, default=10.0, help="duration (10)")),
         ("--until-end", dict(action="store_true",
                              help="stop early when the device says its source has no more "
                                   "data")),
+        ("--start", dict(action="store_true",
+                         help="start the device once recording (from its first event; a "
+                              "replay that ended is replayed), and stop when its source ends "
+                              "(implies --until-end): a short replay is captured whole")),
         ("--smooth", dict(action="store_true",
                           help="add smoothed positions and velocities (npz arrays / "
                                ".smooth.csv)")))),

@@ -67,6 +67,7 @@ class Nacked(HostctlError):
     def __init__(self, command: str, refusal: wire.Refusal):
         super().__init__(f"{command} refused ({refusal.code_name}): {refusal.reason}")
         self.command, self.code, self.reason = command, refusal.code, refusal.reason
+        self.refusal = refusal
 
 
 @dataclass
@@ -158,10 +159,10 @@ class Device:
                              f"after it: the key is most likely wrong (the device drops "
                              f"frames whose signature does not verify, without an answer); "
                              f"check --key-file / $HOSTCTL_KEY") from None
-        except HostctlError as e:
+        except (HostctlError, OSError) as e:      # OSError: the peer closed (broken pipe)
             raise AuthFailed(f"{self.url}: the device closed the link during authentication "
-                             f"({e}): a wrong key, or this address is locked out after failed "
-                             f"attempts") from None
+                             f"({e}): a wrong key (a connection from an address locked out "
+                             f"after failed attempts is closed at its first)") from None
 
     def load_model(self, model) -> int:
         """Upload a model (ShapeModel, preset name, TOML path or TOML text); returns the
@@ -175,19 +176,48 @@ class Device:
         return self._command(MsgType.MODEL_COMMIT, wire.encode_model_begin(text))
 
     def set(self, name: str | None = None, value=None, **params) -> int:
-        """Set one or more parameters; returns the generation of the last change."""
+        """Set one or more parameters, all or nothing (:meth:`set_all`); returns the
+        generation of the last change."""
         if name is not None:
             params = {name: value, **params}
-        gen = 0
+        gens = self.set_all(params)
+        return list(gens.values())[-1] if gens else 0
+
+    def set_all(self, params: dict) -> dict:
+        """Set the parameters ``params`` (name -> value), all or nothing; returns the
+        generation of each change.  Several at once: their current values are read first
+        (an unknown name is refused before anything changes); if the device refuses one,
+        those already set are set back to their values before, and the refusal (Nacked)
+        says so."""
+        before = self.get(*params) if len(params) > 1 else {}
+        gens: dict = {}
         for k, v in params.items():
-            gen = self._command(MsgType.PARAM_SET, wire.encode_param_set(k, v))
-        return gen
+            try:
+                gens[k] = self._command(MsgType.PARAM_SET, wire.encode_param_set(k, v))
+            except Nacked as e:
+                if not before:
+                    raise
+                failed = []
+                for d in reversed(list(gens)):
+                    try:
+                        self._command(MsgType.PARAM_SET, wire.encode_param_set(d, before[d]))
+                    except HostctlError:
+                        failed.append(d)
+                undo = (f"{', '.join(failed)} could NOT be set back" if failed else
+                        f"nothing changed ({', '.join(gens)} set back)" if gens else
+                        "nothing changed")
+                raise Nacked(e.command, e.refusal._replace(reason=f"{e.reason}; {undo}")) from None
+        return gens
 
     def get(self, *names) -> dict:
         return self._parts(MsgType.PARAM_GET, wire.encode_param_get(names), MsgType.PARAM_VALUE)
 
     def stats(self) -> dict:
         return self._parts(MsgType.STATS, b"", MsgType.STATS)
+
+    def get_model(self) -> str:
+        """The device's running model (uploaded, learned or its own) as TOML text."""
+        return wire.decode_model_text(self._parts(MsgType.MODEL_GET, b"", MsgType.MODEL_GET))
 
     def start(self) -> None:
         """Start (or, after the source ended, replay) the stream."""
@@ -450,9 +480,13 @@ def _model_text(model) -> str:
     if isinstance(model, ShapeModel):
         return model.to_toml()
     s = str(model)
-    if "\n" in s and "[" in s:            # TOML text: validated by the firmware on commit
+    if "\n" in s:                         # TOML text: validated by the firmware on commit
         return s
-    if Path(s).exists():
+    try:
+        is_file = Path(s).is_file()
+    except OSError:                       # not a path (too long a name)
+        is_file = False
+    if is_file:
         return Path(s).read_text()
     return load_model(s).to_toml()
 

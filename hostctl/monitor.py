@@ -8,13 +8,14 @@ from __future__ import annotations
 import sys
 import time
 
-from springtrack.track import STATE_NAMES
+from springtrack.track import STATE_NAMES, TRACKING_CODE
 from springtrack.wire import state_runs
 
-from .record import tracker_ids
+from .record import device_ids
 from .smooth import Smoother
 
 HOME_CLEAR = "\x1b[H\x1b[2J"
+NOT_FOUND_EXIT = 8          # exit status: a model instance the device has not found
 
 
 def event_count(stats: dict) -> int | None:
@@ -32,6 +33,54 @@ def status_line(dev, stats: dict) -> str:
             f"non-finite dropped {stats.get('loop.nonfinite_snapshots', 0)}   "
             f"stalls {stats.get('loop.watchdog_stalls', 0)}   errors received "
             f"{dev.counts['errors']}" + (f"   last error: {last[:100]}" if last else ""))
+
+
+# the device states (STATS ``state``) in which it sends no telemetry, and what to do
+SILENT_STATES = {
+    "ended": "the device's source has ended (`hostctl record --start` replays it and "
+             "records it from its first event)",
+    "idle": "the device is not started (hostctl start)",
+    "stopped": "the device is stopped (hostctl start)",
+    "faulted": "the device is faulted (hostctl stats shows its last error; hostctl reset)",
+}
+# an instance in one of these states has not been found by the device's acquisition
+UNFOUND = ("searching", "not found")
+
+
+def instance_states(stats: dict) -> dict:
+    """Each model instance's state from STATS (``instances.LABEL``): {label: state}."""
+    return {k[len("instances."):]: v for k, v in stats.items() if k.startswith("instances.")}
+
+
+def unfound_line(stats: dict) -> str:
+    """What STATS says of the instances the acquisition has not found ('' if none)."""
+    lost = {k: v for k, v in instance_states(stats).items() if v in UNFOUND}
+    if not lost:
+        return ""
+    tries = stats.get("kernel.acquire_attempts")
+    dropped = stats.get("kernel.acquire_events_dropped")
+    return (", ".join(f"model instance {k} {v}" for k, v in lost.items())
+            + (f" ({tries} acquisition window(s) tried, {dropped:,} events searched in vain)"
+               if isinstance(tries, int) and isinstance(dropped, int) else ""))
+
+
+def why_silent(stats: dict) -> str:
+    """Why a device sends no telemetry, from its STATS."""
+    state = stats.get("state")
+    why = SILENT_STATES.get(state, f"the device's state is {state!r}")
+    found = unfound_line(stats)
+    return why + (f"; {found}" if found else "")
+
+
+def verdict(stats: dict, tracked: bool) -> str:
+    """'' when every model instance was found; else what was not, for the exit message:
+    an instance ``not found`` (its search budget spent), or still ``searching`` when
+    nothing received was tracking (``tracked``: a snapshot had a tracking tracker)."""
+    states = instance_states(stats)
+    if any(v == "not found" for v in states.values()) or \
+            (not tracked and any(v == "searching" for v in states.values())):
+        return unfound_line(stats)
+    return ""
 
 
 def instances_line(trackers) -> str:
@@ -72,7 +121,9 @@ def render(dev, snap, ids, smooth, rates: dict, stats: dict | None = None) -> st
 
 
 def monitor(dev, seconds: float | None = None, smooth: bool = False, rate: float = 12.0,
-            out=None) -> int:
+            out=None, view=None) -> int:
+    """Redraw the terminal view ``rate`` times a second for ``seconds`` (None: until
+    interrupted); every snapshot also goes to ``view`` (a springtrack.view.RerunView)."""
     out = out or sys.stdout
     period = 1.0 / max(rate, 1e-3)
     end = None if seconds is None else time.monotonic() + seconds
@@ -81,6 +132,7 @@ def monitor(dev, seconds: float | None = None, smooth: bool = False, rate: float
     smoother = None
     rates: dict = {}
     n_tele, t_rate = 0, time.monotonic()
+    tracked = False
     stats = dev.stats()
     ev0 = event_count(stats)
     next_draw = time.monotonic()
@@ -90,11 +142,14 @@ def monitor(dev, seconds: float | None = None, smooth: bool = False, rate: float
                 dev.snapshots.appendleft(snap)          # handle it after this redraw
                 break
             n_tele += 1
+            tracked = tracked or bool((snap.trackers["state"] == TRACKING_CODE).any())
             if last is None or len(snap.trackers) != len(last.trackers):
-                ids = tracker_ids(dev.info, len(snap.trackers))
+                ids = device_ids(dev, len(snap.trackers))
                 smoother = Smoother(len(snap.trackers)) if smooth else None
             if smoother is not None:
                 smoother.update(snap.t_us, snap.trackers["x"], snap.trackers["y"])
+            if view is not None:
+                view.telemetry(snap.t_us, snap.trackers, snap.mean_energy)
             last = snap
         now = time.monotonic()
         if now - t_rate >= 0.5:
@@ -106,10 +161,15 @@ def monitor(dev, seconds: float | None = None, smooth: bool = False, rate: float
             ev0, n_tele, t_rate = ev, 0, now
         if now >= next_draw:
             next_draw = max(next_draw + period, now)     # fixed schedule: no drift
+            why = (why_silent(stats) if stats.get("state") != "running"
+                   else "the device runs but has sent none yet")
             body = (render(dev, last, ids, smoother, rates, stats) if last is not None
-                    else f"hostctl monitor  {dev.url}: waiting for telemetry "
-                         f"(is the device started? `hostctl start`)\n"
+                    else f"hostctl monitor  {dev.url}: waiting for telemetry ({why})\n"
                          + status_line(dev, stats))
             out.write(HOME_CLEAR + body + "\n")
             out.flush()
+    missing = verdict(dev.stats(), tracked)
+    if missing:
+        print(f"hostctl monitor: {missing}", file=sys.stderr)
+        return NOT_FOUND_EXIT
     return 0

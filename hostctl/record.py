@@ -1,9 +1,11 @@
 """Recording telemetry to files.
 
 * ``OUT.csv`` - the track CSV schema of ``springtrack track`` (springtrack.track.CSV_HEADER:
-  ``t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive``), so ``springtrack score``
-  reads recordings.  With smoothing, the smoothed states go to a sidecar
-  ``OUT.smooth.csv`` (``t_us,tracker,x_s,y_s,vx,vy``) so the main file keeps the schema.
+  ``t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive,state``), so ``springtrack
+  score`` reads recordings; the tracker ids are those of the device's model (``hostctl
+  get-model``), so ``springtrack render --model`` draws them.  With smoothing, the
+  smoothed states go to a sidecar ``OUT.smooth.csv`` (``t_us,tracker,x_s,y_s,vx,vy``) so
+  the main file keeps the schema.
 * ``OUT.npz`` - arrays ``t_us (T,)``, ``ids (K,)``, ``x, y, sxx, sxy, syy, activity,
   active, sensitive (T, K)``, ``generation, mean_energy, seq, host_time (T,)`` and, with
   smoothing, ``smooth_t_us (T',)``, ``x_s, y_s, vx, vy (T', K)``.
@@ -17,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from springtrack.track import TRACK_FIELDS, Track
+from springtrack.track import TRACK_FIELDS, TRACKING_CODE, Track
 
 from .smooth import SMOOTH_FIELDS, smooth_track
 
@@ -27,6 +29,21 @@ def tracker_ids(info: dict, n: int) -> list[str]:
     if isinstance(ids, list) and len(ids) == n and all(isinstance(i, str) for i in ids):
         return ids
     return [f"t{k:02d}" for k in range(n)]
+
+
+def device_ids(dev, n: int) -> list[str]:
+    """The ids of the ``n`` trackers the device runs now: its model's (MODEL_GET, so a model
+    learned or uploaded since the session opened names them as ``hostctl get-model``
+    does), else INFO's, else t00, t01, ..."""
+    from springtrack.model import ModelError, loads
+    from .device import HostctlError
+    try:
+        ids = [t.id for t in loads(dev.get_model(), "the device's model").trackers]
+    except (HostctlError, ModelError, ValueError):
+        ids = None
+    if ids is not None and len(ids) == n:
+        return ids
+    return tracker_ids(dev.info, n)
 
 
 def stack(snaps) -> dict:
@@ -52,12 +69,13 @@ def to_track(arrs: dict, ids) -> Track:
     return Track(arrs["t_us"], list(ids), **{f: arrs[f] for f in TRACK_FIELDS})
 
 
-def save(path, snaps, info: dict, smooth: dict | None = None) -> dict:
-    """Write a recording; ``smooth`` is None or the Smoother keyword arguments.
-    Returns a summary (rows, trackers, files)."""
+def save(path, snaps, info: dict, smooth: dict | None = None, ids=None) -> dict:
+    """Write a recording; ``smooth`` is None or the Smoother keyword arguments; ``ids``
+    a function of the tracker count giving their ids (default: INFO's ``trackers``).
+    Returns a summary (rows, trackers, files, tracked: a row had a tracking tracker)."""
     path = Path(path)
     arrs = stack(snaps)
-    ids = tracker_ids(info, arrs["x"].shape[1])
+    ids = (ids or (lambda n: tracker_ids(info, n)))(arrs["x"].shape[1])
     sm = smooth_track(arrs["t_us"], arrs["x"], arrs["y"], **smooth) if smooth is not None else None
     files = [str(path)]
     if path.suffix == ".npz":
@@ -75,7 +93,7 @@ def save(path, snaps, info: dict, smooth: dict | None = None) -> dict:
     else:
         raise ValueError(f"{path}: unknown recording format {path.suffix!r}; use .csv or .npz")
     return dict(snapshots=len(arrs["t_us"]), trackers=len(ids), dropped=arrs["dropped"],
-                files=files)
+                files=files, tracked=bool((arrs["state"] == TRACKING_CODE).any()))
 
 
 def _smooth_csv(path, sm: dict, ids) -> None:

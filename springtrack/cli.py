@@ -10,6 +10,8 @@ import argparse
 import importlib
 import sys
 
+from . import process_end
+
 # name -> (module, one-line help)
 COMMANDS = {
     "track": ("springtrack.commands.track", "track a shape model through an event file"),
@@ -51,11 +53,20 @@ def main(argv=None) -> int:
                                       formatter_class=argparse.RawDescriptionHelpFormatter)
         mod.add_arguments(sub)
         args = sub.parse_args(argv[1:])
+        process_end.catch_sigterm()
         try:
-            return int(mod.run(args) or 0)
+            rc = int(mod.run(args) or 0)
+            sys.stdout.flush()               # a reader gone shows here, not at exit
+            return rc
         except KeyboardInterrupt:
             print("interrupted", file=sys.stderr)
             return 130
+        except process_end.Terminated:
+            print(f"springtrack {argv[0]}: terminated (SIGTERM); an output being written was "
+                  f"closed as it stood (see the message above, if any)", file=sys.stderr)
+            return process_end.TERMINATED_STATUS
+        except BrokenPipeError:              # the reader of standard output went away
+            return process_end.broken_pipe()
         except (ValueError, OSError) as e:   # ModelError, ParamError, DecodeError are ValueErrors
             if isinstance(e, OSError) and e.filename is not None:   # name the file first
                 e = f"{e.filename}: {e.strerror or e}"

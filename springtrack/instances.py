@@ -29,9 +29,14 @@ names the count and the limit; nothing is truncated.
 
 State.  Each instance is :data:`SEARCHING` (not yet placed by an acquisition),
 :data:`TRACKING` or :data:`LOST` (springtrack.acquisition.loss decides); only a tracking instance's
-trackers are sensitive and only its springs run.
+trackers are sensitive and only its springs run.  :data:`NOT_FOUND` is the verdict of an
+acquisition whose search budget is spent (the input ended, or ``Tracker``'s
+``acquire_budget_ms`` of event time passed) without finding the instance; no kernel holds
+it, the Tracker's sample rows of a search carry it (springtrack.tracker).
 """
 from __future__ import annotations
+
+import re
 
 from dataclasses import dataclass
 from enum import IntEnum
@@ -56,11 +61,13 @@ class InstanceState(IntEnum):
     SEARCHING = 0      # not yet placed by an acquisition: insensitive
     TRACKING = 1
     LOST = 2           # its evidence collapsed (the loss rule): insensitive, positions kept
+    NOT_FOUND = 3      # its search budget spent unfound (the Tracker's rows only)
 
 
 SEARCHING, TRACKING, LOST = InstanceState.SEARCHING, InstanceState.TRACKING, InstanceState.LOST
+NOT_FOUND = InstanceState.NOT_FOUND
 # the names in the track CSV (the track record's definition)
-assert STATE_NAMES == tuple(s.name.lower() for s in InstanceState)
+assert STATE_NAMES == tuple(s.name.lower().replace("_", " ") for s in InstanceState)
 
 
 @dataclass(frozen=True)
@@ -229,12 +236,15 @@ def _check_shared(models, plist) -> None:
 
 
 def _labels(models) -> list:
-    """``name#k``: k the 1-based number of the instance among those of its model's name."""
+    """``name#k``: k the 1-based number of the instance among those of its model's name;
+    the name's characters outside the tracker ids' safe set (springtrack.limits.TRACKER_ID)
+    become ``_``, since a label prefixes ids that name CSV columns."""
     seen: dict = {}
     out = []
     for m in models:
         seen[m.name] = seen.get(m.name, 0) + 1
-        out.append(f"{m.name}#{seen[m.name]}")
+        safe = re.sub(r"[^A-Za-z0-9_.\-]", "_", m.name)
+        out.append(f"{'_' + safe[1:] if safe[:1] in ('-', '.') else safe}#{seen[m.name]}")
     return out
 
 

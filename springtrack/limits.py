@@ -11,6 +11,8 @@ The capacities are mirrored by ``cdef enum`` in ``kernel/kernel.pxd`` and ``fixe
 """
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 from .gate import covariance_gain
@@ -50,6 +52,12 @@ SPRING_LOAD_MAX = 0.5
 # eq. (4)'s gain on the bias-corrected sample, alpha_covariance / covariance_bias, is a
 # Q.31 gain <= 1 in the fixed kernel: an event never weighs more than the whole estimate.
 COV_GAIN_MAX = 1.0
+
+# Tracker ids name CSV columns and telemetry fields: a safe character set, nothing a
+# spreadsheet reads as a formula (no leading '=', '+', '-', '@'), no separators.
+TRACKER_ID_CHARS = "letters, digits, '_', '.' and '-' (not first)"
+TRACKER_ID_MAX = 32
+TRACKER_ID = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]{0,%d}" % (TRACKER_ID_MAX - 1))
 
 SPRING_BITS = {"euclidean": 1, "torsional": 2, "cartesian": 4}
 

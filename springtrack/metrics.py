@@ -75,7 +75,7 @@ def read_truth_csv(path) -> Truth:
         t = np.array([int(r[0]) for r in rows], np.int64)
         names = [r[1] for r in rows]
         xy = np.array([[float(r[2]), float(r[3])] for r in rows])
-    except (ValueError, IndexError) as e:
+    except (ValueError, IndexError, OverflowError) as e:    # OverflowError: t beyond int64
         raise ValueError(f"{path}: malformed truth row: {e}") from None
     ids = list(dict.fromkeys(names))
     times = np.unique(t)

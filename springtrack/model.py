@@ -151,8 +151,10 @@ def validate(m: ShapeModel) -> None:
     seen = set()
     for i, t in enumerate(m.trackers):
         where = f"trackers[{i}] (id={t.id!r})"
-        if not isinstance(t.id, str) or not t.id:
-            err(f"trackers[{i}]: id must be a non-empty string")
+        if not isinstance(t.id, str) or not _limits.TRACKER_ID.fullmatch(t.id):
+            err(f"trackers[{i}]: id {t.id!r:.60} is not a tracker id: 1 to "
+                f"{_limits.TRACKER_ID_MAX} characters of {_limits.TRACKER_ID_CHARS} (ids name "
+                f"the columns of CSV files and telemetry)")
         if t.id in seen:
             err(f"{where}: duplicate tracker id {t.id!r}")
         seen.add(t.id)
@@ -170,14 +172,14 @@ def validate(m: ShapeModel) -> None:
     for k, c in enumerate(m.connections):
         where = f"connections[{k}] ({c.a!r}-{c.b!r})"
         for end in (c.a, c.b):
-            if end not in seen:
+            if not isinstance(end, str) or end not in seen:
                 err(f"{where}: unknown tracker id {end!r}")
         if c.a == c.b:
             err(f"{where}: a connection from a tracker to itself")
-        if not c.springs:
+        if not isinstance(c.springs, (list, tuple)) or not c.springs:
             err(f"{where}: springs must be a non-empty subset of {', '.join(SPRING_KINDS)}")
         for s in c.springs:
-            if s not in SPRING_KINDS:
+            if not isinstance(s, str) or s not in SPRING_KINDS:
                 err(f"{where}: unknown spring kind {s!r}; use {', '.join(SPRING_KINDS)}")
         if len(set(c.springs)) != len(c.springs):
             err(f"{where}: a spring kind is listed twice in {list(c.springs)}")
@@ -238,6 +240,15 @@ def _need(d: dict, key: str, where: str, src: str):
     return d[key]
 
 
+def _tables(data: dict, key: str, source: str) -> list:
+    """``data[key]``, an array of tables ([[key]] entries), or a ModelError saying so."""
+    v = data.get(key, [])
+    if not isinstance(v, list) or not all(isinstance(t, dict) for t in v):
+        raise ModelError(f"{source}: {key} must be an array of tables ([[{key}]] entries), "
+                         f"got {type(v).__name__} {v!r:.40}")
+    return v
+
+
 def from_dict(data: dict, source: str = "<model>") -> ShapeModel:
     """Build a model from parsed TOML, with errors naming ``source`` and the entry."""
     unknown = set(data) - {"name", "sensor", "trackers", "connections", "params"}
@@ -247,7 +258,7 @@ def from_dict(data: dict, source: str = "<model>") -> ShapeModel:
     if not isinstance(sensor, dict):
         raise ModelError(f"{source}: missing [sensor] table with width and height")
     trackers = []
-    for i, t in enumerate(data.get("trackers", [])):
+    for i, t in enumerate(_tables(data, "trackers", source)):
         where = f"trackers[{i}]"
         extra = set(t) - {"id", "x", "y", "sigma", "mass"}
         if extra:
@@ -258,7 +269,7 @@ def from_dict(data: dict, source: str = "<model>") -> ShapeModel:
         trackers.append(TrackerSpec(_need(t, "id", where, source), _need(t, "x", where, source),
                                     _need(t, "y", where, source), tuple(sigma), t.get("mass", 1.0)))
     conns = []
-    for k, c in enumerate(data.get("connections", [])):
+    for k, c in enumerate(_tables(data, "connections", source)):
         where = f"connections[{k}]"
         extra = set(c) - {"a", "b", "springs", "stiffness"}
         if extra:

@@ -171,6 +171,9 @@ def check(name: str, value, where: str = "") -> object:
 def from_mapping(values: Mapping, base: Params | None = None, where: str = "") -> Params:
     """Params from a dict (e.g. a TOML ``[params]`` table), over ``base`` or defaults."""
     base = base or Params()
+    if not isinstance(values, Mapping):
+        raise ParamTypeError(f"{where + ': ' if where else ''}parameters must be a table of "
+                             f"names and values, got {type(values).__name__} {values!r:.40}")
     merged = base.as_dict()
     for k, v in values.items():
         merged[k] = check(k, v, where)
@@ -181,18 +184,19 @@ def from_mapping(values: Mapping, base: Params | None = None, where: str = "") -
 
 
 def parse_toml(text, source, error: type = ParamError) -> dict:
-    """TOML ``text`` (str or UTF-8 bytes) as a dict; invalid TOML, text that is not UTF-8,
-    or nesting deeper than the parser's recursion allows (tomllib recurses once per
-    level of arrays and inline tables) raise ``error`` naming ``source``."""
+    """TOML ``text`` (str or UTF-8 bytes) as a dict; text beyond the bounds of
+    :mod:`springtrack.toml_bounds` (checked first, in linear time), invalid TOML or text
+    that is not UTF-8 raise ``error`` naming ``source``."""
     import tomllib
+    from . import toml_bounds
     try:
-        if isinstance(text, (bytes, bytearray)):
-            text = bytes(text).decode("utf-8")
-        return tomllib.loads(text)
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:
+        return tomllib.loads(toml_bounds.check(text, str(source)))
+    except toml_bounds.TomlBoundsError as e:
+        raise error(str(e)) from None
+    except UnicodeDecodeError as e:
+        raise error(f"{source}: not valid TOML: not UTF-8 text: {e}") from None
+    except (ValueError, RecursionError) as e:   # TOMLDecodeError, or an integer too long
         raise error(f"{source}: not valid TOML: {e}") from None
-    except RecursionError:
-        raise error(f"{source}: not valid TOML: arrays or tables nested too deeply") from None
 
 
 def read_toml(path, error: type = ParamError) -> dict:

@@ -1,7 +1,7 @@
 """The executable specification: Algorithm 1 of Valeiras et al. 2015, float64, one event at a time.
 
 Every line cites the equation it implements.  The Cython kernel (``kernel/kernel.pyx``) translates
-this file and must agree with it to 1e-9 px (tests/test_equivalence.py); keep the two in
+this file and must agree with it to 1e-9 px (tests/test_springtrack/kernel/test_equivalence.py); keep the two in
 step.  The kernel keeps this file's order of floating-point operations in the per-event
 step (so ties resolve alike) but evaluates exp (eqs. 2, 6) and the springs' atan2, sin and
 cos with its own ~1-ulp code (springtrack/csrc/fastmath.h), and sums the three spring kinds

@@ -19,11 +19,19 @@ ACTIVE = "#1a9850"        # green: active and sensitive
 INACTIVE = "#222222"      # black: sensitive but not active
 INSENSITIVE = "#f46d43"   # orange, dashed: insensitive (eq. 21)
 LOST = "#9e9e9e"          # grey, dotted: the instance is lost (springtrack.acquisition.loss)
+SPRING = "#888888"        # grey line: a spring between two trackers
 ACQUIRED = "#7b3294"      # purple x: where an acquisition placed an instance
 TRUTH = "#ffd92f"
 ON_RGB = np.array([0.85, 0.15, 0.15])
 OFF_RGB = np.array([0.15, 0.35, 0.9])
 BG = 0.96
+# the legend of every picture of a track (these figures, the live view): label, colour
+LEGEND = (("active (2σ)", ACTIVE), ("inactive", INACTIVE), ("insensitive", INSENSITIVE),
+          ("lost", LOST), ("spring", SPRING), ("ON", ON_RGB), ("OFF", OFF_RGB))
+LEGEND_STYLE = {"active (2σ)": {"lw": 2}, "inactive": {"lw": 2},
+                "insensitive": {"lw": 2, "ls": "--"}, "lost": {"lw": 2, "ls": ":"},
+                "spring": {"lw": 1}, "ON": {"marker": "s", "ls": ""},
+                "OFF": {"marker": "s", "ls": ""}}
 
 
 def _mpl():
@@ -34,26 +42,73 @@ def _mpl():
 
 
 def event_image(ev: np.ndarray, width: int, height: int) -> np.ndarray:
-    """RGB image (height, width, 3): ON events red, OFF blue, on a light background."""
+    """RGB image (height, width, 3) on a light background: each pixel with events is ON
+    red and OFF blue mixed in the proportion of its ON and OFF events (purple: as many of
+    each), so neither polarity hides the other."""
     img = np.full((height, width, 3), BG)
     ok = (ev["x"] < width) & (ev["y"] < height)
     ev = ev[ok]
+    pix = ev["y"].astype(np.int64) * width + ev["x"]
     on = ev["p"] > 0
-    img[ev["y"][on], ev["x"][on]] = ON_RGB
-    img[ev["y"][~on], ev["x"][~on]] = OFF_RGB
+    n_on = np.bincount(pix[on], minlength=width * height)
+    n_all = np.bincount(pix, minlength=width * height)
+    hit = n_all > 0
+    frac = (n_on[hit] / n_all[hit])[:, None]
+    img.reshape(-1, 3)[hit] = frac * ON_RGB + (1 - frac) * OFF_RGB
     return img
 
 
+class Header:
+    """The band above an overlay frame, sized so its text and legend fit the picture's
+    width at any size: ``width_px`` wide; the text in a monospace font that fits
+    ``MIN_LINE_CHARS`` characters per line (wrapped to as many lines as
+    ``HEADER_CHARS`` needs), the legend in as many columns as fit, in rows below it."""
+
+    HEADER_CHARS = 130           # the longest header text drawn (title, times, states)
+    MIN_LINE_CHARS = 44
+    CHAR_EM = 0.6                # a monospace glyph's advance, in ems
+    LEGEND_ENTRY_EMS = 8.5       # a legend entry: its handle, gap and label, in ems
+
+    def __init__(self, width_px: float, scale: float):
+        px_per_pt = 100 / 72                                  # at 100 dpi
+        self.fs = min(9 * scale / 2, width_px / (self.MIN_LINE_CHARS * self.CHAR_EM * px_per_pt))
+        self.legend_fs = min(6.5 * scale / 2, self.fs)
+        self.width_px = width_px
+        self.line_chars = max(1, int(width_px / (self.CHAR_EM * self.fs * px_per_pt)) - 1)
+        self.lines = -(-self.HEADER_CHARS // self.line_chars)
+        self.pad = 2.0
+        line_px = 1.25 * self.fs * px_per_pt
+        self.legend_top = self.pad + self.lines * line_px
+        self._leg_row_px = 1.45 * self.legend_fs * px_per_pt
+        self._entry_px = self.LEGEND_ENTRY_EMS * self.legend_fs * px_per_pt
+        self.height = self.legend_top + self._leg_row_px * -(-7 // self.legend_columns(7)) + 2 * self.pad
+
+    def legend_columns(self, entries: int) -> int:
+        return max(1, min(entries, int(self.width_px // self._entry_px)))
+
+    def wrap(self, text: str) -> str:
+        import textwrap
+        return "\n".join(textwrap.wrap(text, self.line_chars)[:self.lines])
+
+
 def ellipse_xy(x, y, sxx, sxy, syy, nsig=2.0, n=40):
-    """Points of the nsig-sigma ellipse of a 2-D Gaussian."""
-    vals, vecs = np.linalg.eigh(np.array([[sxx, sxy], [sxy, syy]]))
+    """Points of the nsig-sigma ellipse of a 2-D Gaussian: (xs, ys), n each."""
+    pts = ellipses_xy([x], [y], [sxx], [sxy], [syy], nsig, n)[0]
+    return pts[:, 0], pts[:, 1]
+
+
+def ellipses_xy(x, y, sxx, sxy, syy, nsig=2.0, n=40) -> np.ndarray:
+    """Points of the nsig-sigma ellipses of K 2-D Gaussians (arrays of K): (K, n, 2)."""
+    cov = np.stack([np.stack([sxx, sxy], -1), np.stack([sxy, syy], -1)], -2)    # (K, 2, 2)
+    vals, vecs = np.linalg.eigh(cov.astype(np.float64))
     a = np.linspace(0, 2 * math.pi, n)
-    circ = np.stack([np.cos(a), np.sin(a)]) * (nsig * np.sqrt(np.maximum(vals, 0)))[:, None]
-    pts = vecs @ circ
-    return x + pts[0], y + pts[1]
+    circ = np.stack([np.cos(a), np.sin(a)])[None] * (nsig * np.sqrt(np.maximum(vals, 0)))[..., None]
+    pts = vecs @ circ                                                            # (K, 2, n)
+    return np.stack([np.asarray(x, np.float64)[:, None] + pts[:, 0],
+                     np.asarray(y, np.float64)[:, None] + pts[:, 1]], -1)
 
 
-def _drawn(models):
+def drawn(models):
     """(width, height, ids, links, instance of each tracker, labels) of a model or a
     ``springtrack.instances.ModelSet``."""
     from .instances import ModelSet
@@ -74,45 +129,49 @@ class OverlayRenderer:
     def __init__(self, model, scale: float = 2.0, title: str = ""):
         plt = _mpl()
         self.plt = plt
-        w, h, self.ids, self.links, self.inst, self.labels = _drawn(model)
-        self.fig = plt.figure(figsize=(w * scale / 100, (h + 28) * scale / 100), dpi=100)
-        self.ax = self.fig.add_axes([0, 0, 1, h / (h + 28)])
+        w, h, self.ids, self.links, self.inst, self.labels = drawn(model)
+        head = Header(w * scale, scale)
+        hpx = h * scale + head.height
+        self.head = head
+        self.fig = plt.figure(figsize=(w * scale / 100, hpx / 100), dpi=100)
+        self.ax = self.fig.add_axes([0, 0, 1, h * scale / hpx])
         self.ax.set_xlim(-0.5, w - 0.5)
         self.ax.set_ylim(h - 0.5, -0.5)
         self.ax.set_axis_off()
         self.img = self.ax.imshow(np.full((h, w, 3), BG), interpolation="nearest")
         self.width, self.height = w, h
-        self.link_lines = [self.ax.plot([], [], "-", color="#888888", lw=0.8)[0] for _ in self.links]
+        self.link_lines = [self.ax.plot([], [], "-", color=SPRING, lw=0.8)[0] for _ in self.links]
         self.ell = [self.ax.plot([], [], "-", lw=1.4)[0] for _ in self.ids]
         self.truth_pts = self.ax.plot([], [], "+", color=TRUTH, ms=7, mew=1.5)[0]
         self.acq_pts = self.ax.plot([], [], "x", color=ACQUIRED, ms=6, mew=1.5)[0]
-        self.text = self.fig.text(0.01, 1 - 14 / (h + 28), "", fontsize=9 * scale / 2,
-                                  family="monospace", va="center")
+        self.text = self.fig.text(0.01, 1 - head.pad / hpx, "", fontsize=head.fs,
+                                  family="monospace", va="top", ha="left")
         from matplotlib.lines import Line2D
-        handles = [Line2D([], [], color=ACTIVE, lw=2, label="active (2σ)"),
-                   Line2D([], [], color=INACTIVE, lw=2, label="inactive"),
-                   Line2D([], [], color=INSENSITIVE, lw=2, ls="--", label="insensitive"),
-                   Line2D([], [], color=LOST, lw=2, ls=":", label="lost"),
-                   Line2D([], [], color="#888888", lw=1, label="spring"),
-                   Line2D([], [], color=ON_RGB, marker="s", ls="", label="ON"),
-                   Line2D([], [], color=OFF_RGB, marker="s", ls="", label="OFF")]
-        self.fig.legend(handles=handles, loc="upper right", ncol=7, fontsize=6.5 * scale / 2,
-                        frameon=False, handlelength=1.2, columnspacing=0.8)
+        handles = [Line2D([], [], color=colour, label=label, **LEGEND_STYLE[label])
+                   for label, colour in LEGEND]
+        self.fig.legend(handles=handles, loc="upper left", ncol=head.legend_columns(len(handles)),
+                        bbox_to_anchor=(0.0, 1 - head.legend_top / hpx),
+                        fontsize=head.legend_fs, frameon=False, handlelength=1.2,
+                        columnspacing=0.8, borderaxespad=0.2, borderpad=0.1, labelspacing=0.2)
         self.title = title
 
     def frame(self, t_us: int, events: np.ndarray, st: dict, truth_xy=None, window_us=10_000,
-              acquired_xy=None):
-        """``acquired_xy`` (K, 2): where acquisitions placed trackers (shown as x)."""
-        from .instances import LOST as LOST_CODE, SEARCHING
+              acquired_xy=None, origin_us: int = 0):
+        """``acquired_xy`` (K, 2): where acquisitions placed trackers (shown as x);
+        ``origin_us``: the recording's first event, from which the header counts time (the
+        recording's own clock at its end)."""
+        from .instances import LOST as LOST_CODE, TRACKING
+        from .track import STATE_NAMES
         state = st.get("state")
         state = np.full(len(self.ids), 1) if state is None else np.asarray(state)
         self.img.set_data(event_image(events, self.width, self.height))
+        placed = (state == TRACKING) | (state == LOST_CODE)     # searched-for: not drawn
         for k, (i, j) in enumerate(self.links):
-            shown = state[i] != SEARCHING
+            shown = placed[i]
             self.link_lines[k].set_data([st["x"][i], st["x"][j]] if shown else [],
                                         [st["y"][i], st["y"][j]] if shown else [])
         for i, line in enumerate(self.ell):
-            if state[i] == SEARCHING:
+            if not placed[i]:
                 line.set_data([], [])
                 continue
             ex, ey = ellipse_xy(st["x"][i], st["y"][i], st["sxx"][i], st["sxy"][i], st["syy"][i])
@@ -133,11 +192,13 @@ class OverlayRenderer:
         else:
             self.acq_pts.set_data([], [])
         n_act = int(np.sum(st["active"]))
-        gone = [f"{lab} {'lost' if state[self.inst == g][0] == LOST_CODE else 'searching'}"
-                for g, lab in enumerate(self.labels) if state[self.inst == g][0] != 1]
-        self.text.set_text(f"{self.title}   t = {t_us / 1e6:.3f} s   events in last "
-                           f"{window_us / 1000:g} ms: {len(events)}   active {n_act}/{len(self.ids)}"
-                           + (f"   {', '.join(gone)}" if gone else ""))
+        gone = [f"{lab} {STATE_NAMES[state[self.inst == g][0]]}"
+                for g, lab in enumerate(self.labels) if state[self.inst == g][0] != TRACKING]
+        self.text.set_text(self.head.wrap(
+            f"{self.title}  t = {(t_us - origin_us) / 1e6:.3f} s  events in last "
+            f"{window_us / 1000:g} ms: {len(events)}  active {n_act}/{len(self.ids)}"
+            + (f"  {', '.join(gone)}" if gone else "")
+            + (f"  (clock {t_us / 1e6:.6f} s)" if origin_us else "")))
         self.fig.canvas.draw()
         buf = np.asarray(self.fig.canvas.buffer_rgba())
         return buf[..., :3].copy()
@@ -161,24 +222,29 @@ def _acquired_at(acquisitions, t, window_us):
 
 def render(events: np.ndarray, model, track: Track, out, window_us: int = 10_000,
            every_us: int | None = None, truth=None, title: str = "", progress: bool = True,
-           max_frames: int = 2000, scale: float = 2.0, acquisitions=None) -> int:
+           max_frames: int = 2000, scale: float = 2.0, acquisitions=None,
+           origin_us: int | None = None) -> int:
     """Render frames at track sample times spaced by ``every_us`` (default ``window_us``).
     ``model``: a ShapeModel or a ModelSet (the track's instances); ``acquisitions``:
     [(t_us, (K, 2) positions)] of placements by the acquisition, each drawn for one
     window after it.  ``out``: .gif/.mp4 (video), .png (one frame: the middle one) or a
-    directory (PNGs).  Returns the number of frames written."""
+    directory (PNGs).  Frame times count from ``origin_us`` (default: the first event),
+    the recording's clock at the header's end.  Returns the number of frames written."""
+    if origin_us is None:
+        origin_us = int(events["t"][0]) if len(events) else int(track.t_us[0]) if len(track) else 0
     out = Path(out)
     every_us = every_us or window_us
     if len(track) == 0:
         raise ValueError("render: the track has no samples (is the event file empty?)")
-    times = np.arange(track.t_us[0] + window_us, track.t_us[-1] + 1, every_us)
-    if len(times) == 0:
-        times = track.t_us[-1:]
-    if len(times) > max_frames:
-        raise ValueError(f"render: {len(times)} frames exceed --max-frames {max_frames}; "
+    first, last = int(track.t_us[0]) + window_us, int(track.t_us[-1]) + 1
+    count = max(0, -(-(last - first) // every_us))        # counted before any allocation
+    if out.suffix == ".png":                                # the middle frame only
+        times = np.array([first + every_us * (count // 2)]) if count else track.t_us[-1:]
+    elif count > max_frames:
+        raise ValueError(f"render: {count} frames exceed --max-frames {max_frames}; "
                          f"raise --every-us or --max-frames")
-    if out.suffix == ".png":
-        times = times[len(times) // 2: len(times) // 2 + 1]
+    else:
+        times = np.arange(first, last, every_us) if count else track.t_us[-1:]
     rows = np.clip(np.searchsorted(track.t_us, times), 0, len(track) - 1)
     r = OverlayRenderer(model, scale=scale, title=title)
     t_ev = events["t"]
@@ -186,7 +252,11 @@ def render(events: np.ndarray, model, track: Track, out, window_us: int = 10_000
     writer = None
     try:
         if out.suffix in (".gif", ".mp4"):
-            import imageio.v2 as iio
+            try:
+                import imageio.v2 as iio
+            except ImportError:
+                raise ValueError(f"{out}: writing {out.suffix} needs imageio: pip install "
+                                 f"'springtrack[plots]', or write a .png") from None
             fps = max(1, min(50, int(round(1e6 / every_us))))
             writer = (iio.get_writer(out, mode="I", duration=every_us / 1000.0, loop=0)
                       if out.suffix == ".gif" else iio.get_writer(out, fps=fps))
@@ -196,7 +266,7 @@ def render(events: np.ndarray, model, track: Track, out, window_us: int = 10_000
             lo, hi = np.searchsorted(t_ev, [t - window_us, t])
             txy = _truth_xy(truth, r.ids, t) if truth is not None else None
             img = r.frame(int(t), events[lo:hi], _state_at(track, row), txy, window_us,
-                          _acquired_at(acquisitions, t, every_us))
+                          _acquired_at(acquisitions, t, every_us), origin_us)
             if writer is not None:
                 writer.append_data(img)
             elif out.suffix == ".png":
@@ -218,8 +288,9 @@ def render(events: np.ndarray, model, track: Track, out, window_us: int = 10_000
 
 
 def _save_png(path, img):
-    import imageio.v2 as iio
-    iio.imwrite(path, img)
+    """One PNG, through matplotlib (which render needs anyway): no imageio for pictures."""
+    from matplotlib.image import imsave
+    imsave(path, img)
 
 
 def _truth_xy(truth, ids, t):

@@ -18,7 +18,7 @@ of event time holds, at each sample time T, the state after all events with t < 
 
 The C loops (``springtrack.backends.stepper.run_events``, used by both kernels' ``run`` and by
 the firmware's fused loop, the kernels' batch steps and the microcontroller build's entry
-point) use the same rule from ``springtrack/csrc/sampling.h``; tests/test_sampling.py
+point) use the same rule from ``springtrack/csrc/sampling.h``; tests/test_springtrack/test_sampling.py
 checks that all agree on streams with backward times, ties and gaps.
 """
 from __future__ import annotations

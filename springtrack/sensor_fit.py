@@ -69,11 +69,13 @@ def check_inside(model: ShapeModel, width: int | None = None,
 
 def fit_model(model: ShapeModel, width: int | None, height: int | None,
               sensor_from: str | None = None, what: str = "the recording",
-              flag: str = "--sensor-from", source_word: str = "file") -> ShapeModel:
+              flag: str = "--sensor-from", source_word: str = "file",
+              way_out: str | None = None) -> ShapeModel:
     """The model to track a ``width`` x ``height`` source with (see the module docstring);
     ``width``/``height`` None: the source's size is unknown (npy, CSV), only the trackers
     are checked.  ``what`` names the source, ``flag`` and ``source_word`` the option in
-    the error message."""
+    the error message; ``way_out``: the mismatch's way out instead of that option (for a
+    model that came another way than the option's command, e.g. uploaded)."""
     if sensor_from is not None and sensor_from not in SENSOR_FROM + SOURCE_WORDS:
         raise ValueError(f"{flag} must be {source_word} or model, got {sensor_from!r}")
     if width and height and (model.width, model.height) != (width, height):
@@ -83,8 +85,9 @@ def fit_model(model: ShapeModel, width: int | None, height: int | None,
         elif sensor_from is None:
             raise SensorMismatch(
                 f"{model.source}: the model's [sensor] is {model.width}x{model.height} but "
-                f"{what} is {width}x{height}; fix the model's [sensor] and positions, or pass "
+                f"{what} is {width}x{height}; " + (way_out or
+                f"fix the model's [sensor] and positions, or pass "
                 f"{flag} {source_word} (the model on the {width}x{height} sensor, its "
                 f"trackers where they are) or {flag} model (keep {model.width}x{model.height}:"
-                f" events outside it are skipped and counted)")
+                f" events outside it are skipped and counted)"))
     return check_inside(model)

@@ -37,8 +37,8 @@ TRACK_DTYPE = np.dtype([(f, "<f8") for f in FLOAT_FIELDS] + [(f, "?") for f in B
 CSV_HEADER = ("t_us", "tracker") + TRACK_FIELDS
 _FLAGS_AT = 2 + len(FLOAT_FIELDS)           # CSV column of the first flag
 _STATE_AT = _FLAGS_AT + len(BOOL_FIELDS)    # CSV column of the state
-# the instance states' names in the CSV, by code (instances.STATE_NAMES)
-STATE_NAMES = ("searching", "tracking", "lost")
+# the instance states' names in the CSV, by code (instances.InstanceState)
+STATE_NAMES = ("searching", "tracking", "lost", "not found")
 TRACKING_CODE = STATE_NAMES.index("tracking")
 
 
@@ -150,7 +150,7 @@ def read_csv(path) -> Track:
         code = {name: k for k, name in enumerate(STATE_NAMES)}
         states = np.array([code[r[_STATE_AT]] if with_state else TRACKING_CODE for r in rows],
                           np.uint8)
-    except (ValueError, IndexError, KeyError) as e:
+    except (ValueError, IndexError, KeyError, OverflowError) as e:   # Overflow: t beyond int64
         raise ValueError(f"{path}: malformed track row: {e}") from None
     ids = list(dict.fromkeys(names))
     times = np.unique(t)

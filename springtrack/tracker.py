@@ -17,7 +17,7 @@ from . import params as _params
 from .backends import make_backend, spec_of
 from .events import as_events, check as check_events
 from .sensor_fit import check_inside
-from .instances import TRACKING, ModelSet
+from .instances import NOT_FOUND, SEARCHING, TRACKING, ModelSet
 from .acquisition.loss import LOSS_CHECK_US
 from .model import ShapeModel
 from .params import Params
@@ -92,8 +92,12 @@ class Tracker:
     ``acquire_bounds``: its region, angle_deg, scale; each instance found explains its
     events away before the next search), placed there, and tracked from the window's first
     event.  While none is found the window slides by half its length (:attr:`acquisition`
-    counts the attempts and the events dropped); call :meth:`flush` at the end of the input
-    to try on a last, shorter window.  Then the loss rule watches every instance, and an
+    counts the attempts and the events dropped) and the samples of the events let go show
+    every instance at its model's place, insensitive, ``searching``; call :meth:`flush` at
+    the end of the input to try on a last, shorter window.  An instance still unfound then,
+    or once ``acquire_budget_ms`` of event time is searched in vain (None: until the input
+    ends), is ``not found``: its samples say so and later events are not searched.  Then
+    the loss rule watches every instance, and an
     instance not found yet or lost is searched for again in the recent events
     (:mod:`springtrack.acquisition.recovery`); :attr:`changes` lists every change of state with its
     event time.
@@ -101,7 +105,7 @@ class Tracker:
 
     def __init__(self, model, params=None, backend: str = "cython", acquire: bool = False,
                  acquire_ms: float = 50.0, acquire_bounds: dict | None = None,
-                 instances: int = 1):
+                 instances: int = 1, acquire_budget_ms: float | None = None):
         self.models = ModelSet(model, params, instances)
         if not acquire:          # placed by the acquisition otherwise
             for m in self.models.models:
@@ -117,8 +121,11 @@ class Tracker:
         self.recovery = None
         if acquire:
             from .acquisition.acquire import Acquisition
-            self.acquisition = Acquisition(self.models, int(round(acquire_ms * 1000)),
+            budget = None if acquire_budget_ms is None else int(round(acquire_budget_ms * 1000))
+            self.acquisition = Acquisition(self.models, int(round(acquire_ms * 1000)), budget,
                                            **(acquire_bounds or {}))
+        self._search_t = UNSET               # the last sample time of a search's rows
+        self._search_wait = np.empty(0, np.int64)   # its sample times not yet final
 
     def _use(self, mset: ModelSet) -> None:
         """A backend for ``mset``: ``_b`` the kernel, ``_ib`` the kernel with the
@@ -155,7 +162,7 @@ class Tracker:
 
     def instances(self) -> list[dict]:
         """Per instance: label, model name, state name and its counts of changes."""
-        states = self._ib.states()
+        states = self._ib.states() if self._found_any() else [self._search_state()] * len(self.models)
         out = []
         for g, inst in enumerate(self.models):
             counts = {k: 0 for k in ("acquired", "lost", "reacquired")}
@@ -196,7 +203,9 @@ class Tracker:
         if self.acquisition is not None:
             ev = as_events(events)
             if not self.acquisition.done:
-                ev = self._placed(self.acquisition.feed(ev))
+                ready = self.acquisition.feed(ev)
+                yield from self._searching(ready)
+                ev = self._placed(ready)
             yield from self._track(ev)
             return
         if self._reads_as_is(events):
@@ -215,7 +224,46 @@ class Tracker:
     def flush(self) -> None:
         """End of input: if the acquisition is still looking, try on what it buffered."""
         if self.acquisition is not None and not self.acquisition.done:
-            self._recorded.extend(self._track(self._placed(self.acquisition.finish())))
+            ready = self.acquisition.finish()
+            self._recorded.extend(self._searching(ready))
+            self._recorded.extend(self._track(self._placed(ready)))
+
+    def _found_any(self) -> bool:
+        return self.acquisition is None or self.acquisition.done
+
+    def _search_state(self) -> int:
+        """Every instance's state while none is found: searching, or not found."""
+        return int(NOT_FOUND if self.acquisition.exhausted else SEARCHING)
+
+    def _searching(self, ready=None):
+        """The samples of the events the acquisition let go unfound, as a Track: one at
+        the first sample time after each event (the state there follows it: the sampling
+        rule), every instance at its model's place, inactive and insensitive, in its search
+        state.  A time the tracking may still take (at or after the first event still
+        buffered, or ``ready``'s first, those of a find) waits, or goes once found."""
+        acq = self.acquisition
+        t = acq.take_dropped()
+        q = self._sample_us
+        if not q:
+            return
+        times = np.union1d(self._search_wait, (t // q + 1) * q)
+        times = times[times > self._search_t]
+        kept = int(ready["t"][0]) if ready is not None else acq.first_kept_t
+        self._search_wait = np.empty(0, np.int64)
+        if kept is not None:
+            if ready is None:
+                self._search_wait = times[times >= kept]
+            times = times[times < kept]
+        if not len(times):
+            return
+        self._search_t = int(times[-1])
+        a = self.models.arrays()
+        rows = np.zeros((len(times), len(self.ids)), TRACK_DTYPE)
+        for f in ("x", "y", "sxx", "sxy", "syy"):
+            rows[f] = a[f]
+        rows["state"] = self._search_state()
+        yield Track.from_samples({"t": times.astype(np.int64), "trackers": rows,
+                                  "energy": np.zeros((len(times), 3))}, self.ids)
 
     def _placed(self, ready):
         """The events to track: none while acquiring; once an instance is found, the

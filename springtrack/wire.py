@@ -27,6 +27,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from .io.cobs import CobsError, cobs_decode, cobs_encode   # noqa: F401 - the framing
 from .track import STATE_NAMES, TRACK_DTYPE, TRACKING_CODE   # decoded TELEMETRY: track records
 
 PROTOCOL_VERSION = 1
@@ -53,6 +54,7 @@ class MsgType(IntEnum):
     MODEL_BEGIN = 0x10    # H->F  total length + CRC-32 of the model TOML
     MODEL_CHUNK = 0x11    # H->F  offset + bytes
     MODEL_COMMIT = 0x12   # H->F  validate and apply atomically
+    MODEL_GET = 0x13      # H->F request (empty) / F->H the running model's TOML, in parts
     PARAM_SET = 0x20      # H->F  name + typed value
     PARAM_GET = 0x21      # H->F  names (none = all)
     PARAM_VALUE = 0x22    # F->H  names + typed values
@@ -74,10 +76,11 @@ class MsgType(IntEnum):
 HOST_COMMANDS = frozenset({MsgType.HELLO, MsgType.MODEL_BEGIN, MsgType.MODEL_CHUNK,
                            MsgType.MODEL_COMMIT, MsgType.PARAM_SET, MsgType.PARAM_GET,
                            MsgType.START, MsgType.STOP, MsgType.RESET, MsgType.STATS,
-                           MsgType.ACQUIRE, MsgType.SHUTDOWN, MsgType.HEARTBEAT})
+                           MsgType.ACQUIRE, MsgType.SHUTDOWN, MsgType.HEARTBEAT,
+                           MsgType.MODEL_GET})
 # what a read-only session (Role.MONITOR) may send; everything else is the operator's
 MONITOR_COMMANDS = frozenset({MsgType.HELLO, MsgType.PARAM_GET, MsgType.STATS,
-                              MsgType.HEARTBEAT})
+                              MsgType.HEARTBEAT, MsgType.MODEL_GET})
 
 
 class Role(IntEnum):
@@ -128,47 +131,8 @@ class WireError(ValueError):
     """A frame or payload could not be decoded; the message says what and where."""
 
 
-class CobsError(WireError):
-    pass
-
-
 class CrcError(WireError):
     pass
-
-
-# ---- COBS (Cheshire & Baker 1999) --------------------------------------------------
-def cobs_encode(data: bytes) -> bytes:
-    """Consistent Overhead Byte Stuffing: the output contains no 0x00 byte."""
-    out = bytearray()
-    for block in bytes(data).split(b"\x00"):
-        while len(block) >= 254:
-            out.append(255)
-            out += block[:254]
-            block = block[254:]
-        out.append(len(block) + 1)
-        out += block
-    return bytes(out)
-
-
-def cobs_decode(enc: bytes) -> bytes:
-    """Inverse of :func:`cobs_encode`; raises CobsError on a zero byte or a short block."""
-    out = bytearray()
-    i, n = 0, len(enc)
-    while i < n:
-        code = enc[i]
-        if code == 0:
-            raise CobsError(f"COBS: zero byte at offset {i}")
-        end = i + code
-        if end > n:
-            raise CobsError(f"COBS: block at offset {i} needs {code - 1} bytes, {n - i - 1} left")
-        block = enc[i + 1:end]
-        if 0 in block:
-            raise CobsError(f"COBS: zero byte inside block at offset {i}")
-        out += block
-        i = end
-        if code < 255 and i < n:
-            out.append(0)
-    return bytes(out)
 
 
 # ---- signing (MAVLink 2 style, HMAC-SHA256) ------------------------------------------
@@ -346,12 +310,17 @@ class FrameReader:
 
 class SeqTracker:
     """Counts frames lost in one direction from gaps in the 16-bit sequence numbers: the gap
-    ``(seq - last - 1) mod 2^16``; gaps of 2^15 or more are reordering, not loss."""
+    ``(seq - last - 1) mod 2^16``; gaps of 2^15 or more are reordering, not loss.  Gaps
+    above ``max_gap`` (a direction that cannot lose that many, such as a host's commands)
+    are a peer that skipped ahead (random or hostile sequence numbers): counted in
+    ``jumps``, not as lost frames."""
 
-    def __init__(self):
+    def __init__(self, max_gap: int = 0x7FFF):
         self.last: int | None = None
         self.lost = 0
         self.duplicates = 0
+        self.jumps = 0
+        self.max_gap = max_gap
 
     def restart(self, seq: int | None = None) -> None:
         """A new session: expect anything next (``seq``: the frame that opened it)."""
@@ -368,6 +337,9 @@ class SeqTracker:
             return 0
         self.last = seq
         if gap >= 0x8000:            # far behind: a stale or reordered frame, not a loss
+            return 0
+        if gap > self.max_gap:
+            self.jumps += 1
             return 0
         self.lost += gap
         return gap
@@ -720,7 +692,23 @@ def decode_reply_part(payload: bytes, what: str) -> ReplyPart:
     return ReplyPart(seq, part, parts, decode_kv(payload[REPLY_HDR.size:], what))
 
 
-REPLY_TYPES = (MsgType.ACK, MsgType.NACK, MsgType.PARAM_VALUE, MsgType.STATS)
+REPLY_TYPES = (MsgType.ACK, MsgType.NACK, MsgType.PARAM_VALUE, MsgType.STATS,
+               MsgType.MODEL_GET)
+MODEL_TEXT_PIECE = 200      # MODEL_GET's TOML: items toml.NNNN of <= 200 chars (<= 800 bytes)
+
+
+def encode_model_text(text: str) -> dict:
+    """A model's TOML as MODEL_GET reply items, in order (``split_kv`` parts them)."""
+    step = MODEL_TEXT_PIECE
+    return {f"toml.{i // step:04d}": text[i:i + step] for i in range(0, len(text), step)}
+
+
+def decode_model_text(items: dict) -> str:
+    """The TOML text of MODEL_GET's reply items (all parts joined)."""
+    keys = sorted(k for k in items if k.startswith("toml."))
+    if keys != [f"toml.{i:04d}" for i in range(len(keys))]:
+        raise WireError(f"MODEL_GET: the reply's pieces {keys[:3]} are not toml.0000.. in order")
+    return "".join(str(items[k]) for k in keys)
 
 
 def decode_reply(frame: Frame) -> Ack | Refusal | ReplyPart:
@@ -730,7 +718,7 @@ def decode_reply(frame: Frame) -> Ack | Refusal | ReplyPart:
         return decode_ack(frame.payload)
     if frame.type == MsgType.NACK:
         return decode_nack(frame.payload)
-    if frame.type in (MsgType.PARAM_VALUE, MsgType.STATS):
+    if frame.type in (MsgType.PARAM_VALUE, MsgType.STATS, MsgType.MODEL_GET):
         return decode_reply_part(frame.payload, MsgType(frame.type).name)
     raise WireError(f"message type 0x{frame.type:02x} is not a reply")
 
@@ -852,7 +840,7 @@ def quantise_trackers(trackers) -> np.ndarray:
     The quantisation of docs/protocol.md from the float state; the integer-only kernel packs
     the same layout from its fixed-point state (fixed/csrc/fixed_telemetry.c: its scales are
     checked against these at import, its codes within one of these in
-    tests/test_fixed_telemetry.py)."""
+    tests/test_springtrack/fixed/test_fixed_telemetry.py)."""
     tr = trackers
     bad = [k for k in NUMERIC_FIELDS if not np.all(np.isfinite(np.asarray(tr[k], float)))]
     if bad:

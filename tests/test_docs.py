@@ -2,7 +2,7 @@
 
 Every line starting with `.venv/bin/springtrack` in a fenced block of README.md runs in a
 temporary folder (the tour's own files are made by its first commands). The firmware /
-hostctl lines need a running firmware on a pty; tests/test_hostctl_hil.py runs the same
+hostctl lines need a running firmware on a pty; tests/test_hostctl/test_hostctl_hil.py runs the same
 verbs against a real firmware-sim process.
 """
 import os
@@ -13,9 +13,15 @@ import sys
 from pathlib import Path
 
 import pytest
+from support import REPO
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 BIN = Path(sys.executable).parent
+
+
+def _device_block(b: str) -> bool:
+    """A block that starts a firmware: its lines run against it (the device test)."""
+    return any(line.strip().startswith(".venv/bin/firmware-sim") for line in b.splitlines())
 
 
 def tour_commands():
@@ -23,9 +29,11 @@ def tour_commands():
     blocks = re.findall(r"```[a-z]*\n(.*?)```", text, re.S)
     cmds = []
     for b in blocks:
+        if _device_block(b):
+            continue
         for line in b.splitlines():
             line = line.split("#")[0].strip()
-            if line.startswith(".venv/bin/springtrack"):
+            if line.startswith(".venv/bin/springtrack") or line.startswith("mkdir "):
                 cmds.append(line)
     return cmds
 
@@ -36,13 +44,15 @@ def test_readme_has_the_two_setup_commands():
     assert "make demo" in quick and "make test" in quick
 
 
+@pytest.mark.slow
 def test_readme_tour_commands_run(tmp_path, data_file):
     data_dir = data_file("evt3_sample.raw").parent
     cmds = tour_commands()
     assert len(cmds) >= 5
     for line in cmds:
         argv = shlex.split(line)
-        argv[0] = str(BIN / Path(argv[0]).name)
+        if argv[0] != "mkdir":
+            argv[0] = str(BIN / Path(argv[0]).name)
         argv = [a.replace("../shared/data", str(data_dir)) for a in argv]
         stdout = None
         if ">" in argv:                               # `cmd > file`
@@ -53,13 +63,13 @@ def test_readme_tour_commands_run(tmp_path, data_file):
                            stderr=subprocess.PIPE, text=True, timeout=300,
                            env={**os.environ, "MPLBACKEND": "Agg"})
         assert r.returncode == 0, f"{line}\n{r.stderr}"
-    assert (tmp_path / "gp.gif").stat().st_size > 0
+    assert (tmp_path / "scratch" / "gp.gif").stat().st_size > 0     # the tour writes there
     # the README's Python example, on the files the tour made
     code = re.findall(r"```python\n(.*?)```", (ROOT / "README.md").read_text(), re.S)
     assert code
     r = subprocess.run([sys.executable, "-c", code[0]], cwd=tmp_path, capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
-    assert (tmp_path / "face.toml").read_text().startswith('name = "face26"')
+    assert (tmp_path / "scratch" / "face.toml").read_text().startswith('name = "face26"')
 
 
 def block_lines(path: Path, prefixes) -> list[str]:
@@ -93,12 +103,22 @@ def test_experiments_page_commands_run(tmp_path):
     assert "mean_error_pct=" in r.stdout.splitlines()[-1]
 
 
-def test_readme_device_commands_run_against_firmware(tmp_path):
-    """The README's firmware-sim / hostctl lines, against a real firmware-sim process."""
-    lines = block_lines(ROOT / "README.md", {"firmware-sim", "hostctl"})
-    fw_line = [l for l in lines if l.split()[0].endswith("firmware-sim")][0]
-    argv = shlex.split(fw_line)
+@pytest.mark.slow
+@pytest.mark.hil
+def test_readme_device_commands_run_against_firmware(tmp_path, data_file):
+    """The README's device block against a real firmware-sim process on the real replay it
+    names: the hostctl lines in order (each exits 0), and the springtrack lines between
+    them on what they wrote (the record drawn with the model downloaded from the device)."""
+    data_dir = str(data_file("dvs.es").parent)
+    text = (ROOT / "README.md").read_text()
+    block = [b for b in re.findall(r"```[a-z]*\n(.*?)```", text, re.S) if _device_block(b)]
+    assert len(block) == 1
+    lines = [l.split("#")[0].strip() for l in block[0].splitlines()]
+    lines = [l for l in lines if l]
+    fw_line = lines[[l.startswith(".venv/bin/firmware-sim") for l in lines].index(True)]
+    argv = [a.replace("../shared/data", data_dir) for a in shlex.split(fw_line)]
     argv[0] = str(BIN / "firmware-sim")
+    (tmp_path / "scratch").mkdir()
     fw = subprocess.Popen(argv + ["--seconds", "30"], cwd=tmp_path, stdout=subprocess.PIPE,
                           stderr=subprocess.DEVNULL, text=True)
     try:
@@ -106,10 +126,14 @@ def test_readme_device_commands_run_against_firmware(tmp_path):
         assert first.startswith("pty: "), first
         pty = first.split(" ", 1)[1]
         for line in lines:
-            if line.split()[0].endswith("hostctl"):
-                r = _run_line(line, tmp_path, [("/dev/pts/N", pty)])
+            if line.split()[0].endswith(("hostctl", "springtrack")):
+                r = _run_line(line, tmp_path, [("/dev/pts/N", pty), ("../shared/data", data_dir)])
                 assert r.returncode == 0, f"{line}\n{r.stdout}\n{r.stderr}"
-        assert (tmp_path / "face.csv").read_text().startswith("t_us,tracker,")
+        rec = (tmp_path / "scratch" / "plane_dev.csv").read_text().splitlines()
+        model = (tmp_path / "scratch" / "plane_dev.toml").read_text()
+        ids = {r.split(",")[1] for r in rec[1:]}
+        assert ids and all(f'id = "{i}"' in model for i in ids)      # one set of ids
+        assert (tmp_path / "scratch" / "plane_dev.gif").stat().st_size > 0
     finally:
         fw.terminate()
         try:

@@ -5,8 +5,9 @@ import re
 from pathlib import Path
 
 import pytest
+from support import REPO
 
-REPO = Path(__file__).resolve().parents[1]
+
 PACKAGES = ("springtrack", "firmware_sim", "hostctl")
 # package -> the packages it must not import
 FORBIDDEN = {"springtrack": {"firmware_sim", "hostctl"},

@@ -6,14 +6,15 @@ from __future__ import annotations
 import ast
 import re
 from pathlib import Path
+from support import REPO
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO
 PACKAGES = ("springtrack", "firmware_sim", "hostctl")
 SOURCE_SUFFIXES = (".py", ".pyx", ".pxd", ".c", ".h")
 MAX_LINES = 1000
 MAX_TOP_MODULES = 20
 # generated, not hand-written: each is rewritten by its generator and a test checks it is
-# what the generator writes (tests/test_fixed_integer_only.py)
+# what the generator writes (tests/test_springtrack/fixed/test_fixed_integer_only.py)
 GENERATED = {"springtrack/fixed/csrc/fixed_tables.h"}
 
 
@@ -146,3 +147,29 @@ def test_no_hand_written_source_over_1000_lines():
 def test_generated_files_say_so():
     for rel in GENERATED:
         assert "generated" in (ROOT / rel).read_text()[:300]
+
+
+def test_no_test_module_imports_another():
+    """Helpers and fixtures live in tests/support/; a test module imports no test module."""
+    tests = {p.stem for p in (ROOT / "tests").rglob("test_*.py")}
+    bad = []
+    for p in (ROOT / "tests").rglob("*.py"):
+        for node in ast.walk(ast.parse(p.read_text())):
+            names = ([a.name for a in node.names] if isinstance(node, ast.Import)
+                     else [node.module or ""] if isinstance(node, ast.ImportFrom) else [])
+            bad += [f"{p.relative_to(ROOT)}: {n}" for n in names if n.split(".")[-1] in tests]
+    assert not bad, bad
+
+
+def test_tests_mirror_the_packages():
+    """Test modules sit in the folder of the package they test: tests/test_springtrack/kernel/
+    for springtrack/kernel/, tests/test_hostctl/ for hostctl/ (``test_`` before a package's
+    name, so that a tests folder never shadows the package it tests on sys.path)."""
+    folders = [d for d in (ROOT / "tests").rglob("*") if d.is_dir()
+               and "__pycache__" not in d.parts and any(d.glob("test_*.py"))]
+    assert len(folders) >= 10
+    for d in folders:
+        rel = d.relative_to(ROOT / "tests").parts
+        assert rel[0].startswith("test_"), f"tests/{'/'.join(rel)}"
+        package = ROOT.joinpath(rel[0][len("test_"):], *rel[1:])
+        assert (package / "__init__.py").is_file(), f"tests/{'/'.join(rel)} mirrors no package"

@@ -23,6 +23,7 @@ import textwrap
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Callable
 
+from springtrack import live
 from springtrack.events import as_events
 
 from .. import faults as _faults
@@ -37,6 +38,8 @@ SCHEMES: dict[str, str] = {
     "replay": "firmware_sim.sources.replay",
     "usb": "firmware_sim.sources.usb",
 }
+# live streams: springtrack.live owns their handlers, one module here serves them all
+SCHEMES.update({s: "firmware_sim.sources.live" for s in live.SCHEMES})
 
 
 @dataclass
@@ -51,6 +54,9 @@ class SourceOptions:
                                       # the source's own (replay: the file's format)
     biases: dict = field(default_factory=dict)    # read at every (re)connection
     geometry: tuple[int, int] | None = None     # usb EVT boards: the sensor's width, height
+    # replay: the recording's preparation (springtrack.prep, the options of springtrack
+    # track): (width, height) -> a Preparer, or None to replay the recording as it is
+    prepare: Callable[[int, int], object] | None = None
 
 
 @dataclass
@@ -90,7 +96,15 @@ def handler(scheme: str):
 
 def usage() -> str:
     """The URL forms of every registered scheme: ``sim:SCENE | replay:FILE | usb``."""
-    return " | ".join(handler(s).USAGE for s in SCHEMES)
+    return " | ".join(handler(s).USAGE for s in _one_per_handler())
+
+
+def _one_per_handler() -> list[str]:
+    """The first scheme of each handler module (one module may serve several)."""
+    first: dict[str, str] = {}
+    for scheme, module in SCHEMES.items():
+        first.setdefault(module, scheme)
+    return list(first.values())
 
 
 def describe(indent: int = 0, width: int = 88) -> str:
@@ -99,7 +113,7 @@ def describe(indent: int = 0, width: int = 88) -> str:
     return "\n".join(textwrap.fill(f"{handler(s).USAGE}: {handler(s).HELP}", width,
                                    subsequent_indent=pad + "  ", initial_indent=pad
                                    ).removeprefix(pad if i == 0 else "")
-                     for i, s in enumerate(SCHEMES))
+                     for i, s in enumerate(_one_per_handler()))
 
 
 def open_source(url: str, opts: SourceOptions | None = None) -> CameraSource:

@@ -9,6 +9,10 @@
 * ``--profile NAME`` re-encodes any file for that camera (e.g. ``ccam_atis``, the
   304 x 240 ATIS): events outside its sensor are dropped before encoding, counted, and
   reported at start, in every statistics line (``geometry_drops``) and at the end.
+* The recording-quirk options of ``springtrack track`` (``--start-us``, ``--end-us``,
+  ``--dequantize``, ``--burst-fraction``: ``SourceOptions.prepare``) prepare the events
+  as that command does (springtrack.prep), before the camera: a file of words is then
+  re-encoded in its own format.
 """
 from __future__ import annotations
 
@@ -67,20 +71,32 @@ def _inside(chunks, width: int, height: int, stats: dict):
         yield ev[keep] if not keep.all() else ev
 
 
-def rebased(chunks, stats: dict):
-    """Events re-based to start at 0 (``stats['t_offset_us']``, subtracted) if the first
-    one is at ``REBASE_FROM_US`` or later, else as they are."""
+def rebased(chunks, stats: dict, unit_us: int = 1):
+    """Events re-based to start within ``unit_us`` of 0 (``stats['t_offset_us']``, a
+    multiple of ``unit_us``, subtracted) if the first one is at ``REBASE_FROM_US`` or
+    later, else as they are."""
     offset = None
     for ev in chunks:
         if len(ev) == 0:
             continue
         if offset is None:
-            offset = int(ev["t"][0]) if ev["t"][0] >= REBASE_FROM_US else 0
+            t0 = int(ev["t"][0])
+            offset = t0 - t0 % unit_us if t0 >= REBASE_FROM_US else 0
             stats["t_offset_us"] = offset
         if offset:
             ev = ev.copy()
             ev["t"] -= offset
         yield ev
+
+
+def prepared(chunks, prep, stats: dict):
+    """The events of ``chunks`` through a fresh ``springtrack.prep.Preparer`` (as
+    ``springtrack track`` prepares them); its summary in ``stats['prepared']``."""
+    from springtrack.commands.options import prepared as _prepared
+    for ev in _prepared((as_events(c) for c in chunks), prep):
+        stats["prepared"] = prep.stats.summary()
+        yield ev
+    stats["prepared"] = prep.stats.summary()
 
 
 def word_chunks(reader, nbytes: int = READ_BYTES):
@@ -146,10 +162,10 @@ def open(target: str, opts: SourceOptions, url: str):
     if not target:
         raise ValueError(f"--source {url!r}: name the file to replay: {USAGE}")
     reader = _reader(target)
-    as_is = opts.profile is None and reader.format in WORD_PROFILES
-    name = (WORD_PROFILES[reader.format] if as_is
-            else opts.profile or REENCODE_PROFILE)
+    as_is = opts.profile is None and reader.format in WORD_PROFILES and opts.prepare is None
+    name = (opts.profile or WORD_PROFILES.get(reader.format) or REENCODE_PROFILE)
     fw, fh, where = _geometry(reader, name)
+    prep = opts.prepare
     prof = profile(name, fw, fh, reader.options.get("legacy") if as_is else None)
     stats: dict = {}
     notes = []
@@ -166,16 +182,37 @@ def open(target: str, opts: SourceOptions, url: str):
                          f"outside it are dropped (counted in geometry_drops); omit --profile "
                          f"to replay at the recording's own geometry")
 
+    readers = [reader]                  # the file's reader of this replay, and the totals of
+    before = {}                         # the decoder's anomalies of the replays before it
+
+    def file_anomalies() -> dict:
+        out = dict(before)
+        for k, v in readers[-1].stats.bad.items():
+            out[k] = out.get(k, 0) + v
+        return out
+
     def source(rd):
         """What the simulated camera serves from reader ``rd`` (again at every replay)."""
+        if rd is not readers[-1]:
+            before.update(file_anomalies())
+            readers.append(rd)
+            del readers[:-1]
         if as_is:
             chunks = word_chunks(rd)
             return chunks if opts.seconds is None else limit_chunk_seconds(chunks, opts.seconds)
-        events = rd if opts.seconds is None else limit_seconds(rd, opts.seconds)
+        events = rd if prep is None else prepared(rd, prep(fw, fh), stats)
+        events = events if opts.seconds is None else limit_seconds(events, opts.seconds)
         return rebased(_inside(events, prof.width, prof.height, stats), stats)
 
     def report() -> list[str]:
-        out = []
+        out = [f"prepared: {stats['prepared']}"] if stats.get("prepared") else []
+        bad = file_anomalies()
+        if bad and not as_is:           # (as recorded, the camera's decoder counts them)
+            out.append(f"replay: warning: decoding {target} ({reader.format}) met "
+                       f"{sum(bad.values())} anomalies ("
+                       + ", ".join(f"{k} {v}" for k, v in bad.items())
+                       + "): their events never reached the camera (`springtrack info` "
+                       f"describes them)")
         if stats.get("t_offset_us"):
             out.append(f"replay: times re-based by -{stats['t_offset_us']} us (the recording "
                        f"starts after the camera counter's {REBASE_FROM_US} us): tracks and "
@@ -186,4 +223,6 @@ def open(target: str, opts: SourceOptions, url: str):
                 f"({stats['outside_sensor'] / max(stats['events_in'], 1):.1%}) lay outside the "
                 f"{prof.width}x{prof.height} sensor and were dropped before encoding"]
     return simulated(url, source(reader), opts, prof, restart=lambda: source(_reader(target)),
-                     report=report, counters=lambda: dict(stats), notes=notes)
+                     report=report, notes=notes,
+                     counters=lambda: dict(stats, file_anomalies=(
+                         0 if as_is else sum(file_anomalies().values()))))

@@ -586,19 +586,32 @@ class Acquisition:
     buffered event (the window and what followed it) for the tracker to process from the
     window's start; :attr:`poses` are the poses found (one per instance; ``found`` False
     for one not found), :attr:`pose` the first instance's.  :attr:`attempts` counts the
-    windows tried, :attr:`events_dropped` the events that slid out of the window unfound.
+    windows tried, :attr:`events_dropped` the events that slid out of the window unfound
+    (their times wait in :meth:`take_dropped`, for the caller's rows of the search).
+
+    ``budget_us``: the search budget in µs of event time from the first event; once a
+    window ending past it is tried in vain, or at :meth:`finish`, the search is
+    :attr:`exhausted` (the instances are *not found*): later events are dropped unsearched.
+    None: search until the input ends.
     """
 
-    def __init__(self, models, window_us: int = 50_000, **bounds):
+    def __init__(self, models, window_us: int = 50_000, budget_us: int | None = None,
+                 **bounds):
         window_us = int(window_us)
         if window_us <= 0:
             raise ValueError(f"acquisition window must be a positive number of µs, got {window_us}")
+        if budget_us is not None and int(budget_us) <= 0:
+            raise ValueError(f"acquisition budget must be a positive number of µs, got {budget_us}")
         self.models = models if isinstance(models, ModelSet) else ModelSet(models)
         self.window_us, self.bounds = window_us, bounds
+        self.budget_us = None if budget_us is None else int(budget_us)
         self.poses: list = [None] * len(self.models)
         self.attempts = 0
         self.events_dropped = 0
+        self.exhausted = False          # the budget is spent (or the input ended) unfound
+        self._first_t: int | None = None
         self._buf: list[np.ndarray] = []
+        self._dropped: list[np.ndarray] = []     # times of the events let go, not yet taken
 
     @property
     def model(self) -> ShapeModel:
@@ -615,8 +628,14 @@ class Acquisition:
     def feed(self, events):
         """Add events (in time order); the buffered events once an instance is found."""
         ev = as_events(events)
-        if len(ev):
-            self._buf.append(ev)
+        if not len(ev):
+            return None
+        if self.exhausted:
+            self._drop(ev["t"])
+            return None
+        if self._first_t is None:
+            self._first_t = int(ev["t"][0])
+        self._buf.append(ev)
         # the buffer is joined only when it spans a window (cheap for chunks of any size)
         while self._buf and int(self._buf[-1]["t"][-1]) - int(self._buf[0]["t"][0]) \
                 >= self.window_us:
@@ -625,21 +644,45 @@ class Acquisition:
             found = self._try(buf[:int(np.searchsorted(buf["t"], t0 + self.window_us))])
             if found is not None:
                 return found
+            if self.budget_us is not None and \
+                    t0 + self.window_us - self._first_t >= self.budget_us:
+                self.exhausted = True
+                self._drop(buf["t"])
+                self._buf = []
+                break
             cut = max(int(np.searchsorted(buf["t"], t0 + self.window_us // 2)), 1)
-            self.events_dropped += cut
+            self._drop(buf["t"][:cut])
             self._buf = [buf[cut:]] if cut < len(buf) else []
         return None
+
+    def _drop(self, t) -> None:
+        """Let events go unfound (their times kept for :meth:`take_dropped`)."""
+        self.events_dropped += len(t)
+        self._dropped.append(np.array(t, np.int64))
+
+    @property
+    def first_kept_t(self) -> int | None:
+        """The time of the first event still buffered, None when none is."""
+        return int(self._buf[0]["t"][0]) if self._buf else None
+
+    def take_dropped(self) -> np.ndarray:
+        """The times of the events let go since the last call (int64, in order)."""
+        out = np.concatenate(self._dropped) if self._dropped else np.empty(0, np.int64)
+        self._dropped = []
+        return out
 
     def finish(self):
         """End of input: try once on what is buffered (shorter than a window); the
         buffered events if found, else ``None`` (they are counted as dropped)."""
         if not self._buf:
+            self.exhausted = not self.done
             return None
         buf = self._joined()
         found = self._try(buf)
         if found is None:
-            self.events_dropped += len(buf)
+            self._drop(buf["t"])
             self._buf = []
+            self.exhausted = True
         return found
 
     def _joined(self):

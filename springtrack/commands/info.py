@@ -14,7 +14,12 @@ BIN_US = 10_000
 # timestamps from here on are taken for Unix-epoch microseconds (AEDAT 4 keeps them so):
 # 10**15 us is 2001-09-09, 4 * 10**15 us is 2096
 EPOCH_US = (10**15, 4 * 10**15)
-WORD_UNIT = {"es": "bytes", "aedat4": "packets"}
+WORD_UNIT = {"es": "bytes", "aedat4": "packets", "dv": "packets", "dv-camera": "packets",
+             "udp": "datagrams"}
+# 10 ms bins kept open for counting: older ones are closed (their count weighed for the
+# peak) once twice as many are open, so memory is constant however long the recording; an
+# event more than BINS_OPEN bins (10 s) back in time starts its bin's count anew
+BINS_OPEN = 1024
 
 
 def add_arguments(p):
@@ -32,24 +37,32 @@ def summarize(path, format=None, chunk=1 << 20) -> dict:
     reader = io.open(path, format=format)
     n, t_min, t_max, p_on = 0, None, None, 0
     bins = Counter()
+    peak_bin, peak = None, 0
     w, h = reader.width, reader.height
     if not (w and h) and reader.format in ("npy", "csv"):      # in memory: their extent
         ev = reader.read()
         w = int(ev["x"].max()) + 1 if len(ev) else 1
         h = int(ev["y"].max()) + 1 if len(ev) else 1
     scan = QuirkScan(w, h)
+    origin = None                # the bins of the peak rate start at the first event
     for ev in reader.chunks(chunk):
         scan.feed(ev)
         t = ev["t"]
+        if not len(t):
+            continue
         n += len(ev)
         p_on += int(np.count_nonzero(ev["p"]))
         lo, hi = int(t.min()), int(t.max())
         t_min = lo if t_min is None else min(t_min, lo)
         t_max = hi if t_max is None else max(t_max, hi)
-        b, c = np.unique(t // BIN_US, return_counts=True)
+        origin = int(t[0]) if origin is None else origin
+        b, c = np.unique((t - origin) // BIN_US, return_counts=True)
         bins.update(dict(zip(b.tolist(), c.tolist())))
+        if len(bins) > 2 * BINS_OPEN:
+            peak_bin, peak = _close_bins(bins, max(bins) - BINS_OPEN, peak_bin, peak)
     span = (t_max - t_min) if n else 0
-    peak_bin, peak = max(bins.items(), key=lambda kv: kv[1]) if bins else (None, 0)
+    peak_bin, peak = _close_bins(bins, max(bins) if bins else None, peak_bin, peak)
+    peak_bin, peak = _peak(bins, peak_bin, peak, origin, t_max)     # with the last bin
     s = reader.stats
     quirks = scan.finish()
     return {
@@ -58,8 +71,8 @@ def summarize(path, format=None, chunk=1 << 20) -> dict:
         "header": reader.header, "events": n, "on_events": p_on,
         "t_first_us": t_min, "t_last_us": t_max, "span_us": span,
         "mean_rate_ev_s": (n / (span * 1e-6)) if span > 0 else None,
-        "peak_rate_ev_s": peak / (BIN_US * 1e-6),
-        "peak_bin_start_us": None if peak_bin is None else peak_bin * BIN_US,
+        "peak_rate_ev_s": peak,
+        "peak_bin_start_us": None if peak_bin is None else origin + peak_bin * BIN_US,
         "t_epoch_utc": (_utc(t_min), _utc(t_max)) if n and _is_epoch(t_min) else None,
         "words": s.words, "pending_bytes": s.pending_bytes,
         "anomalies": s.anomalies, "info": s.info,
@@ -71,6 +84,31 @@ def summarize(path, format=None, chunk=1 << 20) -> dict:
             "burst_events": quirks.burst_events, "burst_at_us": quirks.burst_at_us,
             "findings": [{"found": f, "do": d} for f, d in quirks.findings()]},
     }
+
+
+def _close_bins(bins: Counter, before, peak_bin, peak):
+    """Close the bins older than ``before`` (None: all): (peak bin, its count) so far."""
+    for b in [b for b in bins if before is None or b < before]:
+        c = bins.pop(b)
+        if c > peak:
+            peak_bin, peak = b, c
+    return peak_bin, peak
+
+
+def _peak(last: Counter, peak_bin, peak, origin, t_max) -> tuple:
+    """(bin, events/s) of the densest BIN_US bin from the first event: the closed, whole
+    bins' counts over a bin; the ``last`` one's over the time it covers up to the last
+    event, counted when that is half a bin or more, or when it is the only bin (its rate is
+    then the mean's, over the events' span)."""
+    rate = peak / (BIN_US * 1e-6)
+    for b, c in last.items():
+        start = origin + b * BIN_US
+        if peak_bin is None:                 # the only bin
+            return b, c / ((t_max - start) * 1e-6) if t_max > start else 0.0
+        cover = t_max + 1 - start
+        if cover >= BIN_US // 2 and c / (cover * 1e-6) > rate:
+            peak_bin, rate = b, c / (cover * 1e-6)
+    return peak_bin, rate
 
 
 def _is_epoch(t_us: int) -> bool:
@@ -107,8 +145,10 @@ def run(args) -> int:
         mean = facts["mean_rate_ev_s"]
         print(f"rate      mean {mean / 1e6:.3f} Mev/s" if mean else "rate      mean n/a",
               end="")
+        short = facts["span_us"] < BIN_US
         print(f", peak {facts['peak_rate_ev_s'] / 1e6:.3f} Mev/s "
-              f"(10 ms bin at {facts['peak_bin_start_us']:,} us)")
+              + ("(the recording is shorter than a 10 ms bin)" if short else
+                 f"(10 ms bin from the first event, at {facts['peak_bin_start_us']:,} us)"))
     unit = WORD_UNIT.get(facts["format"], "words")
     print(f"decoded   {facts['words']:,} {unit}, {facts['pending_bytes']} bytes pending")
     bad = {k: v for k, v in facts["anomalies"].items() if v}

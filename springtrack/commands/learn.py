@@ -24,7 +24,8 @@ exit status: 0 model written, 2 bad input, 3 no object found (noise or too few e
 
 def add_arguments(p):
     p.epilog = EPILOG
-    p.add_argument("input", help="event file (.npy, .csv, .raw, .es, .dat, .aedat4)")
+    p.add_argument("input", help="event file (.npy, .csv, .raw, .es, .dat, .aedat4), or a live "
+                                 "source URL (dv://HOST:PORT, dv:camera, udp://HOST:PORT; docs/live.md)")
     p.add_argument("--out", required=True, help="output model TOML")
     p.add_argument("--trackers", type=int, metavar="N",
                    help="exactly N trackers (default: as many as the learner finds parts)")
@@ -42,19 +43,18 @@ def add_arguments(p):
 
 
 def run(args) -> int:
-    from .. import io as stio
     from ..learning.learner import NoObjectFound, learn_model
+    from .inputs import read_input
     if args.trackers is not None and not 1 <= args.trackers <= 64:
         raise ValueError(f"--trackers must be in [1, 64], got {args.trackers}")
     track_params = read_params(args.params) if args.params else None   # its errors first
-    reader = stio.open(args.input)
-    raw = reader.read()
-    width = reader.width or (int(raw["x"].max()) + 1 if len(raw) else 1)
-    height = reader.height or (int(raw["y"].max()) + 1 if len(raw) else 1)
+    src = read_input(args.input)
+    raw, width, height = src.events, src.width, src.height
     prep = options.preparer(args, width, height, always=True)
     events = np.concatenate([raw[:0]] + list(options.prepared([raw], prep)))
-    print(f"input     {args.input}: {width}x{height}, {len(raw):,} events; "
-          f"{prep.stats.summary()}; learning on {len(events):,}")
+    print(f"input     {args.input}: {width}x{height}, {len(raw):,} events "
+          f"(decoder {src.stats.summary()}); {prep.stats.summary()}; learning on "
+          f"{len(events):,}")
     names = [s.strip() for s in args.names.split(",")] if args.names else None
     try:
         res = learn_model(events, trackers=args.trackers, width=width, height=height,

@@ -4,7 +4,8 @@
   ``--end-us``, ``--dequantize``, ``--seed``, ``--burst-fraction`` (:func:`add_prep_arguments`,
   :func:`preparer`, :func:`prepared`);
 * acquisition (track, render, firmware-sim run): ``--instances``, ``--acquire``,
-  ``--acquire-ms``, ``--acquire-angle``, ``--acquire-scale`` (:func:`add_acquire_arguments`,
+  ``--acquire-ms``, ``--acquire-angle``, ``--acquire-scale``, ``--acquire-budget-ms``
+  (:func:`add_acquire_arguments`,
   :func:`add_acquire_window`, :func:`acquire_bounds`);
 * ``--sensor-from`` (track, render), ``--backend`` (track, render, firmware-sim run, from
   the registry springtrack.backends.BACKENDS), a ``--params`` file's parameters
@@ -22,9 +23,10 @@ NAMES = ("start_us", "end_us", "dequantize", "burst_fraction")
 
 
 # ---- recording quirks ----------------------------------------------------------------
-def add_prep_arguments(p, always: bool = False) -> None:
+def add_prep_arguments(p, always: bool = False, seed: bool = True) -> None:
     """Add the options; ``always``: the command prepares its events even without them
-    (otherwise only when one of them is given)."""
+    (otherwise only when one of them is given); ``seed``: add ``--seed`` (False: the
+    command has its own ``--seed``, which then seeds --dequantize's order too)."""
     when = "" if always else " (any of these options turns the preparation on)"
     g = p.add_argument_group("recording quirks" + when)
     g.add_argument("--start-us", type=int, metavar="US",
@@ -34,8 +36,9 @@ def add_prep_arguments(p, always: bool = False) -> None:
     g.add_argument("--dequantize", action="store_true",
                    help="spread the events of each coarse timestamp tick (detected from the "
                         "data, e.g. 1000 µs) evenly over the tick, in a seeded random order")
-    g.add_argument("--seed", type=int, default=0,
-                   help="seed of --dequantize's order (default 0)")
+    if seed:
+        g.add_argument("--seed", type=int, default=0,
+                       help="seed of --dequantize's order (default 0)")
     g.add_argument("--burst-fraction", type=float, metavar="F",
                    help=f"drop a tick (or 1 ms) in which at least this fraction of the sensor's "
                         f"pixels fire: a full-frame burst (default {DEFAULT_BURST_FRACTION}; "
@@ -92,6 +95,10 @@ def add_acquire_window(p) -> None:
                    help="acquisition searches rotations within +-DEG degrees (default 45)")
     p.add_argument("--acquire-scale", default="0.6,1.6", metavar="LO,HI",
                    help="acquisition searches sizes LO..HI times the model's (default 0.6,1.6)")
+    p.add_argument("--acquire-budget-ms", type=float, metavar="MS",
+                   help="search budget in ms of event time from the first event: a model "
+                        "not found by then is 'not found' and no longer searched for "
+                        "(default: search until the input ends)")
 
 
 def acquire_bounds(args) -> dict:
@@ -109,6 +116,9 @@ def acquire_bounds(args) -> dict:
         raise ValueError(f"--acquire-angle must be in [0, 180] degrees, got {args.acquire_angle:g}")
     if not args.acquire_ms > 0:
         raise ValueError(f"--acquire-ms must be a positive number of ms, got {args.acquire_ms:g}")
+    budget = getattr(args, "acquire_budget_ms", None)
+    if budget is not None and not budget > 0:
+        raise ValueError(f"--acquire-budget-ms must be a positive number of ms, got {budget:g}")
     return {"angle_deg": (-args.acquire_angle, args.acquire_angle), "scale": (lo, hi)}
 
 
@@ -131,13 +141,8 @@ def add_backend_argument(p, firmware: bool = False) -> None:
 
 def read_params(path) -> dict:
     """The tracking parameters a TOML file sets (top level or [params]), validated."""
-    import tomllib
-    from ..params import ParamError, from_mapping
-    with open(path, "rb") as f:
-        try:
-            data = tomllib.load(f)
-        except tomllib.TOMLDecodeError as e:
-            raise ParamError(f"{path}: not valid TOML: {e}") from None
+    from ..params import from_mapping, read_toml
+    data = read_toml(path)
     table = data.get("params", data)
     valid = from_mapping(table, where=str(path)).as_dict()
     return {k: valid[k] for k in table}
@@ -162,7 +167,7 @@ def tracker_from_args(args, model):
     backend = f"mcu:{args.mcu_target}" if backend == "mcu" else backend
     return Tracker(model, params=args.params, backend=backend, acquire=args.acquire,
                    acquire_ms=args.acquire_ms, acquire_bounds=acquire_bounds(args),
-                   instances=args.instances)
+                   instances=args.instances, acquire_budget_ms=args.acquire_budget_ms)
 
 
 def read_events(reader):

@@ -15,7 +15,8 @@ springs; yellow + marks the ground truth when --truth is given; a lost model ins
 drawn grey and dotted, one not found yet not at all; --show-acquisition marks with purple x
 where each acquisition placed an instance (tracking on the fly with --acquire).
 OUT: .gif or .mp4 (video, MP4 needs imageio-ffmpeg), .png (the middle frame), or a
-directory (one PNG per frame). Times in µs of event time.
+directory (one PNG per frame). Times in µs of event time; a frame's header counts seconds
+from the recording's first event (its own clock at the end of the header).
 without --model: one picture (.png, .svg, .pdf, ...) of the events of --start-us .. --end-us
 (default: the whole recording) with axes in sensor pixels (x right, y down, as in a model's
 [[trackers]]) and a grid every --grid px.
@@ -24,7 +25,8 @@ without --model: one picture (.png, .svg, .pdf, ...) of the events of --start-us
 
 def add_arguments(p):
     p.epilog = EPILOG
-    p.add_argument("input", help="event file (any format springtrack reads)")
+    p.add_argument("input", help="event file (any format springtrack reads), or a live "
+                                 "source URL (dv://HOST:PORT, dv:camera, udp://HOST:PORT; docs/live.md)")
     p.add_argument("--model", action="append",
                    help="shape model TOML or preset name (default: events only); repeat it for "
                         "several models, as for track")
@@ -54,13 +56,11 @@ def add_arguments(p):
 
 
 def load_events(path):
-    """(events, width, height) of a file; the size from its header, else the events'."""
-    from .. import io as stio
-    r = stio.open(path)
-    ev = r.read()
-    w = r.width or (int(ev["x"].max()) + 1 if len(ev) else 1)
-    h = r.height or (int(ev["y"].max()) + 1 if len(ev) else 1)
-    return ev, w, h, bool(r.width and r.height)
+    """(events, width, height, known) of a file; the size from its header, else the
+    events' (springtrack.commands.inputs; the decoder's drops are warned about)."""
+    from .inputs import read_input
+    src = read_input(path)
+    return src.events, src.width, src.height, src.known
 
 
 def prepared(args, events, width, height):
@@ -78,10 +78,11 @@ def run(args) -> int:
     if args.grid is not None and args.grid < 1:
         raise ValueError(f"--grid must be a positive number of px, got {args.grid}")
     events, width, height, known = load_events(args.input)
+    origin = int(events["t"][0]) if len(events) else 0       # frame times count from it
     events, stats = prepared(args, events, width, height)
     if not args.model:
         return events_only(args, events, width, height, stats)
-    return overlay(args, events, width if known else None, height if known else None)
+    return overlay(args, events, width if known else None, height if known else None, origin)
 
 
 def events_only(args, events, width, height, stats) -> int:
@@ -103,7 +104,7 @@ def events_only(args, events, width, height, stats) -> int:
     return 0
 
 
-def overlay(args, events, width, height) -> int:
+def overlay(args, events, width, height, origin: int = 0) -> int:
     from ..sensor_fit import fit_model
     from ..instances import ModelSet
     from ..model import load_model
@@ -143,6 +144,6 @@ def overlay(args, events, width, height) -> int:
     title = ", ".join(i.label if len(mset) > 1 else i.model.name for i in mset)
     n = render(events, mset, track, args.out, window_us=args.window_us, every_us=args.every_us,
                truth=truth, title=title, max_frames=args.max_frames, scale=args.scale,
-               acquisitions=acquisitions)
+               acquisitions=acquisitions, origin_us=origin)
     print(f"wrote {args.out}: {n} frame(s)", file=sys.stderr)
     return 0

@@ -7,8 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
+from ..io.outputs import text_output
 from ..track import CSV_HEADER
 from ..tracker import profile
+from ..view import add_arguments as add_view_arguments
 from ..watch import TrackWatch
 from . import options
 from .options import read_events, tracker_from_args
@@ -19,6 +21,10 @@ input: .npy structured arrays (fields t, x, y, p), CSV with header t,x,y,p, and 
 camera format springtrack.io reads (EVT 2.0/2.1/3.0 RAW, Event Stream .es, DAT, AEDAT 4);
 - reads an event stream (RAW EVT 2.0/2.1/3.0 with its % header, or .es, .dat, .aedat4) from
 standard input as it arrives, e.g. another stack's live output piped in.
+live sources (docs/live.md): dv://HOST:PORT a DV network event stream, dv:camera[:SERIAL]
+an attached iniVation camera (both: pip install 'springtrack[dv]'), udp://HOST:PORT events
+in aestream's UDP layout (?geometry=WxH, ?timeout=S); the sensor size from the stream; the
+run ends with the stream, and prints its counts (events, batches, gaps) on stderr.
 output CSV header: t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive,state — one row
 per tracker at every multiple of --sample-us between the first and the last event, holding
 the state after all events with t < t_us; a stretch without events is sampled for its first
@@ -37,14 +43,17 @@ trackers fall inactive (fewer than a third active for 3 activity time constants)
 and searched for again every --acquire-ms / 2 in the last --acquire-ms of events; an
 instance not found at the start is searched for the same way.  See docs/acquisition.md.
 exit status: 0 tracked, 1 --acquire found no model, 2 bad input, 3 --learn-first-ms found
-no object (noise or too few events).
+no object (noise or too few events), 141 standard output closed early (a pipe's reader
+went away), 143 SIGTERM (the CSV's last line then says '# INCOMPLETE').
 """
 
 
 def add_arguments(p):
     p.epilog = EPILOG
     p.add_argument("input", help="event file (.npy, .csv, .raw, .es, .dat, .aedat4), or - for "
-                                 "an event stream (e.g. RAW) on standard input")
+                                 "an event stream (e.g. RAW) on standard input, or a live source URL "
+                                 "(dv://HOST:PORT, dv:camera[:SERIAL], udp://HOST:PORT; "
+                                 "docs/live.md)")
     p.add_argument("--model", action="append",
                    help="shape model: TOML file or preset name (grid3x3, face26); repeat it "
                         "to track several models at once; or --learn-first-ms")
@@ -57,13 +66,15 @@ def add_arguments(p):
                    help="with --backend mcu: cortex-m4 (default), cortex-m7 or rv32imac")
     p.add_argument("--sample-us", type=int, default=1000, metavar="US",
                    help="state sampling period in µs of event time (default 1000)")
-    p.add_argument("--out", required=True, help="output track CSV")
+    p.add_argument("--out", required=True, help="output track CSV ('-': standard output; "
+                                                 "the summary then goes to standard error)")
     options.add_acquire_arguments(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     p.add_argument("--profile", metavar="OUT.csv|OUT.png",
                    help="time the kernel per 10 ms bin of events (paper Figs. 22-23): a CSV "
                         "t_us,events,proc_us or a plot")
     options.add_sensor_from(p)
+    add_view_arguments(p)
     options.add_prep_arguments(p)
 
 
@@ -73,8 +84,10 @@ def open_stream(args):
     input's sensor (springtrack.sensor_fit: a mismatch or trackers off the sensor is an
     error, unless --sensor-from), or one learned from the stream's first --learn-first-ms
     (the tracking then starts where the learning window ends); and the Preparer (None
-    without a preparation option), whose counts say what it dropped."""
+    without a preparation option), whose counts say what it dropped; and the reader, whose
+    ``stats`` say what its decoder dropped."""
     from .. import io as stio
+    from ..live import is_live
     from ..sensor_fit import fit_model
     from ..model import load_model
     if (not args.model) == (args.learn_first_ms is None):
@@ -88,10 +101,10 @@ def open_stream(args):
         width, height = fitted[0].width, fitted[0].height
     else:
         model = None
-        if args.input == "-":                       # one pass over standard input
+        if args.input == "-" or is_live(args.input):     # one pass over a stream
             if not width or not height:
-                raise ValueError("--learn-first-ms on standard input needs a stream whose "
-                                 "header gives the sensor size")
+                raise ValueError("--learn-first-ms on a stream needs one that gives the "
+                                 "sensor size (a header, or udp://...?geometry=WxH)")
         elif not width or not height:               # .npy, .csv: the events' extent
             ev = reader.read()
             width = int(ev["x"].max()) + 1 if len(ev) else 1
@@ -104,7 +117,7 @@ def open_stream(args):
         from .learn import learn_first
         model, source = learn_first(source, args.learn_first_ms, width, height,
                                     name=Path(args.input).stem, params=args.params)
-    return model, source, prep
+    return model, source, prep, reader
 
 
 def _prepared(source, prep):
@@ -146,19 +159,27 @@ def run(args) -> int:
     if args.sample_us <= 0:
         raise ValueError(f"--sample-us must be a positive number of µs, got {args.sample_us}")
     from ..learning.learner import NoObjectFound
+    if args.view:
+        from ..view import check_target
+        check_target(args.view)
     try:
-        model, stream, prep = open_stream(args)
+        model, stream, prep, reader = open_stream(args)
     except NoObjectFound as e:
         print(f"springtrack track: {e}", file=sys.stderr)
         return NoObjectFound.exit_code
     tr = tracker_from_args(args, model)
     tr.record(args.sample_us)
     watch = TrackWatch(tr.models)
+    view = None
+    if args.view:
+        from .. import view as live_view
+        view = live_view.open(args.view, tr.models, name=f"springtrack track {args.input}",
+                              every_us=args.view_every_us)
     prog = Progress(not args.no_progress)
     start = time.perf_counter()
     n = 0
     t_first = t_last = None
-    with open(args.out, "w", newline="") as out:
+    with text_output(args.out, "track CSV") as out:
         out.write(",".join(CSV_HEADER) + "\n")
         bins = []
         for chunk, total in stream:
@@ -166,20 +187,25 @@ def run(args) -> int:
                 continue
             # the rows are written as the kernel takes them: memory bounded by one call's
             # SAMPLE_CAP rows, however many samples a chunk produces
+            if view is not None:
+                view.events(chunk)
             if args.profile:
                 bins.append(profile(tr, chunk, PROFILE_BIN_US,
-                                    sink=lambda rows: _write_rows(rows, tr, watch, out)))
+                                    sink=lambda rows: _write_rows(rows, tr, watch, out, view)))
             else:
                 for part in tr.stream(chunk):
-                    _write_rows(part, tr, watch, out)
+                    _write_rows(part, tr, watch, out, view)
             t_first = int(chunk["t"][0]) if t_first is None else t_first
             t_last = int(chunk["t"][-1])
             n += len(chunk)
             prog.update(n, total, t_last)
         if args.acquire:
             tr.flush()
-            _write_rows(tr.samples(), tr, watch, out)
+            _write_rows(tr.samples(), tr, watch, out, view)
     prog.close()
+    if view is not None:
+        view.close()
+        print(f"view: {view.frames} frames -> {args.view}")
     wall = time.perf_counter() - start
     if args.profile:
         write_profile(args.profile, bins)
@@ -190,7 +216,11 @@ def run(args) -> int:
     skipped = c["skipped_back_in_time"] + c["skipped_outside_sensor"]
     print(f"events={n} assigned={c['events_assigned']} skipped={skipped} "
           f"(back_in_time={c['skipped_back_in_time']} outside={c['skipped_outside_sensor']}) "
-          f"wall_s={wall:.3f} events_per_s={rate:.3g} realtime_factor={rtf:.1f} out={args.out}")
+          f"wall_s={wall:.3f} events_per_s={rate:.3g} realtime_factor={rtf:.1f} out={args.out} "
+          f"decoder_{reader.stats.summary()}")
+    warn = reader.stats.warning(args.input)
+    if warn:
+        print(warn, file=sys.stderr)
     if prep is not None:
         print(f"prepared: {prep.stats.summary()}")
     if args.acquire:
@@ -201,8 +231,9 @@ def run(args) -> int:
                   f"{args.acquire_ms:g} ms, {acq.events_dropped} events dropped before it")
         if not acq.done:
             what = "the model was" if len(acq.poses) == 1 else "no model instance was"
-            print(f"springtrack track: {what} not found in {args.input}; no track rows "
-                  f"written", file=sys.stderr)
+            print(f"springtrack track: {what} not found in {args.input}; the rows of "
+                  f"{args.out} say where it was searched ('searching', then 'not found')",
+                  file=sys.stderr)
             return 1
         for t, label, kind in tr.changes:
             print(f"instance {label}: {kind} at t={t} us")
@@ -241,12 +272,14 @@ def write_profile(path, bins) -> None:
         f.writelines(f"{a},{b},{c:.3f}\n" for a, b, c in zip(keys.tolist(), ev.tolist(), pu.tolist()))
 
 
-def _write_rows(samples, tr, watch, f):
-    """Samples the tracker took, as CSV rows (the header is already written) and into the
-    end-of-run watch."""
+def _write_rows(samples, tr, watch, f, view=None):
+    """Samples the tracker took, as CSV rows (the header is already written), into the
+    end-of-run watch and the live view."""
     if not len(samples):
         return
     if watch.models is not tr.models:          # placed by the acquisition
         watch.use_models(tr.models)
     watch.add(samples)
     samples.write_rows(f)
+    if view is not None:
+        view.track(samples)

@@ -13,7 +13,7 @@
  *
  * Polynomials: Chebyshev fits (mpmath.chebyfit, 60 digits), then rounded to double; the
  * worst error of the rounded polynomial was checked in 60-digit arithmetic on 2001 points
- * and is quoted beside each one.  tests/test_fastmath.py measures the functions against
+ * and is quoted beside each one.  tests/test_springtrack/kernel/test_fastmath.py measures the functions against
  * libm on millions of arguments, edge cases included.
  *
  * Nothing here relies on -ffast-math or FMA contraction: setup.py builds with

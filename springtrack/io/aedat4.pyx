@@ -38,7 +38,9 @@ COMPRESSION = {0: "NONE", 1: "LZ4", 2: "LZ4_HIGH", 3: "ZSTD", 4: "ZSTD_HIGH"}
 STREAM_TYPES = {b"EVTS": "events", b"IMUS": "imu", b"TRIG": "triggers", b"FRME": "frames"}
 MAX_HEADER = 1 << 24        # an IOHeader over 16 MiB is not a real file's
 MAX_PACKET = 1 << 28        # nor a packet over 256 MiB: the framing is lost (see _decode)
-MAX_RATIO = 256             # decompressed bytes per packet byte (LZ4's own bound is ~255)
+MAX_RATIO = 32              # decompressed bytes per packet byte: cameras' events compress
+                            # 2.1x (the DAVIS346 sample) to 4x (LZ4 of sorted zeros); LZ4 itself
+                            # allows ~255x, which would let a 2.5 MB file decode to 2 GB
 PACKET_EVENTS = 4096        # events per packet written by encode()
 
 cdef enum:

@@ -3,7 +3,7 @@
  * EVT_ADDR_X, VECT_BASE_X, VECT_12, VECT_8 and EVT_TIME_LOW -- whose events all lie
  * inside the sensor and have their row (and vector base) known.  Any other block (a time
  * high, a trigger, an orphan, an event that may lie outside, ...) is left to the word
- * loop, so events and counters are the word loop's (tests/test_io_decoders.py).
+ * loop, so events and counters are the word loop's (tests/test_springtrack/io/test_io_decoders.py).
  *
  * The word loop's state -- row, EVT_TIME_LOW bits, vector base and polarity -- becomes,
  * for every word of the block, the value in effect at that word: a "last value written"

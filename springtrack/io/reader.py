@@ -4,6 +4,7 @@ from __future__ import annotations
 import builtins
 import importlib
 import os
+import stat
 import warnings
 
 import numpy as np
@@ -178,7 +179,34 @@ class ArrayReader(Reader):
         return len(self._load())
 
 
+def _check_npy_size(path) -> None:
+    """Refuse a .npy whose header declares more data than the file holds (a 292-byte file
+    may declare 10^12 events: numpy would allocate them first) or a data type that is not a
+    plain structured record."""
+    fmt = np.lib.format
+    try:
+        with builtins.open(path, "rb") as f:
+            version = fmt.read_magic(f)
+            shape, _, dtype = (fmt.read_array_header_1_0(f) if version == (1, 0)
+                               else fmt.read_array_header_2_0(f))
+            offset = f.tell()
+    except (ValueError, OSError, SyntaxError, TypeError) as e:
+        raise DecodeError(f"{path}: not a readable .npy event array: {e}") from None
+    if dtype.hasobject:
+        raise DecodeError(f"{path}: .npy of Python objects: an event array has numeric fields")
+    count = 1
+    for n in shape:
+        count *= int(n)
+    need = count * dtype.itemsize
+    have = os.path.getsize(path) - offset
+    if need > have:
+        raise DecodeError(f"{path}: .npy header declares shape {shape} of {dtype.itemsize}-byte "
+                          f"records ({need:,} bytes) but the file holds {have:,} bytes after "
+                          f"its header: truncated or corrupt")
+
+
 def _load_npy(path) -> np.ndarray:
+    _check_npy_size(path)
     try:
         arr = np.load(path, allow_pickle=False)
     except ValueError as e:
@@ -205,3 +233,13 @@ def _load_csv(path) -> np.ndarray:
         return as_events(rows)                     # the checks of every event source
     except EventError as e:
         raise DecodeError(f"{path}: line {e.index + 2}: {e.detail}") from None
+
+
+def is_stream(path) -> bool:
+    """A FIFO or character device: it cannot be sniffed and reopened (what detection
+    read would be gone, and its writer killed by SIGPIPE), nor sized."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return False                 # open() names the problem
+    return stat.S_ISFIFO(mode) or stat.S_ISCHR(mode)

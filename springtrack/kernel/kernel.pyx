@@ -49,7 +49,7 @@ Speed comes from ideas that do not change any decision of the algorithm:
   in the event loop reads the activity;
 * libm's exp, atan2, sin and cos replaced by csrc/fastmath.h (about 1 ulp; vectorised
   atan2, sincos and exp batches).  Results then differ from the reference by rounding only
-  (~1e-15 relative), far inside the 1e-9 px contract of tests/test_equivalence.py.
+  (~1e-15 relative), far inside the 1e-9 px contract of tests/test_springtrack/kernel/test_equivalence.py.
 """
 from libc.stdlib cimport calloc, free
 from libc.string cimport memset

@@ -14,14 +14,30 @@ from .springs import relative_neighbours
 
 
 # ---- the passes -------------------------------------------------------------------------
+# Empty batches in a row after which the rest of a pause is skipped: the pool's decay is
+# exact over any time step (Pool.decay), so a long pause costs no more than this many
+# batches (and History rows): time and memory follow the events, not the time span.
+MAX_IDLE_BATCHES = 1000
+
+
 def _batches(ev: np.ndarray, t0: int, t1: int, step: int):
-    """(t_end, slice) per batch of ``step`` µs covering [t0, t1]."""
-    edges = np.arange(t0 + step, t1 + step + 1, step, dtype=np.int64)
-    idx = np.searchsorted(ev["t"], edges, side="left")
-    lo = 0
-    for te, hi in zip(edges.tolist(), idx.tolist()):
+    """(t_end, slice) per batch of ``step`` µs covering [t0, t1], the batch ends on the
+    grid t0 + k step; after ``MAX_IDLE_BATCHES`` empty batches in a row the grid jumps to
+    the batch of the next event."""
+    t = ev["t"]
+    n = len(t)
+    te, lo, idle = t0 + step, 0, 0
+    while te <= t1 + step:
+        hi = int(np.searchsorted(t, te, side="left"))
         yield te, slice(lo, hi)
+        idle = idle + 1 if hi == lo else 0
         lo = hi
+        if idle >= MAX_IDLE_BATCHES:
+            if hi >= n:
+                return
+            te = t0 + step * ((int(t[hi]) - t0) // step)    # the next event's batch is next
+            idle = 0
+        te += step
 
 
 class History:

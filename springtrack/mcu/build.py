@@ -7,7 +7,7 @@ ELF with the clang of the ``ziglang`` package, and measure its flash and static 
 
 No heap, no libc: ``-ffreestanding -fno-builtin -nostdlib``, so a floating-point, 128-bit
 or 64-bit-division helper the code needed would fail the link (there is no runtime to
-take it from); tests/test_mcu.py also inspects the symbol table.  Capacity (trackers,
+take it from); tests/test_springtrack/mcu/test_mcu.py also inspects the symbol table.  Capacity (trackers,
 connections, sensor size) is fixed at build time: the kernel's state is one struct of
 that size, its spatial index one static array.
 """

@@ -342,6 +342,9 @@ def differences(r: Report) -> list[str]:
         "when those defaults change.",
         "* Absolute stiffness values are not comparable: the spring update's scale and our "
         "event rates differ from the paper's, so the alpha axis of Fig. 11b is shifted.",
+        "* One simulator's assumptions can flatter a result: the same scenes on a second, "
+        "independent generator (a 100 Hz screen, its own pixel model) and the defaults' "
+        "numbers on both are in docs/simulators.md.",
         "",
     ]
 

@@ -6,7 +6,7 @@
  * (springtrack/mcu/) compile this same source.  It compiles with `gcc
  * -mgeneral-regs-only` (no floating-point register) and, for Cortex-M4/M7 and RV32IMAC,
  * links without any floating-point, 128-bit or 64-bit division helper
- * (tests/test_fixed_integer_only.py, tests/test_mcu.py).  Q formats (docs/fixed_point.md):
+ * (tests/test_springtrack/fixed/test_fixed_integer_only.py, tests/test_springtrack/mcu/test_mcu.py).  Q formats (docs/fixed_point.md):
  *
  *   positions mx, my, gdx0                int64  Q.32 px accumulators, clamped to +-FX_POS_LIM
  *   covariances sxx, sxy, syy            int64  Q.40 px^2 accumulators (<= 4096 px^2)

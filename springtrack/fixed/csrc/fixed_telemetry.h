@@ -9,8 +9,8 @@
  *   u8  act    round(16 log2(1 + A)): leading-bit position + a 16-entry threshold table
  * so a firmware running this kernel converts its state once, at telemetry rate, and never
  * through floating point.  Compiles with gcc -mgeneral-regs-only like fixed_step.c
- * (tests/test_fixed_integer_only.py).  The scales are checked against wire.py when _fixed is
- * imported; tests/test_fixed_telemetry.py compares the codes with wire.quantise_trackers
+ * (tests/test_springtrack/fixed/test_fixed_integer_only.py).  The scales are checked against wire.py when _fixed is
+ * imported; tests/test_springtrack/fixed/test_fixed_telemetry.py compares the codes with wire.quantise_trackers
  * (the quantiser of the float state) of the float view of the same state.
  */
 #ifndef SPRINGTRACK_FIXED_TELEMETRY_H

@@ -1,0 +1,42 @@
+"""A whole event file read for a command (``learn``, ``render``): its events, the sensor
+size (the header's, else the events' extent), checked against what can be allocated, and
+the decoder's drops reported as a warning on standard error."""
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..limits import MAX_SENSOR_PX
+
+
+@dataclass
+class Input:
+    events: np.ndarray
+    width: int
+    height: int
+    known: bool            # the size came from the file's header
+    stats: object          # springtrack.io.DecodeStats: what the decoder saw and dropped
+
+
+def check_sensor(width: int, height: int, source) -> None:
+    """A sensor size a command may allocate images and maps for: at most MAX_SENSOR_PX a
+    side (a header declaring 65535x65535 would ask for 16 GiB per map)."""
+    if not (0 < width <= MAX_SENSOR_PX and 0 < height <= MAX_SENSOR_PX):
+        raise ValueError(f"{source}: a {width}x{height} sensor: at most {MAX_SENSOR_PX} px a "
+                         f"side is supported (springtrack.limits.MAX_SENSOR_PX); a header "
+                         f"or event coordinates this large are corrupt")
+
+
+def read_input(path) -> Input:
+    from .. import io as stio
+    r = stio.open(path)
+    ev = r.read()
+    w = r.width or (int(ev["x"].max()) + 1 if len(ev) else 1)
+    h = r.height or (int(ev["y"].max()) + 1 if len(ev) else 1)
+    check_sensor(w, h, path)
+    warn = r.stats.warning(path)
+    if warn:
+        print(warn, file=sys.stderr)
+    return Input(ev, w, h, bool(r.width and r.height), r.stats)
