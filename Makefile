@@ -13,7 +13,7 @@ PYX    := $(shell find springtrack firmware_sim -name '*.pyx' -o -name '*.pxd' -
 # `build` compiles the extensions in place, two at a time, and later only what changed
 NO_EXT := SPRINGTRACK_ONLY=none
 
-.PHONY: demo test build bench clean
+.PHONY: demo test build bench clean qemu
 
 # what the library, the firmware, the host and the demo need (the demo draws: plots)
 $(STAMP): pyproject.toml setup.py
@@ -34,8 +34,15 @@ build: $(STAMP) $(PYX)
 demo: build
 	$(VENV)/bin/hostctl demo
 
-test: $(EXTRAS) build
+test: $(EXTRAS) build qemu
 	SPRINGTRACK_ALL_TESTS=1 $(PY) -m pytest -q tests; rc=$$?; if [ $$rc -eq 5 ]; then echo "no tests ran"; exit 1; fi; exit $$rc
+
+# the firmware image's tests boot it in QEMU (docs/mcu.md): installed when missing, as root
+# (CI); otherwise those tests say how to install it
+qemu:
+	@command -v qemu-system-arm >/dev/null || { if [ "$$(id -u)" = 0 ]; then \
+	  apt-get update -q && apt-get install -y -q --no-install-recommends qemu-system-arm; \
+	else echo "qemu-system-arm is missing: sudo apt-get install qemu-system-arm"; fi; }
 
 bench: build
 	$(PY) benchmarks/kernel.py

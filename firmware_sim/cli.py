@@ -72,7 +72,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="learn the model from the stream's first MS ms of event time "
                         "(springtrack learn; docs/learning.md), then track with it from "
                         "where the window ends; --params are written into the learned model")
-    r.add_argument("--params", help="TOML file of parameter overrides")
+    r.add_argument("--params", help="TOML file of parameter overrides (its [learn] table: "
+                                    "the learner's, with --learn-first-ms)")
+    options.add_learn_arguments(r)
     r.add_argument("--sensor-from", choices=["source", "file", "model"],
                    help="a model whose [sensor] is not the camera's is refused; 'source' "
                         "(or 'file', as in springtrack track): use it on the camera's sensor "
@@ -300,7 +302,7 @@ def _run(args) -> int:
                           source_counters=source.counters, sensor_from=args.sensor_from,
                           supervisor=Supervisor(), rewind=source.rewind,
                           acquire=_acquire(args), learn_first_ms=args.learn_first_ms,
-                          learn_params=learn_params(args))
+                          learn_params=learn_params(args), learner=learner_params(args))
     throttle = Throttle()             # the program's own log lines
     stop = threading.Event()          # ends the link
     quit_now = threading.Event()      # a host sent SHUTDOWN
@@ -402,6 +404,17 @@ def learn_params(args) -> dict | None:
         return None
     from springtrack.commands.options import read_params
     return read_params(args.params)
+
+
+def learner_params(args) -> dict | None:
+    """With --learn-first-ms: the learner's parameters (--params [learn], --learn-param)."""
+    if args.learn_first_ms is None:
+        if args.learn_param:
+            raise ValueError("--learn-param needs --learn-first-ms (the device learns nothing "
+                             "without it)")
+        return None
+    from springtrack.commands.options import learn_params as read
+    return read(args)
 
 
 def _say_learned(engine, window_ms: float | None = None) -> bool:

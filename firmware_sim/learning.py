@@ -20,7 +20,8 @@ from .feed import DecodedFeed
 
 
 class LearningFeed(DecodedFeed):
-    """``LearningFeed(kernel, period_us, profile, ms, width, height, track_params=None)``:
+    """``LearningFeed(kernel, period_us, profile, ms, width, height, track_params=None,
+    learner=None)`` (``learner``: the learner's parameter overrides, LearnParams names):
     :class:`DecodedFeed` whose events of ``[t0, t0 + ms)`` (t0 the first event's time)
     are held, not tracked; then ``learned`` holds the ``springtrack.learning.learner.LearnResult``
     (``error`` the message if nothing was found: then nothing is tracked, the events are
@@ -30,13 +31,14 @@ class LearningFeed(DecodedFeed):
     ends the learning: the held events are dropped and counted (``events_unlearned``)."""
 
     def __init__(self, kernel, period_us: int, profile, ms: float, width: int, height: int,
-                 track_params: dict | None = None):
+                 track_params: dict | None = None, learner: dict | None = None):
         if not ms > 0:
             raise ValueError(f"--learn-first-ms must be positive, got {ms}")
         super().__init__(kernel, period_us, profile)
         self.window_us = int(round(ms * 1000))
         self.width, self.height = int(width), int(height)
         self.track_params = track_params
+        self.learner_params = learner
         self.learning = True
         self.t_end = None
         self.held: list = []
@@ -96,7 +98,8 @@ class LearningFeed(DecodedFeed):
         self.learning = False
         try:
             self.learned = learn_model(events, width=self.width, height=self.height,
-                                       name="learned", track_params=self.track_params)
+                                       name="learned", params=self.learner_params,
+                                       track_params=self.track_params)
         except NoObjectFound as e:
             self.error = str(e)
             self.idle = True

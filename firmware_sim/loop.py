@@ -79,7 +79,8 @@ class FirmwareLoop:
     before the camera (``events_in``, ``outside_sensor``), reported in the statistics.
     ``learn_first_ms``: learn the model from the stream's first milliseconds instead
     (``model`` only holds the slot until then and tracks nothing; ``learn_params``: tracking
-    parameters written into the learned model, as ``springtrack learn --params``)."""
+    parameters written into the learned model, as ``springtrack learn --params``;
+    ``learner``: the learner's parameter overrides, as ``--learn-param``)."""
 
     def __init__(self, open_camera, model="face26", params=None, telemetry_period_us: int = 1000,
                  nbuf: int = 64, piece_bytes: int = 16384, telemetry_queue: int = 4096,
@@ -89,7 +90,7 @@ class FirmwareLoop:
                  backend: str = "cython", roi=None, source_counters=None, sensor_from=None,
                  supervisor: Supervisor | None = None, rewind=None,
                  acquire: dict | None = None, learn_first_ms: float | None = None,
-                 learn_params: dict | None = None):
+                 learn_params: dict | None = None, learner: dict | None = None):
         """``rewind()``: called by the START that follows :meth:`end_of_stream`, to serve
         the source again from its beginning (None: START after the end resumes reading)."""
         if telemetry_period_us <= 0:
@@ -107,7 +108,7 @@ class FirmwareLoop:
                 raise ValueError("--roi and --learn-first-ms cannot be combined")
             self.fused = self.learner = LearningFeed(
                 self.slot.kernel, telemetry_period_us, self.profile, learn_first_ms,
-                self.width, self.height, learn_params)
+                self.width, self.height, learn_params, learner)
         elif not backend.startswith("mcu") and acquire is None:
             self.fused = Fused(self.slot.kernel, telemetry_period_us, 512, fmt=self.profile.fmt,
                                width=self.width, height=self.height,

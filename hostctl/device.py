@@ -28,6 +28,7 @@ import numpy as np
 import serial
 
 from springtrack import wire
+from springtrack.mcu import words as wire_image
 from springtrack.wire import MsgType, Nack, Notice, Role
 
 TELEMETRY_QUEUE = 20_000
@@ -168,11 +169,23 @@ class Device:
         """Upload a model (ShapeModel, preset name, TOML path or TOML text); returns the
         generation it will carry.  The firmware validates on commit and swaps atomically."""
         text = _model_text(model).encode("utf-8")
+        if self.info.get("model_format") == wire_image.MODEL_FORMAT_WORDS:
+            text, nc = _local_check("MODEL_COMMIT", wire_image.words_image, text)
+            gen = self._upload(text)
+            self.info["connections"] = nc
+            return gen
+        return self._upload(text)
+
+    def _upload(self, text: bytes) -> int:
+        """MODEL_BEGIN, the chunks, MODEL_COMMIT: the generation the upload carries."""
         self._command(MsgType.MODEL_BEGIN, wire.encode_model_begin(text))
         step = wire.MODEL_CHUNK_SIZE            # chunks are pipelined: sent together, ACKed
+        # a words firmware reads a UART a byte at a time: two chunks in flight keep the
+        # line's buffer from filling (a write that blocks past the write timeout fails)
+        words = self.info.get("model_format") == wire_image.MODEL_FORMAT_WORDS
         self._pipelined(MsgType.MODEL_CHUNK,    # together, missing ACKs retried one by one
                         [wire.encode_model_chunk(off, text[off:off + step])
-                         for off in range(0, len(text), step)])
+                         for off in range(0, len(text), step)], window=2 if words else 8)
         return self._command(MsgType.MODEL_COMMIT, wire.encode_model_begin(text))
 
     def set(self, name: str | None = None, value=None, **params) -> int:
@@ -188,7 +201,13 @@ class Device:
         generation of each change.  Several at once: their current values are read first
         (an unknown name is refused before anything changes); if the device refuses one,
         those already set are set back to their values before, and the refusal (Nacked)
-        says so."""
+        says so.  A firmware that takes words images gets one parameters image: all of
+        them at once."""
+        if self.info.get("model_format") == wire_image.MODEL_FORMAT_WORDS:
+            image = _local_check("PARAM_SET", wire_image.params_image, {**self.get(), **params},
+                                 self.info.get("connections", 0))
+            gen = self._upload(image)
+            return {k: gen for k in params}
         before = self.get(*params) if len(params) > 1 else {}
         gens: dict = {}
         for k, v in params.items():
@@ -473,6 +492,17 @@ def _open(url: str, baudrate: int):
         return serial.serial_for_url(url, baudrate=baudrate, timeout=0.05, write_timeout=2.0)
     except (serial.SerialException, ValueError, OSError) as e:
         raise NoSuchPort(f"{url}: cannot open port: {e}") from None
+
+
+def _local_check(command: str, convert, *args):
+    """``convert(*args)``; a model or parameter it refuses raises :class:`Nacked` with the
+    code and reason the firmware would give (for a words firmware the host checks first)."""
+    try:
+        return convert(*args)
+    except (ValueError, TypeError, RecursionError) as e:
+        code = getattr(e, "code", Nack.INVALID_MODEL if command == "MODEL_COMMIT"
+                       else Nack.OUT_OF_RANGE)
+        raise Nacked(command, wire.Refusal(0, 0, int(code), str(e))) from None
 
 
 def _model_text(model) -> str:

@@ -78,6 +78,9 @@ class ShapeModel:
     connections: list[Connection]
     params: dict = field(default_factory=dict)
     source: str = "<model>"
+    # a learned model's evidence (springtrack.learning: stability, persistence, layout,
+    # window_ms, events); numbers only, informative, never read by the tracker
+    learned: dict = field(default_factory=dict)
 
     def __post_init__(self):
         validate(self)
@@ -231,6 +234,8 @@ def dumps(m: ShapeModel) -> str:
                 f"stiffness = {_f(c.stiffness)}"]
     if m.params:
         out += ["", "[params]"] + [f"{k} = {_v(v)}" for k, v in m.params.items()]
+    if m.learned:
+        out += ["", "[learned]"] + [f"{k} = {_v(v)}" for k, v in m.learned.items()]
     return "\n".join(out) + "\n"
 
 
@@ -251,7 +256,7 @@ def _tables(data: dict, key: str, source: str) -> list:
 
 def from_dict(data: dict, source: str = "<model>") -> ShapeModel:
     """Build a model from parsed TOML, with errors naming ``source`` and the entry."""
-    unknown = set(data) - {"name", "sensor", "trackers", "connections", "params"}
+    unknown = set(data) - {"name", "sensor", "trackers", "connections", "params", "learned"}
     if unknown:
         raise ModelError(f"{source}: unknown top-level key(s) {sorted(unknown)}")
     sensor = data.get("sensor")
@@ -284,7 +289,18 @@ def from_dict(data: dict, source: str = "<model>") -> ShapeModel:
         raise ModelError(f"{source}: [params] must be a table")
     return ShapeModel(name=data.get("name", ""), width=_need(sensor, "width", "[sensor]", source),
                       height=_need(sensor, "height", "[sensor]", source), trackers=trackers,
-                      connections=conns, params=dict(params), source=source)
+                      connections=conns, params=dict(params), source=source,
+                      learned=_learned_table(data.get("learned", {}), source))
+
+
+def _learned_table(t, source: str) -> dict:
+    """The ``[learned]`` table: a learned model's evidence, names to finite numbers."""
+    if not isinstance(t, dict):
+        raise ModelError(f"{source}: [learned] must be a table")
+    bad = [k for k, v in t.items() if not _finite(v)]
+    if bad:
+        raise ModelError(f"{source}: [learned]: {bad[0]} must be a finite number")
+    return dict(t)
 
 
 def loads(text, source: str = "<string>") -> ShapeModel:

@@ -210,6 +210,14 @@ def read_toml(path, error: type = ParamError) -> dict:
     return parse_toml(data, path, error)
 
 
+def tracking_table(data: Mapping) -> Mapping:
+    """The tracking parameters of a parsed params TOML: its ``[params]`` table, or its top
+    level without the learner's ``[learn]`` table (springtrack.learning.settings)."""
+    if "params" in data:
+        return data["params"]
+    return {k: v for k, v in data.items() if k != "learn"}
+
+
 def resolve(model, params=None) -> Params:
     """The parameters of ``model`` (anything with ``params``, its ``[params]`` table, and
     ``source``): defaults, then the model's [params], then ``params`` (Params, dict or
@@ -222,12 +230,10 @@ def resolve(model, params=None) -> Params:
     if isinstance(params, dict):
         return from_mapping(params, base)
     if isinstance(params, (str, Path)):
-        data = read_toml(params)
-        return from_mapping(data.get("params", data), base, where=str(params))
+        return from_mapping(tracking_table(read_toml(params)), base, where=str(params))
     raise TypeError(f"params must be Params, dict, a TOML path or None, not {type(params).__name__}")
 
 
 def load(path) -> Params:
     """Read a params TOML file: either a top-level table of names or a ``[params]`` table."""
-    data = read_toml(path)
-    return from_mapping(data.get("params", data), where=str(path))
+    return from_mapping(tracking_table(read_toml(path)), where=str(path))

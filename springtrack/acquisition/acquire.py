@@ -93,6 +93,9 @@ KAPPA = 0.5              # support: excess >= KAPPA b + Z sqrt(b) + N_MIN over t
 Z = 3.0                  # count b in the gate: a contrast, a significance (Poisson standard
 N_MIN = 3.0              # deviations) and a floor (events)
 FOUND_FRACTION = 0.5     # of the in-view trackers supported
+CONFIDENT = 0.7          # a find below this confidence is doubtful
+BOUND_TOL = 0.01         # a pose this close to a search bound (relative scale, or
+                         # this fraction of the angle range) ended at the bound
 MIN_IN_VIEW = 0.5        # of all trackers in view
 FLAT2 = 4.0              # tracker weight 1 within d^2 <= 4 (2 sigma), then tapering
 GATE2 = 9.0              # linearly in d^2 to 0 at the gate d^2 = 9 (3 sigma)
@@ -132,9 +135,15 @@ class Pose:
     supported: int = 0         # trackers supported
     in_view: int = 0           # trackers whose placed mean is inside the sensor
     events: int = 0            # events of the window inside the sensor
+    doubt: str = ""            # why a find is doubtful (see :func:`with_doubt`), or ""
+
+    @property
+    def doubtful(self) -> bool:
+        return self.found and bool(self.doubt)
 
     def __str__(self) -> str:
-        verdict = "found" if self.found else "NOT found"
+        verdict = ("found" if not self.doubtful else f"found, DOUBTFUL ({self.doubt})") \
+            if self.found else "NOT found"
         return (f"{verdict}: tx={self.tx:.1f} ty={self.ty:.1f} angle={self.angle_deg:.1f} deg "
                 f"scale={self.scale:.3f} confidence={self.confidence:.2f} "
                 f"({self.supported}/{self.in_view} trackers supported, score {self.score:.2f}, "
@@ -515,7 +524,7 @@ def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DE
     kept = sorted(start, key=lambda p: p.score, reverse=True)[:KEEP]
     final = [_better(p, ev.judge(*ev.refine(_params(p), 0.0, lo, hi, MAX_ITER), n_ev))
              for p in kept]
-    best = max(final, key=lambda p: p.score)
+    best = with_doubt(max(final, key=lambda p: p.score), angles, scales)
     if at_us is None:
         return best
     evs = as_events(events)
@@ -536,7 +545,32 @@ def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DE
         if 0 < f <= 1:
             q = np.clip(q + (q - mid) * f, lo, hi)
     tx, ty, th, s = (float(v) for v in q)
-    return replace(best, tx=tx, ty=ty, angle_deg=math.degrees(th), scale=s)
+    return with_doubt(replace(best, tx=tx, ty=ty, angle_deg=math.degrees(th), scale=s,
+                              doubt=""), angles, scales)
+
+
+def with_doubt(pose: Pose, angles, scales) -> Pose:
+    """``pose`` with its ``doubt`` said when it was found but the search ended at one of
+    its bounds (the object may lie beyond it: another scale or turn than searched) or
+    its confidence is below CONFIDENT (fewer than 70 % of the in-view trackers
+    supported: part of the model, or another object, may have been matched)."""
+    if not pose.found:
+        return pose
+    why = []
+    for lo_hi, v, name in ((scales, pose.scale, "scale"),):
+        for b in lo_hi:
+            if abs(v - b) <= BOUND_TOL * b:
+                why.append(f"{name} {v:.3f} at the search bound {b:g}")
+    span = angles[1] - angles[0]
+    if span < 2 * math.pi - 1e-9:
+        a = math.radians(pose.angle_deg)
+        for b in angles:
+            if abs(a - b) <= BOUND_TOL * span:
+                why.append(f"angle {pose.angle_deg:.1f} deg at the search bound "
+                           f"{math.degrees(b):g}")
+    if pose.confidence < CONFIDENT:
+        why.append(f"confidence {pose.confidence:.2f} < {CONFIDENT}")
+    return replace(pose, doubt="; ".join(why)) if why else pose
 
 
 def _params(pose: Pose) -> tuple:

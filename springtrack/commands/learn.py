@@ -33,7 +33,9 @@ def add_arguments(p):
                    help="tracker ids, comma-separated, in reading order (default p00, p01, ...)")
     p.add_argument("--name", help="model name (default: the input file's stem)")
     p.add_argument("--params", help="TOML file of tracking parameters to write into the "
-                                    "model instead of the learned ones (see docs/algorithm.md)")
+                                    "model instead of the learned ones (see docs/algorithm.md); "
+                                    "its [learn] table sets the learner's parameters")
+    options.add_learn_arguments(p)
     p.add_argument("--png", metavar="PICTURE.png",
                    help="draw the learned model over the last --png-window-us of events")
     p.add_argument("--png-window-us", type=int, default=20_000, metavar="US",
@@ -44,10 +46,13 @@ def add_arguments(p):
 
 def run(args) -> int:
     from ..learning.learner import NoObjectFound, learn_model
+    from ..learning.settings import MAX_PARTS
     from .inputs import read_input
-    if args.trackers is not None and not 1 <= args.trackers <= 64:
-        raise ValueError(f"--trackers must be in [1, 64], got {args.trackers}")
+    if args.trackers is not None and not 1 <= args.trackers <= MAX_PARTS:
+        raise ValueError(f"--trackers must be in [1, {MAX_PARTS}] (one kernel instance holds at "
+                         f"most {MAX_PARTS} trackers), got {args.trackers}")
     track_params = read_params(args.params) if args.params else None   # its errors first
+    learner = options.learn_params(args)
     src = read_input(args.input)
     raw, width, height = src.events, src.width, src.height
     prep = options.preparer(args, width, height, always=True)
@@ -59,7 +64,7 @@ def run(args) -> int:
     try:
         res = learn_model(events, trackers=args.trackers, width=width, height=height,
                           names=names, name=args.name or Path(args.input).stem,
-                          track_params=track_params)
+                          params=learner, track_params=track_params)
     except NoObjectFound as e:
         print(f"springtrack learn: {e}", file=sys.stderr)
         return NoObjectFound.exit_code
@@ -78,10 +83,17 @@ def run(args) -> int:
 def report(res) -> None:
     """Print the trackers, the springs with their evidence, and the lifecycle."""
     m = res.model
-    life = ", ".join(f"{k} {v}" for k, v in res.lifecycle.items() if v)
+    life = ", ".join(f"{k} {v}" for k, v in res.lifecycle.items()
+                     if v and k not in ("found", "time_scale"))
     print(f"learned   {len(m.trackers)} trackers, {len(m.connections)} springs from "
           f"{res.events:,} events over {(res.t_end_us - res.t_start_us) / 1e3:.1f} ms "
           f"in {res.wall_s:.2f} s ({life})")
+    for line in notes(res):
+        print(f"note      {line}")
+    ev = m.learned
+    print(f"stability {ev['stability']:.2f} = persistence {ev['persistence']:.2f} x coherence "
+          f"{ev['coherence']:.2f} x layout rigidity {ev['layout']:.2f} (1 = parts that lived "
+          f"two grace periods, fired together, in a rigid layout)")
     print("params    " + ", ".join(f"{k}={v}" for k, v in m.params.items()))
     print(f"{'tracker':>8} {'x':>7} {'y':>7} {'sigma_x':>7} {'sigma_y':>7} {'mass':>5} {'events':>7}")
     for t, n in zip(m.trackers, res.counts):
@@ -94,11 +106,43 @@ def report(res) -> None:
               f"{s.coactivation:8.3f} {s.rigidity:8.3f} {s.turn_deg:8.1f}")
 
 
+def notes(res) -> list:
+    """What the learner decided for the user: time constants scaled to a short window,
+    parts beyond a kernel instance's capacity reduced, criteria switched off."""
+    from ..learning.settings import MAX_PARTS, LearnParams
+    out = []
+    life = res.lifecycle
+    k = life.get("time_scale", 1.0)
+    if k < 1.0:
+        ref = LearnParams()
+        out.append(f"short window: lifecycle times scaled by {k:g} (grace "
+                   f"{ref.life_tau_us * k / 1e3:g} ms, step {ref.batch_us * k:.0f} µs)")
+    found, n = life.get("found", 0), len(res.model.trackers)
+    if found > n:
+        out.append(f"{found} parts found, reduced to {n} (dropped {life.get('dropped_to_n', 0)} "
+                   f"weakest, merged {life.get('merged_to_n', 0)} pairs)"
+                   + ("; a kernel instance holds at most "
+                      f"{MAX_PARTS}" if found > MAX_PARTS else "")
+                   + "; --trackers N to choose")
+    from ..learning.settings import LAYOUT_RIGID
+    if res.model.learned.get("layout", 1.0) < LAYOUT_RIGID:
+        out.append(f"layout rigidity {res.model.learned['layout']:.2f} < {LAYOUT_RIGID}: the "
+                   f"parts slid against each other (texture, a 3-D object, several objects); "
+                   f"the springs may pull trackers off their parts")
+    s = res.model.params.get("energy_scale")
+    if s is not None and len(res.model.connections) and s > len(res.model.connections):
+        out.append(f"energy_scale {s:g} > {len(res.model.connections)} springs: the occlusion "
+                   f"criteria (eqs. 21-22) are off, as the object's shape changed in the window")
+    return out
+
+
 def learn_first(source, ms: float, width: int, height: int, name: str = "learned",
-                params=None):
+                params=None, learner: dict | None = None):
     """Learn a model from the first ``ms`` milliseconds of a stream of (chunk, total)
     pairs; returns the model and the stream of the events after that window (the
-    tracking starts where the learning ended).  Prints what was learned to stderr."""
+    tracking starts where the learning ended).  ``params``: a --params TOML path
+    (tracking parameters written into the model); ``learner``: the learner's parameter
+    overrides (:func:`options.learn_params`).  Prints what was learned to stderr."""
     from ..learning.learner import NoObjectFound, learn_model
     if not ms > 0:
         raise ValueError(f"--learn-first-ms must be positive, got {ms}")
@@ -121,14 +165,17 @@ def learn_first(source, ms: float, width: int, height: int, name: str = "learned
         raise ValueError(f"--learn-first-ms {ms:g}: the stream holds {span}, nothing is left "
                          f"to track after the learning window; give a shorter window")
     try:
-        res = learn_model(events, width=width, height=height, name=name,
+        res = learn_model(events, width=width, height=height, name=name, params=learner,
                           track_params=read_params(params) if params else None)
     except NoObjectFound as e:
         raise NoObjectFound(f"--learn-first-ms {ms:g} ({len(events):,} events): {e}") from None
     m = res.model
     print(f"learned {len(m.trackers)} trackers, {len(m.connections)} springs from the first "
-          f"{ms:g} ms ({res.events:,} events, {res.wall_s:.2f} s); "
+          f"{ms:g} ms ({res.events:,} events, {res.wall_s:.2f} s); stability "
+          f"{m.learned['stability']:.2f}; "
           + ", ".join(f"{k}={v}" for k, v in m.params.items()), file=sys.stderr)
+    for line in notes(res):
+        print(f"learn: {line}", file=sys.stderr)
 
     def after():
         if rest is not None:

@@ -9,7 +9,8 @@
   :func:`add_acquire_window`, :func:`acquire_bounds`);
 * ``--sensor-from`` (track, render), ``--backend`` (track, render, firmware-sim run, from
   the registry springtrack.backends.BACKENDS), a ``--params`` file's parameters
-  (:func:`read_params`: learn, firmware-sim run);
+  (:func:`read_params`: learn, firmware-sim run), the learner's ``--learn-param`` and
+  ``[learn]`` table (:func:`add_learn_arguments`, :func:`learn_params`);
 * :func:`tracker_from_args`: the Tracker those options ask for; :func:`read_events`.
 """
 from __future__ import annotations
@@ -140,12 +141,38 @@ def add_backend_argument(p, firmware: bool = False) -> None:
 
 
 def read_params(path) -> dict:
-    """The tracking parameters a TOML file sets (top level or [params]), validated."""
-    from ..params import from_mapping, read_toml
-    data = read_toml(path)
-    table = data.get("params", data)
+    """The tracking parameters a TOML file sets (top level or [params]; its [learn]
+    table is the learner's), validated."""
+    from ..params import from_mapping, read_toml, tracking_table
+    table = tracking_table(read_toml(path))
     valid = from_mapping(table, where=str(path)).as_dict()
     return {k: valid[k] for k in table}
+
+
+# ---- the learner's parameters ----------------------------------------------------------
+def add_learn_arguments(p) -> None:
+    """``--learn-param NAME=VALUE`` (learn, track --learn-first-ms, firmware-sim run)."""
+    from ..learning.settings import LearnParams
+    from dataclasses import fields
+    p.add_argument("--learn-param", action="append", metavar="NAME=VALUE", default=[],
+                   help="a learner parameter (repeatable; over the --params file's [learn] "
+                        "table); units in the names (_us µs, _px pixels), e.g. "
+                        "sigma_max_px=24 or birth_events=12; names: "
+                        + ", ".join(f.name for f in fields(LearnParams))
+                        + " (docs/learning.md)")
+
+
+def learn_params(args) -> dict:
+    """The learner's parameter overrides: the --params file's [learn] table, then each
+    --learn-param; validated (each error names the file or the option)."""
+    from ..learning.settings import learn_overrides, parse_assignments
+    from ..params import read_toml
+    table = {}
+    if getattr(args, "params", None):
+        data = read_toml(args.params)
+        table = learn_overrides(data.get("learn", {}), where=f"{args.params} [learn]")
+    given = parse_assignments(getattr(args, "learn_param", None))
+    return learn_overrides({**table, **learn_overrides(given, where="--learn-param")})
 
 
 

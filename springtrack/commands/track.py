@@ -42,10 +42,14 @@ window slides by half its length (rows start once one is found).  Then an instan
 trackers fall inactive (fewer than a third active for 3 activity time constants) is lost
 and searched for again every --acquire-ms / 2 in the last --acquire-ms of events; an
 instance not found at the start is searched for the same way.  See docs/acquisition.md.
-exit status: 0 tracked, 1 --acquire found no model, 2 bad input, 3 --learn-first-ms found
-no object (noise or too few events), 141 standard output closed early (a pipe's reader
-went away), 143 SIGTERM (the CSV's last line then says '# INCOMPLETE').
+exit status: 0 tracked, 4 tracked but --acquire's find was doubtful (at a search bound or
+confidence below 0.7: a warning says which), 1 --acquire found no model, 2 bad input, 3
+--learn-first-ms found no object (noise or too few events), 141 standard output closed
+early (a pipe's reader went away), 143 SIGTERM (the CSV's last line then says '# INCOMPLETE').
 """
+
+
+DOUBTFUL_EXIT = 4        # tracked, but an acquisition's find was doubtful
 
 
 def add_arguments(p):
@@ -60,7 +64,9 @@ def add_arguments(p):
     p.add_argument("--learn-first-ms", type=float, metavar="MS",
                    help="learn the model from the stream's first MS ms (springtrack learn), "
                         "then track the rest with it")
-    p.add_argument("--params", help="TOML file of parameter overrides (see docs/algorithm.md)")
+    p.add_argument("--params", help="TOML file of parameter overrides (see docs/algorithm.md); "
+                                    "with --learn-first-ms its [learn] table sets the learner's")
+    options.add_learn_arguments(p)
     options.add_backend_argument(p)
     p.add_argument("--mcu-target", default="cortex-m4", metavar="CORE",
                    help="with --backend mcu: cortex-m4 (default), cortex-m7 or rv32imac")
@@ -116,7 +122,8 @@ def open_stream(args):
     if model is None:
         from .learn import learn_first
         model, source = learn_first(source, args.learn_first_ms, width, height,
-                                    name=Path(args.input).stem, params=args.params)
+                                    name=Path(args.input).stem, params=args.params,
+                                    learner=options.learn_params(args))
     return model, source, prep, reader
 
 
@@ -235,6 +242,11 @@ def run(args) -> int:
                   f"{args.out} say where it was searched ('searching', then 'not found')",
                   file=sys.stderr)
             return 1
+        doubtful = [p for p in acq.poses if p is not None and p.doubtful]
+        for p in doubtful:
+            print(f"springtrack track: warning: the acquisition is doubtful: {p.doubt}; "
+                  f"check the overlay (springtrack render --track), or widen the search "
+                  f"(--acquire-scale, --acquire-angle)", file=sys.stderr)
         for t, label, kind in tr.changes:
             print(f"instance {label}: {kind} at t={t} us")
         print("instances: " + ", ".join(f"{i['label']} {i['state']} (acquired {i['acquired']}, "
@@ -249,6 +261,8 @@ def run(args) -> int:
                                               if args.acquire and i["state"] == "searching"])
         for w in watch.warnings():
             print(f"springtrack track: warning: {w}", file=sys.stderr)
+    if args.acquire and doubtful:
+        return DOUBTFUL_EXIT
     return 0
 
 

@@ -206,6 +206,19 @@ def event_shares(rec: dict) -> np.ndarray:
     return rec["cnt"].sum(axis=0) / np.maximum(ref.sum(axis=0), 1e-12)
 
 
+def reference_value(values: np.ndarray, counts: np.ndarray) -> float:
+    """What a part's ``values`` are judged against: the plain median over the parts, or,
+    when one part holds at least half of all events (a single object and the faint
+    trails it leaves), that part's value, where the plain median would be a trail's."""
+    if not len(values):
+        return 0.0
+    c = np.maximum(counts, 0.0)
+    k = int(np.argmax(c))
+    if c.sum() > 0 and c[k] >= 0.5 * c.sum():
+        return float(values[k])
+    return float(np.median(values))
+
+
 def awake(rec: dict, tau_us: float, batch_us: int) -> np.ndarray:
     """(N,) each tracker's activity (eq. 6) over the last ``tau_us`` of the samples, over
     its mean activity: near 1 while it follows its part, near 0 once the part has left

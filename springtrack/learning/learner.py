@@ -11,9 +11,11 @@ from ..events import as_events
 from ..limits import MAX_CONNECTIONS, spring_scale
 from ..model import SPRING_BIT, Connection, ShapeModel, TrackerSpec
 from ..params import Params
-from .discovery import _discover, _keep_cols, _to_count, awake, event_rates, event_shares, quiet_nan
+from .discovery import (_discover, _keep_cols, _to_count, awake, event_rates, event_shares,
+                        quiet_nan, reference_value)
 from .pool import Pool
-from .settings import F, LearnParams, LearnResult, MASS_RANGE, NoObjectFound, POINT_SIGMA
+from .settings import (F, LearnParams, LearnResult, MASS_RANGE, MAX_PARTS, MIN_EVENTS,
+                       NoObjectFound, PERSIST_GRACES, PERSIST_MIN, POINT_SIGMA, COHERENCE_MIN)
 from .springs import _springs, activity_weights, object_similarity
 
 
@@ -38,17 +40,22 @@ def learn_model(events, trackers: int | None = None, width: int | None = None,
     tp = Params(**(track_params or {})).as_dict()             # validated
     tp = {k: tp[k] for k in (track_params or {})}
     ev = as_events(events)
-    if trackers is not None and not 1 <= int(trackers) <= 64:
-        raise ValueError(f"learn: trackers must be in [1, 64], got {trackers}")
-    if len(ev) == 0:
-        raise NoObjectFound("no object found: the learning window holds no events")
+    if trackers is not None and not 1 <= int(trackers) <= MAX_PARTS:
+        raise ValueError(f"learn: trackers must be in [1, {MAX_PARTS}] (one kernel instance "
+                         f"holds at most {MAX_PARTS}), got {trackers}")
+    if len(ev) < MIN_EVENTS:
+        raise NoObjectFound(f"no object found: the learning window holds {len(ev):,} events, "
+                            f"fewer than the {MIN_EVENTS:,} a model needs; give a longer window "
+                            f"(--end-us, --learn-first-ms)")
     if np.any(np.diff(ev["t"]) < 0):
         raise ValueError("learn: events must be in time order")
     width = int(width) if width else int(ev["x"].max()) + 1
     height = int(height) if height else int(ev["y"].max()) + 1
     t0, t1 = int(ev["t"][0]), int(ev["t"][-1])
+    lp = lp.for_window(t1 - t0)
     stats = {"born": 0, "merged": 0, "died": 0, "birth_refused_full": 0, "weak": 0,
-             "dropped_to_n": 0, "merged_to_n": 0, "split_to_n": 0}
+             "dropped_to_n": 0, "merged_to_n": 0, "split_to_n": 0, "found": 0,
+             "time_scale": round(lp.batch_us / LearnParams().batch_us, 4)}
     pool = Pool(lp, width, height)
     history = _discover(pool, ev, t0, t1, stats)
     # trackers still in their grace period are not parts yet, and a part has an extent
@@ -57,27 +64,89 @@ def learn_model(events, trackers: int | None = None, width: int | None = None,
     point = np.maximum(st[F["sxx"]], st[F["syy"]]) <= (POINT_SIGMA * lp.sigma_min_px) ** 2
     pool.keep(((t1 - pool.book["born"][:pool.n]) > lp.life_tau_us) & ~point)
     if pool.n == 0:
-        raise NoObjectFound(f"no object found: no tracker lived through {len(ev)} events "
-                            f"({stats['born']} born, {stats['died']} died)")
+        raise NoObjectFound(f"no object found: no tracker lived through its grace period of "
+                            f"{lp.life_tau_us / 1e3:g} ms in {len(ev):,} events over "
+                            f"{(t1 - t0) / 1e3:g} ms ({stats['born']} born, "
+                            f"{stats['died']} died); try a longer window (--end-us, "
+                            f"--learn-first-ms) or a shorter grace period (--learn-param "
+                            f"life_tau_us=US)")
     rec = history.series(pool.book["uid"][:pool.n], pool.lineage)
     if trackers is None:
         # pieces of parts that no merge joined take a small share of the events, and
         # trackers left behind by their part take none at the end
+        # (both measured against the median part, or a dominant part: with one part
+        # holding half the events, the faint trails it leaves are the many)
         wake = awake(rec, lp.activity_tau_us, lp.batch_us)
-        weak = (event_shares(rec) < lp.keep_share) | (wake < lp.idle_share * np.median(wake))
+        share = event_shares(rec)
+        held = rec["cnt"].sum(axis=0)
+        weak = ((share < lp.keep_share * max(1.0, reference_value(share, held)))
+                | (wake < lp.idle_share * reference_value(wake, held)))
         stats["weak"] = int(weak.sum())
         if weak.any() and not weak.all():
             pool.keep(~weak)
             rec = _keep_cols(rec, ~weak)
+        stats["found"] = pool.n
+        if pool.n > MAX_PARTS:
+            # more parts than one kernel instance holds: the weakest dropped, then the
+            # nearest merged, down to the capacity
+            rec = _to_count(pool, rec, MAX_PARTS, t1, stats)
     elif pool.n != int(trackers):
+        stats["found"] = pool.n
         rec = _to_count(pool, rec, int(trackers), t1, stats)
     counts = rec["cnt"].sum(axis=0)
     if pool.n == 0 or counts.sum() == 0:
         raise NoObjectFound("no object found: the learned trackers took no events")
     model, springs, cands, counts = _build_model(pool, rec, counts, lp, tp, width, height,
                                                  names, name)
+    model.learned = stability(rec, springs, cands, lp, t0, t1, len(ev))
+    if model.learned["persistence"] < PERSIST_MIN:
+        life = PERSIST_GRACES * lp.life_tau_us / 1e3
+        raise NoObjectFound(
+            f"no stable object: persistence {model.learned['persistence']:.2f} < "
+            f"{PERSIST_MIN} (the median of the {len(model.trackers)} parts lived "
+            f"{model.learned['persistence'] * life:.3g} ms of the {life:.3g} ms that make a "
+            f"persistent part, in a {(t1 - t0) / 1e3:g} ms window): short-lived activity "
+            f"(sparks, noise, flicker); try a longer window (--end-us, --learn-first-ms) or "
+            f"a recording where an object moves as a whole")
+    if model.learned["coherence"] < COHERENCE_MIN:
+        raise NoObjectFound(
+            f"no stable object: coherence {model.learned['coherence']:.2f} < {COHERENCE_MIN} "
+            f"(of the neighbouring pairs of the {len(model.trackers)} parts found, that share "
+            f"fired together): the activity is sparks or noise, each part on its own, not an "
+            f"object moving as a whole; try a longer window (--end-us, --learn-first-ms) or a "
+            f"recording where an object moves")
     return LearnResult(model, len(ev), int(counts.sum()), t0, t1, counts, springs, cands,
                        stats, time.perf_counter() - wall0)
+
+
+def stability(rec: dict, springs: list, candidates: list, lp: LearnParams, t0: int,
+              t1: int, events: int) -> dict:
+    """A learned model's evidence, written into its ``[learned]`` table.
+
+    ``persistence``: the median over the parts of how long each part (or the pieces it
+    merged from) existed, in units of PERSIST_GRACES grace periods (``life_tau_us``),
+    at most 1: a part that outlived its grace period twice persisted; sparks, flicker
+    and noise make trackers that barely outlive theirs.  ``layout``: the median rigidity
+    (springs.rigidity: 1 = the pair kept its relative position in the object's frame) of
+    the springs kept, 1 for a single part, 0 for several with no spring.
+    ``coherence``: the share of neighbouring pairs (the spring candidates) that were
+    co-active (``min_coactivation``): the parts of one object fire together as it
+    moves, sparks and noise each on their own; 1 for a single part.
+    ``stability`` = persistence x coherence x layout, in [0, 1]."""
+    lived = rec["valid"].sum(axis=0) * float(lp.batch_us)
+    n = len(lived)
+    persistence = (float(np.median(np.minimum(1.0, lived / (PERSIST_GRACES * lp.life_tau_us))))
+                   if n else 0.0)
+    if n == 1:
+        layout = coherence = 1.0
+    else:
+        layout = float(np.median([c.rigidity for c in springs])) if springs else 0.0
+        coherence = (float(np.mean([c.coactivation >= lp.min_coactivation for c in candidates]))
+                     if candidates else 0.0)
+    return {"stability": round(persistence * coherence * layout, 3),
+            "persistence": round(persistence, 3), "coherence": round(coherence, 3),
+            "layout": round(layout, 3), "window_ms": round((t1 - t0) / 1e3, 3),
+            "events": int(events)}
 
 
 def reading_order(x: np.ndarray, y: np.ndarray, row_px: float) -> np.ndarray:
@@ -107,7 +176,7 @@ def similarity_fit(z: np.ndarray, ref: np.ndarray, w: np.ndarray):
 
 
 def steady_positions(rec: dict, x_end: np.ndarray, y_end: np.ndarray, size_px: float,
-               rounds: int = 3):
+               rounds: int = 3, gate: float = 1.0):
     """The final positions (x, y) (N,), each tracker caught off its part at the window's
     end put back where the object's shape over the window places it.
 
@@ -123,7 +192,10 @@ def steady_positions(rec: dict, x_end: np.ndarray, y_end: np.ndarray, size_px: f
     there, and a tracker farther than ``size_px`` (a part's size) from its place takes
     it; the others keep their final positions (where the parts are: a perspective view
     is not a similarity).  When most samples are no similarity of one shape (the median
-    d over ``size_px``: a 3-D turn, a deforming object), the final positions stay.
+    d over ``gate`` x ``size_px``, the reach of a tracker's gate, eq. (2): a 3-D turn, a
+    deforming object), the final positions stay.  (A part seen through its edges -- its
+    leading and trailing edges fire apart, its trackers slide along them as the motion
+    turns -- stays within that reach; a turn in depth does not.)
 
     Returns (x, y, one_shape): one_shape False when the object's shape itself changed."""
     X, Y = rec["x"], rec["y"]
@@ -142,7 +214,7 @@ def steady_positions(rec: dict, x_end: np.ndarray, y_end: np.ndarray, size_px: f
         inv = np.where(ok, 1.0 / np.where(ok, a, 1.0), 0.0)
         est = rbar[:, None] + (z - zbar[:, None]) * inv[:, None]              # (T, N)
         d2 = (w0 * np.abs(est - shape[None, :]) ** 2).sum(axis=1) / ws
-        if np.median(d2[ok]) > size_px ** 2:
+        if np.median(d2[ok]) > (gate * size_px) ** 2:
             return x_end, y_end, False    # not one shape: the one at the end
         w = w0 * (ok * np.exp(-0.5 * d2 / size_px ** 2))[:, None]
         tot = w.sum(axis=0)
@@ -229,7 +301,8 @@ def _build_model(pool, rec, counts, lp, track_params, width, height, names, name
     n = pool.n
     st = pool.st
     sig = np.sqrt(0.5 * (st[F["sxx"], :n] + st[F["syy"], :n]))
-    x, y, one_shape = steady_positions(rec, pool.x.copy(), pool.y.copy(), float(np.median(sig)))
+    x, y, one_shape = steady_positions(rec, pool.x.copy(), pool.y.copy(), float(np.median(sig)),
+                                       gate=math.sqrt(lp.gate_d2))
     order = reading_order(x, y, float(np.median(sig)))
     if names is not None:
         names = list(names)

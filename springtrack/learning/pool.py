@@ -8,7 +8,7 @@ import math
 import numpy as np
 
 from . import batch as _learn
-from .settings import CONTRAST_MARGIN, COVERED_MIN_LEVEL, F, LearnParams, POOL_CAPACITY
+from .settings import CONTRAST_MARGIN, CONTRAST_MIN_EVENTS, COVERED_MIN_LEVEL, F, LearnParams, POOL_CAPACITY
 
 
 # ---- the pool ---------------------------------------------------------------------------
@@ -276,7 +276,7 @@ def contrast_sign(ev: np.ndarray, width: int, height: int) -> int:
     ok = (ev["x"] < width) & (ev["y"] < height)
     pix = pix[ok]
     u, first = np.unique(pix, return_index=True)
-    busy = np.bincount(pix, minlength=width * height)[u] >= 2
+    busy = np.bincount(pix, minlength=width * height)[u] >= CONTRAST_MIN_EVENTS
     if not busy.any():
         return 0
     f = float(np.mean(ev["p"][ok][first[busy]] > 0))

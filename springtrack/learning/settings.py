@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 
 import numpy as np
 
@@ -19,6 +19,16 @@ POINT_SIGMA = 1.05            # a tracker narrower than this sigma_min_px both w
 MASS_RANGE = (0.5, 2.0)       # masses: event share over the median, bounded
 MIN_SAMPLES = 10              # batches a pair must share for a spring
 CONTRAST_MARGIN = 0.05        # contrast_sign: ON-first fraction this far from 1/2 decides
+CONTRAST_MIN_EVENTS = 2       # contrast_sign: pixels with at least this many events
+MIN_EVENTS = 2000             # a learning window with fewer events holds no object
+TIME_FIELDS = ("batch_us", "activity_tau_us", "life_tau_us", "smooth_us")
+MIN_BATCH_US = 20             # the shortest lifecycle step a scaled window gets
+MAX_PARTS = 64                # the most trackers a learned model gets by default (one
+                              # instance of the kernels: limits.MAX_TRACKERS)
+PERSIST_GRACES = 2.0          # a part that lived this many grace periods persisted
+PERSIST_MIN = 0.5             # parts persisting less (median) are "no stable object"
+COHERENCE_MIN = 0.25          # fewer co-active neighbour pairs: "no stable object"
+LAYOUT_RIGID = 0.3            # a layout rigidity below this is said (parts slide)
 F = {name: k for k, name in enumerate(_learn.FIELDS)}
 
 
@@ -81,6 +91,61 @@ class LearnParams:
     @property
     def gate_d2(self) -> float:
         return -2.0 * math.log(self.p_threshold)
+
+    @property
+    def reference_window_us(self) -> float:
+        """The shortest window the time constants are meant for: two grace periods
+        (a part born in the window's first half outlives its grace period)."""
+        return 2.0 * self.life_tau_us
+
+    def for_window(self, window_us: float) -> "LearnParams":
+        """These parameters for a learning window of ``window_us``: the lifecycle's time
+        constants (``batch_us``, ``activity_tau_us``, ``life_tau_us``, ``smooth_us``)
+        scaled by k = window_us / reference_window_us when the window is shorter than
+        that, so that a part born in the window's first half outlives its grace period
+        and the window still holds ``reference_window_us / batch_us`` lifecycle steps;
+        a longer window keeps them.  Returns ``self`` when nothing changes."""
+        k = min(1.0, max(window_us, 1.0) / self.reference_window_us)
+        if k >= 1.0:
+            return self
+        new = {name: getattr(self, name) * k for name in TIME_FIELDS}
+        new["batch_us"] = max(MIN_BATCH_US, int(round(new["batch_us"])))
+        return replace(self, **new)
+
+
+def learn_overrides(values, where: str = "") -> dict:
+    """``values`` (a ``[learn]`` table, or NAME=VALUE options) checked as overrides of
+    :class:`LearnParams`: a name it does not have, or a value it refuses, raises
+    ValueError naming ``where`` and the valid names.  Returns a new dict."""
+    ctx = f"{where}: " if where else ""
+    if not isinstance(values, dict):
+        raise ValueError(f"{ctx}the learner's parameters must be a table of names and values, "
+                         f"got {type(values).__name__}")
+    names = [f.name for f in fields(LearnParams)]
+    unknown = sorted(set(values) - set(names))
+    if unknown:
+        raise ValueError(f"{ctx}unknown learner parameter(s) {', '.join(unknown)}; the learner "
+                         f"has {', '.join(names)} (docs/learning.md)")
+    try:
+        LearnParams(**values)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{ctx}{e}") from None
+    return dict(values)
+
+
+def parse_assignments(items, option: str = "--learn-param") -> dict:
+    """``["NAME=VALUE", ...]`` as a dict of numbers (each error names ``option``)."""
+    out = {}
+    for item in items or ():
+        name, eq, value = item.partition("=")
+        if not eq or not name.strip():
+            raise ValueError(f"{option} takes NAME=VALUE (e.g. sigma_max_px=24), got {item!r}")
+        try:
+            number = float(value)
+        except ValueError:
+            raise ValueError(f"{option} {name.strip()}: {value!r} is not a number") from None
+        out[name.strip()] = int(number) if number.is_integer() and "." not in value else number
+    return out
 
 
 @dataclass

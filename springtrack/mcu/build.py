@@ -143,8 +143,9 @@ def build(target_name: str, out_dir, capacity: Capacity | None = None) -> BuildR
     return measure(elf, tgt, cap)
 
 
-def measure(elf: Path, tgt: Target, cap: Capacity) -> BuildResult:
-    """Flash = code + constants + initialised data; RAM = data + zeroed data + stack."""
+def measure(elf: Path, tgt: Target, cap: Capacity, prefix: str = "mcu_") -> BuildResult:
+    """Flash = code + constants + initialised data; RAM = data + zeroed data + stack; the
+    RAM objects whose names start with ``prefix`` listed."""
     ELFFile = need("elftools.elf.elffile").ELFFile
     with open(elf, "rb") as f:
         e = ELFFile(f)
@@ -152,8 +153,8 @@ def measure(elf: Path, tgt: Target, cap: Capacity) -> BuildResult:
                     if s["sh_flags"] & 2 and s["sh_size"]}
         symtab = e.get_section_by_name(".symtab")
         objects = {s.name: s["st_size"] for s in symtab.iter_symbols()
-                   if s["st_info"]["type"] == "STT_OBJECT" and s.name.startswith("mcu_")
-                   and s["st_value"] >= 0x20000000}
+                   if s["st_info"]["type"] == "STT_OBJECT" and s.name.startswith(prefix)
+                   and s["st_value"] >= 0x20000000 and s["st_size"]}
     objects["stack"] = sections.get(".stack", 0)
     flash = sum(v for k, v in sections.items() if k in FLASH_SECTIONS)
     ram = sum(v for k, v in sections.items() if k in RAM_SECTIONS)

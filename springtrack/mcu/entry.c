@@ -47,6 +47,10 @@
 #define MCU_CELLS 14400                 /* spatial index cells: 1280 x 720 px at 8 x 8 */
 #endif
 
+#ifndef MCU_ALL_ENERGIES                /* rows carry every energy kind's sum; 0: only the */
+#define MCU_ALL_ENERGIES 1              /* kind the criterion uses (a firmware's telemetry) */
+#endif
+
 #ifndef MCU_INSTANCES
 #define MCU_INSTANCES 1                 /* model instances (at most FX_MAX_INSTANCES) */
 #endif
@@ -63,7 +67,9 @@
 #define MCU_MODEL_WORDS (FX_MODEL_HEAD + FX_MODEL_TRACKER * FX_MAX_TRACKERS \
                          + FX_MODEL_CONNECTION * FX_MAX_CONNECTIONS)
 #define MCU_MOVE_WORDS (FX_MOVE_HEAD + MCU_MODEL_WORDS)
+#ifndef MCU_WORDS                       /* a firmware that loads from its own buffer: 1 */
 #define MCU_WORDS (MCU_MOVE_WORDS > FX_PARAMS_WORDS ? MCU_MOVE_WORDS : FX_PARAMS_WORDS)
+#endif
 #define MCU_N_COUNTERS 14
 #define MCU_N_REPLACED 6                /* index_updates .. state_resets of placed instances */
 
@@ -107,7 +113,8 @@ static void instance_row(fx_state *s, int64_t t, int32_t state, int64_t *row, in
 {
     int i, k, q;
     fx_tele_records(s, t, wire);
-    fx_energies(s);                     /* the kinds the criterion does not use, when read */
+    if (MCU_ALL_ENERGIES)
+        fx_energies(s);                 /* the kinds the criterion does not use, when read */
     for (q = 0; q < 3; q++)
         for (k = 0; k < s->nc; k++)
             sums[q] += s->energy[q][k];

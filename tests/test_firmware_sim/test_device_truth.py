@@ -15,6 +15,8 @@ import subprocess
 import numpy as np
 import pytest
 
+from springtrack.commands.track import DOUBTFUL_EXIT
+
 from support.fwproc import Firmware, firmware_cmd, hostctl_cmd
 from hostctl import Device, HostctlError
 from springtrack import cli as st_cli
@@ -99,7 +101,8 @@ def test_record_start_get_model_ids_and_replay_options(tmp_path, data_file):
     model = (tmp_path / "m.toml").read_text()
     assert track.ids[0] == "p00" and all(f'id = "{i}"' in model for i in track.ids)
     out = tmp_path / "t.csv"
-    assert st_cli.main(["track", es, *opts, "--out", str(out), "--no-progress"]) == 0
+    # (4: tracked, the biplane found at a bound of the search: a doubtful find)
+    assert st_cli.main(["track", es, *opts, "--out", str(out), "--no-progress"]) in (0, DOUBTFUL_EXIT)
     offline = read_csv(out)
     # the whole replay: every sample time of the offline track (telemetry is quantised)
     assert np.array_equal(offline.t_us, track.t_us)
@@ -128,7 +131,7 @@ def test_replay_record_equals_track_byte_for_byte(tmp_path, data_file):
     assert r.returncode == 0, r.stderr
     assert "prepared: tick=1000 us (dequantized)" in r.stderr
     assert st_cli.main(["track", es, "--model", str(model), *opts, "--out",
-                        str(tmp_path / "t.csv"), "--no-progress"]) == 0
+                        str(tmp_path / "t.csv"), "--no-progress"]) in (0, DOUBTFUL_EXIT)
     assert (tmp_path / "fw.csv").read_bytes() == (tmp_path / "t.csv").read_bytes()
     # the options belong to a recording
     r = subprocess.run(firmware_cmd("--source", "sim:face_occlusion", "--dequantize"),

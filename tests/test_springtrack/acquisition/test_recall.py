@@ -8,6 +8,8 @@ import math
 import numpy as np
 import pytest
 
+from springtrack.commands.track import DOUBTFUL_EXIT
+
 import springtrack
 from springtrack.acquisition.acquire import Pose, fit_pose, model_pose, place
 from springtrack.cli import main as cli
@@ -137,8 +139,10 @@ def test_biplane_learned_is_found_followed_and_turned_with_for_the_whole_second(
     assert cli(["learn", es, "--out", str(model), "--start-us", "1000", "--end-us", "200000",
                 "--dequantize"]) == 0
     csv = tmp_path / "plane.csv"
+    # found at the -45 deg bound of the default search: a doubtful find (exit 4), which
+    # still holds the plane as measured below
     assert cli(["track", es, "--model", str(model), "--acquire", "--dequantize", "--out",
-                str(csv), "--no-progress"]) == 0
+                str(csv), "--no-progress"]) == DOUBTFUL_EXIT
     from springtrack.track import read_csv
     track = read_csv(csv)
     ev = _biplane(data_file)
