@@ -65,11 +65,11 @@ TWO_PI = 2.0 * math.pi
 FRAME_SCALE_MIN = 0.25
 FRAME_SCALE_MAX = 4.0
 FRAME_MIN_SPREAD = 2.0 ** -20
-# Refits of the frame without its disagreeing trackers (fit_frame): two find a pulled part
-# and then a second one the first fit hid.
+# Refits of the frame weighted by how well each tracker agrees with it (fit_frame): two
+# find a pulled part and then a second one the first fit hid.
 FRAME_REFITS = 2
-# A residual no larger than FRAME_AGREE_PX2 (px^2: 1/4 px) always agrees: below it the
-# residuals are the means' rounding and jitter, not a part that left its place.
+# A residual no larger than FRAME_AGREE_PX2 (px^2: 1/4 px) always agrees fully: below it
+# the residuals are the means' rounding and jitter, not a part that left its place.
 FRAME_AGREE_PX2 = 2.0 ** -4
 
 # Result codes of step(): >= 0 is the index of the tracker that took the event.
@@ -295,29 +295,32 @@ class ReferenceTracker:
         self.ic[i] = sxx * inv_det
 
     # ---- springs and energy criteria (every spring_period events) ------------
-    def fit_frame(self, calm: list, g: int = 0) -> list:
+    def fit_frame(self, calm: list, g: int = 0) -> dict:
         """Instance g's similarity frame (``_fit_similarity``) fitted to the trackers that
-        agree with the structure; returns those that disagree.
+        agree with the structure, each weighted by how well it agrees; returns how much
+        each disagrees.
 
         Fit set F: the trackers ``calm`` marks (indexed like all trackers) -- at a spring
         update, those no connection over the energy threshold touches (eqs. 21-22 leave
-        them alone) -- or all of the instance's trackers if fewer than 2.  Then, up to
-        FRAME_REFITS times: each tracker's squared residual r_i^2 = |mu_i - (G + s R dG0_i)|^2,
-        and eq. (21)'s test with the criteria's scale s on them: a tracker with
-        r_i^2 > s sum_F m r^2 / sum_F m and r_i^2 > FRAME_AGREE_PX2 disagrees; if some do
-        and at least 2 trackers are
-        left, F loses them and the frame is refitted.  With s at or above the instance's
-        connection count no connection is ever over the threshold and no tracker is
-        tested (as the criteria, which never act then).  Returns the trackers F lost, in
-        index order."""
+        them alone) -- or all of the instance's trackers if fewer than 2; each agrees fully
+        (v_i = 1).  Then, up to FRAME_REFITS times: each tracker's squared residual
+        r_i^2 = |mu_i - (G + s R dG0_i)|^2 and eq. (21)'s test with the criteria's scale s
+        on them, made continuous: with T = max(s sum_F m v r^2 / sum_F m v,
+        FRAME_AGREE_PX2), v_i = 1 for r_i^2 <= T, 0 from 2 T, linear between (a tracker
+        near the threshold moves the frame by little either way, so kernels whose means
+        differ by rounding fit the same frame); if the v changed and at least 2 are
+        positive, the frame is refitted with masses m v.  With s at or above the
+        instance's connection count no connection is ever over the threshold and no
+        tracker is tested (as the criteria, which never act then).  Returns
+        {i: 1 - v_i} for the trackers of F (eq. 22 pulls tracker i by that share)."""
         mine = range(self.t0[g], self.t1[g])
         fit = [i for i in mine if calm[i]]
         if len(fit) < 2:
             fit = list(mine)
-        self._fit_similarity(fit, g)
-        lost = []
+        wt = {i: 1.0 for i in fit}
+        self._fit_similarity(fit, wt, g)
         if not self.escale[g] < self.c1[g] - self.c0[g]:
-            return lost
+            return {}
         for _ in range(FRAME_REFITS):
             c, sn, gx, gy = self.fc[g], self.fs[g], self.fgx[g], self.fgy[g]
             r2 = {}
@@ -326,21 +329,21 @@ class ReferenceTracker:
                 ex = self.mx[i] - (gx + (c * self.gdx0[i] - sn * self.gdy0[i]))   # mu - (G + s R dG0)
                 ey = self.my[i] - (gy + (sn * self.gdx0[i] + c * self.gdy0[i]))
                 r2[i] = ex * ex + ey * ey
-                w += self.mass[i]
-                total += self.mass[i] * r2[i]
+                m = self.mass[i] * wt[i]
+                w += m
+                total += m * r2[i]
             thr = max(self.escale[g] * (total / w), FRAME_AGREE_PX2)  # eq. (21)'s test on r^2
-            keep = [i for i in fit if not r2[i] > thr]
-            if len(keep) == len(fit) or len(keep) < 2:
+            new = {i: min(max(2.0 - r2[i] / thr, 0.0), 1.0) for i in fit}
+            if new == wt or sum(1 for i in fit if new[i] > 0.0) < 2:
                 break
-            lost += [i for i in fit if r2[i] > thr]
-            fit = keep
-            self._fit_similarity(fit, g)
-        return sorted(lost)
+            wt = new
+            self._fit_similarity([i for i in fit if wt[i] > 0.0], wt, g)
+        return {i: 1.0 - wt[i] for i in fit}
 
-    def _fit_similarity(self, fit: list, g: int) -> None:
+    def _fit_similarity(self, fit: list, wt: dict, g: int) -> None:
         """The similarity x -> G + s R (x - G0) that best maps the rest shape of the
         trackers ``fit`` (at least 2 of instance g's) onto their current means, in the
-        mass-weighted least-squares sense (Procrustes, closed form).  With rest offsets
+        weighted least-squares sense (Procrustes, closed form; weight m = mass wt).  With rest offsets
         p_i = dG0_i - pbar and current offsets q_i = mu_i - qbar about the set's weighted
         centroids pbar (rest, relative to G0) and qbar (current):
             a = sum m p.q,  b = sum m p x q,  D = sum m |p|^2,  s R = [[a, -b], [b, a]] / D
@@ -350,7 +353,7 @@ class ReferenceTracker:
         mass, mx, my = self.mass, self.mx, self.my
         w = px = py = qx = qy = 0.0
         for i in fit:                                                # weighted centroids
-            m = mass[i]
+            m = mass[i] * wt[i]
             w += m
             px += m * self.gdx0[i]
             py += m * self.gdy0[i]
@@ -362,7 +365,7 @@ class ReferenceTracker:
         qy = qy / w
         a = b = d = 0.0
         for i in fit:
-            m = mass[i]
+            m = mass[i] * wt[i]
             ux = self.gdx0[i] - px                                   # rest offset p_i
             uy = self.gdy0[i] - py
             vx = mx[i] - qx                                          # current offset q_i
@@ -502,21 +505,25 @@ class ReferenceTracker:
                 over_count[self.ca[k]] += 1
                 over_count[self.cb[k]] += 1
         a_en = self.egain[g]
-        disagree = set()
+        # eq. (22)'s gain: a_en at an over-threshold connection, else a_en times how much
+        # the tracker disagrees with the frame (fit_frame)
+        gain = {i: a_en if over_count[i] > 0 else 0.0 for i in range(t0, t1)}
         if self.pull_sim[g] or self.car_sim[g]:
-            # the frame, fitted to the trackers this update leaves alone and that agree
-            # with it (eq. 22 pulls those that do not); the Cartesian springs use it at
-            # the next update (this one's energies decided who is calm)
-            disagree = set(self.fit_frame({i: c == 0 for i, c in over_count.items()}, g))
+            # the frame, fitted to the trackers this update leaves alone, weighted by how
+            # well they agree with it; the Cartesian springs use it at the next update
+            # (this one's energies decided who is calm)
+            for i, dis in self.fit_frame({i: c == 0 for i, c in over_count.items()}, g).items():
+                if over_count[i] == 0:
+                    gain[i] = a_en * dis
         if self.pull_sim[g]:
             # eq. (22) in the fitted frame: pull toward G + s R dG0 (fit_frame)
             fc, fs, fgx, fgy = self.fc[g], self.fs[g], self.fgx[g], self.fgy[g]
             for i in range(t0, t1):
-                if over_count[i] > 0 or i in disagree:
+                if gain[i] > 0.0:
                     tx = fgx + (fc * self.gdx0[i] - fs * self.gdy0[i])
                     ty = fgy + (fs * self.gdx0[i] + fc * self.gdy0[i])
-                    self.mx[i] = self.mx[i] + a_en * (tx - self.mx[i])
-                    self.my[i] = self.my[i] + a_en * (ty - self.my[i])
+                    self.mx[i] = self.mx[i] + gain[i] * (tx - self.mx[i])
+                    self.my[i] = self.my[i] + gain[i] * (ty - self.my[i])
         else:
             # eq. (22): pull both ends of an over-threshold connection toward G + dG0, G the
             # instance's centre of mass after the spring step
@@ -530,9 +537,9 @@ class ReferenceTracker:
             gx = gx / msum
             gy = gy / msum
             for i in range(t0, t1):
-                if over_count[i] > 0 or i in disagree:
-                    self.mx[i] = self.mx[i] + a_en * (gx + self.gdx0[i] - self.mx[i])
-                    self.my[i] = self.my[i] + a_en * (gy + self.gdy0[i] - self.my[i])
+                if gain[i] > 0.0:
+                    self.mx[i] = self.mx[i] + gain[i] * (gx + self.gdx0[i] - self.mx[i])
+                    self.my[i] = self.my[i] + gain[i] * (gy + self.gdy0[i] - self.my[i])
         for i in range(t0, t1):
             # eq. (21): insensitive while every connection of the tracker is over
             self.sensitive[i] = not (self.degree[i] > 0 and over_count[i] == self.degree[i])

@@ -17,8 +17,8 @@
  *                           as bit masks (no branch)
  *   st_fit_frame            the similarity frame of eq. (22) and eqs. (18)-(20): the
  *                           mass-weighted Procrustes fit of the rest shape to the means
- *   st_frame_disagree       the trackers of a fit set that disagree with its frame
- *                           (eq. 21's test on the frame's residuals)
+ *   st_frame_weights        how well each tracker of a fit set agrees with its frame
+ *                           (eq. 21's test on the frame's residuals, made continuous)
  *   st_turn_offsets         eq. (18)'s rest offsets in that frame, s R d0
  *   st_pull                 eq. (22): the pull of the former toward G + s R dG0
  *   st_boxes_left           which trackers' gate boxes left their indexed boxes
@@ -71,15 +71,16 @@ ST_CLONES static void st_over_ends(int nc, const double *restrict e, double thr,
 /* eq. (22): the trackers in the mask pulled move toward G + s R dG0 by gain, the others
  * by gain 0 (mx + 0 = mx exactly), without a branch.  s R = [[c, -sn], [sn, c]]: the
  * similarity frame (st_fit_frame), or c = 1, sn = 0 in the image frame, where the target
- * is gx + (1 gdx0 - 0 gdy0) = gx + gdx0 exactly, the reference's G + dG0. */
+ * is gx + (1 gdx0 - 0 gdy0) = gx + gdx0 exactly, the reference's G + dG0.  The others by
+ * gain dis[i], how much they disagree with the frame (st_frame_weights; 0: not at all). */
 ST_CLONES static void st_pull(int n, uint64_t pulled, double gx, double gy, double c, double sn,
-                              double gain, const double *restrict gdx0,
-                              const double *restrict gdy0, double *restrict mx,
-                              double *restrict my)
+                              double gain, const double *restrict dis,
+                              const double *restrict gdx0, const double *restrict gdy0,
+                              double *restrict mx, double *restrict my)
 {
     for (int i = 0; i < n; i++) {
         uint64_t bit = (pulled >> (uint64_t)i) & 1;   /* a 64-bit shift count vectorises */
-        double g = st_sel((int64_t)bit, gain, 0.0);
+        double g = st_sel((int64_t)bit, gain, gain * dis[i]);
         double tx = gx + (c * gdx0[i] - sn * gdy0[i]);
         double ty = gy + (sn * gdx0[i] + c * gdy0[i]);
         mx[i] = mx[i] + g * (tx - mx[i]);
@@ -195,38 +196,55 @@ ST_CLONES static void st_fit_frame(int n, uint64_t fit, const double *restrict m
     *gy = qy - (ss * px + cc * py);
 }
 
-/* [ref] fit_frame's test: the trackers of the mask fit (all n if it holds fewer than 2,
- * as st_fit_frame) whose squared residual r^2 = |mu - (G + s R dG0)|^2 in the frame
- * (c, sn, gx, gy) exceeds scale times the set's mass-weighted mean r^2 and
- * ST_FRAME_AGREE_PX2; summed in index order as the reference. */
-static inline uint64_t st_frame_disagree(int n, uint64_t fit, double scale,
-                                  const double *restrict mass, const double *restrict gdx0,
+/* [ref] fit_frame's weights: for the trackers of the mask fit, their squared residuals
+ * r^2 = |mu - (G + s R dG0)|^2 in the frame (c, sn, gx, gy), T = max(scale sum m wt r^2 /
+ * sum m wt, ST_FRAME_AGREE_PX2) and v = 1 up to T, 0 from 2 T, linear between; summed in
+ * index order as the reference.  If some v differs from wt and at least 2 are positive:
+ * wt = v, wm = mass v (the masses of the refit) and the mask of the positive ones is
+ * returned; else 0 (wt, wm unchanged). */
+static inline uint64_t st_frame_weights(int n, uint64_t fit, double scale,
+                                  const double *restrict mass, double *restrict wt,
+                                  double *restrict wm, const double *restrict gdx0,
                                   const double *restrict gdy0, const double *restrict mx,
                                   const double *restrict my, double c, double sn, double gx,
                                   double gy)
 {
-    double r2[ST_MAX_FIT], w = 0.0, total = 0.0, ex, ey, thr;
-    uint64_t all = n >= 64 ? ~(uint64_t)0 : ((uint64_t)1 << n) - 1, out = 0;
-    int i;
-    fit &= all;
-    if (__builtin_popcountll(fit) < 2)
-        fit = all;
+    double r2[ST_MAX_FIT], v[ST_MAX_FIT], w = 0.0, total = 0.0, ex, ey, m, thr;
+    uint64_t pos = 0;
+    int i, changed = 0;
     for (i = 0; i < n; i++) {
         if (!((fit >> i) & 1))
             continue;
         ex = mx[i] - (gx + (c * gdx0[i] - sn * gdy0[i]));     /* mu - (G + s R dG0) */
         ey = my[i] - (gy + (sn * gdx0[i] + c * gdy0[i]));
         r2[i] = ex * ex + ey * ey;
-        w += mass[i];
-        total += mass[i] * r2[i];
+        m = mass[i] * wt[i];
+        w += m;
+        total += m * r2[i];
     }
     thr = scale * (total / w);                                /* eq. (21)'s test on r^2 */
     if (thr < ST_FRAME_AGREE_PX2)
         thr = ST_FRAME_AGREE_PX2;
-    for (i = 0; i < n; i++)
-        if (((fit >> i) & 1) && r2[i] > thr)
-            out |= (uint64_t)1 << i;
-    return out;
+    for (i = 0; i < n; i++) {
+        if (!((fit >> i) & 1))
+            continue;
+        v[i] = 2.0 - r2[i] / thr;                             /* 1 to T, 0 from 2 T */
+        if (v[i] < 0.0)
+            v[i] = 0.0;
+        if (v[i] > 1.0)
+            v[i] = 1.0;
+        changed |= v[i] != wt[i];
+        pos |= (uint64_t)(v[i] > 0.0) << i;
+    }
+    if (!changed || __builtin_popcountll(pos) < 2)
+        return 0;
+    for (i = 0; i < n; i++) {
+        if (!((fit >> i) & 1))
+            continue;
+        wt[i] = v[i];
+        wm[i] = mass[i] * v[i];
+    }
+    return pos;
 }
 
 /* eq. (18)'s rest offsets in the similarity frame: (odx, ody) = s R (dx0, dy0) */

@@ -105,7 +105,7 @@ def test_the_fit_leaves_out_the_trackers_an_occluder_dragged():
     c, s, _, _ = tr.frame()
     assert math.atan2(s, c) == pytest.approx(0.3, abs=1e-9)
     assert math.hypot(c, s) == pytest.approx(1.1, abs=1e-9)
-    tr._fit_similarity(list(range(9)), 0)
+    tr._fit_similarity(list(range(9)), dict.fromkeys(range(9), 1.0), 0)
     c, s, _, _ = tr.frame()
     assert abs(math.atan2(s, c) - 0.3) > 1e-3
 
@@ -132,15 +132,37 @@ def test_the_fit_refits_without_a_pulled_part_that_no_connection_flags():
     tr = ReferenceTracker(m, Params(**SIMILARITY, energy_scale=4.5, energy_gain=0.0,
                                     energy_kind="cartesian"))
     tr.mx, tr.my = [float(v) for v in x], [float(v) for v in y]
-    assert tr.fit_frame([True] * 9) == [k]
+    assert tr.fit_frame([True] * 9) == {i: float(i == k) for i in range(9)}
     c, s, _, _ = tr.frame()
     assert (math.atan2(s, c), math.hypot(c, s)) == pytest.approx((0.3, 1.1), abs=1e-9)
-    tr._fit_similarity(list(range(9)), 0)                        # all nine: dragged
+    tr._fit_similarity(list(range(9)), dict.fromkeys(range(9), 1.0), 0)                        # all nine: dragged
     c, s, _, _ = tr.frame()
     assert abs(math.hypot(c, s) - 1.1) > 1e-2
     # s at or above the connection count: no connection is ever over, no tracker tested
     tr.set_params(Params(**SIMILARITY, energy_scale=12.0))
-    assert tr.fit_frame([True] * 9) == []
+    assert tr.fit_frame([True] * 9) == {}
+
+
+def test_the_refit_weights_are_continuous_in_the_residual():
+    """Pulled by a little more at each step, r1c2 goes from agreeing (weight 1) to
+    disagreeing (0) through the ramp between T and 2 T, monotonically, and the frame's scale
+    follows without a jump: kernels whose means differ by rounding fit the same frame."""
+    dis, scale = [], []
+    for dx in np.linspace(0.0, 4.0, 401):
+        m, x, y, k, _ = pulled_grid(dx)
+        tr = ReferenceTracker(m, Params(**SIMILARITY, energy_scale=4.5, energy_gain=0.0,
+                                        energy_kind="cartesian"))
+        tr.mx, tr.my = [float(v) for v in x], [float(v) for v in y]
+        dis.append(tr.fit_frame([True] * 9)[k])
+        c, s, _, _ = tr.frame()
+        scale.append(math.hypot(c, s))
+    dis, scale = np.array(dis), np.array(scale)
+    assert dis[0] == 0.0 and dis[-1] == 1.0
+    assert np.all(np.diff(dis) >= -1e-12)
+    ramp = (dis > 0.0) & (dis < 1.0)
+    assert ramp.sum() >= 5                                       # a ramp, not a step
+    assert np.abs(np.diff(scale)).max() < 2e-3                   # 0.01 px steps of dx
+    assert scale[-1] == pytest.approx(1.1, abs=1e-9)             # the others' scale
 
 
 @pytest.mark.parametrize("backend", BACKENDS)
