@@ -93,6 +93,7 @@ ST_CLONES static void st_pull(int n, uint64_t pulled, double gx, double gy, doub
 #define ST_FRAME_SCALE_MAX 4.0
 #define ST_FRAME_MIN_SPREAD 0x1p-20
 #define ST_FRAME_AGREE_PX2 0x1p-4                     /* [ref] FRAME_AGREE_PX2 */
+#define ST_FRAME_RAMP 0x1p-3                          /* [ref] FRAME_RAMP */
 #define ST_MAX_FIT 64                           /* trackers (MAX_TRACKERS of kernel/state.pxd) */
 
 /* [ref] fit_frame: the similarity x -> G + s R (x - G0) that best maps the rest shape onto
@@ -198,8 +199,8 @@ ST_CLONES static void st_fit_frame(int n, uint64_t fit, const double *restrict m
 
 /* [ref] fit_frame's weights: for the trackers of the mask fit, their squared residuals
  * r^2 = |mu - (G + s R dG0)|^2 in the frame (c, sn, gx, gy), T = max(scale sum m wt r^2 /
- * sum m wt, ST_FRAME_AGREE_PX2) and v = 1 up to T, 0 from 2 T, linear between; summed in
- * index order as the reference.  If some v differs from wt and at least 2 are positive:
+ * sum m wt, ST_FRAME_AGREE_PX2) and v = 1 up to T, 0 from (1 + ST_FRAME_RAMP) T, linear
+ * between; summed in index order as the reference.  If some v differs from wt and at least 2 are positive:
  * wt = v, wm = mass v (the masses of the refit) and the mask of the positive ones is
  * returned; else 0 (wt, wm unchanged). */
 static inline uint64_t st_frame_weights(int n, uint64_t fit, double scale,
@@ -228,7 +229,7 @@ static inline uint64_t st_frame_weights(int n, uint64_t fit, double scale,
     for (i = 0; i < n; i++) {
         if (!((fit >> i) & 1))
             continue;
-        v[i] = 2.0 - r2[i] / thr;                             /* 1 to T, 0 from 2 T */
+        v[i] = 1.0 - (r2[i] - thr) / (ST_FRAME_RAMP * thr);   /* 1 to T, 0 from (1 + ramp) T */
         if (v[i] < 0.0)
             v[i] = 0.0;
         if (v[i] > 1.0)

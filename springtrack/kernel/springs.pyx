@@ -27,9 +27,10 @@ from libc.stdint cimport int64_t, uint64_t
 from springtrack import reference as _ref
 
 from springtrack.kernel.state cimport (KState, MAX_CONNECTIONS, MAX_SET_TRACKERS, K_TRACKING)
-from springtrack.kernel.index cimport reindex
+from springtrack.kernel.index cimport reindex, set_reach
 from springtrack.kernel.covariance cimport clamp_and_invert
 from springtrack.kernel.activity cimport flush_activity
+from springtrack.kernel.motion cimport predict_dt, still
 
 cdef extern from "springtrack/csrc/springs.h" nogil:
     double st_sum(int n, const double* x)
@@ -39,6 +40,7 @@ cdef extern from "springtrack/csrc/springs.h" nogil:
                  const double* dis, const double* gdx0, const double* gdy0, double* mx,
                  double* my)
     double ST_FRAME_SCALE_MIN, ST_FRAME_SCALE_MAX, ST_FRAME_MIN_SPREAD, ST_FRAME_AGREE_PX2
+    double ST_FRAME_RAMP
     void st_fit_frame(int n, uint64_t fit, const double* mass, const double* gdx0,
                       const double* gdy0, const double* mx, const double* my, double rx,
                       double ry, double* c, double* sn, double* gx, double* gy)
@@ -70,8 +72,9 @@ cdef extern from "springtrack/csrc/springs.h" nogil:
                        const double* syy_lim, int64_t* out)
 
 assert (_ref.FRAME_SCALE_MIN, _ref.FRAME_SCALE_MAX, _ref.FRAME_MIN_SPREAD,
-        _ref.FRAME_AGREE_PX2) == (ST_FRAME_SCALE_MIN, ST_FRAME_SCALE_MAX, ST_FRAME_MIN_SPREAD,
-                                  ST_FRAME_AGREE_PX2), "springs.h disagrees with reference.py"
+        _ref.FRAME_AGREE_PX2, _ref.FRAME_RAMP) == (
+    ST_FRAME_SCALE_MIN, ST_FRAME_SCALE_MAX, ST_FRAME_MIN_SPREAD, ST_FRAME_AGREE_PX2,
+    ST_FRAME_RAMP), "springs.h disagrees with reference.py"
 
 cdef double TWO_PI = 2.0 * M_PI
 cdef int FRAME_REFITS = _ref.FRAME_REFITS
@@ -121,13 +124,22 @@ cdef void ksprings(KState* s) noexcept nogil:
     # re-indexed
     cdef int64_t left[MAX_SET_TRACKERS]
     cdef int g, i, n = s.n
+    cdef int64_t t = s.last_t
+    cdef double lead
     s.n_spring_updates += 1
     for g in range(s.ni):
         if s.state[g] == K_TRACKING:
+            for i in range(s.g_t0[g], s.g_t1[g]):    # [ref] eq. (M1): the springs act on
+                lead = predict_dt(s, i, t)            # the means at the update's time
+                s.mx[i] = s.mx[i] + s.vx[i] * lead
+                s.my[i] = s.my[i] + s.vy[i] * lead
+                s.tm[i] = t
             instance_springs(s, g)
     guard_state(s)
     compose_sensitive(s)
-    st_boxes_left(n, s.mx, s.my, s.sxx, s.syy, s.bcx, s.bcy, s.dev_x, s.dev_y, s.sxx_lim,
+    for i in range(n):                   # eq. (M8) changed velocities: their reach
+        set_reach(s, i)
+    st_boxes_left(n, s.mx, s.my, s.sxx, s.syy, s.bcx, s.bcy, s.mdev_x, s.mdev_y, s.sxx_lim,
                   s.syy_lim, left)
     for i in range(n):
         if left[i]:
@@ -247,6 +259,7 @@ cdef void rest_trackers(KState* s, int g) noexcept nogil:
         s.sxy[i] = s.rest_sxy[i]
         s.syy[i] = s.rest_syy[i]
         s.act[i] = 0.0
+        still(s, i)
         clamp_and_invert(s, i)
         reindex(s, i)
 
@@ -308,6 +321,29 @@ cdef void fit_frame(KState* s, int g, uint64_t fit, double* dis) noexcept nogil:
             dis[i] = 1.0 - wt[i]
 
 
+cdef inline void pull_velocities(KState* s, int g, uint64_t pulled) noexcept nogil:
+    # [ref] _pull_velocities(g), eq. (M8): the pulled trackers' velocities toward the
+    # mean velocity of the instance's trackers left alone
+    cdef int t0 = s.g_t0[g], n = s.g_t1[g] - s.g_t0[g], j, i
+    cdef double w = 0.0, vx = 0.0, vy = 0.0, a = s.energy_gain[g]
+    if s.tau_m <= 0.0 or pulled == 0:
+        return
+    for j in range(n):
+        if not (pulled >> j) & 1:
+            i = t0 + j
+            w += s.mass[i]
+            vx += s.mass[i] * s.vx[i]
+            vy += s.mass[i] * s.vy[i]
+    if w > 0.0:
+        vx = vx / w
+        vy = vy / w
+    for j in range(n):
+        if (pulled >> j) & 1:
+            i = t0 + j
+            s.vx[i] = s.vx[i] + a * (vx - s.vx[i])
+            s.vy[i] = s.vy[i] + a * (vy - s.vy[i])
+
+
 cdef inline void energy_criteria(KState* s, int g) noexcept nogil:
     # [ref] _energy_criteria(g); masks relative to the instance's first tracker t0
     cdef int t0 = s.g_t0[g], n = s.g_t1[g] - s.g_t0[g], c0 = s.g_c0[g]
@@ -336,6 +372,7 @@ cdef inline void energy_criteria(KState* s, int g) noexcept nogil:
         gy = gy / msum
         st_pull(n, pulled, gx, gy, 1.0, 0.0, s.energy_gain[g], dis, s.gdx0 + t0, s.gdy0 + t0,
                 s.mx + t0, s.my + t0)
+    pull_velocities(s, g, pulled)        # eq. (M8)
     s.isens[g] = calm | s.isolated[g]    # eq. (21): insensitive if all its connections are over
 
 

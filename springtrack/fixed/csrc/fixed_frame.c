@@ -18,6 +18,7 @@
 #define FRAME_REFITS 2                                /* [ref] FRAME_REFITS */
 #define FRAME_AGREE_Q ((int64_t)1 << 30)              /* [ref] FRAME_AGREE_PX2 = 2^-4, Q.34 px^2 */
 #define FRAME_W_ONE ((uint32_t)1 << 24)              /* a weight of 1, Q.24 */
+#define FRAME_RAMP_SHIFT 3                            /* [ref] FRAME_RAMP = 2^-3 */
 
 /* the index of the lowest set bit of m != 0 (two 32-bit halves) */
 static inline int lowest_bit(uint64_t m)
@@ -171,7 +172,8 @@ static inline void frame_target(const fx_state *s, int i, int64_t *tx, int64_t *
 
 /* [ref] fit_frame's weights: for the trackers of `fit`, the squared residual r^2 =
    |mu - (G + s R dG0)|^2 in the last fitted frame, T = max(energy_scale times the mean r^2
-   weighted by wq, FRAME_AGREE_PX2), and v = 1 up to T, 0 from 2 T, linear between (Q.24).
+   weighted by wq, FRAME_AGREE_PX2), and v = 1 up to T, 0 from (1 + FRAME_RAMP) T, linear
+   between (Q.24).
    Residuals in Q.20 px (the kernels' means agree to ~1e-6 px, so a weight near the ends
    of its ramp comes out as the float kernel's), held to +-2^30 (1024 px: such a tracker
    disagrees either way), r^2 in Q.40 px^2 (< 2^61) and 2^-6 of it (Q.34) summed (64 of
@@ -182,7 +184,7 @@ static __attribute__((noinline)) uint64_t frame_weights(fx_state *s, uint64_t fi
                                                         uint32_t *wq)
 {
     uint64_t m, pos = 0;
-    int64_t r2[FX_MAX_TRACKERS], total = 0, mean, thr;
+    int64_t r2[FX_MAX_TRACKERS], total = 0, mean, thr, ramp;
     uint32_t W = 0, rem, nv[FX_MAX_TRACKERS], nw[FX_MAX_TRACKERS];
     const int64_t lim = (int64_t)1 << 30;
     int i, k, changed = 0;
@@ -204,7 +206,8 @@ static __attribute__((noinline)) uint64_t frame_weights(fx_state *s, uint64_t fi
     thr = mulsh(mean, s->escale, s->escale_sh);       /* eq. (21)'s test on r^2 */
     if (thr < FRAME_AGREE_Q)
         thr = FRAME_AGREE_Q;
-    k = bitlen64((uint64_t)thr) - 31;                 /* T >> k in [2^30, 2^31) */
+    ramp = thr >> FRAME_RAMP_SHIFT;                   /* FRAME_RAMP T, >= 2^27 */
+    k = bitlen64((uint64_t)ramp) - 31;                /* ramp >> k in [2^27, 2^31) */
     if (k < 0)
         k = 0;
     for (m = fit; m; m &= m - 1) {
@@ -213,10 +216,10 @@ static __attribute__((noinline)) uint64_t frame_weights(fx_state *s, uint64_t fi
         e = r2[i] - thr;
         if (e <= 0)                                   /* 1 up to T */
             nv[i] = FRAME_W_ONE;
-        else if (e >= thr)                            /* 0 from 2 T */
+        else if (e >= ramp)                           /* 0 from (1 + ramp) T */
             nv[i] = 0;
-        else                                          /* 1 - (r^2 - T) / T */
-            nv[i] = FRAME_W_ONE - (uint32_t)div_round(shl64(e >> k, 24), (uint32_t)(thr >> k));
+        else                                          /* 1 - (r^2 - T) / (ramp T) */
+            nv[i] = FRAME_W_ONE - (uint32_t)div_round(shl64(e >> k, 24), (uint32_t)(ramp >> k));
         nw[i] = (uint32_t)rshr((int64_t)umul(s->mq[i], nv[i]), 24);
         changed |= nv[i] != v[i];
         pos |= (uint64_t)(nw[i] > 0) << i;
