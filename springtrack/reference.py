@@ -84,7 +84,7 @@ FRAME_AGREE_PX2 = 2.0 ** -4
 # A tracker's weight in the refit falls from 1 at its threshold T to 0 at
 # (1 + FRAME_RAMP) T (fit_frame): continuous, so that kernels whose means differ by
 # rounding fit the same frame, and narrow, so that a part that left its place drops out.
-FRAME_RAMP = 2.0 ** -3
+FRAME_RAMP = 2.0 ** -2
 
 # Result codes of step(): >= 0 is the index of the tracker that took the event.
 NO_TRACKER = -1          # valid event, no sensitive tracker within its gate

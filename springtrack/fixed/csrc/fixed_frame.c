@@ -18,7 +18,7 @@
 #define FRAME_REFITS 2                                /* [ref] FRAME_REFITS */
 #define FRAME_AGREE_Q ((int64_t)1 << 30)              /* [ref] FRAME_AGREE_PX2 = 2^-4, Q.34 px^2 */
 #define FRAME_W_ONE ((uint32_t)1 << 24)              /* a weight of 1, Q.24 */
-#define FRAME_RAMP_SHIFT 3                            /* [ref] FRAME_RAMP = 2^-3 */
+#define FRAME_RAMP_SHIFT 2                            /* [ref] FRAME_RAMP = 2^-2 */
 
 /* the index of the lowest set bit of m != 0 (two 32-bit halves) */
 static inline int lowest_bit(uint64_t m)

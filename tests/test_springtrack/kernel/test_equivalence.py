@@ -368,10 +368,8 @@ def assert_springs_equal(ker, ref, x, y):
     ker.springs()
     ref.springs()
     snap = ker.snapshot(0)
-    # 1e-11 px: the frame's refit weights (reference.fit_frame) fall over FRAME_RAMP T, so
-    # a tracker on that ramp turns the angles' 1e-15 rounding into up to ~1e-12 px
-    np.testing.assert_allclose(snap["x"], ref.mx, rtol=0, atol=1e-11)
-    np.testing.assert_allclose(snap["y"], ref.my, rtol=0, atol=1e-11)
+    np.testing.assert_allclose(snap["x"], ref.mx, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(snap["y"], ref.my, rtol=0, atol=1e-12)
     np.testing.assert_allclose(ker.energies(), np.array(ref.energy), rtol=1e-12, atol=1e-15)
     assert snap["sensitive"].tolist() == list(ref.sensitive)
 
