@@ -35,8 +35,8 @@ Interpretation choices (docs/algorithm.md explains them):
   over-threshold connection toward ``G + s R dG0``, and the others by the share they
   disagree with the frame (eq. 21's sensitivity stays the connections' verdict); the
   Cartesian springs of the next update hold the rest offset ``s R d0``.
-* The motion model (this project's extension, eqs. M1-M8; docs/algorithm.md, "Motion and
-  both edges"): each tracker keeps a velocity v, the half offset h between its part's ON
+* The motion model (this project's extension, eqs. M1-M8; docs/motion.md; off by
+  default): each tracker keeps a velocity v, the half offset h between its part's ON
   and OFF edges, the time t_m its mean refers to and the covariance P of a Kalman filter
   of its position and velocity (per axis, in units of the event spread).  An event is
   gated and weighed (eq. 2) about the mean predicted to its time (M1); the winner's gains
@@ -702,6 +702,23 @@ class ReferenceTracker:
             self._clamp_and_invert(i)
         self._rest_frame(g)
         self.set_state(g, TRACKING)
+
+    def relocate(self, g: int, idx, x, y, sxx, sxy, syy) -> None:
+        """Instance g's trackers ``idx`` (indices within the instance) put at means (x, y)
+        with covariances (sxx, sxy, syy) (one value each per index; clamped as eq. (4)'s),
+        their activities 0 (eq. 6: no event of theirs yet where they now are) and their
+        motion state as placed (``_still``: eqs. M1-M8 start again); every other
+        tracker, the rest geometry, the frame and the state kept."""
+        for k, j in enumerate(idx):
+            i = self.t0[g] + int(j)
+            if not self.t0[g] <= i < self.t1[g]:
+                raise IndexError(f"relocate: tracker {int(j)} is not in instance {g}")
+            self.mx[i], self.my[i] = float(x[k]), float(y[k])
+            self.sxx[i], self.sxy[i], self.syy[i] = float(sxx[k]), float(sxy[k]), float(syy[k])
+            self.act[i] = 0.0
+            self.tlast[i] = 0
+            self._still(i)
+            self._clamp_and_invert(i)
 
     def move(self, g: int, sim: tuple, model: ShapeModel) -> None:
         """Instance g moved rigidly by the similarity ``sim`` = (a, b, tx, ty), x -> A x + t
