@@ -8,7 +8,7 @@
 Without a host link it prints a statistics line every ``--stats-every`` s on stderr and a
 final one on stdout, and ends with the source; ``--record`` writes every telemetry
 snapshot in the CSV schema of ``springtrack track``
-(``t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive``).  With a host link it serves
+(``t_us,tracker,x,y,sxx,sxy,syy,activity,vx,vy,active,sensitive``).  With a host link it serves
 the link until a host sends SHUTDOWN (``hostctl shutdown``) or it gets SIGTERM / Ctrl-C:
 at the end of the source the loop goes idle (the hosts get a NOTICE) and START replays it.
 Exit status: 0 done, 1 the camera never opened (10 s) or a simulated source failed,

@@ -12,8 +12,9 @@ reads (the unit the host sees) or in event time (what the scene sees):
                multiple of 4: words are split across transfers
 ``stall``      the ``stall_at``-th read stalls the endpoint (USBError EPIPE, errno 32); every
                read fails until the host calls clear_halt; no data is lost
-``corrupt``    about one word in ``corrupt_every`` is overwritten with an undefined word
-               type (b3 = 0xC0) or an out-of-sensor row (b0 = 0xFF), alternately
+``corrupt``    about one event word in ``corrupt_every`` is given an undefined word type
+               or a coordinate outside the sensor, alternately, in the word format the
+               camera streams (firmware_sim.simcam.spoil), replayed words included
 ``disconnect`` at ``disconnect_at_us`` of event time the device vanishes (USBError ENODEV,
                errno 19; gone from enumeration) for ``disconnect_s`` wall seconds, then
                re-enumerates with a new address, unconfigured; data of that time is lost
@@ -72,7 +73,8 @@ class Faults:
         self.rng = np.random.default_rng(plan.seed)
         self.reads = 0
         self.injected = {n: 0 for n in FAULT_NAMES}
-        self.injected.update(corrupt_unknown=0, corrupt_geometry=0, burst_events=0)
+        self.injected.update(corrupt_unknown=0, corrupt_geometry=0, corrupt_unknown_events=0,
+                             corrupt_geometry_events=0, burst_events=0)
         self.disconnect_done = False
         self.burst_done = False
 
@@ -113,23 +115,29 @@ class Faults:
             return int(self.rng.integers(1, n // 4)) * 4
         return n
 
-    def corrupt(self, data: bytearray, start_word: int) -> None:
-        """Overwrite about one word in corrupt_every of ``data`` in place (whole words that
-        start at byte offsets ``4 * k`` relative to the device stream's word grid;
-        ``start_word`` is the stream index of data's first word)."""
-        if "corrupt" not in self.names or len(data) < 4:
+    def corrupt(self, data, start_unit: int, spoiler) -> None:
+        """Spoil about one word in corrupt_every of ``data`` in place, alternately as an
+        undefined word type and as an event outside the sensor (``spoiler``: the word
+        format's, firmware_sim.simcam.spoil.SPOILERS; words that carry no event are left
+        alone).  ``data`` (a writable buffer) starts with a whole word, the stream's word
+        ``start_unit``; words are ``spoiler.unit`` bytes."""
+        if "corrupt" not in self.names or len(data) < spoiler.unit:
             return
         every = self.plan.corrupt_every
-        nw = len(data) // 4
-        first = (-start_word) % every
-        for k in range(first, nw, every):
-            w = start_word + k
-            if data[4 * k + 3] == 0x80:          # leave time-high words alone
+        u = spoiler.unit
+        view = memoryview(data)
+        first = (-start_unit) % every
+        for k in range(first, len(data) // u, every):
+            w = view[u * k:u * (k + 1)]
+            n = spoiler.events(w)
+            if not n:
                 continue
-            if (w // every) % 2 == 0:
-                data[4 * k + 3] = 0xC0           # undefined word type
+            if ((start_unit + k) // every) % 2 == 0:
+                spoiler.unknown(w)
                 self.injected["corrupt_unknown"] += 1
+                self.injected["corrupt_unknown_events"] += n
             else:
-                data[4 * k] = 0xFF               # row 239 - 255 < 0: outside the sensor
+                spoiler.outside(w)
                 self.injected["corrupt_geometry"] += 1
+                self.injected["corrupt_geometry_events"] += n
             self.injected["corrupt"] += 1

@@ -1,14 +1,14 @@
 """Recording telemetry to files.
 
 * ``OUT.csv`` - the track CSV schema of ``springtrack track`` (springtrack.track.CSV_HEADER:
-  ``t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive,state``), so ``springtrack
+  ``t_us,tracker,x,y,sxx,sxy,syy,activity,vx,vy,active,sensitive,state``), so ``springtrack
   score`` reads recordings; the tracker ids are those of the device's model (``hostctl
   get-model``), so ``springtrack render --model`` draws them.  With smoothing, the
   smoothed states go to a sidecar ``OUT.smooth.csv`` (``t_us,tracker,x_s,y_s,vx,vy``) so
   the main file keeps the schema.
 * ``OUT.npz`` - arrays ``t_us (T,)``, ``ids (K,)``, ``x, y, sxx, sxy, syy, activity,
-  active, sensitive (T, K)``, ``generation, mean_energy, seq, host_time (T,)`` and, with
-  smoothing, ``smooth_t_us (T',)``, ``x_s, y_s, vx, vy (T', K)``.
+  vx, vy, active, sensitive (T, K)``, ``generation, mean_energy, seq, host_time (T,)`` and,
+  with smoothing, ``smooth_t_us (T',)``, ``x_s, y_s, vx_s, vy_s (T', K)``.
 
 Values are the telemetry's fixed-point quantities decoded (1/16 px positions etc.,
 docs/protocol.md), not the firmware's float state.
@@ -66,7 +66,10 @@ def stack(snaps) -> dict:
 
 
 def to_track(arrs: dict, ids) -> Track:
-    return Track(arrs["t_us"], list(ids), **{f: arrs[f] for f in TRACK_FIELDS})
+    """A Track from a recording's arrays (one saved without velocities reads as still)."""
+    still = np.zeros(np.shape(arrs["x"]))
+    return Track(arrs["t_us"], list(ids),
+                 **{f: arrs[f] if f in arrs else still for f in TRACK_FIELDS})
 
 
 def save(path, snaps, info: dict, smooth: dict | None = None, ids=None) -> dict:
@@ -81,7 +84,9 @@ def save(path, snaps, info: dict, smooth: dict | None = None, ids=None) -> dict:
     if path.suffix == ".npz":
         extra = {}
         if sm is not None:
-            extra = {"smooth_t_us": sm["t_us"], **{k: sm[k] for k in SMOOTH_FIELDS}}
+            # the smoothed velocities as vx_s, vy_s: vx, vy are the tracker's own (eq. M7)
+            extra = {"smooth_t_us": sm["t_us"],
+                     **{k if k.endswith("_s") else k + "_s": sm[k] for k in SMOOTH_FIELDS}}
         np.savez_compressed(path, ids=np.array(ids), **{k: v for k, v in arrs.items()
                                                         if k != "dropped"}, **extra)
     elif path.suffix == ".csv":

@@ -50,7 +50,8 @@ from .track import STATE_NAMES
 
 # the parameters of the event assignment, one value for all instances
 SHARED_PARAMS = ("p_threshold", "activity_tau_us", "activity_threshold", "spring_period",
-                 "sigma_min_px", "sigma_max_px")
+                 "sigma_min_px", "sigma_max_px", "motion_tau_us", "prediction_horizon_us",
+                 "polarity_gain")
 # each instance's own
 INSTANCE_PARAMS = ("alpha_position", "alpha_covariance", "energy_scale", "energy_gain",
                    "energy_kind", "pull_frame", "cartesian_frame")

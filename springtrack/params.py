@@ -61,6 +61,16 @@ SPECS: dict[str, ParamSpec] = {s.name: s for s in [
     ParamSpec("cartesian_frame", str, "similarity", None, None, "",
               "frame of the Cartesian springs' rest offsets, eqs. (18)-(20): similarity | "
               "image (the paper)", FRAMES),
+    ParamSpec("motion_tau_us", float, 0.0, 0.0, 1e7, "us",
+              "tau_m, eq. (M3): time over which a part's velocity may change by its size "
+              "(a tracker's Kalman filter of position and velocity); 0: no velocity, the "
+              "gain is alpha1 (the paper's eq. 3)"),
+    ParamSpec("prediction_horizon_us", float, 500.0, 0.0, 1e6, "us",
+              "H, eq. (M1): a mean is carried along its velocity at most this long after "
+              "the tracker's last event"),
+    ParamSpec("polarity_gain", float, 0.0, 0.0, 1.0, "",
+              "c_h, eq. (M6): weight of the half offset between a part's ON and OFF edges "
+              "(relative to the mean's gain); 0: one mean for both polarities (eq. 3)"),
     ParamSpec("sigma_min_px", float, 0.5, 0.05, 64.0, "px",
               "lower bound on a tracker's standard deviation along x and y"),
     ParamSpec("sigma_max_px", float, 64.0, 0.5, _limits.SIGMA_MAX_PX, "px",
@@ -98,6 +108,9 @@ class Params:
     energy_kind: str = SPECS["energy_kind"].default
     pull_frame: str = SPECS["pull_frame"].default
     cartesian_frame: str = SPECS["cartesian_frame"].default
+    motion_tau_us: float = SPECS["motion_tau_us"].default
+    prediction_horizon_us: float = SPECS["prediction_horizon_us"].default
+    polarity_gain: float = SPECS["polarity_gain"].default
     sigma_min_px: float = SPECS["sigma_min_px"].default
     sigma_max_px: float = SPECS["sigma_max_px"].default
 

@@ -30,6 +30,16 @@ Interpretation choices (docs/algorithm.md explains them):
   trackers no over-threshold connection touches; eq. (22) then pulls toward
   ``G + s R dG0``, and the Cartesian springs of the next update hold the rest offset
   ``s R d0``.
+* The motion model (this project's extension, eqs. M1-M8; docs/algorithm.md, "Motion and
+  both edges"): each tracker keeps a velocity v, the half offset h between its part's ON
+  and OFF edges, the time t_m its mean refers to and the covariance P of a Kalman filter
+  of its position and velocity (per axis, in units of the event spread).  An event is
+  gated and weighed (eq. 2) about the mean predicted to its time (M1); the winner's gains
+  (M3) come from P (at most alpha1 for the mean): they fall where its events come fast;
+  its mean, half offset and velocity move by the event's residual about the edge of its
+  polarity (M4-M7); the springs act on the means predicted to the update's time, and
+  eq. (22)'s pull takes a pulled tracker's velocity toward its structure's (M8).  With
+  motion_tau_us = 0 and polarity_gain = 0 this is the paper's Algorithm 1 exactly.
 * Several model instances (springtrack.instances): their trackers side by side; eq. (2)'s
   argmin runs over the union of the sensitive trackers (ties: lowest index, the first
   instance); springs, eq. (13)'s mean energy, eqs. (21)-(22), the centre of mass and the
@@ -65,6 +75,13 @@ FRAME_MIN_SPREAD = 2.0 ** -20
 NO_TRACKER = -1          # valid event, no sensitive tracker within its gate
 SKIPPED_BACK_IN_TIME = -2
 SKIPPED_OUT_OF_SENSOR = -3
+
+# The motion model's bounds: a velocity is held to |v_x|, |v_y| <= VELOCITY_MAX px/us
+# (250,000 px/s: a part faster than that crosses a 1280-px sensor in 5 ms), a half offset
+# between the edges to |h_x|, |h_y| <= sigma_max_px.  A placed tracker's Kalman position
+# variance is P_UNKNOWN (one event spread: placed on its part), its velocity taken as still.
+VELOCITY_MAX = 0.25
+P_UNKNOWN = 1.0
 
 
 def wrap_angle(a: float) -> float:
@@ -108,6 +125,17 @@ class ReferenceTracker:
         self.mx, self.my, self.sxx, self.sxy, self.syy = (list(v) for v in self.rest)
         self.act = [0.0] * self.n
         self.tlast = [0] * self.n
+        # the motion model (eqs. M1-M8): velocity (px/us), half offset between the ON
+        # and OFF edges (px), the time the mean refers to (us), the Kalman covariance
+        # [[kpp, kpv], [kpv, kvv]] of position and velocity in units of the event spread
+        self.vx = [0.0] * self.n
+        self.vy = [0.0] * self.n
+        self.hx = [0.0] * self.n
+        self.hy = [0.0] * self.n
+        self.tm = [0] * self.n
+        self.kpp = [P_UNKNOWN] * self.n
+        self.kpv = [0.0] * self.n
+        self.kvv = [0.0] * self.n
         self.sensitive = [True] * self.n
         self.ia = [0.0] * self.n
         self.ib = [0.0] * self.n
@@ -158,6 +186,7 @@ class ReferenceTracker:
                 v[i] for v in self.rest)
             self.act[i] = 0.0
             self.tlast[i] = 0
+            self._still(i)
             self.sensitive[i] = self.state[g] == TRACKING
             self._clamp_and_invert(i)
         for e in self.energy:
@@ -165,6 +194,14 @@ class ReferenceTracker:
                 e[k] = 0.0
         self.mean_energies[g] = 0.0
         self._rest_frame(g)
+
+    def _still(self, i: int) -> None:
+        """Tracker i's motion state as placed: still (up to the acceleration noise its
+        first prediction adds), one edge, position unknown (its first gain is alpha1)."""
+        self.vx[i] = self.vy[i] = self.hx[i] = self.hy[i] = 0.0
+        self.tm[i] = 0
+        self.kpp[i] = P_UNKNOWN
+        self.kpv[i] = self.kvv[i] = 0.0
 
     def _rest_frame(self, g: int) -> None:
         """Instance g's frame before its first fit: the identity about G0 at rest."""
@@ -202,9 +239,21 @@ class ReferenceTracker:
         self.period = p.spring_period
         self.smin2 = p.sigma_min_px * p.sigma_min_px
         self.smax2 = p.sigma_max_px * p.sigma_max_px
+        # the motion model (eqs. M1-M8): 0 turns each part off.  tau_m sets the Kalman
+        # filter's acceleration noise q = 1 / tau_m^3 (event spreads^2 / us^3) and bounds
+        # its velocity variance to 1 / tau_m^2 (a spread per tau_m)
+        self.horizon = p.prediction_horizon_us
+        self.tau_m = p.motion_tau_us
+        tau = self.tau_m
+        self.q_m = 1.0 / (tau * tau * tau) if tau > 0.0 else 0.0
+        self.vv_max = 1.0 / (tau * tau) if tau > 0.0 else 0.0
+        self.c_h = p.polarity_gain
+        self.h_max = p.sigma_max_px
         # per tracker, from its instance: the gains of eqs. (3)-(5)
         self.a1 = [plist[g].alpha_position for g in self.inst]
         self.a2 = [plist[g].alpha_covariance for g in self.inst]
+        # eq. (M3): 1 / alpha1, the bound of the mean's gain
+        self.inv_a1 = [1.0 / max(a, 1e-6) for a in self.a1]
         self.cov_gain = [q.alpha_covariance / covariance_bias(q.alpha_position, q.gate_d2)
                          for q in (plist[g] for g in self.inst)]
         # per instance: the criteria and the frames
@@ -220,8 +269,15 @@ class ReferenceTracker:
             self._clamp_and_invert(i)
 
     # ---- per event -----------------------------------------------------------
-    def step(self, t: int, x: int, y: int) -> int:
-        """Process one event; returns the winning tracker index or a NO_/SKIPPED_ code."""
+    def predict_dt(self, i: int, t: int) -> float:
+        """eq. (M1)'s lead: how long tracker i's mean is carried along its velocity from
+        its time t_m to t, up to H after the tracker's last event t_k (a part that stops
+        firing is not carried on): max(0, min(t, t_k + H) - t_m)."""
+        return max(0.0, min(float(t), self.tlast[i] + self.horizon) - self.tm[i])
+
+    def step(self, t: int, x: int, y: int, p: int = 1) -> int:
+        """Process one event of polarity p (1 ON, 0 OFF); returns the winning tracker
+        index or a NO_/SKIPPED_ code."""
         if t < self.last_t:
             self.n_back += 1
             return SKIPPED_BACK_IN_TIME
@@ -239,14 +295,15 @@ class ReferenceTracker:
         for i in range(self.n):
             if not self.sensitive[i]:
                 continue
-            dx = fx - self.mx[i]
-            dy = fy - self.my[i]
+            lead = self.predict_dt(i, t)
+            dx = fx - (self.mx[i] + self.vx[i] * lead)              # eq. (M1): about the
+            dy = fy - (self.my[i] + self.vy[i] * lead)              # predicted mean
             d2 = self.ia[i] * dx * dx + self.ic[i] * dy * dy + 2.0 * self.ib[i] * dx * dy
             if d2 < best_d2:
                 best_d2 = d2
                 best = i
         if best >= 0:
-            self._update(best, t, fx, fy, best_d2)
+            self._update(best, t, fx, fy, best_d2, p)
             self.n_assigned += 1
         self.since_spring += 1
         if self.since_spring >= self.period:
@@ -254,21 +311,64 @@ class ReferenceTracker:
             self.springs()
         return best
 
-    def _update(self, i: int, t: int, fx: float, fy: float, d2: float) -> None:
+    def _update(self, i: int, t: int, fx: float, fy: float, d2: float, pol: int) -> None:
         p = math.exp(-0.5 * d2)                                     # eq. (2), unnormalised
+        if self.tau_m > 0.0:
+            gain, kv = self._kalman(i, t)                            # eq. (M3)
+        else:
+            gain, kv = self.a1[i], 0.0                               # eq. (3)
         # eq. (6): activity decays exponentially since this tracker's last event
         self.act[i] = self.act[i] * math.exp(-(t - self.tlast[i]) / self.tau) + p
         self.tlast[i] = t
-        dx = fx - self.mx[i]                                         # eq. (5): offset from the
-        dy = fy - self.my[i]                                         # pre-update mean
-        self.mx[i] = self.mx[i] + self.a1[i] * dx                    # eq. (3), a1 = weight of u
-        self.my[i] = self.my[i] + self.a1[i] * dy
+        lead = self.predict_dt(i, t)                                 # eq. (M1): the mean
+        px = self.mx[i] + self.vx[i] * lead                          # predicted to t
+        py = self.my[i] + self.vy[i] * lead
+        self.tm[i] = t
+        dx = fx - px                                                 # eq. (5): offset from the
+        dy = fy - py                                                 # pre-update (predicted) mean
+        # eq. (M4): the residual about the edge of the event's polarity, m^ + s h
+        sgn = 1.0 if pol else -1.0
+        rx = dx - sgn * self.hx[i]
+        ry = dy - sgn * self.hy[i]
+        self.mx[i] = px + gain * rx                                  # eq. (M5) = eq. (3) when
+        self.my[i] = py + gain * ry                                  # v = h = 0, gain = a1
+        if self.c_h > 0.0:                                           # eq. (M6)
+            hmax = self.h_max
+            self.hx[i] = min(max(self.hx[i] + self.c_h * gain * sgn * rx, -hmax), hmax)
+            self.hy[i] = min(max(self.hy[i] + self.c_h * gain * sgn * ry, -hmax), hmax)
+        if self.tau_m > 0.0:                                         # eq. (M7)
+            self.vx[i] = min(max(self.vx[i] + kv * rx, -VELOCITY_MAX), VELOCITY_MAX)
+            self.vy[i] = min(max(self.vy[i] + kv * ry, -VELOCITY_MAX), VELOCITY_MAX)
         keep = 1.0 - self.a2[i]                                      # eq. (4), a2 = weight of dS,
         g = self.cov_gain[i]                                         # dS / covariance_bias
         self.sxx[i] = keep * self.sxx[i] + g * (dx * dx)
         self.sxy[i] = keep * self.sxy[i] + g * (dx * dy)
         self.syy[i] = keep * self.syy[i] + g * (dy * dy)
         self._clamp_and_invert(i)
+
+    def _kalman(self, i: int, t: int) -> tuple:
+        """eq. (M3): tracker i's Kalman filter of position and velocity (per axis, in units
+        of its event spread: an event measures the position with variance 1; white
+        acceleration noise q), predicted over dt = min(t - t_k, tau_m) since its last event,
+        then updated by one event, whose variance is raised where needed to keep K_p <=
+        alpha1 (the filter stays consistent: a less precise event, not a clipped gain).
+        Returns the gains (K_p, K_v): mean and velocity (1/us)."""
+        d = min(float(t - self.tlast[i]), self.tau_m)
+        q = self.q_m
+        # P^ = F P F^T + Q, F = [[1, dt], [0, 1]], Q = q [[dt^3/3, dt^2/2], [dt^2/2, dt]]
+        pp = self.kpp[i] + d * (2.0 * self.kpv[i] + d * self.kvv[i]) + q * (d * d * d) / 3.0
+        pv = self.kpv[i] + d * self.kvv[i] + q * (d * d) * 0.5
+        vv = min(self.kvv[i] + q * d, self.vv_max)                   # a spread per tau_m
+        lim = math.sqrt(pp * vv)                                     # P^ positive
+        pv = min(max(pv, -lim), lim)
+        # S = H P^ H^T + R, R = max(1, pp (1 / alpha1 - 1)): K_p = pp / S <= alpha1
+        inv_s = 1.0 / max(1.0 + pp, pp * self.inv_a1[i])
+        kp = pp * inv_s                                              # K = P^ H^T / S
+        kv = pv * inv_s
+        self.kpp[i] = pp - kp * pp                                   # P = (I - K H) P^
+        self.kpv[i] = pv - kp * pv
+        self.kvv[i] = vv - kv * pv
+        return kp, kv
 
     def _clamp_and_invert(self, i: int) -> None:
         """Bound sigma_x, sigma_y to [sigma_min, sigma_max] and |rho| to RHO_MAX, then keep
@@ -350,8 +450,14 @@ class ReferenceTracker:
     def springs(self) -> None:
         """One spring update: every tracking instance's springs and criteria."""
         self.n_spring_updates += 1
+        t = self.last_t
         for g in range(self.ni):
             if self.state[g] == TRACKING:
+                for i in range(self.t0[g], self.t1[g]):              # eq. (M1): the springs
+                    lead = self.predict_dt(i, t)                      # act on the means at t
+                    self.mx[i] = self.mx[i] + self.vx[i] * lead
+                    self.my[i] = self.my[i] + self.vy[i] * lead
+                    self.tm[i] = t
                 self._springs(g)
         self._guard()
 
@@ -487,9 +593,31 @@ class ReferenceTracker:
                 if over_count[i] > 0:
                     self.mx[i] = self.mx[i] + a_en * (gx + self.gdx0[i] - self.mx[i])
                     self.my[i] = self.my[i] + a_en * (gy + self.gdy0[i] - self.my[i])
+        if self.tau_m > 0.0:
+            self._pull_velocities(g, over_count)
         for i in range(t0, t1):
             # eq. (21): insensitive while every connection of the tracker is over
             self.sensitive[i] = not (self.degree[i] > 0 and over_count[i] == self.degree[i])
+
+    def _pull_velocities(self, g: int, over_count: dict) -> None:
+        """eq. (M8), this project's: the velocity of a tracker eq. (22) pulls moves toward
+        the mass-weighted mean velocity of its instance's trackers left alone (0 if none),
+        by the same gain: a tracker pulled back to the structure moves with it, not on
+        with what it followed (an occluder's edge, say)."""
+        w = vx = vy = 0.0
+        for i in range(self.t0[g], self.t1[g]):
+            if over_count[i] == 0:
+                w += self.mass[i]
+                vx += self.mass[i] * self.vx[i]
+                vy += self.mass[i] * self.vy[i]
+        if w > 0.0:
+            vx = vx / w
+            vy = vy / w
+        a = self.egain[g]
+        for i in range(self.t0[g], self.t1[g]):
+            if over_count[i] > 0:
+                self.vx[i] = self.vx[i] + a * (vx - self.vx[i])
+                self.vy[i] = self.vy[i] + a * (vy - self.vy[i])
 
     # ---- instances' states ------------------------------------------------------
     def set_state(self, g: int, state: int) -> None:
@@ -512,6 +640,7 @@ class ReferenceTracker:
             self.syy[i] = float(arr["syy"][j])
             self.act[i] = 0.0
             self.tlast[i] = 0
+            self._still(i)
             self._clamp_and_invert(i)
         self._rest_frame(g)
         self.set_state(g, TRACKING)
@@ -530,6 +659,12 @@ class ReferenceTracker:
             x, y = self.mx[i], self.my[i]
             self.mx[i] = a * x - b * y + tx                          # mu' = A mu + t
             self.my[i] = b * x + a * y + ty
+            vx, vy = self.vx[i], self.vy[i]                          # v' = A v, h' = A h
+            self.vx[i] = min(max(a * vx - b * vy, -VELOCITY_MAX), VELOCITY_MAX)
+            self.vy[i] = min(max(b * vx + a * vy, -VELOCITY_MAX), VELOCITY_MAX)
+            hx, hy, hmax = self.hx[i], self.hy[i], self.h_max
+            self.hx[i] = min(max(a * hx - b * hy, -hmax), hmax)
+            self.hy[i] = min(max(b * hx + a * hy, -hmax), hmax)
             sxx, sxy, syy = self.sxx[i], self.sxy[i], self.syy[i]
             # Sigma' = A Sigma A^T
             pxx, pxy = a * sxx - b * sxy, a * sxy - b * syy          # rows of A Sigma
@@ -572,11 +707,17 @@ class ReferenceTracker:
         return self.act[i] * math.exp(-(t - self.tlast[i]) / self.tau)
 
     def snapshot(self, t: int) -> tuple:
-        """(x, y, sxx, sxy, syy, activity, active, sensitive, state) lists at event time t."""
+        """(x, y, sxx, sxy, syy, activity, vx, vy, active, sensitive, state) lists at
+        event time t (springtrack.track.TRACK_FIELDS): the means predicted to t (eq. M1),
+        the velocities in px/s."""
         act = [self.activity_at(i, t) for i in range(self.n)]
         thr = self.act_thr
-        return (list(self.mx), list(self.my), list(self.sxx), list(self.sxy), list(self.syy),
-                act, [a > thr for a in act], list(self.sensitive),
+        lead = [self.predict_dt(i, t) for i in range(self.n)]
+        return ([self.mx[i] + self.vx[i] * lead[i] for i in range(self.n)],
+                [self.my[i] + self.vy[i] * lead[i] for i in range(self.n)],
+                list(self.sxx), list(self.sxy), list(self.syy),
+                act, [v * 1e6 for v in self.vx], [v * 1e6 for v in self.vy],
+                [a > thr for a in act], list(self.sensitive),
                 [self.state[g] for g in self.inst])
 
     def run(self, events: np.ndarray, sample_us: int | None = None):
@@ -585,7 +726,8 @@ class ReferenceTracker:
         state after all events with t < t_us."""
         samples = []
         next_t = UNSET
-        for t, x, y in zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist()):
+        for t, x, y, p in zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist(),
+                              events["p"].tolist()):
             if sample_us:
                 if next_t == UNSET:
                     next_t = first_sample_time(t, sample_us)
@@ -596,5 +738,5 @@ class ReferenceTracker:
                             break
                         samples.append((next_t, self.snapshot(next_t)))
                         next_t += sample_us
-            self.step(t, x, y)
+            self.step(t, x, y, p)
         return samples

@@ -6,15 +6,17 @@ kernels' sample rows, the firmware, the wire protocol, ``hostctl record`` and th
 
 CSV schema (``springtrack track``, ``firmware-sim --record``, ``hostctl record``)::
 
-    t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive,state
+    t_us,tracker,x,y,sxx,sxy,syy,activity,vx,vy,active,sensitive,state
 
 one row per tracker per sample time (springtrack.sampling: every multiple of the period
 from the first event on, an empty stretch for its first HOLD periods only); ``t_us`` is
 event time in microseconds, the row holds the state after all events with t < t_us;
-positions in px, covariances in px^2, ``active``/``sensitive`` are 0/1; ``state`` is the
+positions in px (the means predicted to t_us along their velocities, eq. M1),
+covariances in px^2, velocities ``vx``/``vy`` in px/s (eq. M7; 0 where the motion model
+is off), ``active``/``sensitive`` are 0/1; ``state`` is the
 state of the tracker's model instance (``searching``, ``tracking`` or ``lost``:
-springtrack.instances, docs/acquisition.md).  A CSV without the ``state`` column (written
-before it existed) reads as ``tracking``.
+springtrack.instances, docs/acquisition.md).  A CSV without the ``state`` column reads as
+``tracking``, one without ``vx``/``vy`` as still.
 """
 from __future__ import annotations
 
@@ -25,7 +27,8 @@ import numpy as np
 
 FLOAT_FIELDS = ("x", "y",                 # position, px (eq. 3)
                 "sxx", "sxy", "syy",      # covariance, px^2 (eq. 4)
-                "activity")               # A, eq. (6), decayed to the sample time
+                "activity",               # A, eq. (6), decayed to the sample time
+                "vx", "vy")               # velocity, px/s (eq. M7)
 BOOL_FIELDS = ("active",                  # A > activity threshold
                "sensitive")               # takes part in the energy criteria (eq. 21)
 CODE_FIELDS = ("state",)                  # the instance's state (instances.InstanceState)
@@ -35,6 +38,9 @@ TRACK_FIELDS = FLOAT_FIELDS + BOOL_FIELDS + CODE_FIELDS
 TRACK_DTYPE = np.dtype([(f, "<f8") for f in FLOAT_FIELDS] + [(f, "?") for f in BOOL_FIELDS]
                        + [(f, "u1") for f in CODE_FIELDS], align=True)
 CSV_HEADER = ("t_us", "tracker") + TRACK_FIELDS
+# the header without the velocity (and without the state): read as still (and tracking)
+_VELOCITY = ("vx", "vy")
+_CSV_NO_VELOCITY = tuple(h for h in CSV_HEADER if h not in _VELOCITY)
 _FLAGS_AT = 2 + len(FLOAT_FIELDS)           # CSV column of the first flag
 _STATE_AT = _FLAGS_AT + len(BOOL_FIELDS)    # CSV column of the state
 # the instance states' names in the CSV, by code (instances.InstanceState)
@@ -52,6 +58,8 @@ class Track:
     sxy: np.ndarray
     syy: np.ndarray
     activity: np.ndarray
+    vx: np.ndarray                        # px/s
+    vy: np.ndarray
     active: np.ndarray                    # (n, K) bool
     sensitive: np.ndarray
     state: np.ndarray | None = None       # (n, K) uint8, the instance's state (STATE_NAMES);
@@ -72,7 +80,8 @@ class Track:
         z = np.empty((0, k))
         b = np.empty((0, k), bool)
         return cls(np.empty(0, np.int64), list(ids), z, z.copy(), z.copy(), z.copy(), z.copy(),
-                   z.copy(), b, b.copy(), np.empty((0, k), np.uint8), np.empty((0, 3)))
+                   z.copy(), z.copy(), z.copy(), b, b.copy(), np.empty((0, k), np.uint8),
+                   np.empty((0, 3)))
 
     @classmethod
     def concat(cls, parts, ids) -> "Track":
@@ -120,8 +129,9 @@ class Track:
             states = np.array(STATE_NAMES, dtype=object)[
                 np.minimum(self.state[s:e].ravel(), len(STATE_NAMES) - 1)]
             f.writelines(
-                f"{a},{b},{c:.6f},{d:.6f},{g:.6f},{h:.6f},{i:.6f},{j:.6g},{m},{n},{o}\n"
-                for a, b, c, d, g, h, i, j, m, n, o in zip(
+                f"{a},{b},{c:.6f},{d:.6f},{g:.6f},{h:.6f},{i:.6f},{j:.6g},{u:.3f},{v:.3f},"
+                f"{m},{n},{o}\n"
+                for a, b, c, d, g, h, i, j, u, v, m, n, o in zip(
                     t.tolist(), ids, *(c.tolist() for c in cols), *(c.tolist() for c in flags),
                     states.tolist()))
 
@@ -136,10 +146,15 @@ def read_csv(path) -> Track:
         reader = csv.reader(f)
         header = next(reader, None)
         header = None if header is None else tuple(h.strip() for h in header)
-        if header not in (CSV_HEADER, CSV_HEADER[:_STATE_AT]):
+        known = (CSV_HEADER, CSV_HEADER[:_STATE_AT], _CSV_NO_VELOCITY,
+                 _CSV_NO_VELOCITY[:_STATE_AT - len(_VELOCITY)])
+        if header not in known:
             raise ValueError(f"{path}: not a track CSV (expected header {','.join(CSV_HEADER)})")
         rows = list(reader)
-    with_state = header == CSV_HEADER
+    if "vx" not in header:                 # still parts: zero velocity columns
+        rows = [r[:_FLAGS_AT - len(_VELOCITY)] + ["0", "0"] + r[_FLAGS_AT - len(_VELOCITY):]
+                for r in rows]
+    with_state = "state" in header
     if not rows:
         raise ValueError(f"{path}: track CSV has a header but no rows")
     try:

@@ -365,7 +365,7 @@ class Tracker:
         return int(self._b.last_t)
 
     def state(self, t: int | None = None) -> np.ndarray:
-        """Per-tracker structured array (id, x, y, sxx, sxy, syy, activity, active,
+        """Per-tracker structured array (id, x, y, sxx, sxy, syy, activity, vx, vy, active,
         sensitive, state) at event time ``t`` (default: the last event's time)."""
         t = self.last_t if t is None else int(t)
         snap = self._ib.snapshot(max(t, 0) if t < -(1 << 60) else t)

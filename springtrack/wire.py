@@ -921,6 +921,7 @@ def decode_telemetry(payload: bytes) -> tuple[int, int, float, np.ndarray]:
     out["syy"] = sy * sy
     out["sxy"] = rec["rho"] / RHO_SCALE * sx * sy
     out["activity"] = np.exp2(rec["act"] / ACT_SCALE) - 1.0
+    out["vx"] = out["vy"] = 0.0                    # not in the record: reported still
     out["state"] = _decode_states(payload[want:], n)
     return t_us, gen, me, out
 

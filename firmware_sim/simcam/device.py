@@ -28,9 +28,10 @@ from springtrack.events import as_events
 
 from .. import camera as camusb
 from ..faults import Faults
+from .spoil import SPOILERS
 from .words import ENCODERS, Chunk, burst_chunks
 
-CCAM_ONLY_FAULTS = ("corrupt", "burst")     # they write CCam words
+CCAM_ONLY_FAULTS = ("burst",)     # it writes CCam words
 
 MAX_PACKET = 512
 LOOKAHEAD_US = 20_000        # realtime: scene data generated this far ahead of the clock
@@ -66,6 +67,7 @@ class SimCamera:
         self.fmt = fmt
         self.legacy = legacy
         self._encode = ENCODERS[fmt](legacy=legacy)
+        self.spoiler = SPOILERS[fmt](legacy=legacy)
         self.source = iter(source)
         self.serial = serial
         self.realtime = realtime
@@ -78,7 +80,7 @@ class SimCamera:
         self.reconnect_at = 0.0
         self.fifo: deque[Chunk] = deque()
         self.exhausted = False
-        self.words_out = 0               # word grid position (corruption schedule)
+        self.bytes_out = 0               # stream bytes made so far: the corruption's word grid
         self.t0_wall = None              # device clock origin: wall time when the first
         self.t_origin = None             # chunk was made, and its first event's time
         self.skip_before = None          # events before this time are lost (disconnect)
@@ -190,9 +192,7 @@ class SimCamera:
                     self.t0_wall = time.monotonic()
             c = self._encode(ev)
             self.counts["events_generated"] += c.n_events
-            f.corrupt(c.data, self.words_out)
-            self.words_out += len(c.data) // 4
-            return c
+            return self._spoiled(c)
 
     def _ready_chunk(self, c: Chunk) -> Chunk | None:
         """A chunk of words from the source: None if it lies before ``skip_before`` (lost
@@ -204,6 +204,15 @@ class SimCamera:
             if self.realtime and self.t0_wall is None:
                 self.t0_wall = time.monotonic()
         self.counts["events_generated"] += c.n_events
+        return self._spoiled(c)
+
+    def _spoiled(self, c: Chunk) -> Chunk:
+        """``c`` through the corrupt fault (its words found on the stream's word grid: a
+        replayed chunk may begin inside a word)."""
+        u = self.spoiler.unit
+        skip = (-self.bytes_out) % u
+        self.faults.corrupt(memoryview(c.data)[skip:], -(-self.bytes_out // u), self.spoiler)
+        self.bytes_out += len(c.data)
         return c
 
     def _releasable(self, c: Chunk, now_t) -> int:

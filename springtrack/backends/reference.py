@@ -24,6 +24,7 @@ class ReferenceBackend:
         ref = self.ref
         rows = []
         ts, xs, ys = events["t"].tolist(), events["x"].tolist(), events["y"].tolist()
+        ps = events["p"].tolist()
         if sample_us > 0 and ts and next_t == UNSET:
             next_t = first_sample_time(ts[0], sample_us)
         for k in range(len(ts)):
@@ -37,7 +38,7 @@ class ReferenceBackend:
                         return k, next_t, self._pack(rows)
                     rows.append((next_t, ref.snapshot(next_t), self._mean_energies()))
                     next_t += sample_us
-            ref.step(t, xs[k], ys[k])
+            ref.step(t, xs[k], ys[k], ps[k])
         return len(ts), next_t, (self._pack(rows) if sample_us > 0 else None)
 
     def _mean_energies(self):

@@ -25,7 +25,8 @@ live sources (docs/live.md): dv://HOST:PORT a DV network event stream, dv:camera
 an attached iniVation camera (both: pip install 'springtrack[dv]'), udp://HOST:PORT events
 in aestream's UDP layout (?geometry=WxH, ?timeout=S); the sensor size from the stream; the
 run ends with the stream, and prints its counts (events, batches, gaps) on stderr.
-output CSV header: t_us,tracker,x,y,sxx,sxy,syy,activity,active,sensitive,state — one row
+output CSV header: t_us,tracker,x,y,sxx,sxy,syy,activity,vx,vy,active,sensitive,state (px, px^2,
+vx and vy in px/s: eq. M7, 0 with the motion model off) — one row
 per tracker at every multiple of --sample-us between the first and the last event, holding
 the state after all events with t < t_us; a stretch without events is sampled for its first
 64 periods only, then from its next event on (docs/algorithm.md, Sampling).  Rows are

@@ -133,6 +133,8 @@ cdef inline void tracker_rows(const fx_state* s, int64_t t, TrackRow* r,
         r[i].sxy = s.sxy[i] * COV_UNIT
         r[i].syy = s.syy[i] * COV_UNIT
         r[i].activity = a * Q32_UNIT
+        r[i].vx = 0.0                              # the integer kernel keeps no velocity
+        r[i].vy = 0.0
         r[i].active = a > s.act_thr
         r[i].sensitive = (s.sensitive_mask >> i) & 1
         r[i].state = state
@@ -283,7 +285,7 @@ cdef class FixedKernel:
                     sxx=np.array([s.sxx[i] * COV_UNIT for i in range(n)]),
                     sxy=np.array([s.sxy[i] * COV_UNIT for i in range(n)]),
                     syy=np.array([s.syy[i] * COV_UNIT for i in range(n)]),
-                    activity=act,
+                    activity=act, vx=np.zeros(n), vy=np.zeros(n),     # no velocity kept
                     active=np.array([fx_activity(s, i, t) > s.act_thr for i in range(n)]),
                     sensitive=np.array([bool((s.sensitive_mask >> i) & 1) for i in range(n)]),
                     state=np.ones(n, np.uint8))

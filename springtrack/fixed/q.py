@@ -145,10 +145,21 @@ def angle(rad: float) -> int:
     return int(round(rad / (2 * math.pi) * 2 ** 32)) % (1 << 32)
 
 
+# the parameters that turn the motion model on (0: off)
+MOTION_PARAMS = ("motion_tau_us", "polarity_gain")
+
+
 def params_q(p, nc: int) -> dict:
     """The kernel's integer parameters for springtrack.params.Params ``p``, within the
     limits every backend shares (springtrack.limits.check_params, as Params checks)."""
     _limits.check_params(p)
+    # the motion model (reference.py, eqs. M1-M8) is the float kernels' alone so far
+    on = [f"{k}={getattr(p, k)!r}" for k in MOTION_PARAMS if getattr(p, k) != 0.0]
+    if on:
+        raise _limits.LimitError(
+            f"{', '.join(on)}: the integer kernel has no motion model (eqs. M1-M8); set "
+            f"{' and '.join(f'{k}=0' for k in MOTION_PARAMS)}, or track with --backend "
+            f"cython")
     gate = p.gate_d2
     tau = p.activity_tau_us
     k_tau = int(round(LOG2E / tau * 2 ** KTAU_FRAC))

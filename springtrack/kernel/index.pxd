@@ -15,9 +15,13 @@
 # that growth leaves of the enlargement: four comparisons instead of the exact gate box,
 # for re-indexing a little earlier than needed.
 #
+# eq. (M1) predicts a mean up to |v| H along its velocity: the box is enlarged by that reach
+# (and ST_INDEX_GROW of it), and the mean is tested against dev less the reach of its
+# current velocity (mdev_x, mdev_y, set by set_reach at each update).
+#
 # cdef inline: compiled into each module that cimports it (the per-event step in
 # springtrack.kernel.kernel, the springs in springtrack.kernel.springs), so the step inlines it.
-from libc.math cimport sqrt, floor
+from libc.math cimport sqrt, floor, fabs
 from libc.stdint cimport int64_t, uint64_t
 
 from springtrack.kernel.state cimport KState, CELL_SHIFT
@@ -68,8 +72,10 @@ cdef inline void reindex(KState* s, int i) noexcept nogil:
     what is then left of the enlargement; shrunk by 1e-9 relative so rounding can never
     make the test miss."""
     cdef double gx = sqrt(s.gate * s.sxx[i]), gy = sqrt(s.gate * s.syy[i])
-    cdef double hx = gx * (1.0 + ST_INDEX_GROW) + ST_INDEX_MARGIN
-    cdef double hy = gy * (1.0 + ST_INDEX_GROW) + ST_INDEX_MARGIN
+    cdef double rx = fabs(s.vx[i]) * s.horizon * (1.0 + ST_INDEX_GROW)   # eq. (M1)'s reach
+    cdef double ry = fabs(s.vy[i]) * s.horizon * (1.0 + ST_INDEX_GROW)
+    cdef double hx = gx * (1.0 + ST_INDEX_GROW) + ST_INDEX_MARGIN + rx
+    cdef double hy = gy * (1.0 + ST_INDEX_GROW) + ST_INDEX_MARGIN + ry
     cdef double grow2 = ((1.0 + ST_INDEX_SIGMA_SLACK) * (1.0 + ST_INDEX_SIGMA_SLACK)
                          * (1.0 - 1e-9))
     s.bx_lo[i] = s.mx[i] - hx
@@ -78,8 +84,9 @@ cdef inline void reindex(KState* s, int i) noexcept nogil:
     s.by_hi[i] = s.my[i] + hy
     s.bcx[i] = s.mx[i]
     s.bcy[i] = s.my[i]
-    s.dev_x[i] = (gx * (ST_INDEX_GROW - ST_INDEX_SIGMA_SLACK) + ST_INDEX_MARGIN) * (1.0 - 1e-9)
-    s.dev_y[i] = (gy * (ST_INDEX_GROW - ST_INDEX_SIGMA_SLACK) + ST_INDEX_MARGIN) * (1.0 - 1e-9)
+    s.dev_x[i] = (gx * (ST_INDEX_GROW - ST_INDEX_SIGMA_SLACK) + ST_INDEX_MARGIN + rx) * (1.0 - 1e-9)
+    s.dev_y[i] = (gy * (ST_INDEX_GROW - ST_INDEX_SIGMA_SLACK) + ST_INDEX_MARGIN + ry) * (1.0 - 1e-9)
+    set_reach(s, i)
     s.sxx_lim[i] = s.sxx[i] * grow2
     s.syy_lim[i] = s.syy[i] * grow2
     index_set(s, i, s.box_x0[i], s.box_x1[i], s.box_y0[i], s.box_y1[i], False)
@@ -91,8 +98,17 @@ cdef inline void reindex(KState* s, int i) noexcept nogil:
     s.n_reindex += 1
 
 
+cdef inline void set_reach(KState* s, int i) noexcept nogil:
+    """The mean's slack less eq. (M1)'s reach at tracker i's velocity (rounded up by 1e-9
+    relative, so rounding never makes the test miss)."""
+    s.mdev_x[i] = s.dev_x[i] - fabs(s.vx[i]) * s.horizon * (1.0 + 1e-9)
+    s.mdev_y[i] = s.dev_y[i] - fabs(s.vy[i]) * s.horizon * (1.0 + 1e-9)
+
+
 cdef inline void check_index(KState* s, int i) noexcept nogil:
-    """Re-index tracker i if its exact gate box may have left the box it is indexed with."""
-    if st_box_left(s.mx[i], s.my[i], s.sxx[i], s.syy[i], s.bcx[i], s.bcy[i], s.dev_x[i],
-                   s.dev_y[i], s.sxx_lim[i], s.syy_lim[i]):
+    """Re-index tracker i if its exact gate box, anywhere along eq. (M1)'s prediction,
+    may have left the box it is indexed with."""
+    set_reach(s, i)
+    if st_box_left(s.mx[i], s.my[i], s.sxx[i], s.syy[i], s.bcx[i], s.bcy[i], s.mdev_x[i],
+                   s.mdev_y[i], s.sxx_lim[i], s.syy_lim[i]):
         reindex(s, i)

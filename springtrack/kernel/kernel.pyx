@@ -63,6 +63,7 @@ from springtrack import limits as _limits
 from springtrack.instances import InstanceState as _IS, ModelSet as _ModelSet, per_instance
 from springtrack.params import Params as _Params
 from springtrack.gate import covariance_bias, RHO_MAX as _RHO_MAX
+from springtrack.reference import VELOCITY_MAX as _VMAX, P_UNKNOWN as _PU
 
 from springtrack.backends.samples cimport SampleOut
 from springtrack.track cimport TrackRow
@@ -73,6 +74,7 @@ from springtrack.kernel.state cimport (KState, MAX_TRACKERS, MAX_CONNECTIONS, MA
 from springtrack.kernel.step cimport kstep, ksteps
 from springtrack.kernel.covariance cimport clamp_and_invert, ST_RHO_MAX, ST_RHO_MAX2
 from springtrack.kernel.index cimport reindex
+from springtrack.kernel.motion cimport predict_dt, still, clampd, ST_VELOCITY_MAX, ST_P_UNKNOWN
 from springtrack.kernel.activity cimport activity_decay, kactivity, rescale_activity
 from springtrack.kernel.springs cimport (ksprings, init_springs, init_instance, compose_sensitive,
                                     rest_trackers)
@@ -87,6 +89,7 @@ assert (_limits.MAX_TRACKERS, _limits.MAX_CONNECTIONS, _limits.MAX_INSTANCES,
     MAX_TRACKERS, MAX_CONNECTIONS, MAX_INSTANCES, MAX_SET_TRACKERS, MAX_SET_CONNECTIONS), \
     "kernel/state.pxd's capacities disagree with springtrack/limits.py"
 assert MAX_WORDS * 64 == MAX_SET_TRACKERS
+assert ST_VELOCITY_MAX == _VMAX and ST_P_UNKNOWN == _PU, "kernel/motion.pxd disagrees with reference.py"
 assert (_IS.SEARCHING, _IS.TRACKING, _IS.LOST) == (K_SEARCHING, K_TRACKING, K_LOST)
 assert ST_RHO_MAX == _RHO_MAX and ST_RHO_MAX2 == _RHO_MAX * _RHO_MAX * (1.0 - 1e-12), \
     "kernel/covariance.pxd disagrees with reference.py"
@@ -100,17 +103,21 @@ cdef void ksnapshot(const KState* s, int64_t t, SampleOut* o) noexcept nogil:
     cdef int i, q
     cdef double a
     cdef double decay = activity_decay(s, t)         # kactivity's factor, one exp for all
+    cdef double lead
     cdef double thr = s.act_thr
     cdef TrackRow* r = o.trackers + row * s.n
     o.t[row] = t
     for i in range(s.n):
         a = s.act[i] * decay
-        r[i].x = s.mx[i]
-        r[i].y = s.my[i]
+        lead = predict_dt(s, i, t)                    # [ref] snapshot: eq. (M1) at t
+        r[i].x = s.mx[i] + s.vx[i] * lead
+        r[i].y = s.my[i] + s.vy[i] * lead
         r[i].sxx = s.sxx[i]
         r[i].sxy = s.sxy[i]
         r[i].syy = s.syy[i]
         r[i].activity = a
+        r[i].vx = s.vx[i] * 1e6                       # px/s
+        r[i].vy = s.vy[i] * 1e6
         r[i].active = a > thr
         r[i].sensitive = (s.sensitive[i >> 6] >> (i & 63)) & 1
         r[i].state = s.state[s.inst[i]]
@@ -122,7 +129,8 @@ cdef void ksnapshot(const KState* s, int64_t t, SampleOut* o) noexcept nogil:
 # ---- the Stepper's calls (springtrack/backends/stepper.pxd): kstep, ksteps and ksnapshot on an
 # opaque state; ksteps is inlined in steps_opaque, the loop a C caller runs per batch
 cdef int step_opaque(void* s, int64_t t, int x, int y) noexcept nogil:
-    return kstep(<KState*>s, t, x, y)
+    # the Stepper's one-event call carries no polarity: ON (the batch call, steps, reads it)
+    return kstep(<KState*>s, t, x, y, 1)
 
 
 cdef Py_ssize_t steps_opaque(void* s, const Event* ev, Py_ssize_t n, int64_t t_stop) noexcept nogil:
@@ -225,6 +233,7 @@ cdef class Kernel:
             s.syy[i] = s.rest_syy[i]
             s.mass[i] = arr["mass"][i]
             s.act[i] = 0.0
+            still(s, i)
         s.act_n = 0
         for k in range(nc):
             s.ca[k] = arr["ca"][k]
@@ -320,6 +329,12 @@ cdef class Kernel:
             s.sxx[i] = pxx * a - pxy * b
             s.sxy[i] = pxx * b + pxy * a
             s.syy[i] = pyx * b + pyy * a
+            x, y = s.vx[i], s.vy[i]                          # v' = A v, h' = A h
+            s.vx[i] = clampd(a * x - b * y, -ST_VELOCITY_MAX, ST_VELOCITY_MAX)
+            s.vy[i] = clampd(b * x + a * y, -ST_VELOCITY_MAX, ST_VELOCITY_MAX)
+            x, y = s.hx[i], s.hy[i]
+            s.hx[i] = clampd(a * x - b * y, -s.h_max, s.h_max)
+            s.hy[i] = clampd(b * x + a * y, -s.h_max, s.h_max)
             clamp_and_invert(s, i)
             reindex(s, i)
 
@@ -347,6 +362,14 @@ cdef class Kernel:
         s.smin2 = p.sigma_min_px * p.sigma_min_px
         s.smax2 = p.sigma_max_px * p.sigma_max_px
         s.period = p.spring_period
+        # [ref] the motion model (eqs. M1-M8): 0 turns each part off
+        s.horizon = p.prediction_horizon_us
+        tau = p.motion_tau_us
+        s.tau_m = tau
+        s.q_m = 1.0 / (tau * tau * tau) if tau > 0.0 else 0.0
+        s.vv_max = 1.0 / (tau * tau) if tau > 0.0 else 0.0
+        s.c_h = p.polarity_gain
+        s.h_max = p.sigma_max_px
         for g in range(s.ni):
             q = plist[g]
             gain = q.alpha_covariance / covariance_bias(q.alpha_position, q.gate_d2)
@@ -354,6 +377,7 @@ cdef class Kernel:
                 s.gain[i][0] = q.alpha_position                 # eq. (3)
                 s.gain[i][1] = 1.0 - q.alpha_covariance         # eq. (4)
                 s.gain[i][2] = gain
+                s.inv_a1[i] = 1.0 / max(q.alpha_position, 1e-6)        # eq. (M3)
             s.energy_scale[g] = q.energy_scale
             s.energy_gain[g] = q.energy_gain
             s.ekind[g] = q.energy_kind_index
@@ -375,8 +399,9 @@ cdef class Kernel:
         where samples is a dict of arrays with at most ``cap`` rows (None if sample_us <= 0)."""
         return run_array(self.stepper(), events, sample_us, next_t, cap)
 
-    def step(self, long long t, int x, int y):
-        return kstep(&self.st, t, x, y)
+    def step(self, long long t, int x, int y, int p=1):
+        """One event of polarity p (1 ON, 0 OFF)."""
+        return kstep(&self.st, t, x, y, p)
 
     def springs(self):
         ksprings(&self.st)
@@ -386,12 +411,14 @@ cdef class Kernel:
         cdef KState* s = &self.st
         n = s.n
         act = np.array([kactivity(s, i, t) for i in range(n)])
-        return dict(x=np.array([s.mx[i] for i in range(n)]),
-                    y=np.array([s.my[i] for i in range(n)]),
+        lead = [predict_dt(s, i, t) for i in range(n)]
+        return dict(x=np.array([s.mx[i] + s.vx[i] * lead[i] for i in range(n)]),
+                    y=np.array([s.my[i] + s.vy[i] * lead[i] for i in range(n)]),
                     sxx=np.array([s.sxx[i] for i in range(n)]),
                     sxy=np.array([s.sxy[i] for i in range(n)]),
                     syy=np.array([s.syy[i] for i in range(n)]),
-                    activity=act, active=act > s.act_thr,
+                    activity=act, vx=np.array([s.vx[i] * 1e6 for i in range(n)]),
+                    vy=np.array([s.vy[i] * 1e6 for i in range(n)]), active=act > s.act_thr,
                     sensitive=np.array([bool((s.sensitive[i >> 6] >> (i & 63)) & 1)
                                         for i in range(n)]),
                     state=np.array([s.state[s.inst[i]] for i in range(n)], np.uint8))

@@ -27,9 +27,10 @@ from libc.stdint cimport int64_t, uint64_t
 from springtrack import reference as _ref
 
 from springtrack.kernel.state cimport (KState, MAX_CONNECTIONS, MAX_SET_TRACKERS, K_TRACKING)
-from springtrack.kernel.index cimport reindex
+from springtrack.kernel.index cimport reindex, set_reach
 from springtrack.kernel.covariance cimport clamp_and_invert
 from springtrack.kernel.activity cimport flush_activity
+from springtrack.kernel.motion cimport predict_dt, still
 
 cdef extern from "springtrack/csrc/springs.h" nogil:
     double st_sum(int n, const double* x)
@@ -113,13 +114,22 @@ cdef void ksprings(KState* s) noexcept nogil:
     # re-indexed
     cdef int64_t left[MAX_SET_TRACKERS]
     cdef int g, i, n = s.n
+    cdef int64_t t = s.last_t
+    cdef double lead
     s.n_spring_updates += 1
     for g in range(s.ni):
         if s.state[g] == K_TRACKING:
+            for i in range(s.g_t0[g], s.g_t1[g]):    # [ref] eq. (M1): the springs act on
+                lead = predict_dt(s, i, t)            # the means at the update's time
+                s.mx[i] = s.mx[i] + s.vx[i] * lead
+                s.my[i] = s.my[i] + s.vy[i] * lead
+                s.tm[i] = t
             instance_springs(s, g)
     guard_state(s)
     compose_sensitive(s)
-    st_boxes_left(n, s.mx, s.my, s.sxx, s.syy, s.bcx, s.bcy, s.dev_x, s.dev_y, s.sxx_lim,
+    for i in range(n):                   # eq. (M8) changed velocities: their reach
+        set_reach(s, i)
+    st_boxes_left(n, s.mx, s.my, s.sxx, s.syy, s.bcx, s.bcy, s.mdev_x, s.mdev_y, s.sxx_lim,
                   s.syy_lim, left)
     for i in range(n):
         if left[i]:
@@ -239,6 +249,7 @@ cdef void rest_trackers(KState* s, int g) noexcept nogil:
         s.sxy[i] = s.rest_sxy[i]
         s.syy[i] = s.rest_syy[i]
         s.act[i] = 0.0
+        still(s, i)
         clamp_and_invert(s, i)
         reindex(s, i)
 
@@ -264,6 +275,29 @@ cdef void set_frame(KState* s, int g, double phi) noexcept nogil:
         s.qdx[k] = c * s.rdx[k] - sn * s.rdy[k]
         s.qdy[k] = sn * s.rdx[k] + c * s.rdy[k]
     s.n_frame_moves += 1
+
+
+cdef inline void pull_velocities(KState* s, int g, uint64_t pulled) noexcept nogil:
+    # [ref] _pull_velocities(g), eq. (M8): the pulled trackers' velocities toward the
+    # mean velocity of the instance's trackers left alone
+    cdef int t0 = s.g_t0[g], n = s.g_t1[g] - s.g_t0[g], j, i
+    cdef double w = 0.0, vx = 0.0, vy = 0.0, a = s.energy_gain[g]
+    if s.tau_m <= 0.0 or pulled == 0:
+        return
+    for j in range(n):
+        if not (pulled >> j) & 1:
+            i = t0 + j
+            w += s.mass[i]
+            vx += s.mass[i] * s.vx[i]
+            vy += s.mass[i] * s.vy[i]
+    if w > 0.0:
+        vx = vx / w
+        vy = vy / w
+    for j in range(n):
+        if (pulled >> j) & 1:
+            i = t0 + j
+            s.vx[i] = s.vx[i] + a * (vx - s.vx[i])
+            s.vy[i] = s.vy[i] + a * (vy - s.vy[i])
 
 
 cdef inline void energy_criteria(KState* s, int g) noexcept nogil:
@@ -293,6 +327,7 @@ cdef inline void energy_criteria(KState* s, int g) noexcept nogil:
         gy = gy / msum
         st_pull(n, pulled, gx, gy, 1.0, 0.0, s.energy_gain[g], s.gdx0 + t0, s.gdy0 + t0,
                 s.mx + t0, s.my + t0)
+    pull_velocities(s, g, pulled)        # eq. (M8)
     s.isens[g] = calm | s.isolated[g]    # eq. (21): insensitive if all its connections are over
 
 

@@ -85,6 +85,10 @@ ctypedef struct KState:
     double rest_sxy[TRACKER_PAD]
     double rest_syy[TRACKER_PAD]
     double pos_lo_x, pos_hi_x, pos_lo_y, pos_hi_y
+    # the motion model (reference.py, eqs. M1-M8; parameters shared by all instances):
+    # H (us), tau_m (0: off), q = 1 / tau_m^3, the velocity variance's bound 1 / tau_m^2,
+    # c_h, the half offset's bound
+    double horizon, tau_m, q_m, vv_max, c_h, h_max
     # tracker state, structure of arrays
     double mx[TRACKER_PAD]
     double my[TRACKER_PAD]
@@ -95,6 +99,19 @@ ctypedef struct KState:
     double ib2[TRACKER_PAD]         # 2 * ib
     double ic[TRACKER_PAD]
     double act[TRACKER_PAD]          # activity at act_t0 (see kactivity)
+    # the motion model per tracker: velocity (px/us), half offset between the ON and OFF
+    # edges (px), the Kalman covariance of eq. (M3) and 1 / alpha_position (its gain's
+    # bound), the time the mean refers to and the time of its last event (us)
+    double vx[TRACKER_PAD]
+    double vy[TRACKER_PAD]
+    double hx[TRACKER_PAD]
+    double hy[TRACKER_PAD]
+    double kpp[TRACKER_PAD]
+    double kpv[TRACKER_PAD]
+    double kvv[TRACKER_PAD]
+    double inv_a1[TRACKER_PAD]
+    int64_t tm[TRACKER_PAD]
+    int64_t tk[TRACKER_PAD]
     int64_t act_t0, act_span
     # eq. (6) increments not yet added (see log_activity): tracker and exponent
     int act_n
@@ -170,6 +187,10 @@ ctypedef struct KState:
     double bcy[TRACKER_PAD]
     double dev_x[TRACKER_PAD]
     double dev_y[TRACKER_PAD]
+    # dev less the reach of eq. (M1)'s prediction, |v| H, at the tracker's last update:
+    # what st_box_left tests the mean against
+    double mdev_x[TRACKER_PAD]
+    double mdev_y[TRACKER_PAD]
     double sxx_lim[TRACKER_PAD]
     double syy_lim[TRACKER_PAD]
     # counters

@@ -27,6 +27,7 @@ from springtrack.kernel.index cimport check_index
 from springtrack.kernel.covariance cimport clamp_and_invert
 from springtrack.kernel.activity cimport log_activity, flush_activity, rescale_activity
 from springtrack.kernel.springs cimport ksprings
+from springtrack.kernel.motion cimport predict_dt, motion_gain, motion_update
 
 cdef extern from *:
     """
@@ -36,20 +37,29 @@ cdef extern from *:
 
 
 cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double fy, double d2,
-                                bint one) noexcept nogil:
+                                int pol, bint one) noexcept nogil:
     # [ref] _update
     # eq. (6) with eq. (2)'s unnormalised kernel value p = exp(-d2/2) as the increment,
     # kept rescaled (kernel/activity.pxd): act += p * exp((t - act_t0) / tau), one exp (logged)
     if t - s.act_t0 > s.act_span:
         rescale_activity(s, t)
     log_activity(s, i, -0.5 * d2 + <double>(t - s.act_t0) * s.inv_tau)
-    cdef double dx = fx - s.mx[i]                                    # eq. (5), pre-update mean
-    cdef double dy = fy - s.my[i]
     # its instance's gains (one instance: the first tracker's, at a constant address)
     cdef const double* gain = &s.gain[0][0] if one else &s.gain[i][0]
-    cdef double a1 = gain[0], keep = gain[1], g = gain[2]
-    s.mx[i] = s.mx[i] + a1 * dx                                      # eq. (3)
-    s.my[i] = s.my[i] + a1 * dy
+    cdef double kv
+    cdef double a1 = motion_gain(s, i, t, gain[0], &kv), keep = gain[1], g = gain[2]  # eq. (M3)
+    cdef double lead = predict_dt(s, i, t)                           # eq. (M1): the mean
+    cdef double px = s.mx[i] + s.vx[i] * lead                        # predicted to t
+    cdef double py = s.my[i] + s.vy[i] * lead
+    s.tm[i] = t
+    cdef double dx = fx - px                                         # eq. (5), pre-update
+    cdef double dy = fy - py                                         # (predicted) mean
+    cdef double sgn = 1.0 if pol else -1.0                           # eq. (M4)
+    cdef double rx = dx - sgn * s.hx[i]
+    cdef double ry = dy - sgn * s.hy[i]
+    s.mx[i] = px + a1 * rx                                           # eq. (M5) = eq. (3)
+    s.my[i] = py + a1 * ry
+    motion_update(s, i, a1, kv, sgn, rx, ry)                         # eqs. (M6)-(M7)
     s.sxx[i] = keep * s.sxx[i] + g * (dx * dx)                       # eq. (4)
     s.sxy[i] = keep * s.sxy[i] + g * (dx * dy)
     s.syy[i] = keep * s.syy[i] + g * (dy * dy)
@@ -57,29 +67,31 @@ cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double f
     check_index(s, i)
 
 
-cdef inline void scan_word(const KState* s, uint64_t m, int base, double fx, double fy,
-                           int* best, double* best_d2) noexcept nogil:
+cdef inline void scan_word(const KState* s, uint64_t m, int base, int64_t t, double fx,
+                           double fy, int* best, double* best_d2) noexcept nogil:
     """eq. (2) over the trackers of one mask word (tracker base + bit), in index order:
     the smallest d^2 below *best_d2 wins (ties: the lowest index)."""
     cdef int i
-    cdef double dx, dy, d2
+    cdef double dx, dy, d2, lead
     while m:
         i = base + st_ctz64(m)
         m &= m - 1
-        dx = fx - s.mx[i]
-        dy = fy - s.my[i]
+        lead = predict_dt(s, i, t)                                   # eq. (M1)
+        dx = fx - (s.mx[i] + s.vx[i] * lead)
+        dy = fy - (s.my[i] + s.vy[i] * lead)
         d2 = s.ia[i] * dx * dx + s.ic[i] * dy * dy + s.ib2[i] * dx * dy
         if d2 < best_d2[0]:
             best_d2[0] = d2
             best[0] = i
 
 
-cdef inline int assign_event(KState* s, int64_t t, int x, int y, bint one) noexcept nogil:
+cdef inline int assign_event(KState* s, int64_t t, int x, int y, int pol,
+                             bint one) noexcept nogil:
     """eqs. (2)-(6) for a valid event: the most probable sensitive tracker of every
     instance takes it (an event feeds at most one tracker of one instance).  ``one``:
     the state holds one instance (so at most 64 trackers: one mask word), a constant in
     the callers' loops (ksteps), which then compile this path without the others."""
-    cdef double fx = x, fy = y, dx, dy, d2
+    cdef double fx = x, fy = y, dx, dy, d2, lead
     cdef double best_d2 = s.gate
     cdef int best = K_NO_TRACKER, i, w
     # eq. (2): candidates are the sensitive trackers indexed in this event's cell, in
@@ -94,8 +106,9 @@ cdef inline int assign_event(KState* s, int64_t t, int x, int y, bint one) noexc
         while m:
             i = st_ctz64(m)
             m &= m - 1
-            dx = fx - s.mx[i]
-            dy = fy - s.my[i]
+            lead = predict_dt(s, i, t)                               # eq. (M1): about the
+            dx = fx - (s.mx[i] + s.vx[i] * lead)                     # predicted mean
+            dy = fy - (s.my[i] + s.vy[i] * lead)
             d2 = s.ia[i] * dx * dx + s.ic[i] * dy * dy + s.ib2[i] * dx * dy
             if d2 < best_d2:
                 best_d2 = d2
@@ -103,9 +116,9 @@ cdef inline int assign_event(KState* s, int64_t t, int x, int y, bint one) noexc
     else:
         c *= s.nw
         for w in range(s.nw):
-            scan_word(s, s.cells[c + w] & s.sensitive[w], w << 6, fx, fy, &best, &best_d2)
+            scan_word(s, s.cells[c + w] & s.sensitive[w], w << 6, t, fx, fy, &best, &best_d2)
     if best >= 0:
-        update_tracker(s, best, t, fx, fy, best_d2, one)
+        update_tracker(s, best, t, fx, fy, best_d2, pol, one)
         s.n_assigned += 1
     return best
 
@@ -131,10 +144,11 @@ cdef inline Py_ssize_t ksteps_of(KState* s, const Event* ev, Py_ssize_t n, int64
             n_outside += 1
             continue
         n_valid += 1
-        assign_event(s, t, x, y, one)
+        assign_event(s, t, x, y, ev[k].p, one)
         since += 1
         if since >= period:
             since = 0
+            s.last_t = last_t                  # eq. (M1): the springs' time
             ksprings(s)
     else:
         k = n
@@ -159,7 +173,7 @@ cdef inline Py_ssize_t ksteps(KState* s, const Event* ev, Py_ssize_t n, int64_t 
     return ksteps_of(s, ev, n, t_stop, False)
 
 
-cdef inline int kstep(KState* s, int64_t t, int x, int y) noexcept nogil:
+cdef inline int kstep(KState* s, int64_t t, int x, int y, int p) noexcept nogil:
     """One event (Algorithm 1). Returns the winning tracker, K_NO_TRACKER or a skip code.
     ksteps() is the same step over a batch, with the counters kept in locals."""
     if t < s.last_t:
@@ -170,7 +184,7 @@ cdef inline int kstep(KState* s, int64_t t, int x, int y) noexcept nogil:
         s.n_outside += 1
         return K_OUT_OF_SENSOR
     s.n_valid += 1
-    cdef int best = assign_event(s, t, x, y, s.ni == 1)
+    cdef int best = assign_event(s, t, x, y, p, s.ni == 1)
     flush_activity(s)
     s.since_spring += 1
     if s.since_spring >= s.period:

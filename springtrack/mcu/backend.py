@@ -119,6 +119,7 @@ class McuBackend:
         tr["sxy"] = per[:, :, 3].astype(np.float64) * COV_UNIT
         tr["syy"] = per[:, :, 4].astype(np.float64) * COV_UNIT
         tr["activity"] = per[:, :, 5].astype(np.float64) * Q32_UNIT
+        tr["vx"] = tr["vy"] = 0.0                  # the integer kernel keeps no velocity
         tr["active"] = (per[:, :, 6] & 1).astype(bool)
         tr["sensitive"] = ((per[:, :, 6] >> 1) & 1).astype(bool)
         tr["state"] = per[:, :, 6] >> 2

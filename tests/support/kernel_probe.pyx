@@ -39,16 +39,19 @@ def place(Kernel kernel, int i, double x, double y):
 
 
 def check_index(Kernel kernel):
-    """The spatial index invariant: each tracker's exact gate box lies inside its indexed
-    box and its bit is set in every cell of that box."""
+    """The spatial index invariant: each tracker's exact gate box, about its mean and about
+    its mean predicted the horizon ahead (eq. M1: every prediction lies between the two),
+    lies inside its indexed box and its bit is set in every cell of that box."""
     cdef KState* s = &kernel.st
     cdef int i, cx, cy
     for i in range(s.n):
         hx = sqrt(s.gate * s.sxx[i])
         hy = sqrt(s.gate * s.syy[i])
-        if (s.mx[i] - hx < s.bx_lo[i] or s.mx[i] + hx > s.bx_hi[i]
-                or s.my[i] - hy < s.by_lo[i] or s.my[i] + hy > s.by_hi[i]):
-            return False
+        for x, y in ((s.mx[i], s.my[i]),
+                     (s.mx[i] + s.vx[i] * s.horizon, s.my[i] + s.vy[i] * s.horizon)):
+            if (x - hx < s.bx_lo[i] or x + hx > s.bx_hi[i]
+                    or y - hy < s.by_lo[i] or y + hy > s.by_hi[i]):
+                return False
         for cy in range(s.box_y0[i], s.box_y1[i] + 1):
             for cx in range(s.box_x0[i], s.box_x1[i] + 1):
                 if not (s.cells[(cy * s.gw + cx) * s.nw + (i >> 6)] >> (i & 63)) & 1:

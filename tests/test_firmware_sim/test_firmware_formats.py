@@ -200,3 +200,22 @@ def test_firmware_replays_a_real_recording_and_tracks_every_event(data_file, nam
     assert f"sensor={geometry}" in line
     an = re.search(r"anomalies=(\S+|\{.*?\})", line).group(1)
     assert "out_of_geometry" not in an and "outside_sensor" not in an, line
+
+
+@pytest.mark.parametrize("name,events", [("evt2_sample.raw", 539_481),
+                                         ("evt3_sample.raw", 219_596)])
+def test_a_replay_takes_the_corrupt_fault_in_its_own_words(data_file, name, events):
+    """``--faults corrupt`` on a replayed recording spoils its own words (EVT 2.0, 3.0):
+    every event of the file is decoded, or counted as lost to an undefined word type or
+    a coordinate outside the sensor."""
+    path = data_file(name)
+    r = subprocess.run([sys.executable, "-m", "firmware_sim.cli", "run", "--source",
+                        f"replay:{path}", "--max-speed", "--faults", "corrupt",
+                        "--stats-every", "0"], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    line = r.stdout.strip().splitlines()[-1]
+    decoded = int(re.search(r" decoded=(\d+) ", line).group(1))
+    unknown = int(re.search(r"'unknown_type': (\d+)", line).group(1))
+    outside = int(re.search(r"'out_of_geometry': (\d+)", line).group(1))
+    assert unknown > 50 and outside > 50
+    assert decoded + unknown + outside == events

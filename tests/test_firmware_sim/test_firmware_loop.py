@@ -380,6 +380,31 @@ def test_cli_usb_source_without_a_camera_fails_clearly():
     assert "Traceback" not in r.stderr
 
 
+@pytest.mark.parametrize("fmt,legacy", [("evt2", False), ("evt21", False), ("evt21", True),
+                                        ("evt3", False)])
+def test_corrupt_words_of_every_evt_format_are_counted_by_kind(face, fmt, legacy):
+    """The corrupt fault spoils the words of the format the camera streams: each undefined
+    word type is one ``unknown_type`` and its events are lost, each event moved outside the
+    sensor one ``out_of_geometry``; the rest is tracked."""
+    import dataclasses
+    from firmware_sim.faults import Faults
+    prof = dataclasses.replace(camusb.PROFILES[fmt], legacy=legacy)
+    faults = Faults(["corrupt"], corrupt_every=101)
+    cam = SimCamera(events_source(face, 2048), fmt=fmt, legacy=legacy, faults=faults)
+    be = SimBackend(cam, pid=prof.pid)
+    eng = FirmwareLoop(lambda: camusb.Camera.open(prof, backend=be), "face26",
+                       telemetry_period_us=SAMPLE, profile=prof, lossless=True,
+                       transfer_bytes=16384, width=304, height=240)
+    s = run_to_end(cam, eng)
+    inj = faults.injected
+    assert inj["corrupt_unknown"] > 20 and inj["corrupt_geometry"] > 20
+    an = s["anomalies"]
+    assert an["unknown_type"] == inj["corrupt_unknown"]
+    assert an["out_of_geometry"] == inj["corrupt_geometry_events"]
+    lost = inj["corrupt_unknown_events"] + inj["corrupt_geometry_events"]
+    assert s["events_tracked"] == len(face) - lost
+
+
 @pytest.mark.parametrize("fmt", ["evt2", "evt21", "evt3"])
 def test_evt_profiles_run_through_the_engine_like_the_offline_tracker(face, fmt):
     """A Prophesee-style EVK streaming EVT 2.0 / 2.1 / 3.0 words of a 304 x 240 sensor:

@@ -204,8 +204,9 @@ def test_evt_profile_streams_chunk_by_chunk_through_the_same_pyusb_path(fmt, leg
 
 def test_an_evk_refuses_faults_that_write_ccam_words():
     from firmware_sim.faults import Faults
-    with pytest.raises(ValueError, match="corrupt inject CCam words"):
-        SimCamera([little_stream()], fmt="evt3", faults=Faults(["corrupt"]))
+    with pytest.raises(ValueError, match="burst inject CCam words"):
+        SimCamera([little_stream()], fmt="evt3", faults=Faults(["corrupt", "burst"]))
+    SimCamera([little_stream()], fmt="evt3", faults=Faults(["corrupt"]))   # in its words
 
 
 def test_a_restart_resumes_the_stream_at_a_word_after_a_full_transfer_ended_mid_word():

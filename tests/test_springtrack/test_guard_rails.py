@@ -121,7 +121,7 @@ def test_the_watch_reports_trackers_and_the_instance_leaving_the_sensor():
     z = np.zeros((4, k))
     act = z.copy()
     act[1, :4] = 0.5                                 # four trackers received events
-    tr = Track(t, list(m.ids), x, y, z + 25, z, z + 25, act, z > 0, z == 0)
+    tr = Track(t, list(m.ids), x, y, z + 25, z, z + 25, act, z, z, z > 0, z == 0)
     w.add(tr)
     w.finish({"activity": np.zeros(k)})
     msgs = w.warnings()
@@ -133,7 +133,7 @@ def test_the_watch_reports_trackers_and_the_instance_leaving_the_sensor():
     w2 = TrackWatch(m)
     w2.add(tr)
     back = Track(np.array([5000]), list(m.ids), x[:1], y[:1], z[:1] + 25, z[:1], z[:1] + 25,
-                 act[:1] + 1, z[:1] > 0, z[:1] == 0)
+                 act[:1] + 1, z[:1], z[:1], z[:1] > 0, z[:1] == 0)
     w2.add(back)
     w2.finish({"activity": np.ones(k)})
     assert w2.warnings() == []

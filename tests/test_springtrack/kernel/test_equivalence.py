@@ -14,11 +14,13 @@ from springtrack.model import SPRING_KINDS, Connection, ShapeModel, TrackerSpec,
 from springtrack.params import ENERGY_KINDS, FRAMES
 from springtrack.sim.synthetic import blob_stream
 
-FIELDS = ("x", "y", "sxx", "sxy", "syy", "activity")
+FIELDS = ("x", "y", "sxx", "sxy", "syy", "activity", "vx", "vy")
 # Positions (px) and activities within 1e-9 absolute; covariances (px^2, up to ~1e3 on
 # wide random trackers) also within 1e-10 relative: a relative gap r in S = sigma^2 is a
 # relative gap r / 2 in the spread sigma, the same digits whatever the tracker's size.
-RTOL = dict(sxx=1e-10, sxy=1e-10, syy=1e-10)
+RTOL = dict(sxx=1e-10, sxy=1e-10, syy=1e-10, vx=1e-10, vy=1e-10)
+# velocities are reported in px/s: 1e-6 px/s is 1e-12 px/us, 1e-9 px over 1 ms
+ATOL = dict(vx=1e-6, vy=1e-6)
 kp = probes.load("kernel_probe")      # place a kernel's trackers, check its spatial index
 
 
@@ -36,12 +38,13 @@ def assert_same_run(a, b, ta, tb):
     mean energy and similarity frame."""
     assert len(ta) == len(tb)
     for f in FIELDS:
-        np.testing.assert_allclose(getattr(ta, f), getattr(tb, f), rtol=RTOL.get(f, 0), atol=1e-9,
-                                   err_msg=f)
+        np.testing.assert_allclose(getattr(ta, f), getattr(tb, f), rtol=RTOL.get(f, 0),
+                                   atol=ATOL.get(f, 1e-9), err_msg=f)
     assert (ta.active == tb.active).all() and (ta.sensitive == tb.sensitive).all()
     sa, sb = a.state(), b.state()
     for f in FIELDS:
-        np.testing.assert_allclose(sa[f], sb[f], rtol=RTOL.get(f, 0), atol=1e-9, err_msg=f)
+        np.testing.assert_allclose(sa[f], sb[f], rtol=RTOL.get(f, 0), atol=ATOL.get(f, 1e-9),
+                                   err_msg=f)
     ea, eb = a.energies(), b.energies()
     for k in ENERGY_KINDS:
         # 1e-9 like positions: energies scale with a * dl, so a 1e-11 px position gap
@@ -122,7 +125,16 @@ def params(draw):
                 spring_period=draw(st.integers(1, 60)),
                 energy_kind=draw(st.sampled_from(ENERGY_KINDS)),
                 pull_frame=draw(st.sampled_from(FRAMES)),
-                cartesian_frame=draw(st.sampled_from(FRAMES)))
+                cartesian_frame=draw(st.sampled_from(FRAMES)),
+                **draw(motion_params()))
+
+
+@st.composite
+def motion_params(draw):
+    """The motion model's parameters (eqs. M1-M8), each part off (0) or on."""
+    return dict(motion_tau_us=draw(st.sampled_from([0.0]) | st.floats(20.0, 1e5)),
+                prediction_horizon_us=draw(st.floats(0.0, 5000.0)),
+                polarity_gain=draw(st.sampled_from([0.0]) | st.floats(0.0, 1.0)))
 
 
 # Criterion energies (eqs. 12, 17, 20) this small are rounding residue of a model at rest:
@@ -169,18 +181,21 @@ def first_divergence_is_rounding_noise(model, prm, events) -> bool:
     ref, ker = ReferenceTracker(mset), Kernel(mset, None)
     last_gap = 0.0
     noisy_before: set = set()            # instances whose last spring update was on noise
-    for t, x, y in zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist()):
-        d2 = sorted(ref.ia[i] * (x - ref.mx[i]) ** 2 + ref.ic[i] * (y - ref.my[i]) ** 2
-                    + 2.0 * ref.ib[i] * (x - ref.mx[i]) * (y - ref.my[i])
+    for t, x, y, p in zip(events["t"].tolist(), events["x"].tolist(), events["y"].tolist(),
+                          events["p"].tolist()):
+        lead = [ref.predict_dt(i, t) for i in range(ref.n)]          # eq. (M1)
+        ex = [x - (ref.mx[i] + ref.vx[i] * lead[i]) for i in range(ref.n)]
+        ey = [y - (ref.my[i] + ref.vy[i] * lead[i]) for i in range(ref.n)]
+        d2 = sorted(ref.ia[i] * ex[i] ** 2 + ref.ic[i] * ey[i] ** 2 + 2.0 * ref.ib[i] * ex[i] * ey[i]
                     for i in range(ref.n) if ref.sensitive[i]) + [np.inf, np.inf]
         updates = ref.n_spring_updates
-        a, b = ref.step(t, x, y), ker.step(t, x, y)
+        a, b = ref.step(t, x, y, p), ker.step(t, x, y, p)
         snap = ker.snapshot(t)
+        rx, ry = (np.array(v) for v in ref.snapshot(t)[:2])      # eq. (M1): predicted to t
         if a != b:
             return (abs(d2[0] - d2[1]) <= 1e-9 * max(1.0, d2[0])
                     or abs(d2[0] - ref.gate) <= 1e-9 * ref.gate)
-        gap = max(np.abs(np.array(ref.mx) - snap["x"]).max(),
-                  np.abs(np.array(ref.my) - snap["y"]).max())
+        gap = max(np.abs(rx - snap["x"]).max(), np.abs(ry - snap["y"]).max())
         differ = np.flatnonzero(np.array(ref.sensitive) != snap["sensitive"])
         updated = ref.n_spring_updates > updates
         # the instances whose criterion energies were all rounding noise at this update:
@@ -189,8 +204,7 @@ def first_divergence_is_rounding_noise(model, prm, events) -> bool:
             ref.energy[ref.ekinds[g]][ref.c0[g]:ref.c1[g]], default=0.0) < ENERGY_NOISE}
         if len(differ):
             return updated and {ref.inst[i] for i in differ} <= noisy
-        apart = np.flatnonzero(np.maximum(np.abs(np.array(ref.mx) - snap["x"]),
-                                          np.abs(np.array(ref.my) - snap["y"])) > 1e-9)
+        apart = np.flatnonzero(np.maximum(np.abs(rx - snap["x"]), np.abs(ry - snap["y"])) > 1e-9)
         if len(apart) and updated and {ref.inst[i] for i in apart} <= noisy | noisy_before:
             return True
         if updated:
@@ -226,15 +240,20 @@ def test_kernel_equals_reference_on_random_models(model, prm, seed):
         raise
 
 
+# the motion model on (eqs. M1-M8) and off
+MOTION_ON = dict(motion_tau_us=1000.0, polarity_gain=1.0)
+
+
 @pytest.mark.slow
+@pytest.mark.parametrize("model_motion", [{}, MOTION_ON])
 @pytest.mark.parametrize("frame", FRAMES)
 @pytest.mark.parametrize("preset,motion", [("grid3x3", dict(speed_px_s=(15, 8), rot_deg_s=10)),
                                            ("face26", dict(speed_px_s=(10, -5), rot_deg_s=-8,
                                                            wobble_px=4))])
-def test_kernel_equals_reference_on_100k_structured_events(preset, motion, frame):
+def test_kernel_equals_reference_on_100k_structured_events(preset, motion, frame, model_motion):
     m = springtrack.load_model(preset)
     ev, _ = blob_stream(m, 110_000, noise=0.3, seed=7, **motion)
-    prm = dict(pull_frame=frame, cartesian_frame=frame, energy_scale=3.0)
+    prm = dict(pull_frame=frame, cartesian_frame=frame, energy_scale=3.0, **model_motion)
     a = assert_same(m, prm, ev)
     assert a.counters["events_valid"] >= 100_000
     assert a.counters["events_assigned"] > 0.5 * len(ev)
@@ -386,7 +405,8 @@ def test_spring_update_equals_reference_while_the_face_turns_round():
     assert ker.frame_stats()["frame_misses"] == fast["frame_misses"] + 1
 
 
-@pytest.mark.parametrize("changes", [{}, dict(alpha_position=0.5, alpha_covariance=0.05)])
+@pytest.mark.parametrize("changes", [{}, dict(alpha_position=0.5, alpha_covariance=0.05),
+                                     dict(MOTION_ON, prediction_horizon_us=3000.0)])
 def test_spatial_index_invariant_holds_throughout_a_stream(changes):
     """The kernel re-indexes a tracker only when its mean has moved, or its variances grown,
     past the slack reindex() left (st_box_left, a sufficient test); the exact gate box must
@@ -427,7 +447,7 @@ def instance_sets(draw):
         ms.append(m)
     shared = dict(p_threshold=draw(st.floats(0.01, 0.5)),
                   activity_tau_us=draw(st.floats(100.0, 1e5)),
-                  spring_period=draw(st.integers(1, 60)))
+                  spring_period=draw(st.integers(1, 60)), **draw(motion_params()))
     return ms, draw(st.integers(1, 3)), shared
 
 

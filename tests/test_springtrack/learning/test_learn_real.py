@@ -19,6 +19,8 @@ from springtrack.events import EVENT_DTYPE
 from springtrack.learning import NoObjectFound, learn_model
 from springtrack.learning.settings import MAX_PARTS, PERSIST_MIN
 
+from support.dot_truth import dot_truth
+
 # recording -> what learning with the defaults gives on it (measured; docs/learning.md)
 RECORDINGS = {
     "evt2_sample.raw": "model",
@@ -57,32 +59,12 @@ def test_learn_on_every_recording_gives_a_model_or_says_why_not(name, data_file,
         assert "no object found" in r.stderr or "no stable object" in r.stderr
 
 
-def dot_truth(ev, step_us: int = 200):
-    """The dot's centre every ``step_us``: the midpoint of the ON-event and OFF-event
-    medians near the circle (the dot's two edges), then a least-squares circle
-    through them: (cx, cy, r)."""
-    t0 = int(ev["t"][0])
-    k = (ev["t"] - t0) // step_us
-    pts = []
-    for b in range(int(k.max()) + 1):
-        sel = ev[k == b]
-        on, off = sel[sel["p"] == 1], sel[sel["p"] == 0]
-        if len(on) < 20 or len(off) < 20:
-            continue
-        mx = 0.5 * (np.median(on["x"]) + np.median(off["x"]))
-        my = 0.5 * (np.median(on["y"]) + np.median(off["y"]))
-        pts.append((mx, my))
-    p = np.array(pts, float)
-    a = np.c_[2 * p[:, 0], 2 * p[:, 1], np.ones(len(p))]
-    cx, cy, c = np.linalg.lstsq(a, (p ** 2).sum(axis=1), rcond=None)[0]
-    return cx, cy, float(np.sqrt(c + cx * cx + cy * cy))
-
-
 @pytest.mark.xfail(strict=True, reason="the learner keeps the dot's trail of late ON events "
                    "as parts of their own (3 parts from 10 ms; docs/learning.md, Limits)")
 def test_dot_learned_from_10_ms_is_one_part_on_its_circle(data_file):
     ev = stio.open(data_file("evt2_sample.raw")).read()
-    cx, cy, r = dot_truth(ev)
+    truth = dot_truth(ev)
+    cx, cy, r = truth.cx, truth.cy, truth.radius
     window = ev[ev["t"] < ev["t"][0] + 10_000]
     res = learn_model(window, width=640, height=480)
     m = res.model
@@ -98,7 +80,8 @@ def test_dot_truth_is_the_circle_the_data_readme_gives(data_file):
     """The truth every dot test uses: the ON/OFF midpoints' circle (radius about 106 px,
     centre near (315, 203))."""
     ev = stio.open(data_file("evt2_sample.raw")).read()
-    cx, cy, r = dot_truth(ev)
+    truth = dot_truth(ev)
+    cx, cy, r = truth.cx, truth.cy, truth.radius
     assert abs(r - 106.4) < 1.5 and abs(cx - 315) < 5 and abs(cy - 203) < 5
 
 

@@ -1,0 +1,142 @@
+"""The motion model (eqs. M1-M8, docs/algorithm.md "Motion and both edges") measured:
+
+* the real dot of evt2_sample.raw (truth: tests/support/dot_truth.py): a one-tracker model placed
+  on the dot, and found by --acquire, with the motion model off (the paper) and on;
+* fast disks on the simulated sensor with edge latency (tests/support/fast_parts.py), dark and
+  bright, 1,000-30,000 px/s: the median error and the highest speed tracked within 2 px;
+* the paper's scenes (springtrack.sim.scenes, seed 0, their default length) tracked by
+  their preset models placed where they start, scored as ``springtrack score`` does: the
+  error with the motion model off and on;
+* the float kernel's cost per event, off and on, on the face scene's events (best of
+  --repeat runs; the machine is shared, so the numbers are noisy).
+
+Run: .venv/bin/python benchmarks/motion.py [--no-write] [--quick]
+Writes the "Motion model" section of docs/benchmarks.md.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+
+import springtrack                                        # noqa: E402
+import springtrack.io                                     # noqa: E402
+from springtrack.metrics import score_track, truth_from_array   # noqa: E402
+from springtrack.model import ShapeModel, TrackerSpec     # noqa: E402
+from springtrack.sim.scenes import make_scene             # noqa: E402
+from springtrack.sim.sensor import simulate_all           # noqa: E402
+
+from _report import machine, write_section                # noqa: E402
+from support.dot_truth import dot_truth, track_errors             # noqa: E402
+from support.fast_parts import errors, fast_disk                  # noqa: E402
+
+MOTION = dict(motion_tau_us=1000.0, polarity_gain=1.0)
+OFF = dict(motion_tau_us=0.0, polarity_gain=0.0)
+SCENES = ("grid_rot_y", "grid_pull", "grid_inplane", "face_occlusion")
+DATA = ROOT.parent / "shared" / "data" / "evt2_sample.raw"
+
+
+def dot_rows():
+    ev = springtrack.io.open(DATA).read()
+    truth = dot_truth(ev)
+    x, y = (float(v[0]) for v in truth.at([truth.t0]))
+    m = ShapeModel("dot", 640, 480, [TrackerSpec("dot", round(x, 1), round(y, 1),
+                                                 (36.0, 0.0, 36.0))], [])
+    rows = []
+    for acquire in (False, True):
+        out = []
+        for p in (OFF, MOTION):
+            tr = springtrack.Tracker(m, p, acquire=acquire).run(ev, sample_us=1000)
+            e = track_errors(truth, tr.t_us, tr.x[:, 0], tr.y[:, 0])
+            out.append(f"{np.median(e):.2f} px ({100 * np.mean(e <= 2):.0f} % within 2 px)")
+        rows.append(f"| {'--acquire' if acquire else 'placed on the dot'} | {out[0]} | {out[1]} |")
+    head = (f"Truth: radius {truth.radius:.2f} px, {truth.turns_per_s:.2f} turns/s, "
+            f"{truth.speed_px_s:,.0f} px/s, radial residual {truth.radial_rms:.2f} px RMS "
+            f"({truth.windows} windows of 200 us).\n\n"
+            "| one-tracker model | paper (motion off) | motion model |\n|---|---|---|\n")
+    return head + "\n".join(rows)
+
+
+def disk_rows(speeds):
+    lines = ["| disk | " + " | ".join(f"{s:,} px/s" for s in speeds) + " |",
+             "|---|" + "---|" * len(speeds)]
+    for dark in (True, False):
+        for name, p in (("paper", OFF), ("motion", MOTION)):
+            cells = []
+            for s in speeds:
+                ev, scene, model = fast_disk(s, dark)
+                e = np.median(errors(scene, springtrack.Tracker(model, p).run(ev, sample_us=200))[5:])
+                cells.append(f"{e:.2f}")
+            lines.append(f"| {'dark' if dark else 'bright'}, {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def scene_rows(seconds):
+    lines = ["| scene | events | paper (motion off) | motion model |", "|---|---|---|---|"]
+    face = None
+    for name in SCENES:
+        scene = make_scene(name, seed=0)
+        ev, truth = simulate_all(scene, seconds=seconds, seed=0)
+        model = scene.initial_model()
+        t = truth_from_array(truth)
+        out = []
+        for p in (OFF, MOTION):
+            tr = springtrack.Tracker(model, p).run(ev, sample_us=10_000)
+            out.append(f"{score_track(t, tr).mean_pct:.2f} %")
+        lines.append(f"| {name} | {len(ev):,} | {out[0]} | {out[1]} |")
+        if name == "face_occlusion":
+            face = (model, ev)
+    return "\n".join(lines), face
+
+
+def cost_rows(model, ev, repeat):
+    lines = ["| float kernel | ns/event (best of %d) |" % repeat, "|---|---|"]
+    base = None
+    for name, p in (("motion off", OFF), ("motion on", MOTION)):
+        best = np.inf
+        for _ in range(repeat):
+            tr = springtrack.Tracker(model, p)
+            t0 = time.perf_counter()
+            tr.run(ev, sample_us=10_000)
+            best = min(best, time.perf_counter() - t0)
+        ns = best / len(ev) * 1e9
+        base = base or ns
+        lines.append(f"| {name} | {ns:.1f}" + ("" if ns == base else f" (+{ns - base:.1f})") + " |")
+    return "\n".join(lines)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--no-write", action="store_true", help="print only")
+    ap.add_argument("--quick", action="store_true", help="5 s scenes instead of their length")
+    ap.add_argument("--repeat", type=int, default=3, help="timing runs per case (default 3)")
+    a = ap.parse_args(argv)
+    t0 = time.time()
+    dot = dot_rows()
+    disks = disk_rows([1000, 3000, 5000, 10000, 13000, 20000, 30000])
+    scenes, (fm, fev) = scene_rows(5.0 if a.quick else None)
+    cost = cost_rows(fm, fev, a.repeat)
+    body = (f"`.venv/bin/python benchmarks/motion.py{' --quick' if a.quick else ''}` "
+            f"({time.time() - t0:.0f} s), {machine()}.  Motion model on: "
+            + ", ".join(f"{k} = {v:g}" for k, v in MOTION.items()) + ".\n\n"
+            "### The real dot (evt2_sample.raw), median error\n\n" + dot + "\n\n"
+            "### Fast disks on the simulated sensor (ON latency 40 us, OFF 20 us mean), "
+            "median error, px\n\n" + disks + "\n\n"
+            "### The paper's scenes (seed 0, models placed where they start), mean error, "
+            "% of the object's length\n\n" + scenes + "\n\n"
+            "### Cost per event on face_occlusion's events\n\n" + cost + "\n\n"
+            "The integer kernel and its Cortex-M build have no motion model yet (they refuse "
+            "its parameters), so there is no fixed or microcontroller cost to measure.\n")
+    print(body)
+    if not a.no_write:
+        write_section("Motion model", body)
+
+
+if __name__ == "__main__":
+    main()

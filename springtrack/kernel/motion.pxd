@@ -1,0 +1,101 @@
+# The float64 kernel's motion model (this project's extension of Algorithm 1, eqs. M1-M8 of
+# springtrack/reference.py; docs/algorithm.md, "Motion and both edges"): each tracker's
+# velocity, the half offset between its part's ON and OFF edges, and the Kalman filter
+# whose gains fall below alpha1 where its events come fast.  [ref] marks the lines translated.
+#
+# cdef inline: compiled into the per-event step (step.pxd) and the springs (springs.pyx),
+# which predict the means to an update's time.
+from libc.math cimport sqrt
+from libc.stdint cimport int64_t
+
+from springtrack.kernel.state cimport KState
+
+cdef extern from *:
+    """
+    /* springtrack/kernel/motion.pxd: eq. (M7)'s velocity bound, px/us, and a placed tracker's
+       position variance (reference.VELOCITY_MAX, P_UNKNOWN) */
+    #define ST_VELOCITY_MAX 0.25
+    #define ST_P_UNKNOWN 1.0
+    """
+    const double ST_VELOCITY_MAX
+    const double ST_P_UNKNOWN
+
+
+cdef inline double clampd(double v, double lo, double hi) noexcept nogil:
+    # [ref] min(max(v, lo), hi)
+    if v < lo:
+        v = lo
+    if v > hi:
+        return hi
+    return v
+
+
+cdef inline double predict_dt(const KState* s, int i, int64_t t) noexcept nogil:
+    """[ref] predict_dt: eq. (M1)'s lead max(0, min(t, t_k + H) - t_m)."""
+    cdef double end = <double>s.tk[i] + s.horizon, d
+    if <double>t < end:
+        end = <double>t
+    d = end - <double>s.tm[i]
+    return d if d > 0.0 else 0.0
+
+
+cdef inline void still(KState* s, int i) noexcept nogil:
+    """[ref] _still: tracker i still, one edge, position unknown."""
+    s.vx[i] = 0.0
+    s.vy[i] = 0.0
+    s.hx[i] = 0.0
+    s.hy[i] = 0.0
+    s.tm[i] = 0
+    s.tk[i] = 0
+    s.kpp[i] = ST_P_UNKNOWN
+    s.kpv[i] = 0.0
+    s.kvv[i] = 0.0
+
+
+cdef inline double kalman(KState* s, int i, int64_t t, double* kv) noexcept nogil:
+    """[ref] _kalman, eq. (M3): tracker i's Kalman filter of position and velocity
+    predicted over min(t - t_k, tau_m) and updated by one event; returns K_p, sets *kv."""
+    cdef double d = <double>(t - s.tk[i]), q = s.q_m, pp, pv, vv, lim, sd, inv_s, kp
+    if d > s.tau_m:
+        d = s.tau_m
+    pp = s.kpp[i] + d * (2.0 * s.kpv[i] + d * s.kvv[i]) + q * (d * d * d) / 3.0
+    pv = s.kpv[i] + d * s.kvv[i] + q * (d * d) * 0.5
+    vv = s.kvv[i] + q * d
+    if vv > s.vv_max:
+        vv = s.vv_max
+    lim = sqrt(pp * vv)
+    pv = clampd(pv, -lim, lim)
+    sd = 1.0 + pp                                  # S = max(1 + pp, pp / alpha1)
+    if pp * s.inv_a1[i] > sd:
+        sd = pp * s.inv_a1[i]
+    inv_s = 1.0 / sd
+    kp = pp * inv_s
+    kv[0] = pv * inv_s
+    s.kpp[i] = pp - kp * pp
+    s.kpv[i] = pv - kp * pv
+    s.kvv[i] = vv - kv[0] * pv
+    return kp
+
+
+cdef inline double motion_gain(KState* s, int i, int64_t t, double a1, double* kv) noexcept nogil:
+    """The mean's gain (eq. M3, or alpha1 when tau_m = 0, eq. 3) and the velocity's (*kv);
+    t becomes the tracker's last event."""
+    cdef double gain = a1
+    kv[0] = 0.0
+    if s.tau_m > 0.0:
+        gain = kalman(s, i, t, kv)
+    s.tk[i] = t
+    return gain
+
+
+cdef inline void motion_update(KState* s, int i, double gain, double kv, double sgn,
+                               double rx, double ry) noexcept nogil:
+    """[ref] eqs. (M6)-(M7): the half offset and the velocity move by the residual
+    (rx, ry) about the edge of the event's polarity (sgn = +1 ON, -1 OFF)."""
+    cdef double hmax = s.h_max
+    if s.c_h > 0.0:
+        s.hx[i] = clampd(s.hx[i] + s.c_h * gain * sgn * rx, -hmax, hmax)
+        s.hy[i] = clampd(s.hy[i] + s.c_h * gain * sgn * ry, -hmax, hmax)
+    if s.tau_m > 0.0:
+        s.vx[i] = clampd(s.vx[i] + kv * rx, -ST_VELOCITY_MAX, ST_VELOCITY_MAX)
+        s.vy[i] = clampd(s.vy[i] + kv * ry, -ST_VELOCITY_MAX, ST_VELOCITY_MAX)
