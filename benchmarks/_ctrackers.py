@@ -1,12 +1,13 @@
 """The hand-written C peer trackers of benchmarks/ctrackers/, built and loaded through ctypes.
 
     from _ctrackers import CTracker, PACKED
-    tr = CTracker("plain", model, params)        # or "avx2" (needs an AVX2 processor)
+    tr = CTracker("plain", model, params)        # or "simd" (AVX-512 or AVX2 intrinsics)
     tr.process(packed_events)                    # PACKED records, in time order
     tr.state(t)                                  # (n, 6): x, y, sxx, sxy, syy, activity
 
-Each peer is compiled on first use with the compiler Python's extensions use and the
-kernels' own flags (setup.py's COMPILE_ARGS; the AVX2 peer adds -mavx2), into a cache
+Each peer is compiled on first use with the compiler Python's extensions use, the
+kernels' own flags (setup.py's COMPILE_ARGS: -O3, no FMA contraction) and -march=native
+(the SIMD peer takes AVX-512 where the processor has it, else AVX2), into a cache
 directory keyed by the sources and flags.  Benchmark-only: nothing here is installed.
 """
 from __future__ import annotations
@@ -26,7 +27,11 @@ from springtrack.gate import covariance_bias
 
 HERE = Path(__file__).resolve().parent
 SRC = HERE / "ctrackers"
-PEERS = {"plain": ("plain.c", []), "avx2": ("avx2.c", ["-mavx2"])}
+# kind: (source, -march); the -avx2 kinds are the builds for AVX2 (x86-64-v3), where the
+# processor or valgrind (benchmarks/_counts.py) has no AVX-512, and for the test that
+# both builds track alike
+PEERS = {"plain": ("plain.c", "native"), "simd": ("simd.c", "native"),
+         "plain-avx2": ("plain.c", "x86-64-v3"), "simd-avx2": ("simd.c", "x86-64-v3")}
 # the packed record of expelliarmus / tonic / numpy files (peer.h PeerEvent)
 PACKED = np.dtype([("t", "<i8"), ("x", "<i2"), ("y", "<i2"), ("p", "u1")])
 
@@ -42,9 +47,10 @@ def kernel_flags() -> list[str]:
 
 
 def compile_command(kind: str, out: Path) -> list[str]:
-    src, extra = PEERS[kind]
     cc = shlex.split(sysconfig.get_config_var("CC") or "cc")
-    return [*cc, *kernel_flags(), *extra, "-std=gnu11", "-fPIC", "-shared", "-o", str(out),
+    src, march = PEERS[kind]
+    flags = [f for f in kernel_flags() if not f.startswith("-march=")] + [f"-march={march}"]
+    return [*cc, *flags, "-std=gnu11", "-fPIC", "-shared", "-o", str(out),
             str(SRC / src), "-lm"]
 
 
@@ -74,6 +80,7 @@ def library(kind: str) -> ctypes.CDLL:
         lib.peer_run.restype = I64
         lib.peer_run.argtypes = [P, P, I64]
         lib.peer_state.argtypes = [P, I64, P, P]
+        lib.peer_isa.restype = ctypes.c_char_p
         _LIBS[kind] = lib
     return _LIBS[kind]
 
@@ -97,7 +104,7 @@ class CTracker:
         cd = np.ascontiguousarray(np.stack([a[k] for k in ("stiffness", "l0", "th0", "dx0",
                                                            "dy0")], 1), np.float64)
         self._keep = (par, tr, ci, cd)
-        self._counters = np.zeros(5, np.int64)
+        self._counters = np.zeros(6, np.int64)
         self.ptr = self.lib.peer_new(self.n, nc, model.width, model.height, par.ctypes.data,
                                      tr.ctypes.data, ci.ctypes.data, cd.ctypes.data)
         if not self.ptr:
@@ -127,16 +134,22 @@ class CTracker:
         c = self._counters
         return dict(events_valid=int(c[0]), events_assigned=int(c[1]),
                     skipped_back_in_time=int(c[2]), skipped_outside_sensor=int(c[3]),
-                    spring_updates=int(c[4]))
+                    spring_updates=int(c[4]), reindexed=int(c[5]))
+
+    @property
+    def isa(self) -> str:
+        """What the peer's scan and springs are written with (e.g. "AVX-512 scan, ...")."""
+        return self.lib.peer_isa().decode()
 
 
-def agreement(kind: str, preset: str, events: np.ndarray, sample_us: int = 1000) -> dict:
-    """How closely the peer tracks like springtrack's float64 kernel on ``events`` (PACKED):
+def agreement(kind: str, model, params, events: np.ndarray, sample_us: int = 1000) -> dict:
+    """How closely the peer tracks like springtrack's float64 kernel on ``events`` (PACKED),
+    both on ``model`` (a preset name or ShapeModel) with ``params`` (None: the defaults):
     both sampled every ``sample_us`` (the state after all events with t < the sample time),
     the largest differences over all samples and trackers: positions (px), covariances
     relative to their size, activities relative; and whether the counters agree."""
     import springtrack
-    ref = springtrack.Tracker(preset)
+    ref = springtrack.Tracker(model, params)
     track = ref.run(events, sample_us=sample_us)
     peer = CTracker(kind, ref.model, ref.params)
     cuts = np.searchsorted(events["t"], track.t_us, side="left")
@@ -154,6 +167,7 @@ def agreement(kind: str, preset: str, events: np.ndarray, sample_us: int = 1000)
     peer.process(events[pos:])
     ref.process(events[:0])
     theirs = peer.counters
+    theirs.pop("reindexed")
     ours = {k: ref.counters[k] for k in theirs}
     return dict(samples=len(track), position_px=dx, covariance_rel=dcov, activity_rel=dact,
                 counters_equal=ours == theirs, counters=theirs)

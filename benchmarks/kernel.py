@@ -1,4 +1,4 @@
-"""Kernel throughput: events/s of the tracker backends and the hand-written C peers, in both
+"""Kernel throughput: events/s of the tracker backends in both
 frames of eq. (22), on synthetic grid3x3 and face26 streams and the face_occlusion scene.
 
 Run: .venv/bin/python benchmarks/kernel.py [--events N] [--no-write]
@@ -11,10 +11,10 @@ A third stream is the simulator's face_occlusion scene (springtrack.sim.sensor),
 demo and the firmware track: most of its events fall on the face, so far more are assigned.
 
 Contenders: springtrack's float (cython) and fixed-point kernels through
-``Tracker.process``, and the C peers of benchmarks/ctrackers (plain C; AVX2 where the
-processor has it) on the same events packed as expelliarmus holds them, each with
+``Tracker.process``, each with
 pull_frame = cartesian_frame = similarity (the default) and = image (the paper's rule):
 the difference is what the similarity frame's fit costs, per event and per spring update.
+The hand-written C peers are timed beside the kernels by benchmarks/c_peers.py.
 
 Each figure is the best of 7 runs (the contenders of a stream alternating run by run),
 timed twice: wall clock, and the thread's CPU time
@@ -40,8 +40,7 @@ import springtrack  # noqa: E402
 from springtrack.events import make  # noqa: E402
 from springtrack.sim.synthetic import blob_stream  # noqa: E402
 
-from _ctrackers import PACKED, CTracker  # noqa: E402
-from _report import cpu_info, machine, write_section  # noqa: E402
+from _report import machine, write_section  # noqa: E402
 from _streams import SCENES  # noqa: E402
 
 
@@ -55,10 +54,6 @@ def contenders(preset: str, ev) -> dict:
     backends = ["cython"]
     if importlib.util.find_spec("springtrack.fixed.kernel") is not None:
         backends.append("fixed")
-    peers = ["C plain"] + (["C avx2"] if "avx2" in cpu_info()[2] else [])
-    packed = np.empty(len(ev), PACKED)
-    for f in ("t", "x", "y", "p"):
-        packed[f] = ev[f]
     out = {}
     for frame in FRAMES:
         base = springtrack.Tracker(preset, params={"pull_frame": frame,
@@ -66,9 +61,6 @@ def contenders(preset: str, ev) -> dict:
         for b in backends:
             out[b, frame] = (lambda b=b, base=base: springtrack.Tracker(
                 base.model, base.params, backend=b), ev)
-        for peer in peers:
-            out[peer, frame] = (lambda kind=peer.split()[1], base=base: CTracker(
-                kind, base.model, base.params), packed)
     return out
 
 
@@ -163,10 +155,8 @@ def main():
         f"array (no sampling), one core, best of {REPEATS} runs in the thread's CPU time "
         "and in wall-clock time (the machine is shared: wall time includes other jobs), "
         "all contenders of a stream alternating run by run. "
-        "Contenders: the float (`cython`) and fixed-point (`fixed`) kernels, and the "
-        "hand-written C peers of `benchmarks/ctrackers` (`C plain`, `C avx2`: see "
-        "\"Tracker against hand-written C\") on the same events packed as expelliarmus "
-        "holds them, each in both frames of eq. (22) and the Cartesian springs "
+        "Contenders: the float (`cython`) and fixed-point (`fixed`) kernels (the C peers: "
+        "\"Tracker against hand-written C\"), each in both frames of eq. (22) and the Cartesian springs "
         "(`pull_frame = cartesian_frame`: `similarity`, the default, or `image`, the "
         "paper's rule). "
         "Paper (C++, i7 laptop): 2.26 µs/event = 0.44 M events/s.",

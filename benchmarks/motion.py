@@ -27,9 +27,12 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 import springtrack                                        # noqa: E402
 import springtrack.io                                     # noqa: E402
-from springtrack.metrics import score_track, truth_from_array   # noqa: E402
+from springtrack.metrics import match_times, score_track, truth_from_array   # noqa: E402
 from springtrack.model import ShapeModel, TrackerSpec     # noqa: E402
 from springtrack.sim.scenes import make_scene             # noqa: E402
+from springtrack.sim.screen import ScreenConfig                          # noqa: E402
+from springtrack.sim.screen import make_scene as screen_scene             # noqa: E402
+from springtrack.sim.screen import simulate_all as screen_simulate        # noqa: E402
 from springtrack.sim.sensor import simulate_all           # noqa: E402
 
 from _report import machine, write_section                # noqa: E402
@@ -95,6 +98,37 @@ def scene_rows(seconds):
     return "\n".join(lines), face
 
 
+# the second generator's scenes (springtrack.sim.screen): name, scene keywords, refresh Hz
+SCREEN = (("grid_pull", {}, 100), ("grid_inplane", {}, 100), ("grid_rot_y", {}, 100),
+          ("face_occlusion", {}, 100), ("dots", {}, 100),
+          ("dots", dict(speed=800.0), 1000), ("dots", dict(speed=3000.0), 3000))
+
+
+def screen_rows(seconds):
+    """The screen generator's scenes with their initial models and the default parameters,
+    motion model off and on: mean error (% of the object's length) and the median
+    per-part error in px; the dots: the dark and the bright disc's median error in px
+    (the model's ids are the truth's, in its order)."""
+    lines = ["| scene | events | paper (motion off) | motion model |", "|---|---|---|---|"]
+    for name, kw, hz in SCREEN:
+        ev, truth = screen_simulate(name, seconds, 0, config=ScreenConfig(refresh_hz=hz), **kw)
+        model = screen_scene(name, **kw).initial_model()
+        t = truth_from_array(truth)
+        out = []
+        for p in (OFF, MOTION):
+            tr = springtrack.Tracker(model, p).run(ev, sample_us=1000)
+            if name == "dots":          # no object length: the dark and the bright disc, px
+                j = match_times(t.t_us, tr.t_us)
+                e = np.hypot(tr.x - t.xy[j, :, 0], tr.y - t.xy[j, :, 1])
+                out.append(" / ".join(f"{np.median(e[:, k]):.2f} px" for k in range(2)))
+            else:
+                es = score_track(t, tr)
+                out.append(f"{es.mean_pct:.2f} % ({np.nanmedian(es.err_px):.2f} px)")
+        label = name + "".join(f", {k} {v:g} px/s" for k, v in kw.items()) + f", {hz} Hz"
+        lines.append(f"| {label} | {len(ev):,} | {out[0]} | {out[1]} |")
+    return "\n".join(lines)
+
+
 def cost_rows(model, ev, repeat):
     lines = ["| float kernel | ns/event (best of %d) |" % repeat, "|---|---|"]
     base = None
@@ -116,12 +150,16 @@ def main(argv=None):
     ap.add_argument("--no-write", action="store_true", help="print only")
     ap.add_argument("--quick", action="store_true", help="5 s scenes instead of their length")
     ap.add_argument("--repeat", type=int, default=3, help="timing runs per case (default 3)")
+    ap.add_argument("--screen-seconds", type=float, default=8.0,
+                    help="length of the second generator's scenes in s (default 8: it "
+                         "simulates 5-10x slower than real time)")
     a = ap.parse_args(argv)
     t0 = time.time()
     dot = dot_rows()
     disks = disk_rows([1000, 3000, 5000, 10000, 13000, 20000, 30000])
     scenes, (fm, fev) = scene_rows(5.0 if a.quick else None)
     cost = cost_rows(fm, fev, a.repeat)
+    screen = screen_rows(a.screen_seconds)
     body = (f"`.venv/bin/python benchmarks/motion.py{' --quick' if a.quick else ''}` "
             f"({time.time() - t0:.0f} s), {machine()}.  Motion model on: "
             + ", ".join(f"{k} = {v:g}" for k, v in MOTION.items()) + ".\n\n"
@@ -130,6 +168,9 @@ def main(argv=None):
             "median error, px\n\n" + disks + "\n\n"
             "### The paper's scenes (seed 0, models placed where they start), mean error, "
             "% of the object's length\n\n" + scenes + "\n\n"
+            f"### The second generator's scenes (springtrack.sim.screen, {a.screen_seconds:g} s, "
+            "seed 0, initial models, default parameters), mean error, % of the object's "
+            "length (median per-part error)\n\n" + screen + "\n\n"
             "### Cost per event on face_occlusion's events\n\n" + cost + "\n\n"
             "The integer kernel and its Cortex-M build have no motion model yet (they refuse "
             "its parameters), so there is no fixed or microcontroller cost to measure.\n")

@@ -201,9 +201,9 @@ class Hub:
         snaps = self.engine.poll_telemetry(want) if want > 0 else []   # else backpressure:
         for snap in snaps:                                             # they wait in the engine
             self._fan_out(receivers, MsgType.TELEMETRY, "telemetry_sent",
-                          lambda: wire.encode_telemetry(snap.t_us, snap.generation,
-                                                        snap.mean_energy, snap.records,
-                                                        snap.trackers["state"]),
+                          lambda: wire.encode_telemetry(
+                              snap.t_us, snap.generation, snap.mean_energy, snap.records,
+                              snap.trackers["state"], wire.quantise_velocities(snap.trackers)),
                           f"snapshot at t={snap.t_us} us")
             if snap.energies is not None:
                 self._energies(snap, receivers)

@@ -645,6 +645,23 @@ class ReferenceTracker:
         self._rest_frame(g)
         self.set_state(g, TRACKING)
 
+    def relocate(self, g: int, idx, x, y, sxx, sxy, syy) -> None:
+        """Instance g's trackers ``idx`` (indices within the instance) put at means (x, y)
+        with covariances (sxx, sxy, syy) (one value each per index; clamped as eq. (4)'s),
+        their activities 0 (eq. 6: no event of theirs yet where they now are) and their
+        motion state as placed (``_still``: eqs. M1-M8 start again); every other
+        tracker, the rest geometry, the frame and the state kept."""
+        for k, j in enumerate(idx):
+            i = self.t0[g] + int(j)
+            if not self.t0[g] <= i < self.t1[g]:
+                raise IndexError(f"relocate: tracker {int(j)} is not in instance {g}")
+            self.mx[i], self.my[i] = float(x[k]), float(y[k])
+            self.sxx[i], self.sxy[i], self.syy[i] = float(sxx[k]), float(sxy[k]), float(syy[k])
+            self.act[i] = 0.0
+            self.tlast[i] = 0
+            self._still(i)
+            self._clamp_and_invert(i)
+
     def move(self, g: int, sim: tuple, model: ShapeModel) -> None:
         """Instance g moved rigidly by the similarity ``sim`` = (a, b, tx, ty), x -> A x + t
         with A = s R = [[a, -b], [b, a]], keeping its activities, sensitivities, state and

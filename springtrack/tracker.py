@@ -57,6 +57,11 @@ class _OneInstance:
         ``model`` its model moved by the same similarity."""
         self.tr._b.move(sim, model)
 
+    def relocate(self, g, idx, x, y, sxx, sxy, syy):
+        """Instance g's trackers ``idx`` put elsewhere, the others kept
+        (springtrack.reference.ReferenceTracker.relocate)."""
+        self.tr._b.relocate(idx, x, y, sxx, sxy, syy)
+
     def snapshot(self, t):
         snap = self.tr._b.snapshot(t)
         snap["state"] = np.full(len(snap["x"]), TRACKING, np.uint8)
@@ -209,7 +214,9 @@ class Tracker:
             yield from self._track(ev)
             return
         if self._reads_as_is(events):
-            check_events(events)
+            from .backends.stepper import in_range
+            if not in_range(events):       # one pass; else field by field, naming the first
+                check_events(events)
         else:
             events = as_events(events)
         yield from self._track(events)

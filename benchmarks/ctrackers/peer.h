@@ -1,22 +1,27 @@
-/* A hand-written C tracker: the peer of springtrack's float64 kernel in benchmarks/.
+/* A hand-written C tracker: the yardstick of springtrack's float64 kernel in benchmarks/.
  *
  * Valeiras et al. 2015, Algorithm 1, written from springtrack/reference.py the way a C
- * programmer would write it, independently of springtrack/kernel/kernel.pyx (no spatial index,
- * no activity log, libm where the reference calls math):
+ * programmer who wants it fast would write it, independently of springtrack/kernel/
+ * (its own spatial index, its own exp, atan2 and sincos):
  *   per event   eq. (2): the sensitive tracker with the smallest Mahalanobis d^2 inside
- *               the gate takes it (ties: lowest index); eqs. (3)-(6): its mean,
- *               covariance and activity move;
+ *               the gate takes it (ties: lowest index); the d^2 that decides the gate is
+ *               the one eq. (2)'s probability exp(-d^2/2) is computed from (one pass);
+ *               eqs. (3)-(6): its mean, covariance and activity move;
  *   every `period` valid events   eqs. (10)-(20): the springs, then eqs. (13), (21)-(22):
  *               the energy criteria; with pull_frame / cartesian_frame = similarity, the
  *               similarity that maps the rest shape onto the calm trackers (fit_frame)
  *               sets eq. (22)'s targets and the next update's Cartesian rest offsets.
- * The two peers differ only in scan() and springs(): plain.c writes them as plain loops,
- * avx2.c with AVX2 intrinsics.  Each .c file defines them, then includes this file's
- * second half (PEER_LOOP) for the event loop.
+ * State as structure of arrays.  The spatial index: the sensor cut into 8 x 8 px cells,
+ * each cell a 64-bit mask of the trackers whose gate box (grown by a slack) covers it;
+ * a tracker is re-indexed only when its gate box leaves the box it was indexed with, so
+ * the candidates of an event are one load and an AND with the sensitive mask.
+ * The two peers differ only in scan() and springs(): plain.c writes them as plain loops
+ * (the compiler vectorises what it can at -O3 -march=native), simd.c with AVX-512 or
+ * AVX2 intrinsics (chosen at build time by the -march).  Each .c file defines them, then
+ * includes this file's second half (PEER_LOOP) for the event loop.
  *
  * Input: the packed event records of expelliarmus / tonic / numpy files (t int64, x and
- * y int16, p uint8: 13 bytes).  Built by benchmarks/_ctrackers.py with the kernels' own
- * compiler flags (setup.py COMPILE_ARGS) and called through ctypes.
+ * y int16, p uint8: 13 bytes).  Built by benchmarks/_ctrackers.py and called through ctypes.
  */
 #ifndef PEER_H
 #define PEER_H
@@ -36,6 +41,10 @@
 #define PEER_FRAME_SCALE_MIN 0.25
 #define PEER_FRAME_SCALE_MAX 4.0
 #define PEER_FRAME_MIN_SPREAD (1.0 / 1048576.0)
+/* the index: 2^3 = 8 px cells; a gate box grown by 1/4 of its half-size plus 3 px */
+#define PEER_CELL_SHIFT 3
+#define PEER_SLACK_REL 0.25
+#define PEER_SLACK_PX 3.0
 
 typedef struct __attribute__((packed)) {
     int64_t t;
@@ -49,84 +58,230 @@ enum { P_A1, P_A2, P_GATE, P_TAU, P_COV_GAIN, P_SMIN, P_SMAX, P_ESCALE, P_EGAIN,
 
 typedef struct {
     int n, nc, width, height, period, ekind, need_torsion, since, pull_sim, car_sim;
-    double a1, keep, cov_gain, gate, tau, smin2, smax2, escale, egain, msum;
-    /* trackers; arrays padded to a multiple of 4 for the vector peer */
-    _Alignas(32) double mx[PEER_MAX_T];
-    _Alignas(32) double my[PEER_MAX_T];
-    _Alignas(32) double sxx[PEER_MAX_T];
-    _Alignas(32) double sxy[PEER_MAX_T];
-    _Alignas(32) double syy[PEER_MAX_T];
-    _Alignas(32) double ia[PEER_MAX_T];     /* inverse covariance [ia ib; ib ic] */
-    _Alignas(32) double ib[PEER_MAX_T];
-    _Alignas(32) double ic[PEER_MAX_T];
-    _Alignas(32) double off[PEER_MAX_T];    /* 0 if sensitive, +inf if not (or padding) */
-    _Alignas(32) double act[PEER_MAX_T];
-    _Alignas(32) double mass[PEER_MAX_T];
-    _Alignas(32) double inv_mass[PEER_MAX_T];
-    _Alignas(32) double gdx0[PEER_MAX_T];
-    _Alignas(32) double gdy0[PEER_MAX_T];
+    int cw, ch;                             /* the index: cells across, down */
+    double a1, keep, cov_gain, gate, gate_slack, tau, inv_tau, smin2, smax2, escale, egain, msum;
+    uint64_t sens;                          /* bit i: tracker i sensitive */
+    uint64_t *cells;                        /* cw * ch masks */
+    /* trackers; arrays padded to a multiple of 8 for the vector peer */
+    _Alignas(64) double mx[PEER_MAX_T];
+    _Alignas(64) double my[PEER_MAX_T];
+    _Alignas(64) double sxx[PEER_MAX_T];
+    _Alignas(64) double sxy[PEER_MAX_T];
+    _Alignas(64) double syy[PEER_MAX_T];
+    _Alignas(64) double ia[PEER_MAX_T];     /* inverse covariance [ia ib; ib ic] */
+    _Alignas(64) double ib2[PEER_MAX_T];    /* 2 ib, as eq. (2)'s cross term uses it */
+    _Alignas(64) double ic[PEER_MAX_T];
+    _Alignas(64) double off[PEER_MAX_T];    /* 0 if sensitive, +inf if not (or padding) */
+    _Alignas(64) double act[PEER_MAX_T];
+    _Alignas(64) double mass[PEER_MAX_T];
+    _Alignas(64) double inv_mass[PEER_MAX_T];
+    _Alignas(64) double gdx0[PEER_MAX_T];
+    _Alignas(64) double gdy0[PEER_MAX_T];
+    /* the box each tracker is indexed with: its gate box may move inside [lo, hi] */
+    double lox[PEER_MAX_T], hix[PEER_MAX_T], loy[PEER_MAX_T], hiy[PEER_MAX_T];
+    int cx0[PEER_MAX_T], cx1[PEER_MAX_T], cy0[PEER_MAX_T], cy1[PEER_MAX_T];
     int64_t tlast[PEER_MAX_T];
     int degree[PEER_MAX_T];
     /* connections */
-    _Alignas(32) int ca[PEER_MAX_C];
-    _Alignas(32) int cb[PEER_MAX_C];
+    _Alignas(64) int ca[PEER_MAX_C];
+    _Alignas(64) int cb[PEER_MAX_C];
     int kinds[PEER_MAX_C];
-    _Alignas(32) double stiff[PEER_MAX_C];
-    _Alignas(32) double l0[PEER_MAX_C];
-    _Alignas(32) double th0[PEER_MAX_C];
-    _Alignas(32) double dx0[PEER_MAX_C];
-    _Alignas(32) double dy0[PEER_MAX_C];
-    _Alignas(32) double rdx0[PEER_MAX_C];   /* eq. (18)'s rest offset: s R d0 (or d0) */
-    _Alignas(32) double rdy0[PEER_MAX_C];
-    _Alignas(32) double c0[PEER_MAX_C];     /* cos th0, sin th0 */
-    _Alignas(32) double s0[PEER_MAX_C];
-    _Alignas(32) double a_euc[PEER_MAX_C];  /* stiffness where the connection has the kind */
-    _Alignas(32) double a_tor[PEER_MAX_C];
-    _Alignas(32) double a_car[PEER_MAX_C];
-    _Alignas(32) double energy[3][PEER_MAX_C];
+    _Alignas(64) double stiff[PEER_MAX_C];
+    _Alignas(64) double l0[PEER_MAX_C];
+    _Alignas(64) double th0[PEER_MAX_C];
+    _Alignas(64) double dx0[PEER_MAX_C];
+    _Alignas(64) double dy0[PEER_MAX_C];
+    _Alignas(64) double rdx0[PEER_MAX_C];   /* eq. (18)'s rest offset: s R d0 (or d0) */
+    _Alignas(64) double rdy0[PEER_MAX_C];
+    _Alignas(64) double c0[PEER_MAX_C];     /* cos th0, sin th0 */
+    _Alignas(64) double s0[PEER_MAX_C];
+    _Alignas(64) double a_euc[PEER_MAX_C];  /* stiffness where the connection has the kind */
+    _Alignas(64) double a_tor[PEER_MAX_C];
+    _Alignas(64) double a_car[PEER_MAX_C];
+    _Alignas(64) double energy[3][PEER_MAX_C];
     double mean_energy;
     double fc, fs, fgx, fgy;                /* the similarity frame: s R = [[fc, -fs], [fs, fc]] */
-    int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_springs;
+    int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_springs, n_reindex;
 } Peer;
+
+/* ---- elementary functions, branch-free so loops over them vectorise ---- */
+
+/* min and max as compares (libm's fmin / fmax are calls, which keep loops scalar); a NaN
+ * in v stays NaN as in the reference's min(max(v, lo), hi) */
+static inline double pmax(double v, double lo) { return lo > v ? lo : v; }
+static inline double pmin(double v, double hi) { return hi < v ? hi : v; }
+
+/* 2^(j/64), j = 0..63, filled by peer_new */
+static double peer_exp2_table[64];
+
+/* exp(x) for x <= 0 (eq. 2's -d^2/2 and eq. 6's -dt/tau); 0 below -708.  x = (64 m + j)
+ * ln2/64 + r, |r| <= ln2/128: exp x = 2^m 2^(j/64) (1 + r + ... + r^5/5!), ~1 ulp. */
+static inline double peer_exp(double x)
+{
+    const double shift = 0x1.8p52, inv = 64.0 / M_LN2;
+    const double l_hi = 0x1.62e42fefa0000p-7, l_lo = 0x1.cf79abc9e3b3ap-46;   /* ln2/64 = l_hi + l_lo */
+    int under = !(x > -708.0);
+    x = under ? -708.0 : x;
+    double kd = x * inv + shift;
+    int64_t k;
+    memcpy(&k, &kd, 8);
+    kd = kd - shift;
+    double r = (x - kd * l_hi) - kd * l_lo, r2 = r * r;
+    double p = (1.0 + r) + r2 * ((0.5 + r * (1.0 / 6.0)) + r2 * ((1.0 / 24.0) + r * (1.0 / 120.0)));
+    /* kd's low mantissa bits hold the integer k = 64 m + j (two's complement) */
+    uint64_t bits = (uint64_t)((int64_t)((int32_t)k >> 6) + 1023) << 52;
+    double scale;
+    memcpy(&scale, &bits, 8);
+    double v = peer_exp2_table[k & 63] * p * scale;
+    return under ? 0.0 : v;
+}
+
+/* atan2(y, x) in [-pi, pi], atan2(0, 0) = 0: Cephes' atan after one division (the octant
+ * reduction t = min / max, above 0.66 atan t = pi/4 + atan((t - 1) / (t + 1))), ~1 ulp. */
+static inline double peer_atan2(double y, double x)
+{
+    const double MOREBITS = 6.123233995736765886130e-17;
+    double ax = fabs(x), ay = fabs(y);
+    double num = ax < ay ? ax : ay, den = ax < ay ? ay : ax;
+    int big = num > 0.66 * den;
+    double tn = big ? num - den : num, td = big ? num + den : den;
+    td = td == 0.0 ? 1.0 : td;
+    double t = tn / td, z = t * t;
+    double p = -8.750608600031904122785e-1;
+    p = p * z + -1.615753718733365076637e1;
+    p = p * z + -7.500855792314704667340e1;
+    p = p * z + -1.228866684490136173410e2;
+    p = p * z + -6.485021904942025371773e1;
+    double q = z + 2.485846490142306297962e1;
+    q = q * z + 1.650270098316988542046e2;
+    q = q * z + 4.328810604912902668951e2;
+    q = q * z + 4.853903996359136964868e2;
+    q = q * z + 1.945506571482613964425e2;
+    double r = t * (z * p / q) + t;
+    r = (big ? M_PI_4 : 0.0) + (r + (big ? 0.5 * MOREBITS : 0.0));
+    r = ay > ax ? (M_PI_2 - r) + MOREBITS : r;
+    r = x < 0.0 ? (M_PI - r) + 2.0 * MOREBITS : r;
+    return copysign(r, y);
+}
+
+/* sin x and cos x: Cephes' reduction by pi/4 in three parts, degree-6 polynomials. */
+static inline void peer_sincos(double x, double *sn, double *cs)
+{
+    double ax = fabs(x);
+    int j = ((int)(ax * 1.27323954473516268615) + 1) & ~1;
+    double y = j;
+    double z = ((ax - y * 7.85398125648498535156e-1) - y * 3.77489470793079817668e-8)
+               - y * 2.69515142907905952645e-15;
+    double zz = z * z;
+    double ps = 1.58962301576546568060e-10;
+    ps = ps * zz + -2.50507477628578072866e-8;
+    ps = ps * zz + 2.75573136213857245213e-6;
+    ps = ps * zz + -1.98412698295895385996e-4;
+    ps = ps * zz + 8.33333333332211858878e-3;
+    ps = ps * zz + -1.66666666666666307295e-1;
+    ps = z + z * zz * ps;
+    double pc = -1.13585365213876817300e-11;
+    pc = pc * zz + 2.08757008419747316778e-9;
+    pc = pc * zz + -2.75573141792967388112e-7;
+    pc = pc * zz + 2.48015872888517045348e-5;
+    pc = pc * zz + -1.38888888888730564116e-3;
+    pc = pc * zz + 4.16666666666665929218e-2;
+    pc = (1.0 - 0.5 * zz) + zz * zz * pc;
+    /* octant j (even): j & 2 swaps the polynomials; sin flips for j & 4, cos for j in {2, 4} */
+    int swap = j & 2;
+    double s = swap ? pc : ps, c = swap ? ps : pc;
+    s = ((j & 4) != 0) != (x < 0.0) ? -s : s;
+    c = (((j & 4) != 0) != ((j & 2) != 0)) ? -c : c;
+    *sn = s;
+    *cs = c;
+}
 
 static inline double wrap_angle(double a)
 {
-    if (a >= M_PI)
-        return a - 2.0 * M_PI;
-    if (a < -M_PI)
-        return a + 2.0 * M_PI;
-    return a;
+    a = a >= M_PI ? a - 2.0 * M_PI : a;
+    return a < -M_PI ? a + 2.0 * M_PI : a;
 }
 
-/* Bound sigma_x, sigma_y to [sigma_min, sigma_max] and |rho| to RHO_MAX; keep Sigma^-1. */
-static inline void clamp_and_invert(Peer *s, int i)
+/* ---- the spatial index ---- */
+
+static inline void set_cells(Peer *s, int i, int on)
 {
-    double sxx = fmin(fmax(s->sxx[i], s->smin2), s->smax2);
-    double syy = fmin(fmax(s->syy[i], s->smin2), s->smax2);
-    double lim = PEER_RHO_MAX * sqrt(sxx * syy);
-    double sxy = fmin(fmax(s->sxy[i], -lim), lim);
-    s->sxx[i] = sxx;
-    s->sxy[i] = sxy;
-    s->syy[i] = syy;
+    uint64_t bit = (uint64_t)1 << i;
+    for (int cy = s->cy0[i]; cy <= s->cy1[i]; cy++) {
+        uint64_t *row = s->cells + (size_t)cy * s->cw;
+        for (int cx = s->cx0[i]; cx <= s->cx1[i]; cx++)
+            row[cx] = on ? row[cx] | bit : row[cx] & ~bit;
+    }
+}
+
+/* one axis of tracker i's indexed box: the cells [c0, c1] (clipped to the sensor) covering
+ * its gate box [m - h, m + h] grown by the slack, and [lo, hi], where the gate box may go
+ * before an event pixel inside it can fall outside those cells (open at the sensor edges) */
+static inline void index_axis(double m, double h, int ncell, int *c0, int *c1, double *lo,
+                              double *hi)
+{
+    double g = PEER_SLACK_REL * h + PEER_SLACK_PX;
+    double a = pmin(pmax(m - h - g, -1e6), 1e6), b = pmin(pmax(m + h + g, -1e6), 1e6);
+    a = a == a ? a : 0.0;                   /* NaN: anywhere, re-indexed at once */
+    b = b == b ? b : 0.0;
+    int r0 = (int)floor(a) >> PEER_CELL_SHIFT, r1 = (int)floor(b) >> PEER_CELL_SHIFT;
+    *lo = r0 <= 0 ? -INFINITY : (double)(r0 << PEER_CELL_SHIFT);
+    *hi = r1 >= ncell - 1 ? INFINITY : (double)((r1 + 1) << PEER_CELL_SHIFT);
+    *c0 = r0 < 0 ? 0 : r0;
+    *c1 = r1 > ncell - 1 ? ncell - 1 : r1;
+}
+
+/* The gate's box: d^2 < gate holds only where |dx| < sqrt(gate sxx), |dy| < sqrt(gate syy)
+ * (a hair wider for rounding). */
+static inline double gate_half(const Peer *s, double v) { return sqrt(s->gate_slack * v) + 1e-6; }
+
+static void reindex(Peer *s, int i)
+{
+    set_cells(s, i, 0);
+    index_axis(s->mx[i], gate_half(s, s->sxx[i]), s->cw, &s->cx0[i], &s->cx1[i], &s->lox[i],
+               &s->hix[i]);
+    index_axis(s->my[i], gate_half(s, s->syy[i]), s->ch, &s->cy0[i], &s->cy1[i], &s->loy[i],
+               &s->hiy[i]);
+    set_cells(s, i, 1);
+    s->n_reindex++;
+}
+
+/* re-index tracker i if its gate box left its indexed box (NaN: re-index too): with
+ * d the distance from the mean to a side, d >= 0 and d^2 >= gate' sigma^2 (gate' a hair
+ * above the gate), no square root */
+static inline void check_index(Peer *s, int i)
+{
+    double gx = s->gate_slack * s->sxx[i], gy = s->gate_slack * s->syy[i];
+    double l = s->mx[i] - s->lox[i], r = s->hix[i] - s->mx[i];
+    double d = s->my[i] - s->loy[i], u = s->hiy[i] - s->my[i];
+    int inside = (l >= 0.0) & (l * l >= gx) & (r >= 0.0) & (r * r >= gx)
+                 & (d >= 0.0) & (d * d >= gy) & (u >= 0.0) & (u * u >= gy);
+    if (__builtin_expect(!inside, 0))
+        reindex(s, i);
+}
+
+/* ---- per tracker ---- */
+
+/* Bound sigma_x, sigma_y to [sigma_min, sigma_max] and |rho| to RHO_MAX in place; Sigma^-1
+ * = [ia ib; ib ic] into ia, ib2 = 2 ib (eq. 2's cross term), ic. */
+static inline void clamp_and_invert(const Peer *s, double *sxx_, double *sxy_, double *syy_,
+                                    double *ia, double *ib2, double *ic)
+{
+    double sxx = pmin(pmax(*sxx_, s->smin2), s->smax2);
+    double syy = pmin(pmax(*syy_, s->smin2), s->smax2);
+    double sxy = *sxy_;
+    /* |rho| <= RHO_MAX: the square root only where the bound may bite */
+    if (__builtin_expect(!(sxy * sxy < (PEER_RHO_MAX * PEER_RHO_MAX * 0.999999) * (sxx * syy)), 0)) {
+        double lim = PEER_RHO_MAX * sqrt(sxx * syy);
+        sxy = pmin(pmax(sxy, -lim), lim);
+    }
+    *sxx_ = sxx;
+    *sxy_ = sxy;
+    *syy_ = syy;
     double inv_det = 1.0 / (sxx * syy - sxy * sxy);
-    s->ia[i] = syy * inv_det;
-    s->ib[i] = -sxy * inv_det;
-    s->ic[i] = sxx * inv_det;
-}
-
-/* eqs. (3)-(6): tracker i takes the event (fx, fy) at t with Mahalanobis distance d2. */
-static inline void update_tracker(Peer *s, int i, int64_t t, double fx, double fy, double d2)
-{
-    double p = exp(-0.5 * d2);                                   /* eq. (2) */
-    s->act[i] = s->act[i] * exp(-(double)(t - s->tlast[i]) / s->tau) + p;   /* eq. (6) */
-    s->tlast[i] = t;
-    double dx = fx - s->mx[i], dy = fy - s->my[i];               /* eq. (5) */
-    s->mx[i] = s->mx[i] + s->a1 * dx;                            /* eq. (3) */
-    s->my[i] = s->my[i] + s->a1 * dy;
-    s->sxx[i] = s->keep * s->sxx[i] + s->cov_gain * (dx * dx);   /* eq. (4) */
-    s->sxy[i] = s->keep * s->sxy[i] + s->cov_gain * (dx * dy);
-    s->syy[i] = s->keep * s->syy[i] + s->cov_gain * (dy * dy);
-    clamp_and_invert(s, i);
+    *ia = syy * inv_det;
+    *ib2 = 2.0 * (-sxy * inv_det);
+    *ic = sxx * inv_det;
 }
 
 /* The similarity x -> G + s R (x - G0) that best maps the rest shape onto the means of
@@ -134,21 +289,19 @@ static inline void update_tracker(Peer *s, int i, int64_t t, double fx, double f
  * the mass-weighted least-squares sense (reference.py fit_frame): with rest offsets p and
  * current offsets q about the weighted centroids, a = sum m p.q, b = sum m p x q,
  * D = sum m |p|^2, s R = [[a, -b], [b, a]] / D, the scale held to its bounds. */
-static void fit_frame(Peer *s, const int *over)
+static void fit_frame(Peer *s, uint64_t over)
 {
-    int n = s->n, fit[PEER_MAX_T], nf = 0;
-    for (int i = 0; i < n; i++)
-        if (over[i] == 0)
-            fit[nf++] = i;
-    if (nf < 2) {
-        nf = n;
-        for (int i = 0; i < n; i++)
-            fit[i] = i;
-    }
+    int n = s->n;
+    uint64_t all = n == 64 ? ~(uint64_t)0 : (((uint64_t)1 << n) - 1);
+    uint64_t fit = all & ~over;
+    if (__builtin_popcountll(fit) < 2)
+        fit = all;
+    _Alignas(64) double w8[PEER_MAX_T];
+    for (int i = 0; i < n; i++)                                   /* the fit set's masses */
+        w8[i] = (fit >> i) & 1 ? s->mass[i] : 0.0;
     double w = 0.0, px = 0.0, py = 0.0, qx = 0.0, qy = 0.0;
-    for (int f = 0; f < nf; f++) {                                /* weighted centroids */
-        int i = fit[f];
-        double m = s->mass[i];
+    for (int i = 0; i < n; i++) {                                 /* weighted centroids */
+        double m = w8[i];
         w += m;
         px += m * s->gdx0[i];
         py += m * s->gdy0[i];
@@ -160,9 +313,8 @@ static void fit_frame(Peer *s, const int *over)
     qx = qx / w;
     qy = qy / w;
     double a = 0.0, b = 0.0, d = 0.0, c, sn;
-    for (int f = 0; f < nf; f++) {
-        int i = fit[f];
-        double m = s->mass[i];
+    for (int i = 0; i < n; i++) {
+        double m = w8[i];
         double ux = s->gdx0[i] - px, uy = s->gdy0[i] - py;        /* rest offset p */
         double vx = s->mx[i] - qx, vy = s->my[i] - qy;            /* current offset q */
         a += m * (ux * vx + uy * vy);
@@ -197,23 +349,30 @@ static void fit_frame(Peer *s, const int *over)
     s->fgy = qy - (sn * px + c * py);
 }
 
-/* eqs. (13), (21)-(22) on the energies of the last spring update. */
+/* eqs. (13), (21)-(22) on the energies of the last spring update; then the index follows
+ * the moved trackers. */
 static void energy_criteria(Peer *s)
 {
-    int n = s->n, nc = s->nc, over[PEER_MAX_T] = {0};
-    if (nc == 0)
+    int n = s->n, nc = s->nc;
+    if (nc == 0) {
+        for (int i = 0; i < n; i++)
+            check_index(s, i);
         return;
+    }
     const double *e = s->energy[s->ekind];
     double total = 0.0, gx = 0.0, gy = 0.0;
     for (int k = 0; k < nc; k++)                                  /* eq. (13) */
         total += e[k];
     s->mean_energy = total / nc;
     double thr = s->escale * s->mean_energy;
-    for (int k = 0; k < nc; k++)
-        if (e[k] > thr) {
-            over[s->ca[k]]++;
-            over[s->cb[k]]++;
-        }
+    /* the trackers with any / all of their connections over the threshold */
+    uint64_t over = 0, calm_end = 0;
+    for (int k = 0; k < nc; k++) {
+        uint64_t ends = ((uint64_t)1 << s->ca[k]) | ((uint64_t)1 << s->cb[k]);
+        uint64_t hot = -(uint64_t)(e[k] > thr);
+        over |= ends & hot;
+        calm_end |= ends & ~hot;
+    }
     if (s->pull_sim || s->car_sim)
         fit_frame(s, over);
     if (s->car_sim)                                 /* the next update's eq. (18): s R d0 */
@@ -229,20 +388,24 @@ static void energy_criteria(Peer *s)
         gx /= s->msum;
         gy /= s->msum;
     }
-    for (int i = 0; i < n; i++) {
-        if (over[i] > 0) {                                        /* eq. (22) */
-            if (s->pull_sim) {                      /* toward G + s R dG0 in the frame */
-                double tx = s->fgx + (s->fc * s->gdx0[i] - s->fs * s->gdy0[i]);
-                double ty = s->fgy + (s->fs * s->gdx0[i] + s->fc * s->gdy0[i]);
-                s->mx[i] = s->mx[i] + s->egain * (tx - s->mx[i]);
-                s->my[i] = s->my[i] + s->egain * (ty - s->my[i]);
-            } else {                                /* toward G + dG0 */
-                s->mx[i] = s->mx[i] + s->egain * (gx + s->gdx0[i] - s->mx[i]);
-                s->my[i] = s->my[i] + s->egain * (gy + s->gdy0[i] - s->my[i]);
-            }
+    for (uint64_t m = over; m; m &= m - 1) {                      /* eq. (22) */
+        int i = __builtin_ctzll(m);
+        if (s->pull_sim) {                          /* toward G + s R dG0 in the frame */
+            double tx = s->fgx + (s->fc * s->gdx0[i] - s->fs * s->gdy0[i]);
+            double ty = s->fgy + (s->fs * s->gdx0[i] + s->fc * s->gdy0[i]);
+            s->mx[i] = s->mx[i] + s->egain * (tx - s->mx[i]);
+            s->my[i] = s->my[i] + s->egain * (ty - s->my[i]);
+        } else {                                    /* toward G + dG0 */
+            s->mx[i] = s->mx[i] + s->egain * (gx + s->gdx0[i] - s->mx[i]);
+            s->my[i] = s->my[i] + s->egain * (gy + s->gdy0[i] - s->my[i]);
         }
-        /* eq. (21): insensitive while all of its connections are over */
-        s->off[i] = (s->degree[i] > 0 && over[i] == s->degree[i]) ? INFINITY : 0.0;
+    }
+    /* eq. (21): insensitive while all of its connections are over (it has some, none calm) */
+    uint64_t all = n == 64 ? ~(uint64_t)0 : (((uint64_t)1 << n) - 1);
+    s->sens = all & ~(over & ~calm_end);
+    for (int i = 0; i < n; i++) {
+        s->off[i] = (s->sens >> i) & 1 ? 0.0 : INFINITY;
+        check_index(s, i);
     }
 }
 
@@ -251,12 +414,22 @@ static void energy_criteria(Peer *s)
 Peer *peer_new(int n, int nc, int width, int height, const double *par, const double *tr,
                const int *conn_i, const double *conn_d)
 {
-    if (n < 1 || n > PEER_MAX_T || nc < 0 || nc > PEER_MAX_C)
+    if (n < 1 || n > PEER_MAX_T || nc < 0 || nc > PEER_MAX_C || width < 1 || height < 1
+        || width > 1 << 15 || height > 1 << 15)
         return NULL;
     Peer *s = aligned_alloc(64, (sizeof(Peer) + 63) / 64 * 64);
     if (!s)
         return NULL;
     memset(s, 0, sizeof(Peer));
+    s->cw = (width + (1 << PEER_CELL_SHIFT) - 1) >> PEER_CELL_SHIFT;
+    s->ch = (height + (1 << PEER_CELL_SHIFT) - 1) >> PEER_CELL_SHIFT;
+    s->cells = calloc((size_t)s->cw * s->ch, sizeof(uint64_t));
+    if (!s->cells) {
+        free(s);
+        return NULL;
+    }
+    for (int j = 0; j < 64; j++)
+        peer_exp2_table[j] = exp2(j / 64.0);
     s->n = n;
     s->nc = nc;
     s->width = width;
@@ -264,7 +437,9 @@ Peer *peer_new(int n, int nc, int width, int height, const double *par, const do
     s->a1 = par[P_A1];
     s->keep = 1.0 - par[P_A2];
     s->gate = par[P_GATE];
+    s->gate_slack = par[P_GATE] * (1.0 + 1e-9);
     s->tau = par[P_TAU];
+    s->inv_tau = 1.0 / par[P_TAU];
     s->cov_gain = par[P_COV_GAIN];
     s->smin2 = par[P_SMIN] * par[P_SMIN];
     s->smax2 = par[P_SMAX] * par[P_SMAX];
@@ -278,8 +453,12 @@ Peer *peer_new(int n, int nc, int width, int height, const double *par, const do
     s->fs = 0.0;
     s->fgx = tr[0] - tr[6];
     s->fgy = tr[1] - tr[7];
-    for (int i = 0; i < PEER_MAX_T; i++)
+    s->sens = n == 64 ? ~(uint64_t)0 : (((uint64_t)1 << n) - 1);
+    for (int i = 0; i < PEER_MAX_T; i++) {
         s->off[i] = INFINITY;
+        s->mx[i] = s->my[i] = 1e30;         /* padding: far away, never a candidate */
+        s->ia[i] = s->ic[i] = 1.0;
+    }
     for (int i = 0; i < n; i++) {
         s->mx[i] = tr[8 * i];
         s->my[i] = tr[8 * i + 1];
@@ -292,7 +471,10 @@ Peer *peer_new(int n, int nc, int width, int height, const double *par, const do
         s->gdy0[i] = tr[8 * i + 7];
         s->off[i] = 0.0;
         s->msum += s->mass[i];
-        clamp_and_invert(s, i);
+        clamp_and_invert(s, &s->sxx[i], &s->sxy[i], &s->syy[i], &s->ia[i], &s->ib2[i], &s->ic[i]);
+        s->cx0[i] = s->cy0[i] = 0;
+        s->cx1[i] = s->cy1[i] = -1;         /* no cells yet */
+        reindex(s, i);
     }
     s->need_torsion = nc > 0 && s->ekind == 1;
     for (int k = 0; k < nc; k++) {
@@ -320,10 +502,14 @@ Peer *peer_new(int n, int nc, int width, int height, const double *par, const do
     return s;
 }
 
-void peer_free(Peer *s) { free(s); }
+void peer_free(Peer *s)
+{
+    free(s->cells);
+    free(s);
+}
 
 /* out[i*6 + ...] = x, y, sxx, sxy, syy, activity at t (eq. 6) of tracker i;
- * counters = valid, assigned, back in time, outside, spring updates. */
+ * counters = valid, assigned, back in time, outside, spring updates, re-indexings. */
 void peer_state(const Peer *s, int64_t t, double *out, int64_t *counters)
 {
     for (int i = 0; i < s->n; i++) {
@@ -339,45 +525,77 @@ void peer_state(const Peer *s, int64_t t, double *out, int64_t *counters)
     counters[2] = s->n_back;
     counters[3] = s->n_outside;
     counters[4] = s->n_springs;
+    counters[5] = s->n_reindex;
 }
 
 #endif /* PEER_H */
 
 #ifdef PEER_LOOP
 /* Algorithm 1 over n packed events; the .c file including this defines
- *   int scan(const Peer *s, double fx, double fy, double *d2)   eq. (2): winner or -1
- *   void springs(Peer *s)                                       eqs. (10)-(22)          */
+ *   int scan(const Peer *s, uint64_t cand, double fx, double fy, double *d2)
+ *       eq. (2) over the candidate trackers `cand`: the winner or -1
+ *   void store_tracker(Peer *s, int i, double x, double y, double ia, double ib2, double ic)
+ *       what scan() reads of tracker i, written as scan() reads it
+ *   void springs(Peer *s)                                       eqs. (10)-(20)          */
+
+/* eqs. (3)-(6): tracker i takes the event (fx, fy) at t with Mahalanobis distance d2. */
+static inline void update_tracker(Peer *s, int i, int64_t t, double fx, double fy, double d2)
+{
+    double p = peer_exp(-0.5 * d2);                                          /* eq. (2) */
+    s->act[i] = s->act[i] * peer_exp(-(double)(t - s->tlast[i]) * s->inv_tau) + p;  /* (6) */
+    s->tlast[i] = t;
+    double dx = fx - s->mx[i], dy = fy - s->my[i];               /* eq. (5) */
+    double x = s->mx[i] + s->a1 * dx;                            /* eq. (3) */
+    double y = s->my[i] + s->a1 * dy;
+    double sxx = s->keep * s->sxx[i] + s->cov_gain * (dx * dx);  /* eq. (4) */
+    double sxy = s->keep * s->sxy[i] + s->cov_gain * (dx * dy);
+    double syy = s->keep * s->syy[i] + s->cov_gain * (dy * dy);
+    double ia, ib2, ic;
+    clamp_and_invert(s, &sxx, &sxy, &syy, &ia, &ib2, &ic);
+    s->sxx[i] = sxx;
+    s->sxy[i] = sxy;
+    s->syy[i] = syy;
+    store_tracker(s, i, x, y, ia, ib2, ic);
+    check_index(s, i);
+}
+
 int64_t peer_run(Peer *s, const PeerEvent *ev, int64_t n)
 {
+    int64_t last_t = s->last_t, n_valid = 0, n_assigned = 0;
+    const int w = s->width, h = s->height, cw = s->cw;
     for (int64_t k = 0; k < n; k++) {
         int64_t t;
         int16_t x, y;
         memcpy(&t, &ev[k].t, 8);
         memcpy(&x, &ev[k].x, 2);
         memcpy(&y, &ev[k].y, 2);
-        if (t < s->last_t) {
+        if (__builtin_expect(t < last_t, 0)) {
             s->n_back++;
             continue;
         }
-        s->last_t = t;
-        if (x < 0 || y < 0 || x >= s->width || y >= s->height) {
+        last_t = t;
+        if (__builtin_expect((unsigned)x >= (unsigned)w || (unsigned)y >= (unsigned)h, 0)) {
             s->n_outside++;
             continue;
         }
-        s->n_valid++;
+        n_valid++;
+        uint64_t cand = s->cells[(y >> PEER_CELL_SHIFT) * cw + (x >> PEER_CELL_SHIFT)] & s->sens;
         double fx = x, fy = y, d2;
-        int best = scan(s, fx, fy, &d2);
+        int best = scan(s, cand, fx, fy, &d2);
         if (best >= 0) {
             update_tracker(s, best, t, fx, fy, d2);
-            s->n_assigned++;
+            n_assigned++;
         }
-        if (++s->since >= s->period) {
+        if (__builtin_expect(++s->since >= s->period, 0)) {
             s->since = 0;
             s->n_springs++;
             springs(s);
             energy_criteria(s);
         }
     }
+    s->last_t = last_t;
+    s->n_valid += n_valid;
+    s->n_assigned += n_assigned;
     return n;
 }
 #endif

@@ -502,9 +502,12 @@ class Recovery:
 
     def _recall(self, t: int, g: int, snap) -> bool:
         """Tracking instance g's trackers left behind (springtrack.acquisition.recall), recalled to
-        their rest places in the frame of its active trackers: the instance placed with
-        them there and the others as they are, its rest geometry kept (``move`` by the
-        identity); True if any.  Backends that cannot move an instance do not recall."""
+        their rest places in the frame of its active trackers: those trackers relocated
+        (``relocate``: activity 0 where they now are), every other tracker, its activity,
+        the rest geometry and the frame kept; a backend without ``relocate`` places the
+        instance with them there and the others as they are, then restores its rest
+        geometry (``move`` by the identity: the activities then start from 0).  True if
+        any.  Backends that cannot move an instance do not recall."""
         b = self.tr._ib
         if not getattr(b, "movable", False) or t < self._recall_next.get(g, 0):
             return False
@@ -517,8 +520,13 @@ class Recovery:
                                   params.activity_threshold)
         if not len(idx):
             return False
-        b.place(g, recalled(inst.model, part, idx, placed))
-        b.move(g, (1.0, 0.0, 0.0, 0.0), inst.model)
+        if hasattr(b, "relocate"):
+            # only the trackers left behind move; the others keep their activities
+            arr = placed.arrays()
+            b.relocate(g, idx, *(arr[k][idx] for k in ("x", "y", "sxx", "sxy", "syy")))
+        else:
+            b.place(g, recalled(inst.model, part, idx, placed))
+            b.move(g, (1.0, 0.0, 0.0, 0.0), inst.model)
         self.doubt.hold_off(g, t)
         self._recall_next[g] = t + self.rule.hold_us    # the activities built up again
         self.recalls += len(idx)

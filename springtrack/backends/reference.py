@@ -90,6 +90,9 @@ class ReferenceBackend:
     def place(self, g: int, model) -> None:
         self.ref.place(g, model)
 
+    def relocate(self, g: int, idx, x, y, sxx, sxy, syy) -> None:
+        self.ref.relocate(g, idx, x, y, sxx, sxy, syy)
+
     movable = True
 
     def move(self, g: int, sim, model) -> None:

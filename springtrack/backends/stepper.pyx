@@ -1,11 +1,11 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
 """The event loop with sampling shared by every tracker backend (see backends/stepper.pxd)."""
 cimport numpy as cnp
-from libc.stdint cimport int64_t, int32_t, uint32_t, uint16_t, uint8_t, INT64_MAX
+from libc.stdint cimport int64_t, int32_t, uint32_t, uint16_t, uint8_t, INT64_MAX, INT64_MIN
 from libc.string cimport memcpy
 
 from springtrack.events cimport Event
-from springtrack.events import EVENT_DTYPE
+from springtrack.events import EVENT_DTYPE, T_MAX, T_MIN
 from springtrack.sampling import HOLD, MAX_PERIOD, UNSET
 from springtrack.backends.samples cimport SampleOut, sample_buffers, take_samples
 
@@ -77,6 +77,57 @@ def layout_of(events):
                 or dt.subdtype is not None:
             return None
     return (events.strides[0], t[1], x[1], y[1], p[1], t[0].itemsize, t[0].kind == "i")
+
+
+cdef bint records_ok(const char* q, Py_ssize_t n, const Layout* L, int64_t t_lo,
+                    int64_t t_hi, uint16_t xy_sign, uint8_t p_max) noexcept nogil:
+    """Every record's t within [t_lo, t_hi], x and y without the bit xy_sign, p <= p_max:
+    one pass keeping the extremes (no branch per record), compared at the end."""
+    cdef Py_ssize_t i, stride = L.stride, ot = L.ot, ox = L.ox, oy = L.oy, op = L.op
+    cdef int64_t t, lo = INT64_MAX, hi = INT64_MIN
+    cdef uint16_t x, y, xy = 0
+    cdef uint8_t p, pm = 0
+    for i in range(n):
+        memcpy(&t, q + ot, 8)
+        memcpy(&x, q + ox, 2)
+        memcpy(&y, q + oy, 2)
+        p = (<const uint8_t*>q)[op]
+        lo = t if t < lo else lo
+        hi = t if t > hi else hi
+        xy |= x | y
+        pm = p if p > pm else pm
+        q += stride
+    return n == 0 or (lo >= t_lo and hi <= t_hi and (xy & xy_sign) == 0 and pm <= p_max)
+
+
+def in_range(events):
+    """Whether every event of ``events`` holds values within springtrack.events.RANGES,
+    found in one pass over the records, for the layouts with an 8-byte t, 2-byte x and y
+    and a 1-byte p (the packed and the aligned records): True, or False (some event is out
+    of range: springtrack.events.check names the first); None for any other layout (then
+    springtrack.events.check checks it field by field)."""
+    if not isinstance(events, cnp.ndarray) or events.ndim != 1 or events.dtype.names is None:
+        return None
+    lay = layout_of(events)
+    if lay is None:
+        return None
+    f = events.dtype.fields
+    dt, dx, dy, dp = (f[k][0] for k in ("t", "x", "y", "p"))
+    if dt.itemsize != 8 or dx.itemsize != 2 or dy.itemsize != 2 or dp.itemsize != 1 \
+            or dx.kind != dy.kind:
+        return None
+    cdef Layout L
+    L.stride, L.ot, L.ox, L.oy, L.op, L.tsize, L.tsigned = lay
+    # uint64 t read as int64: a value past T_MAX reads either above T_MAX or below 0
+    cdef int64_t t_lo = T_MIN if dt.kind == "i" else 0, t_hi = T_MAX
+    cdef uint16_t xy_sign = 0x8000 if dx.kind == "i" else 0
+    cdef uint8_t p_max = 255 if dp.kind == "b" else 1     # a bool is 0 or 1 by its type
+    cdef const char* q = <const char*>cnp.PyArray_DATA(events)
+    cdef Py_ssize_t n = events.shape[0]
+    cdef bint ok
+    with nogil:
+        ok = records_ok(q, n, &L, t_lo, t_hi, xy_sign, p_max)
+    return bool(ok)
 
 
 cdef void convert_block(const char* q, const Layout* L, Event* out, Py_ssize_t m) noexcept nogil:

@@ -93,7 +93,8 @@ def report(res) -> None:
     ev = m.learned
     print(f"stability {ev['stability']:.2f} = persistence {ev['persistence']:.2f} x coherence "
           f"{ev['coherence']:.2f} x layout rigidity {ev['layout']:.2f} (1 = parts that lived "
-          f"two grace periods, fired together, in a rigid layout)")
+          f"two grace periods, fired together, in a rigid layout); parts moved "
+          f"{ev['travel_px']:g} px (median)")
     print("params    " + ", ".join(f"{k}={v}" for k, v in m.params.items()))
     print(f"{'tracker':>8} {'x':>7} {'y':>7} {'sigma_x':>7} {'sigma_y':>7} {'mass':>5} {'events':>7}")
     for t, n in zip(m.trackers, res.counts):
@@ -129,6 +130,12 @@ def notes(res) -> list:
         out.append(f"layout rigidity {res.model.learned['layout']:.2f} < {LAYOUT_RIGID}: the "
                    f"parts slid against each other (texture, a 3-D object, several objects); "
                    f"the springs may pull trackers off their parts")
+    ev = res.model.learned
+    if "flicker_hz" in ev:
+        out.append(f"the event rate pulses at {ev['flicker_hz']:g} Hz ({100 * ev['flicker_share']:.0f} % "
+                   f"of its variation): mains flicker; the parts moved {ev['travel_px']:g} px "
+                   f"(median): a model of still things lit by a flickering lamp, not of a "
+                   f"moving object, unless something moved in the window")
     s = res.model.params.get("energy_scale")
     if s is not None and len(res.model.connections) and s > len(res.model.connections):
         out.append(f"energy_scale {s:g} > {len(res.model.connections)} springs: the occlusion "

@@ -75,6 +75,7 @@ cdef extern from "csrc/fixed_step.h" nogil:
     int fx_load_model(fx_state* s, const int32_t* w, int32_t nw, uint64_t* cells, int32_t cap)
     int fx_set_params(fx_state* s, const int32_t* w, int32_t nw)
     int fx_move(fx_state* s, const int32_t* w, int32_t nw)
+    int fx_relocate(fx_state* s, const int32_t* w, int32_t nw)
     int32_t fx_cells_needed(int32_t width, int32_t height)
     int fx_step(fx_state* s, int64_t t, int32_t x, int32_t y)
     int64_t fx_steps(fx_state* s, const fx_event* ev, int64_t n, int64_t t_stop)
@@ -253,6 +254,16 @@ cdef class FixedKernel:
             raise ValueError(f"fixed kernel: the move does not load (fx_move {rc}): the "
                              f"model must be the instance's own, moved")
         self.model = model
+
+    def relocate(self, idx, x, y, sxx, sxy, syy):
+        """Trackers ``idx`` at means (x, y) and covariances (sxx, sxy, syy), activities 0;
+        the others, the rest geometry, the frame and the state kept
+        (springtrack.reference.ReferenceTracker.relocate, in integers: fx_relocate)."""
+        cdef fx_state* s = <fx_state*>self.state
+        cdef int32_t[::1] words = _q.relocate_words(idx, x, y, sxx, sxy, syy)
+        rc = fx_relocate(s, &words[0], words.shape[0])
+        if rc != FX_OK:
+            raise ValueError(f"fixed kernel: the relocation does not load (fx_relocate {rc})")
 
     def run(self, events, long long sample_us, long long next_t, Py_ssize_t cap):
         """Process ``events`` (EVENT_DTYPE, C-contiguous). Returns (consumed, next_t, samples)
@@ -469,6 +480,10 @@ cdef class FixedSet:
         self.kernels[g] = k
         self.g.inst[g] = s
         fx_set_state(self.g, g, FX_TRACKING)
+
+    def relocate(self, int g, idx, x, y, sxx, sxy, syy):
+        """Instance g's trackers ``idx`` put elsewhere (FixedKernel.relocate)."""
+        self.kernels[g].relocate(idx, x, y, sxx, sxy, syy)
 
     def move(self, int g, sim, model):
         """Instance g moved rigidly by ``sim`` (FixedKernel.move: fx_move on its state)."""

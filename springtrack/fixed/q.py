@@ -243,6 +243,25 @@ def move_words(sim, model, n: int, nc: int) -> np.ndarray:
                            model_words(model.arrays(), model.width, model.height)])
 
 
+RELOCATE_COV_LIM = float(1 << (52 - COV_FRAC))   # fx_relocate's covariances, px^2
+
+
+def relocate_words(idx, x, y, sxx, sxy, syy) -> np.ndarray:
+    """The word stream fx_relocate reads (fixed/csrc/fixed_move.c): the count, then per
+    tracker its index within the instance, its mean (Q.32) and covariance (Q.40)."""
+    lim = POS_LIM_PX
+    words = [len(idx)]
+    for k, j in enumerate(idx):
+        where = f"relocate tracker {int(j)}"
+        words += [int(j), *_w64(q(float(x[k]), POS_FRAC, f"{where} x", -lim, lim - 1.0)),
+                  *_w64(q(float(y[k]), POS_FRAC, f"{where} y", -lim, lim - 1.0)),
+                  *_w64(q(float(sxx[k]), COV_FRAC, f"{where} sxx", 0.0, RELOCATE_COV_LIM)),
+                  *_w64(q(float(sxy[k]), COV_FRAC, f"{where} sxy", -RELOCATE_COV_LIM,
+                          RELOCATE_COV_LIM)),
+                  *_w64(q(float(syy[k]), COV_FRAC, f"{where} syy", 0.0, RELOCATE_COV_LIM))]
+    return _int32_words(words)
+
+
 def model_q(arr: dict, width: int, height: int) -> dict:
     """The kernel's integer model (positions, springs, masses) from ShapeModel.arrays(),
     within the limits every backend shares (springtrack.limits.check_model, as ShapeModel

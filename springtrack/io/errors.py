@@ -1,4 +1,5 @@
-"""The exception for input that cannot be decoded at all."""
+"""The exceptions for input that cannot be decoded at all: files and streams of events
+(DecodeError), the host link's frames and payloads (WireError)."""
 
 
 class DecodeError(ValueError):
@@ -7,3 +8,8 @@ class DecodeError(ValueError):
     Recoverable problems inside a stream (garbage words, events outside the geometry,
     time jumps) are not raised: they are counted in :class:`DecodeStats`.
     """
+
+
+class WireError(ValueError):
+    """A frame or payload of the host link could not be decoded; the message says what and
+    where."""

@@ -75,7 +75,8 @@ from springtrack.kernel.step cimport kstep, ksteps
 from springtrack.kernel.covariance cimport clamp_and_invert, ST_RHO_MAX, ST_RHO_MAX2
 from springtrack.kernel.index cimport reindex
 from springtrack.kernel.motion cimport predict_dt, still, clampd, ST_VELOCITY_MAX, ST_P_UNKNOWN
-from springtrack.kernel.activity cimport activity_decay, kactivity, rescale_activity
+from springtrack.kernel.activity cimport (activity_decay, flush_activity, kactivity,
+                                         rescale_activity)
 from springtrack.kernel.springs cimport (ksprings, init_springs, init_instance, compose_sensitive,
                                     rest_trackers)
 
@@ -293,6 +294,25 @@ cdef class Kernel:
         init_instance(s, g)                # the rest terms' coefficients, the frame at rest
         s.n_frame_moves = moves
         self.set_state(g, K_TRACKING)
+
+    def relocate(self, int g, idx, x, y, sxx, sxy, syy):
+        """Instance g's trackers ``idx`` at means (x, y), covariances (sxx, sxy, syy),
+        activities 0; the others, the rest geometry, the frame and the state kept
+        (springtrack.reference.ReferenceTracker.relocate), the index updated."""
+        cdef KState* s = &self.st
+        cdef int i, k
+        self._instance(g)
+        flush_activity(s)                  # the increments logged so far, first
+        for k in range(len(idx)):
+            i = s.g_t0[g] + <int>idx[k]
+            if not s.g_t0[g] <= i < s.g_t1[g]:
+                raise IndexError(f"relocate: tracker {int(idx[k])} is not in instance {g}")
+            s.mx[i], s.my[i] = float(x[k]), float(y[k])
+            s.sxx[i], s.sxy[i], s.syy[i] = float(sxx[k]), float(sxy[k]), float(syy[k])
+            s.act[i] = 0.0
+            still(s, i)
+            clamp_and_invert(s, i)
+            reindex(s, i)
 
     def move(self, int g, sim, model):
         """Instance g moved rigidly by ``sim`` = (a, b, tx, ty), x -> A x + t with

@@ -99,3 +99,17 @@ cdef inline void motion_update(KState* s, int i, double gain, double kv, double 
     if s.tau_m > 0.0:
         s.vx[i] = clampd(s.vx[i] + kv * rx, -ST_VELOCITY_MAX, ST_VELOCITY_MAX)
         s.vy[i] = clampd(s.vy[i] + kv * ry, -ST_VELOCITY_MAX, ST_VELOCITY_MAX)
+
+
+cdef inline bint in_motion(const KState* s) noexcept nogil:
+    """Whether the motion model can move a mean: tau_m or c_h on, or a tracker holding a
+    velocity or a half offset.  When not, eqs. (M1)-(M7) reduce to eqs. (3)-(5) exactly
+    (every prediction adds 0.0 and the gain is alpha1): the per-event path may skip them
+    (kernel/step.pxd) and still compute the same bits."""
+    cdef int i
+    if s.tau_m > 0.0 or s.c_h > 0.0:
+        return True
+    for i in range(s.n):
+        if s.vx[i] != 0.0 or s.vy[i] != 0.0 or s.hx[i] != 0.0 or s.hy[i] != 0.0:
+            return True
+    return False

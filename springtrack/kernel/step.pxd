@@ -27,7 +27,7 @@ from springtrack.kernel.index cimport check_index
 from springtrack.kernel.covariance cimport clamp_and_invert
 from springtrack.kernel.activity cimport log_activity, flush_activity, rescale_activity
 from springtrack.kernel.springs cimport ksprings
-from springtrack.kernel.motion cimport predict_dt, motion_gain, motion_update
+from springtrack.kernel.motion cimport predict_dt, motion_gain, motion_update, in_motion
 
 cdef extern from *:
     """
@@ -37,8 +37,10 @@ cdef extern from *:
 
 
 cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double fy, double d2,
-                                int pol, bint one) noexcept nogil:
+                                int pol, bint one, bint moving) noexcept nogil:
     # [ref] _update
+    # ``moving`` False (a constant in the callers' loops): the motion model is at rest
+    # (motion.pxd in_motion), its terms are exact zeros and are left out
     # eq. (6) with eq. (2)'s unnormalised kernel value p = exp(-d2/2) as the increment,
     # kept rescaled (kernel/activity.pxd): act += p * exp((t - act_t0) / tau), one exp (logged)
     if t - s.act_t0 > s.act_span:
@@ -46,20 +48,30 @@ cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double f
     log_activity(s, i, -0.5 * d2 + <double>(t - s.act_t0) * s.inv_tau)
     # its instance's gains (one instance: the first tracker's, at a constant address)
     cdef const double* gain = &s.gain[0][0] if one else &s.gain[i][0]
-    cdef double kv
-    cdef double a1 = motion_gain(s, i, t, gain[0], &kv), keep = gain[1], g = gain[2]  # eq. (M3)
-    cdef double lead = predict_dt(s, i, t)                           # eq. (M1): the mean
-    cdef double px = s.mx[i] + s.vx[i] * lead                        # predicted to t
-    cdef double py = s.my[i] + s.vy[i] * lead
-    s.tm[i] = t
-    cdef double dx = fx - px                                         # eq. (5), pre-update
-    cdef double dy = fy - py                                         # (predicted) mean
-    cdef double sgn = 1.0 if pol else -1.0                           # eq. (M4)
-    cdef double rx = dx - sgn * s.hx[i]
-    cdef double ry = dy - sgn * s.hy[i]
-    s.mx[i] = px + a1 * rx                                           # eq. (M5) = eq. (3)
-    s.my[i] = py + a1 * ry
-    motion_update(s, i, a1, kv, sgn, rx, ry)                         # eqs. (M6)-(M7)
+    cdef double kv, a1, lead, px, py, dx, dy, sgn, rx, ry
+    cdef double keep = gain[1], g = gain[2]
+    if not moving:
+        a1 = gain[0]                                                 # eq. (3)
+        s.tk[i] = t
+        s.tm[i] = t
+        dx = fx - s.mx[i]                                            # eq. (5)
+        dy = fy - s.my[i]
+        s.mx[i] = s.mx[i] + a1 * dx                                  # eq. (3)
+        s.my[i] = s.my[i] + a1 * dy
+    else:
+        a1 = motion_gain(s, i, t, gain[0], &kv)                      # eq. (M3)
+        lead = predict_dt(s, i, t)                                   # eq. (M1): the mean
+        px = s.mx[i] + s.vx[i] * lead                                # predicted to t
+        py = s.my[i] + s.vy[i] * lead
+        s.tm[i] = t
+        dx = fx - px                                                 # eq. (5), pre-update
+        dy = fy - py                                                 # (predicted) mean
+        sgn = 1.0 if pol else -1.0                                   # eq. (M4)
+        rx = dx - sgn * s.hx[i]
+        ry = dy - sgn * s.hy[i]
+        s.mx[i] = px + a1 * rx                                       # eq. (M5) = eq. (3)
+        s.my[i] = py + a1 * ry
+        motion_update(s, i, a1, kv, sgn, rx, ry)                     # eqs. (M6)-(M7)
     s.sxx[i] = keep * s.sxx[i] + g * (dx * dx)                       # eq. (4)
     s.sxy[i] = keep * s.sxy[i] + g * (dx * dy)
     s.syy[i] = keep * s.syy[i] + g * (dy * dy)
@@ -68,7 +80,7 @@ cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double f
 
 
 cdef inline void scan_word(const KState* s, uint64_t m, int base, int64_t t, double fx,
-                           double fy, int* best, double* best_d2) noexcept nogil:
+                           double fy, int* best, double* best_d2, bint moving) noexcept nogil:
     """eq. (2) over the trackers of one mask word (tracker base + bit), in index order:
     the smallest d^2 below *best_d2 wins (ties: the lowest index)."""
     cdef int i
@@ -76,9 +88,13 @@ cdef inline void scan_word(const KState* s, uint64_t m, int base, int64_t t, dou
     while m:
         i = base + st_ctz64(m)
         m &= m - 1
-        lead = predict_dt(s, i, t)                                   # eq. (M1)
-        dx = fx - (s.mx[i] + s.vx[i] * lead)
-        dy = fy - (s.my[i] + s.vy[i] * lead)
+        if moving:
+            lead = predict_dt(s, i, t)                               # eq. (M1)
+            dx = fx - (s.mx[i] + s.vx[i] * lead)
+            dy = fy - (s.my[i] + s.vy[i] * lead)
+        else:
+            dx = fx - s.mx[i]
+            dy = fy - s.my[i]
         d2 = s.ia[i] * dx * dx + s.ic[i] * dy * dy + s.ib2[i] * dx * dy
         if d2 < best_d2[0]:
             best_d2[0] = d2
@@ -86,11 +102,13 @@ cdef inline void scan_word(const KState* s, uint64_t m, int base, int64_t t, dou
 
 
 cdef inline int assign_event(KState* s, int64_t t, int x, int y, int pol,
-                             bint one) noexcept nogil:
+                             bint one, bint moving) noexcept nogil:
     """eqs. (2)-(6) for a valid event: the most probable sensitive tracker of every
     instance takes it (an event feeds at most one tracker of one instance).  ``one``:
-    the state holds one instance (so at most 64 trackers: one mask word), a constant in
-    the callers' loops (ksteps), which then compile this path without the others."""
+    the state holds one instance (so at most 64 trackers: one mask word); ``moving``: the
+    motion model may move a mean (motion.pxd in_motion; if not, its predictions are exact
+    zeros and are left out); constants in the callers' loops (ksteps), which then compile
+    this path without the others."""
     cdef double fx = x, fy = y, dx, dy, d2, lead
     cdef double best_d2 = s.gate
     cdef int best = K_NO_TRACKER, i, w
@@ -106,9 +124,13 @@ cdef inline int assign_event(KState* s, int64_t t, int x, int y, int pol,
         while m:
             i = st_ctz64(m)
             m &= m - 1
-            lead = predict_dt(s, i, t)                               # eq. (M1): about the
-            dx = fx - (s.mx[i] + s.vx[i] * lead)                     # predicted mean
-            dy = fy - (s.my[i] + s.vy[i] * lead)
+            if moving:
+                lead = predict_dt(s, i, t)                           # eq. (M1): about the
+                dx = fx - (s.mx[i] + s.vx[i] * lead)                 # predicted mean
+                dy = fy - (s.my[i] + s.vy[i] * lead)
+            else:
+                dx = fx - s.mx[i]
+                dy = fy - s.my[i]
             d2 = s.ia[i] * dx * dx + s.ic[i] * dy * dy + s.ib2[i] * dx * dy
             if d2 < best_d2:
                 best_d2 = d2
@@ -116,16 +138,18 @@ cdef inline int assign_event(KState* s, int64_t t, int x, int y, int pol,
     else:
         c *= s.nw
         for w in range(s.nw):
-            scan_word(s, s.cells[c + w] & s.sensitive[w], w << 6, t, fx, fy, &best, &best_d2)
+            scan_word(s, s.cells[c + w] & s.sensitive[w], w << 6, t, fx, fy, &best, &best_d2,
+                      moving)
     if best >= 0:
-        update_tracker(s, best, t, fx, fy, best_d2, pol, one)
+        update_tracker(s, best, t, fx, fy, best_d2, pol, one, moving)
         s.n_assigned += 1
     return best
 
 
 cdef inline Py_ssize_t ksteps_of(KState* s, const Event* ev, Py_ssize_t n, int64_t t_stop,
-                                 bint one) noexcept nogil:
-    """ksteps() for a state of one instance (``one``, a constant) or several."""
+                                 bint one, bint moving) noexcept nogil:
+    """ksteps() for a state of one instance (``one``, a constant) or several, the motion
+    model moving or at rest (``moving``, a constant; assign_event)."""
     cdef Py_ssize_t k
     cdef int64_t t, last_t = s.last_t, n_back = 0, n_outside = 0, n_valid = 0
     cdef int since = s.since_spring, period = s.period
@@ -144,12 +168,12 @@ cdef inline Py_ssize_t ksteps_of(KState* s, const Event* ev, Py_ssize_t n, int64
             n_outside += 1
             continue
         n_valid += 1
-        assign_event(s, t, x, y, ev[k].p, one)
+        assign_event(s, t, x, y, ev[k].p, one, moving)
         since += 1
         if since >= period:
             since = 0
             s.last_t = last_t                  # eq. (M1): the springs' time
-            ksprings(s)
+            ksprings(s)                        # (at rest, they set no velocity: tau_m = 0)
     else:
         k = n
     flush_activity(s)
@@ -166,11 +190,17 @@ cdef inline Py_ssize_t ksteps(KState* s, const Event* ev, Py_ssize_t n, int64_t 
     back in time (the sampling rule, csrc/sampling.h, with t_stop the next sample time);
     returns the events processed (the Stepper's steps(), backends/stepper.pxd).
     The counters and the last time live in locals for the batch and are written back at
-    its end (nothing the step calls reads them).  Two copies of the loop: one instance
-    (the common case, its per-event path as lean as a one-model kernel's) and several."""
+    its end (nothing the step calls reads them).  Four copies of the loop: one instance
+    (the common case, its per-event path as lean as a one-model kernel's) or several, the
+    motion model moving or at rest (motion.pxd in_motion, decided per batch)."""
+    cdef bint moving = in_motion(s)
     if s.ni == 1:
-        return ksteps_of(s, ev, n, t_stop, True)
-    return ksteps_of(s, ev, n, t_stop, False)
+        if moving:
+            return ksteps_of(s, ev, n, t_stop, True, True)
+        return ksteps_of(s, ev, n, t_stop, True, False)
+    if moving:
+        return ksteps_of(s, ev, n, t_stop, False, True)
+    return ksteps_of(s, ev, n, t_stop, False, False)
 
 
 cdef inline int kstep(KState* s, int64_t t, int x, int y, int p) noexcept nogil:
@@ -184,7 +214,7 @@ cdef inline int kstep(KState* s, int64_t t, int x, int y, int p) noexcept nogil:
         s.n_outside += 1
         return K_OUT_OF_SENSOR
     s.n_valid += 1
-    cdef int best = assign_event(s, t, x, y, p, s.ni == 1)
+    cdef int best = assign_event(s, t, x, y, p, s.ni == 1, True)
     flush_activity(s)
     s.since_spring += 1
     if s.since_spring >= s.period:

@@ -13,6 +13,7 @@ from ..model import SPRING_BIT, Connection, ShapeModel, TrackerSpec
 from ..params import Params
 from .discovery import (_discover, _keep_cols, _to_count, awake, event_rates, event_shares,
                         quiet_nan, reference_value)
+from .flicker import FLICKER_SHARE, mains_flicker
 from .pool import Pool
 from .settings import (F, LearnParams, LearnResult, MASS_RANGE, MAX_PARTS, MIN_EVENTS,
                        NoObjectFound, PERSIST_GRACES, PERSIST_MIN, POINT_SIGMA, COHERENCE_MIN)
@@ -99,6 +100,9 @@ def learn_model(events, trackers: int | None = None, width: int | None = None,
     model, springs, cands, counts = _build_model(pool, rec, counts, lp, tp, width, height,
                                                  names, name)
     model.learned = stability(rec, springs, cands, lp, t0, t1, len(ev))
+    hz, share = mains_flicker(ev["t"])
+    if share >= FLICKER_SHARE:
+        model.learned.update(flicker_hz=hz, flicker_share=round(share, 3))
     if model.learned["persistence"] < PERSIST_MIN:
         life = PERSIST_GRACES * lp.life_tau_us / 1e3
         raise NoObjectFound(
@@ -132,8 +136,16 @@ def stability(rec: dict, springs: list, candidates: list, lp: LearnParams, t0: i
     ``coherence``: the share of neighbouring pairs (the spring candidates) that were
     co-active (``min_coactivation``): the parts of one object fire together as it
     moves, sparks and noise each on their own; 1 for a single part.
-    ``stability`` = persistence x coherence x layout, in [0, 1]."""
+    ``stability`` = persistence x coherence x layout, in [0, 1].  ``travel_px``: the
+    median over the parts of how far each moved from its median place within the window
+    (largest distance, px): a part that did not move was seen through flicker or noise,
+    not motion, and its springs' rigidity was never put to the test."""
     lived = rec["valid"].sum(axis=0) * float(lp.batch_us)
+    with quiet_nan():
+        dx = rec["x"] - np.nanmedian(rec["x"], axis=0)
+        dy = rec["y"] - np.nanmedian(rec["y"], axis=0)
+        reach = np.nanmax(np.hypot(dx, dy), axis=0)
+    travel = float(np.median(reach[np.isfinite(reach)])) if np.isfinite(reach).any() else 0.0
     n = len(lived)
     persistence = (float(np.median(np.minimum(1.0, lived / (PERSIST_GRACES * lp.life_tau_us))))
                    if n else 0.0)
@@ -145,7 +157,8 @@ def stability(rec: dict, springs: list, candidates: list, lp: LearnParams, t0: i
                      if candidates else 0.0)
     return {"stability": round(persistence * coherence * layout, 3),
             "persistence": round(persistence, 3), "coherence": round(coherence, 3),
-            "layout": round(layout, 3), "window_ms": round((t1 - t0) / 1e3, 3),
+            "layout": round(layout, 3), "travel_px": round(travel, 2),
+            "window_ms": round((t1 - t0) / 1e3, 3),
             "events": int(events)}
 
 

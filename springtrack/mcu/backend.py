@@ -65,6 +65,19 @@ class McuBackend:
                              f"must be the instance's own, moved")
         self.model = model
 
+    def relocate(self, idx, x, y, sxx, sxy, syy) -> None:
+        """Trackers ``idx`` put elsewhere (FixedKernel.relocate: fx_relocate in the
+        firmware, the same words)."""
+        self._relocate(self.emu, 0, idx, x, y, sxx, sxy, syy)
+
+    @staticmethod
+    def _relocate(emu, inst, idx, x, y, sxx, sxy, syy) -> None:
+        words = fixed_q.relocate_words(idx, x, y, sxx, sxy, syy)
+        emu.write("mcu_words", words)
+        st = emu.call(E.MCU_RELOCATE, nwords=len(words), inst=inst)["status"]
+        if st != 0:
+            raise ValueError(f"mcu backend: the relocation does not load (fx_relocate {st})")
+
     # ---- events -------------------------------------------------------------------------
     def run(self, events, sample_us, next_t, cap):
         """As ``FixedKernel.run``: (consumed, next_t, samples) with at most ``cap`` rows."""
@@ -215,6 +228,10 @@ class McuSet(McuBackend):
         self.mset = self.mset.replaced(g, model)
         self._load_instance(g)
         self._states[g] = int(TRACKING)
+
+    def relocate(self, g: int, idx, x, y, sxx, sxy, syy) -> None:
+        """Instance g's trackers ``idx`` put elsewhere (fx_relocate in the firmware)."""
+        McuBackend._relocate(self.emu, g, idx, x, y, sxx, sxy, syy)
 
     def move(self, g: int, sim, model) -> None:
         inst = self.mset[g]

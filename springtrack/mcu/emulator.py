@@ -27,7 +27,7 @@ STACK_FILL = 0xA5
 
 # mcu_main commands (entry.c)
 MCU_NOP, MCU_LOAD_MODEL, MCU_SET_PARAMS, MCU_RUN, MCU_STEP, MCU_SNAPSHOT, MCU_ENERGIES, \
-    MCU_SPRINGS, MCU_MOVE, MCU_SET_INIT, MCU_SET_STATE = range(11)
+    MCU_SPRINGS, MCU_MOVE, MCU_SET_INIT, MCU_SET_STATE, MCU_RELOCATE = range(12)
 # mcu_io_t (entry.c): int64 sample_us, next_t, t; int32 cmd, status, nwords, nevents, cap,
 # consumed, rows, inst
 IO = struct.Struct("<qqqiiiiiiii")

@@ -21,8 +21,11 @@
  *                   (fx_set: one event assignment, the instances' states) from here on, in
  *                   a build with MCU_SET                             -> status
  *   MCU_SET_STATE   instance inst's state (instances.InstanceState) = mcu_words[0]
+ *   MCU_RELOCATE    mcu_words[0..nwords): fixed.q.relocate_words (trackers of the instance
+ *                   put elsewhere one by one, fx_relocate)            -> status
  *
- * MCU_LOAD_MODEL, MCU_SET_PARAMS, MCU_MOVE and MCU_ENERGIES act on instance mcu_io.inst
+ * MCU_LOAD_MODEL, MCU_SET_PARAMS, MCU_MOVE, MCU_RELOCATE and MCU_ENERGIES act on instance
+ * mcu_io.inst
  * (0 with one instance); loading an instance of a set again (placing it) keeps the set's
  * clock and the replaced state's counts.  Every call then refreshes mcu_counters, and per
  * instance mcu_means (eq. 13's mean energy, Q.40) and mcu_frames (the similarity frame:
@@ -75,7 +78,7 @@
 
 enum { MCU_NOP = 0, MCU_LOAD_MODEL = 1, MCU_SET_PARAMS = 2, MCU_RUN = 3, MCU_STEP = 4,
        MCU_SNAPSHOT = 5, MCU_ENERGIES = 6, MCU_SPRINGS = 7, MCU_MOVE = 8, MCU_SET_INIT = 9,
-       MCU_SET_STATE = 10 };
+       MCU_SET_STATE = 10, MCU_RELOCATE = 11 };
 
 typedef struct {
     int64_t sample_us, next_t, t;       /* in: sampling; next_t also out */
@@ -352,6 +355,9 @@ void mcu_main(void)
         break;
     case MCU_MOVE:
         io->status = fx_move(s, mcu_words, io->nwords);
+        break;
+    case MCU_RELOCATE:
+        io->status = fx_relocate(s, mcu_words, io->nwords);
         break;
     case MCU_SET_INIT:
         io->status = set_init(mcu_words[0]);

@@ -351,3 +351,34 @@ def test_telemetry_carries_the_instance_states_in_an_optional_trailer():
                 plain + bytes([1, 7, 26, 0])):                          # an unknown state
         with pytest.raises(wire.WireError, match="TELEMETRY"):
             wire.decode_telemetry(bad)
+
+
+def test_telemetry_carries_the_velocities_in_an_optional_block():
+    """The motion model's velocities (eq. M7) within VEL_UNIT / 2 px/s, saturated at the
+    i16 code's end; still trackers (the model off) send the frame they always sent; the
+    block and the states trailer together; a block cut short is a WireError."""
+    tr = face26_snapshot()
+    rec = wire.quantise_trackers(tr)
+    plain = wire.encode_telemetry(7, 1, 0.5, rec)
+    assert wire.encode_telemetry(7, 1, 0.5, rec, None, wire.quantise_velocities(tr)) == plain
+    assert (wire.decode_telemetry(plain)[3][["vx", "vy"]].tolist() == [(0.0, 0.0)] * 26)
+    tr["vx"] = np.linspace(-13_000.0, 20_003.0, 26)
+    tr["vy"] = -np.geomspace(0.1, 300_000.0, 26)                  # the last beyond the code
+    vel = wire.quantise_velocities(tr)
+    st = np.array([1] * 20 + [2] * 6, np.uint8)
+    p = wire.encode_telemetry(7, 1, 0.5, rec, st, vel)
+    assert len(p) == len(plain) + 1 + 26 * 4 + 1 + 2 * 3
+    out = wire.decode_telemetry(p)[3]
+    assert np.all(np.abs(out["vx"] - tr["vx"]) <= wire.VEL_UNIT / 2)
+    assert np.all(np.abs(out["vy"][:-1] - tr["vy"][:-1]) <= wire.VEL_UNIT / 2)
+    assert out["vy"][-1] == -0x7FFF * wire.VEL_UNIT
+    assert np.array_equal(out["state"], st)
+    assert np.array_equal(wire.decode_telemetry(wire.encode_telemetry(7, 1, 0.5, rec, None, vel))[3]["vx"],
+                          out["vx"])
+    for bad in (plain + bytes([wire.VELOCITY_TAG]) + vel.tobytes()[:-1],
+                plain + bytes([wire.VELOCITY_TAG])):
+        with pytest.raises(wire.WireError, match="velocity block"):
+            wire.decode_telemetry(bad)
+    tr["vx"][3] = np.nan
+    with pytest.raises(wire.WireError, match="non-finite tracker velocity"):
+        wire.quantise_velocities(tr)

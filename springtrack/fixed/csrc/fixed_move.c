@@ -89,3 +89,42 @@ int fx_move(fx_state *s, const int32_t *w, int32_t nw)
     sim_point(a, b, tx, ty, &s->frame_gx, &s->frame_gy);
     return FX_OK;
 }
+
+/* ---- trackers put elsewhere one by one (springtrack.reference.ReferenceTracker.relocate) */
+
+/* words: the count m, then FX_RELOCATE_TRACKER words per tracker: its index, its mean
+   (x, y Q.32) and covariance (sxx, sxy, syy Q.40), each an int64 as two words.  Every
+   word is checked before anything changes.  The trackers' activities become 0; the
+   others, the rest geometry, the frame and the state are kept. */
+int fx_relocate(fx_state *s, const int32_t *w, int32_t nw)
+{
+    int32_t m, k;
+    const int32_t *t;
+    if (nw < 1)
+        return FX_ERR_WORDS;
+    m = w[0];
+    if (m < 0 || m > s->n || nw != 1 + m * FX_RELOCATE_TRACKER)
+        return FX_ERR_WORDS;
+    for (k = 0, t = w + 1; k < m; k++, t += FX_RELOCATE_TRACKER) {
+        int64_t x = word64(t + 1), y = word64(t + 3);
+        int64_t sxx = word64(t + 5), sxy = word64(t + 7), syy = word64(t + 9);
+        if (t[0] < 0 || t[0] >= s->n || x < -FX_POS_LIM || x >= FX_POS_LIM
+            || y < -FX_POS_LIM || y >= FX_POS_LIM || sxx <= 0 || syy <= 0
+            || sxx > FX_RELOCATE_COV_LIM || syy > FX_RELOCATE_COV_LIM
+            || sxy <= -FX_RELOCATE_COV_LIM || sxy >= FX_RELOCATE_COV_LIM)
+            return FX_ERR_RANGE;
+    }
+    for (k = 0, t = w + 1; k < m; k++, t += FX_RELOCATE_TRACKER) {
+        int i = t[0];
+        s->mx[i] = word64(t + 1);
+        s->my[i] = word64(t + 3);
+        s->sxx[i] = word64(t + 5);
+        s->sxy[i] = word64(t + 7);
+        s->syy[i] = word64(t + 9);
+        s->act[i] = 0;                                    /* eq. (6): no event there yet */
+        s->tlast[i] = s->last_t;
+        refresh(s, i);                                    /* clamped as eq. (4)'s, inverted */
+        fx_reindex(s, i);
+    }
+    return FX_OK;
+}

@@ -79,6 +79,8 @@
 #define FX_MOVE_HEAD 6                      /* fx_move: the similarity's words, then a model's */
 #define FX_SIM_FRAC 28                      /* the similarity's a, b: Q.28 (|.| < 8) */
 #define FX_SIM_T_LIM ((int64_t)1 << 52)     /* its translation: Q.32, |.| < 2^20 px */
+#define FX_RELOCATE_TRACKER 11              /* fx_relocate: index, x, y, sxx, sxy, syy */
+#define FX_RELOCATE_COV_LIM ((int64_t)1 << 52)  /* its covariances: Q.40, < 2^12 px^2 */
 
 enum { FX_NO_TRACKER = -1, FX_BACK_IN_TIME = -2, FX_OUT_OF_SENSOR = -3 };
 /* fx_load_model / fx_set_params / fx_move results (FX_ERR_MODEL: fx_move's model is not the
@@ -211,6 +213,7 @@ int fx_set_params(fx_state *s, const int32_t *w, int32_t nw);
    deformation, energies and counters kept; the rest geometry from the moved model.  On an
    error nothing changes. */
 int fx_move(fx_state *s, const int32_t *w, int32_t nw);
+int fx_relocate(fx_state *s, const int32_t *w, int32_t nw);
 int32_t fx_cells_needed(int32_t width, int32_t height);
 
 int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y);

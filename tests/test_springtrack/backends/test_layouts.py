@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from springtrack.backends.stepper import layout_of
-from springtrack.events import EVENT_DTYPE, as_events
+from springtrack.backends.stepper import in_range, layout_of
+from springtrack.events import EVENT_DTYPE, T_MAX, T_MIN, EventError, as_events, check
 from springtrack.sim.sensor import simulate_all
 from springtrack.sampling import UNSET
 from springtrack.tracker import Tracker, make_backend
@@ -77,3 +77,51 @@ def test_other_layouts_are_converted_or_refused_clearly(face):
     tr.process(flt)                      # converted first (as_events), then tracked
     assert tr.counters["events_valid"] == 10
     assert as_events(flt).dtype == EVENT_DTYPE
+
+
+CHECKED = {
+    "packed i64/i16/u8": [("t", "<i8"), ("x", "<i2"), ("y", "<i2"), ("p", "u1")],
+    "packed u64/u16/i8": [("t", "<u8"), ("x", "<u2"), ("y", "<u2"), ("p", "i1")],
+    "EVENT_DTYPE": EVENT_DTYPE,
+    "packed i64/i16/bool": [("t", "<i8"), ("x", "<i2"), ("y", "<i2"), ("p", "?")],
+}
+# (field, value) out of springtrack.events.RANGES where the field's type can hold it
+BAD = [("t", T_MIN - 1), ("t", T_MAX + 1), ("t", 1 << 63), ("x", -1), ("y", -32768),
+       ("p", 2), ("p", -1), ("p", 255)]
+
+
+@pytest.mark.parametrize("name", CHECKED)
+def test_the_one_pass_range_check_agrees_with_check(face, name):
+    """in_range (one pass over the records, before the kernels read them as they are)
+    finds an event out of range exactly where springtrack.events.check raises for it."""
+    dt = np.dtype(CHECKED[name])
+    ev = np.zeros(len(face), dt)
+    for f in ("t", "x", "y", "p"):
+        ev[f] = face[f]
+    assert in_range(ev) is True
+    assert in_range(ev[:0]) is True
+    rng = np.random.default_rng(3)
+    tried = 0
+    for field, value in BAD:
+        kind, size = dt.fields[field][0].kind, dt.fields[field][0].itemsize
+        info = np.iinfo(dt.fields[field][0]) if kind in "iu" else None
+        if info is None or not info.min <= value <= info.max:
+            continue                     # the type cannot hold it: nothing to find
+        bad = ev.copy()
+        i = int(rng.integers(len(bad)))
+        bad[field][i] = value
+        with pytest.raises(EventError) as err:
+            check(bad)
+        assert err.value.index == i
+        assert in_range(bad) is False
+        with pytest.raises(EventError):
+            Tracker("face26").process(bad)
+        tried += 1
+    assert tried >= 3
+
+
+def test_the_range_check_leaves_other_layouts_to_check(face):
+    odd = np.zeros(4, [("t", "<i4"), ("x", "<u2"), ("y", "<u2"), ("p", "u1")])
+    assert in_range(odd) is None
+    assert in_range(np.zeros(4, [("t", "<i8"), ("x", "<i2"), ("y", "<u2"), ("p", "u1")])) is None
+    assert in_range(np.zeros(4)) is None

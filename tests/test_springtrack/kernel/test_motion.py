@@ -15,7 +15,7 @@ from springtrack.sim.synthetic import blob_stream
 from springtrack.commands.track import DOUBTFUL_EXIT
 from springtrack.track import read_csv
 
-from support.dot_truth import dot_truth, track_errors
+from support.dot_truth import dot_model_toml, dot_truth, track_errors
 from support.fast_parts import errors, fast_disk
 
 # the motion model on (the parameters docs/algorithm.md, "Motion and both edges", names)
@@ -38,10 +38,8 @@ def dot(data_file):
 
 def dot_model(tmp_path, truth):
     """A one-tracker model placed on the dot at the recording's start, on its sensor."""
-    x, y = (float(v[0]) for v in truth.at([truth.t0]))
     path = tmp_path / "dot.toml"
-    path.write_text(f'name = "dot"\n[sensor]\nwidth = 640\nheight = 480\n[[trackers]]\n'
-                    f'id = "dot"\nx = {x:.1f}\ny = {y:.1f}\nsigma = [36.0, 0.0, 36.0]\n')
+    path.write_text(dot_model_toml(truth))
     return path
 
 

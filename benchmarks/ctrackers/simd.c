@@ -1,62 +1,130 @@
-/* The hand-vectorised peer tracker (see peer.h): eq. (2) over all trackers four at a time
- * with AVX2 intrinsics (two independent running minima, no branch per tracker), and the
- * spring passes over four connections at a time (gathers, a vector atan2 and sincos after
- * Cephes, the terms of eqs. 10-20 branch-free); the scatter onto the trackers and the
- * energy criteria stay scalar.  Compiled with -mavx2 (no FMA: the same rounding as the
- * plain peer's products and sums). */
+/* The hand-vectorised peer tracker (see peer.h): eq. (2) over the index's candidates with
+ * AVX-512 (eight trackers a lane-block, the candidate mask as the lanes' write mask) or,
+ * where the build's -march has no AVX-512, AVX2 (four a block, the mask through a table);
+ * no branch per tracker.  The spring passes four connections at a time with AVX2 (gathers,
+ * a vector atan2 and sincos after Cephes, the terms of eqs. 10-20 branch-free); the scatter
+ * onto the trackers and the energy criteria stay scalar.  Built with -march=native and
+ * -ffp-contract=off: the same rounding as the plain peer's products and sums. */
 #include <immintrin.h>
 
 #include "peer.h"
 
-/* eq. (2): the lowest-index tracker with the smallest d^2 below the gate, or -1.  A lane
+#if defined(__AVX512F__)
+/* eq. (2): the lowest-index candidate with the smallest d^2 below the gate, or -1.  A lane
  * keeps its first minimum (strict <), so equal d^2 resolve to the lowest index as in the
- * reference's scan; off[] is +inf for insensitive trackers and padding. */
-#define PEER_BLOCK(b, best, idx, lane)                                                   \
-    do {                                                                                 \
-        __m256d dx = _mm256_sub_pd(X, _mm256_load_pd(s->mx + 4 * (b)));                  \
-        __m256d dy = _mm256_sub_pd(Y, _mm256_load_pd(s->my + 4 * (b)));                  \
-        __m256d ib = _mm256_load_pd(s->ib + 4 * (b));                                    \
-        __m256d d2 = _mm256_add_pd(                                                      \
-            _mm256_add_pd(_mm256_mul_pd(_mm256_mul_pd(_mm256_load_pd(s->ia + 4 * (b)), dx), dx), \
-                          _mm256_mul_pd(_mm256_mul_pd(_mm256_load_pd(s->ic + 4 * (b)), dy), dy)), \
-            _mm256_mul_pd(_mm256_mul_pd(_mm256_add_pd(ib, ib), dx), dy));                \
-        d2 = _mm256_add_pd(d2, _mm256_load_pd(s->off + 4 * (b)));                       \
-        __m256d lt = _mm256_cmp_pd(d2, best, _CMP_LT_OQ);                                \
-        best = _mm256_blendv_pd(best, d2, lt);                                           \
-        idx = _mm256_blendv_pd(idx, lane, lt);                                           \
-    } while (0)
-
-static inline int scan(const Peer *s, double fx, double fy, double *d2_out)
+ * reference's scan; d^2 is the one eq. (2)'s probability is computed from. */
+static inline int scan(const Peer *s, uint64_t cand, double fx, double fy, double *d2_out)
 {
-    const __m256d X = _mm256_set1_pd(fx), Y = _mm256_set1_pd(fy), G = _mm256_set1_pd(s->gate);
-    const __m256d eight = _mm256_set1_pd(8.0);
-    __m256d bA = G, bB = G, xA = _mm256_set1_pd(-1.0), xB = xA;
-    __m256d iA = _mm256_setr_pd(0, 1, 2, 3), iB = _mm256_setr_pd(4, 5, 6, 7);
-    int nb = (s->n + 3) / 4, b = 0;
-    for (; b + 1 < nb; b += 2) {
-        PEER_BLOCK(b, bA, xA, iA);
-        PEER_BLOCK(b + 1, bB, xB, iB);
-        iA = _mm256_add_pd(iA, eight);
-        iB = _mm256_add_pd(iB, eight);
+    const __m512d X = _mm512_set1_pd(fx), Y = _mm512_set1_pd(fy);
+    __m512d best = _mm512_set1_pd(s->gate);
+    __m512i idx = _mm512_set1_epi64(-1), lane = _mm512_setr_epi64(0, 1, 2, 3, 4, 5, 6, 7);
+    const __m512i eight = _mm512_set1_epi64(8);
+    if (!cand)                              /* decided by the cell's mask alone */
+        return -1;
+    int nb = (s->n + 7) >> 3;
+    for (int b = 0; b < nb; b++) {
+        __mmask8 km = (__mmask8)(cand >> (8 * b));
+        __m512d dx = _mm512_sub_pd(X, _mm512_load_pd(s->mx + 8 * b));
+        __m512d dy = _mm512_sub_pd(Y, _mm512_load_pd(s->my + 8 * b));
+        __m512d d2 = _mm512_add_pd(
+            _mm512_add_pd(_mm512_mul_pd(_mm512_mul_pd(_mm512_load_pd(s->ia + 8 * b), dx), dx),
+                          _mm512_mul_pd(_mm512_mul_pd(_mm512_load_pd(s->ic + 8 * b), dy), dy)),
+            _mm512_mul_pd(_mm512_mul_pd(_mm512_load_pd(s->ib2 + 8 * b), dx), dy));
+        __mmask8 lt = _mm512_mask_cmp_pd_mask(km, d2, best, _CMP_LT_OQ);
+        best = _mm512_mask_mov_pd(best, lt, d2);
+        idx = _mm512_mask_mov_epi64(idx, lt, lane);
+        lane = _mm512_add_epi64(lane, eight);
     }
-    if (b < nb)
-        PEER_BLOCK(b, bA, xA, iA);
-    /* merge the two minima per lane: B's where smaller, or equal with a lower index */
-    __m256d takeB = _mm256_or_pd(_mm256_cmp_pd(bB, bA, _CMP_LT_OQ),
-                                 _mm256_and_pd(_mm256_cmp_pd(bB, bA, _CMP_EQ_OQ),
-                                               _mm256_cmp_pd(xB, xA, _CMP_LT_OQ)));
-    __m256d best = _mm256_blendv_pd(bA, bB, takeB), idx = _mm256_blendv_pd(xA, xB, takeB);
-    /* across the lanes: the minimum, then the lowest index holding it */
+    /* the minimum across the lanes; the lane holding it (one lane but for exact ties,
+     * which take the lowest index of the lanes that hold it) */
+    __m512d m = _mm512_min_pd(best, _mm512_shuffle_f64x2(best, best, 0x4e));
+    m = _mm512_min_pd(m, _mm512_shuffle_f64x2(m, m, 0xb1));
+    m = _mm512_min_pd(m, _mm512_permute_pd(m, 0x55));
+    double d2 = _mm512_cvtsd_f64(m);
+    if (!(d2 < s->gate))
+        return -1;
+    __mmask8 at = _mm512_cmp_pd_mask(best, m, _CMP_EQ_OQ);
+    *d2_out = d2;
+    _Alignas(64) int64_t lanes[8];
+    _mm512_store_si512(lanes, idx);
+    if (__builtin_expect((at & (at - 1)) == 0, 1))
+        return (int)lanes[__builtin_ctz(at)];
+    return (int)_mm512_mask_reduce_min_epi64(at, idx);
+}
+
+/* tracker i's lane of a block written as the whole block (see store_tracker) */
+#define BLOCK 8
+#define LANE_MASK(i) __mmask8 on = (__mmask8)(1u << ((i) & 7))
+#define STORE_LANE(arr, o, v)                                                            \
+    _mm512_store_pd(arr + o, _mm512_mask_mov_pd(_mm512_load_pd(arr + o), on, _mm512_set1_pd(v)))
+const char *peer_isa(void) { return "AVX-512 scan, AVX2 springs"; }
+#else
+/* the lanes of a block of four whose candidate bit is set: all ones */
+static const int64_t LANE_MASKS[16][4] __attribute__((aligned(32))) = {
+#define M(b) ((b) ? -1LL : 0LL)
+#define ROW(v) {M((v) & 1), M((v) & 2), M((v) & 4), M((v) & 8)}
+    ROW(0), ROW(1), ROW(2), ROW(3), ROW(4), ROW(5), ROW(6), ROW(7),
+    ROW(8), ROW(9), ROW(10), ROW(11), ROW(12), ROW(13), ROW(14), ROW(15)
+#undef ROW
+#undef M
+};
+
+/* eq. (2) as above, four trackers a block: a lane outside the candidates reads +inf */
+static inline int scan(const Peer *s, uint64_t cand, double fx, double fy, double *d2_out)
+{
+    const __m256d X = _mm256_set1_pd(fx), Y = _mm256_set1_pd(fy), INF = _mm256_set1_pd(INFINITY);
+    __m256d best = _mm256_set1_pd(s->gate), idx = _mm256_set1_pd(-1.0);
+    __m256d lane = _mm256_setr_pd(0, 1, 2, 3);
+    if (!cand)                              /* decided by the cell's mask alone */
+        return -1;
+    int nb = ((63 - __builtin_clzll(cand)) >> 2) + 1;       /* up to the last candidate */
+    for (int b = 0; b < nb; b++) {
+        __m256d on = _mm256_load_pd((const double *)LANE_MASKS[(cand >> (4 * b)) & 15]);
+        __m256d dx = _mm256_sub_pd(X, _mm256_load_pd(s->mx + 4 * b));
+        __m256d dy = _mm256_sub_pd(Y, _mm256_load_pd(s->my + 4 * b));
+        __m256d d2 = _mm256_add_pd(
+            _mm256_add_pd(_mm256_mul_pd(_mm256_mul_pd(_mm256_load_pd(s->ia + 4 * b), dx), dx),
+                          _mm256_mul_pd(_mm256_mul_pd(_mm256_load_pd(s->ic + 4 * b), dy), dy)),
+            _mm256_mul_pd(_mm256_mul_pd(_mm256_load_pd(s->ib2 + 4 * b), dx), dy));
+        d2 = _mm256_blendv_pd(INF, d2, on);
+        __m256d lt = _mm256_cmp_pd(d2, best, _CMP_LT_OQ);
+        best = _mm256_blendv_pd(best, d2, lt);
+        idx = _mm256_blendv_pd(idx, lane, lt);
+        lane = _mm256_add_pd(lane, _mm256_set1_pd(4.0));
+    }
     __m256d m = _mm256_min_pd(best, _mm256_permute2f128_pd(best, best, 1));
     m = _mm256_min_pd(m, _mm256_permute_pd(m, 5));
     double d2 = _mm256_cvtsd_f64(m);
     if (!(d2 < s->gate))
         return -1;
-    __m256d cand = _mm256_blendv_pd(_mm256_set1_pd(1e9), idx, _mm256_cmp_pd(best, m, _CMP_EQ_OQ));
-    cand = _mm256_min_pd(cand, _mm256_permute2f128_pd(cand, cand, 1));
-    cand = _mm256_min_pd(cand, _mm256_permute_pd(cand, 5));
+    __m256d c = _mm256_blendv_pd(_mm256_set1_pd(1e9), idx, _mm256_cmp_pd(best, m, _CMP_EQ_OQ));
+    c = _mm256_min_pd(c, _mm256_permute2f128_pd(c, c, 1));
+    c = _mm256_min_pd(c, _mm256_permute_pd(c, 5));
     *d2_out = d2;
-    return (int)_mm256_cvtsd_f64(cand);
+    return (int)_mm256_cvtsd_f64(c);
+}
+
+/* tracker i's lane of a block written as the whole block (see store_tracker) */
+#define BLOCK 4
+#define LANE_MASK(i) __m256d on = _mm256_load_pd((const double *)LANE_MASKS[1 << ((i) & 3)])
+#define STORE_LANE(arr, o, v)                                                            \
+    _mm256_store_pd(arr + o, _mm256_blendv_pd(_mm256_load_pd(arr + o), _mm256_set1_pd(v), on))
+const char *peer_isa(void) { return "AVX2"; }
+#endif
+
+/* What scan() reads of tracker i, its lane written as a whole block (load, blend, store):
+ * the next event's block loads then forward from one store of their width, where a scalar
+ * store into the block would stall them (a wide load cannot forward from a narrower store). */
+static inline void store_tracker(Peer *s, int i, double x, double y, double ia, double ib2,
+                                 double ic)
+{
+    int o = i & ~(BLOCK - 1);
+    LANE_MASK(i);
+    STORE_LANE(s->mx, o, x);
+    STORE_LANE(s->my, o, y);
+    STORE_LANE(s->ia, o, ia);
+    STORE_LANE(s->ib2, o, ib2);
+    STORE_LANE(s->ic, o, ic);
 }
 
 /* ---- vector elementary functions (Cephes' atan, sin and cos; about 1 ulp) ---- */
@@ -217,6 +285,7 @@ static void springs(Peer *s)
         _mm256_store_pd(s->my + i, _mm256_add_pd(_mm256_load_pd(s->my + i), _mm256_loadu_pd(ddy + i)));
     }
 }
+
 
 #define PEER_LOOP
 #include "peer.h"
