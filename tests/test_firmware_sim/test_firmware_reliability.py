@@ -80,6 +80,20 @@ def test_a_replay_faster_than_the_loop_is_shed_and_counted_never_queued(tmp_path
     assert int(f["dropped_bytes"]) < int(f["bytes"]), line
 
 
+@pytest.mark.hil
+def test_a_replay_of_random_bytes_behind_a_header_is_refused_at_once(tmp_path):
+    """As ``springtrack track``: a file mostly of corrupt words is not replayed (its events
+    would come at random times, each sampled for HOLD periods), one clear line, exit 2."""
+    src = tmp_path / "g.raw"
+    src.write_bytes(b"% evt 3.0\n% geometry 304x240\n% end\n"
+                    + bytes(np.random.default_rng(7).integers(0, 256, 1 << 18, np.uint8)))
+    r = subprocess.run(firmware_cmd("--source", f"replay:{src}", "--max-speed", "--preset",
+                                    "grid3x3"), capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and r.stdout == "", (r.stdout, r.stderr)
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "does not decode as evt3" in lines[0], r.stderr
+
+
 def test_stream_recorder_refuses_an_unwritable_path_at_once(tmp_path):
     with pytest.raises(OSError):
         StreamRecorder(tmp_path / "no" / "such" / "dir.csv")
