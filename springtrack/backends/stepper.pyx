@@ -79,8 +79,22 @@ def layout_of(events):
     return (events.strides[0], t[1], x[1], y[1], p[1], t[0].itemsize, t[0].kind == "i")
 
 
-cdef bint records_ok(const char* q, Py_ssize_t n, const Layout* L, int64_t t_lo,
-                    int64_t t_hi, uint16_t xy_sign, uint8_t p_max) noexcept nogil:
+cdef inline Layout packed_layout() noexcept nogil:
+    """The packed record of expelliarmus, tonic and numpy files (t int64, x, y int16, p
+    uint8: 13 bytes): passed to the inline readers below as constants, the compiler
+    specialises them for it."""
+    cdef Layout L
+    L.stride, L.ot, L.ox, L.oy, L.op, L.tsize, L.tsigned = 13, 0, 8, 10, 12, 8, True
+    return L
+
+
+cdef inline bint is_packed(const Layout* L) noexcept nogil:
+    return (L.stride == 13 and L.ot == 0 and L.ox == 8 and L.oy == 10 and L.op == 12
+            and L.tsize == 8)
+
+
+cdef inline bint records_ok(const char* q, Py_ssize_t n, Layout L, int64_t t_lo,
+                           int64_t t_hi, uint16_t xy_sign, uint8_t p_max) noexcept nogil:
     """Every record's t within [t_lo, t_hi], x and y without the bit xy_sign, p <= p_max:
     one pass keeping the extremes (no branch per record), compared at the end."""
     cdef Py_ssize_t i, stride = L.stride, ot = L.ot, ox = L.ox, oy = L.oy, op = L.op
@@ -126,11 +140,14 @@ def in_range(events):
     cdef Py_ssize_t n = events.shape[0]
     cdef bint ok
     with nogil:
-        ok = records_ok(q, n, &L, t_lo, t_hi, xy_sign, p_max)
+        if is_packed(&L):
+            ok = records_ok(q, n, packed_layout(), t_lo, t_hi, xy_sign, p_max)
+        else:
+            ok = records_ok(q, n, L, t_lo, t_hi, xy_sign, p_max)
     return bool(ok)
 
 
-cdef void convert_block(const char* q, const Layout* L, Event* out, Py_ssize_t m) noexcept nogil:
+cdef inline void convert_block(const char* q, Layout L, Event* out, Py_ssize_t m) noexcept nogil:
     """Records q[0], q[stride], ... (m of them) as Event structs (little-endian host)."""
     cdef Py_ssize_t i
     cdef int64_t t
@@ -162,9 +179,13 @@ cdef Py_ssize_t run_layout(const Stepper* sp, const char* base, const Layout* L,
     read.  Returns the events consumed (fewer than n if the sample buffer filled)."""
     cdef Event buf[LAYOUT_BLOCK]
     cdef Py_ssize_t done = 0, m, c
+    cdef bint packed = is_packed(L)
     while done < n:
         m = n - done if n - done < LAYOUT_BLOCK else LAYOUT_BLOCK
-        convert_block(base + done * L.stride, L, buf, m)
+        if packed:
+            convert_block(base + done * L.stride, packed_layout(), buf, m)
+        else:
+            convert_block(base + done * L.stride, L[0], buf, m)
         c = run_events(sp, buf, m, sample_us, next_t, o)
         done += c
         if c < m:

@@ -210,16 +210,21 @@ def event_shares(rec: dict) -> np.ndarray:
     return np.divide(held, ref.sum(axis=0), out=np.zeros(len(held)), where=ref.sum(axis=0) > 0)
 
 
+def dominant(counts: np.ndarray) -> bool:
+    """Whether one part holds at least half of all events (a single object and the faint
+    trails it leaves)."""
+    c = np.maximum(np.asarray(counts, float), 0.0)
+    return bool(len(c)) and c.sum() > 0 and c.max() >= 0.5 * c.sum()
+
+
 def reference_value(values: np.ndarray, counts: np.ndarray) -> float:
     """What a part's ``values`` are judged against: the plain median over the parts, or,
-    when one part holds at least half of all events (a single object and the faint
-    trails it leaves), that part's value, where the plain median would be a trail's."""
+    when one part is :func:`dominant`, that part's value, where the plain median would
+    be a trail's."""
     if not len(values):
         return 0.0
-    c = np.maximum(counts, 0.0)
-    k = int(np.argmax(c))
-    if c.sum() > 0 and c[k] >= 0.5 * c.sum():
-        return float(values[k])
+    if dominant(counts):
+        return float(values[int(np.argmax(counts))])
     return float(np.median(values))
 
 

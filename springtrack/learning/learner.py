@@ -11,9 +11,11 @@ from ..events import as_events
 from ..limits import MAX_CONNECTIONS, spring_scale
 from ..model import SPRING_BIT, Connection, ShapeModel, TrackerSpec
 from ..params import Params
-from .discovery import (_discover, _keep_cols, _to_count, awake, event_rates, event_shares,
+from .discovery import (_discover, _keep_cols, _to_count, awake, dominant, event_rates, event_shares,
                         quiet_nan, reference_value)
 from .flicker import FLICKER_SHARE, mains_flicker
+
+WEAK_PASSES = 4               # the weak-part rule: at most this many passes (dominant part)
 from .pool import Pool
 from .settings import (F, LearnParams, LearnResult, MASS_RANGE, MAX_PARTS, MIN_EVENTS,
                        NoObjectFound, PERSIST_GRACES, PERSIST_MIN, POINT_SIGMA, COHERENCE_MIN)
@@ -77,15 +79,22 @@ def learn_model(events, trackers: int | None = None, width: int | None = None,
         # trackers left behind by their part take none at the end
         # (both measured against the median part, or a dominant part: with one part
         # holding half the events, the faint trails it leaves are the many)
-        wake = awake(rec, lp.activity_tau_us, lp.batch_us)
-        share = event_shares(rec)
-        held = rec["cnt"].sum(axis=0)
-        weak = ((share < lp.keep_share * max(1.0, reference_value(share, held)))
-                | (wake < lp.idle_share * reference_value(wake, held)))
-        stats["weak"] = int(weak.sum())
-        if weak.any() and not weak.all():
+        # (once the many are gone a dominant part's faint trails are judged again, until
+        # none is left: against a dominant part, not the median, no real part cascades)
+        for _ in range(WEAK_PASSES):
+            wake = awake(rec, lp.activity_tau_us, lp.batch_us)
+            share = event_shares(rec)
+            held = rec["cnt"].sum(axis=0)
+            weak = ((share < lp.keep_share * max(1.0, reference_value(share, held)))
+                    | (wake < lp.idle_share * reference_value(wake, held)))
+            if not weak.any() or weak.all():
+                break
+            stats["weak"] += int(weak.sum())
             pool.keep(~weak)
             rec = _keep_cols(rec, ~weak)
+            held = rec["cnt"].sum(axis=0)
+            if not dominant(held):
+                break
         stats["found"] = pool.n
         if pool.n > MAX_PARTS:
             # more parts than one kernel instance holds: the weakest dropped, then the
