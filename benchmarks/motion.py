@@ -1,4 +1,4 @@
-"""The motion model (eqs. M1-M8, docs/algorithm.md "Motion and both edges") measured:
+"""The motion model (eqs. M1-M8, docs/motion.md) measured on every scene source:
 
 * the real dot of evt2_sample.raw (truth: tests/support/dot_truth.py): a one-tracker model placed
   on the dot, and found by --acquire, with the motion model off (the paper) and on;
@@ -7,10 +7,14 @@
 * the paper's scenes (springtrack.sim.scenes, seed 0, their default length) tracked by
   their preset models placed where they start, scored as ``springtrack score`` does: the
   error with the motion model off and on;
+* the second generator's scenes (springtrack.sim.screen: grids, face, the dark and bright
+  dots at 100-3,000 px/s on 100 Hz-3 kHz screens), initial models, default parameters;
+* each part of the model alone (velocity, both edges, a slower filter) on the screen's
+  dots and the real dot;
 * the float kernel's cost per event, off and on, on the face scene's events (best of
   --repeat runs; the machine is shared, so the numbers are noisy).
 
-Run: .venv/bin/python benchmarks/motion.py [--no-write] [--quick]
+Run: .venv/bin/python benchmarks/motion.py [--no-write] [--quick] [--screen-seconds S]
 Writes the "Motion model" section of docs/benchmarks.md.
 """
 from __future__ import annotations
@@ -118,14 +122,51 @@ def screen_rows(seconds):
         for p in (OFF, MOTION):
             tr = springtrack.Tracker(model, p).run(ev, sample_us=1000)
             if name == "dots":          # no object length: the dark and the bright disc, px
-                j = match_times(t.t_us, tr.t_us)
-                e = np.hypot(tr.x - t.xy[j, :, 0], tr.y - t.xy[j, :, 1])
-                out.append(" / ".join(f"{np.median(e[:, k]):.2f} px" for k in range(2)))
+                out.append(dots_error(t, tr) + " px")
             else:
                 es = score_track(t, tr)
                 out.append(f"{es.mean_pct:.2f} % ({np.nanmedian(es.err_px):.2f} px)")
         label = name + "".join(f", {k} {v:g} px/s" for k, v in kw.items()) + f", {hz} Hz"
         lines.append(f"| {label} | {len(ev):,} | {out[0]} | {out[1]} |")
+    return "\n".join(lines)
+
+
+# each part of the model alone: (label, params); the real dot and the screen's dots
+PARTS = (("off", OFF), ("tau_m 1000, c_h 1 (the model)", MOTION),
+         ("tau_m 1000, c_h 0 (velocity only)", dict(OFF, motion_tau_us=1000.0)),
+         ("tau_m 0, c_h 1 (both edges only)", dict(OFF, polarity_gain=1.0)),
+         ("tau_m 10000, c_h 1", dict(MOTION, motion_tau_us=10000.0)))
+PART_DOTS = (("dots", {}, 100, 4.0), ("dots", dict(speed=3000.0), 3000, 2.0))
+
+
+def dots_error(t, tr) -> str:
+    """Median error of the dark and the bright disc, px."""
+    j = match_times(t.t_us, tr.t_us)
+    e = np.hypot(tr.x - t.xy[j, :, 0], tr.y - t.xy[j, :, 1])
+    return " / ".join(f"{np.median(e[:, k]):.2f}" for k in range(2))
+
+
+def parts_rows():
+    """Median errors with each part of the model alone: the screen's dots (100 px/s on a
+    100 Hz screen, 4 s; 3,000 px/s on a 3 kHz screen, 2 s; dark / bright disc) and the
+    real dot (one tracker placed on it)."""
+    ev = springtrack.io.open(DATA).read()
+    truth = dot_truth(ev)
+    x, y = (float(v[0]) for v in truth.at([truth.t0]))
+    dot = ShapeModel("dot", 640, 480, [TrackerSpec("dot", round(x, 1), round(y, 1),
+                                                   (36.0, 0.0, 36.0))], [])
+    scenes = []
+    for name, kw, hz, seconds in PART_DOTS:
+        sev, st = screen_simulate(name, seconds, 0, config=ScreenConfig(refresh_hz=hz), **kw)
+        scenes.append((screen_scene(name, **kw).initial_model(), sev, truth_from_array(st)))
+    lines = ["| setting | screen dots, 100 Hz | screen dots, 3,000 px/s | real dot |",
+             "|---|---|---|---|"]
+    for label, p in PARTS:
+        cells = [dots_error(t, springtrack.Tracker(m, p).run(sev, sample_us=1000)) + " px"
+                 for m, sev, t in scenes]
+        tr = springtrack.Tracker(dot, p).run(ev, sample_us=1000)
+        cells.append(f"{np.median(track_errors(truth, tr.t_us, tr.x[:, 0], tr.y[:, 0])):.2f} px")
+        lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
@@ -141,7 +182,7 @@ def cost_rows(model, ev, repeat):
             best = min(best, time.perf_counter() - t0)
         ns = best / len(ev) * 1e9
         base = base or ns
-        lines.append(f"| {name} | {ns:.1f}" + ("" if ns == base else f" (+{ns - base:.1f})") + " |")
+        lines.append(f"| {name} | {ns:.1f}" + ("" if ns == base else f" ({ns - base:+.1f})") + " |")
     return "\n".join(lines)
 
 
@@ -160,7 +201,9 @@ def main(argv=None):
     scenes, (fm, fev) = scene_rows(5.0 if a.quick else None)
     cost = cost_rows(fm, fev, a.repeat)
     screen = screen_rows(a.screen_seconds)
-    body = (f"`.venv/bin/python benchmarks/motion.py{' --quick' if a.quick else ''}` "
+    parts = parts_rows()
+    flags = (" --quick" if a.quick else "") + (f" --repeat {a.repeat}" if a.repeat != 3 else "")
+    body = (f"`.venv/bin/python benchmarks/motion.py{flags}` "
             f"({time.time() - t0:.0f} s), {machine()}.  Motion model on: "
             + ", ".join(f"{k} = {v:g}" for k, v in MOTION.items()) + ".\n\n"
             "### The real dot (evt2_sample.raw), median error\n\n" + dot + "\n\n"
@@ -171,9 +214,13 @@ def main(argv=None):
             f"### The second generator's scenes (springtrack.sim.screen, {a.screen_seconds:g} s, "
             "seed 0, initial models, default parameters), mean error, % of the object's "
             "length (median per-part error)\n\n" + screen + "\n\n"
+            "### Each part of the model alone, median error (dark / bright disc)\n\n"
+            + parts + "\n\n"
             "### Cost per event on face_occlusion's events\n\n" + cost + "\n\n"
-            "The integer kernel and its Cortex-M build have no motion model yet (they refuse "
-            "its parameters), so there is no fixed or microcontroller cost to measure.\n")
+            "Timings on a shared, loaded machine: compare only runs of one invocation, and "
+            "expect tens of ns of noise.  The integer kernel and its Cortex-M build have no "
+            "motion model (they refuse its parameters), so there is no fixed or "
+            "microcontroller cost to measure.\n")
     print(body)
     if not a.no_write:
         write_section("Motion model", body)

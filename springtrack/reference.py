@@ -30,8 +30,8 @@ Interpretation choices (docs/algorithm.md explains them):
   trackers no over-threshold connection touches; eq. (22) then pulls toward
   ``G + s R dG0``, and the Cartesian springs of the next update hold the rest offset
   ``s R d0``.
-* The motion model (this project's extension, eqs. M1-M8; docs/algorithm.md, "Motion and
-  both edges"): each tracker keeps a velocity v, the half offset h between its part's ON
+* The motion model (this project's extension, eqs. M1-M8; docs/motion.md; off by
+  default): each tracker keeps a velocity v, the half offset h between its part's ON
   and OFF edges, the time t_m its mean refers to and the covariance P of a Kalman filter
   of its position and velocity (per axis, in units of the event spread).  An event is
   gated and weighed (eq. 2) about the mean predicted to its time (M1); the winner's gains

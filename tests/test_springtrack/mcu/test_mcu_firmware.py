@@ -437,7 +437,7 @@ def test_a_keyed_image_answers_only_signed_frames(scene, tmp_path):
         with pytest.raises(HostctlError, match="requires a key"):
             Device(q.link, timeout=0.5, retries=20)
         with pytest.raises(AuthFailed):
-            Device(q.link, timeout=0.3, retries=2, key=b"w" * 32)
+            Device(q.link, timeout=1.0, retries=3, key=b"w" * 32)   # room for a loaded host
         port = serial.serial_for_url(q.link, timeout=0.05)
         info = wire.decode_info(next(wire.decode_frame(c) for c in hello(port)
                                      if _decodes(c) == MsgType.INFO).payload)
