@@ -11,14 +11,13 @@ from ..events import as_events
 from ..limits import MAX_CONNECTIONS, spring_scale
 from ..model import SPRING_BIT, Connection, ShapeModel, TrackerSpec
 from ..params import Params
-from .discovery import (_discover, _keep_cols, _to_count, awake, dominant, event_rates, event_shares,
-                        quiet_nan, reference_value)
+from .discovery import (_discover, _keep_cols, _to_count, awake, dominant, event_rates,
+                        event_shares, quiet_nan, reference_value)
 from .flicker import FLICKER_SHARE, mains_flicker
-
-WEAK_PASSES = 4               # the weak-part rule: at most this many passes (dominant part)
 from .pool import Pool
 from .settings import (F, LearnParams, LearnResult, MASS_RANGE, MAX_PARTS, MIN_EVENTS,
-                       NoObjectFound, PERSIST_GRACES, PERSIST_MIN, POINT_SIGMA, COHERENCE_MIN)
+                       NoObjectFound, PERSIST_GRACES, PERSIST_MIN, POINT_SIGMA, COHERENCE_MIN,
+                       WEAK_PASSES)
 from .springs import _springs, activity_weights, object_similarity
 
 

@@ -21,6 +21,8 @@ MIN_SAMPLES = 10              # batches a pair must share for a spring
 CONTRAST_MARGIN = 0.05        # contrast_sign: ON-first fraction this far from 1/2 decides
 CONTRAST_MIN_EVENTS = 2       # contrast_sign: pixels with at least this many events
 MIN_EVENTS = 2000             # a learning window with fewer events holds no object
+WEAK_PASSES = 4               # the weak-part rule's passes at most (again only while one
+                              # part holds half the events)
 TIME_FIELDS = ("batch_us", "activity_tau_us", "life_tau_us", "smooth_us")
 MIN_BATCH_US = 20             # the shortest lifecycle step a scaled window gets
 MAX_PARTS = 64                # the most trackers a learned model gets by default (one
