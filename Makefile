@@ -23,9 +23,10 @@ $(STAMP): pyproject.toml setup.py
 	$(NO_EXT) $(PIP) install -q --no-build-isolation -e '.[plots]'
 	touch $(STAMP)
 
-# what the tests add: the test tools, dask (the experiments), the microcontroller build
+# what the tests add: the test tools, dask (the experiments), the microcontroller build,
+# atheris (the fuzz targets)
 $(EXTRAS): $(STAMP)
-	$(NO_EXT) $(PIP) install -q --no-build-isolation -e '.[test,plots,sweep,mcu,dv,view]'
+	$(NO_EXT) $(PIP) install -q --no-build-isolation -e '.[test,plots,sweep,mcu,dv,view,fuzz]'
 	touch $(EXTRAS)
 
 build: $(STAMP) $(PYX)

@@ -25,6 +25,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 from hostctl import Device  # noqa: E402
+from springtrack.process_end import end_child  # noqa: E402
 
 SECTION = "## Host link"
 TEST_ENGINE = """
@@ -71,13 +72,7 @@ class Firmware:
         return self.proc.poll() is None
 
     def close(self) -> None:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(5)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        end_child(self.proc, grace_s=5)
 
 
 def load_average() -> str:

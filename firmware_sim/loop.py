@@ -574,6 +574,7 @@ class FirmwareLoop:
         d = s["decode"]
         roi = f" outside_roi={d['outside_roi']}" if d["outside_roi"] else ""
         return (f"transfers={s['transfers']} bytes={s['bytes']} dropped={s['transfers_dropped']} "
+                f"dropped_bytes={s['bytes_dropped']} "
                 f"decoded={s['events_decoded']} tracked={s['events_tracked']} {geo}{roi} "
                 f"format={d['format']} sensor={self.width}x{self.height} "
                 f"queue_hwm={s['queue_hwm']} rate={s['event_rate']:.3g}/s "

@@ -7,11 +7,15 @@ output that went away (``... | head``) and SIGTERM.
 * SIGTERM raises :class:`Terminated` in the main thread, so that ``with`` blocks and
   ``finally`` clauses run (an output being written is finished or marked incomplete, see
   ``springtrack.io.writers``); the program then says so and exits with 143 (128 + SIGTERM).
+
+And how a program ends a child process it started (:func:`end_child`): SIGTERM, so that
+the child can finish its output, then SIGKILL if it has not ended after a grace period.
 """
 from __future__ import annotations
 
 import os
 import signal
+import subprocess
 import sys
 import threading
 
@@ -41,3 +45,16 @@ def broken_pipe() -> int:
     except (OSError, ValueError):
         pass
     return BROKEN_PIPE_STATUS
+
+
+def end_child(proc: subprocess.Popen, grace_s: float = 10.0) -> int:
+    """End ``proc`` if it still runs: SIGTERM, then SIGKILL after ``grace_s`` seconds; wait
+    for it and return its exit status (negative: the signal that ended it)."""
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(grace_s)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+    return proc.returncode

@@ -36,6 +36,7 @@ HELP = ("a recording (any format springtrack.io reads) through the simulated cam
 WORD_PROFILES = {"ccam": "ccam_atis", "evt2": "evt2", "evt21": "evt21", "evt3": "evt3"}
 REENCODE_PROFILE = "evt2"        # other files: an EVT 2.0 EVK of the file's geometry
 READ_BYTES = 1 << 18             # file bytes per chunk of words
+CHECK_BYTES = 1 << 20            # file bytes decoded at start to refuse what is not its format
 # re-encoded recordings that start later than this (the EVT 3.0 time counter's range,
 # 2**24 us) are re-based to start at 0, as a camera's counter does: else the words would
 # first count up to the recording's time (AEDAT 4 stamps Unix-epoch microseconds)
@@ -48,6 +49,19 @@ def _reader(path):
     if not path.is_file():
         raise FileNotFoundError(f"{path}: replay file not found")
     return stio.open(path)
+
+
+def check_decodable(reader, name) -> None:
+    """Refuse a file whose first CHECK_BYTES are not of its format (mostly corrupt words:
+    springtrack.io.stats.CORRUPT_SHARE), as ``springtrack track`` does: random bytes
+    behind a header would otherwise be replayed as events at random times."""
+    if reader.format in ("npy", "csv"):
+        return
+    dec = reader.decoder()
+    with builtins.open(reader.path, "rb") as f:
+        f.seek(reader.offset)
+        dec.decode(f.read(CHECK_BYTES))
+    dec.stats.check_decodable(name)
 
 
 def file_source(path, width: int, height: int, stats: dict | None = None):
@@ -162,6 +176,7 @@ def open(target: str, opts: SourceOptions, url: str):
     if not target:
         raise ValueError(f"--source {url!r}: name the file to replay: {USAGE}")
     reader = _reader(target)
+    check_decodable(reader, target)
     as_is = opts.profile is None and reader.format in WORD_PROFILES and opts.prepare is None
     name = (opts.profile or WORD_PROFILES.get(reader.format) or REENCODE_PROFILE)
     fw, fh, where = _geometry(reader, name)

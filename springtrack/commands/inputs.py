@@ -1,6 +1,7 @@
 """A whole event file read for a command (``learn``, ``render``): its events, the sensor
 size (the header's, else the events' extent), checked against what can be allocated, and
-the decoder's drops reported as a warning on standard error."""
+the decoder's drops reported as a warning on standard error (a stream mostly of corrupt
+words refused: springtrack.io.stats.CORRUPT_SHARE)."""
 from __future__ import annotations
 
 import sys
@@ -33,6 +34,7 @@ def read_input(path) -> Input:
     from .. import io as stio
     r = stio.open(path)
     ev = r.read()
+    r.stats.check_decodable(path)          # random bytes are refused, not learned or drawn
     w = r.width or (int(ev["x"].max()) + 1 if len(ev) else 1)
     h = r.height or (int(ev["y"].max()) + 1 if len(ev) else 1)
     check_sensor(w, h, path)

@@ -191,6 +191,7 @@ def run(args) -> int:
         out.write(",".join(CSV_HEADER) + "\n")
         bins = []
         for chunk, total in stream:
+            reader.stats.check_decodable(args.input)     # random bytes: refused, not tracked
             if len(chunk) == 0:
                 continue
             # the rows are written as the kernel takes them: memory bounded by one call's
@@ -207,6 +208,7 @@ def run(args) -> int:
             t_last = int(chunk["t"][-1])
             n += len(chunk)
             prog.update(n, total, t_last)
+        reader.stats.check_decodable(args.input)
         if args.acquire:
             tr.flush()
             _write_rows(tr.samples(), tr, watch, out, view)

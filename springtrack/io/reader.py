@@ -15,6 +15,10 @@ from .errors import DecodeError
 from .stats import DecodeStats
 
 DEFAULT_CHUNK = 1 << 20
+# Reader.read sizes its output by the events per byte of the file's first READ_SAMPLE
+# bytes, with READ_MARGIN more room for a denser rest (doubled beyond)
+READ_SAMPLE = 1 << 18
+READ_MARGIN = 0.05
 
 
 # format name -> (module of springtrack.io, decoder class): one module per format
@@ -66,11 +70,6 @@ class Reader:
     def __iter__(self):
         return self.chunks()
 
-    # payload bytes per event for the first output array: the fewest, or a guess where words
-    # carry many (EVT 3.0 vectors, EVT 2.1 masks) or packets are compressed (AEDAT 4): the
-    # output then grows
-    MIN_BYTES_PER_EVENT = {"evt2": 4, "evt21": 4, "evt3": 2, "es": 5, "dat": 8, "ccam": 4,
-                           "aedat4": 8}
     # typical payload bytes per event, for a progress estimate (EVT 3.0: the Gen4.1 sample,
     # AEDAT 4: the DVXplorer sample with its IMU packets)
     BYTES_PER_EVENT = {"evt2": 4.0, "evt21": 4.0, "evt3": 2.8, "es": 5.0, "dat": 8.0,
@@ -127,15 +126,24 @@ class Reader:
         """All events of the file, in one array.
 
         The file is read ``nbytes`` at a time into one reused buffer and decoded straight
-        into an output array sized from the file length (grown if needed)."""
+        into one output array, sized by the events per byte of the first READ_SAMPLE
+        bytes (READ_MARGIN more) and doubled if the rest is denser: the allocation follows
+        the events (16 bytes each), not the most the file's length could hold (4 to 8
+        times that length for words of 4 to 2 bytes).  A rest sparser than the sample
+        leaves the array's tail unused: trimmed (copied) when under half used."""
         dec = self.decoder()
         payload = max(0, os.path.getsize(self.path) - self.offset)
-        out = empty_output(payload // self.MIN_BYTES_PER_EVENT[self.format] + 16)
-        n = 0
         buf = bytearray(nbytes)
         view = memoryview(buf)
         with builtins.open(self.path, "rb") as f:
             f.seek(self.offset)
+            first = f.read(min(payload, READ_SAMPLE))
+            head = dec.decode(first)
+            n = len(head)
+            room = int(n / max(len(first), 1) * payload * (1 + READ_MARGIN)) + 1024
+            out = empty_output(max(room, n))
+            out[:n] = head
+            del head
             while True:
                 got = f.readinto(buf)
                 if not got:

@@ -202,8 +202,12 @@ def event_shares(rec: dict) -> np.ndarray:
     cnt = np.where(rec["valid"], rec["cnt"], np.nan)
     with quiet_nan():
         med = np.nanmedian(cnt, axis=1, keepdims=True)
-    ref = np.where(rec["valid"] & (med > 0), med, 0.0)
-    return rec["cnt"].sum(axis=0) / np.maximum(ref.sum(axis=0), 1e-12)
+    # a batch whose median tracker took no event is judged against one event (events are
+    # whole: "fewer than the median" cannot be told below one), so a share is finite and
+    # a tracker's events in such a batch count against something
+    ref = np.where(rec["valid"], np.maximum(np.nan_to_num(med), 1.0), 0.0)
+    held = np.where(rec["valid"], rec["cnt"], 0.0).sum(axis=0)
+    return np.divide(held, ref.sum(axis=0), out=np.zeros(len(held)), where=ref.sum(axis=0) > 0)
 
 
 def dominant(counts: np.ndarray) -> bool:
@@ -285,17 +289,30 @@ def _to_count(pool: Pool, rec: dict, n_target: int, t: int, stats: dict) -> dict
     return rec
 
 
+def bhattacharyya(mx, my, sxx, sxy, syy) -> np.ndarray:
+    """(N, N) Bhattacharyya distances between N 2-D Gaussians (means mx, my; covariances
+    [[sxx, sxy], [sxy, syy]]), every pair at once."""
+    # D_B = 1/8 d^T C^-1 d + 1/2 ln(det C / sqrt(det C_i det C_j)), C = (C_i + C_j) / 2
+    a = 0.5 * (sxx[:, None] + sxx[None, :])
+    b = 0.5 * (sxy[:, None] + sxy[None, :])
+    c = 0.5 * (syy[:, None] + syy[None, :])
+    dx = mx[None, :] - mx[:, None]
+    dy = my[None, :] - my[:, None]
+    det = a * c - b * b                       # C^-1 = [[c, -b], [-b, a]] / det
+    det_own = sxx * syy - sxy * sxy
+    with np.errstate(divide="ignore", invalid="ignore"):
+        quad = (c * dx * dx - 2.0 * b * dx * dy + a * dy * dy) / det
+        return 0.125 * quad + 0.5 * np.log(det / np.sqrt(det_own[:, None] * det_own[None, :]))
+
+
 def _closest_pair(pool: Pool):
-    """The pair with the smallest Bhattacharyya distance."""
-    best, pair = math.inf, (0, 1)
-    for i in range(pool.n):
-        mi, ci = pool.gaussian(i)
-        for j in range(i + 1, pool.n):
-            mj, cj = pool.gaussian(j)
-            c = 0.5 * (ci + cj)
-            d = mj - mi
-            db = 0.125 * d @ np.linalg.solve(c, d) + 0.5 * math.log(
-                np.linalg.det(c) / math.sqrt(np.linalg.det(ci) * np.linalg.det(cj)))
-            if db < best:
-                best, pair = db, (i, j)
-    return pair
+    """The pair i < j with the smallest Bhattacharyya distance (the first in (i, j)
+    order among equals)."""
+    n = pool.n
+    st = pool.st
+    db = bhattacharyya(*(st[F[f], :n] for f in ("mx", "my", "sxx", "sxy", "syy")))
+    db = np.where(np.triu(np.ones((n, n), bool), 1) & ~np.isnan(db), db, np.inf)
+    flat = int(np.argmin(db))
+    if not np.isfinite(db.flat[flat]):
+        return 0, 1
+    return divmod(flat, n)

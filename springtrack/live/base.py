@@ -69,6 +69,10 @@ class LiveStats:
         return (f"warning: {source}: {self.bad_bytes:,} bytes of the stream were not whole "
                 f"events and were dropped; what they cost is not in the output")
 
+    def check_decodable(self, source) -> None:
+        """A live stream is never refused for its dropped bytes (a camera's stream may
+        recover): they are counted in ``bad_bytes`` and named by :meth:`warning`."""
+
     def summary(self) -> str:
         more = "".join(f" {k}={v}" for k, v in self.extra.items())
         return (f"stream {self.source}: events={self.events} batches={self.batches} "

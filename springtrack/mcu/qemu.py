@@ -21,6 +21,7 @@ from pathlib import Path
 
 from .boards import board as get_board
 from . import stream
+from ..process_end import end_child
 
 QEMU = "qemu-system-arm"
 INSTALL_HINT = ("qemu-system-arm is not installed: apt-get install qemu-system-arm "
@@ -108,13 +109,7 @@ class Qemu:
         return self.proc.wait(timeout)
 
     def close(self) -> int:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        end_child(self.proc)
         if not self.proc.stdout.closed:
             self.err += self.proc.stdout.read()
             self.proc.stdout.close()

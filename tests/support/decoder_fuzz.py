@@ -8,8 +8,9 @@ inputs: random byte strings, and windows of valid streams (the real recordings w
 available -- EVT 2.1: the EVT 3.0 recording re-encoded --, else our encoders' output) with
 bytes flipped, replaced, inserted, deleted or truncated.  Each input is decoded with a fresh decoder, split at 0-3 random
 points; every 50th input is also decoded whole and compared.  Checks: no exception, no
-crash (a segfault kills the run), events inside the geometry, counters consistent (words
--- packets for AEDAT 4 --, events, pending bytes).  :func:`fuzz_headers` puts truncated,
+crash (a segfault kills the run), events inside the geometry, no more events than the
+words can encode (MAX_EVENTS_PER_WORD), counters consistent (words -- packets for AEDAT 4
+--, events, pending bytes).  :func:`fuzz_headers` puts truncated,
 bit-flipped and mutated file headers through springtrack.io.open(): only DecodeError (or
 success) is allowed.
 """
@@ -43,6 +44,10 @@ DECODERS = {
     "aedat4-zstd": {"width": 320, "height": 240, "compression": "ZSTD"},
     "aedat4-none": {"width": 320, "height": 240, "compression": "NONE"},
 }
+
+# the most events one word can carry (Event Stream: per byte; EVT 3.0: a VECT_12 word
+# after its base, EVT 2.1: a 32-bit mask): a decoder emitting more invents them
+MAX_EVENTS_PER_WORD = {"ccam": 1, "evt2": 1, "evt3": 12, "es": 1, "dat": 1, "evt21": 32}
 
 
 def seeds(rng) -> dict:
@@ -117,6 +122,8 @@ def check(name, opts, data, cuts, compare):
         raise AssertionError("event outside the geometry")
     if s.events != len(ev) or s.words != payload_unit(fmt, dec, data):
         raise AssertionError(f"counters: {s}")
+    if fmt in MAX_EVENTS_PER_WORD and len(ev) > MAX_EVENTS_PER_WORD[fmt] * s.words:
+        raise AssertionError(f"{len(ev)} events from {s.words} words")
     if (pending > 0) != (s.anomalies["truncated"] > 0):
         raise AssertionError("pending bytes not counted as truncated")
     if compare:

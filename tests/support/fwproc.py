@@ -7,6 +7,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from springtrack.process_end import end_child
+
 from . import REPO as ROOT
 BIN = Path(sys.executable).parent
 
@@ -49,13 +51,7 @@ class Firmware:
         return self.close()
 
     def close(self) -> int:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(10)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        end_child(self.proc)
         if not self.proc.stdout.closed:
             self.out += self.proc.stdout.read()
             self.err += self.proc.stderr.read()

@@ -2,7 +2,8 @@
 the stats line and STATS (never ``anomalies=none``), ``--record`` streamed to disk (an
 unwritable path refused at once; rows on disk while it runs, so a SIGKILL keeps them),
 random host sequence numbers not inflating ``rx_lost``, a retried MODEL_COMMIT answered
-once when its validation ends.  Firmware and host as separate processes where the
+once when its validation ends; DAT and AEDAT 4 replays faster than the loop: transfers
+shed and counted, the queue bounded by the buffer pool.  Firmware and host as separate processes where the
 reproduction involves them."""
 from __future__ import annotations
 
@@ -50,6 +51,47 @@ def test_a_replayed_files_decoder_drops_reach_the_stats_line(tmp_path):
     stats = next(x for x in r.stdout.splitlines() if x.startswith("stats: "))
     assert "anomalies=none" not in stats and f"'replay_file': {lost}" in stats, stats
     assert "replay: warning: decoding" in r.stderr and "out_of_geometry" in r.stderr
+
+
+OVERLOAD_BUFFERS = 4
+
+
+@pytest.mark.hil
+@pytest.mark.parametrize("fmt", ["dat", "aedat4"])
+def test_a_replay_faster_than_the_loop_is_shed_and_counted_never_queued(tmp_path, fmt):
+    """1 M events/s replayed in real time to the microcontroller build in its emulator
+    (under 0.1 M events/s): the reader drops whole transfers when its pool of buffers is
+    full, counts them in the stats line, and the queue never holds more than the pool."""
+    ev, _ = blob_stream(grid3x3(), 300_000, rate_hz=1_000_000, seed=2)
+    src = tmp_path / f"fast.{fmt}"
+    src.write_bytes(stio.encode_file(ev, 304, 240, fmt))
+    r = subprocess.run(firmware_cmd("--source", f"replay:{src}", "--realtime", "--backend",
+                                    "mcu", "--preset", "grid3x3", "--buffers",
+                                    str(OVERLOAD_BUFFERS)),
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    line = next(x for x in r.stdout.splitlines() if x.startswith("stats: "))
+    f = dict(kv.split("=", 1) for kv in line[len("stats: "):].split() if "=" in kv)
+    assert int(f["dropped"]) > 0 and int(f["dropped_bytes"]) > 0, line
+    assert int(f["queue_hwm"]) <= OVERLOAD_BUFFERS, line
+    # the shed transfers' events are the ones missing: decoded < the file's, every decoded
+    # event tracked, the dropped bytes a part of those read
+    assert 0 < int(f["decoded"]) < len(ev) and int(f["tracked"]) == int(f["decoded"]), line
+    assert int(f["dropped_bytes"]) < int(f["bytes"]), line
+
+
+@pytest.mark.hil
+def test_a_replay_of_random_bytes_behind_a_header_is_refused_at_once(tmp_path):
+    """As ``springtrack track``: a file mostly of corrupt words is not replayed (its events
+    would come at random times, each sampled for HOLD periods), one clear line, exit 2."""
+    src = tmp_path / "g.raw"
+    src.write_bytes(b"% evt 3.0\n% geometry 304x240\n% end\n"
+                    + bytes(np.random.default_rng(7).integers(0, 256, 1 << 18, np.uint8)))
+    r = subprocess.run(firmware_cmd("--source", f"replay:{src}", "--max-speed", "--preset",
+                                    "grid3x3"), capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and r.stdout == "", (r.stdout, r.stderr)
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and "does not decode as evt3" in lines[0], r.stderr
 
 
 def test_stream_recorder_refuses_an_unwritable_path_at_once(tmp_path):

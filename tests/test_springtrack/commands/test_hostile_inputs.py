@@ -79,13 +79,56 @@ def test_learn_and_render_warn_of_decoder_drops(tmp_path, grid_events, command):
     assert "warning:" in r.stderr and "out_of_geometry" in r.stderr, r.stderr
 
 
-def test_garbage_aedat4_payload_is_a_warning_not_a_silent_empty_result(tmp_path, grid_events):
+def test_garbage_aedat4_payload_is_refused_not_a_silent_empty_result(tmp_path, grid_events):
     good = stio.encode_file(grid_events[:2000], 304, 240, "aedat4")
     info = stio.open(_write(tmp_path / "g.aedat4", good))
     data = good[:info.offset] + bytes(np.random.default_rng(1).integers(0, 256, 20_000, np.uint8))
     src = _write(tmp_path / "bad.aedat4", data)
     r = cli("track", src, "--model", "grid3x3", "--out", tmp_path / "t.csv", "--no-progress")
-    assert "warning:" in r.stderr and "anomalies" in r.stderr, (r.stdout, r.stderr)
+    assert r.returncode == 2 and "does not decode as aedat4" in r.stderr, (r.stdout, r.stderr)
+    assert "unframed_bytes 20,000" in r.stderr, r.stderr
+
+
+# headers of the formats whose words random bytes decode into events (and time jumps)
+GARBAGE_HEADERS = {
+    "evt2": b"% evt 2.0\n% geometry 304x240\n% end\n",
+    "evt21": b"% evt 2.1\n% format EVT21;height=240;width=304\n% end\n",
+    "evt3": b"% evt 3.0\n% geometry 304x240\n% end\n",
+    "dat": b"% Data file containing CD events.\n% Version 2\n% Width 304\n% Height 240\n\x0c\x08",
+}
+
+
+@pytest.mark.parametrize("fmt", sorted(GARBAGE_HEADERS))
+def test_random_bytes_behind_a_valid_header_are_refused_not_multiplied(tmp_path, fmt):
+    """A megabyte of random bytes read as EVT 3.0 became 155 MB of track CSV (each event
+    after a random time jump sampled for up to sampling.HOLD periods): refused with the
+    counts before any row is written, by track, learn and render; info still describes it."""
+    src = _write(tmp_path / f"g.{'dat' if fmt == 'dat' else 'raw'}", GARBAGE_HEADERS[fmt]
+                 + bytes(np.random.default_rng(7).integers(0, 256, 1 << 18, np.uint8)))
+    csv = tmp_path / "t.csv"
+    for command in (["track", src, "--model", "grid3x3", "--out", csv, "--no-progress"],
+                    ["learn", src, "--out", tmp_path / "m.toml"],
+                    ["render", src, "--out", tmp_path / "e.png"]):
+        r = cli(*command)
+        assert r.returncode == 2, (command, r.stdout, r.stderr)
+        assert f"does not decode as {fmt}" in r.stderr and "unknown_type" in r.stderr, r.stderr
+    assert csv.read_text().count("\n") == 1            # the header line only
+    assert not (tmp_path / "m.toml").exists() and not (tmp_path / "e.png").exists()
+    r = cli("info", src)
+    assert r.returncode == 0 and "unknown_type" in r.stdout, r.stderr
+
+
+def test_a_recording_with_a_damaged_stretch_is_still_tracked(tmp_path, grid_events):
+    """Corrupt words under CORRUPT_SHARE of a stream: tracked, the anomalies a warning."""
+    data = stio.encode_file(grid_events, 304, 240, "evt2")
+    offset = stio.open(_write(tmp_path / "g.raw", data)).offset
+    cut = offset + ((len(data) - offset) // 2 & ~3)           # a word boundary
+    bad = b"\xff\xff\xff\x5f"                                  # word type 5: unknown
+    src = _write(tmp_path / "d.raw", data[:cut] + bad * 2000 + data[cut:])
+    csv = tmp_path / "t.csv"
+    r = cli("track", src, "--model", "grid3x3", "--out", csv, "--no-progress")
+    assert r.returncode == 0, r.stderr
+    assert "unknown_type 2,000" in r.stderr and csv.read_text().count("\n") > 100
 
 
 def _write(path, data: bytes):
