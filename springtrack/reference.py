@@ -27,9 +27,14 @@ Interpretation choices (docs/algorithm.md explains them):
 * ``pull_frame`` / ``cartesian_frame`` = "similarity": once per spring update, after the
   spring step, the similarity (scale s, rotation R, translation) that best maps the rest
   shape onto the trackers is fitted (mass-weighted Procrustes, ``fit_frame``) over the
-  trackers no over-threshold connection touches; eq. (22) then pulls toward
-  ``G + s R dG0``, and the Cartesian springs of the next update hold the rest offset
-  ``s R d0``.
+  trackers no over-threshold connection touches, then refitted with each tracker weighted
+  by how well it agrees with it (its squared distance to where the frame puts it against
+  ``s`` times the fit set's weighted mean: eq. (21)'s test on the frame's residuals, made
+  continuous, up to ``FRAME_REFITS`` times): a part pulled away, occluded or sliding moves
+  neither the frame nor, through it, the others.  Eq. (22) pulls a tracker at an
+  over-threshold connection toward ``G + s R dG0``, and the others by the share they
+  disagree with the frame (eq. 21's sensitivity stays the connections' verdict); the
+  Cartesian springs of the next update hold the rest offset ``s R d0``.
 * The motion model (this project's extension, eqs. M1-M8; docs/motion.md; off by
   default): each tracker keeps a velocity v, the half offset h between its part's ON
   and OFF edges, the time t_m its mean refers to and the covariance P of a Kalman filter
@@ -70,6 +75,16 @@ TWO_PI = 2.0 * math.pi
 FRAME_SCALE_MIN = 0.25
 FRAME_SCALE_MAX = 4.0
 FRAME_MIN_SPREAD = 2.0 ** -20
+# Refits of the frame weighted by how well each tracker agrees with it (fit_frame): two
+# find a pulled part and then a second one the first fit hid.
+FRAME_REFITS = 2
+# A residual no larger than FRAME_AGREE_PX2 (px^2: 1/4 px) always agrees fully: below it
+# the residuals are the means' rounding and jitter, not a part that left its place.
+FRAME_AGREE_PX2 = 2.0 ** -4
+# A tracker's weight in the refit falls from 1 at its threshold T to 0 at
+# (1 + FRAME_RAMP) T (fit_frame): continuous, so that kernels whose means differ by
+# rounding fit the same frame, and narrow, so that a part that left its place drops out.
+FRAME_RAMP = 2.0 ** -2
 
 # Result codes of step(): >= 0 is the index of the tracker that took the event.
 NO_TRACKER = -1          # valid event, no sensitive tracker within its gate
@@ -384,29 +399,66 @@ class ReferenceTracker:
         self.ic[i] = sxx * inv_det
 
     # ---- springs and energy criteria (every spring_period events) ------------
-    def fit_frame(self, calm: list, g: int = 0) -> None:
-        """The similarity x -> G + s R (x - G0) that best maps instance g's rest shape onto
-        its current means, in the mass-weighted least-squares sense (Procrustes, closed
-        form).
+    def fit_frame(self, calm: list, g: int = 0) -> dict:
+        """Instance g's similarity frame (``_fit_similarity``) fitted to the trackers that
+        agree with the structure, each weighted by how well it agrees; returns how much
+        each disagrees.
 
         Fit set F: the trackers ``calm`` marks (indexed like all trackers) -- at a spring
         update, those no connection over the energy threshold touches (eqs. 21-22 leave
-        them alone), so that trackers an occluder drags do not drag the frame.  With fewer
-        than 2 trackers in F the fit uses all of the instance's trackers.  With rest
-        offsets p_i = dG0_i - pbar and current offsets q_i = mu_i - qbar about F's weighted
-        centroids pbar (rest, relative to G0) and qbar (current):
-            a = sum m p.q,  b = sum m p x q,  D = sum m |p|^2,  s R = [[a, -b], [b, a]] / D
-        and G = qbar - s R pbar, the image of the rest centre of mass G0.  D below
-        FRAME_MIN_SPREAD times sum m (all of F's rest points together) gives s R = I; the
-        scale sqrt(a^2 + b^2) / D is held to [FRAME_SCALE_MIN, FRAME_SCALE_MAX]."""
-        mass, mx, my = self.mass, self.mx, self.my
+        them alone) -- or all of the instance's trackers if fewer than 2; each agrees fully
+        (v_i = 1).  Then, up to FRAME_REFITS times: each tracker's squared residual
+        r_i^2 = |mu_i - (G + s R dG0_i)|^2 and eq. (21)'s test with the criteria's scale s
+        on them, made continuous: with T = max(s sum_F m v r^2 / sum_F m v,
+        FRAME_AGREE_PX2), v_i = 1 for r_i^2 <= T, 0 from (1 + FRAME_RAMP) T, linear
+        between (a tracker
+        near the threshold moves the frame by little either way, so kernels whose means
+        differ by rounding fit the same frame); if the v changed and at least 2 are
+        positive, the frame is refitted with masses m v.  With s at or above the
+        instance's connection count no connection is ever over the threshold and no
+        tracker is tested (as the criteria, which never act then).  Returns
+        {i: 1 - v_i} for the trackers of F (eq. 22 pulls tracker i by that share)."""
         mine = range(self.t0[g], self.t1[g])
         fit = [i for i in mine if calm[i]]
         if len(fit) < 2:
-            fit = mine
+            fit = list(mine)
+        wt = {i: 1.0 for i in fit}
+        self._fit_similarity(fit, wt, g)
+        if not self.escale[g] < self.c1[g] - self.c0[g]:
+            return {}
+        for _ in range(FRAME_REFITS):
+            c, sn, gx, gy = self.fc[g], self.fs[g], self.fgx[g], self.fgy[g]
+            r2 = {}
+            w = total = 0.0
+            for i in fit:
+                ex = self.mx[i] - (gx + (c * self.gdx0[i] - sn * self.gdy0[i]))   # mu - (G + s R dG0)
+                ey = self.my[i] - (gy + (sn * self.gdx0[i] + c * self.gdy0[i]))
+                r2[i] = ex * ex + ey * ey
+                m = self.mass[i] * wt[i]
+                w += m
+                total += m * r2[i]
+            thr = max(self.escale[g] * (total / w), FRAME_AGREE_PX2)  # eq. (21)'s test on r^2
+            new = {i: min(max(1.0 - (r2[i] - thr) / (FRAME_RAMP * thr), 0.0), 1.0) for i in fit}
+            if new == wt or sum(1 for i in fit if new[i] > 0.0) < 2:
+                break
+            wt = new
+            self._fit_similarity([i for i in fit if wt[i] > 0.0], wt, g)
+        return {i: 1.0 - wt[i] for i in fit}
+
+    def _fit_similarity(self, fit: list, wt: dict, g: int) -> None:
+        """The similarity x -> G + s R (x - G0) that best maps the rest shape of the
+        trackers ``fit`` (at least 2 of instance g's) onto their current means, in the
+        weighted least-squares sense (Procrustes, closed form; weight m = mass wt).  With rest offsets
+        p_i = dG0_i - pbar and current offsets q_i = mu_i - qbar about the set's weighted
+        centroids pbar (rest, relative to G0) and qbar (current):
+            a = sum m p.q,  b = sum m p x q,  D = sum m |p|^2,  s R = [[a, -b], [b, a]] / D
+        and G = qbar - s R pbar, the image of the rest centre of mass G0.  D below
+        FRAME_MIN_SPREAD times sum m (all of the set's rest points together) gives s R = I;
+        the scale sqrt(a^2 + b^2) / D is held to [FRAME_SCALE_MIN, FRAME_SCALE_MAX]."""
+        mass, mx, my = self.mass, self.mx, self.my
         w = px = py = qx = qy = 0.0
         for i in fit:                                                # weighted centroids
-            m = mass[i]
+            m = mass[i] * wt[i]
             w += m
             px += m * self.gdx0[i]
             py += m * self.gdy0[i]
@@ -418,7 +470,7 @@ class ReferenceTracker:
         qy = qy / w
         a = b = d = 0.0
         for i in fit:
-            m = mass[i]
+            m = mass[i] * wt[i]
             ux = self.gdx0[i] - px                                   # rest offset p_i
             uy = self.gdy0[i] - py
             vx = mx[i] - qx                                          # current offset q_i
@@ -564,19 +616,25 @@ class ReferenceTracker:
                 over_count[self.ca[k]] += 1
                 over_count[self.cb[k]] += 1
         a_en = self.egain[g]
+        # eq. (22)'s gain: a_en at an over-threshold connection, else a_en times how much
+        # the tracker disagrees with the frame (fit_frame)
+        gain = {i: a_en if over_count[i] > 0 else 0.0 for i in range(t0, t1)}
         if self.pull_sim[g] or self.car_sim[g]:
-            # the frame, fitted to the trackers this update leaves alone; the Cartesian
-            # springs use it at the next update (this one's energies decided who is calm)
-            self.fit_frame({i: c == 0 for i, c in over_count.items()}, g)
+            # the frame, fitted to the trackers this update leaves alone, weighted by how
+            # well they agree with it; the Cartesian springs use it at the next update
+            # (this one's energies decided who is calm)
+            for i, dis in self.fit_frame({i: c == 0 for i, c in over_count.items()}, g).items():
+                if over_count[i] == 0:
+                    gain[i] = a_en * dis
         if self.pull_sim[g]:
             # eq. (22) in the fitted frame: pull toward G + s R dG0 (fit_frame)
             fc, fs, fgx, fgy = self.fc[g], self.fs[g], self.fgx[g], self.fgy[g]
             for i in range(t0, t1):
-                if over_count[i] > 0:
+                if gain[i] > 0.0:
                     tx = fgx + (fc * self.gdx0[i] - fs * self.gdy0[i])
                     ty = fgy + (fs * self.gdx0[i] + fc * self.gdy0[i])
-                    self.mx[i] = self.mx[i] + a_en * (tx - self.mx[i])
-                    self.my[i] = self.my[i] + a_en * (ty - self.my[i])
+                    self.mx[i] = self.mx[i] + gain[i] * (tx - self.mx[i])
+                    self.my[i] = self.my[i] + gain[i] * (ty - self.my[i])
         else:
             # eq. (22): pull both ends of an over-threshold connection toward G + dG0, G the
             # instance's centre of mass after the spring step
@@ -590,9 +648,9 @@ class ReferenceTracker:
             gx = gx / msum
             gy = gy / msum
             for i in range(t0, t1):
-                if over_count[i] > 0:
-                    self.mx[i] = self.mx[i] + a_en * (gx + self.gdx0[i] - self.mx[i])
-                    self.my[i] = self.my[i] + a_en * (gy + self.gdy0[i] - self.my[i])
+                if gain[i] > 0.0:
+                    self.mx[i] = self.mx[i] + gain[i] * (gx + self.gdx0[i] - self.mx[i])
+                    self.my[i] = self.my[i] + gain[i] * (gy + self.gdy0[i] - self.my[i])
         if self.tau_m > 0.0:
             self._pull_velocities(g, over_count)
         for i in range(t0, t1):

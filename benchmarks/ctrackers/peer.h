@@ -9,7 +9,8 @@
  *               eqs. (3)-(6): its mean, covariance and activity move;
  *   every `period` valid events   eqs. (10)-(20): the springs, then eqs. (13), (21)-(22):
  *               the energy criteria; with pull_frame / cartesian_frame = similarity, the
- *               similarity that maps the rest shape onto the calm trackers (fit_frame)
+ *               similarity that maps the rest shape onto the calm trackers, refitted
+ *               weighted by how well each agrees with it (fit_frame),
  *               sets eq. (22)'s targets and the next update's Cartesian rest offsets.
  * State as structure of arrays.  The spatial index: the sensor cut into 8 x 8 px cells,
  * each cell a 64-bit mask of the trackers whose gate box (grown by a slack) covers it;
@@ -41,6 +42,9 @@
 #define PEER_FRAME_SCALE_MIN 0.25
 #define PEER_FRAME_SCALE_MAX 4.0
 #define PEER_FRAME_MIN_SPREAD (1.0 / 1048576.0)
+#define PEER_FRAME_REFITS 2
+#define PEER_FRAME_AGREE_PX2 (1.0 / 16.0)
+#define PEER_FRAME_RAMP 0.25
 /* the index: 2^3 = 8 px cells; a gate box grown by 1/4 of its half-size plus 3 px */
 #define PEER_CELL_SHIFT 3
 #define PEER_SLACK_REL 0.25
@@ -284,21 +288,14 @@ static inline void clamp_and_invert(const Peer *s, double *sxx_, double *sxy_, d
     *ic = sxx * inv_det;
 }
 
-/* The similarity x -> G + s R (x - G0) that best maps the rest shape onto the means of
- * the trackers no over-threshold connection touches (all trackers if fewer than 2), in
- * the mass-weighted least-squares sense (reference.py fit_frame): with rest offsets p and
- * current offsets q about the weighted centroids, a = sum m p.q, b = sum m p x q,
- * D = sum m |p|^2, s R = [[a, -b], [b, a]] / D, the scale held to its bounds. */
-static void fit_frame(Peer *s, uint64_t over)
+/* The similarity x -> G + s R (x - G0) that best maps the rest shape onto the means with
+ * the weights w8 (0: not in the fit), in the weighted least-squares sense (reference.py
+ * _fit_similarity): with rest offsets p and current offsets q about the weighted
+ * centroids, a = sum m p.q, b = sum m p x q, D = sum m |p|^2, s R = [[a, -b], [b, a]] / D,
+ * the scale held to its bounds. */
+static void fit_similarity(Peer *s, const double *w8)
 {
     int n = s->n;
-    uint64_t all = n == 64 ? ~(uint64_t)0 : (((uint64_t)1 << n) - 1);
-    uint64_t fit = all & ~over;
-    if (__builtin_popcountll(fit) < 2)
-        fit = all;
-    _Alignas(64) double w8[PEER_MAX_T];
-    for (int i = 0; i < n; i++)                                   /* the fit set's masses */
-        w8[i] = (fit >> i) & 1 ? s->mass[i] : 0.0;
     double w = 0.0, px = 0.0, py = 0.0, qx = 0.0, qy = 0.0;
     for (int i = 0; i < n; i++) {                                 /* weighted centroids */
         double m = w8[i];
@@ -349,6 +346,65 @@ static void fit_frame(Peer *s, uint64_t over)
     s->fgy = qy - (sn * px + c * py);
 }
 
+/* reference.py fit_frame: the frame fitted to the trackers no over-threshold connection
+ * touches (all if fewer than 2), then refitted up to PEER_FRAME_REFITS times with masses
+ * m v, v = 1 up to T = max(s mean m v r^2, PEER_FRAME_AGREE_PX2) of the squared
+ * residuals r^2, 0 from (1 + PEER_FRAME_RAMP) T, linear between; dis[i] = 1 - v_i (0
+ * outside the fit), eq. (22)'s share for a tracker no connection pulls. */
+static void fit_frame(Peer *s, uint64_t over, double *dis)
+{
+    int n = s->n;
+    uint64_t all = n == 64 ? ~(uint64_t)0 : (((uint64_t)1 << n) - 1);
+    uint64_t fit = all & ~over;
+    if (__builtin_popcountll(fit) < 2)
+        fit = all;
+    _Alignas(64) double w8[PEER_MAX_T];
+    double wt[PEER_MAX_T], v[PEER_MAX_T], r2[PEER_MAX_T];
+    for (int i = 0; i < n; i++) {                                 /* the fit set's masses */
+        wt[i] = 1.0;
+        dis[i] = 0.0;
+        w8[i] = (fit >> i) & 1 ? s->mass[i] : 0.0;
+    }
+    fit_similarity(s, w8);
+    if (!(s->escale < s->nc))
+        return;
+    for (int r = 0; r < PEER_FRAME_REFITS; r++) {
+        double w = 0.0, total = 0.0, thr;
+        int changed = 0, pos = 0;
+        for (int i = 0; i < n; i++) {
+            if (!((fit >> i) & 1))
+                continue;
+            double ex = s->mx[i] - (s->fgx + (s->fc * s->gdx0[i] - s->fs * s->gdy0[i]));
+            double ey = s->my[i] - (s->fgy + (s->fs * s->gdx0[i] + s->fc * s->gdy0[i]));
+            r2[i] = ex * ex + ey * ey;
+            w += s->mass[i] * wt[i];
+            total += s->mass[i] * wt[i] * r2[i];
+        }
+        thr = s->escale * (total / w);                            /* eq. (21)'s test on r^2 */
+        if (thr < PEER_FRAME_AGREE_PX2)
+            thr = PEER_FRAME_AGREE_PX2;
+        for (int i = 0; i < n; i++) {
+            if (!((fit >> i) & 1))
+                continue;
+            v[i] = 1.0 - (r2[i] - thr) / (PEER_FRAME_RAMP * thr);
+            v[i] = v[i] < 0.0 ? 0.0 : v[i] > 1.0 ? 1.0 : v[i];
+            changed |= v[i] != wt[i];
+            pos += v[i] > 0.0;
+        }
+        if (!changed || pos < 2)
+            break;
+        for (int i = 0; i < n; i++)
+            if ((fit >> i) & 1) {
+                wt[i] = v[i];
+                w8[i] = s->mass[i] * v[i];
+            }
+        fit_similarity(s, w8);
+    }
+    for (int i = 0; i < n; i++)
+        if ((fit >> i) & 1)
+            dis[i] = 1.0 - wt[i];
+}
+
 /* eqs. (13), (21)-(22) on the energies of the last spring update; then the index follows
  * the moved trackers. */
 static void energy_criteria(Peer *s)
@@ -373,8 +429,14 @@ static void energy_criteria(Peer *s)
         over |= ends & hot;
         calm_end |= ends & ~hot;
     }
+    double dis[PEER_MAX_T];
+    uint64_t soft = 0;
+    for (int i = 0; i < n; i++)
+        dis[i] = 0.0;
     if (s->pull_sim || s->car_sim)
-        fit_frame(s, over);
+        fit_frame(s, over, dis);
+    for (int i = 0; i < n; i++)                     /* pulled by the share they disagree */
+        soft |= (uint64_t)(dis[i] > 0.0 && !((over >> i) & 1)) << i;
     if (s->car_sim)                                 /* the next update's eq. (18): s R d0 */
         for (int k = 0; k < nc; k++) {
             s->rdx0[k] = s->fc * s->dx0[k] - s->fs * s->dy0[k];
@@ -388,16 +450,17 @@ static void energy_criteria(Peer *s)
         gx /= s->msum;
         gy /= s->msum;
     }
-    for (uint64_t m = over; m; m &= m - 1) {                      /* eq. (22) */
+    for (uint64_t m = over | soft; m; m &= m - 1) {               /* eq. (22) */
         int i = __builtin_ctzll(m);
+        double g = (over >> i) & 1 ? s->egain : s->egain * dis[i];
         if (s->pull_sim) {                          /* toward G + s R dG0 in the frame */
             double tx = s->fgx + (s->fc * s->gdx0[i] - s->fs * s->gdy0[i]);
             double ty = s->fgy + (s->fs * s->gdx0[i] + s->fc * s->gdy0[i]);
-            s->mx[i] = s->mx[i] + s->egain * (tx - s->mx[i]);
-            s->my[i] = s->my[i] + s->egain * (ty - s->my[i]);
+            s->mx[i] = s->mx[i] + g * (tx - s->mx[i]);
+            s->my[i] = s->my[i] + g * (ty - s->my[i]);
         } else {                                    /* toward G + dG0 */
-            s->mx[i] = s->mx[i] + s->egain * (gx + s->gdx0[i] - s->mx[i]);
-            s->my[i] = s->my[i] + s->egain * (gy + s->gdy0[i] - s->my[i]);
+            s->mx[i] = s->mx[i] + g * (gx + s->gdx0[i] - s->mx[i]);
+            s->my[i] = s->my[i] + g * (gy + s->gdy0[i] - s->my[i]);
         }
     }
     /* eq. (21): insensitive while all of its connections are over (it has some, none calm) */

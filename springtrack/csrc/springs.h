@@ -17,6 +17,8 @@
  *                           as bit masks (no branch)
  *   st_fit_frame            the similarity frame of eq. (22) and eqs. (18)-(20): the
  *                           mass-weighted Procrustes fit of the rest shape to the means
+ *   st_frame_weights        how well each tracker of a fit set agrees with its frame
+ *                           (eq. 21's test on the frame's residuals, made continuous)
  *   st_turn_offsets         eq. (18)'s rest offsets in that frame, s R d0
  *   st_pull                 eq. (22): the pull of the former toward G + s R dG0
  *   st_boxes_left           which trackers' gate boxes left their indexed boxes
@@ -69,15 +71,16 @@ ST_CLONES static void st_over_ends(int nc, const double *restrict e, double thr,
 /* eq. (22): the trackers in the mask pulled move toward G + s R dG0 by gain, the others
  * by gain 0 (mx + 0 = mx exactly), without a branch.  s R = [[c, -sn], [sn, c]]: the
  * similarity frame (st_fit_frame), or c = 1, sn = 0 in the image frame, where the target
- * is gx + (1 gdx0 - 0 gdy0) = gx + gdx0 exactly, the reference's G + dG0. */
+ * is gx + (1 gdx0 - 0 gdy0) = gx + gdx0 exactly, the reference's G + dG0.  The others by
+ * gain dis[i], how much they disagree with the frame (st_frame_weights; 0: not at all). */
 ST_CLONES static void st_pull(int n, uint64_t pulled, double gx, double gy, double c, double sn,
-                              double gain, const double *restrict gdx0,
-                              const double *restrict gdy0, double *restrict mx,
-                              double *restrict my)
+                              double gain, const double *restrict dis,
+                              const double *restrict gdx0, const double *restrict gdy0,
+                              double *restrict mx, double *restrict my)
 {
     for (int i = 0; i < n; i++) {
         uint64_t bit = (pulled >> (uint64_t)i) & 1;   /* a 64-bit shift count vectorises */
-        double g = st_sel((int64_t)bit, gain, 0.0);
+        double g = st_sel((int64_t)bit, gain, gain * dis[i]);
         double tx = gx + (c * gdx0[i] - sn * gdy0[i]);
         double ty = gy + (sn * gdx0[i] + c * gdy0[i]);
         mx[i] = mx[i] + g * (tx - mx[i]);
@@ -89,6 +92,8 @@ ST_CLONES static void st_pull(int n, uint64_t pulled, double gx, double gy, doub
 #define ST_FRAME_SCALE_MIN 0.25
 #define ST_FRAME_SCALE_MAX 4.0
 #define ST_FRAME_MIN_SPREAD 0x1p-20
+#define ST_FRAME_AGREE_PX2 0x1p-4                     /* [ref] FRAME_AGREE_PX2 */
+#define ST_FRAME_RAMP 0x1p-2                          /* [ref] FRAME_RAMP */
 #define ST_MAX_FIT 64                           /* trackers (MAX_TRACKERS of kernel/state.pxd) */
 
 /* [ref] fit_frame: the similarity x -> G + s R (x - G0) that best maps the rest shape onto
@@ -190,6 +195,57 @@ ST_CLONES static void st_fit_frame(int n, uint64_t fit, const double *restrict m
     *sn = ss;
     *gx = qx - (cc * px - ss * py);                      /* G = qbar - s R pbar */
     *gy = qy - (ss * px + cc * py);
+}
+
+/* [ref] fit_frame's weights: for the trackers of the mask fit, their squared residuals
+ * r^2 = |mu - (G + s R dG0)|^2 in the frame (c, sn, gx, gy), T = max(scale sum m wt r^2 /
+ * sum m wt, ST_FRAME_AGREE_PX2) and v = 1 up to T, 0 from (1 + ST_FRAME_RAMP) T, linear
+ * between; summed in index order as the reference.  If some v differs from wt and at least 2 are positive:
+ * wt = v, wm = mass v (the masses of the refit) and the mask of the positive ones is
+ * returned; else 0 (wt, wm unchanged). */
+static inline uint64_t st_frame_weights(int n, uint64_t fit, double scale,
+                                  const double *restrict mass, double *restrict wt,
+                                  double *restrict wm, const double *restrict gdx0,
+                                  const double *restrict gdy0, const double *restrict mx,
+                                  const double *restrict my, double c, double sn, double gx,
+                                  double gy)
+{
+    double r2[ST_MAX_FIT], v[ST_MAX_FIT], w = 0.0, total = 0.0, ex, ey, m, thr;
+    uint64_t pos = 0;
+    int i, changed = 0;
+    for (i = 0; i < n; i++) {
+        if (!((fit >> i) & 1))
+            continue;
+        ex = mx[i] - (gx + (c * gdx0[i] - sn * gdy0[i]));     /* mu - (G + s R dG0) */
+        ey = my[i] - (gy + (sn * gdx0[i] + c * gdy0[i]));
+        r2[i] = ex * ex + ey * ey;
+        m = mass[i] * wt[i];
+        w += m;
+        total += m * r2[i];
+    }
+    thr = scale * (total / w);                                /* eq. (21)'s test on r^2 */
+    if (thr < ST_FRAME_AGREE_PX2)
+        thr = ST_FRAME_AGREE_PX2;
+    for (i = 0; i < n; i++) {
+        if (!((fit >> i) & 1))
+            continue;
+        v[i] = 1.0 - (r2[i] - thr) / (ST_FRAME_RAMP * thr);   /* 1 to T, 0 from (1 + ramp) T */
+        if (v[i] < 0.0)
+            v[i] = 0.0;
+        if (v[i] > 1.0)
+            v[i] = 1.0;
+        changed |= v[i] != wt[i];
+        pos |= (uint64_t)(v[i] > 0.0) << i;
+    }
+    if (!changed || __builtin_popcountll(pos) < 2)
+        return 0;
+    for (i = 0; i < n; i++) {
+        if (!((fit >> i) & 1))
+            continue;
+        wt[i] = v[i];
+        wm[i] = mass[i] * v[i];
+    }
+    return pos;
 }
 
 /* eq. (18)'s rest offsets in the similarity frame: (odx, ody) = s R (dx0, dy0) */

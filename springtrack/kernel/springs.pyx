@@ -37,11 +37,18 @@ cdef extern from "springtrack/csrc/springs.h" nogil:
     void st_over_ends(int nc, const double* e, double thr, const uint64_t* ends,
                       uint64_t* pulled, uint64_t* calm)
     void st_pull(int n, uint64_t pulled, double gx, double gy, double c, double sn, double gain,
-                 const double* gdx0, const double* gdy0, double* mx, double* my)
-    double ST_FRAME_SCALE_MIN, ST_FRAME_SCALE_MAX, ST_FRAME_MIN_SPREAD
+                 const double* dis, const double* gdx0, const double* gdy0, double* mx,
+                 double* my)
+    double ST_FRAME_SCALE_MIN, ST_FRAME_SCALE_MAX, ST_FRAME_MIN_SPREAD, ST_FRAME_AGREE_PX2
+    double ST_FRAME_RAMP
     void st_fit_frame(int n, uint64_t fit, const double* mass, const double* gdx0,
                       const double* gdy0, const double* mx, const double* my, double rx,
                       double ry, double* c, double* sn, double* gx, double* gy)
+    int popcount "__builtin_popcountll"(uint64_t m)
+    uint64_t st_frame_weights(int n, uint64_t fit, double scale, const double* mass,
+                              double* wt, double* wm, const double* gdx0, const double* gdy0,
+                              const double* mx, const double* my, double c, double sn,
+                              double gx, double gy)
     void st_turn_offsets(int n, double c, double sn, const double* dx0, const double* dy0,
                          double* odx, double* ody)
     void st_torsion_angles(int n, const double* rx, const double* ry, const double* rdx,
@@ -64,10 +71,13 @@ cdef extern from "springtrack/csrc/springs.h" nogil:
                        const double* dev_x, const double* dev_y, const double* sxx_lim,
                        const double* syy_lim, int64_t* out)
 
-assert (_ref.FRAME_SCALE_MIN, _ref.FRAME_SCALE_MAX, _ref.FRAME_MIN_SPREAD) == (
-    ST_FRAME_SCALE_MIN, ST_FRAME_SCALE_MAX, ST_FRAME_MIN_SPREAD), "springs.h disagrees with reference.py"
+assert (_ref.FRAME_SCALE_MIN, _ref.FRAME_SCALE_MAX, _ref.FRAME_MIN_SPREAD,
+        _ref.FRAME_AGREE_PX2, _ref.FRAME_RAMP) == (
+    ST_FRAME_SCALE_MIN, ST_FRAME_SCALE_MAX, ST_FRAME_MIN_SPREAD, ST_FRAME_AGREE_PX2,
+    ST_FRAME_RAMP), "springs.h disagrees with reference.py"
 
 cdef double TWO_PI = 2.0 * M_PI
+cdef int FRAME_REFITS = _ref.FRAME_REFITS
 # The frame of eq. (14)'s fast path (st_torsion_angles_framed) follows the mean angle once
 # it is this far (rad) from it: connections within 3 pi/8 - pi/16 of the mean angle then
 # stay on the fast path.
@@ -277,6 +287,40 @@ cdef void set_frame(KState* s, int g, double phi) noexcept nogil:
     s.n_frame_moves += 1
 
 
+cdef void fit_frame(KState* s, int g, uint64_t fit, double* dis) noexcept nogil:
+    """[ref] fit_frame: instance g's frame fitted to the trackers of the mask fit, refitted
+    up to FRAME_REFITS times weighted by how well they agree with it (st_frame_weights);
+    dis[i] = how much tracker i (relative to the instance's first) disagrees, 0 outside
+    the fit."""
+    cdef int t0 = s.g_t0[g], n = s.g_t1[g] - s.g_t0[g], r, i
+    cdef uint64_t pos, all = all_of(n)
+    cdef double wt[64]
+    cdef double wm[64]
+    fit &= all
+    if popcount(fit) < 2:
+        fit = all
+    for i in range(n):
+        wt[i] = 1.0
+        dis[i] = 0.0
+    st_fit_frame(n, fit, s.mass + t0, s.gdx0 + t0, s.gdy0 + t0, s.mx + t0, s.my + t0,
+                 s.sim_gx[g], s.sim_gy[g], &s.sim_c[g], &s.sim_s[g], &s.sim_gx[g],
+                 &s.sim_gy[g])
+    if not s.energy_scale[g] < s.g_c1[g] - s.g_c0[g]:
+        return
+    for r in range(FRAME_REFITS):
+        pos = st_frame_weights(n, fit, s.energy_scale[g], s.mass + t0, wt, wm, s.gdx0 + t0,
+                               s.gdy0 + t0, s.mx + t0, s.my + t0, s.sim_c[g], s.sim_s[g],
+                               s.sim_gx[g], s.sim_gy[g])
+        if pos == 0:
+            break
+        st_fit_frame(n, pos, wm, s.gdx0 + t0, s.gdy0 + t0, s.mx + t0, s.my + t0,
+                     s.sim_gx[g], s.sim_gy[g], &s.sim_c[g], &s.sim_s[g], &s.sim_gx[g],
+                     &s.sim_gy[g])
+    for i in range(n):
+        if (fit >> i) & 1:
+            dis[i] = 1.0 - wt[i]
+
+
 cdef inline void pull_velocities(KState* s, int g, uint64_t pulled) noexcept nogil:
     # [ref] _pull_velocities(g), eq. (M8): the pulled trackers' velocities toward the
     # mean velocity of the instance's trackers left alone
@@ -307,25 +351,26 @@ cdef inline void energy_criteria(KState* s, int g) noexcept nogil:
     cdef const double* e = s.energy[s.ekind[g]] + c0
     cdef double thr, msum = s.mass_sum[g], gx = 0.0, gy = 0.0
     cdef uint64_t pulled, calm
+    cdef double dis[64]
     if nc == 0:
         return
     s.mean_energy[g] = st_sum(nc, e) / nc                            # eq. (13)
     thr = s.energy_scale[g] * s.mean_energy[g]
     st_over_ends(nc, e, thr, s.ends + c0, &pulled, &calm)
-    if s.pull_sim[g] or s.car_sim[g]:    # [ref] fit_frame over the trackers left alone
-        st_fit_frame(n, ~pulled, s.mass + t0, s.gdx0 + t0, s.gdy0 + t0, s.mx + t0,
-                     s.my + t0, s.sim_gx[g], s.sim_gy[g], &s.sim_c[g], &s.sim_s[g],
-                     &s.sim_gx[g], &s.sim_gy[g])
+    for i in range(n):
+        dis[i] = 0.0
+    if s.pull_sim[g] or s.car_sim[g]:    # [ref] fit_frame over the trackers left alone,
+        fit_frame(s, g, ~pulled, dis)    # weighted by agreement; eq. (22) pulls by 1 - that
     if s.pull_sim[g]:                    # eq. (22) toward G + s R dG0, the fitted frame
         st_pull(n, pulled, s.sim_gx[g], s.sim_gy[g], s.sim_c[g], s.sim_s[g], s.energy_gain[g],
-                s.gdx0 + t0, s.gdy0 + t0, s.mx + t0, s.my + t0)
+                dis, s.gdx0 + t0, s.gdy0 + t0, s.mx + t0, s.my + t0)
     else:
         for i in range(t0, t0 + n):                                  # eq. (22): G
             gx += s.mass[i] * s.mx[i]
             gy += s.mass[i] * s.my[i]
         gx = gx / msum
         gy = gy / msum
-        st_pull(n, pulled, gx, gy, 1.0, 0.0, s.energy_gain[g], s.gdx0 + t0, s.gdy0 + t0,
+        st_pull(n, pulled, gx, gy, 1.0, 0.0, s.energy_gain[g], dis, s.gdx0 + t0, s.gdy0 + t0,
                 s.mx + t0, s.my + t0)
     pull_velocities(s, g, pulled)        # eq. (M8)
     s.isens[g] = calm | s.isolated[g]    # eq. (21): insensitive if all its connections are over

@@ -55,7 +55,9 @@ def header(r: Report) -> list[str]:
             "Error = mean distance tracker-part as % of the object length, averaged over "
             "time (springtrack/metrics.py; grid: grid side, face: vertical length of the "
             "26-part mask, 7 internal parts scored). `s = off` is s = 10^6: the energy criteria "
-            "never act.", "", f"Machine: {machine()}.", "",
+            "never act.", "",
+            "The defaults judged on the other scene sources (the second generator, the real "
+            "recordings): docs/parameters.md.", "", f"Machine: {machine()}.", "",
             "Tracker defaults (springtrack.params; presets override some): "
             + ", ".join(f"{k} = {v}" for k, v in Params().as_dict().items()) + ".", "",
             "To reproduce one run by hand:", "", "```",

@@ -1,7 +1,8 @@
 /* Part of the fixed-point kernel's one translation unit, fixed_step.c, which includes it
    (the parts share its static inline helpers, so they are not compiled alone): the
-   similarity frame (pull_frame, cartesian_frame = "similarity"): its fit and the targets
-   and rest offsets in it. */
+   similarity frame (pull_frame, cartesian_frame = "similarity"): its fit, its refits
+   weighted by how well each tracker agrees with it, and the targets and rest offsets in
+   it. */
 
 /* ---- the similarity frame (pull_frame, cartesian_frame = "similarity") --------------
    [ref] fit_frame.  Every product is a 32 x 32 -> 64-bit one (smul), every division an
@@ -14,6 +15,10 @@
 #define FRAME_SCALE_MIN_Q ((int32_t)1 << 26)          /* [ref] FRAME_SCALE_MIN = 1/4, Q.28 */
 #define FRAME_SCALE_MAX_Q ((int32_t)1 << 30)          /* [ref] FRAME_SCALE_MAX = 4, Q.28 */
 #define FRAME_SPREAD_SHIFT 20                         /* [ref] FRAME_MIN_SPREAD = 2^-20 */
+#define FRAME_REFITS 2                                /* [ref] FRAME_REFITS */
+#define FRAME_AGREE_Q ((int64_t)1 << 30)              /* [ref] FRAME_AGREE_PX2 = 2^-4, Q.34 px^2 */
+#define FRAME_W_ONE ((uint32_t)1 << 24)              /* a weight of 1, Q.24 */
+#define FRAME_RAMP_SHIFT 2                            /* [ref] FRAME_RAMP = 2^-2 */
 
 /* the index of the lowest set bit of m != 0 (two 32-bit halves) */
 static inline int lowest_bit(uint64_t m)
@@ -45,12 +50,13 @@ static inline void frame_to_length(int32_t x, int32_t y, int32_t len, int32_t *c
 }
 
 /* The similarity x -> G + s R (x - G0) that best maps the rest shape onto the means, in
-   the mass-weighted least-squares sense, over the trackers of `fit` (all if it holds
-   fewer than 2): with p = dG0 - pbar, q = mu - qbar about the set's weighted centroids,
+   the weighted least-squares sense (weights wq: mass / largest mass, times how well the
+   tracker agrees, Q.24), over the trackers of `fit` (all if it holds fewer than 2; each
+   with wq > 0): with p = dG0 - pbar, q = mu - qbar about the set's weighted centroids,
    a = sum m p.q, b = sum m p x q, D = sum m |p|^2, s R = [[a, -b], [b, a]] / D (the scale
    held to [1/4, 4]; s R = I when D <= 2^-20 sum m), G = qbar - s R pbar.  Sets frame_c,
    frame_s (Q.28) and frame_gx, frame_gy (Q.32). */
-static __attribute__((noinline)) void fit_frame(fx_state *s, uint64_t fit)
+static __attribute__((noinline)) void fit_frame(fx_state *s, uint64_t fit, const uint32_t *wq)
 {
     int n = s->n, i, sh;
     uint64_t all = n == 64 ? ~(uint64_t)0 : ((uint64_t)1 << n) - 1, k2, m;
@@ -62,7 +68,7 @@ static __attribute__((noinline)) void fit_frame(fx_state *s, uint64_t fit)
     fit &= all;
     if ((fit & (fit - 1)) == 0)                       /* fewer than 2: all of them */
         fit = all;
-    /* The sums run over the trackers of the fit only (weight mass / largest, Q.24, > 0),
+    /* The sums run over the trackers of the fit only (weight wq, Q.24, > 0),
        visited in increasing order.  The means' offsets from the last frame's G (near
        qbar), the rest offsets (from G0), and one shift that puts their largest below
        2^29: their centroids and the offsets about those are then below 2^30 */
@@ -79,7 +85,7 @@ static __attribute__((noinline)) void fit_frame(fx_state *s, uint64_t fit)
     for (m = fit; m; m &= m - 1) {                    /* weighted centroids, Q.(32 - sh) */
         int32_t w;
         i = lowest_bit(m);
-        w = (int32_t)s->mq[i];
+        w = (int32_t)wq[i];
         ux[i] = shr32(gdx[i], sh);
         uy[i] = shr32(gdy[i], sh);
         vx[i] = shr32(ox[i], sh);
@@ -101,11 +107,11 @@ static __attribute__((noinline)) void fit_frame(fx_state *s, uint64_t fit)
         puy = uy[i] - (int32_t)py;
         qvx = vx[i] - (int32_t)qx;
         qvy = vy[i] - (int32_t)qy;
-        mux = pux;                                    /* m p: m = 1 if the masses are equal */
+        mux = pux;                                    /* m p: exactly p for a weight of 1 */
         muy = puy;
-        if (!s->equal_mass) {
-            mux = (int32_t)rshr(smul((int32_t)s->mq[i], pux), 24);
-            muy = (int32_t)rshr(smul((int32_t)s->mq[i], puy), 24);
+        if (wq[i] != FRAME_W_ONE) {
+            mux = (int32_t)rshr(smul((int32_t)wq[i], pux), 24);
+            muy = (int32_t)rshr(smul((int32_t)wq[i], puy), 24);
         }
         /* products < 2^60, pairs < 2^61: a 2^-8 of each keeps 64 of them in int64 */
         a += (smul(mux, qvx) + smul(muy, qvy)) >> 8;  /* a = sum m p.q */
@@ -162,6 +168,103 @@ static inline void frame_target(const fx_state *s, int i, int64_t *tx, int64_t *
 {
     *tx = s->frame_gx + (frame_scale(s->frame_c, s->gdx0[i]) - frame_scale(s->frame_s, s->gdy0[i]));
     *ty = s->frame_gy + (frame_scale(s->frame_s, s->gdx0[i]) + frame_scale(s->frame_c, s->gdy0[i]));
+}
+
+/* [ref] fit_frame's weights: for the trackers of `fit`, the squared residual r^2 =
+   |mu - (G + s R dG0)|^2 in the last fitted frame, T = max(energy_scale times the mean r^2
+   weighted by wq, FRAME_AGREE_PX2), and v = 1 up to T, 0 from (1 + FRAME_RAMP) T, linear
+   between (Q.24).
+   Residuals in Q.20 px (the kernels' means agree to ~1e-6 px, so a weight near the ends
+   of its ramp comes out as the float kernel's), held to +-2^30 (1024 px: such a tracker
+   disagrees either way), r^2 in Q.40 px^2 (< 2^61) and 2^-6 of it (Q.34) summed (64 of
+   them in int64), each weighted by wq (Q.24); the mean = sum 2^24 / sum wq.  If some v
+   differs from the last and at least 2 weights are positive: v and wq = mq v updated and
+   the mask of the positive weights returned; else 0 (both unchanged). */
+static __attribute__((noinline)) uint64_t frame_weights(fx_state *s, uint64_t fit, uint32_t *v,
+                                                        uint32_t *wq)
+{
+    uint64_t m, pos = 0;
+    int64_t r2[FX_MAX_TRACKERS], total = 0, mean, thr, ramp;
+    uint32_t W = 0, rem, nv[FX_MAX_TRACKERS], nw[FX_MAX_TRACKERS];
+    const int64_t lim = (int64_t)1 << 30;
+    int i, k, changed = 0;
+    for (m = fit; m; m &= m - 1) {
+        int64_t tx, ty, ex, ey;
+        i = lowest_bit(m);
+        frame_target(s, i, &tx, &ty);
+        ex = rshr(s->mx[i] - tx, 12);                 /* mu - (G + s R dG0), Q.20 */
+        ey = rshr(s->my[i] - ty, 12);
+        ex = ex > lim ? lim : ex < -lim ? -lim : ex;
+        ey = ey > lim ? lim : ey < -lim ? -lim : ey;
+        r2[i] = (smul((int32_t)ex, (int32_t)ex) + smul((int32_t)ey, (int32_t)ey)) >> 6;
+        total += mulsh(r2[i], wq[i], 24);
+        W += wq[i];                                   /* <= 2^30 */
+    }
+    /* the weighted mean r^2 (Q.34 px^2): sum 2^24 / sum wq in two steps */
+    mean = (int64_t)udiv64((uint64_t)total, W, &rem);
+    mean = shl64(mean, 24) + (int64_t)udiv64((uint64_t)rem << 24, W, &rem);
+    thr = mulsh(mean, s->escale, s->escale_sh);       /* eq. (21)'s test on r^2 */
+    if (thr < FRAME_AGREE_Q)
+        thr = FRAME_AGREE_Q;
+    ramp = thr >> FRAME_RAMP_SHIFT;                   /* FRAME_RAMP T, >= 2^27 */
+    k = bitlen64((uint64_t)ramp) - 31;                /* ramp >> k in [2^27, 2^31) */
+    if (k < 0)
+        k = 0;
+    for (m = fit; m; m &= m - 1) {
+        int64_t e;
+        i = lowest_bit(m);
+        e = r2[i] - thr;
+        if (e <= 0)                                   /* 1 up to T */
+            nv[i] = FRAME_W_ONE;
+        else if (e >= ramp)                           /* 0 from (1 + ramp) T */
+            nv[i] = 0;
+        else                                          /* 1 - (r^2 - T) / (ramp T) */
+            nv[i] = FRAME_W_ONE - (uint32_t)div_round(shl64(e >> k, 24), (uint32_t)(ramp >> k));
+        nw[i] = (uint32_t)rshr((int64_t)umul(s->mq[i], nv[i]), 24);
+        changed |= nv[i] != v[i];
+        pos |= (uint64_t)(nw[i] > 0) << i;
+    }
+    if (!changed || (pos & (pos - 1)) == 0)           /* unchanged, or fewer than 2 left */
+        return 0;
+    for (m = fit; m; m &= m - 1) {
+        i = lowest_bit(m);
+        v[i] = nv[i];
+        wq[i] = nw[i];
+    }
+    return pos;
+}
+
+/* [ref] fit_frame: the frame fitted to `fit` (all if it holds fewer than 2), then refitted
+   up to FRAME_REFITS times weighted by how well each tracker agrees with it
+   (frame_weights); dis[i] = how much tracker i disagrees (1 - v, Q.24), 0 outside the
+   fit.  No refit when energy_scale >= nc (escale_never: the reference tests no tracker
+   then). */
+static void fit_frame_agreeing(fx_state *s, uint64_t fit, uint32_t *dis)
+{
+    uint64_t all = s->n == 64 ? ~(uint64_t)0 : ((uint64_t)1 << s->n) - 1, pos;
+    uint32_t v[FX_MAX_TRACKERS], wq[FX_MAX_TRACKERS];
+    int i;
+    fit &= all;
+    if ((fit & (fit - 1)) == 0)
+        fit = all;
+    for (i = 0; i < s->n; i++) {
+        v[i] = FRAME_W_ONE;
+        wq[i] = s->mq[i];
+        dis[i] = 0;
+    }
+    fit_frame(s, fit, wq);
+    if (s->escale_never)
+        return;
+    for (int r = 0; r < FRAME_REFITS; r++) {
+        pos = frame_weights(s, fit, v, wq);
+        if (pos == 0)
+            break;
+        fit_frame(s, pos, wq);
+    }
+    for (uint64_t m = fit; m; m &= m - 1) {
+        i = lowest_bit(m);
+        dis[i] = FRAME_W_ONE - v[i];
+    }
 }
 
 /* eq. (18)'s rest offset of connection k in the frame the Cartesian springs use (car_c,

@@ -12,7 +12,8 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
 {
     int n = s->n, nc = s->nc, used = s->used_kinds, i, k;
     int64_t ddx[FX_MAX_TRACKERS], ddy[FX_MAX_TRACKERS], total, thr, gx, gy, sx = 0, sy = 0;
-    uint64_t pulled = 0, calm = ~(uint64_t)0, bad = 0;
+    uint64_t pulled = 0, calm = ~(uint64_t)0, bad = 0, soft = 0;
+    uint32_t dis[FX_MAX_TRACKERS];
     const int64_t *e = s->energy[s->ekind];
     uint32_t rem;
     s->n_spring_updates++;
@@ -57,8 +58,14 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
     }
     if (n == 0)
         return;
-    if (nc > 0 && (s->pull_sim || s->car_sim))          /* [ref] fit_frame, the calm ones */
-        fit_frame(s, ~pulled);
+    for (i = 0; i < n; i++)
+        dis[i] = 0;
+    if (nc > 0 && (s->pull_sim || s->car_sim)) {        /* [ref] fit_frame, the calm ones */
+        fit_frame_agreeing(s, ~pulled, dis);              /* weighted by how well they agree */
+        for (i = 0; i < n; i++)                           /* eq. (22) pulls by 1 - that */
+            soft |= (uint64_t)(dis[i] > 0) << i;
+        soft &= ~pulled;
+    }
     /* centre of mass G = x0 + sum m_i (x_i - x0) / sum m_i, rounded half up */
     if (s->pull_sim) {
         gx = gy = 0;                                      /* eq. (22) uses the frame's G */
@@ -72,18 +79,20 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
         gx = centre(s, s->mx, msum);
         gy = centre(s, s->my, msum);
     }
-    for (uint64_t p = pulled; p; p &= p - 1) {            /* eq. (22) */
-        uint32_t lo = (uint32_t)p;
+    for (uint64_t p = pulled | soft; p; p &= p - 1) {     /* eq. (22) */
+        uint32_t lo = (uint32_t)p, gain = s->energy_gain;
         int64_t tx, ty;                                   /* G + dG0, or G + s R dG0 */
         i = lo ? __builtin_ctz(lo) : 32 + __builtin_ctz((uint32_t)(p >> 32));
+        if ((soft >> i) & 1)                              /* energy_gain (1 - v), Q.30 */
+            gain = (uint32_t)rshr((int64_t)umul(gain, dis[i]), 24);
         if (s->pull_sim) {
             frame_target(s, i, &tx, &ty);
         } else {
             tx = gx + s->gdx0[i];
             ty = gy + s->gdy0[i];
         }
-        s->mx[i] = sat_pos(s, s->mx[i] + mulsh(tx - s->mx[i], s->energy_gain, 30));
-        s->my[i] = sat_pos(s, s->my[i] + mulsh(ty - s->my[i], s->energy_gain, 30));
+        s->mx[i] = sat_pos(s, s->mx[i] + mulsh(tx - s->mx[i], gain, 30));
+        s->my[i] = sat_pos(s, s->my[i] + mulsh(ty - s->my[i], gain, 30));
     }
     /* [ref] _guard: a mean outside the position box (a saturated one is) is a state no
        model within springtrack.limits reaches: counted, and the state reset to the model.

@@ -105,9 +105,84 @@ def test_the_fit_leaves_out_the_trackers_an_occluder_dragged():
     c, s, _, _ = tr.frame()
     assert math.atan2(s, c) == pytest.approx(0.3, abs=1e-9)
     assert math.hypot(c, s) == pytest.approx(1.1, abs=1e-9)
-    tr.fit_frame([True] * 9)
+    tr._fit_similarity(list(range(9)), dict.fromkeys(range(9), 1.0), 0)
     c, s, _, _ = tr.frame()
     assert abs(math.atan2(s, c) - 0.3) > 1e-3
+
+
+def pulled_grid(dx):
+    """grid3x3 turned by 0.3 rad and scaled by 1.1, r1c2 pulled ``dx`` px along the grid's
+    own X axis; returns the model (Cartesian springs too weak to move anything), the
+    positions and where r1c2 belongs."""
+    m = grid3x3(stiffness=1e-12)
+    x, y = pose(m, 0.3, 1.1, (4.0, 4.0))
+    k = m.ids.index("r1c2")
+    home = (x[k], y[k])
+    x[k] += dx * math.cos(0.3)
+    y[k] += dx * math.sin(0.3)
+    return m, x, y, k, home
+
+
+def test_the_fit_refits_without_a_pulled_part_that_no_connection_flags():
+    """r1c2 has 3 of the grid's 12 connections: pulled away alone, each of them holds a
+    quarter of the energy, under s = 4.5 times the mean, so the criteria leave it in the
+    fit set; its residual in the fitted frame is over s times the set's mean, so the
+    frame is refitted without it and finds the turn and scale of the other eight."""
+    m, x, y, k, _ = pulled_grid(30.0)
+    tr = ReferenceTracker(m, Params(**SIMILARITY, energy_scale=4.5, energy_gain=0.0,
+                                    energy_kind="cartesian"))
+    tr.mx, tr.my = [float(v) for v in x], [float(v) for v in y]
+    assert tr.fit_frame([True] * 9) == {i: float(i == k) for i in range(9)}
+    c, s, _, _ = tr.frame()
+    assert (math.atan2(s, c), math.hypot(c, s)) == pytest.approx((0.3, 1.1), abs=1e-9)
+    tr._fit_similarity(list(range(9)), dict.fromkeys(range(9), 1.0), 0)                        # all nine: dragged
+    c, s, _, _ = tr.frame()
+    assert abs(math.hypot(c, s) - 1.1) > 1e-2
+    # s at or above the connection count: no connection is ever over, no tracker tested
+    tr.set_params(Params(**SIMILARITY, energy_scale=12.0))
+    assert tr.fit_frame([True] * 9) == {}
+
+
+def test_the_refit_weights_are_continuous_in_the_residual():
+    """Pulled by a little more at each step, r1c2 goes from agreeing (weight 1) to
+    disagreeing (0) through the ramp between T and (1 + FRAME_RAMP) T, monotonically, and
+    the frame's scale follows without a jump: kernels whose means differ by rounding fit
+    the same frame."""
+    dis, scale = [], []
+    for dx in list(np.linspace(0.0, 0.6, 1201)) + [4.0]:
+        m, x, y, k, _ = pulled_grid(dx)
+        tr = ReferenceTracker(m, Params(**SIMILARITY, energy_scale=4.5, energy_gain=0.0,
+                                        energy_kind="cartesian"))
+        tr.mx, tr.my = [float(v) for v in x], [float(v) for v in y]
+        dis.append(tr.fit_frame([True] * 9)[k])
+        c, s, _, _ = tr.frame()
+        scale.append(math.hypot(c, s))
+    dis, scale = np.array(dis), np.array(scale)
+    assert dis[0] == 0.0 and dis[-2] == 1.0 and dis[-1] == 1.0
+    assert np.all(np.diff(dis) >= -1e-12)
+    ramp = (dis > 0.0) & (dis < 1.0)
+    assert ramp.sum() >= 5                                       # a ramp, not a step
+    assert np.abs(np.diff(scale[:-1])).max() < 1e-4              # 5e-4 px steps of dx
+    assert scale[-1] == pytest.approx(1.1, abs=1e-9)             # the others' scale
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_a_pulled_part_moves_neither_the_frame_nor_its_place_and_is_pulled_back(backend):
+    """In every backend: the frame fitted with r1c2 pulled 30 px away is the other eight's
+    turn and scale, and eq. (22) pulls r1c2 toward its place in it (gain 0.5: halfway),
+    the others untouched."""
+    m, x, y, k, home = pulled_grid(30.0)
+    run = Springs(backend, m, dict(SIMILARITY, energy_scale=4.5, energy_gain=0.5,
+                                   energy_kind="cartesian"))
+    nx, ny = run.update(x, y)
+    f = run.tr.frame()
+    tol = BACKENDS[backend]
+    assert (f["angle"], f["scale"]) == pytest.approx((0.3, 1.1), abs=tol)
+    assert (nx[k], ny[k]) == pytest.approx((0.5 * (x[k] + home[0]), 0.5 * (y[k] + home[1])),
+                                           abs=10 * tol)
+    others = np.arange(9) != k
+    assert np.abs(nx[others] - x[others]).max() < 10 * tol
+    assert np.abs(ny[others] - y[others]).max() < 10 * tol
 
 
 def test_degenerate_fits():
