@@ -10,6 +10,8 @@ from datetime import datetime, timedelta, timezone
 
 import numpy as np
 
+from ..io.stats import CORRUPT_SHARE
+
 BIN_US = 10_000
 # timestamps from here on are taken for Unix-epoch microseconds (AEDAT 4 keeps them so):
 # 10**15 us is 2001-09-09, 4 * 10**15 us is 2096
@@ -76,6 +78,7 @@ def summarize(path, format=None, chunk=1 << 20) -> dict:
         "t_epoch_utc": (_utc(t_min), _utc(t_max)) if n and _is_epoch(t_min) else None,
         "words": s.words, "pending_bytes": s.pending_bytes,
         "anomalies": s.anomalies, "info": s.info,
+        "undecodable": bool(getattr(s, "undecodable", False)),
         "quirks": {
             "tick_us": quirks.tick_us, "time_backwards": quirks.time_backwards,
             "row_steps": quirks.row_steps, "row_steps_down": quirks.row_steps_down,
@@ -153,6 +156,10 @@ def run(args) -> int:
     print(f"decoded   {facts['words']:,} {unit}, {facts['pending_bytes']} bytes pending")
     bad = {k: v for k, v in facts["anomalies"].items() if v}
     print("anomalies " + (", ".join(f"{k} {v:,}" for k, v in bad.items()) or "none"))
+    if facts["undecodable"]:
+        print(f"doubtful  over {CORRUPT_SHARE:.0%} of the {unit} are corrupt: not a file "
+              f"of format {facts['format']}, or badly damaged; track, learn and render "
+              f"refuse it (--format FORMAT reads it as another format)")
     if facts["info"]:
         print("counts    " + ", ".join(f"{k} {v:,}" for k, v in facts["info"].items()))
     q = facts["quirks"]

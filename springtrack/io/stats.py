@@ -48,10 +48,16 @@ class DecodeStats:
         """Anomalies that spoil a word (all but events outside the declared sensor)."""
         return sum(v for k, v in self.anomalies.items() if k != GEOMETRY_ANOMALY)
 
+    @property
+    def undecodable(self) -> bool:
+        """The stream so far is not of its format (see CORRUPT_SHARE)."""
+        bad = self.corrupt
+        return bad >= CORRUPT_MIN and bad > CORRUPT_SHARE * self.words
+
     def check_decodable(self, source) -> None:
         """Raise DecodeError if the stream so far is not of its format (see CORRUPT_SHARE)."""
         bad = self.corrupt
-        if bad >= CORRUPT_MIN and bad > CORRUPT_SHARE * self.words:
+        if self.undecodable:
             raise DecodeError(
                 f"{source} does not decode as {self.format}: {bad:,} anomalies in its first "
                 f"{self.words:,} words (over {CORRUPT_SHARE:.0%} of them; "

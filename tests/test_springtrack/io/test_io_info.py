@@ -85,3 +85,18 @@ def test_info_peak_rate_is_never_below_the_mean_on_a_short_recording(data_file):
     g = summarize(data_file("evt2_sample.raw"))      # 50 ms: whole bins from the first event
     assert g["peak_rate_ev_s"] >= g["mean_rate_ev_s"]
     assert (g["peak_bin_start_us"] - g["t_first_us"]) % 10_000 == 0
+
+
+def test_info_says_a_file_of_mostly_corrupt_words_is_doubtful(tmp_path, capsys, data_file):
+    """Random bytes behind an EVT 3.0 header: described, and called doubtful with the way
+    out (the commands that use events refuse it); a real recording is not."""
+    path = tmp_path / "g.raw"
+    path.write_bytes(b"% evt 3.0\n% geometry 304x240\n% end\n"
+                     + bytes(np.random.default_rng(3).integers(0, 256, 1 << 17, np.uint8)))
+    assert main(["info", str(path)]) == 0
+    out = capsys.readouterr().out
+    assert "doubtful  over 10% of the words are corrupt: not a file of format evt3" in out
+    assert main(["info", "--json", str(path)]) == 0
+    assert json.loads(capsys.readouterr().out)["undecodable"] is True
+    assert main(["info", str(data_file("evt3_sample.raw"))]) == 0
+    assert "doubtful" not in capsys.readouterr().out
