@@ -11,9 +11,20 @@ are fuzzed by mutation from their seeds).  Exit status 0: nothing found; otherwi
 libFuzzer's, with the input and the Python traceback on standard error."""
 from __future__ import annotations
 
+import os
+import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+if __name__ == "__main__" and os.environ.get("SPRINGTRACK_FUZZ_CHILD") != "1":
+    # Linux carries a process's peak RSS (getrusage's ru_maxrss, what -rss_limit_mb reads)
+    # across exec from the process it was forked from: started by a large pytest, the
+    # fuzzer would see pytest's size and stop at once.  A child of this small process
+    # counts its own memory only.
+    child = subprocess.run([sys.executable, *sys.argv],
+                           env=dict(os.environ, SPRINGTRACK_FUZZ_CHILD="1"))
+    sys.exit(child.returncode if child.returncode >= 0 else 128 - child.returncode)
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))     # tests/: `support`
 
