@@ -572,7 +572,7 @@ COUNTERS = {
                              "a simulated scene)",
     "loop.pieces": "pieces of transfers handed to the kernel",
     "loop.snapshots": "telemetry snapshots taken (1 kHz of event time; a jump in time is "
-                      "sampled for HOLD periods)",
+                      "sampled for HOLD periods and at its end)",
     "loop.updates_applied": "model, parameter and reset updates put in effect",
     "loop.updates_rejected": "updates refused with a NACK (bad models, parameters)",
     "loop.updates_failed": "accepted updates the kernel refused when applied (must be 0)",

@@ -28,7 +28,8 @@ Sampling is ``springtrack track``'s, in run_events (the rule of springtrack/csrc
 the first tracked event at t0 sets the first sample time to the smallest multiple of the
 period >= t0; before an event at t with t >= next sample and t >= the kernel's last time,
 one snapshot per sample time <= t is taken (state after all events with t < sample time),
-an empty stretch sampled for its first springtrack.sampling.HOLD periods only.
+an empty stretch sampled for its first springtrack.sampling.HOLD periods and at its end
+only (the sample times skipped counted, ``samples_skipped``).
 
 Time: the decoder's own time base, unchanged (springtrack/io/timebase.pxd: wraps
 unwrapped, a counter that goes back, e.g. a camera restarted after a reconnect, rebased so
@@ -47,7 +48,7 @@ import numpy as np
 from springtrack.kernel.kernel cimport Kernel
 from springtrack.fixed.kernel cimport FixedKernel
 from springtrack.backends.samples cimport SampleOut, sample_buffers, take_samples
-from springtrack.backends.stepper cimport Stepper, ST_UNSET, run_events
+from springtrack.backends.stepper cimport Stepper, ST_UNSET, run_events, st_first_sample
 from springtrack.sampling import MAX_PERIOD
 from springtrack.events cimport Event
 from springtrack.io.base cimport (DecodeCounts, MAX_WORD, AN_UNKNOWN_TYPE, AN_OUT_OF_GEOMETRY,
@@ -158,6 +159,7 @@ cdef class Fused:
     cdef bint mark
     cdef readonly int64_t first_t          # first event time after set_kernel(mark=True)
     cdef readonly uint64_t tracked, gap_skipped, gaps, bytes_in
+    cdef readonly uint64_t samples_skipped  # sample times of empty stretches not taken
     cdef SampleOut o
     cdef object bufs
 
@@ -248,12 +250,17 @@ cdef class Fused:
     cdef inline bint _track(self) noexcept nogil:
         """Track batch[bpos:bn] with the sampling rule; True if the snapshot buffer filled
         before the batch was done (the rest stays for the next call)."""
-        cdef Py_ssize_t k = self.bpos, c
+        cdef Py_ssize_t k = self.bpos, c, taken = self.o.count
+        cdef int64_t start = self.next_t
         if self.mark:
             self.mark = False
             self.first_t = self.batch[k].t
+        if start == ST_UNSET and self.period > 0 and k < self.bn:
+            start = st_first_sample(self.batch[k].t, self.period)
         c = run_events(&self.sp, &self.batch[k], self.bn - k, self.period, &self.next_t,
                        &self.o)
+        if self.period > 0 and self.next_t != ST_UNSET:    # the sample times passed over
+            self.samples_skipped += (self.next_t - start) // self.period - (self.o.count - taken)
         self.tracked += c
         self.bpos = k + c
         return self.bpos < self.bn
@@ -422,7 +429,7 @@ cdef class Fused:
                     gaps=self.gaps, bytes=self.bytes_in, pending_bytes=self.ncarry,
                     triggers=n.info[<int>IN_TRIGGERS], other_words=n.info[<int>IN_OTHERS],
                     time_low_backwards=n.info[<int>IN_TIME_LOW_BACK],
-                    outside_roi=self.outside_roi,
+                    outside_roi=self.outside_roi, samples_skipped=self.samples_skipped,
                     anomalies=dict(unknown_type=n.anomalies[<int>AN_UNKNOWN_TYPE],
                                    out_of_geometry=n.anomalies[<int>AN_OUT_OF_GEOMETRY],
                                    time_backwards=n.anomalies[<int>AN_TIME_BACKWARDS],

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from springtrack.sampling import UNSET
+from springtrack.sampling import UNSET, first_sample_time, multiples
 
 from . import camera as camusb
 
@@ -27,6 +27,7 @@ class DecodedFeed:
         self.first_t = -1
         self.mark = False
         self.tracked = 0
+        self.samples_skipped = 0      # sample times of empty stretches not taken
         self.bytes_in = 0
         self.gaps = 0
         self.old_words = 0            # counts of decoders replaced after gaps
@@ -86,9 +87,15 @@ class DecodedFeed:
             self.first_t = int(ev["t"][0])
         parts, pos = [], 0
         while pos < len(ev):
+            start = self.next_t
+            if start == UNSET and self.period > 0:
+                start = first_sample_time(int(ev["t"][pos]), self.period)
             consumed, self.next_t, out = self._track(ev[pos:])
             pos += consumed
-            if out is not None and len(out["t"]):
+            taken = 0 if out is None else len(out["t"])
+            if self.period > 0 and self.next_t != UNSET:     # the sample times passed over
+                self.samples_skipped += multiples(start, self.next_t, self.period) - taken
+            if taken:
                 if sink is not None:
                     sink(out)
                 else:
@@ -111,7 +118,7 @@ class DecodedFeed:
                     gaps=self.gaps, bytes=self.bytes_in, pending_bytes=st.pending_bytes,
                     triggers=st.info.get("triggers", 0), other_words=st.info.get("other_words", 0),
                     time_low_backwards=st.info.get("time_low_backwards", 0), outside_roi=0,
-                    anomalies=an)
+                    samples_skipped=self.samples_skipped, anomalies=an)
 
 
 def join_samples(parts):

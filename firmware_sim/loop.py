@@ -514,6 +514,7 @@ class FirmwareLoop:
             source=self.source_counters(),
             anomalies=self._anomalies(fc),
             loop=dict(self.counters.as_dict(), telemetry_dropped=self.telemetry.dropped,
+                      samples_skipped=fc["samples_skipped"],
                       generation=self.generation, last_t_us=int(self.fused.last_t)),
             kernel=self.slot.kernel_counters(),
             supervisor=self.supervisor.counters(),

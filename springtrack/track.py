@@ -9,7 +9,8 @@ CSV schema (``springtrack track``, ``firmware-sim --record``, ``hostctl record``
     t_us,tracker,x,y,sxx,sxy,syy,activity,vx,vy,active,sensitive,state
 
 one row per tracker per sample time (springtrack.sampling: every multiple of the period
-from the first event on, an empty stretch for its first HOLD periods only); ``t_us`` is
+from the first event on, an empty stretch for its first HOLD periods and at its end only:
+at most sampling.PER_EVENT samples per event); ``t_us`` is
 event time in microseconds, the row holds the state after all events with t < t_us;
 positions in px (the means predicted to t_us along their velocities, eq. M1),
 covariances in px^2, velocities ``vx``/``vy`` in px/s (eq. M7; 0 where the motion model

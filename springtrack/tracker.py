@@ -21,7 +21,7 @@ from .instances import NOT_FOUND, SEARCHING, TRACKING, ModelSet
 from .acquisition.loss import LOSS_CHECK_US
 from .model import ShapeModel
 from .params import Params
-from .sampling import MAX_PERIOD, UNSET, first_sample_time
+from .sampling import MAX_PERIOD, UNSET, first_sample_time, multiples
 from .track import STATE_NAMES, TRACK_DTYPE, TRACK_FIELDS, Track
 
 SAMPLE_CAP = 4096          # sample rows per kernel call; bounds memory for huge time gaps
@@ -69,11 +69,6 @@ class _OneInstance:
 
     def counters(self):
         return dict(self.tr._b.counters())
-
-
-def _multiples(a: int, b: int, q: int) -> int:
-    """How many multiples of q lie in [a, b)."""
-    return -(-b // q) - -(-a // q) if b > a else 0
 
 
 def resolve_params(model: ShapeModel, params=None) -> Params:
@@ -181,7 +176,7 @@ class Tracker:
     # ---- feeding -------------------------------------------------------------------
     def record(self, sample_us: int) -> None:
         """Keep a snapshot every ``sample_us`` µs of event time (state after events with
-        t < multiple; an empty stretch only for its first ``sampling.HOLD`` periods, see
+        t < multiple; an empty stretch only for its first ``sampling.HOLD`` periods and at its end, see
         springtrack.sampling); the kernel takes them inside its loop.  Collect with
         :meth:`samples`, or take them as they come with :meth:`stream`."""
         sample_us = int(sample_us)
@@ -322,7 +317,7 @@ class Tracker:
             pos += consumed
             t = out["t"] if out is not None else np.empty(0, np.int64)
             if q:                    # the sample times passed over, less those taken
-                self._skipped += _multiples(start, self._next_t, q) - int(np.count_nonzero(t % q == 0))
+                self._skipped += multiples(start, self._next_t, q) - int(np.count_nonzero(t % q == 0))
             if not len(t):
                 continue
             if isinstance(self._ib, _OneInstance):      # its kernel keeps no states
@@ -339,7 +334,7 @@ class Tracker:
 
     def run(self, events, sample_us: int = 1000) -> Track:
         """Process events and return the samples taken during this call (at most
-        ``sampling.HOLD + 1`` per event: see :meth:`record`)."""
+        ``sampling.PER_EVENT`` per event: see :meth:`record`)."""
         self.record(sample_us)
         new = list(self.stream(events))
         self._recorded.extend(new)

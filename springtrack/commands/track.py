@@ -226,6 +226,7 @@ def run(args) -> int:
     skipped = c["skipped_back_in_time"] + c["skipped_outside_sensor"]
     print(f"events={n} assigned={c['events_assigned']} skipped={skipped} "
           f"(back_in_time={c['skipped_back_in_time']} outside={c['skipped_outside_sensor']}) "
+          f"samples_skipped={c.get('samples_skipped', 0)} "
           f"wall_s={wall:.3f} events_per_s={rate:.3g} realtime_factor={rtf:.1f} out={args.out} "
           f"decoder_{reader.stats.summary()}")
     warn = reader.stats.warning(args.input)

@@ -10,7 +10,7 @@ from .errors import DecodeError
 # the words it read.  Corrupt: every anomaly but events outside the declared sensor (a
 # header that lies about the geometry spoils no word).  The real recordings have none; a
 # megabyte of random bytes has 31 % (EVT 3.0) to 87 % (DAT).  Commands whose output grows
-# with the events (``track``: up to sampling.HOLD + 1 rows per event and tracker) and
+# with the events (``track``: up to sampling.PER_EVENT rows per event and tracker) and
 # those that learn or draw from them refuse such a stream instead of turning it into
 # output (``info`` still describes it).
 CORRUPT_MIN = 1000

@@ -219,3 +219,19 @@ def test_a_replay_takes_the_corrupt_fault_in_its_own_words(data_file, name, even
     outside = int(re.search(r"'out_of_geometry': (\d+)", line).group(1))
     assert unknown > 50 and outside > 50
     assert decoded + unknown + outside == events
+
+
+def test_sparse_events_far_apart_give_a_bounded_telemetry():
+    """Events seconds apart (every gap far past the sampling rule's HOLD periods): the
+    fused loop takes the offline tracker's samples, at most sampling.PER_EVENT per event,
+    and counts the sample times it skipped as the tracker does."""
+    from springtrack import sampling
+    rng = np.random.default_rng(11)
+    t = np.cumsum(rng.integers(10 * SAMPLE, 3_000_000, 300))
+    tr = Tracker("grid3x3")
+    ev = make(t, rng.integers(100, 200, len(t)), rng.integers(80, 160, len(t)), np.ones(len(t)))
+    ref = tr.run(ev, SAMPLE)
+    f = fused("grid3x3", "evt2")
+    assert_same(ref, collect(f, [encoded("evt2", False, ev)]))
+    assert len(ref.t_us) <= sampling.PER_EVENT * len(ev)
+    assert f.counters()["samples_skipped"] == tr.counters["samples_skipped"] > 1000 * len(ev)

@@ -83,7 +83,7 @@ def test_a_replay_faster_than_the_loop_is_shed_and_counted_never_queued(tmp_path
 @pytest.mark.hil
 def test_a_replay_of_random_bytes_behind_a_header_is_refused_at_once(tmp_path):
     """As ``springtrack track``: a file mostly of corrupt words is not replayed (its events
-    would come at random times, each sampled for HOLD periods), one clear line, exit 2."""
+    would come at random times, each sampled for HOLD periods and at its end), one clear line, exit 2."""
     src = tmp_path / "g.raw"
     src.write_bytes(b"% evt 3.0\n% geometry 304x240\n% end\n"
                     + bytes(np.random.default_rng(7).integers(0, 256, 1 << 18, np.uint8)))

@@ -2,7 +2,7 @@
 over hours or days (a long gap, counter wraps, overflow bytes) tracked by `springtrack
 track` and by the firmware's replay path, each in a subprocess whose peak resident memory
 is measured (tests/support/peak_rss.py, with a data limit so that a regression fails fast).  Empty
-stretches are sampled for sampling.HOLD periods (springtrack/sampling.py), and the rows are
+stretches are sampled for sampling.HOLD periods and at their end (springtrack/sampling.py), and the rows are
 written as they are taken."""
 import subprocess
 import sys
@@ -64,6 +64,7 @@ def test_a_47_byte_csv_with_a_10_10_us_gap(tmp_path):
     assert peak < CEILING_MIB
     tr = read_csv(out)                    # the empty stretch: HOLD periods, then its end
     assert list(tr.t_us) == list(range(0, sampling.HOLD * P + 1, P)) + [10 ** 10]
+    assert len(tr.t_us) <= sampling.PER_EVENT * 3
 
 
 @pytest.mark.slow

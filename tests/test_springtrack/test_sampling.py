@@ -86,27 +86,45 @@ def test_more_samples_than_one_call_s_sample_buffer():
     assert times == list(range(P, times[-1] + 1, P)) and len(times) > SAMPLE_CAP
 
 
-def test_an_empty_stretch_is_sampled_for_hold_periods_then_skipped():
-    # after the event at 10, the sample times up to 10 + HOLD P; none until the next event;
-    # from it sampling resumes as at a first event (its own time, a multiple, included)
+def test_an_empty_stretch_is_sampled_for_hold_periods_then_at_its_end():
+    # after the event at 10, the sample times up to 10 + HOLD P; then only the last one <=
+    # the next event's time (the state as the stretch left it), and on from there
     hold = sampling.HOLD * P
     t_end = 100 * hold
-    times = assert_agree(stream([5, 10, t_end, t_end + 1, t_end + 2500]))
+    times = assert_agree(stream([5, 10, t_end + 7, t_end + 8, t_end + 2500]))
     assert times == list(range(P, hold + 1, P)) + [t_end, t_end + P, t_end + 2 * P]
     tr = Tracker(MODEL)
-    tr.run(stream([5, 10, t_end, t_end + 1, t_end + 2500]), P)
-    assert tr.counters["samples_skipped"] == t_end // P - 1 - sampling.HOLD   # 65 P .. t_end - P
-    # a stretch of exactly HOLD periods loses nothing
-    assert assert_agree(stream([10, hold + 10])) == list(range(P, hold + 1, P))
+    tr.run(stream([5, 10, t_end + 7, t_end + 8, t_end + 2500]), P)
+    assert tr.counters["samples_skipped"] == t_end // P - 1 - sampling.HOLD   # HOLD+1 .. end-1
+    # the stretch's end on an event's own time: the sample before it
+    assert assert_agree(stream([10, t_end])) == list(range(P, hold + 1, P)) + [t_end]
+    # a stretch of exactly HOLD + 1 periods loses nothing
+    assert assert_agree(stream([10, hold + P + 10])) == list(range(P, hold + P + 1, P))
+
+
+def test_samples_are_bounded_by_the_events():
+    """Sparse events far apart (every gap longer than HOLD periods, some of them hours):
+    at most sampling.PER_EVENT samples per event, in every backend, the rest counted."""
+    rng = np.random.default_rng(3)
+    gaps = rng.integers((sampling.HOLD + 2) * P, 10 ** 10, 200)
+    ev = stream(np.cumsum(gaps))
+    times = assert_agree(ev)
+    assert len(times) <= sampling.PER_EVENT * len(ev)
+    assert len(times) > sampling.HOLD * (len(ev) - 1)          # each gap: its hold and its end
+    tr = Tracker(MODEL)
+    got = tr.run(ev, P)
+    assert len(got.t_us) == len(times)
+    span = (int(ev["t"][-1]) // P) - (-(-int(ev["t"][0]) // P)) + 1   # the period's multiples
+    assert tr.counters["samples_skipped"] + len(times) == span
 
 
 def test_next_sample():
     h = sampling.HOLD * P
     assert sampling.next_sample(5 * h, 3000, 2500, P) == 3000          # within the hold
-    assert sampling.next_sample(5 * h, h + 3000, 2500, P) == 5 * h     # past it: skip to t
-    assert sampling.next_sample(5 * h + 1, h + 3000, 2500, P) == 5 * h + P
+    assert sampling.next_sample(5 * h, h + 3000, 2500, P) == 5 * h     # past it: t itself
+    assert sampling.next_sample(5 * h + 1, h + 3000, 2500, P) == 5 * h  # the end before t
     assert sampling.next_sample(h + 3000, h + 3000, 2500, P) == h + 3000   # t itself
-    assert sampling.next_sample(-h - 1, -5 * h, -8 * h, P) == -h          # before 0 too
+    assert sampling.next_sample(-h - 1, -5 * h, -8 * h, P) == -h - P       # before 0 too
 
 
 STEP = st.one_of(st.integers(-2500, 4000),

@@ -101,7 +101,7 @@ GARBAGE_HEADERS = {
 @pytest.mark.parametrize("fmt", sorted(GARBAGE_HEADERS))
 def test_random_bytes_behind_a_valid_header_are_refused_not_multiplied(tmp_path, fmt):
     """A megabyte of random bytes read as EVT 3.0 became 155 MB of track CSV (each event
-    after a random time jump sampled for up to sampling.HOLD periods): refused with the
+    after a random time jump opening an empty stretch sampled for several periods): refused with the
     counts before any row is written, by track, learn and render; info still describes it."""
     src = _write(tmp_path / f"g.{'dat' if fmt == 'dat' else 'raw'}", GARBAGE_HEADERS[fmt]
                  + bytes(np.random.default_rng(7).integers(0, 256, 1 << 18, np.uint8)))

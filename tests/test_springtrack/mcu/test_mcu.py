@@ -118,7 +118,7 @@ def scenarios(draw):
     k = draw(st.integers(50, 600))
     rng = np.random.default_rng(draw(st.integers(0, 2 ** 32 - 1)))
     ev = np.zeros(k, EVENT_DTYPE)
-    # some go back; a few empty stretches around the HOLD periods of the sampling rule
+    # some go back; a few empty stretches far beyond the HOLD periods of the sampling rule
     gaps = (rng.random(k) < 0.03) * rng.integers(10_000, 40_000, k)
     ev["t"] = np.cumsum(rng.integers(0, 300, k) + gaps) - rng.integers(0, 2, k) * 50
     ev["x"] = rng.integers(0, CAP.width + 4, k)                                    # some outside
