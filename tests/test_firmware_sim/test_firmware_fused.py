@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
+from springtrack import sampling
 from springtrack.kernel.kernel import Kernel
 from springtrack.events import make
 from springtrack.io.ccam import encode
@@ -181,11 +182,12 @@ def test_block_decoding_equals_word_by_word_in_the_fused_loop():
 
 
 def test_one_feed_of_many_snapshots_reaches_the_sink_in_parts_of_at_most_the_capacity():
-    """2,001 events 10 ms apart (no empty stretch to skip) make one feed take 20,000
-    snapshots: with a sink they leave part by part (memory bounded by the capacity, not by
-    the time span), the same rows."""
-    n = 2001
-    ev = make(t=100 + 10_000 * np.arange(n), x=150 + np.arange(n) % 2, y=np.full(n, 120),
+    """Events sampling.PER_EVENT periods apart (4,001 at 5 ms: no sample time skipped) make one
+    feed take 20,000 snapshots: with a sink they leave part by part (memory bounded by the
+    capacity, not by the time span), the same rows."""
+    gap = sampling.PER_EVENT * 1000
+    n = 20_000_000 // gap + 1
+    ev = make(t=100 + gap * np.arange(n), x=150 + np.arange(n) % 2, y=np.full(n, 120),
               p=np.ones(n))
     words = encode(ev)
     ref = collect(fused(cap=64), [words])
