@@ -2,7 +2,11 @@
 13, 18, 19) and curves of energy, error and compute load (Figs. 20-23).
 
 Rendering uses matplotlib (Agg) with one persistent figure whose artists are updated per
-frame; GIF/MP4 writing goes through imageio (MP4 needs the imageio-ffmpeg plugin).
+frame.  The events are drawn as a uint8 picture already at the output's pixel size and
+put under the figure's lines and text pixel for pixel (:func:`composited`), so a frame
+costs a few bytes per pixel, not the ~90 of matplotlib's float resampling of an image
+(330 MB for a 1280 x 720 sensor at scale 2).  Frames go to their writer one by one as they are drawn (GIF: :class:`GifStream`;
+MP4 through imageio-ffmpeg; PNGs), so memory does not grow with the number of frames.
 """
 from __future__ import annotations
 
@@ -41,21 +45,73 @@ def _mpl():
     return plt
 
 
+class EventCounts:
+    """ON and all events per pixel of a ``width`` x ``height`` sensor, added chunk by chunk
+    (memory: the sensor's pixels, however many events); :meth:`image` draws them."""
+
+    def __init__(self, width: int, height: int):
+        self.width, self.height = width, height
+        self.on = np.zeros(width * height, np.int64)
+        self.all = np.zeros(width * height, np.int64)
+
+    def add(self, ev: np.ndarray) -> "EventCounts":
+        w, h = self.width, self.height
+        ev = ev[(ev["x"] < w) & (ev["y"] < h)]
+        pix = ev["y"].astype(np.int64) * w + ev["x"]
+        self.on += np.bincount(pix[ev["p"] > 0], minlength=w * h)
+        self.all += np.bincount(pix, minlength=w * h)
+        return self
+
+    def image(self) -> np.ndarray:
+        """RGB uint8 (height, width, 3) on a light background: each pixel with events is ON
+        red and OFF blue mixed in the proportion of its ON and OFF events (purple: as many
+        of each), so neither polarity hides the other."""
+        img = np.full((self.height * self.width, 3), round(BG * 255), np.uint8)
+        hit = self.all > 0
+        frac = (self.on[hit] / self.all[hit])[:, None]
+        img[hit] = np.rint(255 * (frac * ON_RGB + (1 - frac) * OFF_RGB))
+        return img.reshape(self.height, self.width, 3)
+
+
 def event_image(ev: np.ndarray, width: int, height: int) -> np.ndarray:
-    """RGB image (height, width, 3) on a light background: each pixel with events is ON
-    red and OFF blue mixed in the proportion of its ON and OFF events (purple: as many of
-    each), so neither polarity hides the other."""
-    img = np.full((height, width, 3), BG)
-    ok = (ev["x"] < width) & (ev["y"] < height)
-    ev = ev[ok]
-    pix = ev["y"].astype(np.int64) * width + ev["x"]
-    on = ev["p"] > 0
-    n_on = np.bincount(pix[on], minlength=width * height)
-    n_all = np.bincount(pix, minlength=width * height)
-    hit = n_all > 0
-    frac = (n_on[hit] / n_all[hit])[:, None]
-    img.reshape(-1, 3)[hit] = frac * ON_RGB + (1 - frac) * OFF_RGB
-    return img
+    """The events' picture (:meth:`EventCounts.image`), one pixel per sensor pixel."""
+    return EventCounts(width, height).add(ev).image()
+
+
+COMPOSITE_ROWS = 64          # rows of a frame mixed at a time
+
+
+def composited(fig, img: np.ndarray, x0: int, y0: int) -> np.ndarray:
+    """The figure drawn (its background transparent) over a white page with ``img`` (uint8
+    RGB) at ``x0`` px from the left, ``y0`` px from the bottom: RGB uint8 (H, W, 3).  Agg's
+    buffer is straight RGBA: out = a fg + (1 - a) bg, in integers, a band of rows at a time
+    (no temporary larger than a band)."""
+    fig.canvas.draw()
+    fg = np.asarray(fig.canvas.buffer_rgba())
+    hh, ww = fg.shape[:2]
+    out = np.full((hh, ww, 3), 255, np.uint8)
+    top = hh - y0 - img.shape[0]
+    r0, c0 = max(top, 0), max(x0, 0)
+    r1, c1 = min(top + img.shape[0], hh), min(x0 + img.shape[1], ww)
+    out[r0:r1, c0:c1] = img[r0 - top:r1 - top, c0 - x0:c1 - x0]
+    for r in range(0, hh, COMPOSITE_ROWS):
+        band = slice(r, r + COMPOSITE_ROWS)
+        a = fg[band, :, 3:].astype(np.uint16)
+        mixed = fg[band, :, :3] * a
+        mixed += out[band] * (255 - a)
+        mixed += 127
+        mixed //= 255
+        out[band] = mixed
+    return out
+
+
+def upscaled(img: np.ndarray, scale: float) -> np.ndarray:
+    """``img`` (h, w, 3) at round(h scale) x round(w scale) px, each output pixel the
+    sensor pixel it lies in (nearest neighbour)."""
+    h, w = img.shape[:2]
+    rows = np.minimum((np.arange(round(h * scale)) / scale).astype(np.intp), h - 1)
+    cols = np.minimum((np.arange(round(w * scale)) / scale).astype(np.intp), w - 1)
+    return img[rows[:, None], cols[None, :]]
 
 
 class Header:
@@ -138,7 +194,8 @@ class OverlayRenderer:
         self.ax.set_xlim(-0.5, w - 0.5)
         self.ax.set_ylim(h - 0.5, -0.5)
         self.ax.set_axis_off()
-        self.img = self.ax.imshow(np.full((h, w, 3), BG), interpolation="nearest")
+        self.fig.patch.set_alpha(0)   # the events' picture goes under it (composited)
+        self.scale = scale
         self.width, self.height = w, h
         self.link_lines = [self.ax.plot([], [], "-", color=SPRING, lw=0.8)[0] for _ in self.links]
         self.ell = [self.ax.plot([], [], "-", lw=1.4)[0] for _ in self.ids]
@@ -164,7 +221,7 @@ class OverlayRenderer:
         from .track import STATE_NAMES
         state = st.get("state")
         state = np.full(len(self.ids), 1) if state is None else np.asarray(state)
-        self.img.set_data(event_image(events, self.width, self.height))
+        img = upscaled(event_image(events, self.width, self.height), self.scale)
         placed = (state == TRACKING) | (state == LOST_CODE)     # searched-for: not drawn
         for k, (i, j) in enumerate(self.links):
             shown = placed[i]
@@ -199,9 +256,7 @@ class OverlayRenderer:
             f"{window_us / 1000:g} ms: {len(events)}  active {n_act}/{len(self.ids)}"
             + (f"  {', '.join(gone)}" if gone else "")
             + (f"  (clock {t_us / 1e6:.6f} s)" if origin_us else "")))
-        self.fig.canvas.draw()
-        buf = np.asarray(self.fig.canvas.buffer_rgba())
-        return buf[..., :3].copy()
+        return composited(self.fig, img, 0, 0)
 
     def close(self):
         self.plt.close(self.fig)
@@ -251,15 +306,15 @@ def render(events: np.ndarray, model, track: Track, out, window_us: int = 10_000
     frames = []
     writer = None
     try:
-        if out.suffix in (".gif", ".mp4"):
+        if out.suffix == ".gif":
+            writer = GifStream(out, every_us / 1000.0)
+        elif out.suffix == ".mp4":
             try:
                 import imageio.v2 as iio
             except ImportError:
                 raise ValueError(f"{out}: writing {out.suffix} needs imageio: pip install "
-                                 f"'springtrack[plots]', or write a .png") from None
-            fps = max(1, min(50, int(round(1e6 / every_us))))
-            writer = (iio.get_writer(out, mode="I", duration=every_us / 1000.0, loop=0)
-                      if out.suffix == ".gif" else iio.get_writer(out, fps=fps))
+                                 f"'springtrack[plots]', or write a .gif or .png") from None
+            writer = iio.get_writer(out, fps=max(1, min(50, int(round(1e6 / every_us)))))
         elif out.suffix != ".png":
             out.mkdir(parents=True, exist_ok=True)
         for n, (t, row) in enumerate(zip(times, rows)):
@@ -287,8 +342,55 @@ def render(events: np.ndarray, model, track: Track, out, window_us: int = 10_000
     return len(frames)
 
 
+class GifStream:
+    """An animated GIF written frame by frame as frames come, so memory holds one frame
+    (imageio's Pillow writer keeps every frame until it closes: 2,000 frames of a 1280 x 720
+    sensor at scale 2 would be 23 GB).  Each frame is reduced to its own adaptive 256-colour
+    palette (as Pillow's GIF writer does with RGB), the first one's the global table, the
+    others' local; after the first, a frame is written as the box of pixels that changed,
+    laid over the last (disposal 1); it loops forever; ``duration_ms`` per frame (stored in
+    1/100 s)."""
+
+    def __init__(self, path, duration_ms: float):
+        self.file = open(path, "wb")
+        self.duration = duration_ms
+        self.frames = 0
+        self.prev = None              # the last frame: the next one is written as a change
+
+    def append_data(self, img: np.ndarray) -> None:
+        from PIL import GifImagePlugin, Image
+        x0, y0 = 0, 0
+        if self.prev is not None:          # only the box of pixels that changed (kept below)
+            changed = np.any(img != self.prev, axis=2)
+            rows, cols = np.flatnonzero(changed.any(1)), np.flatnonzero(changed.any(0))
+            if len(rows):
+                y0, x0 = int(rows[0]), int(cols[0])
+                part = img[y0:int(rows[-1]) + 1, x0:int(cols[-1]) + 1]
+            else:
+                part = img[:1, :1]
+        else:
+            part = img
+        self.prev = img
+        frame = Image.fromarray(np.ascontiguousarray(part)).convert(
+            "P", palette=Image.Palette.ADAPTIVE)
+        if not self.frames:
+            header, _ = GifImagePlugin.getheader(frame, info={"loop": 0,
+                                                              "duration": self.duration})
+            self.file.write(b"".join(header))
+        self.file.write(b"".join(GifImagePlugin.getdata(
+            frame, (x0, y0), duration=self.duration, include_color_table=self.frames > 0,
+            disposal=1)))
+        self.frames += 1
+
+    def close(self) -> None:
+        if not self.file.closed:
+            self.file.write(b";")                  # the GIF trailer
+            self.file.close()
+
+
 def _save_png(path, img):
-    """One PNG, through matplotlib (which render needs anyway): no imageio for pictures."""
+    """One raster picture (PNG, or what its suffix names), through matplotlib (which render
+    needs anyway): no imageio for pictures."""
     from matplotlib.image import imsave
     imsave(path, img)
 
@@ -391,6 +493,7 @@ def plot_model(model: ShapeModel, events: np.ndarray, out, title: str = "",
     plt.close(fig)
 
 
+RASTER = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".webp")   # composited pictures
 GRID_STEPS = (5, 10, 20, 25, 50, 100, 200, 250, 500)      # px between labelled grid lines
 
 
@@ -399,22 +502,30 @@ def grid_step(size: int, lines: int = 16) -> int:
     return next((s for s in GRID_STEPS if size / s <= lines), GRID_STEPS[-1])
 
 
-def plot_events(events: np.ndarray, width: int, height: int, out, title: str = "",
-                scale: float = 2.0, grid: int | None = None) -> tuple:
+def plot_events(events: np.ndarray | None, width: int, height: int, out, title: str = "",
+                scale: float = 2.0, grid: int | None = None, image=None) -> tuple:
     """The events alone on the sensor (ON red, OFF blue: each pixel shows its last event),
     with pixel axes and a grid (labelled lines every ``grid`` px, default at most 16 across,
     minor lines every fifth of that), so positions for a model can be read off it.  ``out``:
-    any still image matplotlib writes (.png, .svg, .pdf, ...).  Returns where the sensor
+    any still image matplotlib writes (.png, .svg, .pdf, ...).  ``image``: the events'
+    picture already drawn (:meth:`EventCounts.image`) instead of ``events``.  Returns where the sensor
     lies in the picture: (left, top, right, bottom) in its pixels, from its top-left."""
     from matplotlib.ticker import MultipleLocator
     plt = _mpl()
     step = grid or grid_step(max(width, height))
     margin = 70                                     # px of the figure for axes and title
-    fig = plt.figure(figsize=((width + margin) * scale / 100, (height + margin) * scale / 100),
-                     dpi=100)
-    ax = fig.add_axes([margin * 0.6 / (width + margin), margin * 0.3 / (height + margin),
-                       width / (width + margin), height / (height + margin)])
-    ax.imshow(event_image(events, width, height), interpolation="nearest")
+    small = image if image is not None else event_image(events, width, height)
+    iw, ih = round(width * scale), round(height * scale)                 # the sensor's px
+    fw, fh = round((width + margin) * scale), round((height + margin) * scale)   # figure px
+    x0, y0 = round(margin * 0.6 * scale), round(margin * 0.3 * scale)   # the sensor's corner
+    fig = plt.figure(figsize=(fw / 100, fh / 100), dpi=100)
+    ax = fig.add_axes([x0 / fw, y0 / fh, iw / fw, ih / fh])
+    raster = Path(out).suffix.lower() in RASTER
+    if raster:                      # the picture goes under the axes (composited)
+        fig.patch.set_alpha(0)
+        ax.patch.set_visible(False)
+    else:                           # a vector file: the picture inside it
+        ax.imshow(small, interpolation="nearest")
     ax.set_xlim(-0.5, width - 0.5)
     ax.set_ylim(height - 0.5, -0.5)                 # y down, as the sensor and the model
     for axis in (ax.xaxis, ax.yaxis):
@@ -429,7 +540,10 @@ def plot_events(events: np.ndarray, width: int, height: int, out, title: str = "
     import textwrap
     fig.text(0.01, 1 - 4 / (height + margin), textwrap.fill(title, int((width + margin) / 3.2)),
              fontsize=7 * scale / 2, family="monospace", va="top")
-    fig.savefig(out, dpi=100)
+    if raster:
+        _save_png(out, composited(fig, upscaled(small, scale), x0, y0))
+    else:
+        fig.savefig(out, dpi=100)
     x0, y0, x1, y1 = ax.get_window_extent().extents       # from the bottom-left
     h_px = fig.get_size_inches()[1] * fig.dpi
     plt.close(fig)

@@ -14,7 +14,7 @@ green = active, black = inactive, orange dashed = insensitive (eq. 21); grey lin
 springs; yellow + marks the ground truth when --truth is given; a lost model instance is
 drawn grey and dotted, one not found yet not at all; --show-acquisition marks with purple x
 where each acquisition placed an instance (tracking on the fly with --acquire).
-OUT: .gif or .mp4 (video, MP4 needs imageio-ffmpeg), .png (the middle frame), or a
+OUT: .gif or .mp4 (video, MP4 needs imageio and imageio-ffmpeg), .png (the middle frame), or a
 directory (one PNG per frame). Times in µs of event time; a frame's header counts seconds
 from the recording's first event (its own clock at the end of the header).
 without --model: one picture (.png, .svg, .pdf, ...) of the events of --start-us .. --end-us

@@ -124,3 +124,23 @@ def test_the_firmware_replay_path(tmp_path):
     assert peak < CEILING_MIB
     _, out = track(tmp_path, src)
     assert rec.read_bytes() == out.read_bytes()
+
+
+def test_render_memory_does_not_grow_with_the_frames(tmp_path):
+    """``render`` streams its frames to the writer (GIF: springtrack.render.GifStream), so
+    200 frames take no more memory than 20 (imageio's GIF writer kept every frame, about
+    1 MB each here, until it closed); the GIF holds every frame."""
+    from PIL import Image
+    src = tmp_path / "ev.npy"
+    np.save(src, blocks(200, 200, 10_000))             # 2 s of events
+    peaks = {}
+    for n in (20, 200):
+        out = tmp_path / f"r{n}.gif"
+        rc, peaks[n], log = peak_rss("springtrack", "render", str(src), "--model", "grid3x3",
+                                     "--out", str(out), "--every-us", str(2_000_000 // n),
+                                     "--window-us", "10000")
+        assert rc == 0, log
+        written = int(log.split(": ")[-1].split(" frame")[0])       # "wrote OUT: N frame(s)"
+        assert Image.open(out).n_frames == written >= n
+    assert peaks[200] - peaks[20] < 25, peaks
+    assert peaks[200] < CEILING_MIB

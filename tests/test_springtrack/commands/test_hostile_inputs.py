@@ -271,7 +271,7 @@ def test_sigterm_during_track_leaves_a_clearly_marked_csv(tmp_path):
 
 
 # ---- the smaller items ------------------------------------------------------------------
-def test_render_model_png_needs_no_imageio(tmp_path, grid_events):
+def test_render_model_png_and_gif_need_no_imageio(tmp_path, grid_events):
     src = tmp_path / "g.npy"
     np.save(src, grid_events)
     out = tmp_path / "o.png"
@@ -283,6 +283,10 @@ def test_render_model_png_needs_no_imageio(tmp_path, grid_events):
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     r = subprocess.run([sys.executable, "-c", code, "render", str(src), "--model", "grid3x3",
                         "--out", str(tmp_path / "o.gif")], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0 and (tmp_path / "o.gif").read_bytes()[:6] == b"GIF89a", r.stderr
+    r = subprocess.run([sys.executable, "-c", code, "render", str(src), "--model", "grid3x3",
+                        "--out", str(tmp_path / "o.mp4")], capture_output=True, text=True,
                        timeout=300)
     assert r.returncode == 2 and "needs imageio" in r.stderr and "Traceback" not in r.stderr
 
