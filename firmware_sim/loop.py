@@ -45,6 +45,7 @@ from ._fused import Fused
 from .feed import DecodedFeed
 from .learning import LearningFeed
 from . import camera as camusb
+from . import priority
 from .engine import UpdateRejected
 from .meter import LoadMeter, LoopCounters
 from .reader import Reader
@@ -90,9 +91,12 @@ class FirmwareLoop:
                  backend: str = "cython", roi=None, source_counters=None, sensor_from=None,
                  supervisor: Supervisor | None = None, rewind=None,
                  acquire: dict | None = None, learn_first_ms: float | None = None,
-                 learn_params: dict | None = None, learner: dict | None = None):
+                 learn_params: dict | None = None, learner: dict | None = None,
+                 rt_priority: int | None = None):
         """``rewind()``: called by the START that follows :meth:`end_of_stream`, to serve
-        the source again from its beginning (None: START after the end resumes reading)."""
+        the source again from its beginning (None: START after the end resumes reading).
+        ``rt_priority``: the reader and processing threads run under SCHED_FIFO at it
+        (``firmware_sim.priority``; PriorityError here if the system refuses it)."""
         if telemetry_period_us <= 0:
             raise ValueError(f"telemetry_period_us must be positive, got {telemetry_period_us}")
         self.profile = camusb.PROFILES[profile] if isinstance(profile, str) else profile
@@ -124,8 +128,10 @@ class FirmwareLoop:
         self.piece = int(piece_bytes)
         self.supervisor = supervisor or Supervisor()
         self.rewind = rewind
+        self.rt_priority = None if rt_priority is None else priority.check(rt_priority)
         self.reader = Reader(open_camera, nbuf=nbuf, shed=not lossless,
                              supervisor=self.supervisor, on_give_up=self._gave_up,
+                             rt_priority=self.rt_priority,
                              **({"transfer_bytes": transfer_bytes} if transfer_bytes else {}))
         # shared with open_camera (the CLI passes the same dict) so a reconnect reloads the
         # biases the host set last
@@ -316,6 +322,7 @@ class FirmwareLoop:
     def _run(self) -> None:
         """The processing thread's body (restarted by the supervisor if anything but one
         transfer's processing raises)."""
+        priority.apply(self.rt_priority)
         r = self.reader
         while not self.stop_event.is_set():
             if self.slot.pending:
@@ -426,11 +433,11 @@ class FirmwareLoop:
                 if out is None:
                     return
         self.counters.snapshots += len(out["t"])
-        if self.recorder is not None:
-            self.recorder.add(self.model.ids, out)
         kind = self.params.energy_kind_index
         self.telemetry.push(Block(self.generation, kind, out, self.kernel.energies()[kind].copy(),
                                   self.fused.native_records))
+        if self.recorder is not None:       # after the link's copy: never delays telemetry
+            self.recorder.add(self.model.ids, out, time.monotonic())
 
     def _drop_nonfinite(self, out: dict, ok: np.ndarray) -> dict | None:
         """Snapshots whose tracker state is not finite are dropped and counted (never sent
