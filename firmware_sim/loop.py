@@ -38,7 +38,7 @@ import time
 import numpy as np
 
 from springtrack.limits import MAX_CONNECTIONS, MAX_TRACKERS
-from springtrack.track import FLOAT_FIELDS
+from springtrack.backends.samples import finite_rows
 from springtrack.wire import Fault, Nack, Notice
 
 from ._fused import Fused
@@ -603,18 +603,6 @@ class FirmwareLoop:
     def has_output(self) -> bool:
         """Snapshots or APPLIED reports are still waiting for the link."""
         return self.telemetry.rows > 0 or self.applied.pending()
-
-
-def finite_rows(trackers: np.ndarray) -> np.ndarray:
-    """(rows,) bool: every float field of every tracker of the row is finite.
-    ``trackers``: (rows, n) springtrack.track.TRACK_DTYPE."""
-    tr = np.ascontiguousarray(trackers)
-    f8 = tr.view(np.uint8).reshape(tr.shape[0], tr.shape[1], tr.dtype.itemsize)[:, :, :_FLOAT_BYTES]
-    return np.isfinite(np.ascontiguousarray(f8).view(np.float64)).all(axis=(1, 2))
-
-
-# the float64 fields come first in the track record (x .. activity): checked per row at once
-_FLOAT_BYTES = 8 * len(FLOAT_FIELDS)
 
 
 def _check_bias(name: str, value) -> int:
