@@ -107,9 +107,10 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--buffers", type=int, default=64,
                    help="transfer buffers of 128 KiB in the pool (default 64)")
     r.add_argument("--rt-priority", type=int, metavar="N",
-                   help="run the USB reader and tracking threads under Linux SCHED_FIFO at "
-                        "priority N (1..99; needs root or CAP_SYS_NICE): keeps other programs "
-                        "from delaying them on a busy machine (default: ordinary scheduling)")
+                   help="run the firmware's threads under Linux SCHED_FIFO at priority N "
+                        "(1..99; needs root or CAP_SYS_NICE) while tracking: keeps other "
+                        "programs from delaying the USB reader and the tracking loop on a "
+                        "busy machine (default: ordinary scheduling)")
     link = r.add_mutually_exclusive_group()
     link.add_argument("--pty", action="store_true",
                       help="serve the host link on a new pty (prints 'pty: /dev/pts/N')")

@@ -95,7 +95,8 @@ class FirmwareLoop:
                  rt_priority: int | None = None):
         """``rewind()``: called by the START that follows :meth:`end_of_stream`, to serve
         the source again from its beginning (None: START after the end resumes reading).
-        ``rt_priority``: the reader and processing threads run under SCHED_FIFO at it
+        ``rt_priority``: from :meth:`start` to :meth:`stop`, every thread of the process
+        runs under SCHED_FIFO at it, the reader's and the processing thread too
         (``firmware_sim.priority``; PriorityError here if the system refuses it)."""
         if telemetry_period_us <= 0:
             raise ValueError(f"telemetry_period_us must be positive, got {telemetry_period_us}")
@@ -131,7 +132,6 @@ class FirmwareLoop:
         self.rt_priority = None if rt_priority is None else priority.check(rt_priority)
         self.reader = Reader(open_camera, nbuf=nbuf, shed=not lossless,
                              supervisor=self.supervisor, on_give_up=self._gave_up,
-                             rt_priority=self.rt_priority,
                              **({"transfer_bytes": transfer_bytes} if transfer_bytes else {}))
         # shared with open_camera (the CLI passes the same dict) so a reconnect reloads the
         # biases the host set last
@@ -170,6 +170,7 @@ class FirmwareLoop:
                 self.rewind()
             self.ended = False
             self.stop_event.clear()
+            priority.apply(self.rt_priority)    # before the threads: they inherit it
             self.reader.start()
             target = self.supervisor.thread_target("fused-loop", self._run, self.stop_event,
                                                    on_give_up=self._gave_up)
@@ -190,6 +191,7 @@ class FirmwareLoop:
                                            f"(at {where(t)})")
                     setattr(self, attr, None)
             self.reader.stop(timeout)
+            priority.release(self.rt_priority)
             # transfers read but not processed are dropped (counted with the abandoned
             # bytes): the rest of a transfer the stop cut short is gone, so what was queued
             # after it would be decoded out of step with its words
@@ -322,7 +324,6 @@ class FirmwareLoop:
     def _run(self) -> None:
         """The processing thread's body (restarted by the supervisor if anything but one
         transfer's processing raises)."""
-        priority.apply(self.rt_priority)
         r = self.reader
         while not self.stop_event.is_set():
             if self.slot.pending:

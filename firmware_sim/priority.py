@@ -1,18 +1,26 @@
-"""Real-time scheduling of the loop's own threads (Linux ``SCHED_FIFO``).
+"""Real-time scheduling of the firmware process (Linux ``SCHED_FIFO``).
 
 On a shared machine the ordinary scheduler may leave the USB reader or the processing
 thread waiting for a core for milliseconds while other programs run: that wait, not the
 work, makes the tail of the event-to-telemetry latency (docs/benchmarks.md, "Firmware
-loop").  A ``SCHED_FIFO`` thread runs as soon as it is runnable.  Both threads block
-between transfers, so they take the core only for the work itself; the kernel's real-time
-throttling (``/proc/sys/kernel/sched_rt_runtime_us``) still leaves the rest of the system
-its share if one of them ever spins.
+loop").  A ``SCHED_FIFO`` thread runs as soon as it is runnable.  Every thread of the
+process gets it, not only those two: they share the GIL, and an ordinary thread that
+another program preempts while it holds the GIL (the main loop, a link thread, the garbage
+collector running in one of them) would stall the real-time ones as long (priority
+inversion).  Threads started later inherit the policy from the thread that starts them.
+The objects alive when real time starts are frozen out of the garbage collector
+(``gc.freeze``), so a full collection during the run scans only what the run made.  The
+threads block between transfers and commands, so they take a core only for the work
+itself; the kernel's real-time throttling (``/proc/sys/kernel/sched_rt_runtime_us``) still
+leaves the rest of the system its share if one of them ever spins.
 
 :func:`check` tries the policy on a throw-away thread, so a missing permission is an error
-before anything starts, naming the way out; :func:`apply` sets it for the calling thread.
+before anything starts, naming the way out; :func:`apply` sets it for the process and
+:func:`release` takes it back.
 """
 from __future__ import annotations
 
+import gc
 import os
 import threading
 
@@ -23,8 +31,8 @@ class PriorityError(OSError):
     """The system refuses real-time scheduling to this process."""
 
 
-def _set(priority: int) -> None:
-    os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))   # 0: this thread
+def _set(priority: int, tid: int = 0) -> None:
+    os.sched_setscheduler(tid, os.SCHED_FIFO, os.sched_param(priority))   # 0: this thread
 
 
 def bounds() -> tuple[int, int]:
@@ -60,6 +68,28 @@ def check(priority: int) -> int:
 
 
 def apply(priority: int | None) -> None:
-    """Put the calling thread under SCHED_FIFO at ``priority`` (None: leave it as it is)."""
-    if priority is not None:
-        _set(priority)
+    """Put every thread of the process under SCHED_FIFO at ``priority`` and freeze the
+    objects alive now out of the garbage collector (None: leave everything as it is)."""
+    if priority is None:
+        return
+    gc.freeze()
+    _set(priority)
+    for t in threading.enumerate():
+        if t.native_id is not None and t.is_alive():
+            try:
+                _set(priority, t.native_id)
+            except ProcessLookupError:      # it ended meanwhile
+                pass
+
+
+def release(priority: int | None) -> None:
+    """Undo :func:`apply`: every thread back to the ordinary scheduler, the frozen objects
+    back to the collector (None: nothing was applied)."""
+    if priority is None:
+        return
+    for tid in [0] + [t.native_id for t in threading.enumerate() if t.native_id is not None]:
+        try:
+            os.sched_setscheduler(tid, os.SCHED_OTHER, os.sched_param(0))
+        except ProcessLookupError:
+            pass
+    gc.unfreeze()

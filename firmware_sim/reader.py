@@ -29,7 +29,6 @@ from collections import deque
 import usb.core
 
 from . import camera as camusb
-from . import priority
 from .supervise import Supervisor, where
 
 BACKOFF_S = (0.05, 0.1, 0.2, 0.5, 1.0, 2.0)
@@ -39,16 +38,13 @@ COALESCE_MAX = 16 * 1024      # transfers up to this size may be copied into the
 class Reader:
     def __init__(self, open_camera, nbuf: int = 16, transfer_bytes: int = camusb.TRANSFER_BYTES,
                  timeout_ms: int = camusb.READ_TIMEOUT_MS, shed: bool = True,
-                 supervisor: Supervisor | None = None, on_give_up=None,
-                 rt_priority: int | None = None):
+                 supervisor: Supervisor | None = None, on_give_up=None):
         """``open_camera()`` returns a started :class:`firmware_sim.camera.Camera` (called again
         after a disconnect).  ``shed=False`` (a simulated camera at max speed only: a real
         camera cannot be paused) waits for a free buffer instead of dropping.
         ``supervisor`` restarts the thread after an unexpected exception; ``on_give_up``
-        runs when it stops it instead.  ``rt_priority``: the thread runs under SCHED_FIFO
-        at it (``firmware_sim.priority``; None: the ordinary scheduler)."""
+        runs when it stops it instead."""
         self.shed = shed
-        self.rt_priority = rt_priority
         self.supervisor = supervisor or Supervisor()
         self.on_give_up = on_give_up
         if nbuf < 3:
@@ -206,7 +202,6 @@ class Reader:
             self.gap = True
 
     def _run(self) -> None:
-        priority.apply(self.rt_priority)
         first = self.cam is None
         if self.counts["bytes"]:
             with self.cond:                      # a restart: the set-up drains a read

@@ -1,8 +1,10 @@
-"""``--rt-priority``: the reader and tracking threads under SCHED_FIFO, the rest of the
-process untouched, the output unchanged; a refused permission is an error at once."""
+"""``--rt-priority``: every thread of the process under SCHED_FIFO while the loop runs
+(they share the GIL), the ordinary scheduler back after it stops, the output unchanged; a
+refused permission is an error at once."""
 from __future__ import annotations
 
 import ctypes
+import gc
 import os
 import resource
 import subprocess
@@ -43,22 +45,33 @@ def without_rt_permission():
 
 @pytest.mark.skipif(not permitted(7), reason="SCHED_FIFO not permitted to this user "
                                              "(CI runs as root)")
-def test_loop_threads_run_under_sched_fifo_and_track_as_before():
+def test_every_thread_runs_under_sched_fifo_while_the_loop_runs_and_tracks_as_before():
     ev, _ = simulate_all("face_occlusion", 0.4, seed=3)
     cam = SimCamera(events_source(ev, 512), realtime=True)
     be = SimBackend(cam)
     eng = FirmwareLoop(lambda: camusb.Camera.open("ccam_atis", backend=be), "face26",
                        record=True, rt_priority=7, nbuf=256)
+    assert os.sched_getscheduler(0) == os.SCHED_OTHER       # nothing before start
     eng.start()
     try:
         threads = {t.name: t.native_id for t in threading.enumerate()}
-        for name in ("usb-reader", "fused-loop"):
-            assert os.sched_getscheduler(threads[name]) == os.SCHED_FIFO, name
-            assert os.sched_getparam(threads[name]).sched_priority == 7, name
-        assert os.sched_getscheduler(0) == os.SCHED_OTHER       # the caller's thread
+        assert {"usb-reader", "fused-loop", "MainThread"} <= set(threads)
+        for name, tid in threads.items():
+            assert os.sched_getscheduler(tid) == os.SCHED_FIFO, name
+            assert os.sched_getparam(tid).sched_priority == 7, name
+        go = threading.Event()
+        later = threading.Thread(target=go.wait)                 # started now: inherits it
+        later.start()
+        try:
+            assert os.sched_getscheduler(later.native_id) == os.SCHED_FIFO
+        finally:
+            go.set()
+            later.join()
+        assert gc.get_freeze_count() > 0
         wait_drained(cam, eng, 60)
     finally:
         eng.stop()
+    assert os.sched_getscheduler(0) == os.SCHED_OTHER and gc.get_freeze_count() == 0
     s = eng.stats()
     assert s["transfers_dropped"] == 0 and s["events_tracked"] == len(ev)
     got = Track.concat([Track.from_samples(b.samples, b.ids) for b in eng.recorder.blocks],
