@@ -57,6 +57,13 @@ def test_learn_on_every_recording_gives_a_model_or_says_why_not(name, data_file,
         # only the still scene lit by mains flicker is said to be one (78 % at 100 Hz)
         assert ("flicker_hz" in m.learned) == (name == "davis346.aedat4"), m.learned
         assert ("mains flicker" in r.stdout) == (name == "davis346.aedat4")
+        # the model it wrote tracks the same recording with acquisition: found (0), not
+        # found (1) or found with warnings (4), never refused or crashed on the way (a
+        # one-part model's pose, a pose putting a part beyond the sensor's margin)
+        t = run_cli("track", data_file(name), "--model", out, "--acquire",
+                    "--out", tmp_path / "t.csv")
+        assert t.returncode in (0, 1, 4), t.stdout + t.stderr
+        assert "Traceback" not in t.stderr and "error" not in t.stderr, t.stderr
     else:
         assert r.returncode == 3, text
         assert "no object found" in r.stderr or "no stable object" in r.stderr
