@@ -527,6 +527,12 @@ def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DE
     cands, sig_c = _coarse(geo, img, rho, region, angles, scales)
     lo = np.array([region[0], region[1], angles[0], scales[0]])
     hi = np.array([region[2], region[3], angles[1], scales[1]])
+    # the pose the model is written at joins the candidates: a model drawn on, or learned
+    # from, the scene it is tracked in is often where it says; the coarse grid, whose
+    # cells grow with the model's extent, can miss a wide model of small parts there
+    home = (float(geo.g[0]), float(geo.g[1]), 0.0, 1.0)
+    if np.all(np.array(home) >= lo) and np.all(np.array(home) <= hi) and home not in cands:
+        cands = [*cands, home]
     if not cands:
         g = geo.g
         return Pose(float(g[0]), float(g[1]), 0.0, 1.0, 0.0, 0.0, False, 0, 0, n_ev)
