@@ -87,7 +87,7 @@ import numpy as np
 
 from ..events import EVENT_DTYPE, as_events
 from ..instances import ModelSet
-from ..model import ShapeModel, TrackerSpec, load_model
+from ..model import ModelError, ShapeModel, TrackerSpec, load_model
 
 KAPPA = 0.5              # support: excess >= KAPPA b + Z sqrt(b) + N_MIN over the background
 Z = 3.0                  # count b in the gate: a contrast, a significance (Poisson standard
@@ -198,6 +198,16 @@ def place(model, pose) -> ShapeModel:
     return replace(model, trackers=trackers)
 
 
+def place_checked(model, pose) -> ShapeModel | None:
+    """:func:`place`, or None when the pose puts a tracker where no model may hold one
+    (beyond one sensor size around the sensor, springtrack.limits): a search may find
+    such a pose at its scale bound, but no backend can run it."""
+    try:
+        return place(model, pose)
+    except ModelError:
+        return None
+
+
 def fit_pose(model, x, y, weights=None) -> Pose:
     """The similarity pose that best maps the model's trackers onto positions ``x``, ``y``
     (K,) in the model's tracker order (weighted least squares, Umeyama 1991)."""
@@ -222,8 +232,13 @@ def _similarity(q, m, w):
     dq, dm = q - qc, m - mc
     a = np.sum(w * (dq[:, 0] * dm[:, 0] + dq[:, 1] * dm[:, 1]))
     b = np.sum(w * (dq[:, 0] * dm[:, 1] - dq[:, 1] * dm[:, 0]))
-    th = math.atan2(b, a)
-    s = math.hypot(a, b) / max(float(np.sum(w * (dq ** 2).sum(1))), 1e-12)
+    spread = float(np.sum(w * (dq ** 2).sum(1)))
+    if spread <= 1e-12:
+        # one tracker (or all at one point): no turn or scale to see, a translation only
+        th, s = 0.0, 1.0
+    else:
+        th = math.atan2(b, a)
+        s = math.hypot(a, b) / spread
     c, n = math.cos(th), math.sin(th)
     t = mc - s * np.array([c * qc[0] - n * qc[1], n * qc[0] + c * qc[1]])
     return float(t[0]), float(t[1]), th, s
@@ -512,6 +527,12 @@ def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DE
     cands, sig_c = _coarse(geo, img, rho, region, angles, scales)
     lo = np.array([region[0], region[1], angles[0], scales[0]])
     hi = np.array([region[2], region[3], angles[1], scales[1]])
+    # the pose the model is written at joins the candidates: a model drawn on, or learned
+    # from, the scene it is tracked in is often where it says; the coarse grid, whose
+    # cells grow with the model's extent, can miss a wide model of small parts there
+    home = (float(geo.g[0]), float(geo.g[1]), 0.0, 1.0)
+    if np.all(np.array(home) >= lo) and np.all(np.array(home) <= hi) and home not in cands:
+        cands = [*cands, home]
     if not cands:
         g = geo.g
         return Pose(float(g[0]), float(g[1]), 0.0, 1.0, 0.0, 0.0, False, 0, 0, n_ev)

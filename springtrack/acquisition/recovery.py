@@ -56,7 +56,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from .acquire import MIN_EVENTS, Pose, acquire, fit_pose, judge, model_pose, place, placed_gates
+from .acquire import (MIN_EVENTS, Pose, acquire, fit_pose, judge, model_pose, place, place_checked,
+                      placed_gates)
 from ..events import EVENT_DTYPE
 from ..instances import LOST, SEARCHING, TRACKING
 from .recall import left_behind, recalled
@@ -191,6 +192,7 @@ class Recovery:
         self.moves = 0                      # instances moved rigidly onto a pose found
         self._refine_at = {}                # instance: its refinement search time
         self.refuted = 0                    # losses refuted: found where its trackers are
+        self.unplaceable = 0                # poses found that put a tracker beyond the sensor's margin
         self.recalls = 0                    # trackers left behind recalled (springtrack.acquisition.recall)
         self._recall_next = {}              # instance: no recall before this time
 
@@ -308,7 +310,8 @@ class Recovery:
             x, y = (np.asarray(snap[k], float)[inst.t0:inst.t1] for k in ("x", "y"))
             pose = self._acquire_about(inst.model, x, y, window, at_us=int(window["t"][-1]),
                                        claimed=self._claimed(snap, states, but=g))
-            if pose.found and _where_kept(place(inst.model, pose), x, y):
+            placed = place_checked(inst.model, pose) if pose.found else None
+            if placed is not None and _where_kept(placed, x, y):
                 self.rule.reset(g)
                 self.refuted += 1
             else:
@@ -348,7 +351,10 @@ class Recovery:
             if not pose.found:
                 self._partial.pop(g, None)
                 continue
-            placed = place(model, pose)
+            placed = place_checked(model, pose)
+            if placed is None:
+                self.unplaceable += 1
+                continue
             if pose.in_view < inst.n and not self._stays_partly_in_view(g, placed):
                 continue
             if states[g] == LOST and _where_kept(placed, *kept):
@@ -371,7 +377,11 @@ class Recovery:
         relative to ``model``."""
         fit = fit_pose(model, x, y)
         now = Pose(fit.tx, fit.ty, fit.angle_deg, 1.0)
-        pose = acquire(place(model, now), window, **self.bounds, **kw)
+        about_now = place_checked(model, now)
+        if about_now is None:         # trackers gone beyond the sensor: about the model
+            now = model_pose(model)
+            about_now = model
+        pose = acquire(about_now, window, **self.bounds, **kw)
         return about(pose, now)
 
     def _claimed(self, snap, states, but: int | None = None) -> list:
@@ -411,7 +421,8 @@ class Recovery:
         if not ((x >= 0) & (x < w) & (y >= 0) & (y < h)).all():
             return False              # trackers off the sensor took no events: no shape
         now = fit_pose(model, x, y)
-        if _mahalanobis(place(model, now), x, y) >= SHAPE_SIGMA:
+        here = place_checked(model, now)
+        if here is None or _mahalanobis(here, x, y) >= SHAPE_SIGMA:
             return False
         # the similarity taking the trackers' pose onto the one found: x -> A x + t,
         # A = k R(d), k = s_found / s_now, d = angle_found - angle_now
@@ -421,8 +432,10 @@ class Recovery:
         tx = pose.tx - (a * now.tx - bb * now.ty)
         ty = pose.ty - (bb * now.tx + a * now.ty)
         g0 = model_pose(model)
-        moved = place(model, Pose(a * g0.tx - bb * g0.ty + tx, bb * g0.tx + a * g0.ty + ty,
-                                  math.degrees(d), k))
+        moved = place_checked(model, Pose(a * g0.tx - bb * g0.ty + tx, bb * g0.tx + a * g0.ty + ty,
+                                          math.degrees(d), k))
+        if moved is None:
+            return False
         self.tr.models = self.tr.models.replaced(g, moved)
         b.move(g, (a, bb, tx, ty), moved)
         self.moves += 1
@@ -549,7 +562,10 @@ class Recovery:
         pose = self._acquire_about(model, x, y, window, claimed=claimed)
         if not pose.found:
             return False
-        placed = place(model, pose)
+        placed = place_checked(model, pose)
+        if placed is None:
+            self.unplaceable += 1
+            return False
         if _where_kept(placed, x, y):
             return False
         here = judge(model, window, fit_pose(model, x, y), claimed=claimed, at=(x, y))
@@ -577,5 +593,6 @@ class Recovery:
     def counters(self) -> dict:
         kinds = [c[2] for c in self.changes]
         return dict(reacquire_attempts=self.attempts, verifications=self.verifications,
-                    losses_refuted=self.refuted, moved=self.moves, recalled=self.recalls, acquired=kinds.count("acquired"),
+                    losses_refuted=self.refuted, moved=self.moves, recalled=self.recalls,
+                    unplaceable=self.unplaceable, acquired=kinds.count("acquired"),
                     lost=kinds.count("lost"), reacquired=kinds.count("reacquired"))

@@ -252,14 +252,17 @@ def run(args) -> int:
                   f"check the overlay (springtrack render --track), or widen the search "
                   f"(--acquire-scale, --acquire-angle)", file=sys.stderr)
         for t, label, kind in tr.changes:
-            print(f"instance {label}: {kind} at t={t} us")
+            print(f"instance {label}: {kind} at t={t} us ({(t - t_first) / 1e3:.1f} ms after the "
+                  f"first event tracked)")
         print("instances: " + ", ".join(f"{i['label']} {i['state']} (acquired {i['acquired']}, "
                                         f"lost {i['lost']}, reacquired {i['reacquired']})"
                                         for i in tr.instances()))
         c = tr.counters
         print(f"recovery: {c['reacquire_attempts']} search(es), {c['verifications']} "
               f"verification(s), {c['losses_refuted']} loss(es) refuted, {c['moved']} move(s), "
-              f"{c['recalled']} tracker(s) left behind recalled")
+              f"{c['recalled']} tracker(s) left behind recalled"
+              + (f", {c['unplaceable']} pose(s) refused: they put trackers beyond one sensor "
+                 f"size around the sensor" if c.get("unplaceable") else ""))
     if n:
         watch.finish(tr.state(), never_found=[i["label"] for i in tr.instances()
                                               if args.acquire and i["state"] == "searching"])

@@ -9,10 +9,11 @@ import sys
 import numpy as np
 import pytest
 
-from springtrack.acquisition.acquire import (Acquisition, Pose, acquire, fit_pose, model_pose, place)
+from springtrack.acquisition.acquire import (Acquisition, Pose, acquire, fit_pose, model_pose, place,
+                                             place_checked)
 from springtrack.events import make
 from springtrack.metrics import read_truth_csv, score_track
-from springtrack.model import face26, grid3x3, load
+from springtrack.model import ShapeModel, TrackerSpec, face26, grid3x3, load
 from springtrack.sim.scenes import Placed, make_scene
 from springtrack.sim.sensor import SensorConfig, simulate_all
 from springtrack.tracker import Tracker
@@ -168,6 +169,24 @@ def test_place_and_fit_pose_are_inverse():
         fit_pose(m, a["x"][:5], a["y"][:5])
     with pytest.raises(ValueError):
         fit_pose(m, a["x"], a["y"], weights=np.zeros(len(a["x"])))
+
+
+def test_one_part_has_a_translation_only_pose():
+    """One tracker shows no turn or scale: its fitted pose is a translation (scale 1,
+    angle 0), and placing the model there keeps its covariance."""
+    m = ShapeModel("dot", 128, 128, [TrackerSpec("p00", 40.0, 50.0, (20.0, 3.0, 15.0), 1.0)],
+                   [], {})
+    pose = fit_pose(m, [70.0], [20.0])
+    assert (pose.tx, pose.ty, pose.angle_deg, pose.scale) == (70.0, 20.0, 0.0, 1.0)
+    assert place(m, pose).trackers[0].sigma == pytest.approx((20.0, 3.0, 15.0))
+
+
+def test_a_pose_beyond_the_sensor_margin_is_not_placed():
+    """A pose that puts a tracker beyond one sensor size around the sensor (which no
+    model may hold) gives None, not an error that ends the run."""
+    m = face26()
+    assert place_checked(m, Pose(100.0, 90.0, 0.0, 1.0)) is not None
+    assert place_checked(m, Pose(100.0, 2.2 * m.height, 0.0, 1.0)) is None
 
 
 def test_placed_scene_moves_truth_and_initial_model_together():
