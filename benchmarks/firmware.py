@@ -273,8 +273,6 @@ def main():
 
     def stream(w, f):
         return f if w.startswith("face_") else f"{f} ({w.split(',')[0]})"
-    decode_ns = ", ".join(f"{stream(w, f)} {1e9 / fu - 1e9 / ke:.1f}"
-                          for w, f, n, b, fu, ke, de in fmt_rows)
     target30 = ", ".join(f"{stream(w, f)} **{'met' if fu >= 30e6 else 'not met'}** "
                          f"({fu / 1e6:.1f})" for w, f, n, b, fu, ke, de in fmt_rows)
     tracked = sum(r[4] for r in rt.values())
@@ -313,8 +311,8 @@ fused loop, the kernel alone and the decoder alone alternate, best of 5 in CPU t
 """ + "\n".join(f"| {w} | {f} | {n:,} | {b:.2f} | {fu / 1e6:.2f} | {ke / 1e6:.2f} | {de / 1e6:.1f} |"
                 for w, f, n, b, fu, ke, de in fmt_rows) + f"""
 
-Decoding's share, the fused loop's time per event minus the kernel's alone (two noisy
-best-of-5 times; a negative difference is within the noise), ns/event: {decode_ns}.
+Decoding's share is counted in instructions in "Fused loop instructions" below (the
+differences of these times, a few ns per event, drown in this shared machine's noise).
 The rest is the kernel's per-event cost: on the real recordings it has few events per
 tracker to update (a dot and an outdoor scene far from most face trackers), hence the
 higher rates.  Target >= 30 M events/s per format: {target30}.  USB 2.0 high speed carries
