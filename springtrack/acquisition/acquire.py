@@ -519,10 +519,6 @@ def acquire(model, events, *, region=None, angle_deg=DEFAULT_ANGLE_DEG, scale=DE
         raise ValueError(f"acquire: scale must be (lo, hi) with 0 < lo <= hi, got {tuple(scale)}")
     img, n_ev = _evidence_image(events, w, h, claimed)
     geo = _Geometry(model)
-    if geo.k == 1:
-        # one part has no turn or scale to find: they would only turn and grow its gate,
-        # and a wider gate always holds more events (the search ended at its scale bound)
-        angles, scales = (0.0, 0.0), (1.0, 1.0)
     if n_ev < MIN_EVENTS:
         g = geo.g
         return Pose(float(g[0]), float(g[1]), 0.0, 1.0, 0.0, 0.0, False, 0, 0, n_ev)
@@ -583,11 +579,11 @@ def with_doubt(pose: Pose, angles, scales) -> Pose:
         return pose
     why = []
     for lo_hi, v, name in ((scales, pose.scale, "scale"),):
-        for b in (lo_hi if lo_hi[0] < lo_hi[1] else ()):     # a range was searched
+        for b in lo_hi:
             if abs(v - b) <= BOUND_TOL * b:
                 why.append(f"{name} {v:.3f} at the search bound {b:g}")
     span = angles[1] - angles[0]
-    if 0 < span < 2 * math.pi - 1e-9:
+    if span < 2 * math.pi - 1e-9:
         a = math.radians(pose.angle_deg)
         for b in angles:
             if abs(a - b) <= BOUND_TOL * span:

@@ -181,21 +181,6 @@ def test_one_part_has_a_translation_only_pose():
     assert place(m, pose).trackers[0].sigma == pytest.approx((20.0, 3.0, 15.0))
 
 
-def test_one_part_is_searched_by_position_only():
-    """A one-part model is found by its position: no scale or turn is searched (a wider
-    gate would always hold more events), so no search bound makes the find doubtful."""
-    from springtrack.sim.synthetic import blob_stream
-    m = ShapeModel("dot", 128, 128, [TrackerSpec("p00", 40.0, 50.0, (9.0, 0.0, 9.0), 1.0)],
-                   [], {})
-    there = ShapeModel("dot", 128, 128, [TrackerSpec("p00", 90.0, 30.0, (9.0, 0.0, 9.0), 1.0)],
-                       [], {})
-    ev, _ = blob_stream(there, 3000, noise=0.2, seed=1)
-    pose = acquire(m, ev)
-    assert pose.found and not pose.doubtful, pose
-    assert (pose.angle_deg, pose.scale) == (0.0, 1.0)
-    assert math.hypot(pose.tx - 90.0, pose.ty - 30.0) < 1.0
-
-
 def test_a_pose_beyond_the_sensor_margin_is_not_placed():
     """A pose that puts a tracker beyond one sensor size around the sensor (which no
     model may hold) gives None, not an error that ends the run."""
