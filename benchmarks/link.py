@@ -1,5 +1,5 @@
 """Host-link benchmarks: sustained face26 telemetry at 1 kHz over a pty, model upload round
-trip, command latency p50/p99.  Results replace the "Host link" section of
+trip, command round trip p50/p99.  Results replace the "Host link" section of
 docs/benchmarks.md.
 
     .venv/bin/python benchmarks/link.py [--seconds 60] [--target firmware-sim|test-engine]
@@ -189,7 +189,9 @@ def main(argv=None) -> int:
         f"Machine: {machine()}.  Command: `{cmd}` ({time.strftime('%Y-%m-%d')}); firmware = "
         f"`{args.target}` in its own process (sim:face_occlusion, realtime), host = "
         f"`hostctl.Device`, both ends over one pty.  Load average (1/5/15 min) at start "
-        f"{load0}, at end {load_average()} (the machine is shared).", "",
+        f"{load0}, at end {load_average()} (the machine is shared).  Round trips of host "
+        f"commands over the link, host to firmware and back; the event-to-telemetry latency "
+        f"is the \"Firmware loop\" section's.", "",
         "| measure | result |", "|---|---|",
         f"| face26 telemetry, {tele['seconds']:.1f} s wall | {tele['snapshots']} snapshots = "
         f"{tele['rate_hz']:.1f} Hz, lost frames {tele['lost_frames']}, event-time gaps "
@@ -203,9 +205,9 @@ def main(argv=None) -> int:
         f"| the same while tracking and streaming 1 kHz telemetry ({up_busy['n']}x) | "
         f"p50 {up_busy['p50_ms']:.1f} ms, p99 {up_busy['p99_ms']:.1f} ms, "
         f"max {up_busy['max_ms']:.1f} ms |",
-        *(f"| command latency {k} (1000x, tracker stopped) | p50 {v['p50_ms']:.2f} ms, "
+        *(f"| command round trip {k} (1000x, tracker stopped) | p50 {v['p50_ms']:.2f} ms, "
           f"p99 {v['p99_ms']:.2f} ms |" for k, v in lat.items()),
-        f"| command latency ping (300x) during 1 kHz telemetry | p50 {busy['p50_ms']:.2f} ms, "
+        f"| command round trip ping (300x) during 1 kHz telemetry | p50 {busy['p50_ms']:.2f} ms, "
         f"p99 {busy['p99_ms']:.2f} ms |",
         f"| `monitor --smooth` redraw rate during 1 kHz telemetry (default 12/s, spec >= 10 Hz) | "
         f"{mon['redraw_hz']:.1f} Hz |",

@@ -106,6 +106,11 @@ def build_parser() -> argparse.ArgumentParser:
                    help="print statistics every S wall seconds on stderr (0: never)")
     r.add_argument("--buffers", type=int, default=64,
                    help="transfer buffers of 128 KiB in the pool (default 64)")
+    r.add_argument("--rt-priority", type=int, metavar="N",
+                   help="run the firmware's threads under Linux SCHED_FIFO at priority N "
+                        "(1..99; needs root or CAP_SYS_NICE) while tracking: keeps other "
+                        "programs from delaying the USB reader and the tracking loop on a "
+                        "busy machine (default: ordinary scheduling)")
     link = r.add_mutually_exclusive_group()
     link.add_argument("--pty", action="store_true",
                       help="serve the host link on a new pty (prints 'pty: /dev/pts/N')")
@@ -302,7 +307,8 @@ def _run(args) -> int:
                           source_counters=source.counters, sensor_from=args.sensor_from,
                           supervisor=Supervisor(), rewind=source.rewind,
                           acquire=_acquire(args), learn_first_ms=args.learn_first_ms,
-                          learn_params=learn_params(args), learner=learner_params(args))
+                          learn_params=learn_params(args), learner=learner_params(args),
+                          rt_priority=args.rt_priority)
     throttle = Throttle()             # the program's own log lines
     stop = threading.Event()          # ends the link
     quit_now = threading.Event()      # a host sent SHUTDOWN

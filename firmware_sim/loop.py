@@ -38,13 +38,14 @@ import time
 import numpy as np
 
 from springtrack.limits import MAX_CONNECTIONS, MAX_TRACKERS
-from springtrack.track import FLOAT_FIELDS
+from springtrack.backends.samples import finite_rows
 from springtrack.wire import Fault, Nack, Notice
 
 from ._fused import Fused
 from .feed import DecodedFeed
 from .learning import LearningFeed
 from . import camera as camusb
+from . import priority
 from .engine import UpdateRejected
 from .meter import LoadMeter, LoopCounters
 from .reader import Reader
@@ -90,9 +91,13 @@ class FirmwareLoop:
                  backend: str = "cython", roi=None, source_counters=None, sensor_from=None,
                  supervisor: Supervisor | None = None, rewind=None,
                  acquire: dict | None = None, learn_first_ms: float | None = None,
-                 learn_params: dict | None = None, learner: dict | None = None):
+                 learn_params: dict | None = None, learner: dict | None = None,
+                 rt_priority: int | None = None):
         """``rewind()``: called by the START that follows :meth:`end_of_stream`, to serve
-        the source again from its beginning (None: START after the end resumes reading)."""
+        the source again from its beginning (None: START after the end resumes reading).
+        ``rt_priority``: from :meth:`start` to :meth:`stop`, every thread of the process
+        runs under SCHED_FIFO at it, the reader's and the processing thread too
+        (``firmware_sim.priority``; PriorityError here if the system refuses it)."""
         if telemetry_period_us <= 0:
             raise ValueError(f"telemetry_period_us must be positive, got {telemetry_period_us}")
         self.profile = camusb.PROFILES[profile] if isinstance(profile, str) else profile
@@ -124,6 +129,7 @@ class FirmwareLoop:
         self.piece = int(piece_bytes)
         self.supervisor = supervisor or Supervisor()
         self.rewind = rewind
+        self.rt_priority = None if rt_priority is None else priority.check(rt_priority)
         self.reader = Reader(open_camera, nbuf=nbuf, shed=not lossless,
                              supervisor=self.supervisor, on_give_up=self._gave_up,
                              **({"transfer_bytes": transfer_bytes} if transfer_bytes else {}))
@@ -164,6 +170,7 @@ class FirmwareLoop:
                 self.rewind()
             self.ended = False
             self.stop_event.clear()
+            priority.apply(self.rt_priority)    # before the threads: they inherit it
             self.reader.start()
             target = self.supervisor.thread_target("fused-loop", self._run, self.stop_event,
                                                    on_give_up=self._gave_up)
@@ -184,6 +191,7 @@ class FirmwareLoop:
                                            f"(at {where(t)})")
                     setattr(self, attr, None)
             self.reader.stop(timeout)
+            priority.release(self.rt_priority)
             # transfers read but not processed are dropped (counted with the abandoned
             # bytes): the rest of a transfer the stop cut short is gone, so what was queued
             # after it would be decoded out of step with its words
@@ -426,11 +434,11 @@ class FirmwareLoop:
                 if out is None:
                     return
         self.counters.snapshots += len(out["t"])
-        if self.recorder is not None:
-            self.recorder.add(self.model.ids, out)
         kind = self.params.energy_kind_index
         self.telemetry.push(Block(self.generation, kind, out, self.kernel.energies()[kind].copy(),
                                   self.fused.native_records))
+        if self.recorder is not None:       # after the link's copy: never delays telemetry
+            self.recorder.add(self.model.ids, out, time.monotonic())
 
     def _drop_nonfinite(self, out: dict, ok: np.ndarray) -> dict | None:
         """Snapshots whose tracker state is not finite are dropped and counted (never sent
@@ -596,18 +604,6 @@ class FirmwareLoop:
     def has_output(self) -> bool:
         """Snapshots or APPLIED reports are still waiting for the link."""
         return self.telemetry.rows > 0 or self.applied.pending()
-
-
-def finite_rows(trackers: np.ndarray) -> np.ndarray:
-    """(rows,) bool: every float field of every tracker of the row is finite.
-    ``trackers``: (rows, n) springtrack.track.TRACK_DTYPE."""
-    tr = np.ascontiguousarray(trackers)
-    f8 = tr.view(np.uint8).reshape(tr.shape[0], tr.shape[1], tr.dtype.itemsize)[:, :, :_FLOAT_BYTES]
-    return np.isfinite(np.ascontiguousarray(f8).view(np.float64)).all(axis=(1, 2))
-
-
-# the float64 fields come first in the track record (x .. activity): checked per row at once
-_FLOAT_BYTES = 8 * len(FLOAT_FIELDS)
 
 
 def _check_bias(name: str, value) -> int:

@@ -26,7 +26,7 @@ QUEUE_BLOCKS = 1024         # blocks waiting for the writer thread (a block: one
 class Recorded:
     ids: list                 # tracker ids of the model the block was computed with
     samples: dict             # the fused loop's rows: t, trackers, energy, wire
-    wall: float               # time.monotonic() when the block was taken
+    wall: float               # time.monotonic() when the block reached the telemetry queue
 
 
 def _write_block(f, b: Recorded) -> int:
@@ -39,8 +39,8 @@ class Recorder:
     def __init__(self):
         self.blocks: list[Recorded] = []
 
-    def add(self, ids, samples: dict) -> None:
-        self.blocks.append(Recorded(list(ids), samples, time.monotonic()))
+    def add(self, ids, samples: dict, wall: float) -> None:
+        self.blocks.append(Recorded(list(ids), samples, wall))
 
     def write(self, path) -> int:
         """Write every snapshot as a track CSV; returns the number of rows."""
@@ -70,10 +70,10 @@ class StreamRecorder:
         self.thread = threading.Thread(target=self._writer, name="record-writer", daemon=True)
         self.thread.start()
 
-    def add(self, ids, samples: dict) -> None:
+    def add(self, ids, samples: dict, wall: float) -> None:
         """Queue a block (processing thread: never blocks)."""
         try:
-            self.q.put_nowait(Recorded(list(ids), samples, time.monotonic()))
+            self.q.put_nowait(Recorded(list(ids), samples, wall))
         except queue.Full:
             self.dropped_blocks += 1
             self.dropped_rows += len(samples["t"]) * len(ids)

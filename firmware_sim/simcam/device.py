@@ -330,6 +330,8 @@ class SimCamera:
             return True
         if now_t >= c.marks_t[k] + self.commit_us:
             return True
+        if sum(len(c2.data) - c2.pos for c2 in self.fifo) < n_max:
+            return False               # not even all it holds would fill the transfer
         avail = self._releasable(c, now_t) - c.pos
         for c2 in list(self.fifo)[1:]:
             if avail >= n_max:

@@ -6,6 +6,7 @@ from springtrack.track import TRACK_DTYPE, TRACK_FIELDS
 from springtrack.track cimport TrackRow
 from springtrack.wire import TELE_TRACKER
 from libc.stdint cimport int64_t, uint8_t
+from libc.math cimport isfinite
 
 cnp.import_array()
 
@@ -53,3 +54,28 @@ cdef dict take_samples(dict bufs, SampleOut* o, bint copy):
     out = {k: (v[:c].copy() if copy else v[:c]) for k, v in bufs.items()}
     o.count = 0
     return out
+
+
+def finite_rows(trackers):
+    """(rows,) bool: every float field of every tracker of the row is finite.
+    ``trackers``: (rows, n) springtrack.track.TRACK_DTYPE (the float fields: TrackRow's
+    doubles)."""
+    cdef cnp.ndarray a = np.ascontiguousarray(trackers)
+    if a.dtype != TRACK_DTYPE or a.ndim != 2:
+        raise TypeError(f"finite_rows takes (rows, trackers) {TRACK_DTYPE}, not "
+                        f"{a.ndim}-d {a.dtype}")
+    cdef Py_ssize_t rows = a.shape[0], n = a.shape[1], i, k
+    cdef const TrackRow* r = <const TrackRow*>cnp.PyArray_DATA(a)
+    ok = np.ones(rows, np.bool_)
+    cdef uint8_t[::1] o = ok.view(np.uint8)
+    cdef const TrackRow* q
+    with nogil:
+        for i in range(rows):
+            for k in range(n):
+                q = &r[i * n + k]
+                if not (isfinite(q.x) and isfinite(q.y) and isfinite(q.sxx)
+                        and isfinite(q.sxy) and isfinite(q.syy) and isfinite(q.activity)
+                        and isfinite(q.vx) and isfinite(q.vy)):
+                    o[i] = 0
+                    break
+    return ok

@@ -447,7 +447,13 @@ cdef class Kernel:
         """(3, nc) array of the last spring update's energies (every instance's connections,
         in order): euclidean, torsional, cartesian."""
         cdef KState* s = &self.st
-        return np.array([[s.energy[q][k] for k in range(s.nc)] for q in range(3)]).reshape(3, s.nc)
+        out = np.empty((3, s.nc))
+        cdef double[:, ::1] o = out
+        cdef int q, k
+        for q in range(3):
+            for k in range(s.nc):
+                o[q, k] = s.energy[q][k]
+        return out
 
     @property
     def mean_energy(self):

@@ -150,3 +150,22 @@ def test_the_track_row_check_catches_a_layout_that_differs(monkeypatch):
         monkeypatch.setattr(samples, "TRACK_FIELDS", names)
         with pytest.raises(AssertionError):
             samples._check_track_row()
+
+
+def test_finite_rows_flags_exactly_the_rows_with_a_non_finite_float_field():
+    """The firmware's check before a snapshot is sent: every float field counts, the flags
+    and the state do not; a strided view is read as the rows it shows."""
+    from springtrack.backends.samples import finite_rows
+    from springtrack.track import FLOAT_FIELDS, TRACK_DTYPE
+    rows = np.zeros((2 * len(FLOAT_FIELDS) + 2, 3), TRACK_DTYPE)
+    bad = np.zeros(len(rows), bool)
+    for i, f in enumerate(FLOAT_FIELDS):
+        rows[2 * i][f][i % 3] = np.nan
+        rows[2 * i + 1][f][2] = -np.inf
+        bad[2 * i] = bad[2 * i + 1] = True
+    rows[-1]["state"] = 255
+    rows[-1]["active"] = True
+    assert np.array_equal(finite_rows(rows), ~bad)
+    assert np.array_equal(finite_rows(rows[::2]), ~bad[::2])
+    with pytest.raises(TypeError, match="finite_rows takes"):
+        finite_rows(np.zeros((2, 3)))
