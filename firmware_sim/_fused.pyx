@@ -15,7 +15,7 @@ evt3      Prophesee Gen4 / IMX636 EVK     ``evt3.pxd``                        up
 ========  ==============================  ==================================  ============
 
 Decoded change-detection events go into a batch of at most BATCH events (a C array in the
-object, 4 KiB, stays in L1), optionally filtered to a region of interest (the rest counted,
+object, 16 KiB, half of a 32 KiB L1 data cache), optionally filtered to a region of interest (the rest counted,
 ``outside_roi``), and each batch runs through ``springtrack.backends.stepper.run_events``, the
 sampled event loop of ``springtrack track``, on the tracker backend's :c:type:`Stepper`
 (springtrack/backends/stepper.pxd): the float64 kernel (``springtrack.kernel.kernel.Kernel``) or the
@@ -67,7 +67,10 @@ from springtrack.io.evt3 cimport (Evt3State, evt3_init, evt3_lost_data, evt3_dec
 cnp.import_array()
 
 cdef enum:
-    BATCH = 256                 # decoded events tracked per run_events call
+    # decoded events tracked per run_events call.  The EVT decoders' fast paths start a
+    # block only with room for its worst case (EVT 3.0: 16 words, up to 192 events), so
+    # the batch is large enough for them to fill most of it
+    BATCH = 1024
     # feed() releases the GIL only for at least this many bytes (4096 words, some 0.2 ms of
     # work).  Releasing it hands the GIL to the USB reader thread, which keeps it for its
     # next read's Python set-up before it blocks; for a real-time transfer of a few hundred

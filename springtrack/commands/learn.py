@@ -100,6 +100,9 @@ def report(res) -> None:
     for t, n in zip(m.trackers, res.counts):
         print(f"{t.id:>8} {t.x:7.1f} {t.y:7.1f} {t.sigma[0] ** 0.5:7.2f} {t.sigma[2] ** 0.5:7.2f} "
               f"{t.mass:5.2f} {int(n):7d}")
+    if not m.connections:
+        print("springs   none (one part)" if len(m.trackers) == 1 else "springs   none")
+        return
     print(f"{'spring':>17} {'kinds':<20} {'stiffness':>9} {'coactiv.':>8} {'rigidity':>8} "
           f"{'turn deg':>8}")
     for c, s in zip(m.connections, res.springs):

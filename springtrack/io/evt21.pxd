@@ -6,8 +6,9 @@
 #   cdef DecodeCounts n                            # springtrack.io.base: words, anomalies, info
 #   evt21_init(&st, width, height, legacy)         # 0: geometry unknown, no check
 #   used = evt21_decode_words(&st, &n, words, nw, out, cap, &k)
-#       # decodes words while out[k:cap] has room for a word's worst case
-#       # (EVT21_MAX_PER_WORD events), advances k, returns the words consumed
+#       # decodes words while out[k:cap] has room for them (a plain change-detection
+#       # word: its events; another: EVT21_MAX_PER_WORD), advances k, returns the words
+#       # consumed
 #
 # Word types and fields: evt21_types.h (OpenEB's Evt21Raw structs); EVT_TIME_HIGH through
 # the time base of every decoder (timebase.pxd).  The IMX636 sends the two 32-bit halves of
@@ -55,7 +56,7 @@ cdef extern from "springtrack/io/evt21_types.h" nogil:
 
 cdef extern from "springtrack/io/evt21_block.h" nogil:
     size_t evt21_decode_run(const uint8_t* p, size_t n, int64_t th, uint32_t width,
-                            uint32_t height, int legacy, void* out, size_t* nev)
+                            uint32_t height, int legacy, void* out, size_t cap, size_t* nev)
 
 cdef struct Evt21State:
     TimeBase tb              # the EVT_TIME_HIGH counter
@@ -123,22 +124,24 @@ cdef inline Py_ssize_t evt21_decode_words(Evt21State* s, DecodeCounts* n, const 
                                           Py_ssize_t nw, Event* out, Py_ssize_t cap,
                                           Py_ssize_t* nout) noexcept nogil:
     """Decode the words at p into out from index nout[0] while words remain (nw) and
-    out[:cap] has room for a word's worst case (EVT21_MAX_PER_WORD events); advance
-    nout[0], count in n, return the words consumed.  Once the time base is known, runs of
-    plain change-detection words go through evt21_decode_run (same events and counters)."""
-    cdef Py_ssize_t i = 0, k = nout[0], run, lim
+    out[:cap] has room for them: runs of plain change-detection words (once the time base
+    is known: evt21_decode_run, same events and counters) while their own events fit, any
+    other word only with room for a word's worst case (EVT21_MAX_PER_WORD events); advance
+    nout[0], count in n, return the words consumed."""
+    cdef Py_ssize_t i = 0, k = nout[0], run
     cdef size_t nev
-    while i < nw and cap - k >= EVT21_MAX_PER_WORD:
+    while i < nw:
         if timebase_known(&s.tb):
-            lim = min(nw - i, (cap - k) // EVT21_MAX_PER_WORD)
             nev = 0
-            run = evt21_decode_run(p + EVT21_WORD_BYTES * i, lim, s.th, s.width, s.height,
-                                   s.legacy, &out[k], &nev)
+            run = evt21_decode_run(p + EVT21_WORD_BYTES * i, nw - i, s.th, s.width, s.height,
+                                   s.legacy, &out[k], cap - k, &nev)
             n.words += run
             k += nev
             i += run
-            if run == lim:
-                continue
+            if i == nw:
+                break
+        if cap - k < EVT21_MAX_PER_WORD:
+            break
         k += evt21_decode_word(s, n, evt21_word(s, p + EVT21_WORD_BYTES * i), &out[k])
         i += 1
     nout[0] = k

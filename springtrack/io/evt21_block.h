@@ -16,14 +16,17 @@
 
 #define EVT21_MASK_TOP 0x80000000u   /* bit 31 of a valid mask: keeps ctz defined */
 
-/* Decode words from p while they are plain change-detection words, at most n; write their
- * events to out (springtrack.events.EVENT_DTYPE records as two uint64: the int64 t, then
- * x | y << 16 | p << 32 with zero padding; room for EVT21_MAX_PER_WORD per word) with the
- * time base th (TIME_HIGH count, shifted); return the number of words decoded and add the
- * events written to *nev.  legacy: the IMX636 word order (evt21_swap). */
+/* Decode words from p while they are plain change-detection words, at most n, and while
+ * out has room for the next word's events (cap records; a word writes two records whatever
+ * its mask, see below, so it needs its events + 2); write their events to out
+ * (springtrack.events.EVENT_DTYPE records as two uint64: the int64 t, then
+ * x | y << 16 | p << 32 with zero padding) with the time base th (TIME_HIGH count,
+ * shifted); return the number of words decoded and add the events written to *nev.
+ * legacy: the IMX636 word order (evt21_swap). */
 IO_CLONES static size_t evt21_decode_run(const uint8_t *restrict p, size_t n, int64_t th,
                                          uint32_t width, uint32_t height, int legacy,
-                                         void *restrict out_, size_t *restrict nev)
+                                         void *restrict out_, size_t cap,
+                                         size_t *restrict nev)
 {
     uint64_t *restrict out = (uint64_t *)out_;
     size_t i, k = 0;
@@ -38,6 +41,8 @@ IO_CLONES static size_t evt21_decode_run(const uint8_t *restrict p, size_t n, in
         uint32_t last = m ? 31 - (uint32_t)__builtin_clz(m) : 0;   /* highest set offset */
         if ((v >> EVT21_CD_SHIFT) != 0 || y >= height || x + last >= width)
             break;                  /* not a CD word, or an event outside */
+        if (cap - k < EVT21_MAX_PER_WORD + 2 && cap - k < (size_t)__builtin_popcount(m) + 2)
+            break;                  /* no room for its records */
         uint64_t t = (uint64_t)(th | (int64_t)evt21_t_low(v));
         /* the record's second 8 bytes: x | y << 16 | p << 32, p the type */
         uint64_t rest = (uint64_t)x | ((uint64_t)y << 16) | ((uint64_t)evt21_type(v) << 32);

@@ -59,6 +59,27 @@ def test_fused_evt_words_at_native_geometry_equal_the_offline_tracker(wide, fmt,
     assert not any(c["anomalies"].values())
 
 
+@pytest.mark.parametrize("fmt,legacy", EVT)
+def test_dense_vector_words_fill_the_batch_to_its_end_and_lose_nothing(wide, fmt, legacy):
+    """Words of 1 to 32 events (EVT 2.1 masks, EVT 3.0 vectors) meet the end of the fused
+    loop's batch at every offset: every event is tracked once, in order."""
+    _, model = wide
+    rng = np.random.default_rng(7)
+    parts = []
+    for i in range(3000):                # a group of 32 columns, a random mask, one time
+        x0 = 32 * int(rng.integers(12, 26))
+        xs = np.flatnonzero(rng.random(32) < rng.random()) + x0
+        if len(xs):
+            parts.append(make(np.full(len(xs), 1000 + 7 * i), xs,
+                              np.full(len(xs), int(rng.integers(250, 470))),
+                              np.full(len(xs), i % 2)))
+    ev = np.concatenate(parts)
+    f = fused(model, fmt, legacy)
+    assert_same(Tracker(model).run(ev, SAMPLE), collect(f, [encoded(fmt, legacy, ev)]))
+    c = f.counters()
+    assert c["events_decoded"] == c["events_tracked"] == len(ev)
+
+
 @settings(max_examples=10, deadline=None)
 @given(st.sampled_from(EVT), st.lists(st.integers(1, 40_000), min_size=1, max_size=30),
        st.integers(1, 5))

@@ -39,6 +39,7 @@ import serial  # noqa: E402
 from hostctl import Device  # noqa: E402
 from hostctl.device import Nacked  # noqa: E402
 from springtrack import io as sio, wire  # noqa: E402
+from springtrack.io.cobs import CobsError  # noqa: E402
 from springtrack.mcu import words as wire_image  # noqa: E402
 from springtrack.mcu.words import words_image  # noqa: E402
 from springtrack.fixed import q as fixed_q  # noqa: E402
@@ -131,9 +132,11 @@ def send(port, mtype, seq, payload=b"", **kw):
 
 
 def _decodes(chunk):
+    """The chunk's frame type, None if it is no whole frame (e.g. cut by the end of a read
+    window: its COBS blocks run past its end)."""
     try:
         return wire.decode_frame(chunk).type
-    except wire.WireError:
+    except (wire.WireError, CobsError):
         return None
 
 
