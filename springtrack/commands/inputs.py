@@ -34,11 +34,33 @@ def read_input(path) -> Input:
     from .. import io as stio
     r = stio.open(path)
     ev = r.read()
-    r.stats.check_decodable(path)          # random bytes are refused, not learned or drawn
+    checked(r, path)
     w = r.width or (int(ev["x"].max()) + 1 if len(ev) else 1)
     h = r.height or (int(ev["y"].max()) + 1 if len(ev) else 1)
     check_sensor(w, h, path)
-    warn = r.stats.warning(path)
+    return Input(ev, w, h, bool(r.width and r.height), r.stats)
+
+
+def checked(reader, path) -> None:
+    """After a whole input was read: a stream mostly of corrupt words refused (random bytes
+    are not learned or drawn), the decoder's drops warned about on standard error."""
+    reader.stats.check_decodable(path)
+    warn = reader.stats.warning(path)
     if warn:
         print(warn, file=sys.stderr)
-    return Input(ev, w, h, bool(r.width and r.height), r.stats)
+
+
+def stream_input(path):
+    """(chunks, width, height, reader) of an input read chunk by chunk when its header gives
+    the sensor (memory: a chunk); otherwise read whole (its size from the events' extent).
+    Call :func:`checked` once the chunks are consumed."""
+    from .. import io as stio
+    r = stio.open(path)
+    if r.width and r.height:
+        check_sensor(r.width, r.height, path)
+        return iter(r), r.width, r.height, r
+    ev = r.read()
+    w = int(ev["x"].max()) + 1 if len(ev) else 1
+    h = int(ev["y"].max()) + 1 if len(ev) else 1
+    check_sensor(w, h, path)
+    return iter([ev] if len(ev) else []), w, h, r

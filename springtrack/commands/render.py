@@ -77,30 +77,43 @@ def run(args) -> int:
         raise ValueError("--window-us and --every-us must be positive µs")
     if args.grid is not None and args.grid < 1:
         raise ValueError(f"--grid must be a positive number of px, got {args.grid}")
+    if not args.model:
+        return events_only(args)
     events, width, height, known = load_events(args.input)
     origin = int(events["t"][0]) if len(events) else 0       # frame times count from it
     events, stats = prepared(args, events, width, height)
-    if not args.model:
-        return events_only(args, events, width, height, stats)
     return overlay(args, events, width if known else None, height if known else None, origin)
 
 
-def events_only(args, events, width, height, stats) -> int:
+def events_only(args) -> int:
+    """The picture of the events, counted per pixel chunk by chunk as they are read: memory
+    is the sensor's pixels and a chunk, not the recording (docs/benchmarks.md, "Render
+    memory")."""
     from pathlib import Path
-    from ..render import plot_events
+    from ..render import EventCounts, plot_events
+    from .inputs import checked, stream_input
     for opt in ("track", "truth", "params", "acquire", "show_acquisition"):
         if getattr(args, opt):
             raise ValueError(f"--{opt.replace('_', '-')} needs --model")
     if Path(args.out).suffix.lower() in (".gif", ".mp4", "") or Path(args.out).is_dir():
         raise ValueError(f"{args.out}: without --model, render writes one picture "
                          f"(.png, .svg, .pdf, ...)")
-    span = (f"t = {events['t'][0]:,} .. {events['t'][-1]:,} us" if len(events)
-            else "no events")
-    title = (f"{Path(args.input).name}: {width}x{height}, {len(events):,} events, {span}"
-             + (f" ({stats.summary()})" if stats is not None else ""))
-    plot_events(events, width, height, args.out, title=title, scale=args.scale, grid=args.grid)
-    print(f"wrote {args.out}: {len(events):,} events on the {width}x{height} sensor",
-          file=sys.stderr)
+    chunks, width, height, reader = stream_input(args.input)
+    prep = options.preparer(args, width, height)
+    counts = EventCounts(width, height)
+    n, first, last = 0, None, None
+    for chunk in options.prepared(chunks, prep):
+        counts.add(chunk)
+        n += len(chunk)
+        first = int(chunk["t"][0]) if first is None else first
+        last = int(chunk["t"][-1])
+    checked(reader, args.input)
+    span = f"t = {first:,} .. {last:,} us" if n else "no events"
+    title = (f"{Path(args.input).name}: {width}x{height}, {n:,} events, {span}"
+             + (f" ({prep.stats.summary()})" if prep is not None else ""))
+    plot_events(None, width, height, args.out, title=title, scale=args.scale, grid=args.grid,
+                image=counts.image())
+    print(f"wrote {args.out}: {n:,} events on the {width}x{height} sensor", file=sys.stderr)
     return 0
 
 

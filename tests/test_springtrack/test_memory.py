@@ -144,3 +144,20 @@ def test_render_memory_does_not_grow_with_the_frames(tmp_path):
         assert Image.open(out).n_frames == written >= n
     assert peaks[200] - peaks[20] < 25, peaks
     assert peaks[200] < CEILING_MIB
+
+
+def test_render_without_a_model_streams_the_events(tmp_path):
+    """Without a model ``render`` counts the events per pixel chunk by chunk as it reads
+    them: 4 M events (64 MB as records) take no more memory than 200 k."""
+    rng = np.random.default_rng(2)
+    peaks = {}
+    for n in (200_000, 4_000_000):
+        ev = make(np.arange(n) * 5, rng.integers(0, 640, n), rng.integers(0, 480, n),
+                  rng.integers(0, 2, n))
+        src = tmp_path / f"e{n}.raw"
+        src.write_bytes(encode_file(ev, 640, 480, "evt3"))
+        del ev
+        rc, peaks[n], log = peak_rss("springtrack", "render", str(src),
+                                     "--out", str(tmp_path / f"e{n}.png"))
+        assert rc == 0 and f"{n:,} events on the 640x480 sensor" in log, log
+    assert peaks[4_000_000] - peaks[200_000] < 25, peaks
