@@ -130,7 +130,10 @@ class Header:
         self.fs = min(9 * scale / 2, width_px / (self.MIN_LINE_CHARS * self.CHAR_EM * px_per_pt))
         self.legend_fs = min(6.5 * scale / 2, self.fs)
         self.width_px = width_px
-        self.line_chars = max(1, int(width_px / (self.CHAR_EM * self.fs * px_per_pt)) - 1)
+        # Agg draws hinted glyphs a whole number of pixels apart (9 pt at 100 dpi: 8 px, not
+        # 7.5): a line holds as many characters as fit at the advance rounded up
+        advance_px = math.ceil(self.CHAR_EM * self.fs * px_per_pt)
+        self.line_chars = max(1, int(width_px // advance_px) - 1)
         self.lines = -(-self.HEADER_CHARS // self.line_chars)
         self.pad = 2.0
         line_px = 1.25 * self.fs * px_per_pt

@@ -80,3 +80,23 @@ def test_render_a_real_recording_without_a_model(data_file, tmp_path, name):
     r = render_cli(data_file(name), "--out", out, "--dequantize")
     assert r.returncode == 0, r.stderr
     assert out.stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("width", [64, 128, 304, 346, 640])
+def test_the_overlay_header_wraps_inside_the_picture(width):
+    """Every line of the header, wrapped at the longest header text, is drawn inside the
+    picture's width (Agg's hinted glyph advances are whole pixels: 9 pt monospace at
+    100 dpi is 8 px a character, not 7.5)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from springtrack.render import Header
+    head = Header(width * 2.0, 2.0)
+    text = head.wrap(" ".join(["active"] * 40)[:Header.HEADER_CHARS])
+    fig = plt.figure(figsize=(head.width_px / 100, 1), dpi=100)
+    try:
+        drawn = fig.text(0, 0.5, text, fontsize=head.fs, family="monospace")
+        fig.canvas.draw()
+        assert drawn.get_window_extent().width <= head.width_px, (width, text)
+    finally:
+        plt.close(fig)
