@@ -583,6 +583,8 @@ COUNTERS = {
                                 "validation refuses such models, the state guard resets)",
     "loop.nonfinite_resets": "trackers reset to the model because of them (once per generation)",
     "loop.watchdog_stalls": "stalls the watchdog saw (transfers waiting, nothing processed)",
+    "loop.samples_skipped": "sample times of empty stretches not written (at most 5 samples per "
+                            "event; the misaligned streams' time-high words hours ahead)",
     "loop.telemetry_dropped": "snapshots the engine's queue dropped (hosts behind)",
     "kernel.events_valid": "events the kernel accepted",
     "kernel.events_assigned": "events assigned to a tracker (eq. 3's update)",
