@@ -340,12 +340,13 @@ def test_hil_record_under_overload_reports_every_missing_snapshot(tmp_path):
     finally:
         fw.close()
     assert out.returncode == 0 and "Traceback" not in out.stderr, out.stderr
-    assert "warning: the recording is incomplete" in out.stderr, out.stderr
     m = re.search(r"lost device queue (\d+), device send queue (\d+), link (\d+), "
                   r"CRC errors \d+, host (\d+)", out.stdout + out.stderr)
     assert m, out.stdout + out.stderr
     lost = sum(int(x) for x in m.groups())
-    assert int(m.group(1)) > 0
+    # a machine fast enough to carry every snapshot drops none: then no warning, and the
+    # rows alone must cover the span (below)
+    assert ("warning: the recording is incomplete" in out.stderr) == (lost > 0), out.stderr
     t = np.unique(read_csv(tmp_path / "r.csv").t_us)
     assert np.all(np.diff(t) % period == 0)
     # nothing missing unreported within the span (drops of the oldest may also fall before
