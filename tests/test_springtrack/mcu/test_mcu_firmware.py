@@ -16,7 +16,6 @@ skip, except in CI (CI=true), where they fail."""
 import os
 import struct
 import subprocess
-import sys
 import time
 import zlib
 
