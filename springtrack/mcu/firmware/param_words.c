@@ -109,8 +109,9 @@ static void decay_tables(dbits_t tau, int32_t *lo, int32_t *hi)
     }
 }
 
-/* q.params_words of the values (checked) for nc connections */
-void param_words(const values_t *v, int32_t nc, int32_t *w)
+/* q.params_words of the values (checked) for nc connections; `tables`: 0 keeps w's decay
+   tables (those of the same activity_tau_us) */
+void param_words(const values_t *v, int32_t nc, int32_t *w, int tables)
 {
     dbits_t gate = d_mul(TWO_NEG, d_log(v->f[PARAM_P_THRESHOLD]));    /* Params.gate_d2 */
     dbits_t tau = v->f[PARAM_ACTIVITY_TAU_US], g = covariance_gain(v, gate);
@@ -141,7 +142,8 @@ void param_words(const values_t *v, int32_t nc, int32_t *w)
     put64(w + W_TAU_BITS, (int64_t)tau);
     w[W_PULL_SIM] = v->i[PARAM_PULL_FRAME] == PARAM_FRAME_SIMILARITY;
     w[W_CAR_SIM] = v->i[PARAM_CARTESIAN_FRAME] == PARAM_FRAME_SIMILARITY;
-    decay_tables(tau, w + W_DECAY_LO, w + W_DECAY_HI);
+    if (tables)
+        decay_tables(tau, w + W_DECAY_LO, w + W_DECAY_HI);
 }
 
 /* ---- the checks of springtrack.params.check, Params and the fixed kernel ------------------ */

@@ -7,6 +7,7 @@
  * springtrack.fixed.q.params_q computes them, with the host's double arithmetic
  * (xfloat.h: the same roundings; exp and log to the nearest double, where the host's libm
  * may differ by one ulp), and loaded between two batches of events. */
+#include "board.h"
 #include "engine.h"
 #include "fixed_step.h"
 #include "param_words.h"
@@ -119,6 +120,7 @@ void on_param_set(const frame_t *f)
     uint32_t nl, vl, nw;
     uint8_t tag;
     int k, code, rc;
+    uint32_t t0;
     values_t v, old;
     int32_t *words, nc = mcu_state[0].nc;
     buf_t w = proto_why();
@@ -167,11 +169,13 @@ void on_param_set(const frame_t *f)
                         "since they were committed: load the model again");
         return;
     }
-    param_words(&v, nc, words);
+    t0 = board_ticks();
+    param_words(&v, nc, words, k == PARAM_ACTIVITY_TAU_US);    /* the tables: tau's */
+    sess.param_ticks = (t0 - board_ticks()) & 0xFFFFFFu;      /* SysTick counts down */
     rc = engine_load(0, 0, words, nw);
     if (rc) {                            /* checked above: a defect if it happens */
         read_values(&old);               /* the kv list still holds them */
-        param_words(&old, nc, words);
+        param_words(&old, nc, words, 1);
         engine_load(0, 0, words, nw);
         b_str(&w, "the kernel refused the parameter words (fx status ");
         b_int(&w, rc);

@@ -440,6 +440,7 @@ static void on_stats(const frame_t *f)
         for (k = 0; k < sizeof kernel / sizeof kernel[0]; k++)
             kv_int(kernel[k], mcu_counters[k]);
     kv_int("updates_rejected", sess.updates_rejected);
+    kv_int("param_ticks", sess.param_ticks);
     {                                    /* the kernel's parameter words now */
         uint32_t nw;
         const int32_t *pw = proto_committed_params(&nw);

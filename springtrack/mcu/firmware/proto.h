@@ -16,6 +16,7 @@ typedef struct {
     int32_t rx_last;                     /* -1: expect anything */
     uint8_t nonce[WIRE_NONCE_LEN];
     uint32_t rx_lost, acks, nacks, forbidden, retries, version_refused, updates_rejected;
+    uint32_t param_ticks;                /* SysTick ticks of the last PARAM_SET's words */
     uint32_t telemetry;
 } proto_session_t;
 

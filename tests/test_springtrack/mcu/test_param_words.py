@@ -64,7 +64,7 @@ def c_words(lib, values: dict, nc: int):
     if code:
         return code, why.raw[:buf.n].decode()
     w = (ctypes.c_int32 * (fixed_q.PARAMS_HEAD + 2 * (1 << fixed_q.DECAY_BITS)))()
-    lib.param_words(vals, nc, w)
+    lib.param_words(vals, nc, w, 1)
     return 0, np.frombuffer(bytes(w), "<i4")
 
 
