@@ -20,7 +20,8 @@ ATANH_TERMS = 18          # terms of atanh(z) / z in z^2, |z| <= 1/5: below 2^-8
 WORDS = dict(a1=0, cov_gm=1, cov_am=2, cov_sh=3, energy_gain=4, gate=5, k_tau=6, dt_max=7,
              act_thr=9, escale=11, escale_never=13, smin2=14, smax2=16, period=18, ekind=19,
              tau_bits=20, pull_sim=22, car_sim=23, decay_lo=q.PARAMS_HEAD,
-             decay_hi=q.PARAMS_HEAD + (1 << q.DECAY_BITS))
+             decay_hi=q.PARAMS_HEAD + (1 << q.DECAY_BITS),
+             motion=q.PARAMS_HEAD + 2 * (1 << q.DECAY_BITS))     # q.motion_q's, in order
 
 
 def _bits(v: float) -> str:
@@ -73,10 +74,6 @@ def header() -> str:
     lines += ["};", "",
               "/* the choices whose index is a word's value (springtrack.fixed.q.params_q) */",
               f"#define PARAM_FRAME_SIMILARITY {params.FRAMES.index('similarity')}",
-              "/* the parameters that turn the motion model on (0: off), which the fixed "
-              "kernel lacks */",
-              "static const uint8_t param_motion[] = {"
-              + ", ".join(f"PARAM_{n.upper()}" for n in q.MOTION_PARAMS) + "};",
               "", "/* springtrack.limits */",
               f"#define LIMIT_SIGMA_MAX_PX {_bits(limits.SIGMA_MAX_PX)}",
               f"#define LIMIT_COV_GAIN_MAX {_bits(limits.COV_GAIN_MAX)}",
@@ -84,8 +81,12 @@ def header() -> str:
               f"#define Q_GAIN_FRAC {q.GAIN_FRAC}", f"#define Q_D2_FRAC {q.D2_FRAC}",
               f"#define Q_KTAU_FRAC {q.KTAU_FRAC}", f"#define Q_ACT_FRAC {q.ACT_FRAC}",
               f"#define Q_COV_FRAC {q.COV_FRAC}", f"#define Q_DECAY_BITS {q.DECAY_BITS}",
+              f"#define Q_POS_FRAC {q.POS_FRAC}", f"#define Q_LEAD_FRAC {q.LEAD_FRAC}",
+              f"#define Q_KALMAN_FRAC {q.KALMAN_FRAC}",
+              f"#define Q_MOTION_ALPHA_MIN {_bits(q.MOTION_ALPHA_MIN)}",
               f"#define Q_LOG2E {_bits(q.LOG2E)}",
-              f"#define Q_PARAMS_WORDS {q.PARAMS_HEAD + 2 * (1 << q.DECAY_BITS)}"]
+              f"#define Q_PARAMS_WORDS "
+              f"{q.PARAMS_HEAD + 2 * (1 << q.DECAY_BITS) + q.MOTION_WORDS}"]
     lines += [f"#define W_{k.upper()} {v}" for k, v in WORDS.items()]
     ln2 = _ln2()
     ln2_hi = Fraction(int(ln2 * 2 ** 51), 2 ** 51)      # 52 bits: k ln2_hi is exact

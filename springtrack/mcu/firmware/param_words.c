@@ -109,6 +109,35 @@ static void decay_tables(dbits_t tau, int32_t *lo, int32_t *hi)
     }
 }
 
+/* q.motion_q: ceil(tau_m), 1 / tau_m as a mantissa and shift ((0, 31): off), the horizon
+   Q.8, c_h Q.30, max(alpha1, 1e-6) Q.30, alpha1 / (1 - alpha1) Q.32 (capped), sigma_max Q.32 */
+static void motion_words(const values_t *v, int32_t *w)
+{
+    static const dbits_t A1_MIN = 0x3eb0c6f7a0b5ed8dull;              /* 1e-6 */
+    dbits_t tau = v->f[PARAM_MOTION_TAU_US], a1 = v->f[PARAM_ALPHA_POSITION], inv;
+    int64_t c = d_round_scaled(tau, 0), thr = INT64_MAX;
+    int32_t sh = 31;
+    if (d_lt(d_from_int(c), tau))        /* math.ceil */
+        c++;
+    w[0] = (int32_t)c;
+    w[1] = 0;
+    if (d_lt(D_ZERO, tau)) {
+        inv = d_div(D_ONE, tau);
+        sh = shift_for(inv, D_ZERO, 24);
+        w[1] = (int32_t)d_round_scaled(inv, sh);
+    }
+    w[2] = sh;
+    w[3] = (int32_t)d_round_scaled(v->f[PARAM_PREDICTION_HORIZON_US], Q_LEAD_FRAC);
+    w[4] = (int32_t)d_round_scaled(v->f[PARAM_POLARITY_GAIN], Q_GAIN_FRAC);
+    if (d_lt(a1, A1_MIN))
+        a1 = A1_MIN;
+    w[5] = (int32_t)d_round_scaled(a1, Q_GAIN_FRAC);
+    if (d_lt(a1, D_ONE))
+        thr = d_round_scaled(d_div(a1, d_sub(D_ONE, a1)), Q_KALMAN_FRAC);
+    put64(w + 6, thr);
+    put64(w + 8, d_round_scaled(v->f[PARAM_SIGMA_MAX_PX], Q_POS_FRAC));
+}
+
 /* q.params_words of the values (checked) for nc connections; `tables`: 0 keeps w's decay
    tables (those of the same activity_tau_us) */
 void param_words(const values_t *v, int32_t nc, int32_t *w, int tables)
@@ -144,6 +173,7 @@ void param_words(const values_t *v, int32_t nc, int32_t *w, int tables)
     w[W_CAR_SIM] = v->i[PARAM_CARTESIAN_FRAME] == PARAM_FRAME_SIMILARITY;
     if (tables)
         decay_tables(tau, w + W_DECAY_LO, w + W_DECAY_HI);
+    motion_words(v, w + W_MOTION);
 }
 
 /* ---- the checks of springtrack.params.check, Params and the fixed kernel ------------------ */
@@ -209,7 +239,6 @@ int param_check_value(int k, uint8_t tag, const uint8_t *val, values_t *v, buf_t
 int param_check_set(const values_t *v, int32_t nc, buf_t *w)
 {
     dbits_t gate, g;
-    uint32_t k;
     if (!d_lt(v->f[PARAM_SIGMA_MIN_PX], v->f[PARAM_SIGMA_MAX_PX]))
         return refuse(w, NACK_OUT_OF_RANGE, -1, "sigma_min_px must be below sigma_max_px");
     if (d_lt(LIMIT_SIGMA_MAX_PX, v->f[PARAM_SIGMA_MAX_PX]))
@@ -220,10 +249,13 @@ int param_check_set(const values_t *v, int32_t nc, buf_t *w)
         return refuse(w, NACK_OUT_OF_RANGE, PARAM_ALPHA_COVARIANCE, "is too large for "
                       "alpha_position and p_threshold: eq. (4) would weigh one event's "
                       "bias-corrected sample more than once");
-    for (k = 0; k < sizeof param_motion; k++)
-        if (v->f[param_motion[k]] != D_ZERO)
-            return refuse(w, NACK_OUT_OF_RANGE, param_motion[k], "must be 0: the fixed "
-                          "kernel cannot run it (no motion model, eqs. M1-M8)");
+    if (d_lt(D_ZERO, v->f[PARAM_MOTION_TAU_US]) && d_lt(v->f[PARAM_MOTION_TAU_US], D_ONE))
+        return refuse(w, NACK_OUT_OF_RANGE, PARAM_MOTION_TAU_US, "must be 0 (off) or at "
+                      "least 1 us in the fixed kernel's motion model (event times are whole us)");
+    if (d_lt(D_ZERO, v->f[PARAM_MOTION_TAU_US])
+        && d_lt(v->f[PARAM_ALPHA_POSITION], Q_MOTION_ALPHA_MIN))
+        return refuse(w, NACK_OUT_OF_RANGE, PARAM_ALPHA_POSITION, "is below the fixed "
+                      "kernel's Kalman filter's bound with the motion model on");
     if (d_lt(0x403f000000000000ull, gate))                         /* q(gate, ..., 0, 31) */
         return refuse(w, NACK_OUT_OF_RANGE, PARAM_P_THRESHOLD, "gives a gate beyond the "
                       "fixed kernel's range");

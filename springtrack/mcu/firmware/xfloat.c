@@ -185,17 +185,19 @@ dbits_t d_from_int(int64_t v)
 int64_t d_round_scaled(dbits_t x, int k)
 {
     unp_t u = unpack(x);
-    int32_t sh = -(u.e + k);             /* value = m 2^-sh, sh > 1 for |value| < 2^62 */
+    int32_t sh = -(u.e + k);             /* value = m 2^-sh, sh >= 1 for |value| < 2^63 */
     uint64_t q, rem, half;
     if (u.m == 0 || sh > 64)
         return 0;
-    if (sh <= 1)                         /* |value| >= 2^62: not met (the callers' ranges) */
+    if (sh < 1)                          /* |value| >= 2^63: saturated */
         return u.neg ? INT64_MIN : INT64_MAX;
     q = sh == 64 ? 0 : u.m >> sh;
     rem = sh == 64 ? u.m : u.m & ((1ull << sh) - 1);
     half = 1ull << (sh - 1);
     if (rem > half || (rem == half && (q & 1)))
         q++;
+    if (q >> 63)                         /* rounded up to 2^63: saturated */
+        return u.neg ? INT64_MIN : INT64_MAX;
     return u.neg ? -(int64_t)q : (int64_t)q;
 }
 

@@ -130,7 +130,7 @@ SETS = [("alpha_position", 0.1), ("p_threshold", 0.05), ("activity_tau_us", 5000
 REFUSED = [("nope", 1.0), ("alpha_position", "x"), ("spring_period", 1.5),
            ("spring_period", True), ("alpha_position", 5.0), ("alpha_position", float("nan")),
            ("activity_tau_us", float("inf")), ("energy_kind", "foo"), ("energy_kind", 3),
-           ("sigma_min_px", 50.0), ("alpha_covariance", 0.9), ("motion_tau_us", 5.0),
+           ("sigma_min_px", 50.0), ("alpha_covariance", 0.9), ("motion_tau_us", 0.5),
            ("spring_period", 2 ** 62), ("spring_period", 2 ** 62 + 1), ("pull_frame", 1.0)]
 MALFORMED = [b"", b"\x05abc", b"\x01ax\x00", b"\x01ab\x02", b"\x01af" + bytes(9),
              b"\x02\xff\xfef" + bytes(8)]

@@ -63,14 +63,15 @@ def c_words(lib, values: dict, nc: int):
     code = lib.param_check_set(vals, nc, ctypes.byref(buf))
     if code:
         return code, why.raw[:buf.n].decode()
-    w = (ctypes.c_int32 * (fixed_q.PARAMS_HEAD + 2 * (1 << fixed_q.DECAY_BITS)))()
+    w = (ctypes.c_int32 * (fixed_q.PARAMS_HEAD + 2 * (1 << fixed_q.DECAY_BITS)
+                           + fixed_q.MOTION_WORDS))()
     lib.param_words(vals, nc, w, 1)
     return 0, np.frombuffer(bytes(w), "<i4")
 
 
 def random_values(rng):
     return dict(
-        alpha_position=rng.choice([rng.uniform(0, 1), 0.2, 0.0, 1.0]),
+        alpha_position=rng.choice([rng.uniform(0, 1), 0.2, 0.0, 1.0, 5e-4]),
         alpha_covariance=rng.choice([rng.uniform(0, 0.01), 2e-4, rng.uniform(0, 1)]),
         p_threshold=rng.choice([rng.uniform(1e-6, 0.999), 0.1, 0.999, 1e-6]),
         activity_tau_us=rng.choice([rng.uniform(1, 1e5), 10_000.0, 10 ** rng.uniform(0, 9)]),
@@ -79,7 +80,7 @@ def random_values(rng):
         energy_gain=rng.uniform(0, 1), spring_period=rng.randint(1, 1000),
         energy_kind=rng.choice(sparams.ENERGY_KINDS), pull_frame=rng.choice(sparams.FRAMES),
         cartesian_frame=rng.choice(sparams.FRAMES),
-        motion_tau_us=rng.choice([0.0] * 9 + [rng.uniform(0, 1e7)]),
+        motion_tau_us=rng.choice([0.0] * 5 + [rng.uniform(0, 2), 2000.0, 10 ** rng.uniform(0, 7)]),
         prediction_horizon_us=rng.uniform(0, 1e6), polarity_gain=rng.choice([0.0] * 9 + [0.5]),
         sigma_min_px=rng.uniform(0.05, 12), sigma_max_px=rng.uniform(10, 64))
 
