@@ -11,8 +11,7 @@
   dots at 100-3,000 px/s on 100 Hz-3 kHz screens), initial models, default parameters;
 * each part of the model alone (velocity, both edges, a slower filter) on the screen's
   dots and the real dot;
-* the float kernel's cost per event, off and on, on the face scene's events (best of
-  --repeat runs; the machine is shared, so the numbers are noisy).
+* the cost per event on every backend is benchmarks/motion_cost.py's.
 
 Run: .venv/bin/python benchmarks/motion.py [--no-write] [--quick] [--screen-seconds S]
 Writes the "Motion model" section of docs/benchmarks.md.
@@ -170,27 +169,10 @@ def parts_rows():
     return "\n".join(lines)
 
 
-def cost_rows(model, ev, repeat):
-    lines = ["| float kernel | ns/event (best of %d) |" % repeat, "|---|---|"]
-    base = None
-    for name, p in (("motion off", OFF), ("motion on", MOTION)):
-        best = np.inf
-        for _ in range(repeat):
-            tr = springtrack.Tracker(model, p)
-            t0 = time.perf_counter()
-            tr.run(ev, sample_us=10_000)
-            best = min(best, time.perf_counter() - t0)
-        ns = best / len(ev) * 1e9
-        base = base or ns
-        lines.append(f"| {name} | {ns:.1f}" + ("" if ns == base else f" ({ns - base:+.1f})") + " |")
-    return "\n".join(lines)
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--no-write", action="store_true", help="print only")
     ap.add_argument("--quick", action="store_true", help="5 s scenes instead of their length")
-    ap.add_argument("--repeat", type=int, default=3, help="timing runs per case (default 3)")
     ap.add_argument("--screen-seconds", type=float, default=8.0,
                     help="length of the second generator's scenes in s (default 8: it "
                          "simulates 5-10x slower than real time)")
@@ -198,11 +180,10 @@ def main(argv=None):
     t0 = time.time()
     dot = dot_rows()
     disks = disk_rows([1000, 3000, 5000, 10000, 13000, 20000, 30000])
-    scenes, (fm, fev) = scene_rows(5.0 if a.quick else None)
-    cost = cost_rows(fm, fev, a.repeat)
+    scenes, _ = scene_rows(5.0 if a.quick else None)
     screen = screen_rows(a.screen_seconds)
     parts = parts_rows()
-    flags = (" --quick" if a.quick else "") + (f" --repeat {a.repeat}" if a.repeat != 3 else "")
+    flags = " --quick" if a.quick else ""
     body = (f"`.venv/bin/python benchmarks/motion.py{flags}` "
             f"({time.time() - t0:.0f} s), {machine()}.  Motion model on: "
             + ", ".join(f"{k} = {v:g}" for k, v in MOTION.items()) + ".\n\n"
@@ -216,11 +197,8 @@ def main(argv=None):
             "length (median per-part error)\n\n" + screen + "\n\n"
             "### Each part of the model alone, median error (dark / bright disc)\n\n"
             + parts + "\n\n"
-            "### Cost per event on face_occlusion's events\n\n" + cost + "\n\n"
-            "Timings on a shared, loaded machine: compare only runs of one invocation, and "
-            "expect tens of ns of noise.  The integer kernel and its Cortex-M build have no "
-            "motion model (they refuse its parameters), so there is no fixed or "
-            "microcontroller cost to measure.\n")
+            "The cost per event, float, fixed and Cortex-M: \"Motion model: cost per event\" "
+            "(benchmarks/motion_cost.py).\n")
     print(body)
     if not a.no_write:
         write_section("Motion model", body)

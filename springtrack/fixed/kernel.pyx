@@ -1,5 +1,5 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
-# distutils: depends = springtrack/fixed/csrc/fixed_step.c springtrack/fixed/csrc/fixed_step.h springtrack/fixed/csrc/fixed_tables.h springtrack/fixed/csrc/fixed_telemetry.c springtrack/fixed/csrc/fixed_telemetry.h springtrack/csrc/sampling.h springtrack/fixed/csrc/fixed_arith.c springtrack/fixed/csrc/fixed_index.c springtrack/fixed/csrc/fixed_tracker.c springtrack/fixed/csrc/fixed_set.c springtrack/fixed/csrc/fixed_spring.c springtrack/fixed/csrc/fixed_frame.c springtrack/fixed/csrc/fixed_update.c springtrack/fixed/csrc/fixed_load.c springtrack/fixed/csrc/fixed_move.c
+# distutils: depends = springtrack/fixed/csrc/fixed_step.c springtrack/fixed/csrc/fixed_step.h springtrack/fixed/csrc/fixed_tables.h springtrack/fixed/csrc/fixed_telemetry.c springtrack/fixed/csrc/fixed_telemetry.h springtrack/csrc/sampling.h springtrack/fixed/csrc/fixed_arith.c springtrack/fixed/csrc/fixed_motion.c springtrack/fixed/csrc/fixed_index.c springtrack/fixed/csrc/fixed_tracker.c springtrack/fixed/csrc/fixed_set.c springtrack/fixed/csrc/fixed_spring.c springtrack/fixed/csrc/fixed_frame.c springtrack/fixed/csrc/fixed_update.c springtrack/fixed/csrc/fixed_load.c springtrack/fixed/csrc/fixed_move.c
 """Fixed-point tracker backend (``Tracker(..., backend="fixed")``).
 
 The per-event step and the springs are the integer-only C unit
@@ -46,6 +46,15 @@ cdef extern from "csrc/fixed_step.h" nogil:
         int64_t sxy[FX_MAX_TRACKERS]
         int64_t syy[FX_MAX_TRACKERS]
         int64_t act[FX_MAX_TRACKERS]
+        int64_t tlast[FX_MAX_TRACKERS]
+        int32_t vx[FX_MAX_TRACKERS]
+        int32_t vy[FX_MAX_TRACKERS]
+        int64_t hx[FX_MAX_TRACKERS]
+        int64_t hy[FX_MAX_TRACKERS]
+        int64_t tm[FX_MAX_TRACKERS]
+        int64_t kpp[FX_MAX_TRACKERS]
+        int64_t kpv[FX_MAX_TRACKERS]
+        int64_t kvv[FX_MAX_TRACKERS]
         uint64_t sensitive_mask
         int64_t energy[3][FX_MAX_CONNECTIONS]
         int64_t mean_energy
@@ -68,7 +77,7 @@ cdef extern from "csrc/fixed_step.h" nogil:
         int32_t state[FX_MAX_INSTANCES]
         int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates
     int fx_set_init(fx_set* g, fx_state** inst, int32_t ni)
-    int fx_set_step(fx_set* g, int64_t t, int32_t x, int32_t y)
+    int fx_set_step(fx_set* g, int64_t t, int32_t x, int32_t y, int32_t p)
     int64_t fx_set_steps(fx_set* g, const fx_event* ev, int64_t n, int64_t t_stop)
     void fx_set_springs(fx_set* g)
     void fx_set_state(fx_set* g, int q, int32_t state)
@@ -77,12 +86,13 @@ cdef extern from "csrc/fixed_step.h" nogil:
     int fx_move(fx_state* s, const int32_t* w, int32_t nw)
     int fx_relocate(fx_state* s, const int32_t* w, int32_t nw)
     int32_t fx_cells_needed(int32_t width, int32_t height)
-    int fx_step(fx_state* s, int64_t t, int32_t x, int32_t y)
+    int fx_step(fx_state* s, int64_t t, int32_t x, int32_t y, int32_t p)
     int64_t fx_steps(fx_state* s, const fx_event* ev, int64_t n, int64_t t_stop)
     void fx_springs(fx_state* s)
     void fx_energies(fx_state* s)
     void fx_reindex(fx_state* s, int i)
     int64_t fx_activity(const fx_state* s, int i, int64_t t)
+    void fx_predicted(const fx_state* s, int i, int64_t t, int64_t* x, int64_t* y)
 
 cdef extern from "csrc/fixed_step.c":
     pass
@@ -119,23 +129,30 @@ cdef double POS_UNIT = 1.0 / 4294967296.0     # Q.32 px
 cdef double COV_UNIT = 1.0 / 1099511627776.0  # Q.40 px^2
 cdef double Q32_UNIT = 1.0 / 4294967296.0     # Q.32 (activity)
 cdef double Q40_UNIT = 1.0 / 1099511627776.0  # Q.40 (energies)
+cdef double VEL_UNIT = _q.VEL_UNIT            # Q.32 px/us as px/s (eq. M7)
+
+
+cdef object _ints(const int64_t* a, int n):
+    """a[0..n) as an int64 array (raw_state)."""
+    return np.array([a[i] for i in range(n)], np.int64)
 
 
 cdef inline void tracker_rows(const fx_state* s, int64_t t, TrackRow* r,
                               uint8_t state) noexcept nogil:
     """The state's trackers at event time t as float64 rows r[0..n)."""
     cdef int i
-    cdef int64_t a
+    cdef int64_t a, x, y
     for i in range(s.n):
         a = fx_activity(s, i, t)
-        r[i].x = s.mx[i] * POS_UNIT
-        r[i].y = s.my[i] * POS_UNIT
+        fx_predicted(s, i, t, &x, &y)             # eq. (M1): the means at t
+        r[i].x = x * POS_UNIT
+        r[i].y = y * POS_UNIT
         r[i].sxx = s.sxx[i] * COV_UNIT
         r[i].sxy = s.sxy[i] * COV_UNIT
         r[i].syy = s.syy[i] * COV_UNIT
         r[i].activity = a * Q32_UNIT
-        r[i].vx = 0.0                              # the integer kernel keeps no velocity
-        r[i].vy = 0.0
+        r[i].vx = s.vx[i] * VEL_UNIT                # eq. (M7), px/s
+        r[i].vy = s.vy[i] * VEL_UNIT
         r[i].active = a > s.act_thr
         r[i].sensitive = (s.sensitive_mask >> i) & 1
         r[i].state = state
@@ -166,8 +183,9 @@ cdef inline void snapshot_row(const fx_state* s, int64_t t, SampleOut* o) noexce
 
 
 cdef int fixed_step(void* state, int64_t t, int x, int y) noexcept nogil:
-    """One event on a FixedKernel's state (declared in fixed/kernel.pxd for other modules)."""
-    return fx_step(<fx_state*>state, t, x, y)
+    """One event on a FixedKernel's state (declared in fixed/kernel.pxd for other modules),
+    of polarity ON, as the Stepper's step() (backends/stepper.pxd) has none."""
+    return fx_step(<fx_state*>state, t, x, y, 1)
 
 
 cdef Py_ssize_t fixed_steps(void* state, const Event* ev, Py_ssize_t n,
@@ -270,8 +288,9 @@ cdef class FixedKernel:
         where samples is a dict of arrays with at most ``cap`` rows (None if sample_us <= 0)."""
         return run_array(self.stepper(), events, sample_us, next_t, cap)
 
-    def step(self, long long t, int x, int y):
-        return fx_step(<fx_state*>self.state, t, x, y)
+    def step(self, long long t, int x, int y, int p=1):
+        """One event of polarity p (1 ON, 0 OFF)."""
+        return fx_step(<fx_state*>self.state, t, x, y, p)
 
     def springs(self):
         fx_springs(<fx_state*>self.state)
@@ -290,28 +309,37 @@ cdef class FixedKernel:
         """Dict of per-tracker float64 arrays at event time t."""
         cdef fx_state* s = <fx_state*>self.state
         n = s.n
+        cdef int64_t px, py
         act = np.array([fx_activity(s, i, t) * Q32_UNIT for i in range(n)])
-        return dict(x=np.array([s.mx[i] * POS_UNIT for i in range(n)]),
-                    y=np.array([s.my[i] * POS_UNIT for i in range(n)]),
+        xs, ys = np.empty(n), np.empty(n)
+        for i in range(n):
+            fx_predicted(s, i, t, &px, &py)        # eq. (M1): the means at t
+            xs[i] = px * POS_UNIT
+            ys[i] = py * POS_UNIT
+        return dict(x=xs, y=ys,
                     sxx=np.array([s.sxx[i] * COV_UNIT for i in range(n)]),
                     sxy=np.array([s.sxy[i] * COV_UNIT for i in range(n)]),
                     syy=np.array([s.syy[i] * COV_UNIT for i in range(n)]),
-                    activity=act, vx=np.zeros(n), vy=np.zeros(n),     # no velocity kept
+                    activity=act, vx=np.array([s.vx[i] * VEL_UNIT for i in range(n)]),
+                    vy=np.array([s.vy[i] * VEL_UNIT for i in range(n)]),
                     active=np.array([fx_activity(s, i, t) > s.act_thr for i in range(n)]),
                     sensitive=np.array([bool((s.sensitive_mask >> i) & 1) for i in range(n)]),
                     state=np.ones(n, np.uint8))
 
     def raw_state(self):
         """The integer state itself (Q formats of docs/fixed_point.md): x, y Q.32 int64;
-        sxx, sxy, syy Q.40 int64; activity Q.32 (at the tracker's last event)."""
+        sxx, sxy, syy Q.40 int64; activity Q.32 (at the tracker's last event); the motion
+        model's (eqs. M1-M8, fixed/csrc/fixed_motion.c): vx, vy Q.32 px/us, hx, hy Q.32 px,
+        tk, tm us, kpp, kpv, kvv Q.32 (units of tau_m)."""
         cdef fx_state* s = <fx_state*>self.state
         n = s.n
-        return dict(x=np.array([s.mx[i] for i in range(n)], np.int64),
-                    y=np.array([s.my[i] for i in range(n)], np.int64),
-                    sxx=np.array([s.sxx[i] for i in range(n)], np.int64),
-                    sxy=np.array([s.sxy[i] for i in range(n)], np.int64),
-                    syy=np.array([s.syy[i] for i in range(n)], np.int64),
-                    activity=np.array([s.act[i] for i in range(n)], np.int64))
+        return dict(x=_ints(s.mx, n), y=_ints(s.my, n), sxx=_ints(s.sxx, n),
+                    sxy=_ints(s.sxy, n), syy=_ints(s.syy, n), activity=_ints(s.act, n),
+                    vx=np.array([s.vx[i] for i in range(n)], np.int64),
+                    vy=np.array([s.vy[i] for i in range(n)], np.int64),
+                    hx=_ints(s.hx, n), hy=_ints(s.hy, n), tk=_ints(s.tlast, n),
+                    tm=_ints(s.tm, n), kpp=_ints(s.kpp, n), kpv=_ints(s.kpv, n),
+                    kvv=_ints(s.kvv, n))
 
     def energies(self):
         """(3, nc) array of the last spring update's energies: euclidean, torsional, cartesian."""
@@ -371,7 +399,7 @@ cdef void set_snapshot(const void* state, int64_t t, SampleOut* o) noexcept nogi
 
 
 cdef int set_step(void* state, int64_t t, int x, int y) noexcept nogil:
-    return fx_set_step(<fx_set*>state, t, x, y)
+    return fx_set_step(<fx_set*>state, t, x, y, 1)
 
 
 cdef Py_ssize_t set_steps(void* state, const Event* ev, Py_ssize_t n,
@@ -440,9 +468,10 @@ cdef class FixedSet:
         """As FixedKernel.run, over every instance's trackers."""
         return run_array(self.stepper(), events, sample_us, next_t, cap)
 
-    def step(self, long long t, int x, int y):
-        """One event; the winner's index among all trackers, or a NO_/SKIPPED_ code."""
-        return fx_set_step(self.g, t, x, y)
+    def step(self, long long t, int x, int y, int p=1):
+        """One event of polarity p; the winner's index among all trackers, or a NO_/SKIPPED_
+        code."""
+        return fx_set_step(self.g, t, x, y, p)
 
     def springs(self):
         fx_set_springs(self.g)

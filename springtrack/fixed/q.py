@@ -36,6 +36,16 @@ ATAN_BITS = 10                # atan table of 2^10 + 2 entries
 PARAMS_HEAD = 24              # fx_set_params: words before the two decay tables
 SIM_FRAC = 28                 # fx_move: the similarity's a, b, Q.28 (|.| < 8)
 SIM_T_LIM_PX = float(1 << 20)  # and its translation, Q.32, |.| < 2^20 px
+# the motion model (eqs. M1-M8, fixed/csrc/fixed_motion.c): velocities Q.32 px/us, the
+# horizon Q.8 us, c_h and the Kalman gain's bound Q.30, its threshold Q.32
+VEL_FRAC = 32
+VEL_UNIT = 1e6 / (1 << VEL_FRAC)   # a Q.32 px/us velocity in px/s
+LEAD_FRAC = 8
+KALMAN_FRAC = 32
+MOTION_WORDS = 10             # fx_set_params: the motion model's words, after the tables
+# the smallest alpha_position the Kalman covariance's Q.32 holds with the motion model on:
+# its position variance settles near 4 / alpha1^2 event spreads^2 (< 2^22 here)
+MOTION_ALPHA_MIN = 1e-3
 LOG2E = 1.0 / math.log(2.0)
 
 
@@ -145,21 +155,10 @@ def angle(rad: float) -> int:
     return int(round(rad / (2 * math.pi) * 2 ** 32)) % (1 << 32)
 
 
-# the parameters that turn the motion model on (0: off)
-MOTION_PARAMS = ("motion_tau_us", "polarity_gain")
-
-
 def params_q(p, nc: int) -> dict:
     """The kernel's integer parameters for springtrack.params.Params ``p``, within the
     limits every backend shares (springtrack.limits.check_params, as Params checks)."""
     _limits.check_params(p)
-    # the motion model (reference.py, eqs. M1-M8) is the float kernels' alone so far
-    on = [f"{k}={getattr(p, k)!r}" for k in MOTION_PARAMS if getattr(p, k) != 0.0]
-    if on:
-        raise _limits.LimitError(
-            f"{', '.join(on)}: the integer kernel has no motion model (eqs. M1-M8); set "
-            f"{' and '.join(f'{k}=0' for k in MOTION_PARAMS)}, or track with --backend "
-            f"cython")
     gate = p.gate_d2
     tau = p.activity_tau_us
     k_tau = int(round(LOG2E / tau * 2 ** KTAU_FRAC))
@@ -184,7 +183,35 @@ def params_q(p, nc: int) -> dict:
         tau_bits=struct.unpack("<II", struct.pack("<d", float(tau))),
         pull_sim=1 if p.pull_similarity else 0,
         car_sim=1 if p.cartesian_similarity else 0,
+        motion=motion_q(p),
     )
+
+
+def motion_q(p) -> list[int]:
+    """The motion model's words (eqs. M1-M8, reference.py; fixed/csrc/fixed_motion.c):
+    ceil(tau_m) us, 1 / tau_m as a mantissa and its shift, the horizon H Q.8 us, c_h Q.30,
+    the Kalman gain's bound max(alpha1, 1e-6) Q.30 and the position variance above which it
+    binds, alpha1 / (1 - alpha1) Q.32, and |h|'s bound sigma_max Q.32 px."""
+    tau = float(p.motion_tau_us)
+    if 0.0 < tau < 1.0:
+        raise _limits.LimitError(
+            f"motion_tau_us={tau!r}: the integer kernel's motion model needs tau_m >= 1 us "
+            f"(event times are whole us) or 0 (off)")
+    a1 = max(float(p.alpha_position), 1e-6)              # reference: 1 / inv_a1
+    if tau > 0.0 and a1 < MOTION_ALPHA_MIN:
+        raise _limits.LimitError(
+            f"alpha_position={p.alpha_position!r} with motion_tau_us={tau!r}: the integer "
+            f"kernel's Kalman filter holds alpha_position >= {MOTION_ALPHA_MIN} (its position "
+            f"variance settles near 4 / alpha_position^2); raise it, or track with --backend "
+            f"cython")
+    inv, inv_sh = mantissa(1.0 / tau, "1 / motion_tau_us") if tau > 0.0 else (0, 31)
+    thr = (1 << 63) - 1 if a1 >= 1.0 else min(
+        (1 << 63) - 1, q(a1 / (1.0 - a1), KALMAN_FRAC, "alpha_position / (1 - alpha_position)"))
+    return [math.ceil(tau), inv, inv_sh,
+            q(p.prediction_horizon_us, LEAD_FRAC, "prediction_horizon_us", 0.0, 2.0 ** 23 - 1),
+            q(p.polarity_gain, GAIN_FRAC, "polarity_gain", 0.0, 1.0),
+            q(a1, GAIN_FRAC, "alpha_position", 0.0, 1.0), *_w64(thr),
+            *_w64(q(p.sigma_max_px, POS_FRAC, "sigma_max_px", 0.0, 64.0))]
 
 
 def _w64(v: int) -> list[int]:
@@ -204,8 +231,9 @@ def params_words(p, nc: int) -> np.ndarray:
     words = [pq["a1"], pq["cov_gm"], pq["cov_am"], pq["cov_sh"], pq["energy_gain"], pq["gate"],
              pq["k_tau"], *_w64(pq["dt_max"]), *_w64(pq["act_thr"]), *pq["escale"],
              pq["escale_never"], *_w64(pq["smin2"]), *_w64(pq["smax2"]), pq["period"],
-             pq["ekind"], *pq["tau_bits"], pq["pull_sim"], pq["car_sim"], *lo, *hi]
-    assert len(words) == PARAMS_HEAD + 2 * (1 << DECAY_BITS)
+             pq["ekind"], *pq["tau_bits"], pq["pull_sim"], pq["car_sim"], *lo, *hi,
+             *pq["motion"]]
+    assert len(words) == PARAMS_HEAD + 2 * (1 << DECAY_BITS) + MOTION_WORDS
     return _int32_words(words)
 
 

@@ -18,6 +18,8 @@ from .build import Capacity, cached_build
 
 DEFAULT_TARGET = "cortex-m4"
 POS_UNIT = 1.0 / 4294967296.0        # Q.32 px (as fixed/kernel.pyx)
+VEL_UNIT = fixed_q.VEL_UNIT          # Q.32 px/us as px/s (eq. M7)
+ROW_TRACKER = 9                      # int64 words per tracker in a row (entry.c MCU_ROW_TRACKER)
 COV_UNIT = 1.0 / 1099511627776.0     # Q.40 px^2
 Q32_UNIT = 1.0 / 4294967296.0        # Q.32 (activity)
 Q40_UNIT = 1.0 / 1099511627776.0     # Q.40 (energies)
@@ -124,7 +126,7 @@ class McuBackend:
         ``trackers`` of TRACK_DTYPE, ``energy``), converted as fixed/kernel.pyx's snapshot_row
         converts its state; ``wire``: the rows' TELEMETRY records, packed by the firmware."""
         n = self.n
-        per = rows[:, 4:4 + 7 * n].reshape(len(rows), n, 7)
+        per = rows[:, 4:4 + ROW_TRACKER * n].reshape(len(rows), n, ROW_TRACKER)
         tr = np.empty((len(rows), n), TRACK_DTYPE)
         tr["x"] = per[:, :, 0].astype(np.float64) * POS_UNIT
         tr["y"] = per[:, :, 1].astype(np.float64) * POS_UNIT
@@ -132,7 +134,8 @@ class McuBackend:
         tr["sxy"] = per[:, :, 3].astype(np.float64) * COV_UNIT
         tr["syy"] = per[:, :, 4].astype(np.float64) * COV_UNIT
         tr["activity"] = per[:, :, 5].astype(np.float64) * Q32_UNIT
-        tr["vx"] = tr["vy"] = 0.0                  # the integer kernel keeps no velocity
+        tr["vx"] = per[:, :, 7].astype(np.float64) * VEL_UNIT     # eq. (M7), px/s
+        tr["vy"] = per[:, :, 8].astype(np.float64) * VEL_UNIT
         tr["active"] = (per[:, :, 6] & 1).astype(bool)
         tr["sensitive"] = ((per[:, :, 6] >> 1) & 1).astype(bool)
         tr["state"] = per[:, :, 6] >> 2
@@ -145,9 +148,10 @@ class McuBackend:
         self.emu.call(E.MCU_SNAPSHOT, t=int(t))
         return self._rows(1)[1][0].tobytes()
 
-    def step(self, t: int, x: int, y: int) -> int:
+    def step(self, t: int, x: int, y: int, p: int = 1) -> int:
+        """One event of polarity p (1 ON, 0 OFF)."""
         ev = np.zeros(1, EVENT_DTYPE)
-        ev[0] = (t, x, y, 0)
+        ev[0] = (t, x, y, p)
         self.emu.write("mcu_events", ev)
         return self.emu.call(E.MCU_STEP)["status"]
 

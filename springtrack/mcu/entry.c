@@ -31,8 +31,9 @@
  * instance mcu_means (eq. 13's mean energy, Q.40) and mcu_frames (the similarity frame:
  * c, s Q.28, gx, gy Q.32).  A snapshot row is MCU_ROW_WORDS int64: t, the three energy
  * sums (Q.40, every instance's), then per tracker (of every instance, in order) x, y
- * (Q.32), sxx, sxy, syy (Q.40), the activity at t (Q.32) and flags (bit 0 active, bit 1
- * sensitive, bits 2-3 its instance's state); beside it, in mcu_wire, the row's TELEMETRY
+ * (Q.32, predicted to t: eq. M1), sxx, sxy, syy (Q.40), the activity at t (Q.32), flags
+ * (bit 0 active, bit 1 sensitive, bits 2-3 its instance's state) and the velocity vx, vy
+ * (Q.32 px/us, eq. M7); beside it, in mcu_wire, the row's TELEMETRY
  * tracker records (fixed/csrc/fixed_telemetry.c, springtrack.wire), which a firmware sends to
  * the host as they are.
  */
@@ -65,7 +66,7 @@
 #endif
 
 #define MCU_ROW_HEAD 4
-#define MCU_ROW_TRACKER 7
+#define MCU_ROW_TRACKER 9
 #define MCU_ROW_WORDS (MCU_ROW_HEAD + MCU_ROW_TRACKER * MCU_SET_TRACKERS)
 #define MCU_MODEL_WORDS (FX_MODEL_HEAD + FX_MODEL_TRACKER * FX_MAX_TRACKERS \
                          + FX_MODEL_CONNECTION * FX_MAX_CONNECTIONS)
@@ -123,14 +124,15 @@ static void instance_row(fx_state *s, int64_t t, int32_t state, int64_t *row, in
             sums[q] += s->energy[q][k];
     for (i = 0; i < s->n; i++, row += MCU_ROW_TRACKER) {
         int64_t a = fx_activity(s, i, t);
-        row[0] = s->mx[i];
-        row[1] = s->my[i];
+        fx_predicted(s, i, t, &row[0], &row[1]);       /* eq. (M1): the means at t */
         row[2] = s->sxx[i];
         row[3] = s->sxy[i];
         row[4] = s->syy[i];
         row[5] = a;
         row[6] = (a > s->act_thr) | (int64_t)((s->sensitive_mask >> i) & 1) << 1
                  | (int64_t)state << 2;
+        row[7] = s->vx[i];
+        row[8] = s->vy[i];
     }
 }
 
@@ -156,8 +158,8 @@ static int64_t steps(const fx_event *ev, int64_t n, int64_t t_stop)
 
 static int step(const fx_event *e)
 {
-    return SET_ON ? fx_set_step(&mcu_set, e->t, e->x, e->y)
-                      : fx_step(&mcu_state[0], e->t, e->x, e->y);
+    return SET_ON ? fx_set_step(&mcu_set, e->t, e->x, e->y, e->p)
+                      : fx_step(&mcu_state[0], e->t, e->x, e->y, e->p);
 }
 
 /* springtrack/backends/stepper.pyx run_events, the sampling rule of csrc/sampling.h: next_t

@@ -30,9 +30,10 @@ def profile_events(model, params, events, target: str, limit: int | None = None,
     emu.loads = emu.divides = emu.blocks = 0
     counts = np.empty(len(ev), np.int64)
     spring = np.empty(len(ev), np.int64)
-    for k, (t, x, y) in enumerate(zip(ev["t"].tolist(), ev["x"].tolist(), ev["y"].tolist())):
+    for k, (t, x, y, p) in enumerate(zip(ev["t"].tolist(), ev["x"].tolist(), ev["y"].tolist(),
+                                         ev["p"].tolist())):
         emu.instructions = emu.spring_instructions = 0
-        be.step(t, x, y)
+        be.step(t, x, y, int(p))
         counts[k] = emu.instructions - overhead
         spring[k] = emu.spring_instructions
         if progress is not None and k % 5000 == 0:

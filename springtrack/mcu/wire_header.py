@@ -39,6 +39,7 @@ def header() -> str:
              f"#define WIRE_TELE_HDR {wire.TELE_HDR.size}",
              f"#define WIRE_TELE_TRACKER {wire.TELE_TRACKER.itemsize}",
              f"#define WIRE_TEXT_MAX {wire.TEXT_MAX}",
+             f"#define WIRE_ENERGY_PERIOD_US {wire.ENERGY_PERIOD_US}",
              f"#define WIRE_IMAGE_MAGIC 0x{magic:08x}u",
              f"#define WIRE_IMAGE_VERSION {wire_image.IMAGE_VERSION}",
              f"#define WIRE_IMAGE_HDR {wire_image.IMAGE_HDR.size}",

@@ -1,5 +1,5 @@
 # cython: language_level=3, boundscheck=False, wraparound=False, cdivision=True
-# distutils: depends = springtrack/fixed/csrc/fixed_step.c springtrack/fixed/csrc/fixed_step.h springtrack/fixed/csrc/fixed_tables.h springtrack/fixed/csrc/fixed_arith.c springtrack/fixed/csrc/fixed_index.c springtrack/fixed/csrc/fixed_tracker.c springtrack/fixed/csrc/fixed_set.c springtrack/fixed/csrc/fixed_spring.c springtrack/fixed/csrc/fixed_frame.c springtrack/fixed/csrc/fixed_update.c springtrack/fixed/csrc/fixed_load.c springtrack/fixed/csrc/fixed_move.c
+# distutils: depends = springtrack/fixed/csrc/fixed_step.c springtrack/fixed/csrc/fixed_step.h springtrack/fixed/csrc/fixed_tables.h springtrack/fixed/csrc/fixed_arith.c springtrack/fixed/csrc/fixed_motion.c springtrack/fixed/csrc/fixed_index.c springtrack/fixed/csrc/fixed_tracker.c springtrack/fixed/csrc/fixed_set.c springtrack/fixed/csrc/fixed_spring.c springtrack/fixed/csrc/fixed_frame.c springtrack/fixed/csrc/fixed_update.c springtrack/fixed/csrc/fixed_load.c springtrack/fixed/csrc/fixed_move.c
 """The fixed-point kernel's internals, for the tests (never installed; tests/support/probes.py
 builds it with setup.py's flags): the integer building blocks of fixed/csrc/fixed_step.c and a
 FixedKernel's raw state and spatial index.

@@ -2,7 +2,8 @@
 dot of evt2_sample.raw with a one-tracker model and the motion model on, as a separate
 process on a pty; ``hostctl record --start`` receives the TELEMETRY velocity block, and its
 vx, vy equal those of ``springtrack track`` on the same recording within the code's half
-unit (wire.VEL_UNIT / 2 px/s), the dot's speed about 12,950 px/s."""
+unit (wire.VEL_UNIT / 2 px/s), the dot's speed about 12,950 px/s; on the float kernel and on
+the integer one (fixed/csrc/fixed_motion.c)."""
 import subprocess
 
 import numpy as np
@@ -21,12 +22,14 @@ pytestmark = [pytest.mark.hil, pytest.mark.slow]
 MOTION_TOML = "[params]\nmotion_tau_us = 1000.0\npolarity_gain = 1.0\n"
 
 
-def test_the_dots_velocity_reaches_the_host(tmp_path, data_file):
+@pytest.mark.parametrize("backend", ["cython", "fixed"])
+def test_the_dots_velocity_reaches_the_host(tmp_path, data_file, backend):
     raw = str(data_file("evt2_sample.raw"))
     truth = dot_truth(springtrack.io.open(raw).read())
     (tmp_path / "dot.toml").write_text(dot_model_toml(truth))
     (tmp_path / "motion.toml").write_text(MOTION_TOML)
-    opts = ["--model", str(tmp_path / "dot.toml"), "--params", str(tmp_path / "motion.toml")]
+    opts = ["--model", str(tmp_path / "dot.toml"), "--params", str(tmp_path / "motion.toml"),
+            "--backend", backend]
     fw = Firmware("--source", f"replay:{raw}", *opts, "--pty", "--wait-start")
     try:
         rec = subprocess.run(hostctl_cmd("--port", fw.path, "record", str(tmp_path / "r.csv"),

@@ -77,8 +77,9 @@ void fx_reindex(fx_state *s, int i)
     int32_t hx = gate_half(s, s->sxx[i]), hy = gate_half(s, s->syy[i]);     /* Q.16 */
     int32_t cx = pos16(s->mx[i]), cy = pos16(s->my[i]);
     int32_t x0, x1, y0, y1;
-    hx += (hx >> FX_INDEX_GROW_SHIFT) + FX_INDEX_MARGIN;
-    hy += (hy >> FX_INDEX_GROW_SHIFT) + FX_INDEX_MARGIN;
+    /* eq. (M1): the gate box anywhere along the prediction, up to |v| H from the mean */
+    hx += (hx >> FX_INDEX_GROW_SHIFT) + FX_INDEX_MARGIN + reach16(s, s->vx[i]);
+    hy += (hy >> FX_INDEX_GROW_SHIFT) + FX_INDEX_MARGIN + reach16(s, s->vy[i]);
     s->bx_lo[i] = cx - hx;
     s->bx_hi[i] = cx + hx;
     s->by_lo[i] = cy - hy;
@@ -90,8 +91,8 @@ void fx_reindex(fx_state *s, int i)
     s->syy_lim[i] = var_lim(s, s->syy[i]);
     s->bcx[i] = cx;
     s->bcy[i] = cy;
-    s->devx[i] = max32(hx - gate_half(s, s->sxx_lim[i]), 0);
-    s->devy[i] = max32(hy - gate_half(s, s->syy_lim[i]), 0);
+    s->devx[i] = max32(hx - gate_half(s, s->sxx_lim[i]), 0) - reach16(s, s->vx[i]);
+    s->devy[i] = max32(hy - gate_half(s, s->syy_lim[i]), 0) - reach16(s, s->vy[i]);
     x0 = cell_of(s->bx_lo[i], s->gw - 1);
     x1 = cell_of(s->bx_hi[i], s->gw - 1);
     y0 = cell_of(s->by_lo[i], s->gh - 1);
@@ -119,13 +120,16 @@ static inline int box_ok(const fx_state *s, int i)
     /* positions to Q.16 (floor): an error < 2^-16 px, far inside the 3 px index margin;
        both sides of an axis are inside iff the nearer one is (one square per axis) */
     int32_t x = pos16(s->mx[i]), y = pos16(s->my[i]);
-    return inside(min32(x - s->bx_lo[i], s->bx_hi[i] - x), gate_box2(s, s->sxx[i]))
-        && inside(min32(y - s->by_lo[i], s->by_hi[i] - y), gate_box2(s, s->syy[i]));
+    return inside(min32(x - s->bx_lo[i], s->bx_hi[i] - x) - reach16(s, s->vx[i]),
+                  gate_box2(s, s->sxx[i]))
+        && inside(min32(y - s->by_lo[i], s->by_hi[i] - y) - reach16(s, s->vy[i]),
+                  gate_box2(s, s->syy[i]));
 }
 
-/* 1 if tracker i's mean and variances are still within the slack fx_reindex noted: a
-   sufficient test for box_ok, four comparisons (the exact one needs the gate box of the
-   current variances, two products and two squares) */
+/* 1 if tracker i's mean and variances are still within the slack fx_reindex noted (less
+   eq. (M1)'s reach at the current velocity, kept by set_velocity): a sufficient test for
+   box_ok, four comparisons (the exact one needs the gate box of the current variances,
+   two products and two squares) */
 static inline int box_kept(const fx_state *s, int i)
 {
     int32_t dx = pos16(s->mx[i]) - s->bcx[i], dy = pos16(s->my[i]) - s->bcy[i];

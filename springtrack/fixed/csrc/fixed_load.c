@@ -90,6 +90,7 @@ int fx_load_model(fx_state *s, const int32_t *w, int32_t nw, uint64_t *cells, in
         s->box_x0[i] = s->box_y0[i] = 0;                  /* not indexed yet */
         s->box_x1[i] = s->box_y1[i] = -1;
         s->sensitive_mask |= (uint64_t)1 << i;
+        still(s, i);                                      /* [ref] _still */
     }
     s->isolated = s->sensitive_mask;
     for (k = 0; k < nc; k++, w += FX_MODEL_CONNECTION) {
@@ -119,8 +120,13 @@ int fx_set_params(fx_state *s, const int32_t *w, int32_t nw)
     int i;
     if (nw != FX_PARAMS_WORDS)
         return FX_ERR_WORDS;
+    const int32_t *mw = w + FX_PARAMS_HEAD + 2 * FX_DECAY_N;     /* the motion model's */
     if (w[3] < 31 || w[3] > 62 || w[12] < 1 || w[12] > 62 || w[18] < 1 || w[19] < 0
         || w[19] > 2 || (uint32_t)w[22] > 1 || (uint32_t)w[23] > 1)
+        return FX_ERR_RANGE;
+    if (mw[0] < 0 || mw[0] > (1 << 24) || mw[1] < 0 || mw[2] < 30 || mw[2] > 62 || mw[3] < 0
+        || (uint32_t)mw[4] > (1u << 30) || (uint32_t)mw[5] > (1u << 30) || word64(mw + 6) < 0
+        || word64(mw + 8) < 0 || word64(mw + 8) > ((int64_t)64 << 32))
         return FX_ERR_RANGE;
     /* [ref] eq. (6): a new tau decays from the change on */
     if (s->has_params && s->n_valid > 0
@@ -150,6 +156,15 @@ int fx_set_params(fx_state *s, const int32_t *w, int32_t nw)
     s->tau_bits[1] = (uint32_t)w[21];
     s->pull_sim = w[22];
     s->car_sim = w[23];
+    s->tau_ceil = mw[0];                                  /* the motion model (fixed_motion.c) */
+    s->inv_tau = (uint32_t)mw[1];
+    s->inv_tau_sh = mw[2];
+    s->horizon8 = mw[3];
+    s->c_h = (uint32_t)mw[4];
+    s->kcap = (uint32_t)mw[5];
+    s->kcap_thr = word64(mw + 6);
+    s->h_max = word64(mw + 8);
+    s->moving = in_motion(s);
     for (i = 0; i < FX_DECAY_N; i++) {
         s->decay_lo[i] = (uint32_t)w[FX_PARAMS_HEAD + i];
         s->decay_hi[i] = (uint32_t)w[FX_PARAMS_HEAD + FX_DECAY_N + i];

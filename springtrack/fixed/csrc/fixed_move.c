@@ -74,6 +74,15 @@ int fx_move(fx_state *s, const int32_t *w, int32_t nw)
         sim_point(a, b, tx, ty, &x, &y);
         s->mx[i] = sat_pos(s, x);
         s->my[i] = sat_pos(s, y);
+        /* v' = A v, h' = A h (eqs. M1-M8's velocity and half offset turn with the part) */
+        x = s->vx[i];
+        y = s->vy[i];
+        s->vx[i] = (int32_t)clamp64(mulq28(a, x) - mulq28(b, y), V_MAX);
+        s->vy[i] = (int32_t)clamp64(mulq28(b, x) + mulq28(a, y), V_MAX);
+        x = s->hx[i];
+        y = s->hy[i];
+        s->hx[i] = clamp64(mulq28(a, x) - mulq28(b, y), s->h_max);
+        s->hy[i] = clamp64(mulq28(b, x) + mulq28(a, y), s->h_max);
         /* Sigma' = A Sigma A^T: the rows of A Sigma (< 2^56), then times A^T (< 2^60) */
         pxx = mulq28(a, sxx) - mulq28(b, sxy);
         pxy = mulq28(a, sxy) - mulq28(b, syy);
@@ -122,7 +131,7 @@ int fx_relocate(fx_state *s, const int32_t *w, int32_t nw)
         s->sxy[i] = word64(t + 7);
         s->syy[i] = word64(t + 9);
         s->act[i] = 0;                                    /* eq. (6): no event there yet */
-        s->tlast[i] = s->last_t;
+        still(s, i);                                      /* [ref] _still */
         refresh(s, i);                                    /* clamped as eq. (4)'s, inverted */
         fx_reindex(s, i);
     }

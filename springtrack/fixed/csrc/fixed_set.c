@@ -12,7 +12,7 @@
    lowest instance, and in it the lowest index, as the reference's scan over all
    trackers); the winner is updated (eqs. 3-6).  Returns its index among all trackers. */
 static inline __attribute__((always_inline)) int set_assign(fx_set *g, int64_t t, int32_t x,
-                                                            int32_t y)
+                                                            int32_t y, int32_t p, int moving)
 {
     uint32_t best_d2 = g->inst[0]->gate;                  /* p_threshold: one for all */
     int best = FX_NO_TRACKER, owner = 0, q;
@@ -22,7 +22,7 @@ static inline __attribute__((always_inline)) int set_assign(fx_set *g, int64_t t
         int i;
         if (g->state[q] != FX_TRACKING)
             continue;
-        i = search(s, s->sensitive_mask, x, y, &d2);
+        i = search(s, s->sensitive_mask, x, y, &d2, t, moving);
         if (i >= 0) {
             best = i;
             best_d2 = d2;
@@ -31,7 +31,7 @@ static inline __attribute__((always_inline)) int set_assign(fx_set *g, int64_t t
     }
     if (best < 0)
         return FX_NO_TRACKER;
-    take(g->inst[owner], best, t, x, y, best_d2);
+    take(g->inst[owner], best, t, x, y, best_d2, p, moving);
     return g->t0[owner] + best;
 }
 
@@ -58,7 +58,17 @@ static void set_sync(fx_set *g)
     }
 }
 
-int fx_set_step(fx_set *g, int64_t t, int32_t x, int32_t y)
+/* whether any instance's motion model can move a mean (in_motion) */
+static int set_in_motion(const fx_set *g)
+{
+    int q;
+    for (q = 0; q < g->ni; q++)
+        if (g->inst[q]->moving)
+            return 1;
+    return 0;
+}
+
+int fx_set_step(fx_set *g, int64_t t, int32_t x, int32_t y, int32_t p)
 {
     const fx_state *s0 = g->inst[0];
     int best;
@@ -75,7 +85,7 @@ int fx_set_step(fx_set *g, int64_t t, int32_t x, int32_t y)
     }
     g->n_valid++;
     set_sync(g);
-    best = set_assign(g, t, x, y);
+    best = set_assign(g, t, x, y, p, set_in_motion(g));
     if (best >= 0)
         g->n_assigned++;
     if (++g->since_spring >= s0->period) {
@@ -88,7 +98,8 @@ int fx_set_step(fx_set *g, int64_t t, int32_t x, int32_t y)
 /* fx_steps for a set: the same loop, the sampling rule's stop included */
 int64_t fx_set_steps(fx_set *g, const fx_event *ev, int64_t n, int64_t t_stop)
 {
-    batch o = steps_loop(0, g, ev, n, t_stop, g->last_t, g->since_spring);
+    batch o = set_in_motion(g) ? steps_loop(0, g, ev, n, t_stop, g->last_t, g->since_spring, 1)
+                               : steps_loop(0, g, ev, n, t_stop, g->last_t, g->since_spring, 0);
     g->last_t = o.last_t;
     g->since_spring = g->inst[0]->period - o.until;
     g->n_valid += o.k - o.n_back - o.n_skipped;

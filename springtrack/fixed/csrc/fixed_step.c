@@ -29,6 +29,7 @@
    parts before it define; the two forward declarations are in fixed_tracker.c and
    fixed_spring.c). */
 #include "fixed_arith.c"
+#include "fixed_motion.c"
 #include "fixed_index.c"
 #include "fixed_tracker.c"
 #include "fixed_set.c"

@@ -23,6 +23,9 @@
  *   1/mass                                uint32 Q7.24
  *   angles                                uint32 binary angle, 2^32 = 2 pi
  *   exp / exp2 / atan / hypot / sqrt      const uint32 tables in flash (fixed_tables.h)
+ *   motion model (eqs. M1-M8, fixed_motion.c): velocity vx, vy int32 Q.32 px/us; half
+ *   offset hx, hy int64 Q.32 px; Kalman P in units of tau_m (pp, pv tau_m, vv tau_m^2)
+ *   int64 Q.32; its gains and dt / tau_m uint32 Q.30; the lead of eq. (M1) Q.8 us
  *
  * 32-bit discipline: every multiplication is a 32 x 32 -> 64-bit product (one
  * SMULL/UMULL/SMLAL on Cortex-M, MUL + MULH on RV32); a 64-bit accumulator times a 32-bit
@@ -75,7 +78,8 @@
 #define FX_MODEL_TRACKER 16                 /* words per tracker */
 #define FX_MODEL_CONNECTION 13              /* words per connection */
 #define FX_PARAMS_HEAD 24                   /* words before the two decay tables */
-#define FX_PARAMS_WORDS (FX_PARAMS_HEAD + 2 * FX_DECAY_N)
+#define FX_PARAMS_MOTION 10                 /* the motion model's words, after the tables */
+#define FX_PARAMS_WORDS (FX_PARAMS_HEAD + 2 * FX_DECAY_N + FX_PARAMS_MOTION)
 #define FX_MOVE_HEAD 6                      /* fx_move: the similarity's words, then a model's */
 #define FX_SIM_FRAC 28                      /* the similarity's a, b: Q.28 (|.| < 8) */
 #define FX_SIM_T_LIM ((int64_t)1 << 52)     /* its translation: Q.32, |.| < 2^20 px */
@@ -106,6 +110,14 @@ typedef struct {
     int32_t period, ekind, need_torsion;
     int32_t pull_sim, car_sim;                /* eq. (22) / eqs. (18)-(20) in the similarity frame */
     uint32_t tau_bits[2];                     /* activity_tau_us's float64 bits: its identity */
+    /* the motion model (eqs. M1-M8, fixed_motion.c; 0: off): tau_m as ceil(tau_m) us and
+       1 / tau_m = inv_tau 2^-inv_tau_sh (inv_tau < 2^31); the horizon H, Q.8 us; c_h, Q.30;
+       |h| <= h_max (sigma_max, Q.32 px); the Kalman gain's bound alpha1, Q.30, which binds
+       while pp > kcap_thr (alpha1 / (1 - alpha1), Q.32) */
+    int32_t tau_ceil, inv_tau_sh, horizon8;
+    int32_t moving;                           /* in_motion() when the parameters were set */
+    uint32_t inv_tau, c_h, kcap;
+    int64_t h_max, kcap_thr;
     int32_t has_params;
     /* derived by fx_prepare() from the model and parameters above */
     int32_t used_kinds;                       /* bit q: a spring or the criterion is of kind q */
@@ -127,7 +139,14 @@ typedef struct {
     int32_t ia[FX_MAX_TRACKERS], ib2[FX_MAX_TRACKERS], ic[FX_MAX_TRACKERS];
     uint8_t osh[FX_MAX_TRACKERS], dsh[FX_MAX_TRACKERS];
     int64_t act[FX_MAX_TRACKERS];
-    int64_t tlast[FX_MAX_TRACKERS];
+    int64_t tlast[FX_MAX_TRACKERS];           /* the tracker's last event (eq. 6, t_k of M1) */
+    /* the motion model per tracker (eqs. M1-M8): velocity Q.32 px/us (|.| <= 2^30), half
+       offset between the ON and OFF edges Q.32 px, the time t_m its mean refers to (us),
+       the Kalman covariance in units of tau_m: pp, pv tau_m, vv tau_m^2, Q.32 */
+    int32_t vx[FX_MAX_TRACKERS], vy[FX_MAX_TRACKERS];
+    int64_t hx[FX_MAX_TRACKERS], hy[FX_MAX_TRACKERS];
+    int64_t tm[FX_MAX_TRACKERS];
+    int64_t kpp[FX_MAX_TRACKERS], kpv[FX_MAX_TRACKERS], kvv[FX_MAX_TRACKERS];
     uint32_t mq[FX_MAX_TRACKERS];             /* mass / max mass, Q.24 (centre of mass) */
     uint32_t invm[FX_MAX_TRACKERS];           /* 1 / mass, Q7.24 */
     int64_t gdx0[FX_MAX_TRACKERS], gdy0[FX_MAX_TRACKERS];
@@ -196,7 +215,7 @@ typedef struct {
 typedef struct {
     int64_t t;
     uint16_t x, y;
-    uint8_t p;
+    uint8_t p;                                /* polarity: 1 ON, 0 OFF (eq. M4) */
 } fx_event;
 
 /* Load a model (the word stream of fixed.q.model_words) into a zeroed-out state that uses
@@ -216,7 +235,8 @@ int fx_move(fx_state *s, const int32_t *w, int32_t nw);
 int fx_relocate(fx_state *s, const int32_t *w, int32_t nw);
 int32_t fx_cells_needed(int32_t width, int32_t height);
 
-int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y);
+/* one event of polarity p (1 ON, 0 OFF) */
+int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y, int32_t p);
 /* fx_step over ev[0..n), stopping before the first event with t >= t_stop that is not
    back in time (the sampling rule, sampling.h); returns the events processed (the
    Stepper's steps(), backends/stepper.pxd) */
@@ -226,7 +246,7 @@ void fx_springs(fx_state *s);
    / fx_set_steps as fx_step / fx_steps (the winner's index among all trackers); the
    clock and event counts are copied into every instance */
 int fx_set_init(fx_set *g, fx_state *const *inst, int32_t ni);
-int fx_set_step(fx_set *g, int64_t t, int32_t x, int32_t y);
+int fx_set_step(fx_set *g, int64_t t, int32_t x, int32_t y, int32_t p);
 int64_t fx_set_steps(fx_set *g, const fx_event *ev, int64_t n, int64_t t_stop);
 void fx_set_springs(fx_set *g);
 void fx_set_state(fx_set *g, int q, int32_t state);
@@ -252,5 +272,7 @@ uint32_t fx_atan2(int64_t y, int64_t x);
 void fx_cossin(int64_t angle, int64_t *c, int64_t *sn);
 void fx_polar(int32_t x, int32_t y, uint32_t *ang, int32_t *len, int32_t *cx, int32_t *cy);
 uint32_t fx_d2(const fx_state *s, int i, int32_t x, int32_t y);
+/* eq. (M1): tracker i's mean predicted to event time t (Q.32 px) */
+void fx_predicted(const fx_state *s, int i, int64_t t, int64_t *x, int64_t *y);
 
 #endif

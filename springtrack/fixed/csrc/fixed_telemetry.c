@@ -79,10 +79,12 @@ void fx_tele_records(const fx_state *s, int64_t t, uint8_t *out)
 {
     int i;
     for (i = 0; i < s->n; i++) {
-        int64_t a = fx_activity(s, i, t);
+        int64_t a = fx_activity(s, i, t), mx, my;
         uint64_t sx = tele_sigma_q20(s->sxx[i]), sy = tele_sigma_q20(s->syy[i]);
-        uint16_t x = tele_pos(s->mx[i], a > s->act_thr);
-        uint16_t y = tele_pos(s->my[i], (int)((s->sensitive_mask >> i) & 1));
+        uint16_t x, y;
+        fx_predicted(s, i, t, &mx, &my);                  /* eq. (M1): the means at t */
+        x = tele_pos(mx, a > s->act_thr);
+        y = tele_pos(my, (int)((s->sensitive_mask >> i) & 1));
         uint8_t *r = out + (int64_t)i * FX_TELE_RECORD;
         r[0] = (uint8_t)(x & 0xFF);
         r[1] = (uint8_t)(x >> 8);

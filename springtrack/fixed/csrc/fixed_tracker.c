@@ -111,10 +111,11 @@ static inline int32_t offset32(int32_t v, int64_t m, int sh)
    of pixel (x, y) from tracker i: five 32 x 32 products (|pa|, |pc| <= 2^29, |pb| <= 2^30,
    |q| < 2^62); rounding: 2^-24 of d^2 from the mantissas plus up to |u| + 2|v| units of q
    from the floors of pa, pb, pc (docs/fixed_point.md) */
-static inline uint32_t qform(const fx_state *s, int i, int32_t x, int32_t y)
+static inline uint32_t qform_at(const fx_state *s, int i, int32_t x, int32_t y, int64_t mx,
+                                int64_t my)
 {
     int sh = s->osh[i];
-    int32_t u = offset32(x, s->mx[i], sh), v = offset32(y, s->my[i], sh);
+    int32_t u = offset32(x, mx, sh), v = offset32(y, my, sh);
     int32_t pa = (int32_t)(smul(s->ia[i], u) >> 32);
     int32_t pb = (int32_t)(smul(s->ib2[i], u) >> 32);
     int32_t pc = (int32_t)(smul(s->ic[i], v) >> 32);
@@ -135,6 +136,12 @@ static inline uint32_t qform(const fx_state *s, int i, int32_t x, int32_t y)
 #endif
 }
 
+/* d^2 about tracker i's mean (qform_at about another mean, eq. M1's prediction) */
+static inline uint32_t qform(const fx_state *s, int i, int32_t x, int32_t y)
+{
+    return qform_at(s, i, x, y, s->mx[i], s->my[i]);
+}
+
 uint32_t fx_d2(const fx_state *s, int i, int32_t x, int32_t y)
 {
     return qform(s, i, x, y);
@@ -142,22 +149,26 @@ uint32_t fx_d2(const fx_state *s, int i, int32_t x, int32_t y)
 
 /* [ref] _update: eqs. (2)-(6) for the winning tracker i; dx, dy Q.32 from the pre-update
    mean (|.| < 2^41 inside the gate), d2 Q.27. */
-static __attribute__((noinline)) void update_tracker(fx_state *s, int i, int64_t t, int64_t dx,
-                                                   int64_t dy, uint32_t d2)
+/* eq. (6) for tracker i taking an event at t with d^2 = d2 (Q.27); t becomes its last */
+static inline __attribute__((always_inline)) void activity_step(fx_state *s, int i, int64_t t,
+                                                              uint32_t d2)
 {
     int64_t p = gauss(d2);                                /* eq. (2), Q.30 */
     int64_t act = mulsh(s->act[i], decay(s, t - s->tlast[i]), 30) + p * 4;  /* eq. (6) */
-    int32_t ex = (int32_t)rshr(dx, 12), ey = (int32_t)rshr(dy, 12);    /* Q.20 px, < 2^29 */
     if (act > ACT_MAX) {
         act = ACT_MAX;
         s->sat_activity++;
     }
     s->act[i] = act;
     s->tlast[i] = t;
-    /* eq. (3): m + round(a1 (u - m)) with 0 <= a1 <= 1 lies between m and the event u, both
-       inside +-FX_POS_LIM: it cannot saturate */
-    s->mx[i] += mulsh(dx, s->a1, 30);
-    s->my[i] += mulsh(dy, s->a1, 30);
+}
+
+/* eqs. (4)-(5) for tracker i from the event's offset (dx, dy) from the pre-update mean
+   (Q.32), then the inverse covariance and the index */
+static inline __attribute__((always_inline)) void covariance_step(fx_state *s, int i,
+                                                                int64_t dx, int64_t dy)
+{
+    int32_t ex = (int32_t)rshr(dx, 12), ey = (int32_t)rshr(dy, 12);    /* Q.20 px, < 2^29 */
     /* eq. (4)-(5): S <- (1 - a2) S + g e e^T, e = (dx, dy); ex ex is Q.40 px^2 */
     s->sxx[i] = ema(s->sxx[i], smul(ex, ex), s->cov_gm, s->cov_am, s->cov_sh);
     s->sxy[i] = ema(s->sxy[i], smul(ex, ey), s->cov_gm, s->cov_am, s->cov_sh);
@@ -166,12 +177,69 @@ static __attribute__((noinline)) void update_tracker(fx_state *s, int i, int64_t
     check_index(s, i);
 }
 
-/* eq. (2) for candidate i: it becomes the best if its d^2 is below the best so far */
+/* [ref] _update: eqs. (2)-(6) for the winning tracker i; dx, dy Q.32 from the pre-update
+   mean (|.| < 2^41 inside the gate), d2 Q.27. */
+static __attribute__((noinline)) void update_tracker(fx_state *s, int i, int64_t t, int64_t dx,
+                                                   int64_t dy, uint32_t d2)
+{
+    activity_step(s, i, t, d2);
+    /* eq. (3): m + round(a1 (u - m)) with 0 <= a1 <= 1 lies between m and the event u, both
+       inside +-FX_POS_LIM: it cannot saturate */
+    s->mx[i] += mulsh(dx, s->a1, 30);
+    s->my[i] += mulsh(dy, s->a1, 30);
+    covariance_step(s, i, dx, dy);
+}
+
+/* [ref] _update with the motion model (eqs. M1-M7, fixed_motion.c) for the winning
+   tracker i of an event of polarity p at pixel (x, y), its d^2 about the predicted mean
+   given */
+static __attribute__((noinline)) void update_moving(fx_state *s, int i, int64_t t, int32_t x,
+                                                  int32_t y, uint32_t d2, int32_t p)
+{
+    int32_t lead = lead8(s, i, t), kv = 0;
+    uint32_t gain = s->a1;                                /* eq. (3) */
+    int64_t px, py, dx, dy, rx, ry;
+    if (s->tau_ceil > 0)
+        gain = kalman(s, i, t, &kv);                      /* eq. (M3), before t_k = t */
+    activity_step(s, i, t, d2);
+    px = s->mx[i] + ahead(s->vx[i], lead);                /* eq. (M1): the mean eq. (2) */
+    py = s->my[i] + ahead(s->vy[i], lead);                /* gated the event about */
+    s->tm[i] = t;
+    dx = shl64(x, FX_POS_FRAC) - px;                      /* eq. (5): offset from the */
+    dy = shl64(y, FX_POS_FRAC) - py;                      /* predicted mean */
+    /* eq. (M4): the residual about the edge of the event's polarity, m^ + s h */
+    rx = p ? dx - s->hx[i] : dx + s->hx[i];
+    ry = p ? dy - s->hy[i] : dy + s->hy[i];
+    /* eq. (M5): m = m^ + K_p r (eq. 3 when v = h = 0 and K_p = alpha1) */
+    s->mx[i] = sat_pos(s, px + mulsh(rx, gain, 30));
+    s->my[i] = sat_pos(s, py + mulsh(ry, gain, 30));
+    if (s->c_h > 0) {                                     /* eq. (M6): h += c_h K_p s r */
+        uint32_t gh = (uint32_t)((umul(s->c_h, gain) + (1u << 29)) >> 30);
+        int64_t hx = mulsh(rx, gh, 30), hy = mulsh(ry, gh, 30);
+        s->hx[i] = clamp64(p ? s->hx[i] + hx : s->hx[i] - hx, s->h_max);
+        s->hy[i] = clamp64(p ? s->hy[i] + hy : s->hy[i] - hy, s->h_max);
+    }
+    if (s->tau_ceil > 0)                                  /* eq. (M7): v += K_v r */
+        set_velocity(s, i, (int32_t)clamp64(s->vx[i] + velocity_step(s, rx, kv), V_MAX),
+                     (int32_t)clamp64(s->vy[i] + velocity_step(s, ry, kv), V_MAX));
+    covariance_step(s, i, dx, dy);                        /* eqs. (4)-(5) about m^ */
+}
+
+/* eq. (2) for candidate i: it becomes the best if its d^2 is below the best so far; with
+   the motion model (`moving`, a constant in the callers) about its mean predicted to t
+   (eq. M1) */
 static inline __attribute__((always_inline)) void candidate(const fx_state *s, int i, int32_t x,
                                                             int32_t y, uint32_t *best_d2,
-                                                            int *best)
+                                                            int *best, int64_t t, int moving)
 {
-    uint32_t d2 = qform(s, i, x, y);
+    uint32_t d2;
+    if (moving) {
+        int32_t lead = lead8(s, i, t);
+        d2 = qform_at(s, i, x, y, s->mx[i] + ahead(s->vx[i], lead),
+                      s->my[i] + ahead(s->vy[i], lead));
+    } else {
+        d2 = qform(s, i, x, y);
+    }
     if (d2 < *best_d2) {
         *best_d2 = d2;
         *best = i;
@@ -183,7 +251,8 @@ static inline __attribute__((always_inline)) void candidate(const fx_state *s, i
    Returns the best tracker within the gate (its d^2 in *best_d2, which holds the gate on
    entry) or FX_NO_TRACKER. */
 static inline __attribute__((always_inline)) int search(const fx_state *s, uint64_t mask,
-                                                        int32_t x, int32_t y, uint32_t *best_d2)
+                                                        int32_t x, int32_t y, uint32_t *best_d2,
+                                                        int64_t t, int moving)
 {
     uint64_t m = s->cells[(y >> FX_CELL_SHIFT) * s->gw + (x >> FX_CELL_SHIFT)] & mask;
     int best = FX_NO_TRACKER;
@@ -191,7 +260,7 @@ static inline __attribute__((always_inline)) int search(const fx_state *s, uint6
     while (m) {                                           /* index order: ties as the reference */
         int i = __builtin_ctzll(m);
         m &= m - 1;
-        candidate(s, i, x, y, best_d2, &best);
+        candidate(s, i, x, y, best_d2, &best, t, moving);
     }
 #else
     /* the mask's 32-bit halves in turn (low bits first: the same order), and a build for
@@ -202,35 +271,55 @@ static inline __attribute__((always_inline)) int search(const fx_state *s, uint6
         while (w) {
             int i = __builtin_ctz(w) + 32 * half;
             w &= w - 1;
-            candidate(s, i, x, y, best_d2, &best);
+            candidate(s, i, x, y, best_d2, &best, t, moving);
         }
     }
 #endif
     return best;
 }
 
-/* eqs. (3)-(6) for the winner `best` of eq. (2) (its d^2 given) */
+/* eqs. (3)-(6) for the winner `best` of eq. (2) (its d^2 given), of an event of polarity
+   p; with the motion model (`moving`) eqs. (M1)-(M7) */
 static inline __attribute__((always_inline)) void take(fx_state *s, int best, int64_t t,
-                                                      int32_t x, int32_t y, uint32_t d2)
+                                                      int32_t x, int32_t y, uint32_t d2,
+                                                      int32_t p, int moving)
 {
-    update_tracker(s, best, t, shl64(x, FX_POS_FRAC) - s->mx[best],
-                   shl64(y, FX_POS_FRAC) - s->my[best], d2);
+    if (moving)
+        update_moving(s, best, t, x, y, d2, p);
+    else
+        update_tracker(s, best, t, shl64(x, FX_POS_FRAC) - s->mx[best],
+                       shl64(y, FX_POS_FRAC) - s->my[best], d2);
 }
 
 /* eq. (2) and eqs. (3)-(6) for one valid event at pixel (x, y): the winner is updated.
    Returns the winner or FX_NO_TRACKER. */
 static inline __attribute__((always_inline)) int assign(fx_state *s, uint64_t mask, int64_t t,
-                                                        int32_t x, int32_t y)
+                                                        int32_t x, int32_t y, int32_t p,
+                                                        int moving)
 {
     uint32_t best_d2 = s->gate;
-    int best = search(s, mask, x, y, &best_d2);
+    int best = search(s, mask, x, y, &best_d2, t, moving);
     if (best >= 0)
-        take(s, best, t, x, y, best_d2);
+        take(s, best, t, x, y, best_d2, p, moving);
     return best;
 }
 
+/* the time of a spring update (eq. M1's prediction): the last event's, also inside a batch
+   (whose clock is kept in a register) */
+static inline void springs_at(fx_state *s, fx_set *g, int64_t t)
+{
+    int q;
+    if (!g) {
+        s->last_t = t;
+        return;
+    }
+    g->last_t = t;
+    for (q = 0; q < g->ni; q++)
+        g->inst[q]->last_t = t;
+}
+
 /* One event (Algorithm 1).  Returns the winning tracker, FX_NO_TRACKER or a skip code. */
-int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y)
+int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y, int32_t p)
 {
     int best;
     if (t < s->last_t) {
@@ -243,7 +332,8 @@ int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y)
         return FX_OUT_OF_SENSOR;
     }
     s->n_valid++;
-    best = assign(s, s->sensitive_mask, t, x, y);
+    best = s->moving ? assign(s, s->sensitive_mask, t, x, y, p, 1)       /* two copies: */
+                     : assign(s, s->sensitive_mask, t, x, y, p, 0);      /* in_motion */
     if (best >= 0)
         s->n_assigned++;
     if (++s->since_spring >= s->period) {
@@ -262,12 +352,12 @@ typedef struct {
 } batch;
 
 static inline __attribute__((always_inline)) int set_assign(fx_set *g, int64_t t, int32_t x,
-                                                            int32_t y);
+                                                            int32_t y, int32_t p, int moving);
 
 static inline __attribute__((always_inline)) batch steps_loop(fx_state *s, fx_set *g,
                                                             const fx_event *ev, int64_t n,
                                                             int64_t t_stop, int64_t last_t,
-                                                            int32_t since_spring)
+                                                            int32_t since_spring, int moving)
 {
     const fx_state *s0 = g ? g->inst[0] : s;
     uint32_t width = (uint32_t)s0->width, height = (uint32_t)s0->height;
@@ -277,6 +367,7 @@ static inline __attribute__((always_inline)) batch steps_loop(fx_state *s, fx_se
     for (o.k = 0; o.k < n; o.k++) {
         int64_t t = ev[o.k].t;
         uint32_t x = ev[o.k].x, y = ev[o.k].y;
+        int32_t p = ev[o.k].p;
         if (st_sample_due(t, t_stop, o.last_t))
             break;
         if (t < o.last_t) {
@@ -289,11 +380,12 @@ static inline __attribute__((always_inline)) batch steps_loop(fx_state *s, fx_se
             continue;
         }
         if (g)
-            o.n_assigned += set_assign(g, t, (int32_t)x, (int32_t)y) >= 0;
+            o.n_assigned += set_assign(g, t, (int32_t)x, (int32_t)y, p, moving) >= 0;
         else
-            o.n_assigned += assign(s, mask, t, (int32_t)x, (int32_t)y) >= 0;
+            o.n_assigned += assign(s, mask, t, (int32_t)x, (int32_t)y, p, moving) >= 0;
         if (--o.until <= 0) {
             o.until = period;
+            springs_at(s, g, o.last_t);
             if (g) {
                 fx_set_springs(g);
             } else {
@@ -308,7 +400,9 @@ static inline __attribute__((always_inline)) batch steps_loop(fx_state *s, fx_se
 /* fx_step over a batch */
 int64_t fx_steps(fx_state *s, const fx_event *ev, int64_t n, int64_t t_stop)
 {
-    batch o = steps_loop(s, 0, ev, n, t_stop, s->last_t, s->since_spring);
+    /* two copies of the loop: the motion model moving or at rest (in_motion, per batch) */
+    batch o = s->moving ? steps_loop(s, 0, ev, n, t_stop, s->last_t, s->since_spring, 1)
+                           : steps_loop(s, 0, ev, n, t_stop, s->last_t, s->since_spring, 0);
     s->last_t = o.last_t;
     s->since_spring = s->period - o.until;
     s->n_valid += o.k - o.n_back - o.n_skipped;

@@ -17,6 +17,8 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
     const int64_t *e = s->energy[s->ekind];
     uint32_t rem;
     s->n_spring_updates++;
+    if (s->moving)                                       /* [ref] eq. (M1): the springs act */
+        motion_to(s, s->last_t);                         /* on the means at the update's time */
     s->car_turned = s->car_sim;                          /* eq. (18) in the last fit's frame */
     s->car_c = s->frame_c;
     s->car_s = s->frame_s;
@@ -94,6 +96,8 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
         s->mx[i] = sat_pos(s, s->mx[i] + mulsh(tx - s->mx[i], gain, 30));
         s->my[i] = sat_pos(s, s->my[i] + mulsh(ty - s->my[i], gain, 30));
     }
+    if (s->tau_ceil > 0 && pulled)                        /* eq. (M8) */
+        pull_velocities(s, pulled);
     /* [ref] _guard: a mean outside the position box (a saturated one is) is a state no
        model within springtrack.limits reaches: counted, and the state reset to the model.
        The box is whole px: the integer parts (the high words) tell */
@@ -185,7 +189,7 @@ void fx_reset(fx_state *s)
         s->sxy[i] = s->rest_sxy[i];
         s->syy[i] = s->rest_syy[i];
         s->act[i] = 0;
-        s->tlast[i] = s->last_t;
+        still(s, i);                                      /* [ref] _still */
     }
     for (q = 0; q < 3; q++)
         for (k = 0; k < s->nc; k++)

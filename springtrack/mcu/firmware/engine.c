@@ -320,6 +320,23 @@ static uint32_t energy_f32(int64_t sum, int32_t nc)
     return sign | (uint32_t)(e + 23 + 127) << 23 | ((uint32_t)q & 0x7FFFFFu);
 }
 
+/* ENERGIES as firmware_sim sends them: with the last snapshot of a batch, at most once per
+   WIRE_ENERGY_PERIOD_US of event time while a host receives; the criterion's kind, each connection's energy of
+   the last spring update (fx_springs keeps that kind current) as float64 then float32 */
+static void energies(int64_t t)
+{
+    static int64_t next = ST_UNSET;
+    static uint32_t bits[FX_MAX_CONNECTIONS];
+    const fx_state *s = &mcu_state[0];
+    int32_t k;
+    if (!proto_receiving() || (next != ST_UNSET && t < next))
+        return;
+    next = t + WIRE_ENERGY_PERIOD_US;
+    for (k = 0; k < s->nc; k++)
+        bits[k] = energy_f32(s->energy[s->ekind][k], 1);
+    proto_energies(t, (uint32_t)s->ekind, bits, (uint32_t)s->nc);
+}
+
 int engine_work(void)
 {
     uint32_t k, rows;
@@ -349,6 +366,8 @@ int engine_work(void)
         proto_telemetry(mcu_rows[k][0], energy_f32(mcu_rows[k][1 + s->ekind], s->nc),
                         mcu_wire[k], (uint32_t)s->n);
     }
+    if (rows)
+        energies(mcu_rows[rows - 1][0]);
     eng.events_tracked += (uint32_t)mcu_io.consumed;
     for (k = (uint32_t)mcu_io.consumed; k < nevents; k++)     /* what the rows cut short */
         mcu_events[k - (uint32_t)mcu_io.consumed] = mcu_events[k];

@@ -44,5 +44,9 @@ int64_t engine_last_t(void);
 /* proto.c: a snapshot's TELEMETRY (records of n trackers, the energy as float32 bits) */
 void proto_telemetry(int64_t t, uint32_t energy_bits, const uint8_t *records, uint32_t n);
 void proto_stream_ended(void);
+/* proto.c: ENERGIES (each connection's energy of one kind as float32 bits), sent while a
+   host session receives */
+int proto_receiving(void);
+void proto_energies(int64_t t, uint32_t kind, const uint32_t *bits, uint32_t n);
 
 #endif

@@ -6,6 +6,7 @@
 #include "link.h"
 
 void proto_init(void);
+void proto_tick(void);
 
 void fw_main(void)
 {
@@ -15,5 +16,6 @@ void fw_main(void)
     for (;;) {
         link_poll();
         engine_work();
+        proto_tick();
     }
 }

@@ -3,10 +3,11 @@
  * takes models and parameters as words images (springtrack/wire.py encode_image; INFO says
  * model_format "words"): HELLO/INFO, model upload (MODEL_BEGIN / CHUNK / COMMIT, checked
  * by check.c), PARAM_GET (the parameters the last image carried), START / STOP / RESET,
- * STATS, SHUTDOWN, HEARTBEAT pings, TELEMETRY, APPLIED and NOTICE.  Replies to the last
+ * STATS, SHUTDOWN, HEARTBEAT (pings answered, its own once a second), TELEMETRY,
+ * ENERGIES, APPLIED and NOTICE.  Replies to the last
  * 16 ACKed commands are kept, so that a retry is answered again and not executed twice.
- * Not here (refused or not sent, docs/mcu.md): PARAM_SET by name (hostctl sends a
- * parameters image instead), ACQUIRE, ENERGIES, the firmware's own HEARTBEAT.  With a key
+ * Refused (docs/mcu.md): PARAM_SET by name (hostctl sends a parameters image instead),
+ * ACQUIRE (no acquisition search), MODEL_GET (no TOML kept).  With a key
  * built in (link_key.h, springtrack mcu build --key-file), every frame but HELLO must be
  * signed as wire.Signer signs it; others are dropped without an answer and counted. */
 #include "board.h"
@@ -15,6 +16,7 @@
 #include "fixed_step.h"
 #include "link.h"
 #include "link_key.h"
+#include "proto.h"
 #include "sha256.h"
 #include "text.h"
 
@@ -30,17 +32,7 @@
 uint32_t fw_stack_used(void);           /* startup.c */
 #define FIRMWARE "springtrack-mcu 0.1 (" BOARD_NAME ", fixed-point kernel)"
 
-static struct {
-    uint8_t session, role, authenticated;
-    uint64_t last_counter;               /* the highest signature counter accepted */
-    uint32_t auth_unsigned, auth_bad_tag, auth_replay, sessions;
-    uint32_t hello_seq, hello_crc;       /* the HELLO that opened the session */
-    uint16_t tx_seq;
-    int32_t rx_last;                     /* -1: expect anything */
-    uint8_t nonce[WIRE_NONCE_LEN];
-    uint32_t rx_lost, acks, nacks, forbidden, retries, version_refused, updates_rejected;
-    uint32_t telemetry;
-} ps;
+proto_session_t sess;
 
 /* the committed configuration: name, tracker ids (str8 each), parameters (kv list) */
 static uint8_t name[NAME_MAX], ids[IDS_MAX], kv[KV_MAX];
@@ -60,25 +52,25 @@ static uint32_t cache_next;
 
 static uint8_t out_[WIRE_MAX_PAYLOAD];
 
-static void send(uint8_t type, const uint8_t *p, uint32_t n)
+void proto_send(uint8_t type, const uint8_t *p, uint32_t n)
 {
-    link_send(WIRE_VERSION, type, ps.tx_seq++, p, n);
+    link_send(WIRE_VERSION, type, sess.tx_seq++, p, n);
 }
 
-static buf_t out(void)
+buf_t proto_out(void)
 {
     buf_t b = {out_, 0, sizeof out_, 0};
     return b;
 }
 
-static void ack(const frame_t *f, uint32_t value)
+void proto_ack(const frame_t *f, uint32_t value)
 {
-    buf_t b = out();
+    buf_t b = proto_out();
     b_u16(&b, f->seq);
     b_u8(&b, f->type);
     b_u32(&b, value);
-    ps.acks++;
-    send(MSG_ACK, b.p, b.n);
+    sess.acks++;
+    proto_send(MSG_ACK, b.p, b.n);
     cache[cache_next].seq = f->seq;
     cache[cache_next].type = f->type;
     cache[cache_next].crc = crc32(0, f->payload, f->len);
@@ -88,31 +80,31 @@ static void ack(const frame_t *f, uint32_t value)
 }
 
 /* a NACK whose reason is `why` (already built in its own buffer) */
-static void nack(const frame_t *f, uint8_t version, uint8_t code, const buf_t *why)
+void proto_nack(const frame_t *f, uint8_t version, uint8_t code, const buf_t *why)
 {
-    buf_t b = out();
+    buf_t b = proto_out();
     uint32_t n = why->n > WIRE_MAX_PAYLOAD - 8 ? WIRE_MAX_PAYLOAD - 8 : why->n;
     b_u16(&b, f->seq);
     b_u8(&b, f->type);
     b_u8(&b, code);
     b_u16(&b, n);
     b_bytes(&b, why->p, n);
-    ps.nacks++;
-    link_send(version, MSG_NACK, ps.tx_seq++, b.p, b.n);
+    sess.nacks++;
+    link_send(version, MSG_NACK, sess.tx_seq++, b.p, b.n);
 }
 
 static uint8_t why_[320];               /* a NACK's reason */
-static buf_t why(void)
+buf_t proto_why(void)
 {
     buf_t b = {why_, 0, sizeof why_, 0};
     return b;
 }
 
-static void nack_text(const frame_t *f, uint8_t code, const char *text)
+void proto_nack_text(const frame_t *f, uint8_t code, const char *text)
 {
-    buf_t w = why();
+    buf_t w = proto_why();
     b_str(&w, text);
-    nack(f, WIRE_VERSION, code, &w);
+    proto_nack(f, WIRE_VERSION, code, &w);
 }
 
 static uint32_t le16(const uint8_t *p) { return (uint32_t)p[0] | (uint32_t)p[1] << 8; }
@@ -120,7 +112,7 @@ static uint32_t le32(const uint8_t *p) { return le16(p) | le16(p + 2) << 16; }
 
 static void version_nack(const frame_t *f, uint32_t host)
 {
-    buf_t w = why();
+    buf_t w = proto_why();
     b_str(&w, "firmware=v");
     b_int(&w, WIRE_VERSION);
     b_str(&w, " host=v");
@@ -130,8 +122,8 @@ static void version_nack(const frame_t *f, uint32_t host)
     b_str(&w, ", host sent v");
     b_int(&w, host);
     b_u8(&w, ')');
-    ps.version_refused++;
-    nack(f, WIRE_VERSION, NACK_VERSION_MISMATCH, &w);
+    sess.version_refused++;
+    proto_nack(f, WIRE_VERSION, NACK_VERSION_MISMATCH, &w);
 }
 
 /* ---- INFO ---------------------------------------------------------------------------- */
@@ -192,10 +184,10 @@ static void info_json(buf_t *b, int level)
         b_str(b, "null");
     }
     json_text(b, "model_format", WIRE_MODEL_FORMAT_WORDS);
-    json_text(b, "role", ps.role == ROLE_MONITOR ? "monitor" : "operator");
+    json_text(b, "role", sess.role == ROLE_MONITOR ? "monitor" : "operator");
     json_key(b, "running");
     b_str(b, eng.state == ST_RUNNING ? "true" : "false");
-    json_int(b, "sessions", ps.session ? 1 : 0);
+    json_int(b, "sessions", sess.session ? 1 : 0);
     json_text(b, "state", state_name());
     json_int(b, "telemetry_period_us", ENGINE_PERIOD_US);
     if (eng.loaded && have_ids && level == 0) {
@@ -223,10 +215,10 @@ static void send_info(void)
     int level;
     uint32_t k;
     for (level = 0; level < 3; level++) {
-        b = out();
+        b = proto_out();
         b_u16(&b, WIRE_VERSION);
         for (k = 0; k < WIRE_NONCE_LEN; k++)
-            b_u8(&b, ps.nonce[k]);
+            b_u8(&b, sess.nonce[k]);
         b_u8(&b, (eng.state == ST_RUNNING ? 2u : 0u) | (LINK_KEY_LEN ? 1u : 0u));
         b_u32(&b, eng.generation);
         b_u16(&b, 0);                    /* the JSON's length, filled in below */
@@ -236,7 +228,7 @@ static void send_info(void)
     }
     b.p[2 + WIRE_NONCE_LEN + 5] = (uint8_t)(b.n - (2 + WIRE_NONCE_LEN + 7));
     b.p[2 + WIRE_NONCE_LEN + 6] = (uint8_t)((b.n - (2 + WIRE_NONCE_LEN + 7)) >> 8);
-    send(MSG_INFO, b.p, b.n);
+    proto_send(MSG_INFO, b.p, b.n);
 }
 
 /* the session nonce: SHA-256 of the key, the SysTick count, the session number and the
@@ -249,12 +241,12 @@ static void new_nonce(void)
     sha256_init(&c);
     sha256_add(&c, link_key, LINK_KEY_LEN);
     sha256_add(&c, (const uint8_t *)&t, 4);
-    sha256_add(&c, (const uint8_t *)&ps.sessions, 4);
-    sha256_add(&c, ps.nonce, WIRE_NONCE_LEN);
+    sha256_add(&c, (const uint8_t *)&sess.sessions, 4);
+    sha256_add(&c, sess.nonce, WIRE_NONCE_LEN);
     sha256_done(&c, h);
     for (k = 0; k < WIRE_NONCE_LEN; k++)
-        ps.nonce[k] = h[k];
-    ps.sessions++;
+        sess.nonce[k] = h[k];
+    sess.sessions++;
 }
 
 /* wire.ReplayGuard.check: 0 if the frame is signed, its tag verifies and its counter is
@@ -266,13 +258,13 @@ static int signature_ok(const frame_t *f)
     uint64_t counter = 0;
     uint32_t k;
     if (!f->sig) {
-        ps.auth_unsigned++;
+        sess.auth_unsigned++;
         return 0;
     }
     for (k = 0; k < 8; k++)
         counter |= (uint64_t)f->sig[k] << (8 * k);
     hmac_init(&m, link_key, LINK_KEY_LEN);
-    hmac_add(&m, ps.nonce, WIRE_NONCE_LEN);
+    hmac_add(&m, sess.nonce, WIRE_NONCE_LEN);
     hmac_add(&m, f->header, WIRE_HEADER);
     hmac_add(&m, f->payload, f->len);
     hmac_add(&m, f->sig, 8);
@@ -280,14 +272,14 @@ static int signature_ok(const frame_t *f)
     for (k = 0; k < WIRE_TAG_LEN; k++)   /* constant time */
         diff |= (uint8_t)(tag[k] ^ f->sig[8 + k]);
     if (diff) {
-        ps.auth_bad_tag++;
+        sess.auth_bad_tag++;
         return 0;
     }
-    if (counter <= ps.last_counter) {
-        ps.auth_replay++;
+    if (counter <= sess.last_counter) {
+        sess.auth_replay++;
         return 0;
     }
-    ps.last_counter = counter;
+    sess.last_counter = counter;
     return 1;
 }
 
@@ -295,7 +287,7 @@ static void on_hello(const frame_t *f)
 {
     uint32_t version, nl;
     if (f->len < 3 || f->len < 3 + f->payload[2]) {
-        nack_text(f, NACK_MALFORMED, "HELLO: truncated");
+        proto_nack_text(f, NACK_MALFORMED, "HELLO: truncated");
         return;
     }
     version = le16(f->payload);
@@ -305,21 +297,21 @@ static void on_hello(const frame_t *f)
         return;
     }
     if (f->len > 3 + nl + 1 || (f->len == 4 + nl && f->payload[3 + nl] > ROLE_MONITOR)) {
-        nack_text(f, NACK_MALFORMED, "HELLO: unknown role or trailing bytes");
+        proto_nack_text(f, NACK_MALFORMED, "HELLO: unknown role or trailing bytes");
         return;
     }
-    if (ps.session && f->seq == ps.hello_seq && crc32(0, f->payload, f->len) == ps.hello_crc) {
+    if (sess.session && f->seq == sess.hello_seq && crc32(0, f->payload, f->len) == sess.hello_crc) {
         send_info();                     /* a retried HELLO: the same session, same nonce */
         return;
     }
-    ps.hello_seq = f->seq;
-    ps.hello_crc = crc32(0, f->payload, f->len);
-    ps.role = f->len == 4 + nl ? f->payload[3 + nl] : ROLE_OPERATOR;
-    ps.session = 1;
-    ps.rx_last = f->seq;
+    sess.hello_seq = f->seq;
+    sess.hello_crc = crc32(0, f->payload, f->len);
+    sess.role = f->len == 4 + nl ? f->payload[3 + nl] : ROLE_OPERATOR;
+    sess.session = 1;
+    sess.rx_last = f->seq;
     new_nonce();
-    ps.authenticated = 0;                /* a keyed session starts with its first authentic */
-    ps.last_counter = 0;                 /* frame */
+    sess.authenticated = 0;                /* a keyed session starts with its first authentic */
+    sess.last_counter = 0;                 /* frame */
     send_info();
 }
 
@@ -394,7 +386,7 @@ static void send_parts(const frame_t *f, uint8_t type)
     } while (i < nentries);
     i = 0;
     do {
-        buf_t b = out();
+        buf_t b = proto_out();
         uint32_t from = i ? ends[i - 1] : 0;
         j = split(i);
         b_u16(&b, f->seq);
@@ -402,7 +394,7 @@ static void send_parts(const frame_t *f, uint8_t type)
         b_u8(&b, parts);
         b_u8(&b, j - i);
         b_bytes(&b, entries_ + from, (j > i ? ends[j - 1] : from) - from);
-        send(type, b.p, b.n);
+        proto_send(type, b.p, b.n);
         i = j;
     } while (i < nentries);
 }
@@ -417,7 +409,7 @@ static void on_stats(const frame_t *f)
     extern int64_t mcu_counters[];
     uint32_t k;
     if (f->len) {
-        nack_text(f, NACK_MALFORMED, "STATS: a request has an empty payload");
+        proto_nack_text(f, NACK_MALFORMED, "STATS: a request has an empty payload");
         return;
     }
     entries_begin();
@@ -427,7 +419,7 @@ static void on_stats(const frame_t *f)
     kv_int("events_decoded", (int64_t)eng.events_decoded);
     kv_int("events_tracked", (int64_t)eng.events_tracked);
     kv_int("snapshots", (int64_t)eng.snapshots);
-    kv_int("telemetry_sent", ps.telemetry);
+    kv_int("telemetry_sent", sess.telemetry);
     kv_int("replays", (int64_t)eng.replays);
     kv_int("decode.words", (int64_t)eng.words);
     kv_int("decode.stream_words", eng.word_bytes ? eng.nbytes / eng.word_bytes : 0);
@@ -444,7 +436,7 @@ static void on_stats(const frame_t *f)
     if (eng.loaded)
         for (k = 0; k < sizeof kernel / sizeof kernel[0]; k++)
             kv_int(kernel[k], mcu_counters[k]);
-    kv_int("updates_rejected", ps.updates_rejected);
+    kv_int("updates_rejected", sess.updates_rejected);
     kv_int("stack_used_bytes", fw_stack_used());
     kv_int("work_ticks", (int64_t)eng.work_ticks);
     kv_int("decode_ticks", (int64_t)eng.decode_ticks);
@@ -454,18 +446,18 @@ static void on_stats(const frame_t *f)
     kv_int("link.cobs_errors", link_counts.cobs_errors);
     kv_int("link.malformed", link_counts.malformed);
     kv_int("link.oversize", link_counts.oversize);
-    kv_int("link.rx_lost", ps.rx_lost);
-    kv_int("link.rx_retries", ps.retries);
+    kv_int("link.rx_lost", sess.rx_lost);
+    kv_int("link.rx_retries", sess.retries);
     kv_int("link.tx_frames", link_counts.tx_frames);
     kv_int("link.tx_bytes", link_counts.tx_bytes);
-    kv_int("link.acks", ps.acks);
-    kv_int("link.nacks", ps.nacks);
-    kv_int("link.forbidden", ps.forbidden);
-    kv_int("link.version_refused", ps.version_refused);
-    kv_int("link.auth_unsigned", ps.auth_unsigned);
-    kv_int("link.auth_bad_tag", ps.auth_bad_tag);
-    kv_int("link.auth_replay", ps.auth_replay);
-    kv_text("session.role", !ps.session ? "" : ps.role == ROLE_MONITOR ? "monitor" : "operator");
+    kv_int("link.acks", sess.acks);
+    kv_int("link.nacks", sess.nacks);
+    kv_int("link.forbidden", sess.forbidden);
+    kv_int("link.version_refused", sess.version_refused);
+    kv_int("link.auth_unsigned", sess.auth_unsigned);
+    kv_int("link.auth_bad_tag", sess.auth_bad_tag);
+    kv_int("link.auth_replay", sess.auth_replay);
+    kv_text("session.role", !sess.session ? "" : sess.role == ROLE_MONITOR ? "monitor" : "operator");
     send_parts(f, MSG_STATS);
 }
 
@@ -512,21 +504,21 @@ static void on_param_get(const frame_t *f)
     uint32_t count, pos = 1, c, at, size;
     entries_begin();
     if (f->len < 1) {
-        nack_text(f, NACK_MALFORMED, "PARAM_GET: truncated at count");
+        proto_nack_text(f, NACK_MALFORMED, "PARAM_GET: truncated at count");
         return;
     }
     count = f->payload[0];
     for (c = 0; c < count; c++) {
         if (pos >= f->len || pos + 1 + f->payload[pos] > f->len) {
-            nack_text(f, NACK_MALFORMED, "PARAM_GET: truncated at a name");
+            proto_nack_text(f, NACK_MALFORMED, "PARAM_GET: truncated at a name");
             return;
         }
         if (!find_entry(f->payload + pos + 1, f->payload[pos], &at, &size)) {
-            buf_t w = why();
+            buf_t w = proto_why();
             b_str(&w, "unknown parameter(s) ");
             b_bytes(&w, f->payload + pos + 1, f->payload[pos]);
             b_str(&w, kv_n ? "" : " (no parameters yet: load a model)");
-            nack(f, WIRE_VERSION, NACK_UNKNOWN_NAME, &w);
+            proto_nack(f, WIRE_VERSION, NACK_UNKNOWN_NAME, &w);
             return;
         }
         b_bytes(&ent, kv + at, size);
@@ -534,7 +526,7 @@ static void on_param_get(const frame_t *f)
         pos += 1u + f->payload[pos];
     }
     if (pos != f->len) {
-        nack_text(f, NACK_MALFORMED, "PARAM_GET: unexpected trailing bytes");
+        proto_nack_text(f, NACK_MALFORMED, "PARAM_GET: unexpected trailing bytes");
         return;
     }
     if (count == 0 && kv_n) {            /* all of them */
@@ -554,17 +546,17 @@ static void on_model_begin(const frame_t *f)
 {
     uint32_t k;
     if (f->len != 8) {
-        nack_text(f, NACK_MALFORMED, "MODEL_BEGIN/COMMIT: payload is not 8 bytes");
+        proto_nack_text(f, NACK_MALFORMED, "MODEL_BEGIN/COMMIT: payload is not 8 bytes");
         return;
     }
     if (le32(f->payload) == 0 || le32(f->payload) > IMAGE_MAX) {
-        buf_t w = why();
+        buf_t w = proto_why();
         b_str(&w, "model of ");
         b_int(&w, le32(f->payload));
         b_str(&w, " bytes: must be 1..");
         b_int(&w, IMAGE_MAX);
         b_str(&w, " (this firmware takes words images of its capacity)");
-        nack(f, WIRE_VERSION, NACK_OUT_OF_RANGE, &w);
+        proto_nack(f, WIRE_VERSION, NACK_OUT_OF_RANGE, &w);
         return;
     }
     up_total = le32(f->payload);
@@ -573,31 +565,31 @@ static void on_model_begin(const frame_t *f)
     image_is_model = 0;                  /* the committed image is being overwritten */
     for (k = 0; k < (up_total + 7) / 8; k++)
         have[k] = 0;
-    ack(f, 0);
+    proto_ack(f, 0);
 }
 
 static void on_model_chunk(const frame_t *f)
 {
     uint32_t off, n, k;
     if (f->len < 4) {
-        nack_text(f, NACK_MALFORMED, "MODEL_CHUNK: payload shorter than its 4-byte offset");
+        proto_nack_text(f, NACK_MALFORMED, "MODEL_CHUNK: payload shorter than its 4-byte offset");
         return;
     }
     if (!up_active) {
-        nack_text(f, NACK_BAD_STATE, "MODEL_CHUNK without MODEL_BEGIN");
+        proto_nack_text(f, NACK_BAD_STATE, "MODEL_CHUNK without MODEL_BEGIN");
         return;
     }
     off = le32(f->payload);
     n = f->len - 4;
     if (off > up_total || n > up_total - off) {
-        nack_text(f, NACK_OUT_OF_RANGE, "chunk beyond the announced length");
+        proto_nack_text(f, NACK_OUT_OF_RANGE, "chunk beyond the announced length");
         return;
     }
     for (k = 0; k < n; k++) {
         image[off + k] = f->payload[4 + k];
         have[(off + k) >> 3] |= (uint8_t)(1u << ((off + k) & 7));
     }
-    ack(f, 0);
+    proto_ack(f, 0);
 }
 
 /* image fields (springtrack.mcu.words.decode_image); 0 on a truncated image */
@@ -700,18 +692,18 @@ static int32_t *words_at(uint32_t at, uint32_t n)
 static void commit(const frame_t *f)
 {
     image_t m;
-    buf_t w = why();
+    buf_t w = proto_why();
     int code = 0, rc;
     uint32_t k;
     int32_t *model = 0, *params;
     if (!parse_image(&m, up_total)) {
-        nack_text(f, NACK_INVALID_MODEL, "not a words image of this firmware's version and "
+        proto_nack_text(f, NACK_INVALID_MODEL, "not a words image of this firmware's version and "
                   "capacity (springtrack.mcu.words.encode_image; hostctl sends one when INFO says "
                   "model_format=words)");
         return;
     }
     if (!kv_ok(image + m.kv_at, m.kv_n)) {
-        nack_text(f, NACK_INVALID_MODEL, "words image: its parameter list does not decode");
+        proto_nack_text(f, NACK_INVALID_MODEL, "words image: its parameter list does not decode");
         return;
     }
     if (m.kind == IMAGE_MODEL) {
@@ -732,8 +724,8 @@ static void commit(const frame_t *f)
     if (!code)
         code = check_params(params, m.params_n, &w);
     if (code) {
-        ps.updates_rejected++;
-        nack(f, WIRE_VERSION, (uint8_t)code, &w);
+        sess.updates_rejected++;
+        proto_nack(f, WIRE_VERSION, (uint8_t)code, &w);
         return;
     }
     rc = engine_load(model, m.model_n, params, m.params_n);
@@ -741,8 +733,8 @@ static void commit(const frame_t *f)
         b_str(&w, "the kernel refused the words (fx status ");
         b_int(&w, rc);
         b_u8(&w, ')');
-        ps.updates_rejected++;
-        nack(f, WIRE_VERSION, NACK_INTERNAL, &w);
+        sess.updates_rejected++;
+        proto_nack(f, WIRE_VERSION, NACK_INTERNAL, &w);
         return;
     }
     for (k = 0; k < m.kv_n; k++)
@@ -763,12 +755,12 @@ static void commit(const frame_t *f)
         image_is_model = 1;
     }
     eng.generation++;
-    ack(f, eng.generation);
+    proto_ack(f, eng.generation);
     {
-        buf_t b = out();
+        buf_t b = proto_out();
         b_u32(&b, eng.generation);
         b_u64(&b, (uint64_t)engine_last_t());
-        send(MSG_APPLIED, b.p, b.n);
+        proto_send(MSG_APPLIED, b.p, b.n);
     }
 }
 
@@ -776,25 +768,25 @@ static void on_model_commit(const frame_t *f)
 {
     uint32_t k;
     if (f->len != 8) {
-        nack_text(f, NACK_MALFORMED, "MODEL_BEGIN/COMMIT: payload is not 8 bytes");
+        proto_nack_text(f, NACK_MALFORMED, "MODEL_BEGIN/COMMIT: payload is not 8 bytes");
         return;
     }
     if (!up_active) {
-        nack_text(f, NACK_BAD_STATE, "MODEL_COMMIT without MODEL_BEGIN");
+        proto_nack_text(f, NACK_BAD_STATE, "MODEL_COMMIT without MODEL_BEGIN");
         return;
     }
     up_active = 0;                       /* the upload state is discarded after every COMMIT */
     if (le32(f->payload) != up_total || le32(f->payload + 4) != up_crc) {
-        nack_text(f, NACK_INVALID_MODEL, "MODEL_COMMIT length/CRC differ from MODEL_BEGIN");
+        proto_nack_text(f, NACK_INVALID_MODEL, "MODEL_COMMIT length/CRC differ from MODEL_BEGIN");
         return;
     }
     for (k = 0; k < up_total; k++)
         if (!(have[k >> 3] & (1u << (k & 7)))) {
-            nack_text(f, NACK_INVALID_MODEL, "upload incomplete: bytes missing");
+            proto_nack_text(f, NACK_INVALID_MODEL, "upload incomplete: bytes missing");
             return;
         }
     if (crc32(0, image, up_total) != up_crc) {
-        nack_text(f, NACK_INVALID_MODEL, "model CRC-32 mismatch after upload");
+        proto_nack_text(f, NACK_INVALID_MODEL, "model CRC-32 mismatch after upload");
         return;
     }
     commit(f);
@@ -804,17 +796,17 @@ static void on_model_commit(const frame_t *f)
 static void on_simple(const frame_t *f)
 {
     if (f->len) {
-        nack_text(f, NACK_MALFORMED, "expects an empty payload");
+        proto_nack_text(f, NACK_MALFORMED, "expects an empty payload");
         return;
     }
     switch (f->type) {
     case MSG_START:
         if (!eng.loaded) {
-            nack_text(f, NACK_BAD_STATE, "no model loaded: upload one first (hostctl load-model)");
+            proto_nack_text(f, NACK_BAD_STATE, "no model loaded: upload one first (hostctl load-model)");
             return;
         }
         if (!eng.stream_ok) {
-            nack_text(f, NACK_BAD_STATE, "no event stream at the stream region: start the "
+            proto_nack_text(f, NACK_BAD_STATE, "no event stream at the stream region: start the "
                       "image with springtrack mcu run --events FILE");
             return;
         }
@@ -828,7 +820,7 @@ static void on_simple(const frame_t *f)
         if (eng.loaded) {
             image_t m;
             if (!image_is_model || !parse_image(&m, up_total)) {
-                nack_text(f, NACK_BAD_STATE, "the model's words were overwritten by an upload "
+                proto_nack_text(f, NACK_BAD_STATE, "the model's words were overwritten by an upload "
                           "since it was committed: load the model again to reset");
                 return;
             }
@@ -838,25 +830,26 @@ static void on_simple(const frame_t *f)
             eng.generation++;
         }
         break;
-    case MSG_ACQUIRE:
-        nack_text(f, NACK_BAD_STATE, "this firmware runs without acquisition");
+    case MSG_ACQUIRE:                    /* firmware_sim's answer without --acquire */
+        proto_nack_text(f, NACK_BAD_STATE, "this firmware runs without acquisition: the "
+                  "microcontroller image has no acquisition search (docs/mcu.md)");
         return;
     case MSG_SHUTDOWN:
-        ack(f, 0);
+        proto_ack(f, 0);
         {
-            buf_t b = out();
+            buf_t b = proto_out();
             b_u8(&b, NOTICE_SHUTTING_DOWN);
             b_u16(&b, 19);
             b_str(&b, "the firmware halts");
             b_u8(&b, '.');
-            send(MSG_NOTICE, b.p, b.n);
+            proto_send(MSG_NOTICE, b.p, b.n);
         }
         board_halt();
         return;
     default:                             /* HEARTBEAT: a ping */
         break;
     }
-    ack(f, 0);
+    proto_ack(f, 0);
 }
 
 /* ---- frames from the host ---------------------------------------------------------------- */
@@ -870,9 +863,9 @@ void proto_frame(const frame_t *f)
     if (LINK_KEY_LEN && f->type != MSG_HELLO) {
         if (!signature_ok(f))            /* dropped, counted, no answer (no oracle) */
             return;
-        ps.authenticated = 1;
+        sess.authenticated = 1;
     } else if (!LINK_KEY_LEN && (f->flags & WIRE_FLAG_SIGNED)) {
-        nack_text(f, NACK_BAD_STATE, "signed frame on a link without a key: the tag cannot "
+        proto_nack_text(f, NACK_BAD_STATE, "signed frame on a link without a key: the tag cannot "
                   "be checked, refused");
         return;
     }
@@ -880,39 +873,39 @@ void proto_frame(const frame_t *f)
     for (k = 0; k < CACHE; k++)          /* a retry of an ACKed command: answer again */
         if (cache[k].used && cache[k].seq == f->seq && cache[k].type == f->type
             && cache[k].crc == crc && f->type != MSG_HELLO) {
-            buf_t b = out();
+            buf_t b = proto_out();
             b_u16(&b, f->seq);
             b_u8(&b, f->type);
             b_u32(&b, cache[k].value);
-            ps.retries++;
-            send(MSG_ACK, b.p, b.n);
+            sess.retries++;
+            proto_send(MSG_ACK, b.p, b.n);
             return;
         }
     if (f->type == MSG_HELLO) {
-        ps.rx_last = f->seq;
-    } else if (ps.rx_last >= 0) {
-        uint32_t gap = ((uint32_t)f->seq - (uint32_t)ps.rx_last - 1u) & 0xFFFFu;
+        sess.rx_last = f->seq;
+    } else if (sess.rx_last >= 0) {
+        uint32_t gap = ((uint32_t)f->seq - (uint32_t)sess.rx_last - 1u) & 0xFFFFu;
         if (gap != 0xFFFFu) {
-            ps.rx_last = f->seq;
+            sess.rx_last = f->seq;
             if (gap < 0x8000u)
-                ps.rx_lost += gap;
+                sess.rx_lost += gap;
         }
     } else {
-        ps.rx_last = f->seq;
+        sess.rx_last = f->seq;
     }
     if (!wire_host_command(f->type)) {
-        buf_t w = why();
+        buf_t w = proto_why();
         static const char hex[] = "0123456789abcdef";
         b_str(&w, "message type 0x");
         b_u8(&w, (uint8_t)hex[f->type >> 4]);
         b_u8(&w, (uint8_t)hex[f->type & 15]);
         b_str(&w, " is not a host command");
-        nack(f, WIRE_VERSION, NACK_UNKNOWN_TYPE, &w);
+        proto_nack(f, WIRE_VERSION, NACK_UNKNOWN_TYPE, &w);
         return;
     }
-    if (!wire_monitor_command(f->type) && !(ps.session && ps.role == ROLE_OPERATOR)) {
-        ps.forbidden++;
-        nack_text(f, NACK_FORBIDDEN, ps.session ? "this session is a monitor (read-only); "
+    if (!wire_monitor_command(f->type) && !(sess.session && sess.role == ROLE_OPERATOR)) {
+        sess.forbidden++;
+        proto_nack_text(f, NACK_FORBIDDEN, sess.session ? "this session is a monitor (read-only); "
                   "HELLO as operator to take over" : "no session: send HELLO first");
         return;
     }
@@ -923,8 +916,12 @@ void proto_frame(const frame_t *f)
     case MSG_MODEL_COMMIT: on_model_commit(f); break;
     case MSG_PARAM_GET: on_param_get(f); break;
     case MSG_STATS: on_stats(f); break;
+    case MSG_MODEL_GET:                  /* words only: no TOML to give back */
+        proto_nack_text(f, NACK_BAD_STATE, "MODEL_GET: this firmware holds its model as words "
+                  "(model_format=words), not as TOML: the host that uploaded it has the text");
+        break;
     case MSG_PARAM_SET:
-        nack_text(f, NACK_BAD_STATE, "this firmware takes parameters as a words image "
+        proto_nack_text(f, NACK_BAD_STATE, "this firmware takes parameters as a words image "
                   "(springtrack.mcu.words.encode_image), which hostctl set sends when INFO says "
                   "model_format=words");
         break;
@@ -932,35 +929,8 @@ void proto_frame(const frame_t *f)
     }
 }
 
-/* ---- from the tracking loop ------------------------------------------------------------ */
-void proto_telemetry(int64_t t, uint32_t energy_bits, const uint8_t *records, uint32_t n)
-{
-    buf_t b = out();
-    if (!ps.session || (LINK_KEY_LEN && !ps.authenticated))
-        return;                          /* nobody to send it to */
-    b_u64(&b, (uint64_t)t);
-    b_u16(&b, eng.generation);
-    b_u32(&b, energy_bits);
-    b_u8(&b, n);
-    b_bytes(&b, records, n * WIRE_TELE_TRACKER);
-    ps.telemetry++;
-    send(MSG_TELEMETRY, b.p, b.n);
-}
-
-void proto_stream_ended(void)
-{
-    static const char text[] = "the source has no more data; the loop is idle (START replays it)";
-    buf_t b = out();
-    if (!ps.session || (LINK_KEY_LEN && !ps.authenticated))
-        return;
-    b_u8(&b, NOTICE_STREAM_ENDED);
-    b_u16(&b, sizeof text - 1);
-    b_str(&b, text);
-    send(MSG_NOTICE, b.p, b.n);
-}
-
 void proto_init(void)
 {
-    ps.rx_last = -1;
-    ps.tx_seq = (uint16_t)(board_ticks() * 2654435761u >> 16);
+    sess.rx_last = -1;
+    sess.tx_seq = (uint16_t)(board_ticks() * 2654435761u >> 16);
 }

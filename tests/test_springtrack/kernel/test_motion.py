@@ -118,7 +118,7 @@ def test_a_fast_disk_found_by_acquire_is_never_lost(dark):
     assert np.mean(e <= 2.0) >= 0.95, np.median(e)
 
 
-@pytest.mark.parametrize("backend", ["reference", "cython"])
+@pytest.mark.parametrize("backend", ["reference", "cython", "fixed"])
 def test_after_a_gap_the_update_predicts_no_further_than_the_gate(backend):
     """eq. (M1): an event after its tracker was silent for longer than H is weighed about
     the mean carried at most H along the velocity -- the mean eq. (2) gated it about --
@@ -183,14 +183,3 @@ def test_with_the_motion_model_off_the_velocity_columns_are_zero_and_read_back(t
     old = read_csv(tmp_path / "old.csv")
     assert (old.vx == 0).all() and (old.vy == 0).all()
     np.testing.assert_allclose(old.x, tr.x, atol=1e-5)
-
-
-@pytest.mark.parametrize("backend", ["fixed", "mcu:cortex-m4"])
-def test_the_integer_kernels_refuse_the_motion_model_naming_it(backend):
-    """Not silently the paper's model: the integer kernel (and its microcontroller build)
-    has no motion model yet and says which parameters to turn off."""
-    if backend.startswith("mcu"):
-        pytest.importorskip("unicorn")
-    m = ShapeModel("one", 120, 100, [TrackerSpec("a", 60.0, 50.0, (9.0, 0.0, 9.0))], [])
-    with pytest.raises(ValueError, match="motion_tau_us=1000.0.*no motion model.*--backend cython"):
-        springtrack.Tracker(m, MOTION, backend=backend)

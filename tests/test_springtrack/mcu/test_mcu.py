@@ -34,7 +34,8 @@ from springtrack.tracker import Tracker  # noqa: E402
 from support.elf import RUNTIME, symbols, text_mnemonics  # noqa: E402
 from support.wait import wait_drained
 
-FIELDS = ("t_us", "x", "y", "sxx", "sxy", "syy", "activity", "active", "sensitive", "energy")
+FIELDS = ("t_us", "x", "y", "sxx", "sxy", "syy", "activity", "vx", "vy", "active", "sensitive",
+          "energy")
 
 @pytest.mark.slow
 @pytest.mark.parametrize("instances", [1, 2])
@@ -114,7 +115,11 @@ def scenarios(draw):
                   activity_tau_us=draw(st.sampled_from([300.0, 10_000.0, 1e6])),
                   energy_scale=draw(st.floats(0.5, 4.0)),
                   energy_kind=draw(st.sampled_from(["euclidean", "torsional", "cartesian"])),
-                  spring_period=draw(st.integers(1, 40)))
+                  spring_period=draw(st.integers(1, 40)),
+                  # the motion model (eqs. M1-M8), off in half of the examples
+                  motion_tau_us=draw(st.sampled_from([0.0, 0.0, 1.0, 250.0, 1000.0, 37_500.5])),
+                  polarity_gain=draw(st.sampled_from([0.0, 0.3, 1.0])),
+                  prediction_horizon_us=draw(st.sampled_from([0.0, 500.0, 1234.56])))
     k = draw(st.integers(50, 600))
     rng = np.random.default_rng(draw(st.integers(0, 2 ** 32 - 1)))
     ev = np.zeros(k, EVENT_DTYPE)
@@ -123,6 +128,7 @@ def scenarios(draw):
     ev["t"] = np.cumsum(rng.integers(0, 300, k) + gaps) - rng.integers(0, 2, k) * 50
     ev["x"] = rng.integers(0, CAP.width + 4, k)                                    # some outside
     ev["y"] = rng.integers(0, CAP.height + 4, k)
+    ev["p"] = rng.integers(0, 2, k)
     return model, params, ev
 
 
@@ -470,3 +476,27 @@ def test_the_firmware_stays_within_the_bound_of_the_float_kernel(preset):
     res = compare(model, ev, sample_us=1000, backend="mcu:rv32imac")
     assert res["samples"] > 60 and not violations(res), violations(res)
     assert sum(v for k, v in res["counters_fixed"].items() if k.startswith("saturated_")) == 0
+
+
+MOTION = dict(motion_tau_us=1000.0, polarity_gain=1.0)
+
+
+def test_the_motion_model_equals_the_host(data_file, tmp_path):
+    """The motion model (eqs. M1-M8, fixed/csrc/fixed_motion.c) on the microcontroller:
+    the real dot of evt2_sample.raw (a one-tracker model placed on it; its first 60,000
+    events, ~6 ms at ~13,000 px/s) and the simulator's face with its occluder (springs,
+    eq. M8's pull), velocities included, bit for bit with the host's fixed kernel."""
+    import springtrack.io
+    from support.dot_truth import dot_model_toml, dot_truth
+    events = springtrack.io.open(data_file("evt2_sample.raw")).read()
+    path = tmp_path / "dot.toml"
+    path.write_text(dot_model_toml(dot_truth(events)))
+    face, _ = simulate_all("face_occlusion", 0.12, seed=5)
+    for model, ev in ((springtrack.load_model(str(path)), events[:60_000]),
+                      (springtrack.load_model("face26"), face)):
+        a_tr, b_tr = (Tracker(model, params=MOTION, backend=b) for b in ("fixed", "mcu"))
+        a, b = (tr.run(ev, sample_us=200) for tr in (a_tr, b_tr))
+        assert np.abs(a.vx).max() > 1000
+        for f in FIELDS:
+            assert np.array_equal(getattr(a, f), getattr(b, f)), f
+        assert a_tr.counters == b_tr.counters

@@ -14,75 +14,46 @@ in qemu-system-arm and steered by hostctl over a pty, as separate processes:
 QEMU comes from Debian (qemu-system-arm), installed by ``make test``; without it these tests
 skip, except in CI (CI=true), where they fail."""
 import os
-import shutil
 import struct
 import subprocess
-import sys
 import time
 import zlib
 
 import numpy as np
 import pytest
 
-pytest.importorskip("springtrack.fixed.kernel")
-for _mod in ("ziglang", "elftools", "capstone"):
-    pytest.importorskip(_mod, reason="the [mcu] extra is not installed")
-if shutil.which("qemu-system-arm") is None:
-    if os.environ.get("CI") == "true":
-        pytest.fail("qemu-system-arm is missing in CI: `make test` installs it "
-                    "(apt-get install qemu-system-arm)", pytrace=False)
-    pytest.skip("qemu-system-arm is not installed (apt-get install qemu-system-arm; "
-                "`make test` installs it as root)", allow_module_level=True)
+from support.mcu_image import require_qemu  # noqa: E402
+
+require_qemu()
 
 import serial  # noqa: E402
 
 from hostctl import Device  # noqa: E402
 from hostctl.device import Nacked  # noqa: E402
-from springtrack import io as sio, wire  # noqa: E402
+from springtrack import wire  # noqa: E402
 from springtrack.io.cobs import CobsError  # noqa: E402
 from springtrack.mcu import words as wire_image  # noqa: E402
 from springtrack.mcu.words import words_image  # noqa: E402
 from springtrack.fixed import q as fixed_q  # noqa: E402
 from springtrack.mcu.boards import BOARDS  # noqa: E402
-from springtrack.mcu.image import build_image  # noqa: E402
 from springtrack.mcu.qemu import Qemu  # noqa: E402
 from springtrack.model import face26  # noqa: E402
-from springtrack.sim.sensor import simulate_all  # noqa: E402
 from springtrack.wire import MsgType, Nack  # noqa: E402
 
 from support.elf import RUNTIME, symbols, text_mnemonics  # noqa: E402
 from support.fwproc import Firmware, hostctl_cmd  # noqa: E402
+from support.mcu_image import H, W, image, springtrack_cmd, write_scene  # noqa: E402
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__)))))
-W, H = 304, 240
 
 
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
-    """0.2 s of the face scene as a RAW EVT 2.0 recording (what a Prophesee sensor sends),
-    and face26 on its sensor as a TOML file."""
+    """0.2 s of the face scene as RAW EVT 2.0 and 2.1 recordings, and face26 on its sensor
+    as a TOML file (support.mcu_image.write_scene)."""
     d = tmp_path_factory.mktemp("scene")
-    ev, _ = simulate_all("face_occlusion", 0.2, seed=5)
-    sio.write(d / "face.raw", ev, W, H)
-    sio.write(d / "face21.raw", ev, W, H, format="evt21")      # a GenX320's word format
-    (d / "face.toml").write_text(face26(cx=W / 2, cy=H / 2, width=W, height=H).to_toml())
+    write_scene(d)
     return d
-
-
-_images = {}
-
-
-def image(board):
-    """The board's image (built once per test session)."""
-    if board not in _images:
-        import tempfile
-        _images[board] = build_image(board, tempfile.mkdtemp(prefix=f"fw-{board}-"))
-    return _images[board]
-
-
-def springtrack_cmd(*args):
-    exe = os.path.join(os.path.dirname(sys.executable), "springtrack")
-    return ([exe] if os.path.exists(exe) else [sys.executable, "-m", "springtrack.cli"]) + list(args)
 
 
 # ---- the image ------------------------------------------------------------------------

@@ -1,0 +1,31 @@
+/* What the host link's files share (proto.c: the state machine and its replies;
+ * outputs.c: the frames the firmware sends unasked; params.c: PARAM_SET by name). */
+#ifndef SPRINGTRACK_FW_PROTO_H
+#define SPRINGTRACK_FW_PROTO_H
+
+#include <stdint.h>
+#include "link.h"
+#include "text.h"
+
+typedef struct {
+    uint8_t session, role, authenticated;
+    uint64_t last_counter;               /* the highest signature counter accepted */
+    uint32_t auth_unsigned, auth_bad_tag, auth_replay, sessions;
+    uint32_t hello_seq, hello_crc;       /* the HELLO that opened the session */
+    uint16_t tx_seq;
+    int32_t rx_last;                     /* -1: expect anything */
+    uint8_t nonce[WIRE_NONCE_LEN];
+    uint32_t rx_lost, acks, nacks, forbidden, retries, version_refused, updates_rejected;
+    uint32_t telemetry;
+} proto_session_t;
+
+extern proto_session_t sess;
+
+void proto_send(uint8_t type, const uint8_t *p, uint32_t n);   /* the next sequence number */
+buf_t proto_out(void);                   /* the payload buffer (one frame at a time) */
+buf_t proto_why(void);                   /* a NACK's reason buffer */
+void proto_ack(const frame_t *f, uint32_t value);
+void proto_nack(const frame_t *f, uint8_t version, uint8_t code, const buf_t *why);
+void proto_nack_text(const frame_t *f, uint8_t code, const char *text);
+
+#endif
