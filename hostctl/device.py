@@ -201,13 +201,7 @@ class Device:
         generation of each change.  Several at once: their current values are read first
         (an unknown name is refused before anything changes); if the device refuses one,
         those already set are set back to their values before, and the refusal (Nacked)
-        says so.  A firmware that takes words images gets one parameters image: all of
-        them at once."""
-        if self.info.get("model_format") == wire_image.MODEL_FORMAT_WORDS:
-            image = _local_check("PARAM_SET", wire_image.params_image, {**self.get(), **params},
-                                 self.info.get("connections", 0))
-            gen = self._upload(image)
-            return {k: gen for k in params}
+        says so."""
         before = self.get(*params) if len(params) > 1 else {}
         gens: dict = {}
         for k, v in params.items():

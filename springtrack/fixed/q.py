@@ -175,8 +175,10 @@ def params_q(p, nc: int) -> dict:
         act_thr=q(min(p.activity_threshold, 2.0 ** 29), ACT_FRAC, "activity_threshold"),
         escale_never=1 if never else 0,
         escale=mantissa(0.0 if never else p.energy_scale, "energy_scale"),   # < nc <= 128
-        smin2=q(p.sigma_min_px ** 2, COV_FRAC, "sigma_min_px^2"),
-        smax2=q(p.sigma_max_px ** 2, COV_FRAC, "sigma_max_px^2"),
+        # squares as products, rounded exactly (x ** 2 is libm's pow, not always): the
+        # microcontroller image computes the same words (docs/mcu.md, "PARAM_SET by name")
+        smin2=q(p.sigma_min_px * p.sigma_min_px, COV_FRAC, "sigma_min_px^2"),
+        smax2=q(p.sigma_max_px * p.sigma_max_px, COV_FRAC, "sigma_max_px^2"),
         decay=decay_tables(tau),
         period=p.spring_period,
         ekind=p.energy_kind_index,

@@ -7,7 +7,9 @@ the board's memory map into ``DIR/firmware.elf``.
     >>> res.elf, res.flash_bytes, res.ram_bytes                # doctest: +SKIP
 
 The link's codes and sizes come from springtrack/wire.py as the generated ``wire_codes.h``
-(springtrack/mcu/wire_header.py), written beside the ELF.  Same flags as the kernel's
+(springtrack/mcu/wire_header.py), the parameters' names, ranges and word layout from
+springtrack/params.py and fixed/q.py as ``param_specs.h`` (params_header.py), written
+beside the ELF.  Same flags as the kernel's
 build (build.py): no heap, no libc, no compiler runtime, no floating point.
 """
 from __future__ import annotations
@@ -22,6 +24,7 @@ import dataclasses
 from .build import (CFLAGS, CSRC, FIXED, HERE, SOURCES as KERNEL_SOURCES, BuildResult,
                     Capacity, cache_root, measure, zig_cc)
 from .targets import target as get_target
+from . import params_header
 from .wire_header import header
 
 FIRMWARE = HERE / "firmware"
@@ -67,6 +70,7 @@ def build_image(board_name: str, out_dir, capacity: Capacity | None = None,
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "wire_codes.h").write_text(header())
+    (out / "param_specs.h").write_text(params_header.header())
     (out / "link_key.h").write_text(key_header(key))
     script = out / "firmware.ld"
     script.write_text((FIRMWARE / "firmware.ld").read_text()

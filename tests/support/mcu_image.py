@@ -7,6 +7,7 @@ import shutil
 import sys
 import tempfile
 
+import numpy as np
 import pytest
 
 from springtrack import io as sio
@@ -54,3 +55,43 @@ def write_scene(d):
 def springtrack_cmd(*args):
     exe = os.path.join(os.path.dirname(sys.executable), "springtrack")
     return ([exe] if os.path.exists(exe) else [sys.executable, "-m", "springtrack.cli"]) + list(args)
+
+
+def same_snapshots(a, b):
+    """Two telemetry recordings (hostctl Snapshots) are the same, snapshot for snapshot:
+    time, mean energy and every tracker field."""
+    assert len(a) == len(b) > 150
+    for x, y in zip(a, b):
+        assert x.t_us == y.t_us and x.mean_energy == y.mean_energy
+        for f in x.trackers.dtype.names:
+            assert np.array_equal(x.trackers[f], y.trackers[f]), (x.t_us, f)
+
+
+def run_to_end(dev):
+    """START, then hostctl's snapshots until the device says the stream ended."""
+    dev.start()
+    snaps = []
+    while True:
+        got = list(dev.telemetry(seconds=0.5))
+        snaps += got
+        if dev.stream_ended and not got:
+            return snaps
+
+
+def host_library(out_dir):
+    """The image's parameter conversion (firmware/xfloat.c, param_words.c) compiled for
+    this machine as a shared library, with the headers the image build generates."""
+    import ctypes
+    import subprocess
+    from pathlib import Path
+    from springtrack.mcu import params_header, wire_header
+    from springtrack.mcu.build import zig_cc
+    from springtrack.mcu.image import FIRMWARE
+    out = Path(out_dir)
+    (out / "wire_codes.h").write_text(wire_header.header())
+    (out / "param_specs.h").write_text(params_header.header())
+    lib = out / "param_words.so"
+    subprocess.run([*zig_cc(), "-O2", "-shared", "-fPIC", "-Wall", "-Wextra", "-Werror",
+                    f"-I{out}", f"-I{FIRMWARE}", str(FIRMWARE / "xfloat.c"),
+                    str(FIRMWARE / "param_words.c"), "-o", str(lib)], check=True)
+    return ctypes.CDLL(str(lib))

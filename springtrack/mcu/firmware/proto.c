@@ -42,6 +42,9 @@ static uint32_t name_n, ids_n, ids_count, kv_n, trackers, connections, have_ids;
 static uint8_t image[IMAGE_MAX] __attribute__((aligned(4)));
 static uint8_t have[(IMAGE_MAX + 7) / 8];
 static uint32_t up_total, up_crc, up_active, image_is_model;
+/* the committed words in the upload buffer (aligned by words_at), until an upload begins */
+static int32_t *c_model, *c_params;
+static uint32_t c_model_n, c_params_n;
 
 static struct {
     uint16_t seq;
@@ -437,6 +440,12 @@ static void on_stats(const frame_t *f)
         for (k = 0; k < sizeof kernel / sizeof kernel[0]; k++)
             kv_int(kernel[k], mcu_counters[k]);
     kv_int("updates_rejected", sess.updates_rejected);
+    kv_int("param_ticks", sess.param_ticks);
+    {                                    /* the kernel's parameter words now */
+        uint32_t nw;
+        const int32_t *pw = proto_committed_params(&nw);
+        kv_int("params_crc32", pw ? crc32(0, (const uint8_t *)pw, 4 * nw) : 0);
+    }
     kv_int("stack_used_bytes", fw_stack_used());
     kv_int("work_ticks", (int64_t)eng.work_ticks);
     kv_int("decode_ticks", (int64_t)eng.decode_ticks);
@@ -463,7 +472,7 @@ static void on_stats(const frame_t *f)
 
 /* ---- PARAM_GET: the entries of the committed parameters' kv list ---------------------- */
 /* the size of the kv entry at p (name, typed value), 0 if malformed */
-static uint32_t entry_size(const uint8_t *p, uint32_t left)
+uint32_t entry_size(const uint8_t *p, uint32_t left)
 {
     uint32_t n;
     if (left < 2 || left < 2u + p[0])
@@ -563,6 +572,7 @@ static void on_model_begin(const frame_t *f)
     up_crc = le32(f->payload + 4);
     up_active = 1;
     image_is_model = 0;                  /* the committed image is being overwritten */
+    c_params = 0;
     for (k = 0; k < (up_total + 7) / 8; k++)
         have[k] = 0;
     proto_ack(f, 0);
@@ -740,7 +750,11 @@ static void commit(const frame_t *f)
     for (k = 0; k < m.kv_n; k++)
         kv[k] = image[m.kv_at + k];
     kv_n = m.kv_n;
+    c_params = params;
+    c_params_n = m.params_n;
     if (m.kind == IMAGE_MODEL) {
+        c_model = model;
+        c_model_n = m.model_n;
         for (k = 0; k < m.name_n; k++)
             name[k] = image[m.name_at + k];
         name_n = m.name_n;
@@ -754,14 +768,29 @@ static void commit(const frame_t *f)
         connections = (uint32_t)model[1];
         image_is_model = 1;
     }
+    proto_applied(f);
+}
+
+void proto_applied(const frame_t *f)
+{
+    buf_t b = proto_out();
     eng.generation++;
     proto_ack(f, eng.generation);
-    {
-        buf_t b = proto_out();
-        b_u32(&b, eng.generation);
-        b_u64(&b, (uint64_t)engine_last_t());
-        proto_send(MSG_APPLIED, b.p, b.n);
-    }
+    b_u32(&b, eng.generation);
+    b_u64(&b, (uint64_t)engine_last_t());
+    proto_send(MSG_APPLIED, b.p, b.n);
+}
+
+int32_t *proto_committed_params(uint32_t *n)
+{
+    *n = c_params ? c_params_n : 0;
+    return c_params;
+}
+
+uint8_t *proto_kv(uint32_t **n)
+{
+    *n = &kv_n;
+    return kv;
 }
 
 static void on_model_commit(const frame_t *f)
@@ -817,16 +846,14 @@ static void on_simple(const frame_t *f)
         break;
     case MSG_RESET:
         up_active = 0;
-        if (eng.loaded) {
-            image_t m;
-            if (!image_is_model || !parse_image(&m, up_total)) {
+        if (eng.loaded) {                /* the model's words, the parameters' now */
+            if (!image_is_model || !c_params) {
                 proto_nack_text(f, NACK_BAD_STATE, "the model's words were overwritten by an upload "
                           "since it was committed: load the model again to reset");
                 return;
             }
             engine_reset();
-            engine_load(words_at(m.model_at, m.model_n), m.model_n,
-                        words_at(m.params_at, m.params_n), m.params_n);
+            engine_load(c_model, c_model_n, c_params, c_params_n);
             eng.generation++;
         }
         break;
@@ -920,11 +947,7 @@ void proto_frame(const frame_t *f)
         proto_nack_text(f, NACK_BAD_STATE, "MODEL_GET: this firmware holds its model as words "
                   "(model_format=words), not as TOML: the host that uploaded it has the text");
         break;
-    case MSG_PARAM_SET:
-        proto_nack_text(f, NACK_BAD_STATE, "this firmware takes parameters as a words image "
-                  "(springtrack.mcu.words.encode_image), which hostctl set sends when INFO says "
-                  "model_format=words");
-        break;
+    case MSG_PARAM_SET: on_param_set(f); break;
     default: on_simple(f); break;
     }
 }
