@@ -653,7 +653,7 @@ class ReferenceTracker:
                 if gain[i] > 0.0:
                     self.mx[i] = self.mx[i] + gain[i] * (gx + self.gdx0[i] - self.mx[i])
                     self.my[i] = self.my[i] + gain[i] * (gy + self.gdy0[i] - self.my[i])
-        if self.tau_m > 0.0 or self.c_h > 0.0:
+        if self.tau_m > 0.0:
             self._pull_velocities(g, over_count)
         for i in range(t0, t1):
             # eq. (21): insensitive while every connection of the tracker is over
@@ -662,9 +662,8 @@ class ReferenceTracker:
     def _pull_velocities(self, g: int, over_count: dict) -> None:
         """eq. (M8), this project's: the velocity of a tracker eq. (22) pulls moves toward
         the mass-weighted mean velocity of its instance's trackers left alone (0 if none),
-        and its half offset between edges toward 0, by the same gain: a tracker pulled back
-        to the structure moves with it, not on with what it followed (an occluder's edge,
-        say), and forgets the edges it learned there."""
+        by the same gain: a tracker pulled back to the structure moves with it, not on
+        with what it followed (an occluder's edge, say)."""
         w = vx = vy = 0.0
         for i in range(self.t0[g], self.t1[g]):
             if over_count[i] == 0:
@@ -677,10 +676,8 @@ class ReferenceTracker:
         a = self.egain[g]
         for i in range(self.t0[g], self.t1[g]):
             if over_count[i] > 0:
-                self.vx[i] = self.vx[i] + a * (vx - self.vx[i])      # eq. (M8): v toward v_calm
+                self.vx[i] = self.vx[i] + a * (vx - self.vx[i])
                 self.vy[i] = self.vy[i] + a * (vy - self.vy[i])
-                self.hx[i] = self.hx[i] - a * self.hx[i]             # eq. (M8): h toward 0
-                self.hy[i] = self.hy[i] - a * self.hy[i]
 
     # ---- instances' states ------------------------------------------------------
     def set_state(self, g: int, state: int) -> None:

@@ -323,10 +323,10 @@ cdef void fit_frame(KState* s, int g, uint64_t fit, double* dis) noexcept nogil:
 
 cdef inline void pull_velocities(KState* s, int g, uint64_t pulled) noexcept nogil:
     # [ref] _pull_velocities(g), eq. (M8): the pulled trackers' velocities toward the
-    # mean velocity of the instance's trackers left alone, their half offsets toward 0
+    # mean velocity of the instance's trackers left alone
     cdef int t0 = s.g_t0[g], n = s.g_t1[g] - s.g_t0[g], j, i
     cdef double w = 0.0, vx = 0.0, vy = 0.0, a = s.energy_gain[g]
-    if (s.tau_m <= 0.0 and s.c_h <= 0.0) or pulled == 0:
+    if s.tau_m <= 0.0 or pulled == 0:
         return
     for j in range(n):
         if not (pulled >> j) & 1:
@@ -342,8 +342,6 @@ cdef inline void pull_velocities(KState* s, int g, uint64_t pulled) noexcept nog
             i = t0 + j
             s.vx[i] = s.vx[i] + a * (vx - s.vx[i])
             s.vy[i] = s.vy[i] + a * (vy - s.vy[i])
-            s.hx[i] = s.hx[i] - a * s.hx[i]
-            s.hy[i] = s.hy[i] - a * s.hy[i]
 
 
 cdef inline void energy_criteria(KState* s, int g) noexcept nogil:

@@ -189,10 +189,9 @@ static void motion_to(fx_state *s, int64_t t)
 }
 
 /* [ref] _pull_velocities, eq. (M8): the velocity of each tracker eq. (22) pulled (bits of
-   `pulled`) moves toward the mass-weighted mean velocity of the trackers left alone, and
-   its half offset toward 0, by energy_gain: v = v + a_en (v_calm - v) (v_calm 0 if none
-   is calm), h = h - a_en h.  Weights mq (Q.24, <= 2^24): sums < 2^60, one rounded
-   division each */
+   `pulled`) moves toward the mass-weighted mean velocity of the trackers left alone, by
+   energy_gain: v = v + a_en (v_calm - v) (v_calm 0 if none is calm).  Weights mq (Q.24,
+   <= 2^24): sums < 2^60, one rounded division each */
 static void pull_velocities(fx_state *s, uint64_t pulled)
 {
     int64_t sx = 0, sy = 0, bx = 0, by = 0;
@@ -214,8 +213,6 @@ static void pull_velocities(fx_state *s, uint64_t pulled)
         i = lo ? __builtin_ctz(lo) : 32 + __builtin_ctz((uint32_t)(pulled >> 32));
         set_velocity(s, i, s->vx[i] + (int32_t)mulsh(bx - s->vx[i], s->energy_gain, 30),
                      s->vy[i] + (int32_t)mulsh(by - s->vy[i], s->energy_gain, 30));
-        s->hx[i] -= mulsh(s->hx[i], s->energy_gain, 30);
-        s->hy[i] -= mulsh(s->hy[i], s->energy_gain, 30);
     }
 }
 

@@ -96,7 +96,7 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
         s->mx[i] = sat_pos(s, s->mx[i] + mulsh(tx - s->mx[i], gain, 30));
         s->my[i] = sat_pos(s, s->my[i] + mulsh(ty - s->my[i], gain, 30));
     }
-    if ((s->tau_ceil > 0 || s->c_h > 0) && pulled)        /* eq. (M8) */
+    if (s->tau_ceil > 0 && pulled)                        /* eq. (M8) */
         pull_velocities(s, pulled);
     /* [ref] _guard: a mean outside the position box (a saturated one is) is a state no
        model within springtrack.limits reaches: counted, and the state reset to the model.

@@ -183,24 +183,3 @@ def test_with_the_motion_model_off_the_velocity_columns_are_zero_and_read_back(t
     old = read_csv(tmp_path / "old.csv")
     assert (old.vx == 0).all() and (old.vy == 0).all()
     np.testing.assert_allclose(old.x, tr.x, atol=1e-5)
-
-
-def test_a_pulled_tracker_forgets_its_edges_and_a_calm_one_keeps_them():
-    """eq. (M8): a tracker dragged 40 px off the grid stretches its connections over the
-    threshold, so eq. (22) pulls it back; its half offset between edges (learned on what
-    dragged it) moves toward 0 by the same gain, a calm tracker's stays."""
-    from springtrack.model import grid3x3
-    from springtrack.params import Params
-    from springtrack.reference import ReferenceTracker
-    from support.springs import pose
-    m = grid3x3(stiffness=1e-12, springs=("euclidean",))
-    tr = ReferenceTracker(m, Params(motion_tau_us=1000.0, polarity_gain=1.0, energy_scale=2.0,
-                                    energy_gain=0.5, energy_kind="euclidean"))
-    x, y = pose(m, 0.0, 1.0)
-    x[0] -= 40.0
-    tr.mx, tr.my = [float(v) for v in x], [float(v) for v in y]
-    far = m.ids.index("r2c2")
-    tr.hx[0], tr.hy[0], tr.hx[far], tr.hy[far] = 2.0, -1.0, 1.5, 0.5
-    tr.springs()
-    assert (tr.hx[0], tr.hy[0]) == pytest.approx((1.0, -0.5), abs=1e-12)
-    assert (tr.hx[far], tr.hy[far]) == (1.5, 0.5)
