@@ -104,11 +104,12 @@ static int in_motion(const fx_state *s)
    62 bits (31 significant bits) */
 static int64_t sqrt_q32(int64_t v)
 {
-    int k = 0;
+    int k;
     if (v <= 0)
         return 0;
-    while (k < 32 && ((uint64_t)v >> (60 - k)) == 0)      /* v 2^k < 2^60 */
-        k += 2;
+    k = (62 - bitlen64((uint64_t)v)) & ~1;                /* even, v 2^k < 2^62 */
+    if (k > 32)
+        k = 32;
     return shl64((int64_t)isqrt64((uint64_t)v << k), (32 - k) / 2);
 }
 

@@ -16,6 +16,7 @@ from springtrack.params import Params
 from springtrack.tracker import Tracker
 
 from support.dot_truth import dot_model_toml, dot_truth, track_errors
+from springtrack.sim.synthetic import blob_stream
 from support.fast_parts import errors, fast_disk
 from support.fixed_bound import BOUNDS, compare, figures, scene_stream, sim_stream, violations
 from support.moves import similarity
@@ -156,3 +157,26 @@ def test_off_the_velocity_and_half_offset_stay_zero():
     for k in ("vx", "vy", "hx", "hy", "kpv", "kvv"):
         assert not raw[k].any(), k
     assert (raw["kpp"] == 1 << 32).all()
+
+
+def test_two_instances_within_the_bound():
+    """A grid and a face side by side (fixed_set.c: one event assignment over both
+    instances' predicted means, each instance's springs at the batch's time), the motion
+    model on: fixed within the bound of the float kernel, the same events assigned."""
+    from springtrack.model import face26, grid3x3
+    w, h = 400, 240
+    g = grid3x3(cx=90, cy=120, spacing=30, sigma_px=4, width=w, height=h)
+    f = face26(cx=290, cy=120, scale=110, width=w, height=h)
+    eg, _ = blob_stream(g, 40_000, noise=0.2, speed_px_s=(300, 150), seed=1)
+    ef, _ = blob_stream(f, 60_000, noise=0.2, speed_px_s=(-200, 100), rot_deg_s=20, seed=2)
+    ev = np.sort(np.concatenate([eg, ef]), order="t", kind="stable")
+    runs = {}
+    for b in ("cython", "fixed"):
+        tr = springtrack.Tracker([g, f], dict(spring_period=5, **MOTION), backend=b)
+        runs[b] = (tr.run(ev, sample_us=1000), tr.counters)
+    (a, ca), (fx, cf) = runs["cython"], runs["fixed"]
+    assert ca["events_assigned"] == cf["events_assigned"]
+    fig = figures(a, fx)
+    assert fig["pos_rms_px"] < 1e-4 and fig["pos_max_px"] <= BOUNDS["pos_max_px"], fig
+    assert fig["active_agree"] == 1.0 and fig["sensitive_agree"] == 1.0
+    assert np.abs(a.vx - fx.vx).max() <= VEL_TOL and np.abs(fx.vx).max() > 50
