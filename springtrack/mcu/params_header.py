@@ -85,6 +85,7 @@ def header() -> str:
               f"#define Q_KALMAN_FRAC {q.KALMAN_FRAC}",
               f"#define Q_MOTION_ALPHA_MIN {_bits(q.MOTION_ALPHA_MIN)}",
               f"#define Q_LOG2E {_bits(q.LOG2E)}",
+              f"#define Q_VEL_UNIT {_bits(q.VEL_UNIT)}      /* Q.32 px/us as px/s */",
               f"#define Q_PARAMS_WORDS "
               f"{q.PARAMS_HEAD + 2 * (1 << q.DECAY_BITS) + q.MOTION_WORDS}"]
     lines += [f"#define W_{k.upper()} {v}" for k, v in WORDS.items()]

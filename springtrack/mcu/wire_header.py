@@ -40,6 +40,8 @@ def header() -> str:
              f"#define WIRE_TELE_TRACKER {wire.TELE_TRACKER.itemsize}",
              f"#define WIRE_TEXT_MAX {wire.TEXT_MAX}",
              f"#define WIRE_ENERGY_PERIOD_US {wire.ENERGY_PERIOD_US}",
+             f"#define WIRE_VELOCITY_TAG {wire.VELOCITY_TAG}",
+             f"#define WIRE_VEL_UNIT 0x{struct.unpack('<Q', struct.pack('<d', wire.VEL_UNIT))[0]:016x}ull",
              f"#define WIRE_IMAGE_MAGIC 0x{magic:08x}u",
              f"#define WIRE_IMAGE_VERSION {wire_image.IMAGE_VERSION}",
              f"#define WIRE_IMAGE_HDR {wire_image.IMAGE_HDR.size}",

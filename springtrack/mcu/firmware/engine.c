@@ -5,6 +5,8 @@
 #include "fixed_telemetry.h"
 #include "sampling.h"
 #include "wire_codes.h"
+#include "param_specs.h"
+#include "xfloat.h"
 #include "springtrack/io/evt2_types.h"
 #include "springtrack/io/evt21_types.h"
 
@@ -26,7 +28,8 @@ void mcu_main(void);
 #ifndef MCU_ROWS
 #define MCU_ROWS 4
 #endif
-#define MCU_ROW_WORDS (4 + 7 * FX_MAX_TRACKERS)
+#define MCU_ROW_TRACKER 9               /* entry.c's row: per tracker x, y, sxx, sxy, syy, */
+#define MCU_ROW_WORDS (4 + MCU_ROW_TRACKER * FX_MAX_TRACKERS)   /* activity, flags, vx, vy */
 extern int64_t mcu_rows[MCU_ROWS][MCU_ROW_WORDS];
 extern uint8_t mcu_wire[MCU_ROWS][FX_MAX_TRACKERS * FX_TELE_RECORD];
 
@@ -337,6 +340,23 @@ static void energies(int64_t t)
     proto_energies(t, (uint32_t)s->ekind, bits, (uint32_t)s->nc);
 }
 
+/* TELEMETRY's velocity block (wire.quantise_velocities) of a row: each tracker's vx, vy
+   (Q.32 px/us, eq. M7) as the fixed kernel's px/s double, then rint(v / VEL_UNIT) clipped
+   to int16; 0 (no block) when every code is 0 (the motion model off) */
+static const int16_t *velocities(const int64_t *row, int32_t n)
+{
+    static int16_t v[2 * FX_MAX_TRACKERS];
+    int32_t i, any = 0;
+    for (i = 0; i < 2 * n; i++) {
+        int64_t q = row[4 + MCU_ROW_TRACKER * (i >> 1) + 7 + (i & 1)];
+        dbits_t px_s = d_mul(d_from_int(q), Q_VEL_UNIT);
+        q = d_round_scaled(d_div(px_s, WIRE_VEL_UNIT), 0);
+        v[i] = (int16_t)(q > 0x7FFF ? 0x7FFF : q < -0x7FFF ? -0x7FFF : q);
+        any |= v[i];
+    }
+    return any ? v : 0;
+}
+
 int engine_work(void)
 {
     uint32_t k, rows;
@@ -364,7 +384,7 @@ int engine_work(void)
     for (k = 0; k < rows; k++) {
         eng.snapshots++;
         proto_telemetry(mcu_rows[k][0], energy_f32(mcu_rows[k][1 + s->ekind], s->nc),
-                        mcu_wire[k], (uint32_t)s->n);
+                        mcu_wire[k], (uint32_t)s->n, velocities(mcu_rows[k], s->n));
     }
     if (rows)
         energies(mcu_rows[rows - 1][0]);

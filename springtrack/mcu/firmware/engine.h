@@ -41,8 +41,10 @@ void engine_reset(void);
 int engine_work(void);
 int64_t engine_last_t(void);
 
-/* proto.c: a snapshot's TELEMETRY (records of n trackers, the energy as float32 bits) */
-void proto_telemetry(int64_t t, uint32_t energy_bits, const uint8_t *records, uint32_t n);
+/* outputs.c: a snapshot's TELEMETRY (records of n trackers, the energy as float32 bits, the
+   velocity block's 2n codes or 0) */
+void proto_telemetry(int64_t t, uint32_t energy_bits, const uint8_t *records, uint32_t n,
+                     const int16_t *velocity);
 void proto_stream_ended(void);
 /* proto.c: ENERGIES (each connection's energy of one kind as float32 bits), sent while a
    host session receives */

@@ -6,9 +6,11 @@
 #include "link_key.h"
 #include "proto.h"
 
-void proto_telemetry(int64_t t, uint32_t energy_bits, const uint8_t *records, uint32_t n)
+void proto_telemetry(int64_t t, uint32_t energy_bits, const uint8_t *records, uint32_t n,
+                     const int16_t *velocity)
 {
     buf_t b = proto_out();
+    uint32_t i;
     if (!sess.session || (LINK_KEY_LEN && !sess.authenticated))
         return;                          /* nobody to send it to */
     b_u64(&b, (uint64_t)t);
@@ -16,6 +18,11 @@ void proto_telemetry(int64_t t, uint32_t energy_bits, const uint8_t *records, ui
     b_u32(&b, energy_bits);
     b_u8(&b, n);
     b_bytes(&b, records, n * WIRE_TELE_TRACKER);
+    if (velocity) {                      /* wire.VELOCITY_TAG, then vx, vy per tracker */
+        b_u8(&b, WIRE_VELOCITY_TAG);
+        for (i = 0; i < 2 * n; i++)
+            b_u16(&b, (uint16_t)velocity[i]);
+    }
     sess.telemetry++;
     proto_send(MSG_TELEMETRY, b.p, b.n);
 }

@@ -126,7 +126,8 @@ SETS = [("alpha_position", 0.1), ("p_threshold", 0.05), ("activity_tau_us", 5000
         ("alpha_covariance", 1e-4), ("energy_gain", 0.3), ("spring_period", 40),
         ("spring_period", 30.0), ("energy_kind", "torsional"), ("pull_frame", "image"),
         ("sigma_min_px", 0.75), ("sigma_max_px", 40), ("activity_threshold", 4.0),
-        ("energy_scale", 3.0), ("cartesian_frame", "image"), ("energy_kind", "euclidean")]
+        ("energy_scale", 3.0), ("cartesian_frame", "image"), ("energy_kind", "euclidean"),
+        ("motion_tau_us", 2000.0), ("polarity_gain", 0.3)]
 REFUSED = [("nope", 1.0), ("alpha_position", "x"), ("spring_period", 1.5),
            ("spring_period", True), ("alpha_position", 5.0), ("alpha_position", float("nan")),
            ("activity_tau_us", float("inf")), ("energy_kind", "foo"), ("energy_kind", 3),
@@ -165,7 +166,8 @@ def test_param_set_by_name_as_firmware_sim(scene):
     same generations, values and refusal codes (unknown name, wrong type, out of range,
     the set's own limits, malformed payloads), the refused ones changing nothing; the
     image's kernel words are springtrack.fixed.q.params_words' after each change; the
-    telemetry of the changed parameters is the same, snapshot for snapshot."""
+    telemetry of the changed parameters (the motion model on: velocities too) is the same,
+    snapshot for snapshot."""
     d, _ = scene
     model = smodel.load(d / "face.toml")
     nc = len(model.connections)
@@ -191,6 +193,7 @@ def test_param_set_by_name_as_firmware_sim(scene):
         assert crc == words_crc(sparams.Params(**values), nc), values
     assert mcu["crcs"][-1] == mcu["crcs"][-2]            # the refusals changed nothing
     same_snapshots(mcu["snaps"], sim["snaps"])
+    assert any(np.any(x.trackers["vx"] != 0) for x in mcu["snaps"])   # the velocity block
 
 
 def test_hostctl_set_and_get_through_mcu_run_listen(scene, tmp_path):
