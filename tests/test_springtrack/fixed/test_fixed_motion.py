@@ -163,8 +163,8 @@ def test_two_instances_within_the_bound():
     """A grid and a face side by side (fixed_set.c: one event assignment over both
     instances' predicted means, each instance's springs at the batch's time), the motion
     model on: fixed within the bound of the float kernel, the same events assigned.  This
-    seed pair only: on most others one near-tie decided the other way parts the kernels
-    beyond the bound (docs/fixed_point.md, "The motion model"), so this checks the set's
+    seed pair only: on two of five others one near-tie decided the other way parts the
+    kernels beyond the bound (docs/fixed_point.md, "The motion model"), so this checks the set's
     motion path, not a bound that holds for every stream."""
     from springtrack.model import face26, grid3x3
     w, h = 400, 240
