@@ -177,11 +177,7 @@ void on_param_set(const frame_t *f)
         read_values(&old);               /* the kv list still holds them */
         param_words(&old, nc, words, 1);
         engine_load(0, 0, words, nw);
-        b_str(&w, "the kernel refused the parameter words (fx status ");
-        b_int(&w, rc);
-        b_u8(&w, ')');
-        sess.updates_rejected++;
-        proto_nack(f, WIRE_VERSION, NACK_INTERNAL, &w);
+        proto_nack_kernel_refused(f, "the kernel refused the parameter words", rc);
         return;
     }
     kv_update(k, &v);

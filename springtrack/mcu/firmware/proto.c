@@ -110,6 +110,17 @@ void proto_nack_text(const frame_t *f, uint8_t code, const char *text)
     proto_nack(f, WIRE_VERSION, code, &w);
 }
 
+void proto_nack_kernel_refused(const frame_t *f, const char *what, int32_t rc)
+{
+    buf_t w = proto_why();
+    b_str(&w, what);
+    b_str(&w, " (fx status ");
+    b_int(&w, rc);
+    b_u8(&w, ')');
+    sess.updates_rejected++;
+    proto_nack(f, WIRE_VERSION, NACK_INTERNAL, &w);
+}
+
 static uint32_t le16(const uint8_t *p) { return (uint32_t)p[0] | (uint32_t)p[1] << 8; }
 static uint32_t le32(const uint8_t *p) { return le16(p) | le16(p + 2) << 16; }
 
@@ -740,11 +751,7 @@ static void commit(const frame_t *f)
     }
     rc = engine_load(model, m.model_n, params, m.params_n);
     if (rc != 0) {                       /* checked above: a defect if it happens */
-        b_str(&w, "the kernel refused the words (fx status ");
-        b_int(&w, rc);
-        b_u8(&w, ')');
-        sess.updates_rejected++;
-        proto_nack(f, WIRE_VERSION, NACK_INTERNAL, &w);
+        proto_nack_kernel_refused(f, "the kernel refused the words", rc);
         return;
     }
     for (k = 0; k < m.kv_n; k++)

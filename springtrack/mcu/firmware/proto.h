@@ -28,6 +28,8 @@ buf_t proto_why(void);                   /* a NACK's reason buffer */
 void proto_ack(const frame_t *f, uint32_t value);
 void proto_nack(const frame_t *f, uint8_t version, uint8_t code, const buf_t *why);
 void proto_nack_text(const frame_t *f, uint8_t code, const char *text);
+/* NACK internal for words the checks passed but the kernel refused (a defect if it happens) */
+void proto_nack_kernel_refused(const frame_t *f, const char *what, int32_t rc);
 void proto_applied(const frame_t *f);   /* a new generation: ACK with it, then APPLIED */
 
 /* the committed parameters: their kernel words (0 once an upload began overwriting them)

@@ -125,6 +125,16 @@ dbits_t d_div(dbits_t a, dbits_t b)
     return pack(r);
 }
 
+/* *x and *y swapped if need be so that |*x| >= |*y| */
+static void larger_first(unp_t *x, unp_t *y)
+{
+    if (x->e < y->e || (x->e == y->e && x->m < y->m)) {
+        unp_t r = *x;
+        *x = *y;
+        *y = r;
+    }
+}
+
 static unp_t add(unp_t x, unp_t y)
 {
     unp_t r;
@@ -133,11 +143,7 @@ static unp_t add(unp_t x, unp_t y)
         return x;
     if (x.m == 0)
         return y;
-    if (x.e < y.e || (x.e == y.e && x.m < y.m)) {    /* |x| >= |y| */
-        r = x;
-        x = y;
-        y = r;
-    }
+    larger_first(&x, &y);
     x.m >>= 1;                           /* room for the carry */
     y.m >>= 1;
     x.e++;
@@ -243,11 +249,7 @@ static unp_t xadd(unp_t a, unp_t b)
         return a;
     if (a.m == 0)
         return b;
-    if (a.e < b.e || (a.e == b.e && a.m < b.m)) {    /* |a| >= |b| */
-        r = a;
-        a = b;
-        b = r;
-    }
+    larger_first(&a, &b);
     d = a.e - b.e;
     bm = d == 0 ? b.m : d < 64 ? (b.m >> d) + ((b.m >> (d - 1)) & 1) : d == 64 ? b.m >> 63 : 0;
     r = a;
