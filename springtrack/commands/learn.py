@@ -60,6 +60,13 @@ def run(args) -> int:
     print(f"input     {args.input}: {width}x{height}, {len(raw):,} events "
           f"(decoder {src.stats.summary()}); {prep.stats.summary()}; learning on "
           f"{len(events):,}")
+    if len(raw) and not len(events) and (args.start_us is not None or args.end_us is not None):
+        given = " ".join(f"--{k.replace('_', '-')} {v}" for k, v in
+                         (("start_us", args.start_us), ("end_us", args.end_us)) if v is not None)
+        print(f"springtrack learn: no event in the window {given}: the recording's events "
+              f"run from {int(raw['t'][0]):,} to {int(raw['t'][-1]):,} µs (its own clock)",
+              file=sys.stderr)
+        return NoObjectFound.exit_code
     names = [s.strip() for s in args.names.split(",")] if args.names else None
     try:
         res = learn_model(events, trackers=args.trackers, width=width, height=height,
@@ -110,6 +117,12 @@ def report(res) -> None:
               f"{s.coactivation:8.3f} {s.rigidity:8.3f} {s.turn_deg:8.1f}")
 
 
+# a fast part moving farther than this within the learning window: the window is said
+# to be long for it (docs/learning.md, "A single fast part and its trail")
+FAST_TRAVEL_PX = 100.0
+SHORT_WINDOW_US = 10_000      # the window the note suggests instead
+
+
 def notes(res) -> list:
     """What the learner decided for the user: time constants scaled to a short window,
     parts beyond a kernel instance's capacity reduced, criteria switched off."""
@@ -144,6 +157,15 @@ def notes(res) -> list:
                    f"sizes per ms: the motion model is on (velocity and both edges per "
                    f"tracker, docs/motion.md); --learn-param motion_sigmas_per_ms=0 keeps "
                    f"the paper's step")
+        travel = ev["speed_px_s"] * ev.get("window_ms", 0.0) * 1e-3
+        if len(res.model.trackers) > 1 and travel > FAST_TRAVEL_PX:
+            out.append(f"a fast part travels {travel:,.0f} px in this {ev['window_ms']:g} ms "
+                       f"window and leaves a trail of late events that can be learned as "
+                       f"parts of their own ({len(res.model.trackers)} parts here): if the "
+                       f"object has fewer, learn from a shorter window "
+                       f"(--end-us {res.t_start_us + SHORT_WINDOW_US} for the first "
+                       f"{SHORT_WINDOW_US // 1000} ms; track --learn-first-ms "
+                       f"{SHORT_WINDOW_US // 1000})")
     s = res.model.params.get("energy_scale")
     if s is not None and len(res.model.connections) and s > len(res.model.connections):
         out.append(f"energy_scale {s:g} > {len(res.model.connections)} springs: the occlusion "

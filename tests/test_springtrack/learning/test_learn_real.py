@@ -187,3 +187,21 @@ def test_learned_table_round_trips(tmp_path):
     p = tmp_path / "m.toml"
     m.save(p)
     assert springtrack.load_model(p).learned == m.learned
+
+
+def test_learn_says_a_fast_parts_window_is_long_and_which_one_to_take(data_file, tmp_path,
+                                                                    capsys):
+    """The whole dot recording (50 ms, the dot crosses 336 px): learn says the fast part's
+    trail may be learned as parts and names the window to take instead; that window
+    gives one part.  A window outside the recording names the recording's own clock."""
+    from springtrack.cli import main
+    path = str(data_file("evt2_sample.raw"))
+    assert main(["learn", path, "--out", str(tmp_path / "all.toml")]) == 0
+    out = capsys.readouterr().out
+    assert "a fast part travels" in out and "--end-us 1327888 for the first 10 ms" in out, out
+    assert main(["learn", path, "--end-us", "1327888", "--out", str(tmp_path / "ten.toml")]) == 0
+    out = capsys.readouterr().out
+    assert "learned   1 trackers" in out and "a fast part travels" not in out, out
+    assert main(["learn", path, "--end-us", "10000", "--out", str(tmp_path / "no.toml")]) == 3
+    err = capsys.readouterr().err
+    assert "no event in the window --end-us 10000" in err and "1,317,888 to 1,367,888" in err
