@@ -86,23 +86,58 @@ class Track:
 
     @classmethod
     def concat(cls, parts, ids) -> "Track":
+        """One Track of ``parts`` in order.  A lone part is returned as it is (no copy);
+        parts that keep their sample rows (:meth:`from_samples`) are joined row by row
+        with one copy, the fields views of the joined rows."""
         parts = [p for p in parts if len(p)]
         if not parts:
             return cls.empty(ids)
-        kw = {f: np.concatenate([getattr(p, f) for p in parts])
-              for f in ("t_us",) + TRACK_FIELDS}
         en = None
         if all(p.energy is not None for p in parts):
-            en = np.concatenate([p.energy for p in parts])
-        return cls(ids=list(ids), energy=en, **kw)
+            en = np.concatenate([p.energy for p in parts]) if len(parts) > 1 else parts[0].energy
+        t = np.concatenate([p.t_us for p in parts]) if len(parts) > 1 else parts[0].t_us
+        rows = [p.rows() for p in parts]
+        if all(r is not None for r in rows):
+            # the rows as opaque records: numpy copies an aligned record dtype field by
+            # field, a record of raw bytes in one copy
+            raw = np.dtype((np.void, TRACK_DTYPE.itemsize))
+            joined = rows[0] if len(rows) == 1 else np.concatenate(
+                [r.view(raw) for r in rows]).view(TRACK_DTYPE)
+            return cls.of_rows(t, ids, joined, en)
+        kw = {f: np.concatenate([getattr(p, f) for p in parts]) if len(parts) > 1
+              else getattr(parts[0], f) for f in TRACK_FIELDS}
+        return cls(t, list(ids), energy=en, **kw)
 
     @classmethod
     def from_samples(cls, samples: dict, ids) -> "Track":
         """A Track from a tracker loop's sample rows: ``t`` (rows,), ``trackers`` (rows, K)
-        of TRACK_DTYPE, ``energy`` (rows, 3)."""
-        tr = samples["trackers"]
-        return cls(samples["t"], list(ids), energy=samples["energy"],
-                   **{f: tr[f] for f in TRACK_FIELDS})
+        of TRACK_DTYPE, ``energy`` (rows, 3).  The fields are views of the rows (no copy)."""
+        return cls.of_rows(samples["t"], ids, samples["trackers"], samples["energy"])
+
+    @classmethod
+    def of_rows(cls, t_us, ids, rows: np.ndarray, energy=None) -> "Track":
+        """A Track whose fields are views of ``rows`` ((n, K) TRACK_DTYPE), which it keeps."""
+        if rows.dtype != TRACK_DTYPE or rows.ndim != 2:
+            raise TypeError(f"sample rows must be (rows, trackers) {TRACK_DTYPE}, not "
+                            f"{rows.ndim}-d {rows.dtype}")
+        track = cls(t_us, list(ids), energy=energy, **{f: rows[f] for f in TRACK_FIELDS})
+        track._rows = rows
+        return track
+
+    def rows(self) -> np.ndarray | None:
+        """The (n, K) TRACK_DTYPE rows the fields are views of, or None (a Track built
+        from separate arrays, or one whose field was replaced by another array since)."""
+        rows = getattr(self, "_rows", None)
+        if rows is None:
+            return None
+        at = rows.__array_interface__["data"][0]
+        for f in TRACK_FIELDS:
+            a = getattr(self, f)
+            if not (isinstance(a, np.ndarray) and a.dtype == TRACK_DTYPE[f]
+                    and a.shape == rows.shape and a.strides == rows.strides
+                    and a.__array_interface__["data"][0] == at + TRACK_DTYPE.fields[f][1]):
+                return None
+        return rows
 
     def tracker(self, tracker_id) -> dict:
         k = self.ids.index(tracker_id)

@@ -336,11 +336,14 @@ class Tracker:
         """Process events and return the samples taken during this call (at most
         ``sampling.PER_EVENT`` per event: see :meth:`record`)."""
         self.record(sample_us)
-        new = list(self.stream(events))
-        self._recorded.extend(new)
-        return Track.concat(new, self.ids)
+        new = Track.concat(self.stream(events), self.ids)
+        if len(new):                 # kept once: samples() returns it as it is
+            self._recorded.append(new)
+        return new
 
     def samples(self, clear: bool = True) -> Track:
+        """The samples recorded (by :meth:`process`, :meth:`run`, :meth:`flush`) since the
+        last call that cleared them; a Track returned by :meth:`run` is shared, not copied."""
         tr = Track.concat(self._recorded, self.ids)
         if clear:
             self._recorded = []

@@ -58,8 +58,11 @@ cdef cnp.ndarray _rows_copy(cnp.ndarray rows):
 
 
 cdef dict take_samples(dict bufs, SampleOut* o, bint copy):
-    """The ``o.count`` rows written so far (copies, or views of the buffers); ``o.count = 0``."""
+    """The ``o.count`` rows written so far (copies, or views of the buffers: views only
+    of buffers at least half full, so that a few rows do not hold a whole buffer);
+    ``o.count = 0``."""
     c = o.count
+    copy = copy or 2 * c < o.cap
     out = {k: (_rows_copy(v[:c]) if copy else v[:c]) for k, v in bufs.items()}
     o.count = 0
     return out

@@ -139,6 +139,11 @@ def notes(res) -> list:
                    f"of its variation): mains flicker; the parts moved {ev['travel_px']:g} px "
                    f"(median): a model of still things lit by a flickering lamp, not of a "
                    f"moving object, unless something moved in the window")
+    if res.model.params.get("motion_tau_us", 0.0) > 0 and "sizes_per_ms" in ev:
+        out.append(f"parts move {ev['speed_px_s']:,.0f} px/s, {ev['sizes_per_ms']:.2g} part "
+                   f"sizes per ms: the motion model is on (velocity and both edges per "
+                   f"tracker, docs/motion.md); --learn-param motion_sigmas_per_ms=0 keeps "
+                   f"the paper's step")
     s = res.model.params.get("energy_scale")
     if s is not None and len(res.model.connections) and s > len(res.model.connections):
         out.append(f"energy_scale {s:g} > {len(res.model.connections)} springs: the occlusion "

@@ -16,8 +16,8 @@ from .discovery import (_discover, _keep_cols, _to_count, awake, dominant, event
 from .flicker import FLICKER_SHARE, mains_flicker
 from .pool import Pool
 from .settings import (F, LearnParams, LearnResult, MASS_RANGE, MAX_PARTS, MIN_EVENTS,
-                       NoObjectFound, PERSIST_GRACES, PERSIST_MIN, POINT_SIGMA, COHERENCE_MIN,
-                       WEAK_PASSES)
+                       MOTION_ON, NoObjectFound, PERSIST_GRACES, PERSIST_MIN, POINT_SIGMA,
+                       COHERENCE_MIN, SPEED_QUANTILE, WEAK_PASSES)
 from .springs import _springs, activity_weights, object_similarity
 
 
@@ -107,7 +107,7 @@ def learn_model(events, trackers: int | None = None, width: int | None = None,
         raise NoObjectFound("no object found: the learned trackers took no events")
     model, springs, cands, counts = _build_model(pool, rec, counts, lp, tp, width, height,
                                                  names, name)
-    model.learned = stability(rec, springs, cands, lp, t0, t1, len(ev))
+    model.learned = stability(rec, springs, cands, lp, t0, t1, len(ev)) | model.learned
     hz, share = mains_flicker(ev["t"])
     if share >= FLICKER_SHARE:
         model.learned.update(flicker_hz=hz, flicker_share=round(share, 3))
@@ -267,27 +267,32 @@ def spring_energies(rec: dict, kept: list, stiffness: np.ndarray, kind: str, x_e
     return 0.5 * stiffness * dl * dl                                        # eq. (12)
 
 
-def motion_alpha(rec: dict, sig: np.ndarray, batch_us: int, smooth_us: int,
-                 lag_fraction: float, quantile: float = 0.9, bounds=(0.005, 0.5)) -> float:
+def part_speeds(rec: dict, batch_us: int, smooth_us: int) -> np.ndarray:
+    """(N,) each tracker's RMS speed in px/s over the window, its positions averaged over
+    ``smooth_us`` first (NaN where it has fewer than two such averages)."""
+    step = max(1, int(round(smooth_us / batch_us)))
+    T, n = rec["x"].shape
+    m = T // step * step
+    if m < 2 * step:
+        return np.full(n, np.nan)
+    with quiet_nan():
+        bx = np.nanmean(rec["x"][:m].reshape(-1, step, n), axis=1)     # NaN: no sample
+        by = np.nanmean(rec["y"][:m].reshape(-1, step, n), axis=1)
+        v2 = np.nanmean(np.diff(bx, axis=0) ** 2 + np.diff(by, axis=0) ** 2, axis=0)
+    return np.sqrt(v2) / (step * batch_us * 1e-6)
+
+
+def motion_alpha(v: np.ndarray, rec: dict, sig: np.ndarray, batch_us: int,
+                 lag_fraction: float, quantile: float = SPEED_QUANTILE,
+                 bounds=(0.005, 0.5)) -> float:
     """alpha_1 of eq. (3) for the motion seen while learning.
 
     Between two of its events (1/r s apart) a part moving at v px/s moves by v / r px;
     the running mean of eq. (3) takes 1/alpha_1 events to catch up, so it lags by
     v / (alpha_1 r) px.  Held to ``lag_fraction`` of the part's size sigma:
-    alpha_1 = v / (lag_fraction r sigma).  Each tracker's own v (RMS speed, positions
-    averaged over ``smooth_us``), r and sigma give its alpha_1; the model takes their
-    ``quantile``, so that the parts that move fastest for their events (the tips of a
-    turning object) are followed too."""
-    step = max(1, int(round(smooth_us / batch_us)))
-    T, n = rec["x"].shape
-    m = T // step * step
-    if m < 2 * step:
-        return Params().alpha_position
-    with quiet_nan():
-        bx = np.nanmean(rec["x"][:m].reshape(-1, step, n), axis=1)     # NaN: no sample
-        by = np.nanmean(rec["y"][:m].reshape(-1, step, n), axis=1)
-        v2 = np.nanmean(np.diff(bx, axis=0) ** 2 + np.diff(by, axis=0) ** 2, axis=0)
-    v = np.sqrt(v2) / (step * batch_us * 1e-6)
+    alpha_1 = v / (lag_fraction r sigma).  Each tracker's own v (``part_speeds``), r and
+    sigma give its alpha_1; the model takes their ``quantile``, so that the parts that
+    move fastest for their events (the tips of a turning object) are followed too."""
     r = event_rates(rec) / (batch_us * 1e-6)
     ok = np.isfinite(v) & (r > 0) & (sig > 0)
     if not ok.any():
@@ -295,6 +300,20 @@ def motion_alpha(rec: dict, sig: np.ndarray, batch_us: int, smooth_us: int,
     # alpha_1 = v / (lag_fraction r sigma): eq. (3)'s lag v / (alpha_1 r) = lag_fraction sigma
     alpha = v[ok] / (lag_fraction * r[ok] * sig[ok])
     return float(np.clip(np.quantile(alpha, quantile), *bounds))
+
+
+def sizes_per_ms(v: np.ndarray, sig: np.ndarray, quantile: float = SPEED_QUANTILE) -> float:
+    """How fast the parts move for their size: the ``quantile`` over the parts of v / sigma
+    (part sizes per millisecond; 0 if no part's speed is known).
+
+    Eq. (3) moves a tracker toward each event as if its part stood still; a part that
+    crosses more than its own size within the millisecond or so by which an event
+    camera's ON and OFF edges lag each other is tracked on the edge that fires first
+    (docs/motion.md), which the motion model corrects."""
+    ok = np.isfinite(v) & (sig > 0)
+    if not ok.any():
+        return 0.0
+    return float(np.quantile(v[ok] / sig[ok], quantile)) * 1e-3
 
 
 def energy_scale(energies: np.ndarray, quantile: float, floor: float,
@@ -352,9 +371,15 @@ def _build_model(pool, rec, counts, lp, track_params, width, height, names, name
                 held.update((best.a, best.b))
     kept = sorted(kept, key=lambda c: -c.rigidity * c.coactivation)[:MAX_CONNECTIONS]
     params = dict(track_params)
+    v = part_speeds(rec, lp.batch_us, lp.smooth_us)
     if "alpha_position" not in params:
-        params["alpha_position"] = round(motion_alpha(rec, sig, lp.batch_us, lp.smooth_us,
-                                                             lp.lag_fraction), 4)
+        params["alpha_position"] = round(motion_alpha(v, rec, sig, lp.batch_us,
+                                                      lp.lag_fraction), 4)
+    fast = sizes_per_ms(v, sig)
+    if (lp.motion_sigmas_per_ms > 0 and fast > lp.motion_sigmas_per_ms
+            and not any(k in params for k in MOTION_ON)):
+        # fast parts: velocity and both edges per tracker (eqs. M1-M8) unless given
+        params.update(MOTION_ON)
     stiff = np.array([lp.stiffness_gain * params["alpha_position"] * c.rigidity for c in kept])
     if kept:
         # the spring bound every model meets (springtrack.limits): all stiffnesses scaled
@@ -383,6 +408,9 @@ def _build_model(pool, rec, counts, lp, track_params, width, height, names, name
     cands.sort(key=lambda c: (c.a, c.b))
     model = ShapeModel(name, width, height, sorted(trackers, key=lambda t: ids.index(t.id)),
                        conns, params, source="learned")
+    model.learned = {"speed_px_s": round(float(np.quantile(v[np.isfinite(v)], SPEED_QUANTILE)), 1)
+                     if np.isfinite(v).any() else 0.0,
+                     "sizes_per_ms": round(fast, 3)}
     return model, kept, cands, counts[order]
 
 

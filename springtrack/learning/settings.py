@@ -31,6 +31,9 @@ PERSIST_GRACES = 2.0          # a part that lived this many grace periods persis
 PERSIST_MIN = 0.5             # parts persisting less (median) are "no stable object"
 COHERENCE_MIN = 0.25          # fewer co-active neighbour pairs: "no stable object"
 LAYOUT_RIGID = 0.3            # a layout rigidity below this is said (parts slide)
+SPEED_QUANTILE = 0.9          # a model's speed: this quantile of its parts' speeds
+# the motion model's parameters a learned model of fast parts gets (docs/motion.md)
+MOTION_ON = {"motion_tau_us": 1000.0, "polarity_gain": 1.0}
 F = {name: k for k, name in enumerate(_learn.FIELDS)}
 
 
@@ -71,6 +74,9 @@ class LearnParams:
     energy_quantile: float = 0.99      # s of eqs. (21)-(22): this quantile of E_ij / mean E,
     energy_scale_max: float = 4.5      # ... at most this (and at least the default 2.5)
     smooth_us: int = 20_000            # averaging of directions for the turn measure
+    # the motion model (eqs. M1-M8) written into the model when its parts move faster
+    # than this many part sizes (sigma) per millisecond (0: never)
+    motion_sigmas_per_ms: float = 1.0
 
     def __post_init__(self):
         for f in fields(self):

@@ -89,6 +89,28 @@ def test_a_one_tracker_model_follows_the_real_dot(dot, tmp_path, capsys, acquire
     assert abs(np.median(speed) - DOT_SPEED) < 0.1 * DOT_SPEED
 
 
+@pytest.mark.parametrize("backend", ["cython", "fixed"])
+def test_default_settings_learn_the_dot_and_follow_it(dot, tmp_path, capsys, backend):
+    """``springtrack track evt2_sample.raw --learn-first-ms 10``, nothing else: the learner
+    measures the dot's speed (about 11,500 px/s, 2.8 part sizes per ms, above
+    motion_sigmas_per_ms = 1), writes the motion model into the learned model, says so,
+    and the track follows the dot's centre within 2 px (median)."""
+    from springtrack.cli import main
+    path, _, truth = dot
+    out = tmp_path / "track.csv"
+    assert main(["track", str(path), "--learn-first-ms", "10", "--out", str(out),
+                 "--backend", backend]) == 0
+    err = capsys.readouterr().err
+    assert "motion_tau_us=1000.0, polarity_gain=1.0" in err, err
+    assert "the motion model is on" in err, err
+    tr = read_csv(out)
+    assert tr.x.shape[1] == 1
+    e = track_errors(truth, tr.t_us, tr.x[:, 0], tr.y[:, 0])
+    assert np.median(e) <= 2.0, np.median(e)
+    speed = np.hypot(tr.vx[:, 0], tr.vy[:, 0])[10:]
+    assert abs(np.median(speed) - DOT_SPEED) < 0.1 * DOT_SPEED
+
+
 @pytest.mark.parametrize("dark", [True, False], ids=["dark", "bright"])
 @pytest.mark.parametrize("speed", [3000, 5000, 13000, 20000])
 def test_fast_disks_with_edge_latency_are_followed_within_2_px(dark, speed):

@@ -12,7 +12,8 @@ import pytest
 from springtrack import Tracker
 from springtrack.cli import main as cli
 from springtrack.events import make
-from springtrack.learning.learner import NoObjectFound, learn, learn_model, motion_alpha
+from springtrack.learning.learner import (NoObjectFound, learn, learn_model, motion_alpha,
+                                         part_speeds, sizes_per_ms)
 from springtrack.metrics import score_track, truth_from_array
 from springtrack.model import FACE_INTERNAL, ShapeModel, face_layout, load
 from springtrack.sim.scenes import make_scene
@@ -152,6 +153,32 @@ def test_face_learned_model_tracks_within_2x_the_hand_model():
     assert ours <= 2.0 * hand, (ours, hand)
 
 
+def test_slow_parts_keep_the_papers_step():
+    """The simulator's face moves its parts well under one part size per millisecond: the
+    learned model records its speed and keeps eq. (3) (no motion model written)."""
+    m = learned("face_occlusion", FACE_LEARN_US).model
+    assert 0 < m.learned["sizes_per_ms"] < 0.1 and m.learned["speed_px_s"] > 0
+    assert "motion_tau_us" not in m.params and "polarity_gain" not in m.params
+
+
+def test_fast_parts_get_the_motion_model_unless_told_otherwise(data_file):
+    """The real dot's first 10 ms (a dark dot circling at 12,950 px/s): its part crosses
+    2-3 of its sizes per ms, so the motion model (eqs. M1-M8) is written into the learned
+    model's parameters; motion_sigmas_per_ms = 0, or motion parameters given, keep the
+    user's choice."""
+    import springtrack.io as stio
+    ev = stio.open(data_file("evt2_sample.raw")).read()
+    ev = ev[ev["t"] < ev["t"][0] + 10_000]
+    res = learn_model(ev, width=640, height=480)
+    assert 2.0 < res.model.learned["sizes_per_ms"] < 4.0
+    assert 10_000 < res.model.learned["speed_px_s"] < 14_000
+    assert res.model.params["motion_tau_us"] == 1000.0 and res.model.params["polarity_gain"] == 1.0
+    off = learn_model(ev, width=640, height=480, params={"motion_sigmas_per_ms": 0})
+    assert "motion_tau_us" not in off.model.params
+    mine = learn_model(ev, width=640, height=480, track_params={"motion_tau_us": 500.0})
+    assert mine.model.params["motion_tau_us"] == 500.0 and "polarity_gain" not in mine.model.params
+
+
 # ---- behaviour ---------------------------------------------------------------------------
 def test_learning_is_deterministic():
     ev, _ = scene("grid_pull")
@@ -267,10 +294,14 @@ def test_alpha_holds_the_lag_to_a_fraction_of_a_part():
     rec = {"x": 10.0 + speeds[None] * t, "y": np.full((T, 2), 50.0),
            "cnt": np.full((T, 2), 5.0), "valid": np.ones((T, 2), bool)}
     sig = np.array([2.0, 3.0])
-    a = motion_alpha(rec, sig, batch_us, 20_000, 0.1)
+    v = part_speeds(rec, batch_us, 20_000)
+    assert v == pytest.approx(speeds, rel=1e-9)
+    a = motion_alpha(v, rec, sig, batch_us, 0.1)
     per = speeds / (0.1 * 5000.0 * sig)                       # 5 events per ms
     assert a == pytest.approx(np.quantile(per, 0.9), rel=1e-6)
-    assert motion_alpha(rec, sig, batch_us, 20_000, 0.2) == pytest.approx(a / 2, rel=1e-6)
+    assert motion_alpha(v, rec, sig, batch_us, 0.2) == pytest.approx(a / 2, rel=1e-6)
+    # part sizes per ms: the 90th percentile of v / sigma, 1e-3 per s
+    assert sizes_per_ms(v, sig) == pytest.approx(np.quantile(speeds / sig, 0.9) * 1e-3)
 
 
 def test_cli_biplane_learned_then_tracked_as_delivered(data_file, tmp_path, capsys):
