@@ -1,14 +1,15 @@
-"""Firmware loop benchmarks; writes the "Firmware loop" section of
-docs/benchmarks.md.
+"""Firmware loop benchmarks; writes the "Fused decode + track" and "Firmware loop"
+sections of docs/benchmarks.md.
 
 Run: .venv/bin/python benchmarks/firmware.py [--seconds S] [--realtime-seconds S] [--realtime-runs N]
-     [--busy N] [--rt-priority N] [--only realtime] [--no-write]
+     [--busy N] [--rt-priority N] [--only realtime|fused] [--no-write]
 
 1. fused decode+track from in-memory 128 KiB USB buffers (CCam words) for face26 on the
-   face_occlusion scene, telemetry every 1 ms, best of 3; beside it the kernel alone
-   (``Tracker.run`` on decoded events) and the decoder alone, to show where time goes;
-   the same per word format (CCam, EVT 2.0, EVT 2.1, EVT 3.0: the same events in each
-   camera's words), and on the real EVT 2.0 / 3.0 recordings at their native geometry;
+   face_occlusion scene, with telemetry every 1 ms and without, best of 5; beside it the
+   kernel alone (``Tracker.run`` on decoded events, ``Tracker.process`` without samples)
+   and the decoder alone, to show where time goes; the same per word format (CCam,
+   EVT 2.0, EVT 2.1, EVT 3.0: the same events in each camera's words), and on the real
+   EVT 2.0 / 3.0 recordings at their native geometry (``--only fused``: this part alone);
 2. the simulated camera in real time (face_occlusion) through pyusb -> reader -> fused loop,
    --realtime-runs times in each of four conditions: the machine as found and loaded by
    --busy spinning processes, each with ordinary scheduling and with the loop's threads
@@ -64,59 +65,139 @@ def words_of(ev, fmt):
 
 
 def bench_fused(ev, backend="cython", repeats=5, fmt="ccam", words=None, model="face26"):
-    """-> events/s of the fused loop on ``fmt`` words (``words``, else ``ev`` encoded), of
-    the kernel alone and of the decoder alone, best of ``repeats`` runs in the thread's CPU
-    time (the machine may be shared); the three alternate run by run."""
+    """-> events/s of the fused loop on ``fmt`` words (``words``, else ``ev`` encoded) with
+    telemetry every 1 ms and without, of the kernel alone (``Tracker.run`` sampling every
+    1 ms, ``Tracker.process`` without) and of the decoder alone, best of ``repeats`` runs
+    in the thread's CPU time (the machine may be shared); the five alternate run by run.
+    Also the number of buffers."""
     words = words_of(ev, fmt) if words is None else words
     bufs = [words[i:i + TRANSFER] for i in range(0, len(words), TRANSFER)]
     tr = Tracker(model)
-    best_fused = best_kernel = best_dec = float("inf")
-    for _ in range(repeats):
-        f = Fused(make_backend(backend, tr.model, tr.params), 1000, 4096, fmt=fmt,
-                  width=tr.model.width, height=tr.model.height)
+    geometry = dict(width=tr.model.width, height=tr.model.height)
+
+    def fused(period):
+        f = Fused(make_backend(backend, tr.model, tr.params), period, 4096, fmt=fmt,
+                  **geometry)
         t0 = time.thread_time()
         for b in bufs:
             f.feed(b)
-        best_fused = min(best_fused, time.thread_time() - t0)
+        dt = time.thread_time() - t0
         assert f.tracked == len(ev), (fmt, f.tracked, len(ev))
+        return dt
+
+    def kernel(period):
+        t = Tracker(tr.model, backend=backend)
         t0 = time.thread_time()
-        Tracker(tr.model, backend=backend).run(ev, 1000)
-        best_kernel = min(best_kernel, time.thread_time() - t0)
-        d = sio.decoder(fmt, **({} if fmt == "ccam" else dict(width=tr.model.width,
-                                                              height=tr.model.height)))
+        t.run(ev, period) if period else t.process(ev)
+        return time.thread_time() - t0
+
+    def decoder():
+        d = sio.decoder(fmt, **({} if fmt == "ccam" else geometry))
         t0 = time.thread_time()
         for b in bufs:
             d.decode(b)
-        best_dec = min(best_dec, time.thread_time() - t0)
-    n = len(ev)
-    return n / best_fused, n / best_kernel, n / best_dec, len(bufs)
+        return time.thread_time() - t0
+
+    runs = {"fused": lambda: fused(1000), "fused_quiet": lambda: fused(0),
+            "kernel": lambda: kernel(1000), "kernel_quiet": lambda: kernel(0),
+            "decoder": decoder}
+    best = dict.fromkeys(runs, float("inf"))
+    for _ in range(repeats):
+        for k, run in runs.items():
+            best[k] = min(best[k], run())
+    return {k: len(ev) / v for k, v in best.items()}, len(bufs)
 
 
 def bench_formats(ev):
-    """Rows (what, format, events, bytes per event, fused, kernel, decoder M ev/s): the
-    scene's events in each camera's words, then the real recordings' own words."""
+    """Rows (what, format, events, bytes per event, bench_fused's rates): the scene's
+    events in each camera's words, then the real recordings' own words."""
     rows = []
     for fmt in WORD_FORMATS:
         w = words_of(ev, fmt)
-        fu, ke, de, _ = bench_fused(ev, fmt=fmt, words=w)
-        rows.append(("face_occlusion, face26 (304x240)", fmt, len(ev), len(w) / len(ev), fu, ke, de))
-        print(f"  {fmt}: fused {fu / 1e6:.2f} M ev/s, kernel {ke / 1e6:.2f}, decoder {de / 1e6:.1f}")
+        r, _ = bench_fused(ev, fmt=fmt, words=w)
+        rows.append(("face_occlusion, face26 (304x240)", fmt, len(ev), len(w) / len(ev), r))
+        print(f"  {fmt}: " + ", ".join(f"{k} {v / 1e6:.2f}" for k, v in r.items()), flush=True)
     for name, fmt in REAL:
         path = DATA / name
         if not path.is_file():
             print(f"  {name}: not found in {DATA}, skipped")
             continue
-        r = sio.open(path)
-        rev = r.read()
+        rd = sio.open(path)
+        rev = rd.read()
         with open(path, "rb") as fh:
-            payload = fh.read()[r.offset:]
-        model = face26(cx=r.width / 2, cy=r.height / 2, scale=r.height / 2, width=r.width,
-                       height=r.height)
-        fu, ke, de, _ = bench_fused(rev, fmt=fmt, words=payload, model=model)
-        rows.append((f"{name}, face26 at {r.width}x{r.height}", fmt, len(rev),
-                     len(payload) / len(rev), fu, ke, de))
-        print(f"  {name}: fused {fu / 1e6:.2f} M ev/s, kernel {ke / 1e6:.2f}, decoder {de / 1e6:.1f}")
+            payload = fh.read()[rd.offset:]
+        model = face26(cx=rd.width / 2, cy=rd.height / 2, scale=rd.height / 2,
+                       width=rd.width, height=rd.height)
+        r, _ = bench_fused(rev, fmt=fmt, words=payload, model=model)
+        rows.append((f"{name}, face26 at {rd.width}x{rd.height}", fmt, len(rev),
+                     len(payload) / len(rev), r))
+        print(f"  {name}: " + ", ".join(f"{k} {v / 1e6:.2f}" for k, v in r.items()), flush=True)
     return rows
+
+
+def fused_section(ev, seconds) -> tuple[str, float]:
+    """The "Fused decode + track" section's body and the fused CCam rate (events/s)."""
+    load = os.getloadavg()
+    r, nbuf = bench_fused(ev)
+    print("ccam: " + ", ".join(f"{k} {v / 1e6:.2f}" for k, v in r.items()), flush=True)
+    print("per word format:")
+    fmt_rows = bench_formats(ev)
+    tr = Tracker("face26")
+    tr.process(ev)
+    assigned = tr.counters["events_assigned"] / max(tr.counters["events_valid"], 1)
+    fx, _ = bench_fused(ev, "fixed")
+    print("fixed: " + ", ".join(f"{k} {v / 1e6:.2f}" for k, v in fx.items()), flush=True)
+    load1 = os.getloadavg()
+
+    def stream(w, f):
+        return f if w.startswith("face_") else f"{f} ({w.split(',')[0]})"
+    target30 = ", ".join(f"{stream(w, f)} **{'met' if q['fused'] >= 30e6 else 'not met'}** "
+                         f"({q['fused'] / 1e6:.1f})" for w, f, n, b, q in fmt_rows)
+    m = 1e6
+    body = f"""
+Machine: {machine()}; load average {load[0]:.1f} / {load[1]:.1f} (1 / 5 min) when the run
+started, {load1[0]:.1f} at its end (a shared machine: compare the figures of one run).
+Command: `.venv/bin/python benchmarks/firmware.py --only fused --seconds {seconds:g}` (a
+full run of benchmarks/firmware.py writes this section too).
+
+From in-memory 128 KiB USB buffers, face26 on face_occlusion ({len(ev):,} events, {nbuf}
+CCam buffers, {assigned:.0%} of them assigned); "telemetry" is a snapshot of every tracker
+every 1 ms of event time, "quiet" none.  Best of 5 runs in the thread's CPU time, the
+paths alternating run by run, M events/s:
+
+| path | float kernel | fixed-point kernel (`--backend fixed`) |
+|---|---:|---:|
+| fused CCam decode + kernel (`firmware_sim._fused`), telemetry | {r['fused'] / m:.2f} | {fx['fused'] / m:.2f} |
+| fused, quiet | {r['fused_quiet'] / m:.2f} | {fx['fused_quiet'] / m:.2f} |
+| kernel alone on decoded events (`Tracker.run(ev, 1000)`) | {r['kernel'] / m:.2f} | {fx['kernel'] / m:.2f} |
+| kernel alone, quiet (`Tracker.process`) | {r['kernel_quiet'] / m:.2f} | {fx['kernel_quiet'] / m:.2f} |
+| CCam decoder alone (`springtrack.io.ccam`) | {r['decoder'] / m:.1f} | |
+
+Target >= 25 M events/s: **{'met' if r['fused'] >= 25e6 else 'not met'}** ({r['fused'] / 25e6:.0%} of it).
+The fused loop's cost beside the kernel alone is the decoding (a few ns per event) and
+the telemetry (the difference of the quiet rows: a snapshot of 26 trackers every 1 ms);
+the kernel's own per-event cost is the rest (docs/benchmarks.md "Kernel" measures it
+without sampling, at another time of this shared machine's load).
+
+**Per word format**: the fused loop decodes each camera's words with its decoder's state
+machine (`springtrack.io`'s `.pxd`) at the sensor's geometry; the same scene's events in
+each format, then the real recordings' own bytes (face26 centred on their sensor), float
+kernel:
+
+| stream | words | events | bytes/event | fused M ev/s | fused, quiet | kernel alone | kernel, quiet | decoder alone |
+|---|---|---:|---:|---:|---:|---:|---:|---:|
+""" + "\n".join(f"| {w} | {f} | {n:,} | {b:.2f} | {q['fused'] / m:.2f} | {q['fused_quiet'] / m:.2f} | "
+                f"{q['kernel'] / m:.2f} | {q['kernel_quiet'] / m:.2f} | {q['decoder'] / m:.1f} |"
+                for w, f, n, b, q in fmt_rows) + f"""
+
+Decoding's share is counted in instructions in "Fused loop instructions" below (the
+differences of these times, a few ns per event, drown in this shared machine's noise).
+On the real recordings the kernel has few events per tracker to update (a dot and an
+outdoor scene far from most face trackers), hence the higher rates.  Target >= 30 M
+events/s per format: {target30}.  USB 2.0 high speed carries about 13 M words/s, so the
+tracker keeps up with the link when fused >= 13.
+"""
+    return body, r["fused"]
 
 
 def wait_end(cam, eng, timeout):
@@ -237,8 +318,9 @@ def main():
                          "(0: only the machine as found)")
     ap.add_argument("--rt-priority", type=int, default=10,
                     help="SCHED_FIFO priority of the real-time rows that use it (0: none)")
-    ap.add_argument("--only", choices=["realtime"],
-                    help="run only this part and print it (nothing written)")
+    ap.add_argument("--only", choices=["realtime", "fused"],
+                    help="run only this part: realtime prints it (nothing written), fused "
+                         "writes the \"Fused decode + track\" section unless --no-write")
     ap.add_argument("--no-write", action="store_true")
     args = ap.parse_args()
     if args.realtime_runs < 1:
@@ -249,17 +331,12 @@ def main():
         return
     load = os.getloadavg()
     ev, _ = simulate_all("face_occlusion", args.seconds, seed=0)
-    fused, kernel, dec, nbuf = bench_fused(ev)
-    print(f"fused {fused / 1e6:.2f} M ev/s, kernel alone {kernel / 1e6:.2f}, decode alone "
-          f"{dec / 1e6:.1f} ({len(ev)} events, {nbuf} buffers)")
-    print("per word format:")
-    fmt_rows = bench_formats(ev)
-    tr = Tracker("face26")
-    tr.process(ev)
-    assigned = tr.counters["events_assigned"] / max(tr.counters["events_valid"], 1)
-    fx_fused, fx_kernel, _, _ = bench_fused(ev, "fixed")
-    print(f"fixed-point backend: fused {fx_fused / 1e6:.2f} M ev/s, kernel alone "
-          f"{fx_kernel / 1e6:.2f}")
+    fused_body, fused = fused_section(ev, args.seconds)
+    if args.only == "fused":
+        print(fused_body)
+        if not args.no_write:
+            write_section("Fused decode + track", fused_body)
+        return
     rt, refused = bench_realtime_conditions(args)
     ov, inj, rate, drss, after, t_end, pool = bench_overload(ev[ev["t"] < 1_500_000], fused)
     print(f"overload: burst {inj['burst_events']} events at {rate / 1e6:.0f} M ev/s, dropped "
@@ -269,12 +346,9 @@ def main():
           f"{len(after)}, last {after[-1] if len(after) else None}")
     if args.no_write:
         return
+    write_section("Fused decode + track", fused_body)
     rate_k = next(iter(rt.values()))[6] / 1e3
 
-    def stream(w, f):
-        return f if w.startswith("face_") else f"{f} ({w.split(',')[0]})"
-    target30 = ", ".join(f"{stream(w, f)} **{'met' if fu >= 30e6 else 'not met'}** "
-                         f"({fu / 1e6:.1f})" for w, f, n, b, fu, ke, de in fmt_rows)
     tracked = sum(r[4] for r in rt.values())
     drops = sum(r[5] for r in rt.values())
     loaded = {k: r for k, r in rt.items() if "busy" in k}
@@ -287,36 +361,7 @@ Machine: {machine()}; load average {load[0]:.1f} / {load[1]:.1f} (1 / 5 min) whe
 started (a shared machine).
 Command: `.venv/bin/python benchmarks/firmware.py --seconds {args.seconds:g} --realtime-seconds {args.realtime_seconds:g} --realtime-runs {args.realtime_runs} --busy {args.busy} --rt-priority {args.rt_priority}`.
 
-**Fused decode + track** from in-memory 128 KiB USB buffers (CCam words), face26 on
-face_occlusion ({len(ev):,} events, {nbuf} buffers, {assigned:.0%} of them assigned), telemetry every 1 ms,
-best of 5 runs in the thread's CPU time:
-
-| path | M events/s |
-|---|---|
-| fused CCam decode + kernel (`firmware_sim._fused`) | {fused / 1e6:.2f} |
-| kernel alone on decoded events (`Tracker.run`) | {kernel / 1e6:.2f} |
-| CCam decoder alone (`springtrack.io.ccam`) | {dec / 1e6:.1f} |
-| fused, fixed-point kernel (`firmware-sim run --backend fixed`) | {fx_fused / 1e6:.2f} |
-| fixed-point kernel alone (`Tracker(backend="fixed").run`) | {fx_kernel / 1e6:.2f} |
-
-Target >= 25 M events/s: **{'met' if fused >= 25e6 else 'not met'}** ({fused / 25e6:.0%} of it).
-
-**Per word format**: the fused loop decodes each camera's words with its decoder's state
-machine (`springtrack.io`'s `.pxd`) at the sensor's geometry; the same scene's events in
-each format, then the real recordings' own bytes (face26 centred on their sensor; the
-fused loop, the kernel alone and the decoder alone alternate, best of 5 in CPU time):
-
-| stream | words | events | bytes/event | fused M ev/s | kernel alone | decoder alone |
-|---|---|---:|---:|---:|---:|---:|
-""" + "\n".join(f"| {w} | {f} | {n:,} | {b:.2f} | {fu / 1e6:.2f} | {ke / 1e6:.2f} | {de / 1e6:.1f} |"
-                for w, f, n, b, fu, ke, de in fmt_rows) + f"""
-
-Decoding's share is counted in instructions in "Fused loop instructions" below (the
-differences of these times, a few ns per event, drown in this shared machine's noise).
-The rest is the kernel's per-event cost: on the real recordings it has few events per
-tracker to update (a dot and an outdoor scene far from most face trackers), hence the
-higher rates.  Target >= 30 M events/s per format: {target30}.  USB 2.0 high speed carries
-about 13 M words/s, so the tracker keeps up with the link when fused >= 13.
+**Fused decode + track**: the section of that name (written by this run too).
 
 **Real time**, simulated camera on face_occlusion (simulated beforehand, served at the
 event timestamps, {rate_k:.0f} k events/s), {args.realtime_runs} runs of {args.realtime_seconds:g} s of scene per condition

@@ -98,12 +98,7 @@ class Track:
         t = np.concatenate([p.t_us for p in parts]) if len(parts) > 1 else parts[0].t_us
         rows = [p.rows() for p in parts]
         if all(r is not None for r in rows):
-            # the rows as opaque records: numpy copies an aligned record dtype field by
-            # field, a record of raw bytes in one copy
-            raw = np.dtype((np.void, TRACK_DTYPE.itemsize))
-            joined = rows[0] if len(rows) == 1 else np.concatenate(
-                [r.view(raw) for r in rows]).view(TRACK_DTYPE)
-            return cls.of_rows(t, ids, joined, en)
+            return cls.of_rows(t, ids, rows[0] if len(rows) == 1 else join_rows(rows), en)
         kw = {f: np.concatenate([getattr(p, f) for p in parts]) if len(parts) > 1
               else getattr(parts[0], f) for f in TRACK_FIELDS}
         return cls(t, list(ids), energy=en, **kw)
@@ -170,6 +165,13 @@ class Track:
                 for a, b, c, d, g, h, i, j, u, v, m, n, o in zip(
                     t.tolist(), ids, *(c.tolist() for c in cols), *(c.tolist() for c in flags),
                     states.tolist()))
+
+
+def join_rows(blocks) -> np.ndarray:
+    """(n, K) TRACK_DTYPE blocks joined (or one copied) in one copy: as opaque records,
+    since numpy copies an aligned record dtype field by field."""
+    raw = np.dtype((np.void, TRACK_DTYPE.itemsize))
+    return np.concatenate([b.view(raw) for b in blocks]).view(TRACK_DTYPE)
 
 
 # the dataclass spells the fields out for readers and type checkers: keep it the record

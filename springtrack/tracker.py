@@ -21,10 +21,74 @@ from .instances import NOT_FOUND, SEARCHING, TRACKING, ModelSet
 from .acquisition.loss import LOSS_CHECK_US
 from .model import ShapeModel
 from .params import Params
-from .sampling import MAX_PERIOD, UNSET, first_sample_time, multiples
-from .track import STATE_NAMES, TRACK_DTYPE, TRACK_FIELDS, Track
+from .sampling import MAX_PERIOD, PER_EVENT, UNSET, first_sample_time, multiples
+from .track import STATE_NAMES, TRACK_DTYPE, TRACK_FIELDS, Track, join_rows
 
 SAMPLE_CAP = 4096          # sample rows per kernel call; bounds memory for huge time gaps
+ROOM_BYTES = 1 << 30       # largest buffer Tracker.run sizes ahead for its samples
+_SIZE_ROOM = object()      # Tracker.run asks _run for a _Room
+
+
+class _Room:
+    """One buffer for the sample rows of a :meth:`Tracker.run` call, sized ahead from its
+    events' time span, so that the kernel writes every row once where the returned Track
+    keeps it (rather than a buffer per kernel call, joined by a copy).  Rows beyond it go
+    to buffers of SAMPLE_CAP rows as usual."""
+
+    def __init__(self, rows: int, n: int):
+        self.t = np.empty(rows, np.int64)
+        self.trackers = np.empty((rows, n), TRACK_DTYPE)
+        self.energy = np.empty((rows, 3))
+        self.used = 0
+        self.parts = 0                    # kernel calls that wrote their rows here
+
+    @classmethod
+    def sized(cls, ev, period: int, next_t: int, n: int) -> "_Room | None":
+        """A room for the samples of ``ev`` (time-ordered but for events back in time)
+        every ``period`` µs: one per multiple of the period up to the last event's time,
+        at most PER_EVENT per event (springtrack.sampling); None where SAMPLE_CAP rows hold
+        them or it would take more than ROOM_BYTES."""
+        if not period or not len(ev):
+            return None
+        t0, t1 = int(ev["t"][0]), int(ev["t"][-1])
+        start = next_t if next_t != UNSET else first_sample_time(t0, period)
+        rows = min((t1 - start) // period + 1, PER_EVENT * len(ev)) if t1 >= start else 0
+        if rows <= SAMPLE_CAP or rows * (n * TRACK_DTYPE.itemsize + 32) > ROOM_BYTES:
+            return None
+        return cls(rows, n)
+
+    def rest(self) -> dict | None:
+        """The rows not written yet, as buffers for a backend's ``run(into=...)``."""
+        u = self.used
+        if u >= len(self.t):
+            return None
+        return {"t": self.t[u:], "trackers": self.trackers[u:], "energy": self.energy[u:]}
+
+    def took(self, out: dict) -> None:
+        """Count a backend's sample rows ``out`` if it wrote them here (a backend may
+        return rows of its own)."""
+        u = self.used
+        if (u < len(self.t) and len(out["t"])
+                and _address(out["t"]) == _address(self.t[u:])
+                and _address(out["trackers"]) == _address(self.trackers[u:])):
+            self.used += len(out["t"])
+            self.parts += 1
+
+    def track(self, parts: list, ids) -> "Track | None":
+        """The run's samples as one Track if every part was written here, in order (a
+        compact copy when the room is less than half used: the span overestimated them,
+        an empty stretch sampled only for its hold), else None."""
+        if self.parts != len(parts):
+            return None
+        u = self.used
+        t, rows, en = self.t[:u], self.trackers[:u], self.energy[:u]
+        if 2 * u < len(self.t):
+            t, rows, en = t.copy(), join_rows([rows]), en.copy()
+        return Track.of_rows(t, ids, rows, en)
+
+
+def _address(a: np.ndarray) -> int:
+    return a.__array_interface__["data"][0]
 
 
 class _OneInstance:
@@ -117,6 +181,7 @@ class Tracker:
         self._next_t = UNSET
         self._skipped = 0                    # sample times of empty stretches not taken
         self._recorded: list[Track] = []
+        self._room = None                    # Tracker.run's sample buffer (_Room)
         self.acquisition = None
         self.recovery = None
         if acquire:
@@ -308,13 +373,20 @@ class Tracker:
         rec = self.recovery
         q = self._sample_us
         p = q if rec is None else rec.sample_period(q)
+        if self._room is _SIZE_ROOM:
+            self._room = _Room.sized(ev, p, self._next_t, len(self.ids)) if rec is None else None
+        room = self._room
         pos = 0
         while pos < len(ev):
             start = self._next_t
             if p and start == UNSET:
                 start = first_sample_time(int(ev["t"][pos]), p)
-            consumed, self._next_t, out = self._b.run(ev[pos:], p, self._next_t, SAMPLE_CAP)
+            into = room.rest() if room is not None else None
+            cap = SAMPLE_CAP if into is None else len(into["t"])
+            consumed, self._next_t, out = self._b.run(ev[pos:], p, self._next_t, cap, into=into)
             pos += consumed
+            if into is not None and out is not None:
+                room.took(out)
             t = out["t"] if out is not None else np.empty(0, np.int64)
             if q:                    # the sample times passed over, less those taken
                 self._skipped += multiples(start, self._next_t, q) - int(np.count_nonzero(t % q == 0))
@@ -336,7 +408,15 @@ class Tracker:
         """Process events and return the samples taken during this call (at most
         ``sampling.PER_EVENT`` per event: see :meth:`record`)."""
         self.record(sample_us)
-        new = Track.concat(self.stream(events), self.ids)
+        self._room = _SIZE_ROOM              # _run sizes it on the events as checked
+        try:
+            parts = list(self.stream(events))
+            room = self._room
+        finally:
+            self._room = None
+        new = room.track(parts, self.ids) if isinstance(room, _Room) else None
+        if new is None:
+            new = Track.concat(parts, self.ids)
         if len(new):                 # kept once: samples() returns it as it is
             self._recorded.append(new)
         return new

@@ -20,7 +20,8 @@ class ReferenceBackend:
     def set_params(self, params) -> None:
         self.ref.set_params(params)
 
-    def run(self, events, sample_us, next_t, cap):
+    def run(self, events, sample_us, next_t, cap, into=None):
+        """The Backend protocol's run; ``into`` is not used (the rows are packed anew)."""
         ref = self.ref
         rows = []
         ts, xs, ys = events["t"].tolist(), events["x"].tolist(), events["y"].tolist()

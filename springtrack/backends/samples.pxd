@@ -13,4 +13,5 @@ cdef struct SampleOut:
     Py_ssize_t cap, count
 
 cdef dict sample_buffers(Py_ssize_t cap, int n, SampleOut* o, bint wire=*)
+cdef dict bind_buffers(dict bufs, int n, SampleOut* o)
 cdef dict take_samples(dict bufs, SampleOut* o, bint copy)

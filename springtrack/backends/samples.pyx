@@ -57,12 +57,30 @@ cdef cnp.ndarray _rows_copy(cnp.ndarray rows):
     return out
 
 
+cdef dict bind_buffers(dict bufs, int n, SampleOut* o):
+    """``bufs`` (arrays as sample_buffers makes them: ``t`` (m,) int64, ``trackers``
+    (m, n) TRACK_DTYPE, ``energy`` (m, 3) float64, each C-contiguous) bound to ``o`` for m
+    rows, ``o.count = 0``; ValueError if they are not that."""
+    cdef cnp.ndarray t = bufs["t"], tr = bufs["trackers"], en = bufs["energy"]
+    m = t.shape[0] if t.ndim == 1 else -1
+    if not (t.dtype == np.int64 and tr.dtype == TRACK_DTYPE and en.dtype == np.float64
+            and tr.ndim == 2 and tr.shape[0] == m and tr.shape[1] == n and en.ndim == 2
+            and en.shape[0] == m and en.shape[1] == 3 and t.flags.c_contiguous
+            and tr.flags.c_contiguous and en.flags.c_contiguous):
+        raise ValueError(f"sample buffers must be C-contiguous t (m,) int64, trackers "
+                         f"(m, {n}) TRACK_DTYPE and energy (m, 3) float64")
+    o.cap = m
+    o.count = 0
+    o.t = <int64_t*>cnp.PyArray_DATA(t)
+    o.trackers = <TrackRow*>cnp.PyArray_DATA(tr)
+    o.energy = <double*>cnp.PyArray_DATA(en)
+    o.wire = NULL
+    return {"t": t, "trackers": tr, "energy": en}
+
+
 cdef dict take_samples(dict bufs, SampleOut* o, bint copy):
-    """The ``o.count`` rows written so far (copies, or views of the buffers: views only
-    of buffers at least half full, so that a few rows do not hold a whole buffer);
-    ``o.count = 0``."""
+    """The ``o.count`` rows written so far (copies, or views of the buffers); ``o.count = 0``."""
     c = o.count
-    copy = copy or 2 * c < o.cap
     out = {k: (_rows_copy(v[:c]) if copy else v[:c]) for k, v in bufs.items()}
     o.count = 0
     return out

@@ -49,4 +49,4 @@ cdef struct Stepper:
 cdef Py_ssize_t run_events(const Stepper* sp, const Event* ev, Py_ssize_t n, int64_t sample_us,
                            int64_t* next_t, SampleOut* o) noexcept nogil
 cdef tuple run_array(Stepper sp, events, int64_t sample_us, int64_t next_t, Py_ssize_t cap,
-                     bint records=*)
+                     bint records=*, dict into=*)

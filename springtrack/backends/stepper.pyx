@@ -7,7 +7,7 @@ from libc.string cimport memcpy
 from springtrack.events cimport Event
 from springtrack.events import EVENT_DTYPE, T_MAX, T_MIN
 from springtrack.sampling import HOLD, MAX_PERIOD, UNSET
-from springtrack.backends.samples cimport SampleOut, sample_buffers, take_samples
+from springtrack.backends.samples cimport SampleOut, bind_buffers, sample_buffers, take_samples
 
 cnp.import_array()
 
@@ -194,14 +194,18 @@ cdef Py_ssize_t run_layout(const Stepper* sp, const char* base, const Layout* L,
 
 
 cdef tuple run_array(Stepper sp, events, int64_t sample_us, int64_t next_t, Py_ssize_t cap,
-                     bint records=False):
+                     bint records=False, dict into=None):
     """``Kernel.run`` / ``FixedKernel.run``: (consumed, next_t, samples) where samples is a
     dict of arrays with at most ``cap`` rows (None if sample_us <= 0; keys as
     _samples.sample_buffers; ``next_t`` springtrack.sampling.UNSET before the first event
     sets the first sample time); with ``records`` a kernel that packs TELEMETRY records
     (the Stepper's wire_records) adds them (``wire``).  ``events``: EVENT_DTYPE, read in
     place, or any layout :func:`layout_of` accepts (packed records, other integer types,
-    a strided view), converted block by block inside the loop."""
+    a strided view), converted block by block inside the loop.  ``into``: buffers to
+    write the rows in (keys and layout as sample_buffers, no ``wire``; at most ``cap``
+    of their rows are used), returned as views; else buffers of ``cap`` rows are made,
+    and returned as compact copies when less than half full (a few rows do not hold a
+    whole buffer)."""
     cdef cnp.ndarray ev = events
     cdef Py_ssize_t n = ev.shape[0], consumed
     cdef SampleOut o
@@ -218,7 +222,12 @@ cdef tuple run_array(Stepper sp, events, int64_t sample_us, int64_t next_t, Py_s
         L.stride, L.ot, L.ox, L.oy, L.op, L.tsize, L.tsigned = lay
     if sample_us <= 0:
         cap = 0
-    out = sample_buffers(cap, sp.n, &o, records and sp.wire_records)
+    if into is None or sample_us <= 0:
+        out = sample_buffers(cap, sp.n, &o, records and sp.wire_records)
+    else:
+        out = bind_buffers(into, sp.n, &o)
+        if cap < o.cap:
+            o.cap = cap
     cdef const Event* p = <const Event*>cnp.PyArray_DATA(ev)
     cdef const char* base = <const char*>cnp.PyArray_DATA(ev)
     with nogil:
@@ -228,4 +237,4 @@ cdef tuple run_array(Stepper sp, events, int64_t sample_us, int64_t next_t, Py_s
             consumed = run_layout(&sp, base, &L, n, sample_us, &next_t, &o)
     if sample_us <= 0:
         return consumed, next_t, None
-    return consumed, next_t, take_samples(out, &o, False)
+    return consumed, next_t, take_samples(out, &o, into is None and 2 * o.count < o.cap)

@@ -415,10 +415,11 @@ cdef class Kernel:
                 clamp_and_invert(s, i)
                 reindex(s, i)
 
-    def run(self, events, long long sample_us, long long next_t, Py_ssize_t cap):
+    def run(self, events, long long sample_us, long long next_t, Py_ssize_t cap, into=None):
         """Process ``events`` (EVENT_DTYPE, C-contiguous). Returns (consumed, next_t, samples)
-        where samples is a dict of arrays with at most ``cap`` rows (None if sample_us <= 0)."""
-        return run_array(self.stepper(), events, sample_us, next_t, cap)
+        where samples is a dict of arrays with at most ``cap`` rows (None if sample_us <= 0),
+        written in ``into`` if given (backends/stepper.pyx run_array)."""
+        return run_array(self.stepper(), events, sample_us, next_t, cap, False, into)
 
     def step(self, long long t, int x, int y, int p=1):
         """One event of polarity p (1 ON, 0 OFF)."""

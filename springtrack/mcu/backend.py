@@ -81,8 +81,9 @@ class McuBackend:
             raise ValueError(f"mcu backend: the relocation does not load (fx_relocate {st})")
 
     # ---- events -------------------------------------------------------------------------
-    def run(self, events, sample_us, next_t, cap):
-        """As ``FixedKernel.run``: (consumed, next_t, samples) with at most ``cap`` rows."""
+    def run(self, events, sample_us, next_t, cap, into=None):
+        """As ``FixedKernel.run``: (consumed, next_t, samples) with at most ``cap`` rows;
+        ``into`` is not used (the rows are read back from the emulated device)."""
         ev = np.ascontiguousarray(events)
         if ev.dtype.itemsize != 16:
             raise TypeError("events must be a C-contiguous EVENT_DTYPE array")

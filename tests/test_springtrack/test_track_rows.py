@@ -30,16 +30,39 @@ def assert_same(a: Track, b: Track):
 
 @pytest.mark.parametrize("backend", ["cython", "fixed"])
 def test_chunked_and_unchunked_samples_are_identical(events, backend, monkeypatch):
-    whole = Tracker("face26", backend=backend).run(events, P)
+    """One kernel call into a buffer sized for the run (Tracker.run's room), the same
+    overflowing into per-call buffers, a room mostly unused, ~70 calls of 7 rows, and
+    process + samples in 13 pieces: the same samples, bit for bit."""
+    def run(cap=None, room=None, end_t=None):
+        if cap is not None:
+            monkeypatch.setattr(tracker_mod, "SAMPLE_CAP", cap)
+        if room is not None:
+            monkeypatch.setattr(tracker_mod, "ROOM_BYTES", room)
+        ev = events
+        if end_t is not None:              # the last event's time sizes the room
+            ev = events.copy()
+            ev["t"][-1] = end_t
+        got = Tracker("face26", backend=backend).run(ev, P)
+        monkeypatch.undo()
+        return got
+
+    whole = run(room=0)                                 # one call, SAMPLE_CAP rows
     assert len(whole) > 400 and whole.rows() is not None
-    monkeypatch.setattr(tracker_mod, "SAMPLE_CAP", 7)               # ~70 kernel calls
-    chunked = Tracker("face26", backend=backend).run(events, P)
-    assert_same(whole, chunked)
+    assert_same(whole, run(cap=7, room=0))              # ~70 calls joined
+    assert_same(whole, run(cap=7))                      # one call into the room
+    last = int(events["t"][-2])
+    short = run(cap=7, end_t=last)                      # the room one row short: the rest
+    assert_same(whole, short)                           # in calls of 7 rows
+    stretched = run(cap=7, end_t=last + 5000 * P)       # the room mostly unused: copied
+    assert_same(stretched, run(cap=7, room=0, end_t=last + 5000 * P))
+    rows = stretched.rows()
+    assert len(stretched) < len(whole) + 10 and rows.base.nbytes == rows.nbytes
     tr = Tracker("face26", backend=backend)
     tr.record(P)
     for part in np.array_split(events, 13):
         tr.process(part)
     assert_same(whole, tr.samples())
+    monkeypatch.setattr(tracker_mod, "SAMPLE_CAP", 7)
     tr = Tracker("face26", backend=backend)
     tr.record(P)
     parts = list(tr.stream(events))
@@ -72,3 +95,15 @@ def test_a_replaced_field_is_joined_field_by_field(events):
     rows = Track.concat([b, b], tr.ids)
     assert rows.rows() is not None and rows.rows().dtype == TRACK_DTYPE
     assert np.array_equal(rows.state, np.concatenate([b.state, b.state]))
+
+
+def test_run_writes_its_rows_once_into_a_buffer_sized_ahead(events, monkeypatch):
+    """Tracker.run sizes one buffer from the events' span: the kernel writes every row
+    there in one call, nothing is joined afterwards."""
+    monkeypatch.setattr(tracker_mod, "SAMPLE_CAP", 7)
+    joined = []
+    concat = Track.concat.__func__
+    monkeypatch.setattr(Track, "concat", classmethod(
+        lambda cls, parts, ids: joined.append(len(parts)) or concat(cls, parts, ids)))
+    got = Tracker("face26").run(events, P)
+    assert len(got) > 400 and not joined
