@@ -101,15 +101,28 @@ cdef inline void motion_update(KState* s, int i, double gain, double kv, double 
         s.vy[i] = clampd(s.vy[i] + kv * ry, -ST_VELOCITY_MAX, ST_VELOCITY_MAX)
 
 
-cdef inline bint in_motion(const KState* s) noexcept nogil:
-    """Whether the motion model can move a mean: tau_m or c_h on, or a tracker holding a
-    velocity or a half offset.  When not, eqs. (M1)-(M7) reduce to eqs. (3)-(5) exactly
-    (every prediction adds 0.0 and the gain is alpha1): the per-event path may skip them
-    (kernel/step.pxd) and still compute the same bits."""
+cdef enum:
+    MOTION_REST = 0          # no velocity, no half offset: eqs. (M1)-(M7) are eqs. (3)-(5)
+    MOTION_EDGES = 1         # half offsets (c_h or an h), no velocity: no prediction (M1)
+    MOTION_FULL = 2          # a velocity may move a mean
+
+
+cdef inline int motion_mode(const KState* s) noexcept nogil:
+    """How much of the motion model can move a mean: MOTION_FULL with tau_m on or a
+    tracker holding a velocity; else MOTION_EDGES with c_h on or a tracker holding a half
+    offset; else MOTION_REST.  Below MOTION_FULL every prediction of eq. (M1) adds an
+    exact zero (v = 0) and the gain is alpha1; at MOTION_REST the half offsets are zeros
+    too: the per-event path (kernel/step.pxd) leaves out what adds zeros and still
+    computes the same bits."""
     cdef int i
-    if s.tau_m > 0.0 or s.c_h > 0.0:
-        return True
+    if s.tau_m > 0.0:
+        return MOTION_FULL
     for i in range(s.n):
-        if s.vx[i] != 0.0 or s.vy[i] != 0.0 or s.hx[i] != 0.0 or s.hy[i] != 0.0:
-            return True
-    return False
+        if s.vx[i] != 0.0 or s.vy[i] != 0.0:
+            return MOTION_FULL
+    if s.c_h > 0.0:
+        return MOTION_EDGES
+    for i in range(s.n):
+        if s.hx[i] != 0.0 or s.hy[i] != 0.0:
+            return MOTION_EDGES
+    return MOTION_REST

@@ -27,7 +27,8 @@ from springtrack.kernel.index cimport check_index
 from springtrack.kernel.covariance cimport clamp_and_invert
 from springtrack.kernel.activity cimport log_activity, flush_activity, rescale_activity
 from springtrack.kernel.springs cimport kclocks
-from springtrack.kernel.motion cimport predict_dt, motion_gain, motion_update, in_motion
+from springtrack.kernel.motion cimport (predict_dt, motion_gain, motion_update, motion_mode,
+                                        MOTION_REST, MOTION_EDGES, MOTION_FULL)
 
 cdef extern from *:
     """
@@ -37,10 +38,11 @@ cdef extern from *:
 
 
 cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double fy, double d2,
-                                int pol, bint one, bint moving) noexcept nogil:
+                                int pol, bint one, int moving) noexcept nogil:
     # [ref] _update
-    # ``moving`` False (a constant in the callers' loops): the motion model is at rest
-    # (motion.pxd in_motion), its terms are exact zeros and are left out
+    # ``moving`` (a constant in the callers' loops, motion.pxd motion_mode): below
+    # MOTION_FULL the motion model's predictions and gain are exact zeros and alpha1, at
+    # MOTION_REST its half offsets are zeros too; those terms are left out
     # eq. (6) with eq. (2)'s unnormalised kernel value p = exp(-d2/2) as the increment,
     # kept rescaled (kernel/activity.pxd): act += p * exp((t - act_t0) / tau), one exp (logged)
     if t - s.act_t0 > s.act_span:
@@ -48,9 +50,9 @@ cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double f
     log_activity(s, i, -0.5 * d2 + <double>(t - s.act_t0) * s.inv_tau)
     # its instance's gains (one instance: the first tracker's, at a constant address)
     cdef const double* gain = &s.gain[0][0] if one else &s.gain[i][0]
-    cdef double kv, a1, lead, px, py, dx, dy, sgn, rx, ry
+    cdef double kv = 0.0, a1, lead, px, py, dx, dy, sgn, rx, ry
     cdef double keep = gain[1], g = gain[2]
-    if not moving:
+    if moving == MOTION_REST:
         a1 = gain[0]                                                 # eq. (3)
         s.tk[i] = t
         s.tm[i] = t
@@ -59,10 +61,16 @@ cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double f
         s.mx[i] = s.mx[i] + a1 * dx                                  # eq. (3)
         s.my[i] = s.my[i] + a1 * dy
     else:
-        lead = predict_dt(s, i, t)                                   # eq. (M1): the mean
-        a1 = motion_gain(s, i, t, gain[0], &kv)                      # eq. (M3)
-        px = s.mx[i] + s.vx[i] * lead                                # predicted to t, as
-        py = s.my[i] + s.vy[i] * lead                                # eq. (2) gated it
+        if moving == MOTION_FULL:
+            lead = predict_dt(s, i, t)                               # eq. (M1): the mean
+            a1 = motion_gain(s, i, t, gain[0], &kv)                  # eq. (M3)
+            px = s.mx[i] + s.vx[i] * lead                            # predicted to t, as
+            py = s.my[i] + s.vy[i] * lead                            # eq. (2) gated it
+        else:                                                        # v = 0, tau_m = 0:
+            a1 = gain[0]                                             # eq. (M3)'s alpha1
+            s.tk[i] = t
+            px = s.mx[i]                                             # eq. (M1) adds 0
+            py = s.my[i]
         s.tm[i] = t
         dx = fx - px                                                 # eq. (5), pre-update
         dy = fy - py                                                 # (predicted) mean
@@ -80,7 +88,7 @@ cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double f
 
 
 cdef inline void scan_word(const KState* s, uint64_t m, int base, int64_t t, double fx,
-                           double fy, int* best, double* best_d2, bint moving) noexcept nogil:
+                           double fy, int* best, double* best_d2, int moving) noexcept nogil:
     """eq. (2) over the trackers of one mask word (tracker base + bit), in index order:
     the smallest d^2 below *best_d2 wins (ties: the lowest index)."""
     cdef int i
@@ -88,7 +96,7 @@ cdef inline void scan_word(const KState* s, uint64_t m, int base, int64_t t, dou
     while m:
         i = base + st_ctz64(m)
         m &= m - 1
-        if moving:
+        if moving == MOTION_FULL:
             lead = predict_dt(s, i, t)                               # eq. (M1)
             dx = fx - (s.mx[i] + s.vx[i] * lead)
             dy = fy - (s.my[i] + s.vy[i] * lead)
@@ -102,13 +110,13 @@ cdef inline void scan_word(const KState* s, uint64_t m, int base, int64_t t, dou
 
 
 cdef inline int assign_event(KState* s, int64_t t, int x, int y, int pol,
-                             bint one, bint moving) noexcept nogil:
+                             bint one, int moving) noexcept nogil:
     """eqs. (2)-(6) for a valid event: the most probable sensitive tracker of every
     instance takes it (an event feeds at most one tracker of one instance).  ``one``:
-    the state holds one instance (so at most 64 trackers: one mask word); ``moving``: the
-    motion model may move a mean (motion.pxd in_motion; if not, its predictions are exact
-    zeros and are left out); constants in the callers' loops (ksteps), which then compile
-    this path without the others."""
+    the state holds one instance (so at most 64 trackers: one mask word); ``moving``: what
+    of the motion model may move a mean (motion.pxd motion_mode; below MOTION_FULL its
+    predictions are exact zeros and are left out); constants in the callers' loops
+    (ksteps), which then compile this path without the others."""
     cdef double fx = x, fy = y, dx, dy, d2, lead
     cdef double best_d2 = s.gate
     cdef int best = K_NO_TRACKER, i, w
@@ -124,7 +132,7 @@ cdef inline int assign_event(KState* s, int64_t t, int x, int y, int pol,
         while m:
             i = st_ctz64(m)
             m &= m - 1
-            if moving:
+            if moving == MOTION_FULL:
                 lead = predict_dt(s, i, t)                           # eq. (M1): about the
                 dx = fx - (s.mx[i] + s.vx[i] * lead)                 # predicted mean
                 dy = fy - (s.my[i] + s.vy[i] * lead)
@@ -165,9 +173,9 @@ cdef inline void count_event(KState* s, int best) noexcept nogil:
 
 
 cdef inline Py_ssize_t ksteps_of(KState* s, const Event* ev, Py_ssize_t n, int64_t t_stop,
-                                 bint one, bint moving) noexcept nogil:
+                                 bint one, int moving) noexcept nogil:
     """ksteps() for a state of one instance (``one``, a constant) or several, the motion
-    model moving or at rest (``moving``, a constant; assign_event).  One instance's clock
+    model's mode (``moving``, a constant; assign_event).  One instance's clock
     counts every valid event: its count in a local (``since``)."""
     cdef Py_ssize_t k
     cdef int64_t t, last_t = s.last_t, n_back = 0, n_outside = 0, n_valid = 0
@@ -217,17 +225,21 @@ cdef inline Py_ssize_t ksteps(KState* s, const Event* ev, Py_ssize_t n, int64_t 
     back in time (the sampling rule, csrc/sampling.h, with t_stop the next sample time);
     returns the events processed (the Stepper's steps(), backends/stepper.pxd).
     The counters and the last time live in locals for the batch and are written back at
-    its end (nothing the step calls reads them).  Four copies of the loop: one instance
-    (the common case, its per-event path as lean as a one-model kernel's) or several, the
-    motion model moving or at rest (motion.pxd in_motion, decided per batch)."""
-    cdef bint moving = in_motion(s)
+    its end (nothing the step calls reads them).  Six copies of the loop: one instance
+    (the common case, its per-event path as lean as a one-model kernel's) or several, times
+    the motion model's three modes (motion.pxd motion_mode, decided per batch)."""
+    cdef int moving = motion_mode(s)
     if s.ni == 1:
-        if moving:
-            return ksteps_of(s, ev, n, t_stop, True, True)
-        return ksteps_of(s, ev, n, t_stop, True, False)
-    if moving:
-        return ksteps_of(s, ev, n, t_stop, False, True)
-    return ksteps_of(s, ev, n, t_stop, False, False)
+        if moving == MOTION_FULL:
+            return ksteps_of(s, ev, n, t_stop, True, MOTION_FULL)
+        if moving == MOTION_EDGES:
+            return ksteps_of(s, ev, n, t_stop, True, MOTION_EDGES)
+        return ksteps_of(s, ev, n, t_stop, True, MOTION_REST)
+    if moving == MOTION_FULL:
+        return ksteps_of(s, ev, n, t_stop, False, MOTION_FULL)
+    if moving == MOTION_EDGES:
+        return ksteps_of(s, ev, n, t_stop, False, MOTION_EDGES)
+    return ksteps_of(s, ev, n, t_stop, False, MOTION_REST)
 
 
 cdef inline int kstep(KState* s, int64_t t, int x, int y, int p) noexcept nogil:
@@ -241,7 +253,7 @@ cdef inline int kstep(KState* s, int64_t t, int x, int y, int p) noexcept nogil:
         s.n_outside += 1
         return K_OUT_OF_SENSOR
     s.n_valid += 1
-    cdef int best = assign_event(s, t, x, y, p, s.ni == 1, True)
+    cdef int best = assign_event(s, t, x, y, p, s.ni == 1, MOTION_FULL)
     flush_activity(s)
     count_event(s, best)
     return best

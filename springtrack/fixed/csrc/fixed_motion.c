@@ -82,22 +82,26 @@ static void still(fx_state *s, int i)
     s->kpv[i] = s->kvv[i] = 0;
 }
 
-/* Whether the motion model can move a mean: tau_m or c_h on, or a tracker holding a
-   velocity or a half offset.  When not, eqs. (M1)-(M7) reduce to eqs. (3)-(5) exactly
-   (every prediction is 0, the gain alpha1): the per-event path skips them and computes
-   the same integers as a kernel without the model.  Decided when the parameters are set
-   (s->moving): with tau_m = c_h = 0 nothing makes a zero v or h other than zero (a move
-   turns it, a reset or relocation zeroes it), and a state that keeps moving after them is
-   exact either way (its predictions add the zeros it holds). */
+/* How much of the motion model can move a mean: FX_MOTION_FULL with tau_m on or a tracker
+   holding a velocity; else FX_MOTION_EDGES with c_h on or a tracker holding a half offset;
+   else FX_MOTION_REST.  At rest eqs. (M1)-(M7) reduce to eqs. (3)-(5) exactly (every
+   prediction is 0, the gain alpha1): the per-event path skips them and computes the same
+   integers as a kernel without the model; below FX_MOTION_FULL the candidates' predictions
+   are zeros and are skipped.  Decided when the parameters are set (s->moving): with
+   tau_m = 0 (c_h = 0) nothing makes a zero v (h) other than zero (a move turns it, a reset
+   or relocation zeroes it), and a state that keeps a mode after them is exact either way
+   (its predictions add the zeros it holds). */
 static int in_motion(const fx_state *s)
 {
-    int i;
-    if (s->tau_ceil > 0 || s->c_h > 0)
-        return 1;
-    for (i = 0; i < s->n; i++)
-        if (s->vx[i] | s->vy[i] | s->hx[i] | s->hy[i])
-            return 1;
-    return 0;
+    int i, edges = s->c_h > 0;
+    if (s->tau_ceil > 0)
+        return FX_MOTION_FULL;
+    for (i = 0; i < s->n; i++) {
+        if (s->vx[i] | s->vy[i])
+            return FX_MOTION_FULL;
+        edges |= (s->hx[i] | s->hy[i]) != 0;
+    }
+    return edges ? FX_MOTION_EDGES : FX_MOTION_REST;
 }
 
 /* sqrt(v) of a Q.32 v >= 0, Q.32: isqrt of v 2^32 with v shifted by an even amount into

@@ -120,14 +120,15 @@ static void set_sync(fx_set *g)
     }
 }
 
-/* whether any instance's motion model can move a mean (in_motion) */
+/* the highest of the instances' motion modes (in_motion): an instance below it adds the
+   zeros it holds */
 static int set_in_motion(const fx_set *g)
 {
-    int q;
+    int q, m = FX_MOTION_REST;
     for (q = 0; q < g->ni; q++)
-        if (g->inst[q]->moving)
-            return 1;
-    return 0;
+        if (g->inst[q]->moving > m)
+            m = g->inst[q]->moving;
+    return m;
 }
 
 int fx_set_step(fx_set *g, int64_t t, int32_t x, int32_t y, int32_t p)
@@ -147,7 +148,16 @@ int fx_set_step(fx_set *g, int64_t t, int32_t x, int32_t y, int32_t p)
     }
     g->n_valid++;
     set_sync(g);
-    best = set_assign(g, t, x, y, p, set_in_motion(g), &taker);
+    switch (set_in_motion(g)) {                           /* three copies: the mode */
+    case FX_MOTION_FULL:
+        best = set_assign(g, t, x, y, p, FX_MOTION_FULL, &taker);
+        break;
+    case FX_MOTION_EDGES:
+        best = set_assign(g, t, x, y, p, FX_MOTION_EDGES, &taker);
+        break;
+    default:
+        best = set_assign(g, t, x, y, p, FX_MOTION_REST, &taker);
+    }
     if (best >= 0)
         g->n_assigned++;
     set_count(g, best >= 0 ? taker : -1, set_next_due(g), t);
@@ -157,8 +167,12 @@ int fx_set_step(fx_set *g, int64_t t, int32_t x, int32_t y, int32_t p)
 /* fx_steps for a set: the same loop, the sampling rule's stop included */
 int64_t fx_set_steps(fx_set *g, const fx_event *ev, int64_t n, int64_t t_stop)
 {
-    batch o = set_in_motion(g) ? steps_loop(0, g, ev, n, t_stop, g->last_t, 0, 1)
-                               : steps_loop(0, g, ev, n, t_stop, g->last_t, 0, 0);
+    int mode = set_in_motion(g);
+    batch o = mode == FX_MOTION_FULL
+                  ? steps_loop(0, g, ev, n, t_stop, g->last_t, 0, FX_MOTION_FULL)
+              : mode == FX_MOTION_EDGES
+                  ? steps_loop(0, g, ev, n, t_stop, g->last_t, 0, FX_MOTION_EDGES)
+                  : steps_loop(0, g, ev, n, t_stop, g->last_t, 0, FX_MOTION_REST);
     g->last_t = o.last_t;
     g->n_valid += o.k - o.n_back - o.n_skipped;
     g->n_assigned += o.n_assigned;

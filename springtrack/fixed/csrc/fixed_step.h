@@ -56,6 +56,11 @@
 #endif
 #define FX_MAX_SET_TRACKERS 256
 #define FX_MAX_SET_CONNECTIONS 512
+/* the motion model's modes (fixed_motion.c in_motion): at rest (the paper's step), half
+   offsets without velocities (no prediction), velocities (predictions) */
+#define FX_MOTION_REST 0
+#define FX_MOTION_EDGES 1
+#define FX_MOTION_FULL 2
 #define FX_CELL_SHIFT 3                     /* spatial index cells of 8 x 8 px */
 #define FX_POS_FRAC 32                      /* positions Q.32 */
 #define FX_POS_LIM ((int64_t)8192 << 32)    /* |position| < 8192 px */
@@ -115,7 +120,8 @@ typedef struct {
        |h| <= h_max (sigma_max, Q.32 px); the Kalman gain's bound alpha1, Q.30, which binds
        while pp > kcap_thr (alpha1 / (1 - alpha1), Q.32) */
     int32_t tau_ceil, inv_tau_sh, horizon8;
-    int32_t moving;                           /* in_motion() when the parameters were set */
+    int32_t moving;                           /* in_motion() when the parameters were set:
+                                                 FX_MOTION_REST, _EDGES or _FULL */
     uint32_t inv_tau, c_h, kcap;
     int64_t h_max, kcap_thr;
     int32_t has_params;

@@ -226,14 +226,14 @@ static __attribute__((noinline)) void update_moving(fx_state *s, int i, int64_t 
 }
 
 /* eq. (2) for candidate i: it becomes the best if its d^2 is below the best so far; with
-   the motion model (`moving`, a constant in the callers) about its mean predicted to t
-   (eq. M1) */
+   velocities (`moving` FX_MOTION_FULL, a constant in the callers) about its mean predicted
+   to t (eq. M1) */
 static inline __attribute__((always_inline)) void candidate(const fx_state *s, int i, int32_t x,
                                                             int32_t y, uint32_t *best_d2,
                                                             int *best, int64_t t, int moving)
 {
     uint32_t d2;
-    if (moving) {
+    if (moving == FX_MOTION_FULL) {
         int32_t lead = lead8(s, i, t);
         d2 = qform_at(s, i, x, y, s->mx[i] + ahead(s->vx[i], lead),
                       s->my[i] + ahead(s->vy[i], lead));
@@ -318,8 +318,16 @@ int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y, int32_t p)
         return FX_OUT_OF_SENSOR;
     }
     s->n_valid++;
-    best = s->moving ? assign(s, s->sensitive_mask, t, x, y, p, 1)       /* two copies: */
-                     : assign(s, s->sensitive_mask, t, x, y, p, 0);      /* in_motion */
+    switch (s->moving) {                                  /* three copies: in_motion */
+    case FX_MOTION_FULL:
+        best = assign(s, s->sensitive_mask, t, x, y, p, FX_MOTION_FULL);
+        break;
+    case FX_MOTION_EDGES:
+        best = assign(s, s->sensitive_mask, t, x, y, p, FX_MOTION_EDGES);
+        break;
+    default:
+        best = assign(s, s->sensitive_mask, t, x, y, p, FX_MOTION_REST);
+    }
     if (best >= 0)
         s->n_assigned++;
     if (++s->since_spring >= s->period) {
@@ -391,9 +399,12 @@ static inline __attribute__((always_inline)) batch steps_loop(fx_state *s, fx_se
 /* fx_step over a batch */
 int64_t fx_steps(fx_state *s, const fx_event *ev, int64_t n, int64_t t_stop)
 {
-    /* two copies of the loop: the motion model moving or at rest (in_motion, per batch) */
-    batch o = s->moving ? steps_loop(s, 0, ev, n, t_stop, s->last_t, s->since_spring, 1)
-                           : steps_loop(s, 0, ev, n, t_stop, s->last_t, s->since_spring, 0);
+    /* three copies of the loop: the motion model's mode (in_motion, per batch) */
+    batch o = s->moving == FX_MOTION_FULL
+                  ? steps_loop(s, 0, ev, n, t_stop, s->last_t, s->since_spring, FX_MOTION_FULL)
+              : s->moving == FX_MOTION_EDGES
+                  ? steps_loop(s, 0, ev, n, t_stop, s->last_t, s->since_spring, FX_MOTION_EDGES)
+                  : steps_loop(s, 0, ev, n, t_stop, s->last_t, s->since_spring, FX_MOTION_REST);
     s->last_t = o.last_t;
     s->since_spring = s->period - o.until;
     s->n_valid += o.k - o.n_back - o.n_skipped;

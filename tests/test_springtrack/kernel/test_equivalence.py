@@ -131,7 +131,7 @@ def params(draw):
 
 @st.composite
 def motion_params(draw):
-    """The motion model's parameters (eqs. M1-M8), each part off (0) or on."""
+    """The motion model's parameters (eqs. M1-M9), each part off (0) or on."""
     return dict(motion_tau_us=draw(st.sampled_from([0.0]) | st.floats(20.0, 1e5)),
                 prediction_horizon_us=draw(st.floats(0.0, 5000.0)),
                 polarity_gain=draw(st.sampled_from([0.0]) | st.floats(0.0, 1.0)))
@@ -241,12 +241,13 @@ def test_kernel_equals_reference_on_random_models(model, prm, seed):
         raise
 
 
-# the motion model on (eqs. M1-M8) and off
+# the motion model on (eqs. M1-M9), both edges alone (its path without predictions), and off
 MOTION_ON = dict(motion_tau_us=1000.0, polarity_gain=1.0)
+EDGES_ON = dict(polarity_gain=1.0)
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("model_motion", [{}, MOTION_ON])
+@pytest.mark.parametrize("model_motion", [{}, MOTION_ON, EDGES_ON], ids=["off", "motion", "edges"])
 @pytest.mark.parametrize("frame", FRAMES)
 @pytest.mark.parametrize("preset,motion", [("grid3x3", dict(speed_px_s=(15, 8), rot_deg_s=10)),
                                            ("face26", dict(speed_px_s=(10, -5), rot_deg_s=-8,
