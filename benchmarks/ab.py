@@ -33,6 +33,9 @@ import sys
 import tempfile
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _params import parse_params  # noqa: E402
+
 RUN = r'''
 import json, sys, time
 import numpy as np
@@ -140,22 +143,6 @@ def main():
     for tree, v in times.items():
         print(f"{tree}: {args.preset} {args.backend}, {len(ev):,} events: "
               f"best {min(v):.1f} ns/event, median {statistics.median(v):.1f}")
-
-
-def parse_params(items) -> dict:
-    """NAME=VALUE strings -> {name: int, float or str value}."""
-    out = {}
-    for item in items:
-        name, sep, value = item.partition("=")
-        if not sep:
-            sys.exit(f"--param: expected NAME=VALUE, got {item!r}")
-        for conv in (int, float, str):
-            try:
-                out[name] = conv(value)
-                break
-            except ValueError:
-                pass
-    return out
 
 
 def paired(args, path, env, params):

@@ -1,7 +1,7 @@
 """The tracker's defaults on both scene generators, in both frames of eq. (22).
 
 Run: .venv/bin/python benchmarks/generators.py [--generator sensor screen] [--scene grid_pull ...]
-     [--seconds S] [--seed N] [--backend cython]
+     [--seconds S] [--seed N] [--backend cython] [--frame similarity] [--param NAME=VALUE ...]
 
 For each generator (springtrack.sim.generators) and scene: simulate once, track with the
 scene's initial model and the paper's per-experiment values (grids: Cartesian springs,
@@ -13,12 +13,18 @@ belongs while the pull is full.  docs/simulators.md holds the numbers.
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 
 import numpy as np
 
 from springtrack import Tracker
 from springtrack.metrics import score_track, truth_from_array
+from springtrack.params import from_mapping
 from springtrack.sim.generators import GENERATORS, generator
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _params import parse_params  # noqa: E402
 
 SCENES = ("grid_pull", "grid_inplane", "grid_rot_y", "face_occlusion")
 FRAMES = ("image", "similarity")
@@ -40,7 +46,14 @@ def main(argv=None) -> None:
     ap.add_argument("--seconds", type=float, help="scene length in s (default: the scene's)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--backend", default="cython")
+    ap.add_argument("--frame", nargs="+", default=list(FRAMES), choices=FRAMES,
+                    help="frames of eq. (22) to track in (default: both)")
+    ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                    help="a tracking parameter over the defaults and the paper's values "
+                         "(springtrack.params names, e.g. polarity_gain=1)")
     a = ap.parse_args(argv)
+    given = parse_params(a.param)
+    extra = {k: from_mapping(given).as_dict()[k] for k in given}     # validated
     for gname in a.generator:
         gen = generator(gname)
         for sname in a.scene:
@@ -50,10 +63,11 @@ def main(argv=None) -> None:
             face = sname.startswith("face")
             model = scene.initial_model(**({} if face else
                                            dict(stiffness=0.001, springs=("cartesian",))))
-            for frame in FRAMES:
+            for frame in a.frame:
                 params = dict(pull_frame=frame, cartesian_frame=frame)
                 if face:
                     params["energy_scale"] = 2.5
+                params.update(extra)
                 track = Tracker(model, params=params, backend=a.backend).run(ev, sample_us=1000)
                 es = score_track(truth, track)
                 print(f"{gname:7s} {sname:15s} {frame:10s} {es.mean_pct:6.2f} %"

@@ -35,7 +35,7 @@ Interpretation choices (docs/algorithm.md explains them):
   over-threshold connection toward ``G + s R dG0``, and the others by the share they
   disagree with the frame (eq. 21's sensitivity stays the connections' verdict); the
   Cartesian springs of the next update hold the rest offset ``s R d0``.
-* The motion model (this project's extension, eqs. M1-M8; docs/motion.md; off by
+* The motion model (this project's extension, eqs. M1-M9; docs/motion.md; off by
   default): each tracker keeps a velocity v, the half offset h between its part's ON
   and OFF edges, the time t_m its mean refers to and the covariance P of a Kalman filter
   of its position and velocity (per axis, in units of the event spread).  An event is
@@ -43,7 +43,8 @@ Interpretation choices (docs/algorithm.md explains them):
   (M3) come from P (at most alpha1 for the mean): they fall where its events come fast;
   its mean, half offset and velocity move by the event's residual about the edge of its
   polarity (M4-M7); the springs act on the means predicted to the update's time, and
-  eq. (22)'s pull takes a pulled tracker's velocity toward its structure's (M8).  With
+  eq. (22)'s pull takes a pulled tracker's velocity toward its structure's (M8) and its
+  half offset toward 0 by the same gain (M9).  With
   motion_tau_us = 0 and polarity_gain = 0 this is the paper's Algorithm 1 exactly.
 * Several model instances (springtrack.instances): their trackers side by side; eq. (2)'s
   argmin runs over the union of the sensitive trackers (ties: lowest index, the first
@@ -140,7 +141,7 @@ class ReferenceTracker:
         self.mx, self.my, self.sxx, self.sxy, self.syy = (list(v) for v in self.rest)
         self.act = [0.0] * self.n
         self.tlast = [0] * self.n
-        # the motion model (eqs. M1-M8): velocity (px/us), half offset between the ON
+        # the motion model (eqs. M1-M9): velocity (px/us), half offset between the ON
         # and OFF edges (px), the time the mean refers to (us), the Kalman covariance
         # [[kpp, kpv], [kpv, kvv]] of position and velocity in units of the event spread
         self.vx = [0.0] * self.n
@@ -254,7 +255,7 @@ class ReferenceTracker:
         self.period = p.spring_period
         self.smin2 = p.sigma_min_px * p.sigma_min_px
         self.smax2 = p.sigma_max_px * p.sigma_max_px
-        # the motion model (eqs. M1-M8): 0 turns each part off.  tau_m sets the Kalman
+        # the motion model (eqs. M1-M9): 0 turns each part off.  tau_m sets the Kalman
         # filter's acceleration noise q = 1 / tau_m^3 (event spreads^2 / us^3) and bounds
         # its velocity variance to 1 / tau_m^2 (a spread per tau_m)
         self.horizon = p.prediction_horizon_us
@@ -655,6 +656,14 @@ class ReferenceTracker:
                     self.my[i] = self.my[i] + gain[i] * (gy + self.gdy0[i] - self.my[i])
         if self.tau_m > 0.0:
             self._pull_velocities(g, over_count)
+        if self.c_h > 0.0:
+            # eq. (M9): the half offset of a tracker eq. (22) pulls goes toward 0 by the
+            # same gain, h = h - gain h: a pull says the tracker's events were not its
+            # part's, and so were not its part's edges either
+            for i in range(t0, t1):
+                if gain[i] > 0.0:
+                    self.hx[i] = self.hx[i] - gain[i] * self.hx[i]
+                    self.hy[i] = self.hy[i] - gain[i] * self.hy[i]
         for i in range(t0, t1):
             # eq. (21): insensitive while every connection of the tracker is over
             self.sensitive[i] = not (self.degree[i] > 0 and over_count[i] == self.degree[i])
@@ -709,7 +718,7 @@ class ReferenceTracker:
         """Instance g's trackers ``idx`` (indices within the instance) put at means (x, y)
         with covariances (sxx, sxy, syy) (one value each per index; clamped as eq. (4)'s),
         their activities 0 (eq. 6: no event of theirs yet where they now are) and their
-        motion state as placed (``_still``: eqs. M1-M8 start again); every other
+        motion state as placed (``_still``: eqs. M1-M9 start again); every other
         tracker, the rest geometry, the frame and the state kept."""
         for k, j in enumerate(idx):
             i = self.t0[g] + int(j)

@@ -36,7 +36,7 @@ ATAN_BITS = 10                # atan table of 2^10 + 2 entries
 PARAMS_HEAD = 24              # fx_set_params: words before the two decay tables
 SIM_FRAC = 28                 # fx_move: the similarity's a, b, Q.28 (|.| < 8)
 SIM_T_LIM_PX = float(1 << 20)  # and its translation, Q.32, |.| < 2^20 px
-# the motion model (eqs. M1-M8, fixed/csrc/fixed_motion.c): velocities Q.32 px/us, the
+# the motion model (eqs. M1-M9, fixed/csrc/fixed_motion.c): velocities Q.32 px/us, the
 # horizon Q.8 us, c_h and the Kalman gain's bound Q.30, its threshold Q.32
 VEL_FRAC = 32
 VEL_UNIT = 1e6 / (1 << VEL_FRAC)   # a Q.32 px/us velocity in px/s
@@ -190,7 +190,7 @@ def params_q(p, nc: int) -> dict:
 
 
 def motion_q(p) -> list[int]:
-    """The motion model's words (eqs. M1-M8, reference.py; fixed/csrc/fixed_motion.c):
+    """The motion model's words (eqs. M1-M9, reference.py; fixed/csrc/fixed_motion.c):
     ceil(tau_m) us, 1 / tau_m as a mantissa and its shift, the horizon H Q.8 us, c_h Q.30,
     the Kalman gain's bound max(alpha1, 1e-6) Q.30 and the position variance above which it
     binds, alpha1 / (1 - alpha1) Q.32, and |h|'s bound sigma_max Q.32 px."""

@@ -1,4 +1,4 @@
-# The float64 kernel's motion model (this project's extension of Algorithm 1, eqs. M1-M8 of
+# The float64 kernel's motion model (this project's extension of Algorithm 1, eqs. M1-M9 of
 # springtrack/reference.py; docs/motion.md): each tracker's
 # velocity, the half offset between its part's ON and OFF edges, and the Kalman filter
 # whose gains fall below alpha1 where its events come fast.  [ref] marks the lines translated.

@@ -344,6 +344,22 @@ cdef inline void pull_velocities(KState* s, int g, uint64_t pulled) noexcept nog
             s.vy[i] = s.vy[i] + a * (vy - s.vy[i])
 
 
+cdef inline void pull_half_offsets(KState* s, int g, uint64_t pulled,
+                                   const double* dis) noexcept nogil:
+    # [ref] eq. (M9): each tracker eq. (22) pulls by gain a (a_en, or a_en times how much
+    # it disagrees with the frame) has its half offset taken toward 0: h = h - a h
+    cdef int t0 = s.g_t0[g], n = s.g_t1[g] - s.g_t0[g], j, i
+    cdef double a, a_en = s.energy_gain[g]
+    if s.c_h <= 0.0:
+        return
+    for j in range(n):
+        a = a_en if (pulled >> j) & 1 else a_en * dis[j]
+        if a > 0.0:
+            i = t0 + j
+            s.hx[i] = s.hx[i] - a * s.hx[i]
+            s.hy[i] = s.hy[i] - a * s.hy[i]
+
+
 cdef inline void energy_criteria(KState* s, int g) noexcept nogil:
     # [ref] _energy_criteria(g); masks relative to the instance's first tracker t0
     cdef int t0 = s.g_t0[g], n = s.g_t1[g] - s.g_t0[g], c0 = s.g_c0[g]
@@ -373,6 +389,7 @@ cdef inline void energy_criteria(KState* s, int g) noexcept nogil:
         st_pull(n, pulled, gx, gy, 1.0, 0.0, s.energy_gain[g], dis, s.gdx0 + t0, s.gdy0 + t0,
                 s.mx + t0, s.my + t0)
     pull_velocities(s, g, pulled)        # eq. (M8)
+    pull_half_offsets(s, g, pulled, dis) # eq. (M9)
     s.isens[g] = calm | s.isolated[g]    # eq. (21): insensitive if all its connections are over
 
 

@@ -378,7 +378,7 @@ def _build_model(pool, rec, counts, lp, track_params, width, height, names, name
     fast = sizes_per_ms(v, sig)
     if (lp.motion_sigmas_per_ms > 0 and fast > lp.motion_sigmas_per_ms
             and not any(k in params for k in MOTION_ON)):
-        # fast parts: velocity and both edges per tracker (eqs. M1-M8) unless given
+        # fast parts: velocity and both edges per tracker (eqs. M1-M9) unless given
         params.update(MOTION_ON)
     stiff = np.array([lp.stiffness_gain * params["alpha_position"] * c.rigidity for c in kept])
     if kept:

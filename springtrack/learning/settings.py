@@ -74,7 +74,7 @@ class LearnParams:
     energy_quantile: float = 0.99      # s of eqs. (21)-(22): this quantile of E_ij / mean E,
     energy_scale_max: float = 4.5      # ... at most this (and at least the default 2.5)
     smooth_us: int = 20_000            # averaging of directions for the turn measure
-    # the motion model (eqs. M1-M8) written into the model when its parts move faster
+    # the motion model (eqs. M1-M9) written into the model when its parts move faster
     # than this many part sizes (sigma) per millisecond (0: never)
     motion_sigmas_per_ms: float = 1.0
 

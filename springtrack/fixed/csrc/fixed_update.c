@@ -95,6 +95,10 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
         }
         s->mx[i] = sat_pos(s, s->mx[i] + mulsh(tx - s->mx[i], gain, 30));
         s->my[i] = sat_pos(s, s->my[i] + mulsh(ty - s->my[i], gain, 30));
+        if (s->c_h > 0) {                                 /* eq. (M9): h = h - gain h */
+            s->hx[i] -= mulsh(s->hx[i], gain, 30);
+            s->hy[i] -= mulsh(s->hy[i], gain, 30);
+        }
     }
     if (s->tau_ceil > 0 && pulled)                        /* eq. (M8) */
         pull_velocities(s, pulled);

@@ -1,4 +1,4 @@
-"""The motion model (eqs. M1-M8 of springtrack/reference.py: velocity, both edges, the
+"""The motion model (eqs. M1-M9 of springtrack/reference.py: velocity, both edges, the
 rate-aware gain) on the real dot of evt2_sample.raw, whose truth is derived here from its
 own events (tests/support/dot_truth.py), and on fast dark and bright disks of the simulated sensor
 with edge latency (tests/support/fast_parts.py).  The kernel equals the reference with it on
@@ -205,3 +205,31 @@ def test_with_the_motion_model_off_the_velocity_columns_are_zero_and_read_back(t
     old = read_csv(tmp_path / "old.csv")
     assert (old.vx == 0).all() and (old.vy == 0).all()
     np.testing.assert_allclose(old.x, tr.x, atol=1e-5)
+
+
+def test_a_pulled_trackers_half_offset_goes_toward_0_by_the_pull_gain():
+    """eq. (M9): a tracker eq. (22) pulls back to the structure (here both ends of the one
+    connection over the threshold) has its half offset h taken toward 0 by the pull's gain,
+    h = h - a_en h; a tracker left alone keeps its h.  A hand that dragged a part made the
+    part's h the hand's edges; kept, it held the part off its place after the hand left."""
+    from springtrack.model import Connection
+    from springtrack.params import Params
+    from springtrack.reference import ReferenceTracker
+    trackers = [TrackerSpec(n, x, 50.0, (9.0, 0.0, 9.0)) for n, x in
+                (("a", 40.0), ("b", 60.0), ("c", 80.0))]
+    conns = [Connection("a", "b", ("euclidean",), 0.01), Connection("b", "c", ("euclidean",), 0.01)]
+    p = Params(polarity_gain=1.0, energy_scale=1.5, pull_frame="image", cartesian_frame="image")
+    ref = ReferenceTracker(ShapeModel("line", 200, 100, trackers, conns), p)
+    ref.mx[2] += 30.0                       # c dragged away: b-c over 1.5 x the mean energy
+    ref.hx[0], ref.hx[2], ref.hy[2] = 2.0, 3.0, -1.0
+    ref.springs()
+    a = p.energy_gain
+    assert ref.hx[2] == 3.0 - a * 3.0 and ref.hy[2] == -1.0 - a * -1.0
+    assert ref.hx[0] == 2.0
+    off = ReferenceTracker(ShapeModel("line", 200, 100, trackers, conns),
+                           Params(polarity_gain=0.0, energy_scale=1.5, pull_frame="image",
+                                  cartesian_frame="image"))
+    off.mx[2] += 30.0
+    off.hx[2] = 3.0                         # c_h = 0: the half offsets are not the model's
+    off.springs()
+    assert off.hx[2] == 3.0
