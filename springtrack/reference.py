@@ -18,9 +18,10 @@ Interpretation choices (docs/algorithm.md explains them):
 * eq. (5): the covariance sample is taken about the mean BEFORE the update of eq. (3)
   and divided by the gate's truncation factor (see :func:`springtrack.gate.covariance_bias`), so a
   tracker's ellipse converges to its blob's covariance instead of collapsing.
-* Springs run every ``spring_period`` valid events (paper: 55): all spring
-  displacements are computed from the same positions, then applied (Jacobi order);
-  energies are those of the positions before the displacement.
+* Springs run every ``spring_period`` valid events (paper: 55; with several instances,
+  events of the instance's own clock, below): all spring displacements are computed from
+  the same positions, then applied (Jacobi order); energies are those of the positions
+  before the displacement.
 * eqs. (21)-(22) use strict ``E > s * mean(E)`` so a model at rest (all E = 0) is
   neither pulled nor insensitive; a tracker is pulled by eq. (22) at most once per
   spring update, however many of its connections exceed the threshold.
@@ -52,6 +53,18 @@ Interpretation choices (docs/algorithm.md explains them):
   similarity frame per instance, each with its own parameters of INSTANCE_PARAMS; only
   tracking instances are sensitive and run their springs (``set_state``; the loss rule
   that decides a state is springtrack.acquisition.loss, the same for every backend).
+  Each instance has its own spring clock: it counts the valid events no OTHER instance
+  takes (those one of its trackers takes and those no tracker takes), and when it
+  reaches ``spring_period`` that instance's spring update runs (its springs, eq. (13)'s
+  mean, eqs. (21)-(22) and frame if it is tracking; then the state guard of its
+  trackers) and its count restarts.  So an object's springs keep their pace per its own
+  events whether or not other objects are in view, and a set of N instances does N
+  instances' spring work per ``spring_period`` events of all of them together, not N
+  times that; with one instance the clock counts every valid event (the paper's rule).
+  A searching or lost instance's trackers take no event, so its clock counts every
+  event the others leave; its updates run the guard only; ``set_state``, ``place``,
+  ``move`` and ``relocate`` leave its count as it is.  Several clocks due at one event
+  run in instance order.
 """
 from __future__ import annotations
 
@@ -188,8 +201,8 @@ class ReferenceTracker:
         # counters
         self.last_t = -(1 << 62)
         self.n_valid = self.n_assigned = self.n_back = self.n_outside = 0
-        self.since_spring = 0
-        self.n_spring_updates = 0
+        self.since_spring = [0] * self.ni            # each instance's spring clock
+        self.n_spring_updates = 0                    # instances' spring updates, summed
         self.n_resets = 0
         self.set_params(mset.params_list)
 
@@ -318,13 +331,18 @@ class ReferenceTracker:
             if d2 < best_d2:
                 best_d2 = d2
                 best = i
+        owner = -1
         if best >= 0:
             self._update(best, t, fx, fy, best_d2, p)
             self.n_assigned += 1
-        self.since_spring += 1
-        if self.since_spring >= self.period:
-            self.since_spring = 0
-            self.springs()
+            owner = self.inst[best]
+        # each instance's spring clock counts the events no other instance took
+        for g in range(self.ni):
+            if owner < 0 or owner == g:
+                self.since_spring[g] += 1
+                if self.since_spring[g] >= self.period:
+                    self.since_spring[g] = 0
+                    self.spring_update(g)
         return best
 
     def _update(self, i: int, t: int, fx: float, fy: float, d2: float, pol: int) -> None:
@@ -503,31 +521,36 @@ class ReferenceTracker:
         self.fgy[g] = qy - (sn * px + c * py)
 
     def springs(self) -> None:
-        """One spring update: every tracking instance's springs and criteria."""
+        """A spring update of every instance, in order (their clocks left as they are)."""
+        for g in range(self.ni):
+            self.spring_update(g)
+
+    def spring_update(self, g: int) -> None:
+        """Instance g's spring update: its springs and criteria if it is tracking, then
+        its state guard."""
         self.n_spring_updates += 1
         t = self.last_t
-        for g in range(self.ni):
-            if self.state[g] == TRACKING:
-                for i in range(self.t0[g], self.t1[g]):              # eq. (M1): the springs
-                    lead = self.predict_dt(i, t)                      # act on the means at t
-                    self.mx[i] = self.mx[i] + self.vx[i] * lead
-                    self.my[i] = self.my[i] + self.vy[i] * lead
-                    self.tm[i] = t
-                self._springs(g)
-        self._guard()
+        if self.state[g] == TRACKING:
+            for i in range(self.t0[g], self.t1[g]):                  # eq. (M1): the springs
+                lead = self.predict_dt(i, t)                          # act on the means at t
+                self.mx[i] = self.mx[i] + self.vx[i] * lead
+                self.my[i] = self.my[i] + self.vy[i] * lead
+                self.tm[i] = t
+            self._springs(g)
+        self._guard(g)
 
-    def _guard(self) -> None:
-        """The state guard, after every spring update: a tracker outside the position box
-        (springtrack.limits.position_box: one sensor size around the sensor), or not finite,
-        is a state no limit-abiding model reaches (docs/algorithm.md, Limits); it is counted
-        (``n_resets``) and its instance's whole state is reset to the model, never reported."""
+    def _guard(self, g: int) -> None:
+        """The state guard, after each of instance g's spring updates: a tracker outside
+        the position box (springtrack.limits.position_box: one sensor size around the
+        sensor), or not finite, is a state no limit-abiding model reaches
+        (docs/algorithm.md, Limits); it is counted (``n_resets``) and the instance's whole
+        state is reset to the model, never reported."""
         x_lo, x_hi, y_lo, y_hi = self.box
-        for g in range(self.ni):
-            for i in range(self.t0[g], self.t1[g]):
-                if not (x_lo <= self.mx[i] < x_hi and y_lo <= self.my[i] < y_hi):
-                    self.n_resets += 1
-                    self._reset_instance(g)
-                    break
+        for i in range(self.t0[g], self.t1[g]):
+            if not (x_lo <= self.mx[i] < x_hi and y_lo <= self.my[i] < y_hi):
+                self.n_resets += 1
+                self._reset_instance(g)
+                break
 
     def _springs(self, g: int) -> None:
         t0, t1, c0, c1 = self.t0[g], self.t1[g], self.c0[g], self.c1[g]

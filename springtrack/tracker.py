@@ -466,9 +466,10 @@ class Tracker:
         return out
 
     def energies(self) -> dict:
-        """Energies of the last spring update: per connection (of every instance, in
-        order) for each kind (eqs. 12, 17, 20); ``mean``, the first instance's mean of the
-        kind that feeds its criteria (eqs. 21-22), ``means`` every instance's."""
+        """Energies per connection (of every instance, in order, each at its instance's
+        last spring update) for each kind (eqs. 12, 17, 20); ``mean``, the first
+        instance's mean of the kind that feeds its criteria (eqs. 21-22), ``means`` every
+        instance's."""
         e = self._b.energies()
         return {"euclidean": e[0], "torsional": e[1], "cartesian": e[2],
                 "mean": float(self._b.mean_energy),

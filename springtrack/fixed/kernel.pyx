@@ -532,7 +532,8 @@ cdef class FixedSet:
         return b"".join(k.telemetry_records(t) for k in self.kernels)
 
     def energies(self):
-        """(3, nc) array of every instance's energies, in order."""
+        """(3, nc) array of every instance's energies, in order (each at its last spring
+        update)."""
         return np.concatenate([k.energies() for k in self.kernels], axis=1)
 
     @property

@@ -19,12 +19,13 @@ Several model instances (springtrack.instances, a ModelSet) as in the reference:
 trackers side by side, eq. (2)'s argmin over the union of the sensitive trackers (an event
 feeds at most one tracker of one instance; ties: the lowest index), springs, eq. (13)'s
 mean energy, eqs. (21)-(22), the centre of mass and the similarity frame per instance
-with its own parameters; only a tracking instance is sensitive and runs its springs.
+with its own parameters, each on its own spring clock (the events no other instance
+takes); only a tracking instance is sensitive and runs its springs.
 
 The step, the index, the covariance clamp and the activity log are cdef inline functions
 in .pxd files, so the whole per-event path compiles into this module as one unit (ksteps
-inlined in the Stepper's steps()); the springs, once per spring_period events, are a call
-into springtrack.kernel.springs.
+inlined in the Stepper's steps()); the springs, once per spring_period events of an
+instance's spring clock, are a call into springtrack.kernel.springs.
 
 The per-event loop touches no Python object, allocates nothing and runs without the GIL.
 Equations cite Valeiras et al. 2015; comments marked [ref] point at the reference lines
@@ -77,7 +78,7 @@ from springtrack.kernel.index cimport reindex
 from springtrack.kernel.motion cimport predict_dt, still, clampd, ST_VELOCITY_MAX, ST_P_UNKNOWN
 from springtrack.kernel.activity cimport (activity_decay, flush_activity, kactivity,
                                          rescale_activity)
-from springtrack.kernel.springs cimport (ksprings, init_springs, init_instance, compose_sensitive,
+from springtrack.kernel.springs cimport (ksprings, set_period, init_springs, init_instance, compose_sensitive,
                                     rest_trackers)
 
 cdef extern from "springtrack/csrc/springs.h" nogil:
@@ -381,7 +382,7 @@ cdef class Kernel:
         s.act_thr = p.activity_threshold
         s.smin2 = p.sigma_min_px * p.sigma_min_px
         s.smax2 = p.sigma_max_px * p.sigma_max_px
-        s.period = p.spring_period
+        set_period(s, p.spring_period)             # [ref] each instance's clock kept
         # [ref] the motion model (eqs. M1-M8): 0 turns each part off
         s.horizon = p.prediction_horizon_us
         tau = p.motion_tau_us
@@ -445,8 +446,8 @@ cdef class Kernel:
                     state=np.array([s.state[s.inst[i]] for i in range(n)], np.uint8))
 
     def energies(self):
-        """(3, nc) array of the last spring update's energies (every instance's connections,
-        in order): euclidean, torsional, cartesian."""
+        """(3, nc) array of the energies of every instance's connections, in order, each at
+        its instance's last spring update: euclidean, torsional, cartesian."""
         cdef KState* s = &self.st
         out = np.empty((3, s.nc))
         cdef double[:, ::1] o = out

@@ -16,8 +16,8 @@ criteria run on its own ranges of the arrays (its connections [g_c0, g_c1), its 
 [g_t0, g_t1), at most 64: its masks are one word relative to g_t0), with its own
 parameters, mean energy and frames, in instance order as in the reference.
 
-After every spring update the state guard (guard_state, the reference's _guard) checks
-every mean against the position box (springtrack.limits.position_box): a mean outside it,
+After every spring update of an instance the state guard (guard_instance, the
+reference's _guard) checks each of its means against the position box (springtrack.limits.position_box): a mean outside it,
 or not a number, is a state no valid model reaches, and resets its instance to the
 model's state.
 """
@@ -26,7 +26,7 @@ from libc.stdint cimport int64_t, uint64_t
 
 from springtrack import reference as _ref
 
-from springtrack.kernel.state cimport (KState, MAX_CONNECTIONS, MAX_SET_TRACKERS, K_TRACKING)
+from springtrack.kernel.state cimport (KState, MAX_TRACKERS, MAX_CONNECTIONS, K_TRACKING)
 from springtrack.kernel.index cimport reindex, set_reach
 from springtrack.kernel.covariance cimport clamp_and_invert
 from springtrack.kernel.activity cimport flush_activity
@@ -118,32 +118,63 @@ cdef void compose_sensitive(KState* s) noexcept nogil:
             s.sensitive[w + 1] |= m >> (64 - b)
 
 
-cdef void ksprings(KState* s) noexcept nogil:
-    # [ref] springs: every tracking instance's springs and criteria, in instance order;
-    # then the state guard; then the trackers whose gate boxes left their indexed boxes
-    # re-indexed
-    cdef int64_t left[MAX_SET_TRACKERS]
-    cdef int g, i, n = s.n
+cdef void kspring_update(KState* s, int g) noexcept nogil:
+    # [ref] spring_update(g): instance g's springs and criteria if it is tracking; then its
+    # state guard; then its trackers whose gate boxes left their indexed boxes re-indexed
+    # (the other instances' trackers did not move)
+    cdef int64_t left[MAX_TRACKERS]
+    cdef int i, t0 = s.g_t0[g], n = s.g_t1[g] - s.g_t0[g]
     cdef int64_t t = s.last_t
     cdef double lead
     s.n_spring_updates += 1
-    for g in range(s.ni):
-        if s.state[g] == K_TRACKING:
-            for i in range(s.g_t0[g], s.g_t1[g]):    # [ref] eq. (M1): the springs act on
-                lead = predict_dt(s, i, t)            # the means at the update's time
-                s.mx[i] = s.mx[i] + s.vx[i] * lead
-                s.my[i] = s.my[i] + s.vy[i] * lead
-                s.tm[i] = t
-            instance_springs(s, g)
-    guard_state(s)
+    if s.state[g] == K_TRACKING:
+        for i in range(t0, t0 + n):                  # [ref] eq. (M1): the springs act on
+            lead = predict_dt(s, i, t)                # the means at the update's time
+            s.mx[i] = s.mx[i] + s.vx[i] * lead
+            s.my[i] = s.my[i] + s.vy[i] * lead
+            s.tm[i] = t
+        instance_springs(s, g)
+    guard_instance(s, g)
     compose_sensitive(s)
-    for i in range(n):                   # eq. (M8) changed velocities: their reach
+    for i in range(t0, t0 + n):          # eq. (M8) changed velocities: their reach
         set_reach(s, i)
-    st_boxes_left(n, s.mx, s.my, s.sxx, s.syy, s.bcx, s.bcy, s.mdev_x, s.mdev_y, s.sxx_lim,
-                  s.syy_lim, left)
+    st_boxes_left(n, s.mx + t0, s.my + t0, s.sxx + t0, s.syy + t0, s.bcx + t0, s.bcy + t0,
+                  s.mdev_x + t0, s.mdev_y + t0, s.sxx_lim + t0, s.syy_lim + t0, left)
     for i in range(n):
         if left[i]:
-            reindex(s, i)
+            reindex(s, t0 + i)
+
+
+cdef void ksprings(KState* s) noexcept nogil:
+    # [ref] springs: every instance's spring update, in instance order
+    cdef int g
+    for g in range(s.ni):
+        kspring_update(s, g)
+
+
+cdef void kclocks(KState* s, int owner) noexcept nogil:
+    # [ref] step's spring clocks: an instance's update runs when its count reaches the
+    # period (due[g] <= n_free), only the clocks the event moved, in instance order
+    cdef int g
+    cdef int64_t nd = s.due[0]
+    for g in range(s.ni):
+        if (owner < 0 or g == owner) and s.due[g] <= s.n_free:
+            s.due[g] = s.n_free + s.period                   # its count restarts
+            kspring_update(s, g)
+        if s.due[g] < nd:
+            nd = s.due[g]
+    s.next_due = nd
+
+
+cdef void set_period(KState* s, int period) noexcept nogil:
+    # [ref] set_params: each clock's count, period - (due - n_free), kept; a count at or
+    # past a shorter period runs its update at the next event the clock counts
+    cdef int g
+    cdef int64_t d = period - s.period
+    s.period = period
+    for g in range(s.ni):
+        s.due[g] += d
+    s.next_due += d
 
 
 cdef inline void instance_springs(KState* s, int g) noexcept nogil:
@@ -216,19 +247,18 @@ cdef inline void instance_springs(KState* s, int g) noexcept nogil:
     energy_criteria(s, g)                                            # 7.
 
 
-cdef void guard_state(KState* s) noexcept nogil:
-    """[ref] _guard: a mean outside the position box, or not a number, is a state no model
-    within springtrack.limits reaches: counted, and its instance reset to the model."""
-    cdef int g, i
-    cdef bint out
-    for g in range(s.ni):
-        out = False
-        for i in range(s.g_t0[g], s.g_t1[g]):
-            out |= not (s.mx[i] >= s.pos_lo_x and s.mx[i] < s.pos_hi_x
-                        and s.my[i] >= s.pos_lo_y and s.my[i] < s.pos_hi_y)
-        if out:
-            s.n_resets += 1
-            reset_instance(s, g)
+cdef void guard_instance(KState* s, int g) noexcept nogil:
+    """[ref] _guard(g): a mean of instance g outside the position box, or not a number, is
+    a state no model within springtrack.limits reaches: counted, and the instance reset to
+    the model."""
+    cdef int i
+    cdef bint out = False
+    for i in range(s.g_t0[g], s.g_t1[g]):
+        out |= not (s.mx[i] >= s.pos_lo_x and s.mx[i] < s.pos_hi_x
+                    and s.my[i] >= s.pos_lo_y and s.my[i] < s.pos_hi_y)
+    if out:
+        s.n_resets += 1
+        reset_instance(s, g)
 
 
 cdef void reset_instance(KState* s, int g) noexcept nogil:

@@ -1,6 +1,6 @@
 # The float64 kernel's per-event step (Algorithm 1): the most probable sensitive tracker
 # takes the event (eq. 2) and moves toward it (eqs. 3-6); every spring_period valid events
-# the springs act (kernel/springs.pyx).
+# of an instance's spring clock its springs act (kernel/springs.pyx).
 #
 #     cdef KState* s = &kernel.st                  # kernel: a springtrack.kernel.kernel.Kernel
 #     with nogil:
@@ -15,8 +15,8 @@
 #
 # cdef inline, like the index, the covariance clamp and the activity log it calls: the
 # whole per-event path is compiled as one unit into springtrack.kernel.kernel, which exposes it
-# (Kernel.stepper(), Kernel.step()).  The springs, once per spring_period events, are a
-# call into springtrack.kernel.springs.
+# (Kernel.stepper(), Kernel.step()).  The springs, once per spring_period events of an
+# instance's clock, are a call into springtrack.kernel.springs.
 from libc.stdint cimport int64_t, uint64_t
 
 from springtrack.events cimport Event
@@ -26,7 +26,7 @@ from springtrack.kernel.state cimport (KState, CELL_SHIFT, K_NO_TRACKER, K_BACK_
 from springtrack.kernel.index cimport check_index
 from springtrack.kernel.covariance cimport clamp_and_invert
 from springtrack.kernel.activity cimport log_activity, flush_activity, rescale_activity
-from springtrack.kernel.springs cimport ksprings
+from springtrack.kernel.springs cimport kclocks
 from springtrack.kernel.motion cimport predict_dt, motion_gain, motion_update, in_motion
 
 cdef extern from *:
@@ -146,13 +146,33 @@ cdef inline int assign_event(KState* s, int64_t t, int x, int y, int pol,
     return best
 
 
+cdef inline void count_event(KState* s, int best) noexcept nogil:
+    """[ref] step's spring clocks, after a valid event: one that tracker ``best`` took
+    moves its instance's clock only, one no tracker took (best < 0) every instance's
+    (KState.due: one count for all); kclocks runs the updates then due."""
+    cdef int g = -1
+    cdef int64_t d
+    if best >= 0:
+        g = s.inst[best]
+        d = s.due[g] - 1
+        s.due[g] = d
+        if d < s.next_due:
+            s.next_due = d
+    else:
+        s.n_free += 1
+    if s.n_free >= s.next_due:
+        kclocks(s, g)
+
+
 cdef inline Py_ssize_t ksteps_of(KState* s, const Event* ev, Py_ssize_t n, int64_t t_stop,
                                  bint one, bint moving) noexcept nogil:
     """ksteps() for a state of one instance (``one``, a constant) or several, the motion
-    model moving or at rest (``moving``, a constant; assign_event)."""
+    model moving or at rest (``moving``, a constant; assign_event).  One instance's clock
+    counts every valid event: its count in a local (``since``)."""
     cdef Py_ssize_t k
     cdef int64_t t, last_t = s.last_t, n_back = 0, n_outside = 0, n_valid = 0
-    cdef int since = s.since_spring, period = s.period
+    cdef int period = s.period, since = period - <int>(s.due[0] - s.n_free)
+    cdef int best
     cdef unsigned int x, y, width = s.width, height = s.height
     for k in range(n):
         t = ev[k].t
@@ -168,17 +188,24 @@ cdef inline Py_ssize_t ksteps_of(KState* s, const Event* ev, Py_ssize_t n, int64
             n_outside += 1
             continue
         n_valid += 1
-        assign_event(s, t, x, y, ev[k].p, one, moving)
-        since += 1
-        if since >= period:
-            since = 0
-            s.last_t = last_t                  # eq. (M1): the springs' time
-            ksprings(s)                        # (at rest, they set no velocity: tau_m = 0)
+        best = assign_event(s, t, x, y, ev[k].p, one, moving)
+        if one:
+            since += 1
+            if since >= period:
+                since = 0
+                s.last_t = last_t              # eq. (M1): the springs' time
+                s.due[0] = s.n_free            # (at rest, they set no velocity: tau_m = 0)
+                kclocks(s, 0)
+        else:
+            s.last_t = last_t
+            count_event(s, best)
     else:
         k = n
     flush_activity(s)
     s.last_t = last_t
-    s.since_spring = since
+    if one:
+        s.due[0] = s.n_free + period - since
+        s.next_due = s.due[0]
     s.n_back += n_back
     s.n_outside += n_outside
     s.n_valid += n_valid
@@ -216,8 +243,5 @@ cdef inline int kstep(KState* s, int64_t t, int x, int y, int p) noexcept nogil:
     s.n_valid += 1
     cdef int best = assign_event(s, t, x, y, p, s.ni == 1, True)
     flush_activity(s)
-    s.since_spring += 1
-    if s.since_spring >= s.period:
-        s.since_spring = 0
-        ksprings(s)
+    count_event(s, best)
     return best

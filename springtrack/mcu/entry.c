@@ -13,7 +13,7 @@
  *   MCU_STEP        one event, mcu_events[0] -> status (winner or skip code)
  *   MCU_SNAPSHOT    one row at time t into mcu_rows[0]
  *   MCU_ENERGIES    every kind's energies into mcu_energy
- *   MCU_SPRINGS     one spring update
+ *   MCU_SPRINGS     a spring update of every instance (their spring clocks kept)
  *   MCU_MOVE        mcu_words[0..nwords): fixed.q.move_words (the instance moved rigidly
  *                   by a similarity, fx_move)                        -> status
  *   MCU_SET_INIT    instances (springtrack.instances): mcu_words[0] = ni instances loaded

@@ -95,6 +95,41 @@ def test_instances_far_apart_track_as_alone():
     assert both.mx[9:] == list(rest["x"]) and both.mean_energies[1] == 0.0
 
 
+def _on_trackers(model, n, t):
+    """``n`` events at times ``t`` placed exactly on ``model``'s tracker means in turn
+    (integer positions at rest): each one lands at d^2 = 0 of its tracker."""
+    a = model.arrays()
+    k = np.arange(n) % len(a["x"])
+    return make(t, a["x"][k].astype(np.int64), a["y"][k].astype(np.int64), k % 2)
+
+
+@pytest.mark.parametrize("backend", ["reference", "cython", "fixed"])
+def test_an_object_keeps_its_spring_pace_when_another_comes_into_view(backend):
+    """Each instance's spring clock counts the events no other instance takes: object A's
+    events as in a run alone, object B far away with as many events, each exactly on one
+    of B's trackers (all taken by B): A's track equals A alone, sample for sample, and
+    its springs ran as often.  (With one clock for all, B's events would double the pace
+    of A's springs.)"""
+    a, b = two_grids()
+    prm = {"spring_period": 5}
+    ev, _ = blob_stream(a, 6000, noise=0.1, speed_px_s=(10, 5), rot_deg_s=8, seed=3)
+    ev = np.sort(ev[ev["x"] < 200], order="t", kind="stable")    # (its noise comes last)
+    t = np.sort(np.random.default_rng(4).integers(int(ev["t"][0]) + 1, int(ev["t"][-1]), len(ev)))
+    both_ev = np.sort(np.concatenate([ev, _on_trackers(b, len(ev), t)]), order="t", kind="stable")
+    alone = springtrack.Tracker(a, prm, backend=backend)
+    both = springtrack.Tracker([a, b], prm, backend=backend)
+    ta, tb = alone.run(ev, 1000), both.run(both_ev, 1000)
+    rows = len(ta)
+    assert rows > 10 and np.array_equal(ta.t_us, tb.t_us[:rows])
+    for f in ("x", "y", "sxx", "syy", "sensitive"):
+        assert np.array_equal(getattr(ta, f), getattr(tb, f)[:rows, :9]), f
+    ca, cb = alone.counters, both.counters
+    assert cb["events_assigned"] == ca["events_assigned"] + len(ev)     # B took all of its own
+    free = len(ev) - ca["events_assigned"]              # B's clock: the events no one took
+    assert ca["spring_updates"] == len(ev) // 5 > 100
+    assert cb["spring_updates"] == len(ev) // 5 + (len(ev) + free) // 5
+
+
 def test_mixed_models_each_with_its_own_criteria():
     """A face (Euclidean energy, alpha1 0.2) and a grid (Cartesian, alpha1 0.02) in one
     tracker track their own blobs."""

@@ -5,14 +5,17 @@
 /* ---- several model instances (springtrack.instances) ---------------------------------
    One fx_state per instance: its trackers, connections, gains, criteria, springs,
    energies, centre of mass and similarity frame are its own.  The set runs one event
-   assignment over all of them, one clock and one spring period. */
+   assignment over all of them, one clock and one spring period, and each instance's
+   spring clock. */
 
 /* [ref] step, eq. (2) over the union: each tracking instance's best tracker in turn, one
    starting from the best d^2 so far so that only a strictly smaller one wins (ties: the
    lowest instance, and in it the lowest index, as the reference's scan over all
-   trackers); the winner is updated (eqs. 3-6).  Returns its index among all trackers. */
+   trackers); the winner is updated (eqs. 3-6).  Returns its index among all trackers,
+   its instance in *taker. */
 static inline __attribute__((always_inline)) int set_assign(fx_set *g, int64_t t, int32_t x,
-                                                            int32_t y, int32_t p, int moving)
+                                                            int32_t y, int32_t p, int moving,
+                                                            int *taker)
 {
     uint32_t best_d2 = g->inst[0]->gate;                  /* p_threshold: one for all */
     int best = FX_NO_TRACKER, owner = 0, q;
@@ -32,17 +35,76 @@ static inline __attribute__((always_inline)) int set_assign(fx_set *g, int64_t t
     if (best < 0)
         return FX_NO_TRACKER;
     take(g->inst[owner], best, t, x, y, best_d2, p, moving);
+    *taker = owner;
     return g->t0[owner] + best;
 }
 
-/* [ref] springs: every tracking instance's springs and criteria (eqs. 7-22) and its guard */
+/* [ref] spring_update(q): a tracking instance's springs and criteria (eqs. 7-22) and its
+   guard */
+static void set_spring_update(fx_set *g, int q)
+{
+    g->n_spring_updates++;
+    if (g->state[q] == FX_TRACKING)
+        fx_springs(g->inst[q]);
+}
+
+/* [ref] springs: every instance's spring update, in order (the clocks left as they are) */
 void fx_set_springs(fx_set *g)
 {
     int q;
-    g->n_spring_updates++;
     for (q = 0; q < g->ni; q++)
-        if (g->state[q] == FX_TRACKING)
-            fx_springs(g->inst[q]);
+        set_spring_update(g, q);
+}
+
+/* ---- each instance's spring clock ([ref] step) ---------------------------------------
+   Instance q's count is own[q] + n_free - free0[q] (the events its trackers took since
+   its last update and those no tracker took since then); its update runs when the count
+   reaches the period.  An event no tracker takes costs one count, not one per instance:
+   the loops compare n_free with next_due, the smallest n_free at which an update is due
+   (set_next_due, computed again at every batch: the period may have changed). */
+
+/* the n_free at which instance q's update is due if its trackers take no other event */
+static inline int64_t clock_due(const fx_set *g, int q, int32_t period)
+{
+    return g->free0[q] + period - g->own[q];
+}
+
+static int64_t set_next_due(const fx_set *g)
+{
+    int32_t period = g->inst[0]->period;
+    int64_t nd = clock_due(g, 0, period);
+    int q;
+    for (q = 1; q < g->ni; q++)
+        if (clock_due(g, q, period) < nd)
+            nd = clock_due(g, q, period);
+    return nd;
+}
+
+/* The clocks after a valid event that instance `taker` took (only its clock moved) or no
+   tracker took (taker -1: every clock moved), at time t: the updates then due, in
+   instance order, each count restarted.  Returns next_due. */
+static inline __attribute__((always_inline)) int64_t set_count(fx_set *g, int taker,
+                                                               int64_t next_due, int64_t t)
+{
+    int32_t period = g->inst[0]->period;
+    int64_t d;
+    int q;
+    if (taker >= 0) {
+        g->own[taker]++;
+        d = clock_due(g, taker, period);
+        if (d > g->n_free)
+            return d < next_due ? d : next_due;
+    } else if (++g->n_free < next_due) {
+        return next_due;
+    }
+    for (q = 0; q < g->ni; q++)
+        if ((taker < 0 || q == taker) && clock_due(g, q, period) <= g->n_free) {
+            g->own[q] = 0;
+            g->free0[q] = g->n_free;
+            g->last_t = g->inst[q]->last_t = t;           /* [ref] eq. (M1): the update's time */
+            set_spring_update(g, q);
+        }
+    return set_next_due(g);
 }
 
 /* the set's clock and event counts, copied into every instance (fx_set_params reads them) */
@@ -71,7 +133,7 @@ static int set_in_motion(const fx_set *g)
 int fx_set_step(fx_set *g, int64_t t, int32_t x, int32_t y, int32_t p)
 {
     const fx_state *s0 = g->inst[0];
-    int best;
+    int best, taker = -1;
     if (t < g->last_t) {
         g->n_back++;
         set_sync(g);
@@ -85,23 +147,19 @@ int fx_set_step(fx_set *g, int64_t t, int32_t x, int32_t y, int32_t p)
     }
     g->n_valid++;
     set_sync(g);
-    best = set_assign(g, t, x, y, p, set_in_motion(g));
+    best = set_assign(g, t, x, y, p, set_in_motion(g), &taker);
     if (best >= 0)
         g->n_assigned++;
-    if (++g->since_spring >= s0->period) {
-        g->since_spring = 0;
-        fx_set_springs(g);
-    }
+    set_count(g, best >= 0 ? taker : -1, set_next_due(g), t);
     return best;
 }
 
 /* fx_steps for a set: the same loop, the sampling rule's stop included */
 int64_t fx_set_steps(fx_set *g, const fx_event *ev, int64_t n, int64_t t_stop)
 {
-    batch o = set_in_motion(g) ? steps_loop(0, g, ev, n, t_stop, g->last_t, g->since_spring, 1)
-                               : steps_loop(0, g, ev, n, t_stop, g->last_t, g->since_spring, 0);
+    batch o = set_in_motion(g) ? steps_loop(0, g, ev, n, t_stop, g->last_t, 0, 1)
+                               : steps_loop(0, g, ev, n, t_stop, g->last_t, 0, 0);
     g->last_t = o.last_t;
-    g->since_spring = g->inst[0]->period - o.until;
     g->n_valid += o.k - o.n_back - o.n_skipped;
     g->n_assigned += o.n_assigned;
     g->n_back += o.n_back;
@@ -121,7 +179,7 @@ void fx_set_state(fx_set *g, int q, int32_t state)
                         : s->n == 64 ? ~(uint64_t)0 : ((uint64_t)1 << s->n) - 1;
 }
 
-/* A set of the ni loaded states inst[0..ni), all tracking, the clock and counts zero. */
+/* A set of the ni loaded states inst[0..ni), all tracking, the clocks and counts zero. */
 int fx_set_init(fx_set *g, fx_state *const *inst, int32_t ni)
 {
     int32_t q, t0 = 0, c = 0;
@@ -136,11 +194,12 @@ int fx_set_init(fx_set *g, fx_state *const *inst, int32_t ni)
     if (t0 > FX_MAX_SET_TRACKERS || c > FX_MAX_SET_CONNECTIONS)
         return FX_ERR_CAPACITY;
     g->ni = ni;
-    g->since_spring = 0;
     g->last_t = -((int64_t)1 << 62);
     g->n_valid = g->n_assigned = g->n_back = g->n_outside = g->n_spring_updates = 0;
+    g->n_free = 0;
     for (q = 0, t0 = 0; q < ni; q++) {
         g->inst[q] = inst[q];
+        g->own[q] = g->free0[q] = 0;
         g->t0[q] = t0;
         t0 += inst[q]->n;
         fx_set_state(g, q, FX_TRACKING);

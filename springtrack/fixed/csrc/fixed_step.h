@@ -201,14 +201,22 @@ typedef struct {
    one event assignment over them: eq. (2)'s argmin over the union of the tracking
    instances' sensitive trackers, ties to the lowest instance, then the lowest index; one
    clock, one count of valid events and one spring period (the shared parameters:
-   springtrack.instances.SHARED_PARAMS, equal in every instance). */
+   springtrack.instances.SHARED_PARAMS, equal in every instance); each instance's own
+   spring clock (springtrack/reference.py step: the valid events no other instance
+   takes), its count own[q] + n_free - free0[q]. */
 enum { FX_SEARCHING = 0, FX_TRACKING = 1, FX_LOST = 2 };   /* instances.InstanceState */
 typedef struct {
-    int32_t ni, since_spring;
+    int32_t ni;
     fx_state *inst[FX_MAX_INSTANCES];
     int32_t t0[FX_MAX_INSTANCES];             /* instance q's trackers: t0[q] + [0, n) */
     int32_t state[FX_MAX_INSTANCES];          /* FX_SEARCHING, FX_TRACKING, FX_LOST */
     int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates;
+    /* the spring clocks: n_free counts the valid events no tracker took (one count for
+       every instance); own[q] the events instance q's trackers took since its last
+       update, free0[q] n_free then */
+    int64_t n_free;
+    int64_t own[FX_MAX_INSTANCES];
+    int64_t free0[FX_MAX_INSTANCES];
 } fx_set;
 
 /* one event as springtrack.events.EVENT_DTYPE lays it out (16 bytes, springtrack/events.pxd) */

@@ -304,20 +304,6 @@ static inline __attribute__((always_inline)) int assign(fx_state *s, uint64_t ma
     return best;
 }
 
-/* the time of a spring update (eq. M1's prediction): the last event's, also inside a batch
-   (whose clock is kept in a register) */
-static inline void springs_at(fx_state *s, fx_set *g, int64_t t)
-{
-    int q;
-    if (!g) {
-        s->last_t = t;
-        return;
-    }
-    g->last_t = t;
-    for (q = 0; q < g->ni; q++)
-        g->inst[q]->last_t = t;
-}
-
 /* One event (Algorithm 1).  Returns the winning tracker, FX_NO_TRACKER or a skip code. */
 int fx_step(fx_state *s, int64_t t, int32_t x, int32_t y, int32_t p)
 {
@@ -352,7 +338,11 @@ typedef struct {
 } batch;
 
 static inline __attribute__((always_inline)) int set_assign(fx_set *g, int64_t t, int32_t x,
-                                                            int32_t y, int32_t p, int moving);
+                                                            int32_t y, int32_t p, int moving,
+                                                            int *taker);
+static inline __attribute__((always_inline)) int64_t set_count(fx_set *g, int taker,
+                                                               int64_t next_due, int64_t t);
+static int64_t set_next_due(const fx_set *g);
 
 static inline __attribute__((always_inline)) batch steps_loop(fx_state *s, fx_set *g,
                                                             const fx_event *ev, int64_t n,
@@ -364,6 +354,8 @@ static inline __attribute__((always_inline)) batch steps_loop(fx_state *s, fx_se
     int32_t period = s0->period;
     batch o = {0, last_t, period - since_spring, 0, 0, 0};   /* until >= 1 */
     uint64_t mask = g ? 0 : s->sensitive_mask;
+    int64_t next_due = g ? set_next_due(g) : 0;           /* the set's spring clocks */
+    int taker = -1, best;
     for (o.k = 0; o.k < n; o.k++) {
         int64_t t = ev[o.k].t;
         uint32_t x = ev[o.k].x, y = ev[o.k].y;
@@ -379,19 +371,18 @@ static inline __attribute__((always_inline)) batch steps_loop(fx_state *s, fx_se
             o.n_skipped++;
             continue;
         }
-        if (g)
-            o.n_assigned += set_assign(g, t, (int32_t)x, (int32_t)y, p, moving) >= 0;
-        else
-            o.n_assigned += assign(s, mask, t, (int32_t)x, (int32_t)y, p, moving) >= 0;
+        if (g) {                                          /* each instance's clock */
+            best = set_assign(g, t, (int32_t)x, (int32_t)y, p, moving, &taker);
+            o.n_assigned += best >= 0;
+            next_due = set_count(g, best >= 0 ? taker : -1, next_due, o.last_t);
+            continue;
+        }
+        o.n_assigned += assign(s, mask, t, (int32_t)x, (int32_t)y, p, moving) >= 0;
         if (--o.until <= 0) {
             o.until = period;
-            springs_at(s, g, o.last_t);
-            if (g) {
-                fx_set_springs(g);
-            } else {
-                fx_springs(s);
-                mask = s->sensitive_mask;
-            }
+            s->last_t = o.last_t;                         /* eq. (M1): the update's time */
+            fx_springs(s);
+            mask = s->sensitive_mask;
         }
     }
     return o;

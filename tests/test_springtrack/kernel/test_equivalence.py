@@ -188,7 +188,6 @@ def first_divergence_is_rounding_noise(model, prm, events) -> bool:
         ey = [y - (ref.my[i] + ref.vy[i] * lead[i]) for i in range(ref.n)]
         d2 = sorted(ref.ia[i] * ex[i] ** 2 + ref.ic[i] * ey[i] ** 2 + 2.0 * ref.ib[i] * ex[i] * ey[i]
                     for i in range(ref.n) if ref.sensitive[i]) + [np.inf, np.inf]
-        updates = ref.n_spring_updates
         a, b = ref.step(t, x, y, p), ker.step(t, x, y, p)
         snap = ker.snapshot(t)
         rx, ry = (np.array(v) for v in ref.snapshot(t)[:2])      # eq. (M1): predicted to t
@@ -197,18 +196,20 @@ def first_divergence_is_rounding_noise(model, prm, events) -> bool:
                     or abs(d2[0] - ref.gate) <= 1e-9 * ref.gate)
         gap = max(np.abs(rx - snap["x"]).max(), np.abs(ry - snap["y"]).max())
         differ = np.flatnonzero(np.array(ref.sensitive) != snap["sensitive"])
-        updated = ref.n_spring_updates > updates
-        # the instances whose criterion energies were all rounding noise at this update:
+        # the instances whose spring clocks ran their updates at this event (a valid one
+        # moves the clock of the instance that took it, or every clock if none did)
+        updated = {g for g in range(ref.ni) if a >= -1 and ref.since_spring[g] == 0
+                   and (a < 0 or ref.inst[a] == g)}
+        # those whose criterion energies were all rounding noise at this update:
         # eqs. (21)-(22) and the calm set the similarity frame is fitted to decided on it
-        noisy = {g for g in range(len(ref.c0)) if updated and max(
+        noisy = {g for g in updated if max(
             ref.energy[ref.ekinds[g]][ref.c0[g]:ref.c1[g]], default=0.0) < ENERGY_NOISE}
         if len(differ):
-            return updated and {ref.inst[i] for i in differ} <= noisy
+            return bool(updated) and {ref.inst[i] for i in differ} <= noisy
         apart = np.flatnonzero(np.maximum(np.abs(rx - snap["x"]), np.abs(ry - snap["y"])) > 1e-9)
         if len(apart) and updated and {ref.inst[i] for i in apart} <= noisy | noisy_before:
             return True
-        if updated:
-            noisy_before = noisy
+        noisy_before = (noisy_before - updated) | noisy
         if gap > 1e-9:
             # same decisions all along: the gap grew out of rounding (chaotic dynamics: a
             # tracker thrown about by springs at the sensor edge) if it crept up, here by
