@@ -176,8 +176,14 @@ paths alternating run by run, M events/s:
 Target >= 25 M events/s: **{'met' if r['fused'] >= 25e6 else 'not met'}** ({r['fused'] / 25e6:.0%} of it).
 The fused loop's cost beside the kernel alone is the decoding (a few ns per event) and
 the telemetry (the difference of the quiet rows: a snapshot of 26 trackers every 1 ms);
-the kernel's own per-event cost is the rest (docs/benchmarks.md "Kernel" measures it
-without sampling, at another time of this shared machine's load).
+the kernel's own per-event cost is the rest.  The "Kernel" section's 29 M events/s on
+this scene was measured at c0e9c4e; since then the similarity frame's refits (soft weights,
+up to 2 refits per spring update, 4f56eeb..8f401e5) cost the default frame about 4.2 k
+instructions per spring update, +75 per event on this scene (callgrind, 300 k events:
+365 -> 440 per event in the kernel's loop): `benchmarks/ab.py C0E9C4E_TREE 4C0C89B_TREE
+--scene face_occlusion --rounds 15` timed 34.1 against 43.3 ns/event (29.3 against 23.1 M
+events/s), and the same with `--param pull_frame=image --param cartesian_frame=image`
+36.1 against 33.7 (no difference within the noise).
 
 **Per word format**: the fused loop decodes each camera's words with its decoder's state
 machine (`springtrack.io`'s `.pxd`) at the sensor's geometry; the same scene's events in

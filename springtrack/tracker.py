@@ -55,7 +55,10 @@ class _Room:
         rows = min((t1 - start) // period + 1, PER_EVENT * len(ev)) if t1 >= start else 0
         if rows <= SAMPLE_CAP or rows * (n * TRACK_DTYPE.itemsize + 32) > ROOM_BYTES:
             return None
-        return cls(rows, n)
+        try:
+            return cls(rows, n)
+        except MemoryError:          # no address space for it (strict overcommit): per call
+            return None
 
     def rest(self) -> dict | None:
         """The rows not written yet, as buffers for a backend's ``run(into=...)``."""
