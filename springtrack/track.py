@@ -125,12 +125,12 @@ class Track:
         rows = getattr(self, "_rows", None)
         if rows is None:
             return None
-        at = rows.__array_interface__["data"][0]
+        at = data_address(rows)
         for f in TRACK_FIELDS:
             a = getattr(self, f)
             if not (isinstance(a, np.ndarray) and a.dtype == TRACK_DTYPE[f]
                     and a.shape == rows.shape and a.strides == rows.strides
-                    and a.__array_interface__["data"][0] == at + TRACK_DTYPE.fields[f][1]):
+                    and data_address(a) == at + TRACK_DTYPE.fields[f][1]):
                 return None
         return rows
 
@@ -165,6 +165,11 @@ class Track:
                 for a, b, c, d, g, h, i, j, u, v, m, n, o in zip(
                     t.tolist(), ids, *(c.tolist() for c in cols), *(c.tolist() for c in flags),
                     states.tolist()))
+
+
+def data_address(a: np.ndarray) -> int:
+    """Where ``a``'s first element is in memory (views of one buffer compare by it)."""
+    return a.__array_interface__["data"][0]
 
 
 def join_rows(blocks) -> np.ndarray:

@@ -22,7 +22,7 @@ from .acquisition.loss import LOSS_CHECK_US
 from .model import ShapeModel
 from .params import Params
 from .sampling import MAX_PERIOD, PER_EVENT, UNSET, first_sample_time, multiples
-from .track import STATE_NAMES, TRACK_DTYPE, TRACK_FIELDS, Track, join_rows
+from .track import STATE_NAMES, TRACK_DTYPE, TRACK_FIELDS, Track, data_address, join_rows
 
 SAMPLE_CAP = 4096          # sample rows per kernel call; bounds memory for huge time gaps
 ROOM_BYTES = 1 << 30       # largest buffer Tracker.run sizes ahead for its samples
@@ -72,8 +72,8 @@ class _Room:
         return rows of its own)."""
         u = self.used
         if (u < len(self.t) and len(out["t"])
-                and _address(out["t"]) == _address(self.t[u:])
-                and _address(out["trackers"]) == _address(self.trackers[u:])):
+                and data_address(out["t"]) == data_address(self.t[u:])
+                and data_address(out["trackers"]) == data_address(self.trackers[u:])):
             self.used += len(out["t"])
             self.parts += 1
 
@@ -89,9 +89,6 @@ class _Room:
             t, rows, en = t.copy(), join_rows([rows]), en.copy()
         return Track.of_rows(t, ids, rows, en)
 
-
-def _address(a: np.ndarray) -> int:
-    return a.__array_interface__["data"][0]
 
 
 class _OneInstance:

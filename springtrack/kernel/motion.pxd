@@ -115,14 +115,11 @@ cdef inline int motion_mode(const KState* s) noexcept nogil:
     too: the per-event path (kernel/step.pxd) leaves out what adds zeros and still
     computes the same bits."""
     cdef int i
+    cdef bint edges = s.c_h > 0.0
     if s.tau_m > 0.0:
         return MOTION_FULL
     for i in range(s.n):
         if s.vx[i] != 0.0 or s.vy[i] != 0.0:
             return MOTION_FULL
-    if s.c_h > 0.0:
-        return MOTION_EDGES
-    for i in range(s.n):
-        if s.hx[i] != 0.0 or s.hy[i] != 0.0:
-            return MOTION_EDGES
-    return MOTION_REST
+        edges |= s.hx[i] != 0.0 or s.hy[i] != 0.0
+    return MOTION_EDGES if edges else MOTION_REST
