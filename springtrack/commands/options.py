@@ -15,8 +15,10 @@
 """
 from __future__ import annotations
 
+import numpy as np
+
 from ..backends import DEFAULT_BACKEND, backend_help, backend_names
-from ..events import as_events
+from ..events import EVENT_DTYPE, as_events
 from ..limits import MAX_INSTANCES, MAX_SET_TRACKERS
 from ..prep import DEFAULT_BURST_FRACTION, Preparer
 
@@ -177,8 +179,9 @@ def learn_params(args) -> dict:
 
 
 # ---- what the options build ------------------------------------------------------------
-def tracker_from_args(args, model):
-    """The springtrack.Tracker of --params, --backend, --instances and --acquire*."""
+def tracker_from_args(args, model, params=None):
+    """The springtrack.Tracker of --params (or ``params``, a dict, in its place), --backend,
+    --instances and --acquire*."""
     from ..tracker import Tracker
     n_models = len(model) if isinstance(model, (list, tuple)) else 1
     if args.instances < 1:
@@ -192,9 +195,35 @@ def tracker_from_args(args, model):
                          f"of each model on the same positions: add --acquire to find each")
     backend = getattr(args, "backend", "cython")
     backend = f"mcu:{args.mcu_target}" if backend == "mcu" else backend
-    return Tracker(model, params=args.params, backend=backend, acquire=args.acquire,
+    return Tracker(model, params=args.params if params is None else params, backend=backend,
+                   acquire=args.acquire,
                    acquire_ms=args.acquire_ms, acquire_bounds=acquire_bounds(args),
                    instances=args.instances, acquire_budget_ms=args.acquire_budget_ms)
+
+
+def first_window(source, span_us: int):
+    """Split a stream of (chunk, total) pairs at ``span_us`` after its first event:
+    (the events before, the last total seen, the stream of the pairs after, whether there
+    are any: False when the source ended within the window)."""
+    held, rest, total, t_end = [], None, None, None
+    source = iter(source)
+    for chunk, total in source:
+        if not len(chunk):
+            continue
+        if t_end is None:
+            t_end = int(chunk["t"][0]) + span_us
+        k = int(np.searchsorted(chunk["t"], t_end, side="left"))
+        held.append(chunk[:k])
+        if k < len(chunk):
+            rest = chunk[k:]
+            break
+    events = np.concatenate(held) if held else np.empty(0, EVENT_DTYPE)
+
+    def after():
+        if rest is not None:
+            yield rest, total
+            yield from source
+    return events, total, after(), rest is not None
 
 
 def read_events(reader):

@@ -60,26 +60,32 @@ def _track(path, model, tmp_path, capsys, *extra):
     from springtrack.cli import main
     out = tmp_path / "track.csv"
     rc = main(["track", str(path), "--model", str(model), "--out", str(out), *extra])
-    err = capsys.readouterr().err
+    err = _track.err = capsys.readouterr().err
     # a one-tracker model's scale is not seen in its events: --acquire reports its find at
     # the scale bound as doubtful (exit 4) and tracks on
     assert rc == 0 or ("--acquire" in extra and rc == DOUBTFUL_EXIT and "doubtful" in err), rc
     return read_csv(out)
 
 
+PAPER_TOML = "[params]\nmotion_tau_us = 0.0\n"      # the paper's step, asked for
+
+
 @pytest.mark.parametrize("acquire", [[], ["--acquire"]])
 def test_a_one_tracker_model_follows_the_real_dot(dot, tmp_path, capsys, acquire):
-    """The paper's tracker sits on the dot's leading edge (median error > 10 px); with the
-    motion model, placed on the dot or found by --acquire, it follows the dot's centre
-    within 2 px (median) and reports its speed (within 10 %)."""
+    """The paper's tracker sits on the dot's leading edge (median error > 10 px); with
+    default settings, placed on the dot or found by --acquire, ``track`` measures the
+    model's speed on the first window (springtrack.motion.probe: 2.2-2.4 part sizes per ms),
+    switches the motion model on, says so, and follows the dot's centre within 2 px
+    (median) and reports its speed (within 10 %)."""
     path, _, truth = dot
     model = dot_model(tmp_path, truth)
-    params = tmp_path / "motion.toml"
-    params.write_text(MOTION_TOML)
-    paper = _track(path, model, tmp_path, capsys, *acquire)
+    paper_params = tmp_path / "paper.toml"
+    paper_params.write_text(PAPER_TOML)
+    paper = _track(path, model, tmp_path, capsys, "--params", str(paper_params), *acquire)
     e = track_errors(truth, paper.t_us, paper.x[:, 0], paper.y[:, 0])
     assert np.median(e) > 10
-    tr = _track(path, model, tmp_path, capsys, "--params", str(params), *acquire)
+    tr = _track(path, model, tmp_path, capsys, *acquire)
+    assert "the motion model is on" in _track.err, _track.err
     e = track_errors(truth, tr.t_us, tr.x[:, 0], tr.y[:, 0])
     assert np.median(e) <= 2.0, np.median(e)
     # --acquire places it where the whole recording's events fit best, up to 70 px off
@@ -87,6 +93,22 @@ def test_a_one_tracker_model_follows_the_real_dot(dot, tmp_path, capsys, acquire
     assert np.mean(e[len(e) // 2:] <= 2.0) >= 0.9
     speed = np.hypot(tr.vx[:, 0], tr.vy[:, 0])[10:]
     assert abs(np.median(speed) - DOT_SPEED) < 0.1 * DOT_SPEED
+    # the same with the model's parameters given: the probe is not run
+    params = tmp_path / "motion.toml"
+    params.write_text(MOTION_TOML)
+    given = _track(path, model, tmp_path, capsys, "--params", str(params), *acquire)
+    assert "the motion model is on" not in _track.err
+    np.testing.assert_array_equal(given.x, tr.x)
+
+
+def test_the_probe_threshold_0_keeps_the_papers_step(dot, tmp_path, capsys):
+    """--learn-param motion_sigmas_per_ms=0: no probe, the paper's step (the leading edge)."""
+    path, _, truth = dot
+    tr = _track(path, dot_model(tmp_path, truth), tmp_path, capsys,
+                "--learn-param", "motion_sigmas_per_ms=0")
+    assert "motion model" not in _track.err
+    e = track_errors(truth, tr.t_us, tr.x[:, 0], tr.y[:, 0])
+    assert np.median(e) > 10
 
 
 @pytest.mark.parametrize("backend", ["cython", "fixed"])
