@@ -1,4 +1,4 @@
-"""What ``track --model`` measures before it switches the motion model on (springtrack.motion).
+"""What ``track --model`` measures before it switches the motion model on.
 
 Run: .venv/bin/python benchmarks/motion_probe.py [--seeds 3] [--models DIR]
 
@@ -8,7 +8,8 @@ own events: tests/support/dot_truth.py), and optionally every ``NAME.toml`` in D
 learned from the recordings of $SPRINGTRACK_DATA named NAME, their motion parameters
 removed): the probe's figure (part sizes per ms, median over the trackers) placed
 (the first 10 ms) and with --acquire (the 50 ms window and 10 ms).  docs/motion.md holds
-the numbers; above motion_sigmas_per_ms = 1 the motion model is switched on.
+the numbers; above motion_sigmas_per_ms = 1 the motion model is switched on
+(springtrack.learning.motion).
 """
 from __future__ import annotations
 
@@ -21,7 +22,7 @@ import numpy as np
 
 import springtrack.io
 from springtrack.model import load_model
-from springtrack.motion import MOTION_ON, probe, probe_window_us
+from springtrack.learning.motion import MOTION_ON, probe, probe_window_us
 from springtrack.sim.generators import GENERATORS, generator
 
 ROOT = Path(__file__).resolve().parent.parent

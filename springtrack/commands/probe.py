@@ -1,13 +1,13 @@
 """The motion model for a model given by hand (``track --model``): its parts' speed
-measured on the stream's first window (springtrack.motion.probe), the model switched on
-when they are fast, said on stderr."""
+measured on the stream's first window (springtrack.learning.motion.probe), the model
+switched on when they are fast, said on stderr."""
 from __future__ import annotations
 
 import itertools
 import sys
 
-from ..motion import (MOTION_ON, MOTION_SIGMAS_PER_MS, fast_enough, probe, probe_window_us,
-                      sets_motion)
+from ..learning.motion import (MOTION_ON, MOTION_SIGMAS_PER_MS, fast_enough, probe,
+                               probe_window_us, sets_motion)
 from . import options
 
 

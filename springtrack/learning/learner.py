@@ -10,7 +10,7 @@ import numpy as np
 from ..events import as_events
 from ..limits import MAX_CONNECTIONS, spring_scale
 from ..model import SPRING_BIT, Connection, ShapeModel, TrackerSpec
-from ..motion import MOTION_ON, SPEED_QUANTILE, fast_enough, sets_motion, sizes_per_ms
+from .motion import MOTION_ON, SPEED_QUANTILE, fast_enough, sets_motion, sizes_per_ms
 from ..params import Params
 from .discovery import (_discover, _keep_cols, _to_count, awake, dominant, event_rates,
                         event_shares, quiet_nan, reference_value)

@@ -9,7 +9,7 @@ import numpy as np
 
 from . import batch as _learn
 from ..model import ShapeModel
-from ..motion import MOTION_SIGMAS_PER_MS
+from .motion import MOTION_SIGMAS_PER_MS
 
 
 POOL_CAPACITY = 128           # trackers alive at once during discovery

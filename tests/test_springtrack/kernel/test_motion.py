@@ -74,8 +74,8 @@ PAPER_TOML = "[params]\nmotion_tau_us = 0.0\n"      # the paper's step, asked fo
 def test_a_one_tracker_model_follows_the_real_dot(dot, tmp_path, capsys, acquire):
     """The paper's tracker sits on the dot's leading edge (median error > 10 px); with
     default settings, placed on the dot or found by --acquire, ``track`` measures the
-    model's speed on the first window (springtrack.motion.probe: 2.2-2.4 part sizes per ms),
-    switches the motion model on, says so, and follows the dot's centre within 2 px
+    model's speed on the first window (springtrack.learning.motion.probe: 2.2-2.4 part
+    sizes per ms), switches the motion model on, says so, and follows the dot's centre within 2 px
     (median) and reports its speed (within 10 %)."""
     path, _, truth = dot
     model = dot_model(tmp_path, truth)

@@ -1,13 +1,14 @@
-"""springtrack.motion: when ``track --model`` switches the motion model on by itself.  The
-real dot's one-tracker model is switched on and followed within 2 px
+"""springtrack.learning.motion: when ``track --model`` switches the motion model on by
+itself.  The real dot's one-tracker model is switched on and followed within 2 px
 (tests/test_springtrack/kernel/test_motion.py); here the estimator, and the paper's scenes
 of both generators, which stay on the paper's step."""
 import numpy as np
 import pytest
 
 from springtrack.model import load_model
-from springtrack.motion import (MOTION_SIGMAS_PER_MS, fast_enough, probe, probe_window_us,
-                                robust_speeds, sets_motion, sizes_per_ms, tracked_sigmas)
+from springtrack.learning.motion import (MOTION_SIGMAS_PER_MS, fast_enough, probe,
+                                         probe_window_us, robust_speeds, sets_motion,
+                                         sizes_per_ms, tracked_sigmas)
 from springtrack.sim.generators import generator
 
 

@@ -17,8 +17,8 @@ is not better everywhere: docs/motion.md), so the model is switched on by measur
   its parts (:data:`PROBE_QUANTILE`: a hand-placed or acquired model's first milliseconds
   hold catch-ups and sparse parts whose jitter would read as speed).
 
-Either way the rule is :func:`fast_enough`: the parts' v / sigma above ``motion_sigmas_per_ms`` part sizes per millisecond (a learner
-parameter, default :data:`MOTION_SIGMAS_PER_MS`; 0: never), and never when the user or the
+Either way the rule is :func:`fast_enough`: the parts' v / sigma above
+``motion_sigmas_per_ms`` part sizes per millisecond (a learner parameter, default :data:`MOTION_SIGMAS_PER_MS`; 0: never), and never when the user or the
 model already set either of the motion model's parameters.
 """
 from __future__ import annotations
@@ -125,8 +125,8 @@ def probe(model, events: np.ndarray, params=None, acquire: bool = False,
     (``params`` without the motion model) and, with ``acquire``, found first as
     ``springtrack.Tracker`` finds them.  Only samples where the instance tracks and the
     tracker is active count."""
-    from .tracker import Tracker
-    from .track import TRACKING_CODE
+    from ..tracker import Tracker
+    from ..track import TRACKING_CODE
     base = dict(params or {})
     for k in MOTION_ON:
         base.pop(k, None)
