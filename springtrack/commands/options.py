@@ -15,6 +15,8 @@
 """
 from __future__ import annotations
 
+import argparse
+
 import numpy as np
 
 from ..backends import DEFAULT_BACKEND, backend_help, backend_names
@@ -90,10 +92,26 @@ def add_acquire_arguments(p) -> None:
     add_acquire_window(p)
 
 
+class _Given(argparse.Action):
+    """Store the value and note that it was given (``args.<dest>_given``): a default
+    the command may choose otherwise."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, values)
+        setattr(namespace, self.dest + "_given", True)
+
+
+def given(args, dest: str) -> bool:
+    """Whether the option of ``dest`` (one stored by _Given) was on the command line."""
+    return getattr(args, dest + "_given", False)
+
+
 def add_acquire_window(p) -> None:
     """--acquire-ms, --acquire-angle and --acquire-scale (track, render, firmware-sim)."""
-    p.add_argument("--acquire-ms", type=float, default=50.0, metavar="MS",
-                   help="acquisition window in ms of event time (default 50)")
+    p.add_argument("--acquire-ms", type=float, default=50.0, metavar="MS", action=_Given,
+                   help="acquisition window in ms of event time (default 50; track: "
+                        "shorter for a model whose parts it measures moving fast, "
+                        "docs/motion.md)")
     p.add_argument("--acquire-angle", type=float, default=45.0, metavar="DEG",
                    help="acquisition searches rotations within +-DEG degrees (default 45)")
     p.add_argument("--acquire-scale", default="0.6,1.6", metavar="LO,HI",

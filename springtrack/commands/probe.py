@@ -6,8 +6,9 @@ from __future__ import annotations
 import itertools
 import sys
 
-from ..learning.motion import (MOTION_ON, MOTION_SIGMAS_PER_MS, fast_enough, probe,
-                               probe_window_us, sets_motion)
+from ..learning.motion import (ACQUIRE_SIZES, MOTION_ON, MOTION_SIGMAS_PER_MS,
+                               fast_acquire_ms, fast_enough, probe, probe_window_us,
+                               sets_motion)
 from . import options
 
 
@@ -26,7 +27,9 @@ def motion_params(args, model, source):
     motion_tau_us or polarity_gain, and --learn-param motion_sigmas_per_ms above 0 (the
     default): the model is tracked over the stream's first window (after --acquire-ms with
     --acquire) and, if its parts cross more than motion_sigmas_per_ms of their sizes per
-    millisecond, the motion model is switched on (docs/motion.md)."""
+    millisecond, the motion model is switched on (docs/motion.md), and with --acquire and
+    no --acquire-ms given, ``args.acquire_ms`` shortened to the window in which they
+    cross a few of their sizes (springtrack.learning.motion.fast_acquire_ms)."""
     models = model if isinstance(model, (list, tuple)) else [model]
     given = options.read_params(args.params) if args.params else {}
     threshold = options.learn_params(args).get("motion_sigmas_per_ms", MOTION_SIGMAS_PER_MS)
@@ -42,6 +45,13 @@ def motion_params(args, model, source):
     if not (p.measured and fast_enough(p.sizes_per_ms, threshold)):
         return None, source
     on = ", ".join(f"{k}={v}" for k, v in MOTION_ON.items())
+    if args.acquire and not options.given(args, "acquire_ms"):
+        ms = fast_acquire_ms(p.sizes_per_ms, args.acquire_ms)
+        if ms < args.acquire_ms:
+            print(f"track: the acquisition's window is {ms:.2g} ms, not {args.acquire_ms:g} "
+                  f"(the parts cross {ACQUIRE_SIZES:g} of their sizes in it; --acquire-ms "
+                  f"sets it)", file=sys.stderr)
+            args.acquire_ms = ms
     print(f"track: the model's parts move {p.speed_px_s:,.0f} px/s, {p.sizes_per_ms:.2g} part "
           f"sizes per ms (median of {p.parts} tracker{'s' if p.parts != 1 else ''} over the first "
           f"{p.window_ms:.3g} ms), "

@@ -48,8 +48,10 @@ fast parts: with --model (a model given by hand; a learned one carries the learn
 measure), the model is first tracked over the stream's first 10 ms (after --acquire-ms
 with --acquire); if its parts cross more than motion_sigmas_per_ms (--learn-param, default
 1) of their sizes (sigma) per ms, the motion model (velocity and both edges per tracker,
-docs/motion.md) is switched on and stderr says so; --params with motion_tau_us = 0 (or any
-motion parameter given) decides instead.
+docs/motion.md) is switched on and stderr says so (with --acquire and no --acquire-ms, the
+search's window is shortened to the time in which the parts cross 4 of their sizes, at
+least 1 ms); --params with motion_tau_us = 0 (or any motion parameter given) decides
+instead.
 exit status: 0 tracked, 4 tracked but --acquire's find was doubtful (at a search bound or
 confidence below 0.7: a warning says which), 1 --acquire found no model, 2 bad input, 3
 --learn-first-ms found no object (noise or too few events), 141 standard output closed

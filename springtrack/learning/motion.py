@@ -35,6 +35,8 @@ MOTION_SIGMAS_PER_MS = 1.0    # the default threshold, part sizes (sigma) per mi
 PROBE_MS = 10.0               # the probe's tracked window (after the acquisition's)
 PROBE_SAMPLE_US = 200         # the probe's sample period
 PROBE_SMOOTH_US = 2000        # positions averaged over this before differencing
+ACQUIRE_SIZES = 4.0           # a fast model's acquisition window: its parts cross this
+ACQUIRE_MIN_MS = 1.0          # many sizes in it, and it is at least this long
 PROBE_QUANTILE = 0.5          # a probed model's speed: the median over its parts (the
                               # object moving fast, not its few noisiest trackers)
 
@@ -146,6 +148,17 @@ def probe(model, events: np.ndarray, params=None, acquire: bool = False,
     speed = float(np.quantile(v[good], PROBE_QUANTILE)) if good.any() else math.nan
     return SpeedProbe(speed, sizes_per_ms(v, sig, PROBE_QUANTILE), int(good.sum()), span,
                       len(events))
+
+
+def fast_acquire_ms(sizes_per_ms: float, acquire_ms: float) -> float:
+    """The acquisition window (ms) for parts crossing ``sizes_per_ms`` of their sizes per ms:
+    the search scores the window's events as one picture, so a part that crosses its size
+    within it is found on its smeared trail (the real dot in 50 ms: a circle); the window
+    in which it crosses :data:`ACQUIRE_SIZES`, at least :data:`ACQUIRE_MIN_MS`, at most
+    ``acquire_ms``."""
+    if not sizes_per_ms > 0:
+        return acquire_ms
+    return min(acquire_ms, max(ACQUIRE_MIN_MS, ACQUIRE_SIZES / sizes_per_ms))
 
 
 def probe_window_us(acquire: bool, acquire_ms: float) -> int:

@@ -70,3 +70,13 @@ def test_a_learned_models_speed_is_not_probed_again(tmp_path):
     assert not _decided([m], {}, MOTION_SIGMAS_PER_MS)
     m.learned = {"sizes_per_ms": 0.05}
     assert _decided([m], {}, MOTION_SIGMAS_PER_MS)
+
+
+def test_a_fast_models_acquisition_window():
+    """The window in which the parts cross ACQUIRE_SIZES of their sizes, within
+    [ACQUIRE_MIN_MS, the window asked]; a part not measured keeps the window asked."""
+    from springtrack.learning.motion import ACQUIRE_MIN_MS, ACQUIRE_SIZES, fast_acquire_ms
+    assert fast_acquire_ms(2.0, 50.0) == pytest.approx(ACQUIRE_SIZES / 2.0)
+    assert fast_acquire_ms(100.0, 50.0) == ACQUIRE_MIN_MS
+    assert fast_acquire_ms(0.01, 50.0) == 50.0
+    assert fast_acquire_ms(0.0, 50.0) == 50.0
