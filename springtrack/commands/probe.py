@@ -21,7 +21,7 @@ def _decided(models, given: dict, threshold: float) -> bool:
                    for m in models))
 
 
-def motion_params(args, model, source):
+def motion_params(args, model, source, who: str = "track"):
     """(params, source): the tracking parameters to use (None: --params as given) and the
     stream to track.  With a model given by hand, neither it nor --params setting
     motion_tau_us or polarity_gain, and --learn-param motion_sigmas_per_ms above 0 (the
@@ -29,7 +29,8 @@ def motion_params(args, model, source):
     --acquire) and, if its parts cross more than motion_sigmas_per_ms of their sizes per
     millisecond, the motion model is switched on (docs/motion.md), and with --acquire and
     no --acquire-ms given, ``args.acquire_ms`` shortened to the window in which they
-    cross a few of their sizes (springtrack.learning.motion.fast_acquire_ms)."""
+    cross a few of their sizes (springtrack.learning.motion.fast_acquire_ms).  ``who``:
+    the command named in what is said."""
     models = model if isinstance(model, (list, tuple)) else [model]
     given = options.read_params(args.params) if args.params else {}
     threshold = options.learn_params(args).get("motion_sigmas_per_ms", MOTION_SIGMAS_PER_MS)
@@ -48,11 +49,11 @@ def motion_params(args, model, source):
     if args.acquire and not options.given(args, "acquire_ms"):
         ms = fast_acquire_ms(p.sizes_per_ms, args.acquire_ms)
         if ms < args.acquire_ms:
-            print(f"track: the acquisition's window is {ms:.2g} ms, not {args.acquire_ms:g} "
+            print(f"{who}: the acquisition's window is {ms:.2g} ms, not {args.acquire_ms:g} "
                   f"(the parts cross {ACQUIRE_SIZES:g} of their sizes in it; --acquire-ms "
                   f"sets it)", file=sys.stderr)
             args.acquire_ms = ms
-    print(f"track: the model's parts move {p.speed_px_s:,.0f} px/s, {p.sizes_per_ms:.2g} part "
+    print(f"{who}: the model's parts move {p.speed_px_s:,.0f} px/s, {p.sizes_per_ms:.2g} part "
           f"sizes per ms (median of {p.parts} tracker{'s' if p.parts != 1 else ''} over the first "
           f"{p.window_ms:.3g} ms), "
           f"more than motion_sigmas_per_ms = {threshold:g}: the motion model is on ({on}; "

@@ -262,3 +262,19 @@ def test_a_pulled_trackers_half_offset_goes_toward_0_by_the_pull_gain():
     off.hx[2] = 3.0                         # c_h = 0: the half offsets are not the model's
     off.springs()
     assert off.hx[2] == 3.0
+
+
+def test_render_tracking_on_the_fly_probes_as_track_does(dot, tmp_path, capsys):
+    """``render --model`` (tracking on the fly) measures a hand-made model's speed and
+    switches the motion model on as ``track`` does, so the overlay shows the track the
+    user gets from ``track``."""
+    from springtrack.cli import main
+    path, _, truth = dot
+    out = tmp_path / "dot.png"
+    assert main(["render", str(path), "--model", str(dot_model(tmp_path, truth)),
+                 "--acquire", "--out", str(out), "--window-us", "1000",
+                 "--every-us", "25000"]) in (0, DOUBTFUL_EXIT)
+    err = capsys.readouterr().err
+    assert "render: the model's parts move" in err and "the motion model is on" in err, err
+    assert "render: the acquisition's window is 1.8 ms" in err, err
+    assert out.exists()
