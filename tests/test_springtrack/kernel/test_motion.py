@@ -290,4 +290,4 @@ def test_a_backend_that_refuses_the_motion_model_keeps_the_papers_step(dot, tmp_
     tr = _track(path, dot_model(tmp_path, truth), tmp_path, capsys, "--params", str(params),
                 "--backend", "fixed")
     assert "but the motion model stays off" in _track.err and "alpha_position" in _track.err
-    assert len(tr.t_us) > 100
+    assert len(tr.t_us) == 50            # the 50-ms recording, sampled every ms
