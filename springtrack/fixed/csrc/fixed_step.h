@@ -177,6 +177,11 @@ typedef struct {
        energies of the kinds the criterion does not use are computed from them only when
        they are read (fx_energies) */
     int64_t grx[FX_MAX_CONNECTIONS], gry[FX_MAX_CONNECTIONS];
+    /* eq. (14)'s angles from rest of those vectors (binary angle) and their mean (eq. 15),
+       kept by the update when its springs use them: the torsional energies of fx_energies
+       without the geometry again */
+    int32_t dth[FX_MAX_CONNECTIONS];
+    int64_t mean_dth;
     int32_t energy_stale;                     /* bit q < 3: energy[q] not yet computed;
                                                  bit 3: no torsion energies at that update */
     /* spatial index (see kernel/kernel.pyx): bit i of cells[cy * gw + cx] set if tracker i's

@@ -129,32 +129,26 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
 /* The energies of all three kinds at the last spring update (eqs. 12, 17, 20), from the
    spring vectors it kept: the kinds the criterion does not use are computed here, when
    they are read, with the same arithmetic as fx_springs (so the values do not depend on
-   when they are read).  Offsets are clamped as there, not counted again. */
+   when they are read).  The torsional ones from the angles the update kept (an update
+   whose springs have no torsion has none: bit 3), the Euclidean ones from the lengths
+   and directions computed again.  Offsets are clamped as there, not counted again. */
 void fx_energies(fx_state *s)
 {
     int nc = s->nc, k, stale = s->energy_stale;
-    int32_t l[FX_MAX_CONNECTIONS], dth[FX_MAX_CONNECTIONS], cx[FX_MAX_CONNECTIONS];
-    int32_t cy[FX_MAX_CONNECTIONS];
-    int64_t mean_dth = 0, sum = 0;
+    int32_t l[FX_MAX_CONNECTIONS], cx[FX_MAX_CONNECTIONS], cy[FX_MAX_CONNECTIONS];
     if (!(stale & 7))
         return;
-    if (stale & 3) {
-        for (k = 0; k < nc; k++) {
-            dth[k] = spring_angle(s, k, geom16(s->grx[k]), geom16(s->gry[k]), &l[k], &cx[k],
-                                  &cy[k]);
-            sum += dth[k];
-        }
-        if (nc > 0)
-            mean_dth = div_round(sum, (uint32_t)nc);
-    }
+    if (stale & 1)
+        for (k = 0; k < nc; k++)                          /* eq. (14)'s geometry: l, c */
+            spring_angle(s, k, geom16(s->grx[k]), geom16(s->gry[k]), &l[k], &cx[k], &cy[k]);
     for (k = 0; k < nc; k++) {
         int64_t ex, ey, e;
         if (stale & 1) {
             e = energy_euclid(s, k, spring_dl(s, k, s->grx[k], s->gry[k], l[k], cx[k], cy[k]));
             s->energy[0][k] = e > E_MAX ? E_MAX : e;
         }
-        if (stale & 2)
-            s->energy[1][k] = stale & 8 ? 0 : energy_torsion(s, k, dth[k] - mean_dth);
+        if (stale & 2)                                    /* eq. (17) of eq. (15)'s d */
+            s->energy[1][k] = stale & 8 ? 0 : energy_torsion(s, k, s->dth[k] - s->mean_dth);
         if (stale & 4) {
             offsets(s, k, s->grx[k], s->gry[k], &ex, &ey);
             e = energy_cart(s, k, ex, ey);
