@@ -250,7 +250,11 @@ static inline __attribute__((always_inline)) int64_t spring_passes(fx_state *s, 
 {
     int nc = s->nc, ek = s->ekind, k, sat = 0;
     int64_t fx[FX_MAX_CONNECTIONS], fy[FX_MAX_CONNECTIONS];
+#if FX_KEEP_ANGLES
     int32_t *dth = s->dth;                                /* kept for fx_energies */
+#else
+    int32_t dth[FX_MAX_CONNECTIONS];
+#endif
     int64_t total = 0, mean_dth = 0;
     int64_t *en = s->energy[ek];
     int64_t *grx = s->grx, *gry = s->gry;
@@ -291,7 +295,9 @@ static inline __attribute__((always_inline)) int64_t spring_passes(fx_state *s, 
         }
         if ((used & 2) && nc > 0)
             mean_dth = div_round(sum, (uint32_t)nc);      /* eq. (15) */
+#if FX_KEEP_ANGLES
         s->mean_dth = mean_dth;
+#endif
     } else {
         for (k = 0; k < nc; k++) {                        /* r = x_j - x_i, Q.32 */
             spring_vector(s, k, &grx[k], &gry[k]);
