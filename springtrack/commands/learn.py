@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ..events import EVENT_DTYPE
 from . import options
 from .options import read_params
 
@@ -183,20 +182,8 @@ def learn_first(source, ms: float, width: int, height: int, name: str = "learned
     from ..learning.learner import NoObjectFound, learn_model
     if not ms > 0:
         raise ValueError(f"--learn-first-ms must be positive, got {ms}")
-    held, rest, total, t_end = [], None, None, None
-    source = iter(source)
-    for chunk, total in source:
-        if not len(chunk):
-            continue
-        if t_end is None:
-            t_end = int(chunk["t"][0]) + int(round(ms * 1000))
-        k = int(np.searchsorted(chunk["t"], t_end, side="left"))
-        held.append(chunk[:k])
-        if k < len(chunk):
-            rest = chunk[k:]
-            break
-    events = np.concatenate(held) if held else np.empty(0, EVENT_DTYPE)
-    if rest is None:
+    events, _, after, more = options.first_window(source, int(round(ms * 1000)))
+    if not more:
         span = (f"{(int(events['t'][-1]) - int(events['t'][0])) / 1e3:g} ms of events"
                 if len(events) else "no events")
         raise ValueError(f"--learn-first-ms {ms:g}: the stream holds {span}, nothing is left "
@@ -213,9 +200,4 @@ def learn_first(source, ms: float, width: int, height: int, name: str = "learned
           + ", ".join(f"{k}={v}" for k, v in m.params.items()), file=sys.stderr)
     for line in notes(res):
         print(f"learn: {line}", file=sys.stderr)
-
-    def after():
-        if rest is not None:
-            yield rest, total
-        yield from source
-    return m, after()
+    return m, after

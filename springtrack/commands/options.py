@@ -15,8 +15,12 @@
 """
 from __future__ import annotations
 
+import argparse
+
+import numpy as np
+
 from ..backends import DEFAULT_BACKEND, backend_help, backend_names
-from ..events import as_events
+from ..events import EVENT_DTYPE, as_events
 from ..limits import MAX_INSTANCES, MAX_SET_TRACKERS
 from ..prep import DEFAULT_BURST_FRACTION, Preparer
 
@@ -88,10 +92,26 @@ def add_acquire_arguments(p) -> None:
     add_acquire_window(p)
 
 
+class _Given(argparse.Action):
+    """Store the value and note that it was given (``args.<dest>_given``): a default
+    the command may choose otherwise."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        setattr(namespace, self.dest, values)
+        setattr(namespace, self.dest + "_given", True)
+
+
+def given(args, dest: str) -> bool:
+    """Whether the option of ``dest`` (one stored by _Given) was on the command line."""
+    return getattr(args, dest + "_given", False)
+
+
 def add_acquire_window(p) -> None:
     """--acquire-ms, --acquire-angle and --acquire-scale (track, render, firmware-sim)."""
-    p.add_argument("--acquire-ms", type=float, default=50.0, metavar="MS",
-                   help="acquisition window in ms of event time (default 50)")
+    p.add_argument("--acquire-ms", type=float, default=50.0, metavar="MS", action=_Given,
+                   help="acquisition window in ms of event time (default 50; track: "
+                        "shorter for a model whose parts it measures moving fast, "
+                        "docs/motion.md)")
     p.add_argument("--acquire-angle", type=float, default=45.0, metavar="DEG",
                    help="acquisition searches rotations within +-DEG degrees (default 45)")
     p.add_argument("--acquire-scale", default="0.6,1.6", metavar="LO,HI",
@@ -177,8 +197,9 @@ def learn_params(args) -> dict:
 
 
 # ---- what the options build ------------------------------------------------------------
-def tracker_from_args(args, model):
-    """The springtrack.Tracker of --params, --backend, --instances and --acquire*."""
+def tracker_from_args(args, model, params=None):
+    """The springtrack.Tracker of --params (or ``params``, a dict, in its place), --backend,
+    --instances and --acquire*."""
     from ..tracker import Tracker
     n_models = len(model) if isinstance(model, (list, tuple)) else 1
     if args.instances < 1:
@@ -192,9 +213,35 @@ def tracker_from_args(args, model):
                          f"of each model on the same positions: add --acquire to find each")
     backend = getattr(args, "backend", "cython")
     backend = f"mcu:{args.mcu_target}" if backend == "mcu" else backend
-    return Tracker(model, params=args.params, backend=backend, acquire=args.acquire,
+    return Tracker(model, params=args.params if params is None else params, backend=backend,
+                   acquire=args.acquire,
                    acquire_ms=args.acquire_ms, acquire_bounds=acquire_bounds(args),
                    instances=args.instances, acquire_budget_ms=args.acquire_budget_ms)
+
+
+def first_window(source, span_us: int):
+    """Split a stream of (chunk, total) pairs at ``span_us`` after its first event:
+    (the events before, the last total seen, the stream of the pairs after, whether there
+    are any: False when the source ended within the window)."""
+    held, rest, total, t_end = [], None, None, None
+    source = iter(source)
+    for chunk, total in source:
+        if not len(chunk):
+            continue
+        if t_end is None:
+            t_end = int(chunk["t"][0]) + span_us
+        k = int(np.searchsorted(chunk["t"], t_end, side="left"))
+        held.append(chunk[:k])
+        if k < len(chunk):
+            rest = chunk[k:]
+            break
+    events = np.concatenate(held) if held else np.empty(0, EVENT_DTYPE)
+
+    def after():
+        if rest is not None:
+            yield rest, total
+            yield from source
+    return events, total, after(), rest is not None
 
 
 def read_events(reader):

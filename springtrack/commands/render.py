@@ -124,6 +124,7 @@ def overlay(args, events, width, height, origin: int = 0) -> int:
     from ..render import render
     from ..track import TRACK_FIELDS, read_csv
     from .options import tracker_from_args
+    from .probe import motion_params
     models = [fit_model(load_model(m), width, height, args.sensor_from,
                         what=f"{args.input}'s sensor") for m in args.model]
     if args.show_acquisition and (args.track or not args.acquire):
@@ -140,7 +141,10 @@ def overlay(args, events, width, height, origin: int = 0) -> int:
             setattr(track, f, getattr(track, f)[:, order])
         track.ids = list(mset.ids)
     else:
-        tr = tracker_from_args(args, models if len(models) > 1 else models[0])
+        model = models if len(models) > 1 else models[0]
+        # as track does: a fast model's motion model and acquisition window (docs/motion.md)
+        params, _ = motion_params(args, model, [(events, len(events))], who="render")
+        tr = tracker_from_args(args, model, params)
         tr.record(1000)
         tr.process(events)
         tr.flush()

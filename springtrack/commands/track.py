@@ -14,6 +14,7 @@ from ..view import add_arguments as add_view_arguments
 from ..watch import TrackWatch
 from . import options
 from .options import read_events, tracker_from_args
+from .probe import motion_params
 
 EPILOG = """\
 units: event times are microseconds; positions px; covariances px^2.
@@ -43,6 +44,14 @@ window slides by half its length (rows start once one is found).  Then an instan
 trackers fall inactive (fewer than a third active for 3 activity time constants) is lost
 and searched for again every --acquire-ms / 2 in the last --acquire-ms of events; an
 instance not found at the start is searched for the same way.  See docs/acquisition.md.
+fast parts: with --model (a model given by hand; a learned one carries the learner's
+measure), the model is first tracked over the stream's first 10 ms (after --acquire-ms
+with --acquire); if its parts cross more than motion_sigmas_per_ms (--learn-param, default
+1) of their sizes (sigma) per ms, the motion model (velocity and both edges per tracker,
+docs/motion.md) is switched on and stderr says so (with --acquire and no --acquire-ms, the
+search's window is shortened to the time in which the parts cross 4 of their sizes, at
+least 1 ms); --params with motion_tau_us = 0 (or any motion parameter given) decides
+instead.
 exit status: 0 tracked, 4 tracked but --acquire's find was doubtful (at a search bound or
 confidence below 0.7: a warning says which), 1 --acquire found no model, 2 bad input, 3
 --learn-first-ms found no object (noise or too few events), 141 standard output closed
@@ -176,6 +185,10 @@ def run(args) -> int:
         print(f"springtrack track: {e}", file=sys.stderr)
         return NoObjectFound.exit_code
     tr = tracker_from_args(args, model)
+    if args.model:           # a learned model's speed was measured by the learner
+        params, stream = motion_params(args, model, stream)
+        if params is not None:
+            tr = tracker_from_args(args, model, params)
     tr.record(args.sample_us)
     watch = TrackWatch(tr.models)
     view = None

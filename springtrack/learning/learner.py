@@ -10,14 +10,15 @@ import numpy as np
 from ..events import as_events
 from ..limits import MAX_CONNECTIONS, spring_scale
 from ..model import SPRING_BIT, Connection, ShapeModel, TrackerSpec
+from .motion import MOTION_ON, SPEED_QUANTILE, fast_enough, sets_motion, sizes_per_ms
 from ..params import Params
 from .discovery import (_discover, _keep_cols, _to_count, awake, dominant, event_rates,
                         event_shares, quiet_nan, reference_value)
 from .flicker import FLICKER_SHARE, mains_flicker
 from .pool import Pool
 from .settings import (F, LearnParams, LearnResult, MASS_RANGE, MAX_PARTS, MIN_EVENTS,
-                       MOTION_ON, NoObjectFound, PERSIST_GRACES, PERSIST_MIN, POINT_SIGMA,
-                       COHERENCE_MIN, SPEED_QUANTILE, WEAK_PASSES)
+                       NoObjectFound, PERSIST_GRACES, PERSIST_MIN, POINT_SIGMA,
+                       COHERENCE_MIN, WEAK_PASSES)
 from .springs import _springs, activity_weights, object_similarity
 
 
@@ -302,20 +303,6 @@ def motion_alpha(v: np.ndarray, rec: dict, sig: np.ndarray, batch_us: int,
     return float(np.clip(np.quantile(alpha, quantile), *bounds))
 
 
-def sizes_per_ms(v: np.ndarray, sig: np.ndarray, quantile: float = SPEED_QUANTILE) -> float:
-    """How fast the parts move for their size: the ``quantile`` over the parts of v / sigma
-    (part sizes per millisecond; 0 if no part's speed is known).
-
-    Eq. (3) moves a tracker toward each event as if its part stood still; a part that
-    crosses more than its own size within the millisecond or so by which an event
-    camera's ON and OFF edges lag each other is tracked on the edge that fires first
-    (docs/motion.md), which the motion model corrects."""
-    ok = np.isfinite(v) & (sig > 0)
-    if not ok.any():
-        return 0.0
-    return float(np.quantile(v[ok] / sig[ok], quantile)) * 1e-3
-
-
 def energy_scale(energies: np.ndarray, quantile: float, floor: float,
                  ceiling: float = math.inf) -> float:
     """s of eqs. (21)-(22) such that the deformations seen while learning stay below it:
@@ -376,8 +363,7 @@ def _build_model(pool, rec, counts, lp, track_params, width, height, names, name
         params["alpha_position"] = round(motion_alpha(v, rec, sig, lp.batch_us,
                                                       lp.lag_fraction), 4)
     fast = sizes_per_ms(v, sig)
-    if (lp.motion_sigmas_per_ms > 0 and fast > lp.motion_sigmas_per_ms
-            and not any(k in params for k in MOTION_ON)):
+    if fast_enough(fast, lp.motion_sigmas_per_ms) and not sets_motion(params):
         # fast parts: velocity and both edges per tracker (eqs. M1-M9) unless given
         params.update(MOTION_ON)
     stiff = np.array([lp.stiffness_gain * params["alpha_position"] * c.rigidity for c in kept])

@@ -9,6 +9,7 @@ import numpy as np
 
 from . import batch as _learn
 from ..model import ShapeModel
+from .motion import MOTION_SIGMAS_PER_MS
 
 
 POOL_CAPACITY = 128           # trackers alive at once during discovery
@@ -31,9 +32,6 @@ PERSIST_GRACES = 2.0          # a part that lived this many grace periods persis
 PERSIST_MIN = 0.5             # parts persisting less (median) are "no stable object"
 COHERENCE_MIN = 0.25          # fewer co-active neighbour pairs: "no stable object"
 LAYOUT_RIGID = 0.3            # a layout rigidity below this is said (parts slide)
-SPEED_QUANTILE = 0.9          # a model's speed: this quantile of its parts' speeds
-# the motion model's parameters a learned model of fast parts gets (docs/motion.md)
-MOTION_ON = {"motion_tau_us": 1000.0, "polarity_gain": 1.0}
 F = {name: k for k, name in enumerate(_learn.FIELDS)}
 
 
@@ -76,7 +74,7 @@ class LearnParams:
     smooth_us: int = 20_000            # averaging of directions for the turn measure
     # the motion model (eqs. M1-M9) written into the model when its parts move faster
     # than this many part sizes (sigma) per millisecond (0: never)
-    motion_sigmas_per_ms: float = 1.0
+    motion_sigmas_per_ms: float = MOTION_SIGMAS_PER_MS
 
     def __post_init__(self):
         for f in fields(self):

@@ -13,7 +13,8 @@ from springtrack import Tracker
 from springtrack.cli import main as cli
 from springtrack.events import make
 from springtrack.learning.learner import (NoObjectFound, learn, learn_model, motion_alpha,
-                                         part_speeds, sizes_per_ms)
+                                         part_speeds)
+from springtrack.learning.motion import sizes_per_ms
 from springtrack.metrics import score_track, truth_from_array
 from springtrack.model import FACE_INTERNAL, ShapeModel, face_layout, load
 from springtrack.sim.scenes import make_scene
