@@ -18,7 +18,8 @@
  *   st_fit_frame            the similarity frame of eq. (22) and eqs. (18)-(20): the
  *                           mass-weighted Procrustes fit of the rest shape to the means
  *   st_frame_weights        how well each tracker of a fit set agrees with its frame
- *                           (eq. 21's test on the frame's residuals, made continuous)
+ *                           (eq. 21's test on the frame's residuals, made continuous):
+ *                           st_frame_residuals and st_frame_ramp its vector passes
  *   st_turn_offsets         eq. (18)'s rest offsets in that frame, s R d0
  *   st_pull                 eq. (22): the pull of the former toward G + s R dG0
  *   st_boxes_left           which trackers' gate boxes left their indexed boxes
@@ -197,12 +198,52 @@ ST_CLONES static void st_fit_frame(int n, uint64_t fit, const double *restrict m
     *gy = qy - (ss * px + cc * py);
 }
 
+/* [ref] fit_frame's residuals: r2[i] = |mu - (G + s R dG0)|^2 in the frame (c, sn, gx,
+ * gy) for every i < n (the arrays padded as for st_fit_frame), so that the pass
+ * vectorises; st_frame_weights reads those of its fit set. */
+ST_CLONES static void st_frame_residuals(int n, double c, double sn, double gx, double gy,
+                                         const double *restrict gdx0,
+                                         const double *restrict gdy0,
+                                         const double *restrict mx, const double *restrict my,
+                                         double *restrict r2)
+{
+    for (int i = 0; i < n; i++) {
+        double ex = mx[i] - (gx + (c * gdx0[i] - sn * gdy0[i]));  /* mu - (G + s R dG0) */
+        double ey = my[i] - (gy + (sn * gdx0[i] + c * gdy0[i]));
+        r2[i] = ex * ex + ey * ey;
+    }
+}
+
+/* [ref] fit_frame's ramp: v[i] = 1 up to thr, 0 from (1 + ST_FRAME_RAMP) thr, linear
+ * between, for every i < n; *changed = 1 if some v of the mask fit differs from wt;
+ * returns the mask of fit's positive v.  Branch-free, so that it vectorises. */
+ST_CLONES static uint64_t st_frame_ramp(int n, uint64_t fit, double thr,
+                                        const double *restrict r2, const double *restrict wt,
+                                        double *restrict v, int64_t *changed)
+{
+    uint64_t pos = 0;
+    int64_t ch = 0;
+    for (int i = 0; i < n; i++) {
+        uint64_t in = (fit >> (uint64_t)i) & 1;       /* a 64-bit shift count vectorises */
+        double x = 1.0 - (r2[i] - thr) / (ST_FRAME_RAMP * thr);   /* 1 to T, 0 from (1 + ramp) T */
+        x = st_sel(x < 0.0, 0.0, x);
+        x = st_sel(x > 1.0, 1.0, x);
+        v[i] = x;
+        ch |= (int64_t)(in & (uint64_t)(x != wt[i]));
+        pos |= (in & (uint64_t)(x > 0.0)) << (uint64_t)i;
+    }
+    *changed = ch;
+    return pos;
+}
+
 /* [ref] fit_frame's weights: for the trackers of the mask fit, their squared residuals
  * r^2 = |mu - (G + s R dG0)|^2 in the frame (c, sn, gx, gy), T = max(scale sum m wt r^2 /
  * sum m wt, ST_FRAME_AGREE_PX2) and v = 1 up to T, 0 from (1 + ST_FRAME_RAMP) T, linear
- * between; summed in index order as the reference.  If some v differs from wt and at least 2 are positive:
+ * between; the sums in index order as the reference (a chain: only the residuals and the
+ * ramp are vector passes).  If some v differs from wt and at least 2 are positive:
  * wt = v, wm = mass v (the masses of the refit) and the mask of the positive ones is
- * returned; else 0 (wt, wm unchanged). */
+ * returned; else 0 (wt, wm unchanged).  wt and wm hold n entries: those outside fit are
+ * written too (with the ramp's value) but weigh nothing. */
 static inline uint64_t st_frame_weights(int n, uint64_t fit, double scale,
                                   const double *restrict mass, double *restrict wt,
                                   double *restrict wm, const double *restrict gdx0,
@@ -210,15 +251,13 @@ static inline uint64_t st_frame_weights(int n, uint64_t fit, double scale,
                                   const double *restrict my, double c, double sn, double gx,
                                   double gy)
 {
-    double r2[ST_MAX_FIT], v[ST_MAX_FIT], w = 0.0, total = 0.0, ex, ey, m, thr;
-    uint64_t pos = 0;
-    int i, changed = 0;
-    for (i = 0; i < n; i++) {
-        if (!((fit >> i) & 1))
-            continue;
-        ex = mx[i] - (gx + (c * gdx0[i] - sn * gdy0[i]));     /* mu - (G + s R dG0) */
-        ey = my[i] - (gy + (sn * gdx0[i] + c * gdy0[i]));
-        r2[i] = ex * ex + ey * ey;
+    double r2[ST_MAX_FIT], v[ST_MAX_FIT], w = 0.0, total = 0.0, m, thr;
+    uint64_t pos, f;
+    int64_t changed;
+    int i;
+    st_frame_residuals(n, c, sn, gx, gy, gdx0, gdy0, mx, my, r2);
+    for (f = fit; f; f &= f - 1) {
+        i = __builtin_ctzll(f);
         m = mass[i] * wt[i];
         w += m;
         total += m * r2[i];
@@ -226,22 +265,10 @@ static inline uint64_t st_frame_weights(int n, uint64_t fit, double scale,
     thr = scale * (total / w);                                /* eq. (21)'s test on r^2 */
     if (thr < ST_FRAME_AGREE_PX2)
         thr = ST_FRAME_AGREE_PX2;
-    for (i = 0; i < n; i++) {
-        if (!((fit >> i) & 1))
-            continue;
-        v[i] = 1.0 - (r2[i] - thr) / (ST_FRAME_RAMP * thr);   /* 1 to T, 0 from (1 + ramp) T */
-        if (v[i] < 0.0)
-            v[i] = 0.0;
-        if (v[i] > 1.0)
-            v[i] = 1.0;
-        changed |= v[i] != wt[i];
-        pos |= (uint64_t)(v[i] > 0.0) << i;
-    }
-    if (!changed || __builtin_popcountll(pos) < 2)
+    pos = st_frame_ramp(n, fit, thr, r2, wt, v, &changed);
+    if (!changed || (pos & (pos - 1)) == 0)                   /* or fewer than 2 left */
         return 0;
-    for (i = 0; i < n; i++) {
-        if (!((fit >> i) & 1))
-            continue;
+    for (i = 0; i < n; i++) {                     /* all n: those outside fit are not read */
         wt[i] = v[i];
         wm[i] = mass[i] * v[i];
     }

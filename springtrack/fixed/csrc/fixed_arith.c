@@ -25,6 +25,20 @@ static inline uint64_t umul(uint32_t a, uint32_t b)
     return (uint64_t)a * b;
 }
 
+/* acc + a b with a 32 x 32 -> 64-bit product (callers' bounds: no overflow).  On Thumb-2
+   one SMLAL, where smul's SMULL and a 64-bit addition are three instructions (the
+   compiler cannot merge an asm SMULL into its addition). */
+static inline int64_t smla(int64_t acc, int32_t a, int32_t b)
+{
+#if defined(__thumb2__) && !FX_WORD64
+    uint32_t lo = (uint32_t)acc, hi = (uint32_t)((uint64_t)acc >> 32);
+    __asm__("smlal %0, %1, %2, %3" : "+r"(lo), "+r"(hi) : "r"(a), "r"(b));
+    return (int64_t)(((uint64_t)hi << 32) | lo);
+#else
+    return acc + (int64_t)a * b;
+#endif
+}
+
 /* v 2^k for 0 <= k < 64, also for v < 0 (a shift, not a multiplication) */
 static inline int64_t shl64(int64_t v, int k)
 {
@@ -72,7 +86,7 @@ static inline int64_t sar64(int64_t v, int k)
    low words as in mulsh; the 96-bit difference is hi 2^32 + lo. */
 static inline int64_t ema(int64_t v, int64_t inc, uint32_t gm, uint32_t am, int sh)
 {
-    int64_t hi = smul((int32_t)(inc >> 32), (int32_t)gm) - smul((int32_t)(v >> 32), (int32_t)am);
+    int64_t hi = smla(smul((int32_t)(inc >> 32), (int32_t)gm), -(int32_t)(v >> 32), (int32_t)am);
     int64_t lo = (int64_t)umul((uint32_t)inc, gm) - (int64_t)umul((uint32_t)v, am);  /* < 2^63 each */
     int64_t a = hi + (lo >> 32);                         /* difference = a 2^32 + r */
     uint32_t r = (uint32_t)lo;

@@ -63,7 +63,8 @@ static __attribute__((noinline)) void fit_frame(fx_state *s, uint64_t fit, const
     const int64_t *gdx = s->gdx0, *gdy = s->gdy0, *mx = s->mx, *my = s->my;
     int32_t ux[FX_MAX_TRACKERS], uy[FX_MAX_TRACKERS], vx[FX_MAX_TRACKERS], vy[FX_MAX_TRACKERS];
     int32_t an, bn, dn, c, sn;
-    int64_t ox[FX_MAX_TRACKERS], oy[FX_MAX_TRACKERS], W = 0, spx = 0, spy = 0, sqx = 0, sqy = 0;
+    int64_t ox[FX_MAX_TRACKERS], oy[FX_MAX_TRACKERS], W, spx = 0, spy = 0, sqx = 0, sqy = 0;
+    uint32_t wsum = 0;
     int64_t px, py, qx, qy, a = 0, b = 0, d = 0, big = 0, lim;
     fit &= all;
     if ((fit & (fit - 1)) == 0)                       /* fewer than 2: all of them */
@@ -90,12 +91,13 @@ static __attribute__((noinline)) void fit_frame(fx_state *s, uint64_t fit, const
         uy[i] = shr32(gdy[i], sh);
         vx[i] = shr32(ox[i], sh);
         vy[i] = shr32(oy[i], sh);
-        W += w;                                       /* <= 2^30 */
-        spx += smul(w, ux[i]);                        /* < 2^53 each */
-        spy += smul(w, uy[i]);
-        sqx += smul(w, vx[i]);
-        sqy += smul(w, vy[i]);
+        wsum += (uint32_t)w;                          /* <= 2^30 */
+        spx = smla(spx, w, ux[i]);                    /* < 2^53 each */
+        spy = smla(spy, w, uy[i]);
+        sqx = smla(sqx, w, vx[i]);
+        sqy = smla(sqy, w, vy[i]);
     }
+    W = wsum;
     px = div_round(spx, (uint32_t)W);                 /* pbar, about G0 */
     py = div_round(spy, (uint32_t)W);
     qx = div_round(sqx, (uint32_t)W);                 /* qbar, about the last G */
@@ -114,9 +116,9 @@ static __attribute__((noinline)) void fit_frame(fx_state *s, uint64_t fit, const
             muy = (int32_t)rshr(smul((int32_t)wq[i], puy), 24);
         }
         /* products < 2^60, pairs < 2^61: a 2^-8 of each keeps 64 of them in int64 */
-        a += (smul(mux, qvx) + smul(muy, qvy)) >> 8;  /* a = sum m p.q */
-        b += (smul(mux, qvy) - smul(muy, qvx)) >> 8;  /* b = sum m p x q */
-        d += (smul(mux, pux) + smul(muy, puy)) >> 8;  /* D = sum m |p|^2 */
+        a += smla(smul(mux, qvx), muy, qvy) >> 8;     /* a = sum m p.q */
+        b += smla(smul(mux, qvy), -muy, qvx) >> 8;    /* b = sum m p x q */
+        d += smla(smul(mux, pux), muy, puy) >> 8;     /* D = sum m |p|^2 */
     }
     px = shl64(px, sh);                               /* Q.32 */
     py = shl64(py, sh);
@@ -196,8 +198,8 @@ static __attribute__((noinline)) uint64_t frame_weights(fx_state *s, uint64_t fi
         ey = rshr(s->my[i] - ty, 12);
         ex = ex > lim ? lim : ex < -lim ? -lim : ex;
         ey = ey > lim ? lim : ey < -lim ? -lim : ey;
-        r2[i] = (smul((int32_t)ex, (int32_t)ex) + smul((int32_t)ey, (int32_t)ey)) >> 6;
-        total += mulsh(r2[i], wq[i], 24);
+        r2[i] = smla(smul((int32_t)ex, (int32_t)ex), (int32_t)ey, (int32_t)ey) >> 6;
+        total += wq[i] == FRAME_W_ONE ? r2[i] : mulsh(r2[i], wq[i], 24);   /* r^2 wq / 2^24 */
         W += wq[i];                                   /* <= 2^30 */
     }
     /* the weighted mean r^2 (Q.34 px^2): sum 2^24 / sum wq in two steps */
@@ -220,7 +222,8 @@ static __attribute__((noinline)) uint64_t frame_weights(fx_state *s, uint64_t fi
             nv[i] = 0;
         else                                          /* 1 - (r^2 - T) / (ramp T) */
             nv[i] = FRAME_W_ONE - (uint32_t)div_round(shl64(e >> k, 24), (uint32_t)(ramp >> k));
-        nw[i] = (uint32_t)rshr((int64_t)umul(s->mq[i], nv[i]), 24);
+        nw[i] = nv[i] == FRAME_W_ONE ? s->mq[i]                       /* mq v / 2^24 */
+                                     : (uint32_t)rshr((int64_t)umul(s->mq[i], nv[i]), 24);
         changed |= nv[i] != v[i];
         pos |= (uint64_t)(nw[i] > 0) << i;
     }

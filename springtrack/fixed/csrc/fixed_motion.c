@@ -205,8 +205,8 @@ static void pull_velocities(fx_state *s, uint64_t pulled)
         if ((pulled >> i) & 1)
             continue;
         w += s->mq[i];
-        sx += smul((int32_t)s->mq[i], s->vx[i]);
-        sy += smul((int32_t)s->mq[i], s->vy[i]);
+        sx = smla(sx, (int32_t)s->mq[i], s->vx[i]);
+        sy = smla(sy, (int32_t)s->mq[i], s->vy[i]);
     }
     if (w > 0) {                                          /* w <= 64 2^24 < 2^31 */
         bx = div_round(sx, w);

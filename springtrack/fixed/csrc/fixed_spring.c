@@ -69,8 +69,8 @@ static inline __attribute__((always_inline)) int64_t spring_dl(const fx_state *s
     uint32_t f;
     if (l <= 0)                                           /* |r| < 2^-16 px */
         return -s->l0[k];
-    dot = smul(hx, cx) + smul(hy, cy) + ((smul(ex, cx) + smul(ey, cy)) >> 16);   /* Q.46 */
-    cc = smul(cx, cx) + smul(cy, cy);                     /* |c|^2, Q.60 (< 2^61) */
+    dot = smla(smla(smla(smul(ex, cx), ey, cy) >> 16, hx, cx), hy, cy);   /* Q.46 */
+    cc = smla(smul(cx, cx), cy, cy);                      /* |c|^2, Q.60 (< 2^61) */
     f = (uint32_t)((((int64_t)3 << 60) - cc) >> 31);      /* (3 - |c|^2) / 2, Q.30 */
     return mulsh(dot, f, 44) - s->l0[k];                  /* Q.46 x Q.30 / 2^44 = Q.32 */
 }
@@ -132,11 +132,11 @@ static inline int64_t energy_cart(const fx_state *s, int k, int64_t ex, int64_t 
     if (fine(ex) && fine(ey)) {
         x = (int32_t)rshr(ex, 8);                         /* Q.24 */
         y = (int32_t)rshr(ey, 8);
-        return mulsh(smul(x, x) + smul(y, y), s->stiff[k], 39);
+        return mulsh(smla(smul(x, x), y, y), s->stiff[k], 39);
     }
     x = offset16(ex);
     y = offset16(ey);
-    return energy_wide(s, k, smul(x, x) + smul(y, y));
+    return energy_wide(s, k, smla(smul(x, x), y, y));
 }
 
 /* eq. (19): the Cartesian force a e (Q.32) of connection k */
@@ -170,8 +170,8 @@ static inline __attribute__((always_inline)) spring_ratio geom_ratio(const fx_st
                                                                      int32_t rx, int32_t ry)
 {
     spring_ratio g;
-    int64_t u = rshr(smul(s->c0x[k], rx) + smul(s->c0y[k], ry), 28);   /* Q.18, < 2^33 */
-    int64_t v = rshr(smul(s->c0x[k], ry) - smul(s->c0y[k], rx), 28);
+    int64_t u = rshr(smla(smul(s->c0x[k], rx), s->c0y[k], ry), 28);   /* Q.18, < 2^33 */
+    int64_t v = rshr(smla(smul(s->c0x[k], ry), -s->c0y[k], rx), 28);   /* |c0y| <= 2^30 */
     int64_t av = v < 0 ? -v : v;
     int oct;
     if (u > 0 && av <= u && u < ((int64_t)1 << 31)) {
@@ -196,11 +196,11 @@ static inline __attribute__((always_inline)) int32_t geom_finish(const fx_state 
         int32_t h = unit_interp(FX_IHYP_TAB, g.t);        /* cos of the angle */
         int32_t sn = (int32_t)rshr((int64_t)umul(g.t, (uint32_t)h), 30);   /* |sin| */
         int32_t sg = g.v >> 31;                           /* -1 if v < 0: a mask, the sign */
-        *l = (int32_t)rshr(smul(g.u, h) + smul((g.v ^ sg) - sg, sn), 32);  /* of a spring is */
+        *l = (int32_t)rshr(smla(smul(g.u, h), (g.v ^ sg) - sg, sn), 32);   /* of a spring is */
         a = (a ^ sg) - sg;                                /* data the branch predictor */
         sn = (sn ^ sg) - sg;                              /* cannot learn */
-        *cx = (int32_t)rshr(smul(s->c0x[k], h) - smul(s->c0y[k], sn), 30);
-        *cy = (int32_t)rshr(smul(s->c0y[k], h) + smul(s->c0x[k], sn), 30);
+        *cx = (int32_t)rshr(smla(smul(s->c0x[k], h), -s->c0y[k], sn), 30);
+        *cy = (int32_t)rshr(smla(smul(s->c0y[k], h), s->c0x[k], sn), 30);
         return a;
     } else {
         uint32_t th;
@@ -250,7 +250,11 @@ static inline __attribute__((always_inline)) int64_t spring_passes(fx_state *s, 
 {
     int nc = s->nc, ek = s->ekind, k, sat = 0;
     int64_t fx[FX_MAX_CONNECTIONS], fy[FX_MAX_CONNECTIONS];
+#if FX_KEEP_ANGLES
+    int32_t *dth = s->dth;                                /* kept for fx_energies */
+#else
     int32_t dth[FX_MAX_CONNECTIONS];
+#endif
     int64_t total = 0, mean_dth = 0;
     int64_t *en = s->energy[ek];
     int64_t *grx = s->grx, *gry = s->gry;
@@ -291,6 +295,9 @@ static inline __attribute__((always_inline)) int64_t spring_passes(fx_state *s, 
         }
         if ((used & 2) && nc > 0)
             mean_dth = div_round(sum, (uint32_t)nc);      /* eq. (15) */
+#if FX_KEEP_ANGLES
+        s->mean_dth = mean_dth;
+#endif
     } else {
         for (k = 0; k < nc; k++) {                        /* r = x_j - x_i, Q.32 */
             spring_vector(s, k, &grx[k], &gry[k]);
@@ -306,8 +313,8 @@ static inline __attribute__((always_inline)) int64_t spring_passes(fx_state *s, 
             if (kind & 2) {                               /* eq. (16): rotate r by a d */
                 int32_t c, sn, rx = geom16(grx[k]), ry = geom16(gry[k]);
                 rotation(mulsh(d, a, 30), &c, &sn);       /* cos - 1, sin */
-                gx += rshr(smul(rx, c) - smul(ry, sn), 14);   /* l (cos(th + a d) - cos th), Q.32 */
-                gy += rshr(smul(rx, sn) + smul(ry, c), 14);
+                gx += rshr(smla(smul(rx, c), -ry, sn), 14);   /* l (cos(th + a d) - cos th), Q.32 */
+                gy += rshr(smla(smul(rx, sn), ry, c), 14);    /* (|ry| < 2^30) */
             }
         }
         if (used & 4) {
@@ -362,7 +369,7 @@ static int64_t centre(const fx_state *s, const int64_t *x, uint32_t msum)
     int i;
     for (i = 0; i < s->n; i++) {
         int64_t d = x[i] - x[0];                          /* |.| < 2^46 */
-        hi += smul((int32_t)s->mq[i], (int32_t)(d >> 16)); /* < 2^55 each */
+        hi = smla(hi, (int32_t)s->mq[i], (int32_t)(d >> 16));   /* < 2^55 each */
         lo += (int64_t)umul(s->mq[i], (uint32_t)d & 0xffff);  /* < 2^41 each */
     }
     q = floor_div(hi, msum, &r);

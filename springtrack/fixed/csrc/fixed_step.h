@@ -56,6 +56,11 @@
 #endif
 #define FX_MAX_SET_TRACKERS 256
 #define FX_MAX_SET_CONNECTIONS 512
+/* A 64-bit host keeps eq. (14)'s angles at every spring update (fx_state's dth) for its
+   samples, which read every energy kind (fx_energies); a 32-bit core, whose telemetry
+   reads only the criterion's kind, computes them again when they are read instead of
+   storing them at every update.  The same integers either way. */
+#define FX_KEEP_ANGLES (UINTPTR_MAX > 0xffffffffu)
 /* the motion model's modes (fixed_motion.c in_motion): at rest (the paper's step), half
    offsets without velocities (no prediction), velocities (predictions) */
 #define FX_MOTION_REST 0
@@ -200,6 +205,13 @@ typedef struct {
     int64_t sat_position, sat_activity, sat_energy, sat_inverse;
     int64_t n_resets;                         /* states the guard reset to the model */
     int32_t since_spring;
+#if FX_KEEP_ANGLES
+    /* eq. (14)'s angles from rest of the spring vectors grx, gry (binary angle) and their
+       mean (eq. 15), kept by the update when its springs use them: fx_energies' torsional
+       energies without the geometry again */
+    int64_t mean_dth;
+    int32_t dth[FX_MAX_CONNECTIONS];
+#endif
 } fx_state;
 
 /* Several model instances (springtrack.instances): one loaded fx_state per instance

@@ -129,23 +129,40 @@ __attribute__((noinline)) void fx_springs(fx_state *s)
 /* The energies of all three kinds at the last spring update (eqs. 12, 17, 20), from the
    spring vectors it kept: the kinds the criterion does not use are computed here, when
    they are read, with the same arithmetic as fx_springs (so the values do not depend on
-   when they are read).  Offsets are clamped as there, not counted again. */
+   when they are read).  The torsional ones from eq. (14)'s angles, which a host kept at
+   the update (FX_KEEP_ANGLES; an update whose springs have no torsion has none: bit 3);
+   the Euclidean ones from the lengths and directions computed again.  Offsets are
+   clamped as there, not counted again. */
 void fx_energies(fx_state *s)
 {
     int nc = s->nc, k, stale = s->energy_stale;
-    int32_t l[FX_MAX_CONNECTIONS], dth[FX_MAX_CONNECTIONS], cx[FX_MAX_CONNECTIONS];
-    int32_t cy[FX_MAX_CONNECTIONS];
+    int32_t l[FX_MAX_CONNECTIONS], cx[FX_MAX_CONNECTIONS], cy[FX_MAX_CONNECTIONS];
+#if FX_KEEP_ANGLES
+    const int32_t *dth = s->dth;
+    int64_t mean_dth = s->mean_dth;
+    const int geometry = stale & 1;                       /* l, c for eq. (12) */
+#else
+    int32_t dth[FX_MAX_CONNECTIONS];
     int64_t mean_dth = 0, sum = 0;
+    const int geometry = stale & 3;                       /* and the angles, eq. (14) */
+#endif
     if (!(stale & 7))
         return;
-    if (stale & 3) {
+    if (geometry) {
         for (k = 0; k < nc; k++) {
-            dth[k] = spring_angle(s, k, geom16(s->grx[k]), geom16(s->gry[k]), &l[k], &cx[k],
-                                  &cy[k]);
-            sum += dth[k];
+            int32_t a = spring_angle(s, k, geom16(s->grx[k]), geom16(s->gry[k]), &l[k],
+                                     &cx[k], &cy[k]);
+#if !FX_KEEP_ANGLES
+            dth[k] = a;
+            sum += a;
+#else
+            (void)a;                                      /* the update kept it */
+#endif
         }
+#if !FX_KEEP_ANGLES
         if (nc > 0)
-            mean_dth = div_round(sum, (uint32_t)nc);
+            mean_dth = div_round(sum, (uint32_t)nc);      /* eq. (15) */
+#endif
     }
     for (k = 0; k < nc; k++) {
         int64_t ex, ey, e;
@@ -153,7 +170,7 @@ void fx_energies(fx_state *s)
             e = energy_euclid(s, k, spring_dl(s, k, s->grx[k], s->gry[k], l[k], cx[k], cy[k]));
             s->energy[0][k] = e > E_MAX ? E_MAX : e;
         }
-        if (stale & 2)
+        if (stale & 2)                                    /* eq. (17) of eq. (15)'s d */
             s->energy[1][k] = stale & 8 ? 0 : energy_torsion(s, k, dth[k] - mean_dth);
         if (stale & 4) {
             offsets(s, k, s->grx[k], s->gry[k], &ex, &ey);
