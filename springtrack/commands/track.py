@@ -185,7 +185,7 @@ def run(args) -> int:
         print(f"springtrack track: {e}", file=sys.stderr)
         return NoObjectFound.exit_code
     tr = tracker_from_args(args, model)
-    if args.model:           # a learned model's speed was measured by the learner
+    if args.model:      # given (one learned by --learn-first-ms carries the learner's measure)
         params, stream = motion_params(args, model, stream)
         if params is not None:
             tr = tracker_from_args(args, model, params)
