@@ -9,6 +9,8 @@ import sys
 from ..learning.motion import (ACQUIRE_SIZES, MOTION_ON, MOTION_SIGMAS_PER_MS,
                                fast_acquire_ms, fast_enough, probe, probe_window_us,
                                sets_motion)
+from ..backends import DEFAULT_BACKEND, check_backend_params
+from ..params import resolve
 from . import options
 
 
@@ -45,7 +47,18 @@ def motion_params(args, model, source, who: str = "track"):
               acquire_bounds=options.acquire_bounds(args), instances=args.instances)
     if not (p.measured and fast_enough(p.sizes_per_ms, threshold)):
         return None, source
-    on = ", ".join(f"{k}={v}" for k, v in MOTION_ON.items())
+    chosen = {**given, **MOTION_ON}
+    measured = (f"the model's parts move {p.speed_px_s:,.0f} px/s, {p.sizes_per_ms:.2g} part "
+                f"sizes per ms (median of {p.parts} tracker{'s' if p.parts != 1 else ''} over "
+                f"the first {p.window_ms:.3g} ms), more than motion_sigmas_per_ms = "
+                f"{threshold:g}")
+    try:
+        backend = getattr(args, "backend", DEFAULT_BACKEND)
+        for m in models:
+            check_backend_params(backend, m, resolve(m, chosen))
+    except ValueError as e:
+        print(f"{who}: {measured}, but the motion model stays off: {e}", file=sys.stderr)
+        return None, source
     if args.acquire and not options.given(args, "acquire_ms"):
         ms = fast_acquire_ms(p.sizes_per_ms, args.acquire_ms)
         if ms < args.acquire_ms:
@@ -53,10 +66,7 @@ def motion_params(args, model, source, who: str = "track"):
                   f"(the parts cross {ACQUIRE_SIZES:g} of their sizes in it; --acquire-ms "
                   f"sets it)", file=sys.stderr)
             args.acquire_ms = ms
-    print(f"{who}: the model's parts move {p.speed_px_s:,.0f} px/s, {p.sizes_per_ms:.2g} part "
-          f"sizes per ms (median of {p.parts} tracker{'s' if p.parts != 1 else ''} over the first "
-          f"{p.window_ms:.3g} ms), "
-          f"more than motion_sigmas_per_ms = {threshold:g}: the motion model is on ({on}; "
-          f"docs/motion.md); --params with motion_tau_us = 0 keeps the paper's step",
-          file=sys.stderr)
-    return {**given, **MOTION_ON}, source
+    on = ", ".join(f"{k}={v}" for k, v in MOTION_ON.items())
+    print(f"{who}: {measured}: the motion model is on ({on}; docs/motion.md); --params with "
+          f"motion_tau_us = 0 keeps the paper's step", file=sys.stderr)
+    return chosen, source

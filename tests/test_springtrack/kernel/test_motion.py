@@ -278,3 +278,16 @@ def test_render_tracking_on_the_fly_probes_as_track_does(dot, tmp_path, capsys):
     assert "render: the model's parts move" in err and "the motion model is on" in err, err
     assert "render: the acquisition's window is 1.8 ms" in err, err
     assert out.exists()
+
+
+def test_a_backend_that_refuses_the_motion_model_keeps_the_papers_step(dot, tmp_path, capsys):
+    """The probe finds the dot fast, but the integer kernel refuses the motion model with
+    this model's alpha_position (below its Kalman filter's 1e-3): track says why and
+    tracks with the paper's step instead of failing on parameters the user never gave."""
+    path, _, truth = dot
+    params = tmp_path / "slow.toml"
+    params.write_text("[params]\nalpha_position = 0.0005\n")
+    tr = _track(path, dot_model(tmp_path, truth), tmp_path, capsys, "--params", str(params),
+                "--backend", "fixed")
+    assert "but the motion model stays off" in _track.err and "alpha_position" in _track.err
+    assert len(tr.t_us) == 50            # the 50-ms recording, sampled every ms
