@@ -278,6 +278,23 @@ def _acquired_at(acquisitions, t, window_us):
     return np.concatenate(near) if near else None
 
 
+def frame_rows(t_us: np.ndarray, window_us: int, every_us: int, one: bool,
+               max_frames: int) -> np.ndarray:
+    """The track rows (indices into the sample times ``t_us``) to draw: one every
+    ``every_us`` from the first sample plus ``window_us`` (the first full window) to the
+    last, or only the middle one (``one``); ValueError above ``max_frames``."""
+    first, last = int(t_us[0]) + window_us, int(t_us[-1]) + 1
+    count = max(0, -(-(last - first) // every_us))        # counted before any allocation
+    if one:                                               # the middle frame only
+        times = np.array([first + every_us * (count // 2)]) if count else t_us[-1:]
+    elif count > max_frames:
+        raise ValueError(f"render: {count} frames exceed --max-frames {max_frames}; "
+                         f"raise --every-us or --max-frames")
+    else:
+        times = np.arange(first, last, every_us) if count else t_us[-1:]
+    return np.clip(np.searchsorted(t_us, times), 0, len(t_us) - 1)
+
+
 def render(events: np.ndarray, model, track: Track, out, window_us: int = 10_000,
            every_us: int | None = None, truth=None, title: str = "", progress: bool = True,
            max_frames: int = 2000, scale: float = 2.0, acquisitions=None,
@@ -294,16 +311,11 @@ def render(events: np.ndarray, model, track: Track, out, window_us: int = 10_000
     every_us = every_us or window_us
     if len(track) == 0:
         raise ValueError("render: the track has no samples (is the event file empty?)")
-    first, last = int(track.t_us[0]) + window_us, int(track.t_us[-1]) + 1
-    count = max(0, -(-(last - first) // every_us))        # counted before any allocation
-    if out.suffix == ".png":                                # the middle frame only
-        times = np.array([first + every_us * (count // 2)]) if count else track.t_us[-1:]
-    elif count > max_frames:
-        raise ValueError(f"render: {count} frames exceed --max-frames {max_frames}; "
-                         f"raise --every-us or --max-frames")
-    else:
-        times = np.arange(first, last, every_us) if count else track.t_us[-1:]
-    rows = np.clip(np.searchsorted(track.t_us, times), 0, len(track) - 1)
+    rows = frame_rows(track.t_us, window_us, every_us, out.suffix == ".png", max_frames)
+    # each frame ends at its sample's time, so the events drawn are those up to the state
+    # drawn (a sample holds the state after every event before its time): a fast part's
+    # tracker sits on its events, not one sample period ahead of them
+    times = track.t_us[rows]
     r = OverlayRenderer(model, scale=scale, title=title)
     t_ev = events["t"]
     frames = []

@@ -18,8 +18,10 @@ is not better everywhere: docs/motion.md), so the model is switched on by measur
   hold catch-ups and sparse parts whose jitter would read as speed).
 
 Either way the rule is :func:`fast_enough`: the parts' v / sigma above
-``motion_sigmas_per_ms`` part sizes per millisecond (a learner parameter, default :data:`MOTION_SIGMAS_PER_MS`; 0: never), and never when the user or the
-model already set either of the motion model's parameters.
+``motion_sigmas_per_ms`` part sizes per millisecond (a learner parameter, default
+:data:`MOTION_SIGMAS_PER_MS`; 0: never), and never when the user or the model already set
+either of the motion model's parameters (:func:`decided`); :func:`choose` is ``track``'s
+whole decision for a model given by hand, for the Python API too.
 """
 from __future__ import annotations
 
@@ -165,3 +167,62 @@ def probe_window_us(acquire: bool, acquire_ms: float) -> int:
     """The probe's window from the stream's first event: the acquisition's (when it finds
     the model) and :data:`PROBE_MS` of tracking."""
     return int(round(((acquire_ms if acquire else 0.0) + PROBE_MS) * 1000))
+
+
+def decided(models, params=None, threshold: float = MOTION_SIGMAS_PER_MS) -> bool:
+    """Whether the motion model is settled without a probe: never (``threshold`` 0), set
+    by ``params`` (a dict) or a model's [params], or decided by the learner that made a
+    model (its [learned] table holds the speed it measured).  ``models``: ShapeModels."""
+    return (not threshold > 0 or sets_motion(params)
+            or any(sets_motion(m.params) or "sizes_per_ms" in (m.learned or {})
+                   for m in models))
+
+
+@dataclass(frozen=True)
+class MotionChoice:
+    """What :func:`choose` decided."""
+    params: dict | None        # the parameters to track with (None: as given)
+    acquire_ms: float          # the acquisition window to use (ms)
+    probe: SpeedProbe | None   # what was measured (None: settled without a probe)
+    refused: str = ""          # why a backend refused the motion model ("" if it did not)
+
+    @property
+    def on(self) -> bool:
+        return self.params is not None
+
+
+def choose(model, events: np.ndarray, params: dict | None = None,
+           threshold: float = MOTION_SIGMAS_PER_MS, backend: str = "cython",
+           acquire: bool = False, acquire_ms: float = 50.0, acquire_ms_given: bool = True,
+           acquire_bounds: dict | None = None, instances: int = 1) -> MotionChoice:
+    """``track``'s decision for a model given by hand (a ShapeModel or a list), on the
+    stream's first events (at least :func:`probe_window_us` of them): unless
+    :func:`decided`, :func:`probe` the parts' speed and, above ``threshold`` part sizes
+    per ms, return ``params`` with :data:`MOTION_ON` (if ``backend`` accepts them for
+    every model; else ``refused`` says why) and, with ``acquire`` and a window the user
+    did not give (``acquire_ms_given`` False), :func:`fast_acquire_ms`.
+
+    The Python API's counterpart of ``springtrack track --model M``::
+
+        c = choose(model, events[:n_first], acquire=True, acquire_ms_given=False)
+        tr = springtrack.Tracker(model, c.params, acquire=True, acquire_ms=c.acquire_ms)
+    """
+    from ..backends import check_backend_params
+    from ..params import resolve
+    models = list(model) if isinstance(model, (list, tuple)) else [model]
+    given = dict(params or {})
+    if decided(models, given, threshold) or not len(events):
+        return MotionChoice(None, acquire_ms, None)
+    p = probe(model, events, given, acquire=acquire, acquire_ms=acquire_ms,
+              acquire_bounds=acquire_bounds, instances=instances)
+    if not (p.measured and fast_enough(p.sizes_per_ms, threshold)):
+        return MotionChoice(None, acquire_ms, p)
+    chosen = {**given, **MOTION_ON}
+    try:
+        for m in models:
+            check_backend_params(backend, m, resolve(m, chosen))
+    except ValueError as e:
+        return MotionChoice(None, acquire_ms, p, refused=str(e))
+    if acquire and not acquire_ms_given:
+        acquire_ms = fast_acquire_ms(p.sizes_per_ms, acquire_ms)
+    return MotionChoice(chosen, acquire_ms, p)

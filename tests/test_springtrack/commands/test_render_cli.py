@@ -100,3 +100,18 @@ def test_the_overlay_header_wraps_inside_the_picture(width):
         assert drawn.get_window_extent().width <= head.width_px, (width, text)
     finally:
         plt.close(fig)
+
+
+def test_each_frame_ends_at_the_sample_it_draws():
+    """Frames are drawn at sample times: with samples every 1 ms and a 0.5-ms window the
+    frame's events end where its state was sampled (a frame between two samples drew the
+    next one's state, a fast part's tracker one period ahead of its events); the middle
+    frame alone for a picture; too many frames refused."""
+    from springtrack.render import frame_rows
+    t = np.arange(1_000, 51_000, 1_000)
+    rows = frame_rows(t, 500, 20_000, False, 100)
+    assert list(t[rows]) == [2_000, 22_000, 42_000]
+    (mid,) = frame_rows(t, 500, 20_000, True, 100)
+    assert t[mid] == 22_000
+    with pytest.raises(ValueError, match="--max-frames"):
+        frame_rows(t, 500, 100, False, 10)

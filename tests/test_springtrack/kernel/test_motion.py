@@ -291,3 +291,25 @@ def test_a_backend_that_refuses_the_motion_model_keeps_the_papers_step(dot, tmp_
                 "--backend", "fixed")
     assert "but the motion model stays off" in _track.err and "alpha_position" in _track.err
     assert len(tr.t_us) == 50            # the 50-ms recording, sampled every ms
+
+
+def test_the_python_api_chooses_as_track_does(dot, tmp_path):
+    """springtrack.learning.motion.choose on the stream's first window, then a Tracker with
+    what it chose: the same samples as ``track --model M --acquire``'s decision gives
+    (the motion model on, a 1.8-ms acquisition window), the dot followed within 1 px."""
+    from springtrack.learning.motion import choose, probe_window_us
+    from springtrack.model import load_model
+    path, events, truth = dot
+    model = load_model(str(dot_model(tmp_path, truth)))
+    first = events[events["t"] < events["t"][0] + probe_window_us(True, 50.0)]
+    c = choose(model, first, acquire=True, acquire_ms_given=False)
+    assert c.on and c.params == MOTION and abs(c.acquire_ms - 1.8) < 0.05, c
+    tr = springtrack.Tracker(model, c.params, acquire=True, acquire_ms=c.acquire_ms)
+    tr.record(1000)
+    tr.process(events)
+    tr.flush()
+    t = tr.samples()
+    e = track_errors(truth, t.t_us, t.x[:, 0], t.y[:, 0])
+    assert np.median(e) <= 1.0, np.median(e)
+    # settled without a probe when the parameters say so
+    assert choose(model, first, {"motion_tau_us": 0.0}).probe is None

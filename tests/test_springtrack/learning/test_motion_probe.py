@@ -65,7 +65,7 @@ def test_the_papers_scenes_stay_on_the_papers_step(gname, sname, acquire):
 def test_a_learned_models_speed_is_not_probed_again(tmp_path):
     """A model the learner made carries the speed it measured ([learned] sizes_per_ms):
     ``track`` takes the learner's decision and runs no probe."""
-    from springtrack.commands.probe import _decided
+    from springtrack.learning.motion import decided as _decided
     m = load_model("face26")
     assert not _decided([m], {}, MOTION_SIGMAS_PER_MS)
     m.learned = {"sizes_per_ms": 0.05}
