@@ -20,18 +20,26 @@
 #define FRAME_W_ONE ((uint32_t)1 << 24)              /* a weight of 1, Q.24 */
 #define FRAME_RAMP_SHIFT 2                            /* [ref] FRAME_RAMP = 2^-2 */
 
-/* the index of the lowest set bit of m != 0 (two 32-bit halves) */
+/* the index of the lowest set bit of m != 0 (on a 32-bit core from two 32-bit halves) */
 static inline int lowest_bit(uint64_t m)
 {
+#if FX_WORD64
+    return __builtin_ctzll(m);
+#else
     uint32_t lo = (uint32_t)m;
     return lo ? __builtin_ctz(lo) : 32 + __builtin_ctz((uint32_t)(m >> 32));
+#endif
 }
 
-/* floor(v / 2^sh) for 0 <= sh < 32 when it fits int32: from v's two words, in 32 bits
-   ((hi 2) 2^(31 - sh): no shift by 32) */
+/* floor(v / 2^sh) for 0 <= sh < 32 when it fits int32: on a 32-bit core from v's two
+   words, in 32 bits ((hi 2) 2^(31 - sh): no shift by 32); the same bits as v >> sh */
 static inline int32_t shr32(int64_t v, int sh)
 {
+#if FX_WORD64
+    return (int32_t)(v >> sh);
+#else
     return (int32_t)(((uint32_t)v >> sh) | (((uint32_t)(v >> 32) << 1) << (31 - sh)));
+#endif
 }
 
 /* c v for c in Q.28 and v in Q.32, |v| < 2^46: v = hi 2^16 + lo, two 32 x 32 products,

@@ -10,7 +10,7 @@ import pytest
 import springtrack
 from springtrack.model import Connection, ShapeModel, TrackerSpec, face26, grid3x3
 from springtrack.params import Params
-from springtrack.reference import FRAME_SCALE_MAX, FRAME_SCALE_MIN, ReferenceTracker
+from springtrack.reference import FRAME_REFITS, FRAME_SCALE_MAX, FRAME_SCALE_MIN, ReferenceTracker
 from support.springs import Springs, pose
 
 SIMILARITY = dict(pull_frame="similarity", cartesian_frame="similarity")
@@ -183,6 +183,36 @@ def test_a_pulled_part_moves_neither_the_frame_nor_its_place_and_is_pulled_back(
     others = np.arange(9) != k
     assert np.abs(nx[others] - x[others]).max() < 10 * tol
     assert np.abs(ny[others] - y[others]).max() < 10 * tol
+
+
+@pytest.mark.parametrize("backend", ["cython", "fixed"])
+@pytest.mark.parametrize("dx,fits", [(0.0, 1), (30.0, 2), (0.32, 1 + FRAME_REFITS)])
+def test_the_refits_stop_early_only_where_they_would_repeat_the_fit(backend, dx, fits):
+    """The frame's refit loop (fit_frame) stops as soon as the weights a refit would use
+    are those of the fit just made (or fewer than 2 trackers agree): that refit would
+    reproduce the same frame.  The turned and scaled grid with r1c2 pulled dx px, its
+    fits counted in the reference: all nine agreeing (dx = 0: the first weighting changes
+    nothing, one fit), r1c2 pulled far (its weight 0 from the first refit on, the second
+    weighting repeats the first: two fits), r1c2 on the ramp (its weight changes at every
+    refit: all 1 + FRAME_REFITS fits).  In each, the kernel's frame and the positions
+    eq. (22) pulls by how much each tracker disagrees equal the reference's (1e-9 px
+    float, the fixed kernel's 1e-4): an exit that skipped a refit which changes the frame,
+    or refitted differently, would show here."""
+    m, x, y, k, _ = pulled_grid(dx)
+    params = dict(SIMILARITY, energy_scale=4.5, energy_gain=0.5, energy_kind="cartesian")
+    ref, run = Springs("reference", m, params), Springs(backend, m, params)
+    calls, fit = [], ref.tr._b.ref._fit_similarity
+    ref.tr._b.ref._fit_similarity = lambda *a: calls.append(a) or fit(*a)
+    rx, ry = ref.update(x, y)
+    assert len(calls) == fits
+    bx, by = run.update(x, y)
+    tol = BACKENDS[backend]
+    np.testing.assert_allclose(run.tr._b.frame(), ref.tr._b.frame(), rtol=0, atol=tol)
+    np.testing.assert_allclose(bx, rx, rtol=0, atol=10 * tol)
+    np.testing.assert_allclose(by, ry, rtol=0, atol=10 * tol)
+    moved = np.hypot(rx - x, ry - y)
+    assert moved[k] > 0.05 if dx else moved.max() < 1e-9      # r1c2 pulled where it disagrees
+    assert np.delete(moved, k).max() < 1e-9                    # the others agree: not pulled
 
 
 def test_degenerate_fits():
