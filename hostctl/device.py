@@ -112,6 +112,8 @@ class Device:
                            unexpected=0, foreign_version=0, energies=0, stale_snapshots=0,
                            errors=0, notices=0, keepalives=0)
         self.energies: tuple | None = None   # last ENERGIES: (t_us, kind, per-connection array)
+        # every ENERGIES in arrival order (the last 200): several may arrive in one read
+        self.energies_log: deque = deque(maxlen=200)
         self.info: dict = {}
         try:
             self._write(b"\x00")           # terminate whatever the firmware holds
@@ -446,6 +448,7 @@ class Device:
                 self.info_reply = f
             elif f.type == MsgType.ENERGIES:
                 self.energies = wire.decode_energies(f.payload)
+                self.energies_log.append(self.energies)
                 self.counts["energies"] += 1
             elif f.type == MsgType.APPLIED:
                 gen, t_us = wire.decode_applied(f.payload)
