@@ -30,10 +30,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .discovery import quiet_nan
+from .settings import MOTION_SIGMAS_PER_MS
+
 # the motion model's parameters a model of fast parts gets (docs/motion.md)
 MOTION_ON = {"motion_tau_us": 1000.0, "polarity_gain": 1.0}
 SPEED_QUANTILE = 0.9          # a model's speed: this quantile of its parts' speeds
-MOTION_SIGMAS_PER_MS = 1.0    # the default threshold, part sizes (sigma) per millisecond
 PROBE_MS = 10.0               # the probe's tracked window (after the acquisition's)
 PROBE_SAMPLE_US = 200         # the probe's sample period
 PROBE_SMOOTH_US = 2000        # positions averaged over this before differencing
@@ -82,15 +84,10 @@ def robust_speeds(t_us: np.ndarray, x: np.ndarray, y: np.ndarray, ok: np.ndarray
     np.add.at(cnt, b, w)
     np.add.at(sx, b, np.where(ok, x, 0.0))
     np.add.at(sy, b, np.where(ok, y, 0.0))
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with quiet_nan():
         mx, my = sx / cnt, sy / cnt                       # NaN: no sample in the bin
         step = np.hypot(np.diff(mx, axis=0), np.diff(my, axis=0)) / (smooth_us * 1e-6)
-    out = np.full(k, np.nan)
-    for j in range(k):
-        s = step[:, j][np.isfinite(step[:, j])]
-        if len(s):
-            out[j] = float(np.median(s))
-    return out
+        return np.nanmedian(step, axis=0)
 
 
 @dataclass(frozen=True)
@@ -111,14 +108,9 @@ def tracked_sigmas(sxx: np.ndarray, syy: np.ndarray, ok: np.ndarray) -> np.ndarr
     """(K,) each tracker's size sigma = sqrt((sxx + syy) / 2) in px, from the medians of its
     tracked covariance (T, K) where ``ok`` holds (NaN where it never does): the size its
     part's events give, not the model's starting covariance."""
-    with np.errstate(invalid="ignore"):
-        a = np.where(ok, sxx, np.nan)
-        b = np.where(ok, syy, np.nan)
-    out = np.full(sxx.shape[1], np.nan)
-    for j in range(sxx.shape[1]):
-        if ok[:, j].any():
-            out[j] = math.sqrt(0.5 * (np.nanmedian(a[:, j]) + np.nanmedian(b[:, j])))
-    return out
+    with quiet_nan():
+        return np.sqrt(0.5 * (np.nanmedian(np.where(ok, sxx, np.nan), axis=0)
+                              + np.nanmedian(np.where(ok, syy, np.nan), axis=0)))
 
 
 def probe(model, events: np.ndarray, params=None, acquire: bool = False,

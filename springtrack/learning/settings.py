@@ -9,7 +9,6 @@ import numpy as np
 
 from . import batch as _learn
 from ..model import ShapeModel
-from .motion import MOTION_SIGMAS_PER_MS
 
 
 POOL_CAPACITY = 128           # trackers alive at once during discovery
@@ -25,6 +24,7 @@ MIN_EVENTS = 2000             # a learning window with fewer events holds no obj
 WEAK_PASSES = 4               # the weak-part rule's passes at most (again only while one
                               # part holds half the events)
 TIME_FIELDS = ("batch_us", "activity_tau_us", "life_tau_us", "smooth_us")
+MOTION_SIGMAS_PER_MS = 1.0    # the motion model's threshold, part sizes (sigma) per ms
 MIN_BATCH_US = 20             # the shortest lifecycle step a scaled window gets
 MAX_PARTS = 64                # the most trackers a learned model gets by default (one
                               # instance of the kernels: limits.MAX_TRACKERS)
