@@ -65,14 +65,16 @@ def refresh(double[:, ::1] st, int i, double smin2, double smax2):
 
 def pool_batch(events, double[:, ::1] st, int n, double a1, double cov_gain, double a2,
                double gate, double tau_us, double smin2, double smax2, int width, int height,
-               int32_t[::1] winner, double[:, ::1] overlap, int32_t[:, ::1] net):
+               int32_t[::1] winner, double[:, ::1] overlap, int32_t[:, ::1] net,
+               int64_t[:, ::1] last):
     """Run ``events`` (EVENT_DTYPE, time order) through the first ``n`` trackers of ``st``.
 
     ``winner[k]``: the index of the tracker that took event k, -1 if none, -2 if the event
     lies outside the ``width`` x ``height`` sensor.  ``overlap[i, j]`` (i < j) counts the
     events taken by one of i, j that fell inside the other's gate too.  ``net``
     (height x width) counts each pixel's ON minus OFF events: the change of its log
-    intensity in contrast thresholds."""
+    intensity in contrast thresholds; ``last`` (height x width) each pixel's latest event
+    time (µs)."""
     cdef cnp.ndarray arr = np.ascontiguousarray(events)
     if arr.dtype != EVENT_DTYPE:
         raise TypeError("pool_batch needs EVENT_DTYPE events")
@@ -83,6 +85,8 @@ def pool_batch(events, double[:, ::1] st, int n, double a1, double cov_gain, dou
         raise ValueError("more trackers than the state holds")
     if net.shape[0] < height or net.shape[1] < width:
         raise ValueError("the polarity map is smaller than the sensor")
+    if last.shape[0] < height or last.shape[1] < width:
+        raise ValueError("the time map is smaller than the sensor")
     cdef const Event* ev = <const Event*> cnp.PyArray_DATA(arr)
     cdef int i, best, second
     cdef double fx, fy, dx, dy, d2, best_d2, second_d2, p, keep = 1.0 - a2
@@ -92,6 +96,7 @@ def pool_batch(events, double[:, ::1] st, int n, double a1, double cov_gain, dou
                 winner[k] = -2
                 continue
             net[ev[k].y, ev[k].x] += 1 if ev[k].p else -1
+            last[ev[k].y, ev[k].x] = ev[k].t
             fx = ev[k].x
             fy = ev[k].y
             # eq. (2) in the log domain: smallest d^2 inside the gate, and the runner-up
@@ -165,3 +170,51 @@ def segment_gaps(int32_t[:, ::1] net, double[::1] xa, double[::1] ya, double[::1
                 if run > longest:
                     longest = run
         out[p] = longest * d / (k - 1)
+
+
+def recent_components(int64_t[:, ::1] last, int64_t t_from, int32_t[:, ::1] label,
+                      int32_t[::1] stack):
+    """Label the 8-connected components of the pixels that fired at or after ``t_from``
+    and have a neighbour (of their 8) that did too (a lone pixel is noise): ``label`` 0
+    elsewhere, 1..n on them (``stack``: scratch of height x width entries).  Returns n."""
+    cdef Py_ssize_t h = last.shape[0], w = last.shape[1], y, x, yy, xx, top
+    cdef int dy, dx, nb
+    cdef int32_t n = 0
+    cdef int32_t q
+    if label.shape[0] != h or label.shape[1] != w or stack.shape[0] < h * w:
+        raise ValueError("label map or stack does not match the time map")
+    with nogil:
+        for y in range(h):
+            for x in range(w):
+                label[y, x] = 0
+                if last[y, x] < t_from:
+                    continue
+                nb = 0
+                for dy in range(-1, 2):
+                    for dx in range(-1, 2):
+                        yy = y + dy
+                        xx = x + dx
+                        if (dy or dx) and 0 <= yy < h and 0 <= xx < w and last[yy, xx] >= t_from:
+                            nb += 1
+                if nb:
+                    label[y, x] = -1                   # recent, not yet labelled
+        for y in range(h):
+            for x in range(w):
+                if label[y, x] != -1:
+                    continue
+                n += 1
+                label[y, x] = n
+                stack[0] = <int32_t>(y * w + x)
+                top = 1
+                while top:
+                    top -= 1
+                    q = stack[top]
+                    for dy in range(-1, 2):
+                        for dx in range(-1, 2):
+                            yy = q // w + dy
+                            xx = q % w + dx
+                            if 0 <= yy < h and 0 <= xx < w and label[yy, xx] == -1:
+                                label[yy, xx] = n
+                                stack[top] = <int32_t>(yy * w + xx)
+                                top += 1
+    return n

@@ -8,6 +8,7 @@ import warnings
 
 import numpy as np
 
+from .outlines import Outlines
 from .pool import BirthField, Pool, contrast_sign, union_series
 from .settings import F, LEVEL_EVERY
 from .springs import relative_neighbours
@@ -102,6 +103,7 @@ def _discover(pool: Pool, ev: np.ndarray, t0: int, t1: int, stats: dict) -> Hist
     history."""
     lp = pool.lp
     births = BirthField(lp, pool.width, pool.height)
+    outlines = Outlines(pool.width, pool.height)
     pool.contrast = contrast_sign(ev, pool.width, pool.height)
     prev = t0
     history = History()
@@ -119,6 +121,11 @@ def _discover(pool: Pool, ev: np.ndarray, t0: int, t1: int, stats: dict) -> Hist
         if k % LEVEL_EVERY == 0:
             pool.update_level()
             births.update_noise()
+            if len(batch) and lp.outline_cover > 0:
+                # the closed outlines of the pixels that fired over the trackers' memory
+                ok = outlines.closed(pool.last, te - int(lp.life_tau_us), lp.sigma_max_px,
+                                     lp.outline_cover)
+                pool.book["outline"][:pool.n] = outlines.of_trackers(ok, batch, w, pool.n)
         while pool.n > 1:
             pair = _merge_candidate(pool)
             if pair is None:
@@ -141,7 +148,8 @@ def _merge_candidate(pool: Pool):
     """The pair to merge now, or None, with its union no wider than a part may be:
     trackers that share their events and one holds the other's mean (duplicates on one
     cloud), the most sharing first; or neighbours joined by covered pixels (two edges,
-    or two pieces, of one part: Pool.gaps), the nearest first."""
+    or two pieces, of one part: Pool.gaps), the nearest first; or two pieces on one
+    closed outline (learning.outlines), the nearest first."""
     lp = pool.lp
     n = pool.n
     share = pool.overlap_score()
@@ -158,6 +166,14 @@ def _merge_candidate(pool: Pool):
         joined = pool.gaps(i, j) < lp.merge_gap_px
         i, j = i[joined], j[joined]
         for k in np.argsort(d[i, j], kind="stable"):
+            if pool.union_fits(i[k], j[k]):
+                return int(i[k]), int(j[k])
+    on = pool.book["outline"][:n]
+    if (on > 0).sum() > 1:
+        same = (on[:, None] == on[None, :]) & (on[:, None] > 0)
+        i, j = np.nonzero(np.triu(same, 1))
+        d = np.hypot(pool.x[i] - pool.x[j], pool.y[i] - pool.y[j])
+        for k in np.argsort(d, kind="stable"):
             if pool.union_fits(i[k], j[k]):
                 return int(i[k]), int(j[k])
     return None

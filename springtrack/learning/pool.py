@@ -13,16 +13,17 @@ from .settings import CONTRAST_MARGIN, CONTRAST_MIN_EVENTS, COVERED_MIN_LEVEL, F
 
 # ---- the pool ---------------------------------------------------------------------------
 # per-tracker bookkeeping next to the state array (all of length POOL_CAPACITY)
-BOOK = ("recent", "total", "born", "uid")
+BOOK = ("recent", "total", "born", "uid", "outline")
 
 
 class Pool:
     """Free Gaussian trackers (eqs. 2-6) in a state array, with their bookkeeping (``book``:
     ``recent`` event counts decayed with ``life_tau_us``, ``total`` events since birth,
-    ``born`` (µs) and ``uid`` (a new one at each birth, merge or split; ``lineage``
-    records the pieces of a merge)), the events shared by pairs of gates
-    (``overlap``, decayed like ``recent``) and each pixel's ON minus OFF events (``net``,
-    see :meth:`covered`)."""
+    ``born`` (µs), ``uid`` (a new one at each birth, merge or split; ``lineage``
+    records the pieces of a merge) and ``outline`` (the closed outline its events lay on
+    at the last look, 0 none: springtrack.learning.outlines)), the events shared by pairs
+    of gates (``overlap``, decayed like ``recent``), each pixel's ON minus OFF events
+    (``net``, see :meth:`gaps`) and its latest event time (``last``, µs)."""
 
     def __init__(self, lp: LearnParams, width: int, height: int, capacity: int = POOL_CAPACITY):
         self.lp, self.width, self.height = lp, width, height
@@ -32,6 +33,7 @@ class Pool:
         self.book = {k: np.zeros(capacity) for k in BOOK}
         self.overlap = np.zeros((capacity, capacity))
         self.net = np.zeros((height, width), np.int32)
+        self.last = np.full((height, width), np.iinfo(np.int64).min, np.int64)
         self.level = 0.0                  # the parts' level in ``net``: covered_level()
         self.contrast = 0                 # +1 bright parts, -1 dark, 0 unknown: contrast_sign
         self.next_uid = 0
@@ -64,7 +66,8 @@ class Pool:
         lp, n = self.lp, self.n
         a2 = self.alpha_covariance
         _learn.pool_batch(ev, self.st, n, lp.alpha_position, a2, a2, lp.gate_d2, lp.activity_tau_us, self.smin2,
-                          self.smax2, self.width, self.height, w, self.overlap, self.net)
+                          self.smax2, self.width, self.height, w, self.overlap, self.net,
+                          self.last)
         got = np.bincount(w[w >= 0], minlength=n)[:n]
         self.recent[:n] += got
         self.book["total"][:n] += got
@@ -151,6 +154,7 @@ class Pool:
         for k in ("recent", "total"):
             self.book[k][i] += self.book[k][j]
         self.book["born"][i] = min(self.book["born"][i], self.book["born"][j])
+        self.book["outline"][i] = 0          # the union's own outline: at the next look
         parents = (int(self.book["uid"][i]), float(wi), int(self.book["uid"][j]), float(wj))
         self.book["uid"][i] = self.new_uid()
         self.lineage[int(self.book["uid"][i])] = parents

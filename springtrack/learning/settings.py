@@ -57,6 +57,10 @@ class LearnParams:
     birth_contrast: float = 5.0        # ... and this many times the background block
     merge_overlap: float = 0.25        # shared fraction of the smaller tracker's events
     merge_gap_px: float = 1.5          # neighbours joined by covered pixels, no gap this long
+    outline_cover: float = 0.0         # merge pieces on one closed outline of recent pixels
+                                       # surrounding its centre in this share of directions
+                                       # (learning.outlines; 0: off, the default; 0.75 for
+                                       # uniform parts seen through their edges)
     death_share: float = 0.05          # of the pool's median recent event count
     keep_share: float = 0.4            # a part takes this share of the median's events
     idle_share: float = 0.1            # ... and is awake (awake()) at the end: this share
@@ -87,6 +91,8 @@ class LearnParams:
             raise ValueError("learn: alpha_position and alpha_covariance must be in (0, 1]")
         if not 0 < self.p_threshold < 1:
             raise ValueError("learn: p_threshold must be in (0, 1)")
+        if self.outline_cover > 1:
+            raise ValueError("learn: outline_cover is a share of directions, in [0, 1] (0: off)")
         if not 0 < self.sigma_min_px < self.sigma_max_px:
             raise ValueError("learn: need 0 < sigma_min_px < sigma_max_px")
         for name in ("batch_us", "birth_cell_px", "activity_tau_us", "life_tau_us", "smooth_us",
