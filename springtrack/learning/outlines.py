@@ -1,22 +1,25 @@
-"""Closed outlines: the pieces of one part that fires only at its edges.
+"""Outlines: the pieces of one part that fires only at its edges (off by default).
 
 A uniform part (a dark disc, a drawn shape) fires where its edges cross pixels, never
 inside: the free trackers follow pieces of its outline (arcs, the tips of its leading and
 trailing crescents), and the "two edges" rule of the merges (Pool.gaps) joins them only
-once the part has moved by its own size since the window's start.  The part's outline
-shows it sooner: over the trackers' memory (``life_tau_us``) a part that moves in more
-than one direction draws a closed curve of recent pixels around its centre, apart from
-its neighbours' curves.  Trackers whose events lie on one such curve are pieces of one
-part.  The curve's own checks keep other things apart: the connected component (8
-neighbours, lone pixels dropped as noise) must be no wider than a part may be
-(``sigma_max_px``) and surround its centroid (pixels in at least ``outline_cover`` of
-:data:`OUTLINE_BINS` directions, counting those beyond half its RMS radius: an arc or
-a line covers two or three), so a long contour (a head's outline), a textured object
-or a swept background, one large component, merges nothing.
+once the part has moved by its own size since the window's start.  Its outline shows it
+sooner: over the trackers' memory (``life_tau_us``) the part draws a curve of recent
+pixels that curls around its centre (a ring, or a crescent three quarters round), apart
+from its neighbours' curves.  Trackers whose events lie on one such curve are merged as
+pieces of one part.  The curve must be a connected component (8 neighbours, lone pixels
+dropped as noise) of sigma at most :data:`OUTLINE_SIZE` of the widest part
+(``sigma_max_px``) that surrounds its centroid (pixels in at least ``outline_cover`` of
+:data:`OUTLINE_BINS` directions, counting those beyond half its RMS radius: a straight
+edge covers two or three), so a long contour (a head's outline), a textured object or a
+swept background (one large component) merges nothing.
 
-Off by default (``outline_cover`` 0): on the second generator's grid it learns one tracker
-per disc, but on its face, whose features it merges into one tracker each (eye, brow,
-mouth: each on its part), the learned model tracks far worse (docs/learning.md).
+Measured (docs/learning.md "Uniform parts"): on the second generator's grid of dark discs
+it learns one tracker per disc (seeds 0-2: 9 of 9, at most 2.1 px from a centre; without
+it 13-22 trackers on the crescents).  But where neighbouring parts' curves touch it merges
+them: the project simulator's face, whose Gaussian blobs fire in touching rings, learns 17
+to 22 trackers for 26 parts instead of 26.  So it is off by default (``outline_cover`` 0):
+``--learn-param outline_cover=0.75`` for scenes of separate uniform shapes.
 """
 from __future__ import annotations
 
@@ -28,6 +31,7 @@ from . import batch as _learn
 
 OUTLINE_BINS = 16             # directions about an outline's centroid
 OUTLINE_MIN_PIXELS = 8        # a component of fewer pixels is no outline
+OUTLINE_SIZE = 0.5            # an outline's sigma is at most this share of sigma_max_px
 
 
 class Outlines:
@@ -62,7 +66,7 @@ class Outlines:
         seen = np.zeros((n + 1) * OUTLINE_BINS, bool)
         seen[lab[far] * OUTLINE_BINS + b[far]] = True
         directions = seen.reshape(n + 1, OUTLINE_BINS).sum(axis=1)
-        ok = ((cnt >= OUTLINE_MIN_PIXELS) & (np.maximum(vx, vy) <= sigma_max_px ** 2)
+        ok = ((cnt >= OUTLINE_MIN_PIXELS) & (np.maximum(vx, vy) <= (OUTLINE_SIZE * sigma_max_px) ** 2)
               & (directions >= cover * OUTLINE_BINS))
         ok[0] = False
         return ok

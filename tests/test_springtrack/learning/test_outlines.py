@@ -1,0 +1,65 @@
+"""springtrack.learning.outlines: which curves of recent pixels count as one part's outline."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from springtrack.events import EVENT_DTYPE
+from springtrack.learning.outlines import Outlines
+
+W, H = 120, 100
+NEVER = np.iinfo(np.int64).min
+
+
+def fired(points, t=1000):
+    """A time map in which ``points`` (x, y) fired at ``t``."""
+    last = np.full((H, W), NEVER, np.int64)
+    for x, y in points:
+        last[int(round(y)), int(round(x))] = t
+    return last
+
+
+def ring(cx, cy, r, start_deg=0.0, span_deg=360.0):
+    n = int(8 * r)
+    return [(cx + r * math.cos(math.radians(start_deg + span_deg * k / n)),
+             cy + r * math.sin(math.radians(start_deg + span_deg * k / n))) for k in range(n + 1)]
+
+
+def outlines_of(points, cover=0.75, sigma_max_px=16.0):
+    o = Outlines(W, H)
+    ok = o.closed(fired(points), 0, sigma_max_px, cover)
+    return o, ok
+
+
+def test_a_ring_and_a_crescent_are_outlines_a_line_is_not():
+    o, ok = outlines_of(ring(30, 30, 8) + ring(80, 30, 8, 0, 280)
+                        + [(20 + k, 80) for k in range(20)])
+    assert ok[o.label[30, 38]]                   # the ring
+    assert ok[o.label[30, 88]]                   # three quarters of a ring
+    assert not ok[o.label[80, 25]]               # a straight edge
+    assert o.label.max() == 3
+
+
+def test_a_curve_wider_than_half_the_widest_part_is_not_one():
+    o, ok = outlines_of(ring(60, 50, 14))         # sigma ~ 14 / sqrt(2) = 9.9 > 8
+    assert not ok[o.label[50, 74]]
+    o, ok = outlines_of(ring(60, 50, 14), sigma_max_px=24.0)
+    assert ok[o.label[50, 74]]
+
+
+def test_lone_pixels_are_noise_and_old_pixels_are_not_recent():
+    last = fired([(5, 5), (50, 50)], t=1000)
+    last[10, 10] = 10                             # fired long before
+    last[10, 11] = 10
+    o = Outlines(W, H)
+    ok = o.closed(last, 500, 16.0, 0.75)
+    assert o.label.max() == 0 and len(ok) == 1 and not ok.any()
+
+
+def test_trackers_take_the_outline_their_events_lie_on():
+    o, ok = outlines_of(ring(30, 30, 8) + ring(80, 30, 8))
+    ev = np.zeros(4, EVENT_DTYPE)
+    ev["x"], ev["y"] = [38, 22, 88, 5], [30, 30, 30, 5]
+    on = o.of_trackers(ok, ev, np.array([0, 0, 1, 2], np.int32), 3)
+    assert on[0] == o.label[30, 38] and on[1] == o.label[30, 88] and on[2] == 0
