@@ -26,11 +26,12 @@ whose tracker position is missing (NaN) at a sample.
 from __future__ import annotations
 
 import csv
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
 
-from .model import FACE_INTERNAL
+from .model import FACE_INTERNAL, ShapeModel
 
 GRID_IDS = [f"r{r}c{c}" for r in range(3) for c in range(3)]
 GRID_SIDES = ([(f"r{i}c0", f"r{i}c2") for i in range(3)]
@@ -169,3 +170,24 @@ def _nanmean_rows(a: np.ndarray) -> np.ndarray:
 def score_track(truth: Truth, track, **kw) -> ErrorSeries:
     """Error of a :class:`springtrack.track.Track` against ``truth``."""
     return tracking_error(truth, track.t_us, track.ids, track.x, track.y, **kw)
+
+
+def named_after_parts(model: ShapeModel, truth: Truth, t_us: int):
+    """A learned model scored against a simulated scene's truth: the model with each true
+    part's id given to its nearest tracker at ``t_us`` (the nearest pairs first; a tracker
+    no part is nearest to keeps its id), and the (trackers, parts) distances (px) there.
+    A part left without a tracker makes :func:`score_track` refuse the track."""
+    k = min(int(np.searchsorted(truth.t_us, t_us)), len(truth.t_us) - 1)
+    gt = truth.xy[k]
+    xy = np.array([(t.x, t.y) for t in model.trackers])
+    d = np.hypot(xy[:, None, 0] - gt[None, :, 0], xy[:, None, 1] - gt[None, :, 1])
+    names, used = {}, set()
+    for i in np.argsort(d.min(axis=1)):
+        part = truth.ids[int(d[i].argmin())]
+        if part not in used:
+            names[model.trackers[i].id] = part
+            used.add(part)
+    trackers = [dataclasses.replace(t, id=names.get(t.id, t.id)) for t in model.trackers]
+    conns = [dataclasses.replace(c, a=names.get(c.a, c.a), b=names.get(c.b, c.b))
+             for c in model.connections]
+    return ShapeModel(model.name, model.width, model.height, trackers, conns, model.params), d

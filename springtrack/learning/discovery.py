@@ -125,7 +125,7 @@ def _discover(pool: Pool, ev: np.ndarray, t0: int, t1: int, stats: dict) -> Hist
                 # the closed outlines of the pixels that fired over the trackers' memory
                 ok = outlines.closed(pool.last, te - int(lp.life_tau_us), lp.sigma_max_px,
                                      lp.outline_cover)
-                pool.book["outline"][:pool.n] = outlines.of_trackers(ok, batch, w, pool.n)
+                pool.book["outline"][:pool.n] = outlines.of_trackers(ok, batch, w, pool.x, pool.y)
         while pool.n > 1:
             pair = _merge_candidate(pool)
             if pair is None:

@@ -34,7 +34,8 @@ def learn_model(events, trackers: int | None = None, width: int | None = None,
     p00, p01, ... in reading order: top to bottom, left to right); ``params``: learner
     parameters (:class:`LearnParams` or a dict of overrides); ``track_params``: tracking
     parameters (springtrack.params names) to write into the model's ``[params]`` as
-    given; alpha_position, energy_scale and energy_kind are learned unless given there
+    given; alpha_position, alpha_covariance, energy_scale and energy_kind are learned unless
+    given there
     (the stiffness scales with alpha_position).
     Raises :class:`NoObjectFound` when no part survives.
     """
@@ -324,6 +325,7 @@ def energy_scale(energies: np.ndarray, quantile: float, floor: float,
 def _build_model(pool, rec, counts, lp, track_params, width, height, names, name):
     """The ShapeModel of the pool's trackers, with springs and tracking parameters:
     ``track_params`` (a dict) as given, the others learned (alpha_position: motion_alpha;
+    alpha_covariance: alpha_position / covariance_ratio, at most the default;
     energy_scale: energy_scale; energy_kind: cartesian if every spring is)."""
     n = pool.n
     st = pool.st
@@ -366,6 +368,15 @@ def _build_model(pool, rec, counts, lp, track_params, width, height, names, name
     if fast_enough(fast, lp.motion_sigmas_per_ms) and not sets_motion(params):
         # fast parts: velocity and both edges per tracker (eqs. M1-M9) unless given
         params.update(MOTION_ON)
+    motion_on = any(float(params.get(k, 0.0)) > 0 for k in MOTION_ON)
+    if "alpha_covariance" not in params and not motion_on:
+        # eq. (4)'s alpha_2 follows alpha_1: the covariance averages covariance_ratio
+        # times the events the mean does, as in the paper's grid (0.02 / 5e-5), never
+        # faster than the default (the paper's face, 2e-4: faster lost the biplane's
+        # parts).  With the motion model alpha_1 only caps the Kalman gain of eq. (M3) and
+        # alpha_2 keeps the default (the real dot: 0.98 px, against 11.4 with the ratio).
+        a2 = min(params["alpha_position"] / lp.covariance_ratio, Params().alpha_covariance)
+        params["alpha_covariance"] = float(f"{a2:.3g}")
     stiff = np.array([lp.stiffness_gain * params["alpha_position"] * c.rigidity for c in kept])
     if kept:
         # the spring bound every model meets (springtrack.limits): all stiffnesses scaled

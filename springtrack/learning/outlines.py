@@ -1,25 +1,32 @@
-"""Outlines: the pieces of one part that fires only at its edges (off by default).
+"""Outlines: the pieces of one part that fires only at its edges.
 
 A uniform part (a dark disc, a drawn shape) fires where its edges cross pixels, never
 inside: the free trackers follow pieces of its outline (arcs, the tips of its leading and
 trailing crescents), and the "two edges" rule of the merges (Pool.gaps) joins them only
 once the part has moved by its own size since the window's start.  Its outline shows it
 sooner: over the trackers' memory (``life_tau_us``) the part draws a curve of recent
-pixels that curls around its centre (a ring, or a crescent three quarters round), apart
-from its neighbours' curves.  Trackers whose events lie on one such curve are merged as
-pieces of one part.  The curve must be a connected component (8 neighbours, lone pixels
-dropped as noise) of sigma at most :data:`OUTLINE_SIZE` of the widest part
-(``sigma_max_px``) that surrounds its centroid (pixels in at least ``outline_cover`` of
-:data:`OUTLINE_BINS` directions, counting those beyond half its RMS radius: a straight
-edge covers two or three), so a long contour (a head's outline), a textured object or a
-swept background (one large component) merges nothing.
+pixels around its centre (a ring, or a crescent three quarters round), apart from its
+neighbours' curves.  Trackers on one such curve are merged as pieces of one part.
 
-Measured (docs/learning.md "Uniform parts"): on the second generator's grid of dark discs
-it learns one tracker per disc (seeds 0-2: 9 of 9, at most 2.1 px from a centre; without
-it 13-22 trackers on the crescents).  But where neighbouring parts' curves touch it merges
-them: the project simulator's face, whose Gaussian blobs fire in touching rings, learns 17
-to 22 trackers for 26 parts instead of 26.  So it is off by default (``outline_cover`` 0):
-``--learn-param outline_cover=0.75`` for scenes of separate uniform shapes.
+The curve is a connected component of the recent pixels (8 neighbours, lone pixels
+dropped as noise) that
+
+* is small: sigma at most :data:`OUTLINE_SIZE` of the widest part (``sigma_max_px``), so a
+  long contour (a head's outline), a textured object or a swept background merges nothing;
+* surrounds its centroid: pixels in at least ``outline_cover`` of :data:`OUTLINE_BINS`
+  directions, counting those beyond half its RMS radius (a straight edge covers two or
+  three);
+* is a thin circle or close to one: the circle fitted to its pixels (algebraic least
+  squares) leaves an RMS residual of at most :data:`OUTLINE_THIN` of its radius (a square's
+  outline about 0.08), where a part that fires all over, or two parts whose curves touch
+  (a figure eight), leave much more;
+
+and a tracker is on it when most of its events in the look's batch lie on it and its mean
+lies within :data:`OUTLINE_INSIDE` radii (plus a pixel) of the circle's centre: a tracker
+between two parts is not a piece of either.
+
+Measured in docs/learning.md ("Uniform parts"): one tracker per disc on the second
+generator's grid, the faces of both generators as without it.
 """
 from __future__ import annotations
 
@@ -32,22 +39,27 @@ from . import batch as _learn
 OUTLINE_BINS = 16             # directions about an outline's centroid
 OUTLINE_MIN_PIXELS = 8        # a component of fewer pixels is no outline
 OUTLINE_SIZE = 0.5            # an outline's sigma is at most this share of sigma_max_px
+OUTLINE_THIN = 0.15           # RMS distance of its pixels from its fitted circle / radius
+OUTLINE_INSIDE = 1.25         # a tracker on it lies this many radii (+1 px) from its centre
 
 
 class Outlines:
-    """The closed outlines of a ``height`` x ``width`` sensor's recent pixels."""
+    """The outlines of parts among a ``height`` x ``width`` sensor's recent pixels."""
 
     def __init__(self, width: int, height: int):
         self.label = np.zeros((height, width), np.int32)
         self.stack = np.empty(width * height, np.int32)
+        self.circle = np.zeros((1, 3))            # (n + 1, 3): centre x, y, radius
 
     def closed(self, last: np.ndarray, t_from: int, sigma_max_px: float,
                cover: float) -> np.ndarray:
         """Label the components of the pixels that fired since ``t_from`` (``last``: each
-        pixel's latest event time) into ``self.label``; returns (n + 1,) bool: component
-        k is a closed outline of a part (index 0, no component, is false)."""
+        pixel's latest event time) into ``self.label`` and fit their circles
+        (``self.circle``); returns (n + 1,) bool: component k is a part's outline (index
+        0, no component, is false)."""
         n = _learn.recent_components(last, t_from, self.label, self.stack)
         ok = np.zeros(n + 1, bool)
+        self.circle = np.zeros((n + 1, 3))
         if n == 0:
             return ok
         yy, xx = np.nonzero(self.label)
@@ -59,22 +71,30 @@ class Outlines:
         dx, dy = xx - mx[lab], yy - my[lab]
         vx = np.bincount(lab, dx * dx, n + 1) / c
         vy = np.bincount(lab, dy * dy, n + 1) / c
-        r2 = dx * dx + dy * dy
-        far = r2 >= 0.25 * (vx + vy)[lab]
-        b = (np.floor((np.arctan2(dy, dx) + math.pi) * (OUTLINE_BINS / (2.0 * math.pi)))
-             .astype(np.int64) % OUTLINE_BINS)
-        seen = np.zeros((n + 1) * OUTLINE_BINS, bool)
-        seen[lab[far] * OUTLINE_BINS + b[far]] = True
-        directions = seen.reshape(n + 1, OUTLINE_BINS).sum(axis=1)
-        ok = ((cnt >= OUTLINE_MIN_PIXELS) & (np.maximum(vx, vy) <= (OUTLINE_SIZE * sigma_max_px) ** 2)
+        far = dx * dx + dy * dy >= 0.25 * (vx + vy)[lab]
+        directions = _directions(dx[far], dy[far], lab[far], n + 1)
+        ok = ((cnt >= OUTLINE_MIN_PIXELS)
+              & (np.maximum(vx, vy) <= (OUTLINE_SIZE * sigma_max_px) ** 2)
               & (directions >= cover * OUTLINE_BINS))
         ok[0] = False
+        for k in np.flatnonzero(ok).tolist():
+            on = lab == k
+            fit = _circle(dx[on], dy[on])
+            if fit is None:
+                ok[k] = False
+                continue
+            cx, cy, r, rms = fit
+            self.circle[k] = (mx[k] + cx, my[k] + cy, r)
+            ok[k] = (rms <= OUTLINE_THIN * r
+                     and r <= math.sqrt(2.0) * OUTLINE_SIZE * sigma_max_px)
         return ok
 
     def of_trackers(self, ok: np.ndarray, ev: np.ndarray, winner: np.ndarray,
-                    n: int) -> np.ndarray:
-        """(n,) the closed outline most of each tracker's events in ``ev`` (taken as
-        ``winner`` says) lie on, 0 if none."""
+                    x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """(n,) the outline most of each tracker's events in ``ev`` (taken as ``winner``
+        says) lie on, if its mean (``x``, ``y``) lies within OUTLINE_INSIDE radii of the
+        outline's centre (plus a pixel); 0 if none."""
+        n = len(x)
         out = np.zeros(n, np.int64)
         took = winner >= 0
         lab = self.label[ev["y"][took], ev["x"][took]].astype(np.int64)
@@ -88,4 +108,40 @@ class Outlines:
             i, c = divmod(k, len(ok))
             if v > best[i]:
                 best[i], out[i] = v, c
+        cx, cy, r = self.circle[out].T
+        far = np.hypot(x - cx, y - cy) > OUTLINE_INSIDE * r + 1.0
+        out[far] = 0
         return out
+
+
+def _directions(dx: np.ndarray, dy: np.ndarray, group: np.ndarray, groups: int) -> np.ndarray:
+    """(groups,) how many of the OUTLINE_BINS directions the offsets (dx, dy) of each
+    group (``group``: its index per offset) point in."""
+    b = (np.floor((np.arctan2(dy, dx) + math.pi) * (OUTLINE_BINS / (2.0 * math.pi)))
+         .astype(np.int64) % OUTLINE_BINS)
+    seen = np.zeros(groups * OUTLINE_BINS, bool)
+    seen[group * OUTLINE_BINS + b] = True
+    return seen.reshape(groups, OUTLINE_BINS).sum(axis=1)
+
+
+def _circle(x: np.ndarray, y: np.ndarray):
+    """The circle through points centred on their mean (x, y sum to 0), fitted by algebraic
+    least squares (x^2 + y^2 + a x + b y + e = 0, Kasa's fit): (cx, cy, r, rms of the
+    points' distances from it), or None if no circle fits (collinear points)."""
+    z = x * x + y * y
+    sxx, sxy, syy = float(x @ x), float(x @ y), float(y @ y)
+    det = sxx * syy - sxy * sxy
+    if det <= 1e-9 * max(sxx * syy, 1.0):
+        return None
+    # normal equations of (a, b); e = -mean(z) since x and y sum to 0
+    sxz, syz = float(x @ z), float(y @ z)
+    a = -(syy * sxz - sxy * syz) / det
+    b = -(sxx * syz - sxy * sxz) / det
+    e = -float(z.mean())
+    cx, cy = -0.5 * a, -0.5 * b
+    r2 = cx * cx + cy * cy - e
+    if r2 <= 0.0:
+        return None
+    r = math.sqrt(r2)
+    res = np.hypot(x - cx, y - cy) - r
+    return cx, cy, r, math.sqrt(float(np.mean(res * res)))

@@ -57,10 +57,9 @@ class LearnParams:
     birth_contrast: float = 5.0        # ... and this many times the background block
     merge_overlap: float = 0.25        # shared fraction of the smaller tracker's events
     merge_gap_px: float = 1.5          # neighbours joined by covered pixels, no gap this long
-    outline_cover: float = 0.0         # merge pieces on one closed outline of recent pixels
-                                       # surrounding its centre in this share of directions
-                                       # (learning.outlines; 0: off, the default; 0.75 for
-                                       # uniform parts seen through their edges)
+    outline_cover: float = 0.75        # merge pieces on one outline of recent pixels that
+                                       # surrounds its centre in this share of directions
+                                       # (learning.outlines; 0: off)
     death_share: float = 0.05          # of the pool's median recent event count
     keep_share: float = 0.4            # a part takes this share of the median's events
     idle_share: float = 0.1            # ... and is awake (awake()) at the end: this share
@@ -72,6 +71,9 @@ class LearnParams:
     rigidity_scale: float = 0.5        # deformation (in part sizes) of rigidity 1/2
     cartesian_turn_deg: float = 10.0
     lag_fraction: float = 0.1          # alpha_1 (tracking): eq. (3)'s lag, in part sizes
+    covariance_ratio: float = 400.0    # alpha_2 (tracking) = alpha_1 / this: eq. (4) averages
+                                       # this many times the events eq. (3) does (the paper's
+                                       # grid, 0.02 / 5e-5; its face 0.2 / 2e-4 = 1000)
     stiffness_gain: float = 0.1        # stiffness = gain * alpha_1 (tracking) * rigidity
     energy_quantile: float = 0.99      # s of eqs. (21)-(22): this quantile of E_ij / mean E,
     energy_scale_max: float = 4.5      # ... at most this (and at least the default 2.5)
@@ -96,7 +98,7 @@ class LearnParams:
         if not 0 < self.sigma_min_px < self.sigma_max_px:
             raise ValueError("learn: need 0 < sigma_min_px < sigma_max_px")
         for name in ("batch_us", "birth_cell_px", "activity_tau_us", "life_tau_us", "smooth_us",
-                     "lag_fraction"):
+                     "lag_fraction", "covariance_ratio"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"learn: {name} must be positive")
 

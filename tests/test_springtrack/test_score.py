@@ -163,3 +163,20 @@ def test_cli_simulate_writes_camera_formats_that_read_back_identically(tmp_path,
     a = np.load(ref)
     b = np.concatenate([as_events(c) for c in open_events(str(out))])
     assert len(a) > 1000 and np.array_equal(a, b)
+
+
+def test_a_learned_model_is_named_after_the_parts_nearest_its_trackers():
+    """named_after_parts: nearest pairs first, each part's id to one tracker; a tracker no
+    part is left for keeps its id, and a part without a tracker stays unnamed."""
+    from springtrack.metrics import named_after_parts
+    from springtrack.model import ShapeModel, TrackerSpec, Connection
+    truth = Truth(np.array([0, 1000]), ["a", "b", "c"],
+                  np.array([[[10.0, 10.0], [50.0, 10.0], [90.0, 90.0]]] * 2))
+    trackers = [TrackerSpec("p00", 11.0, 10.0, (4.0, 0.0, 4.0), 1.0),
+                TrackerSpec("p01", 14.0, 10.0, (4.0, 0.0, 4.0), 1.0),
+                TrackerSpec("p02", 49.0, 12.0, (4.0, 0.0, 4.0), 1.0)]
+    m = ShapeModel("m", 100, 100, trackers, [Connection("p00", "p02", ("euclidean",), 0.01)], {})
+    named, d = named_after_parts(m, truth, 1000)
+    assert [t.id for t in named.trackers] == ["a", "p01", "b"]
+    assert (named.connections[0].a, named.connections[0].b) == ("a", "b")
+    assert d.shape == (3, 3) and abs(d[1, 0] - 4.0) < 1e-12

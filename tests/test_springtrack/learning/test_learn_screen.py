@@ -3,7 +3,6 @@
 fire through their leading and trailing edges rather than as blobs."""
 from __future__ import annotations
 
-import dataclasses
 import functools
 
 import numpy as np
@@ -12,8 +11,7 @@ import pytest
 from springtrack import Tracker
 from springtrack.learning.learner import learn_model
 from springtrack.learning.settings import LearnParams
-from springtrack.metrics import score_track, truth_from_array
-from springtrack.model import ShapeModel
+from springtrack.metrics import named_after_parts, score_track, truth_from_array
 from springtrack.sim import screen
 
 FACE_LEARN_US = 800_000
@@ -34,25 +32,17 @@ def learned(name: str, learn_us: int, **learn_params):
 
 def distances(model, truth, t_us):
     """(T, P) distances of each tracker to each true part at t_us."""
-    k = min(int(np.searchsorted(truth.t_us, t_us)), len(truth.t_us) - 1)
-    gt = truth.xy[k]
-    xy = np.array([(t.x, t.y) for t in model.trackers])
-    return np.hypot(xy[:, None, 0] - gt[None, :, 0], xy[:, None, 1] - gt[None, :, 1])
+    return named_after_parts(model, truth, t_us)[1]
 
 
-def renamed(model, truth, t_us) -> ShapeModel:
-    """Each part's id given to its nearest tracker (nearest pairs first)."""
-    d = distances(model, truth, t_us)
-    names, used = {}, set()
-    for i in np.argsort(d.min(axis=1)):
-        part = truth.ids[int(d[i].argmin())]
-        if part not in used:
-            names[model.trackers[i].id] = part
-            used.add(part)
-    trackers = [dataclasses.replace(t, id=names.get(t.id, t.id)) for t in model.trackers]
-    conns = [dataclasses.replace(c, a=names.get(c.a, c.a), b=names.get(c.b, c.b))
-             for c in model.connections]
-    return ShapeModel(model.name, model.width, model.height, trackers, conns, model.params)
+def learned_and_hand_errors(name: str, learn_us: int):
+    """The rest of the scene tracked by the learned model (its trackers named after their
+    parts) and the hand-made model's error over the same span, % of the object's length."""
+    ev, truth = scene(name)
+    model, _ = named_after_parts(learned(name, learn_us), truth, learn_us)
+    ours = score_track(truth, Tracker(model).run(ev[ev["t"] >= learn_us], 1000)).mean_pct
+    hand = score_track(truth, Tracker(screen.make_scene(name).initial_model()).run(ev, 1000))
+    return ours, float(np.nanmean(hand.pct[hand.t_us >= learn_us]))
 
 
 @pytest.mark.slow
@@ -84,39 +74,40 @@ def test_face_keeps_the_occlusion_criteria_on():
 def test_face_learned_model_tracks_within_2x_the_hand_model():
     """The rest of the scene (three hand passes) tracked by the learned model: within 2x
     the hand-made model's error."""
-    ev, truth = scene("face_occlusion")
-    model = renamed(learned("face_occlusion", FACE_LEARN_US), truth, FACE_LEARN_US)
-    ours = score_track(truth, Tracker(model).run(ev[ev["t"] >= FACE_LEARN_US], 1000)).mean_pct
-    hand = score_track(truth, Tracker(screen.make_scene("face_occlusion").initial_model())
-                       .run(ev, 1000))
-    hand_pct = float(np.nanmean(hand.pct[hand.t_us >= FACE_LEARN_US]))
-    assert ours < 2.0 * hand_pct, (ours, hand_pct)
+    ours, hand = learned_and_hand_errors("face_occlusion", FACE_LEARN_US)
+    assert ours < 2.0 * hand, (ours, hand)
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="a dark disc on the screen fires as two crescents (its "
-                   "leading edge OFF, its trailing edge ON); the pool learns the crescents' "
-                   "tips, 2 px wide, not the disc: 17 trackers for 9 discs, 8 discs covered; "
-                   "the outline merge that joins them (next test) is off by default, as it "
-                   "merges touching parts on the project's face (docs/learning.md)")
 def test_grid_learns_one_tracker_per_disc():
+    """A dark disc on the screen fires as two crescents (its leading edge OFF, its trailing
+    edge ON) that barely move apart; the outline merge (learning.outlines) makes the pieces
+    of each disc one tracker on it (measured on seeds 0-2: 9 trackers, 9 discs, at most
+    2.1 px from a centre)."""
     _, truth = scene("grid_pull")
     model = learned("grid_pull", GRID_LEARN_US)
     d = distances(model, truth, GRID_LEARN_US)
     assert len(model.trackers) == 9
-    assert len(set(d.argmin(axis=1).tolist())) == 9 and d.min(axis=1).max() < 5.0
+    assert len(set(d.argmin(axis=1).tolist())) == 9 and d.min(axis=1).max() < 3.0
 
 
 @pytest.mark.slow
-def test_grid_learns_one_tracker_per_disc_from_closed_outlines():
-    """With the closed-outline merge on (outline_cover 0.75, off by default): the pieces of
-    each disc's outline become one tracker on the disc (measured on seeds 0-2: 9 trackers,
-    9 discs, at most 2.1 px from a centre)."""
-    _, truth = scene("grid_pull")
-    model = learned("grid_pull", GRID_LEARN_US, params=LearnParams(outline_cover=0.75))
-    d = distances(model, truth, GRID_LEARN_US)
-    assert len(model.trackers) == 9
-    assert len(set(d.argmin(axis=1).tolist())) == 9 and d.min(axis=1).max() < 3.0
+def test_grid_learned_model_tracks_within_1_5x_the_hand_model():
+    """The rest of the scene (the turns and the pull) tracked by the learned model, its
+    trackers named after their discs: within 1.5x the hand-made model's error, as on the
+    project's simulator (measured on seeds 0-2: 1.45 / 1.50 / 1.38 % against 1.58 / 1.59 /
+    1.60 %; with eq. (4)'s default alpha_2 instead of the learned one 3.2-3.5 %)."""
+    ours, hand = learned_and_hand_errors("grid_pull", GRID_LEARN_US)
+    assert ours < 1.5 * hand, (ours, hand)
+
+
+@pytest.mark.slow
+def test_grid_without_the_outline_merge_learns_the_crescents():
+    """The same window with the merge off (outline_cover 0): the pool follows the
+    crescents' tips (measured: 17 trackers for 9 discs, 8 covered), so the test above
+    measures the merge, not an easier scene."""
+    model = learned("grid_pull", GRID_LEARN_US, params=LearnParams(outline_cover=0.0))
+    assert len(model.trackers) > 12
 
 
 def test_outline_cover_is_a_share():

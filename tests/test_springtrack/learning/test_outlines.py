@@ -1,4 +1,5 @@
-"""springtrack.learning.outlines: which curves of recent pixels count as one part's outline."""
+"""springtrack.learning.outlines: which curves of recent pixels count as one part's outline,
+and which trackers lie on one."""
 from __future__ import annotations
 
 import math
@@ -26,6 +27,11 @@ def ring(cx, cy, r, start_deg=0.0, span_deg=360.0):
              cy + r * math.sin(math.radians(start_deg + span_deg * k / n))) for k in range(n + 1)]
 
 
+def disc(cx, cy, r):
+    return [(x, y) for x in range(int(cx - r), int(cx + r) + 1)
+            for y in range(int(cy - r), int(cy + r) + 1) if (x - cx) ** 2 + (y - cy) ** 2 <= r * r]
+
+
 def outlines_of(points, cover=0.75, sigma_max_px=16.0):
     o = Outlines(W, H)
     ok = o.closed(fired(points), 0, sigma_max_px, cover)
@@ -35,10 +41,19 @@ def outlines_of(points, cover=0.75, sigma_max_px=16.0):
 def test_a_ring_and_a_crescent_are_outlines_a_line_is_not():
     o, ok = outlines_of(ring(30, 30, 8) + ring(80, 30, 8, 0, 280)
                         + [(20 + k, 80) for k in range(20)])
+    assert o.label.max() == 3
     assert ok[o.label[30, 38]]                   # the ring
     assert ok[o.label[30, 88]]                   # three quarters of a ring
     assert not ok[o.label[80, 25]]               # a straight edge
-    assert o.label.max() == 3
+    cx, cy, r = o.circle[o.label[30, 88]]
+    assert abs(cx - 80) < 0.5 and abs(cy - 30) < 0.5 and abs(r - 8) < 0.5
+
+
+def test_a_filled_blob_and_two_touching_rings_are_not_outlines():
+    o, ok = outlines_of(disc(30, 30, 6) + ring(70, 50, 6) + ring(82, 50, 6))
+    assert o.label.max() == 2
+    assert not ok[o.label[30, 30]]               # fires all over: far from a thin circle
+    assert not ok[o.label[50, 76]]               # a figure eight
 
 
 def test_a_curve_wider_than_half_the_widest_part_is_not_one():
@@ -57,9 +72,13 @@ def test_lone_pixels_are_noise_and_old_pixels_are_not_recent():
     assert o.label.max() == 0 and len(ok) == 1 and not ok.any()
 
 
-def test_trackers_take_the_outline_their_events_lie_on():
+def test_trackers_take_the_outline_their_events_lie_on_if_they_lie_about_it():
     o, ok = outlines_of(ring(30, 30, 8) + ring(80, 30, 8))
-    ev = np.zeros(4, EVENT_DTYPE)
-    ev["x"], ev["y"] = [38, 22, 88, 5], [30, 30, 30, 5]
-    on = o.of_trackers(ok, ev, np.array([0, 0, 1, 2], np.int32), 3)
-    assert on[0] == o.label[30, 38] and on[1] == o.label[30, 88] and on[2] == 0
+    ev = np.zeros(5, EVENT_DTYPE)
+    ev["x"], ev["y"] = [38, 22, 88, 5, 72], [30, 30, 30, 5, 30]
+    winner = np.array([0, 0, 1, 2, 3], np.int32)
+    x = np.array([32.0, 84.0, 5.0, 60.0])          # tracker 3 sits 20 px from its ring's centre
+    y = np.array([30.0, 30.0, 5.0, 30.0])
+    on = o.of_trackers(ok, ev, winner, x, y)
+    assert on[0] == o.label[30, 38] and on[1] == o.label[30, 88]
+    assert on[2] == 0 and on[3] == 0
