@@ -18,8 +18,8 @@ dropped as noise) that
   three);
 * is a thin circle or close to one: the circle fitted to its pixels (algebraic least
   squares) leaves an RMS residual of at most :data:`OUTLINE_THIN` of its radius (a square's
-  outline about 0.08), where a part that fires all over, or two parts whose curves touch
-  (a figure eight), leave much more;
+  outline 0.11; a triangle's or a 2:1 ellipse's 0.22, which keep their pieces), where a
+  part that fires all over, or two parts whose curves touch (a figure eight), leave more;
 
 and a tracker is on it when most of its events in the look's batch lie on it and its mean
 lies within :data:`OUTLINE_INSIDE` radii (plus a pixel) of the circle's centre: a tracker

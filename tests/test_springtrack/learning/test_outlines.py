@@ -82,3 +82,24 @@ def test_trackers_take_the_outline_their_events_lie_on_if_they_lie_about_it():
     on = o.of_trackers(ok, ev, winner, x, y)
     assert on[0] == o.label[30, 38] and on[1] == o.label[30, 88]
     assert on[2] == 0 and on[3] == 0
+
+
+def polygon(cx, cy, r, sides):
+    """The outline of a regular polygon of circumradius r, one point per pixel or so."""
+    pts = []
+    corners = [(cx + r * math.cos(2 * math.pi * k / sides), cy + r * math.sin(2 * math.pi * k / sides))
+               for k in range(sides)]
+    for k in range(sides):
+        (x0, y0), (x1, y1) = corners[k], corners[(k + 1) % sides]
+        n = int(2 * math.hypot(x1 - x0, y1 - y0)) + 1
+        pts += [(x0 + (x1 - x0) * j / n, y0 + (y1 - y0) * j / n) for j in range(n)]
+    return pts
+
+
+def test_a_square_is_close_enough_to_a_circle_a_triangle_is_not():
+    """The circle test's residuals: a square's outline 0.11 of the radius, a triangle's
+    0.22 (OUTLINE_THIN 0.15)."""
+    o, ok = outlines_of(polygon(30, 40, 10, 4) + polygon(85, 40, 10, 3))
+    assert o.label.max() == 2
+    assert ok[o.label[40, 40]]                   # the square's right corner
+    assert not ok[o.label[40, 95]]               # the triangle's right corner
