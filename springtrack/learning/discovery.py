@@ -130,8 +130,10 @@ def _discover(pool: Pool, ev: np.ndarray, t0: int, t1: int, stats: dict) -> Hist
             pair = _merge_candidate(pool)
             if pair is None:
                 break
-            pool.merge(*pair, te)
+            i, j, outline = pair
+            pool.merge(i, j, te)
             stats["merged"] += 1
+            stats["outline_merged"] += outline
         dead = _dying(pool, births, te)
         if dead.any():
             stats["died"] += int(dead.sum())
@@ -145,7 +147,8 @@ def _discover(pool: Pool, ev: np.ndarray, t0: int, t1: int, stats: dict) -> Hist
 
 
 def _merge_candidate(pool: Pool):
-    """The pair to merge now, or None, with its union no wider than a part may be:
+    """The pair to merge now (i, j, whether by the outline rule), or None, with its union
+    no wider than a part may be:
     trackers that share their events and one holds the other's mean (duplicates on one
     cloud), the most sharing first; or neighbours joined by covered pixels (two edges,
     or two pieces, of one part: Pool.gaps), the nearest first; or two pieces on one
@@ -159,7 +162,7 @@ def _merge_candidate(pool: Pool):
         if not dup[i, j]:
             break
         if pool.union_fits(i, j):
-            return i, j
+            return i, j, False
     if pool.contrast and n > 1:
         d = np.hypot(pool.x[:, None] - pool.x[None, :], pool.y[:, None] - pool.y[None, :])
         i, j = relative_neighbours(d, within=2.0 * lp.sigma_max_px)
@@ -167,7 +170,7 @@ def _merge_candidate(pool: Pool):
         i, j = i[joined], j[joined]
         for k in np.argsort(d[i, j], kind="stable"):
             if pool.union_fits(i[k], j[k]):
-                return int(i[k]), int(j[k])
+                return int(i[k]), int(j[k]), False
     on = pool.book["outline"][:n]
     if (on > 0).sum() > 1:
         same = (on[:, None] == on[None, :]) & (on[:, None] > 0)
@@ -175,7 +178,7 @@ def _merge_candidate(pool: Pool):
         d = np.hypot(pool.x[i] - pool.x[j], pool.y[i] - pool.y[j])
         for k in np.argsort(d, kind="stable"):
             if pool.union_fits(i[k], j[k]):
-                return int(i[k]), int(j[k])
+                return int(i[k]), int(j[k]), True
     return None
 
 

@@ -84,11 +84,13 @@ def test_grid_learns_one_tracker_per_disc():
     edge ON) that barely move apart; the outline merge (learning.outlines) makes the pieces
     of each disc one tracker on it (measured on seeds 0-2: 9 trackers, 9 discs, at most
     2.1 px from a centre)."""
-    _, truth = scene("grid_pull")
+    ev, truth = scene("grid_pull")
     model = learned("grid_pull", GRID_LEARN_US)
     d = distances(model, truth, GRID_LEARN_US)
     assert len(model.trackers) == 9
     assert len(set(d.argmin(axis=1).tolist())) == 9 and d.min(axis=1).max() < 3.0
+    res = learn_model(ev[ev["t"] < GRID_LEARN_US], width=304, height=240)
+    assert res.lifecycle["outline_merged"] > 0           # the outline rule did it
 
 
 @pytest.mark.slow
