@@ -96,8 +96,9 @@ def models(draw, size=None):
         load[i] += len(kinds) * a / trackers[i].mass
         load[j] += len(kinds) * a / trackers[j].mass
     # a relative 1e-12 below the bound, so that the scaled loads, rounded, stay within it
-    scale = (min(1.0, MAX_SPRING_LOAD / load.max() * (1 - 1e-12))
-             if drawn and load.max() > 0 else 1.0)
+    # (only loads above the bound are scaled: a tiny load would overflow the quotient)
+    scale = (MAX_SPRING_LOAD / load.max() * (1 - 1e-12)
+             if drawn and load.max() > MAX_SPRING_LOAD * (1 - 1e-12) else 1.0)
     # torsion couples every connection through the mean angle of eq. (15): a torsional
     # spring of length L moves its ends by ~ L a dth / m, which turns a connection of length
     # l by that over l; keep that loop gain a (1/m_a + 1/m_b) L_max / l_min below 0.5
