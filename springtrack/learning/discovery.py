@@ -122,8 +122,8 @@ def _discover(pool: Pool, ev: np.ndarray, t0: int, t1: int, stats: dict) -> Hist
             pool.update_level()
             births.update_noise()
             if len(batch) and lp.outline_cover > 0:
-                # the closed outlines of the pixels that fired over the trackers' memory
-                ok = outlines.closed(pool.last, te - int(lp.life_tau_us), lp.sigma_max_px,
+                # the parts' outlines among the pixels that fired over the trackers' memory
+                ok = outlines.find(pool.last, te - int(lp.life_tau_us), lp.sigma_max_px,
                                      lp.outline_cover)
                 pool.book["outline"][:pool.n] = outlines.of_trackers(ok, batch, w, pool.x, pool.y)
         while pool.n > 1:
@@ -152,7 +152,7 @@ def _merge_candidate(pool: Pool):
     trackers that share their events and one holds the other's mean (duplicates on one
     cloud), the most sharing first; or neighbours joined by covered pixels (two edges,
     or two pieces, of one part: Pool.gaps), the nearest first; or two pieces on one
-    closed outline (learning.outlines), the nearest first."""
+    part's outline (learning.outlines), the nearest first."""
     lp = pool.lp
     n = pool.n
     share = pool.overlap_score()

@@ -34,9 +34,8 @@ def learn_model(events, trackers: int | None = None, width: int | None = None,
     p00, p01, ... in reading order: top to bottom, left to right); ``params``: learner
     parameters (:class:`LearnParams` or a dict of overrides); ``track_params``: tracking
     parameters (springtrack.params names) to write into the model's ``[params]`` as
-    given; alpha_position, alpha_covariance, energy_scale and energy_kind are learned unless
-    given there
-    (the stiffness scales with alpha_position).
+    given; alpha_position, alpha_covariance, energy_scale and energy_kind are learned
+    unless given there (the stiffness scales with alpha_position).
     Raises :class:`NoObjectFound` when no part survives.
     """
     wall0 = time.perf_counter()
@@ -57,8 +56,8 @@ def learn_model(events, trackers: int | None = None, width: int | None = None,
     height = int(height) if height else int(ev["y"].max()) + 1
     t0, t1 = int(ev["t"][0]), int(ev["t"][-1])
     lp = lp.for_window(t1 - t0)
-    stats = {"born": 0, "merged": 0, "outline_merged": 0, "died": 0, "birth_refused_full": 0, "weak": 0,
-             "dropped_to_n": 0, "merged_to_n": 0, "split_to_n": 0, "found": 0,
+    stats = {"born": 0, "merged": 0, "outline_merged": 0, "died": 0, "birth_refused_full": 0,
+             "weak": 0, "dropped_to_n": 0, "merged_to_n": 0, "split_to_n": 0, "found": 0,
              "time_scale": round(lp.batch_us / LearnParams().batch_us, 4)}
     pool = Pool(lp, width, height)
     history = _discover(pool, ev, t0, t1, stats)

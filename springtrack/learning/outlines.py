@@ -51,8 +51,8 @@ class Outlines:
         self.stack = np.empty(width * height, np.int32)
         self.circle = np.zeros((1, 3))            # (n + 1, 3): centre x, y, radius
 
-    def closed(self, last: np.ndarray, t_from: int, sigma_max_px: float,
-               cover: float) -> np.ndarray:
+    def find(self, last: np.ndarray, t_from: int, sigma_max_px: float,
+             cover: float) -> np.ndarray:
         """Label the components of the pixels that fired since ``t_from`` (``last``: each
         pixel's latest event time) into ``self.label`` and fit their circles
         (``self.circle``); returns (n + 1,) bool: component k is a part's outline (index

@@ -20,7 +20,7 @@ class Pool:
     """Free Gaussian trackers (eqs. 2-6) in a state array, with their bookkeeping (``book``:
     ``recent`` event counts decayed with ``life_tau_us``, ``total`` events since birth,
     ``born`` (µs), ``uid`` (a new one at each birth, merge or split; ``lineage``
-    records the pieces of a merge) and ``outline`` (the closed outline its events lay on
+    records the pieces of a merge) and ``outline`` (the part's outline its events lay on
     at the last look, 0 none: springtrack.learning.outlines)), the events shared by pairs
     of gates (``overlap``, decayed like ``recent``), each pixel's ON minus OFF events
     (``net``, see :meth:`gaps`) and its latest event time (``last``, µs)."""

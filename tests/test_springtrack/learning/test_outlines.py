@@ -34,7 +34,7 @@ def disc(cx, cy, r):
 
 def outlines_of(points, cover=0.75, sigma_max_px=16.0):
     o = Outlines(W, H)
-    ok = o.closed(fired(points), 0, sigma_max_px, cover)
+    ok = o.find(fired(points), 0, sigma_max_px, cover)
     return o, ok
 
 
@@ -68,7 +68,7 @@ def test_lone_pixels_are_noise_and_old_pixels_are_not_recent():
     last[10, 10] = 10                             # fired long before
     last[10, 11] = 10
     o = Outlines(W, H)
-    ok = o.closed(last, 500, 16.0, 0.75)
+    ok = o.find(last, 500, 16.0, 0.75)
     assert o.label.max() == 0 and len(ok) == 1 and not ok.any()
 
 
