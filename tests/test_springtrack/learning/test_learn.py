@@ -3,7 +3,6 @@ found where they are, springs between neighbours, tracking of the rest of the sc
 compared with the hand-made models, determinism, noise, the CLI."""
 from __future__ import annotations
 
-import dataclasses
 import functools
 
 import numpy as np
@@ -15,7 +14,7 @@ from springtrack.events import make
 from springtrack.learning.learner import (NoObjectFound, learn, learn_model, motion_alpha,
                                          part_speeds)
 from springtrack.learning.motion import sizes_per_ms
-from springtrack.metrics import score_track, truth_from_array
+from springtrack.metrics import named_after_parts, score_track, truth_from_array
 from springtrack.model import FACE_INTERNAL, ShapeModel, face_layout, load
 from springtrack.sim.scenes import make_scene
 from springtrack.sim.sensor import simulate_all
@@ -56,16 +55,7 @@ def nearest_parts(model, truth, t_us):
 
 def renamed(model, truth, t_us) -> ShapeModel:
     """The model with each tracker named after its nearest part (unnamed ones kept)."""
-    part, _ = nearest_parts(model, truth, t_us)
-    names, used = {}, set()
-    for t, k in zip(model.trackers, part):
-        if truth.ids[k] not in used:
-            names[t.id] = truth.ids[k]
-            used.add(truth.ids[k])
-    trackers = [dataclasses.replace(t, id=names.get(t.id, t.id)) for t in model.trackers]
-    conns = [dataclasses.replace(c, a=names.get(c.a, c.a), b=names.get(c.b, c.b))
-             for c in model.connections]
-    return ShapeModel(model.name, model.width, model.height, trackers, conns, model.params)
+    return named_after_parts(model, truth, t_us)[0]
 
 
 def errors(name, model, learn_us):
