@@ -4,7 +4,8 @@ Writes the "Tracker against hand-written C" section of docs/benchmarks.md, in on
 face scene and the paper's scenes:
 
 * contenders: the float kernel (``Tracker.process``, the default parameters, the similarity
-  frame of eq. 22 included), the fixed-point kernel (``backend="fixed"``), and the peers of
+  frame of eq. 22 included, but one mean for both polarities as the peers: polarity_gain
+  = 0, the paper's eq. 3; the Kernel section times the default half offsets), the fixed-point kernel (``backend="fixed"``), and the peers of
   benchmarks/ctrackers (``plain``: plain C, the spring passes vectorised by the compiler;
   ``simd``: AVX-512 intrinsics, AVX2 where the processor has no AVX-512), all on the same
   numpy structured array of packed records (t int64, x/y int16, p uint8: 13 bytes, as
@@ -62,6 +63,10 @@ def packed(ev) -> np.ndarray:
     return out
 
 
+# the peers' step: eq. (3), one mean for both polarities (no half offsets, eq. M6b)
+PAPER_STEP = {"polarity_gain": 0.0}
+
+
 def streams(n_events: int, sim_seconds: float):
     """(label, model, params, packed events): the face (face26 on the Kernel section's
     blob_stream, the default parameters) and the paper's scenes on the simulator (their
@@ -69,10 +74,10 @@ def streams(n_events: int, sim_seconds: float):
     noise, motion = SCENES["face26"]
     model = springtrack.load_model("face26")
     ev, _ = blob_stream(model, n_events, rate_hz=300_000, noise=noise, seed=1, **motion)
-    yield "face26 (blob_stream)", model, None, packed(ev)
+    yield "face26 (blob_stream)", model, dict(PAPER_STEP), packed(ev)
     for name in SIM_SCENES:
         model, ev, _, params = sim_stream(name, sim_seconds)
-        yield name, model, params, packed(ev)
+        yield name, model, {**(params or {}), **PAPER_STEP}, packed(ev)
 
 
 def makers(model, params) -> dict:

@@ -68,9 +68,11 @@ SPECS: dict[str, ParamSpec] = {s.name: s for s in [
     ParamSpec("prediction_horizon_us", float, 500.0, 0.0, 1e6, "us",
               "H, eq. (M1): a mean is carried along its velocity at most this long after "
               "the tracker's last event"),
-    ParamSpec("polarity_gain", float, 0.0, 0.0, 1.0, "",
-              "c_h, eq. (M6): weight of the half offset between a part's ON and OFF edges "
-              "(relative to the mean's gain); 0: one mean for both polarities (eq. 3)"),
+    ParamSpec("polarity_gain", float, 1.0, 0.0, 1.0, "",
+              "c_h, eqs. (M6)/(M6b): weight of the half offset between a part's ON and OFF "
+              "edges (relative to the mean's gain; without a velocity, of the share of it "
+              "the tracker's balance of polarities supports); 0: one mean for both "
+              "polarities (the paper's eq. 3)"),
     ParamSpec("sigma_min_px", float, 0.5, 0.05, 64.0, "px",
               "lower bound on a tracker's standard deviation along x and y"),
     ParamSpec("sigma_max_px", float, 64.0, 0.5, _limits.SIGMA_MAX_PX, "px",

@@ -161,6 +161,9 @@ class ReferenceTracker:
         self.vy = [0.0] * self.n
         self.hx = [0.0] * self.n
         self.hy = [0.0] * self.n
+        # without a velocity (tau_m = 0), the ON share of the tracker's events at its
+        # mean's gain: how far eq. (M6) may tell its two edges apart
+        self.fon = [0.5] * self.n
         self.tm = [0] * self.n
         self.kpp = [P_UNKNOWN] * self.n
         self.kpv = [0.0] * self.n
@@ -228,6 +231,7 @@ class ReferenceTracker:
         """Tracker i's motion state as placed: still (up to the acceleration noise its
         first prediction adds), one edge, position unknown (its first gain is alpha1)."""
         self.vx[i] = self.vy[i] = self.hx[i] = self.hy[i] = 0.0
+        self.fon[i] = 0.5
         self.tm[i] = 0
         self.kpp[i] = P_UNKNOWN
         self.kpv[i] = self.kvv[i] = 0.0
@@ -368,10 +372,23 @@ class ReferenceTracker:
         ry = dy - sgn * self.hy[i]
         self.mx[i] = px + gain * rx                                  # eq. (M5) = eq. (3) when
         self.my[i] = py + gain * ry                                  # v = h = 0, gain = a1
-        if self.c_h > 0.0:                                           # eq. (M6)
+        if self.c_h > 0.0:
             hmax = self.h_max
-            self.hx[i] = min(max(self.hx[i] + self.c_h * gain * sgn * rx, -hmax), hmax)
-            self.hy[i] = min(max(self.hy[i] + self.c_h * gain * sgn * ry, -hmax), hmax)
+            if self.tau_m > 0.0:                                     # eq. (M6)
+                self.hx[i] = min(max(self.hx[i] + self.c_h * gain * sgn * rx, -hmax), hmax)
+                self.hy[i] = min(max(self.hy[i] + self.c_h * gain * sgn * ry, -hmax), hmax)
+            else:
+                # eq. (M6b): without a velocity the half offset takes only the balanced
+                # share b of the residual and lets the rest of itself go:
+                # f = f + K (on - f), b = 4 f (1 - f), h = h + c_h K (b s r - (1 - b) h)
+                f = self.fon[i] + gain * ((1.0 if pol else 0.0) - self.fon[i])
+                self.fon[i] = f
+                b = 4.0 * f * (1.0 - f)
+                ch = self.c_h * gain
+                self.hx[i] = min(max(self.hx[i] + ch * (b * sgn * rx - (1.0 - b) * self.hx[i]),
+                                     -hmax), hmax)
+                self.hy[i] = min(max(self.hy[i] + ch * (b * sgn * ry - (1.0 - b) * self.hy[i]),
+                                     -hmax), hmax)
         if self.tau_m > 0.0:                                         # eq. (M7)
             self.vx[i] = min(max(self.vx[i] + kv * rx, -VELOCITY_MAX), VELOCITY_MAX)
             self.vy[i] = min(max(self.vy[i] + kv * ry, -VELOCITY_MAX), VELOCITY_MAX)

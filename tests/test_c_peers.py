@@ -2,7 +2,8 @@
 track like the specification, springtrack/reference.py, on the same events: every tracker's
 position within 1e-9 px and its covariance within 1e-9 of its size at every sample, the
 counters equal.  Each peer is built here (a C compiler is needed, as for the kernels); the
-SIMD peer in both of its builds (AVX-512 where the processor has it, and AVX2)."""
+SIMD peer in both of its builds (AVX-512 where the processor has it, and AVX2).  The peers
+implement the paper's step (one mean for both polarities): polarity_gain = 0 here."""
 from __future__ import annotations
 
 import sys
@@ -30,6 +31,7 @@ EVENTS = 12_000
 EVERY = 500          # events between samples
 TOL_PX = 1e-9
 TOL_COV = 1e-9
+PAPER_STEP = {"polarity_gain": 0.0}     # the peers' eq. (3): no half offsets (eq. M6b)
 
 
 def packed(ev) -> np.ndarray:
@@ -59,7 +61,7 @@ STREAMS = list(streams())
 @pytest.mark.parametrize("stream", range(len(STREAMS)), ids=[s[0] for s in STREAMS])
 def test_peer_tracks_like_the_reference(kind, stream):
     preset, events = STREAMS[stream]
-    tracker = springtrack.Tracker(preset)              # the default parameters and frame
+    tracker = springtrack.Tracker(preset, PAPER_STEP)  # the default frame, the paper's step
     ref = ReferenceTracker(tracker.model, tracker.params)
     peer = CTracker(kind, tracker.model, tracker.params)
     worst_px = worst_cov = 0.0
@@ -87,7 +89,7 @@ def test_the_index_follows_a_moving_shape():
     """The index re-indexes trackers as they move (a peer that never re-indexed would lose
     the events of a drifting face, and the test above would fail on positions)."""
     preset, events = STREAMS[1]
-    tracker = springtrack.Tracker(preset)
+    tracker = springtrack.Tracker(preset, PAPER_STEP)
     peer = CTracker("plain", tracker.model, tracker.params)
     peer.process(events)
     n = len(tracker.model.arrays()["x"])                 # each tracker indexed once at start

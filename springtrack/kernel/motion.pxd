@@ -45,6 +45,7 @@ cdef inline void still(KState* s, int i) noexcept nogil:
     s.vy[i] = 0.0
     s.hx[i] = 0.0
     s.hy[i] = 0.0
+    s.fon[i] = 0.5
     s.tm[i] = 0
     s.tk[i] = 0
     s.kpp[i] = ST_P_UNKNOWN
@@ -93,9 +94,20 @@ cdef inline void motion_update(KState* s, int i, double gain, double kv, double 
     """[ref] eqs. (M6)-(M7): the half offset and the velocity move by the residual
     (rx, ry) about the edge of the event's polarity (sgn = +1 ON, -1 OFF)."""
     cdef double hmax = s.h_max
+    cdef double f, b, ch
     if s.c_h > 0.0:
-        s.hx[i] = clampd(s.hx[i] + s.c_h * gain * sgn * rx, -hmax, hmax)
-        s.hy[i] = clampd(s.hy[i] + s.c_h * gain * sgn * ry, -hmax, hmax)
+        if s.tau_m > 0.0:                                            # eq. (M6)
+            s.hx[i] = clampd(s.hx[i] + s.c_h * gain * sgn * rx, -hmax, hmax)
+            s.hy[i] = clampd(s.hy[i] + s.c_h * gain * sgn * ry, -hmax, hmax)
+        else:
+            # eq. (M6b): f = f + K (on - f), b = 4 f (1 - f),
+            # h = h + c_h K (b s r - (1 - b) h)
+            f = s.fon[i] + gain * ((1.0 if sgn > 0.0 else 0.0) - s.fon[i])
+            s.fon[i] = f
+            b = 4.0 * f * (1.0 - f)
+            ch = s.c_h * gain
+            s.hx[i] = clampd(s.hx[i] + ch * (b * sgn * rx - (1.0 - b) * s.hx[i]), -hmax, hmax)
+            s.hy[i] = clampd(s.hy[i] + ch * (b * sgn * ry - (1.0 - b) * s.hy[i]), -hmax, hmax)
     if s.tau_m > 0.0:
         s.vx[i] = clampd(s.vx[i] + kv * rx, -ST_VELOCITY_MAX, ST_VELOCITY_MAX)
         s.vy[i] = clampd(s.vy[i] + kv * ry, -ST_VELOCITY_MAX, ST_VELOCITY_MAX)

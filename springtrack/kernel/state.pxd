@@ -106,6 +106,7 @@ ctypedef struct KState:
     double vy[TRACKER_PAD]
     double hx[TRACKER_PAD]
     double hy[TRACKER_PAD]
+    double fon[TRACKER_PAD]          # ON share of its events (tau_m = 0: eq. M6b)
     double kpp[TRACKER_PAD]
     double kpv[TRACKER_PAD]
     double kvv[TRACKER_PAD]

@@ -35,6 +35,8 @@ from .settings import MOTION_SIGMAS_PER_MS
 
 # the motion model's parameters a model of fast parts gets (docs/motion.md)
 MOTION_ON = {"motion_tau_us": 1000.0, "polarity_gain": 1.0}
+# the paper's step (eq. 3), which the probe tracks with
+MOTION_OFF = {"motion_tau_us": 0.0, "polarity_gain": 0.0}
 SPEED_QUANTILE = 0.9          # a model's speed: this quantile of its parts' speeds
 PROBE_MS = 10.0               # the probe's tracked window (after the acquisition's)
 PROBE_SAMPLE_US = 200         # the probe's sample period
@@ -123,9 +125,7 @@ def probe(model, events: np.ndarray, params=None, acquire: bool = False,
     tracker is active count."""
     from ..tracker import Tracker
     from ..track import TRACKING_CODE
-    base = dict(params or {})
-    for k in MOTION_ON:
-        base.pop(k, None)
+    base = {**dict(params or {}), **MOTION_OFF}
     tr = Tracker(model, params=base or None, backend="cython", acquire=acquire,
                  acquire_ms=acquire_ms, acquire_bounds=acquire_bounds, instances=instances)
     tr.record(PROBE_SAMPLE_US)

@@ -174,7 +174,7 @@ def test_wrap_angle():
 
 
 def test_run_samples_state_before_events_at_the_sample_time():
-    tr = one(alpha_position=0.5)
+    tr = one(alpha_position=0.5, polarity_gain=0.0)     # eq. (3): OFF events, one mean
     ev = np.zeros(3, dtype=[("t", "i8"), ("x", "u2"), ("y", "u2"), ("p", "u1")])
     ev["t"] = [500, 1000, 2500]
     ev["x"] = [12, 12, 12]

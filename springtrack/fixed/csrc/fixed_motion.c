@@ -76,6 +76,7 @@ static void still(fx_state *s, int i)
 {
     s->vx[i] = s->vy[i] = 0;
     s->hx[i] = s->hy[i] = 0;
+    s->fon[i] = 1u << 29;                 /* 0.5 */
     s->tm[i] = 0;
     s->tlast[i] = 0;
     s->kpp[i] = P_ONE;

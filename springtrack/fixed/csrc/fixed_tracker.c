@@ -213,11 +213,28 @@ static __attribute__((noinline)) void update_moving(fx_state *s, int i, int64_t 
     /* eq. (M5): m = m^ + K_p r (eq. 3 when v = h = 0 and K_p = alpha1) */
     s->mx[i] = sat_pos(s, px + mulsh(rx, gain, 30));
     s->my[i] = sat_pos(s, py + mulsh(ry, gain, 30));
-    if (s->c_h > 0) {                                     /* eq. (M6): h += c_h K_p s r */
+    if (s->c_h > 0) {
         uint32_t gh = (uint32_t)((umul(s->c_h, gain) + (1u << 29)) >> 30);
-        int64_t hx = mulsh(rx, gh, 30), hy = mulsh(ry, gh, 30);
-        s->hx[i] = clamp64(p ? s->hx[i] + hx : s->hx[i] - hx, s->h_max);
-        s->hy[i] = clamp64(p ? s->hy[i] + hy : s->hy[i] - hy, s->h_max);
+        if (s->tau_ceil > 0) {                            /* eq. (M6): h += c_h K_p s r */
+            int64_t hx = mulsh(rx, gh, 30), hy = mulsh(ry, gh, 30);
+            s->hx[i] = clamp64(p ? s->hx[i] + hx : s->hx[i] - hx, s->h_max);
+            s->hy[i] = clamp64(p ? s->hy[i] + hy : s->hy[i] - hy, s->h_max);
+        } else {
+            /* eq. (M6b): f += K (on - f), b = 4 f (1 - f) (Q.30, <= 1),
+               h += c_h K (b s r - (1 - b) h) */
+            int64_t f = (int64_t)s->fon[i], hx, hy;
+            uint32_t b, nb;
+            f += mulsh((p ? (int64_t)1 << 30 : 0) - f, gain, 30);
+            s->fon[i] = (uint32_t)f;
+            b = (uint32_t)(((uint64_t)f * (uint64_t)(((int64_t)1 << 30) - f)) >> 28);
+            nb = (1u << 30) - b;
+            hx = mulsh(rx, b, 30);
+            hy = mulsh(ry, b, 30);
+            hx = (p ? hx : -hx) - mulsh(s->hx[i], nb, 30);
+            hy = (p ? hy : -hy) - mulsh(s->hy[i], nb, 30);
+            s->hx[i] = clamp64(s->hx[i] + mulsh(hx, gh, 30), s->h_max);
+            s->hy[i] = clamp64(s->hy[i] + mulsh(hy, gh, 30), s->h_max);
+        }
     }
     if (s->tau_ceil > 0)                                  /* eq. (M7): v += K_v r */
         set_velocity(s, i, (int32_t)clamp64(s->vx[i] + velocity_step(s, rx, kv), V_MAX),

@@ -147,11 +147,11 @@ def test_the_integer_kernels_name_their_motion_limits(params, match):
 
 
 def test_off_the_velocity_and_half_offset_stay_zero():
-    """With the model off (the defaults) the integer state keeps no velocity nor half
-    offset: the step is the paper's eq. (3) (the same integers as before the model, which
-    the accuracy figures of docs/fixed_point.md measure)."""
+    """With the model off (motion_tau_us = 0, polarity_gain = 0) the integer state keeps no
+    velocity nor half offset: the step is the paper's eq. (3) (the same integers as before
+    the model)."""
     model, ev = scene_stream("face26", 30_000)
-    tr = Tracker(model, backend="fixed")
+    tr = Tracker(model, {"polarity_gain": 0.0}, backend="fixed")
     tr.run(ev, sample_us=1000)
     raw = tr._b.raw_state()
     for k in ("vx", "vy", "hx", "hy", "kpv", "kvv"):

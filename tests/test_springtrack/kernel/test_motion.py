@@ -10,6 +10,9 @@ import pytest
 
 import springtrack
 import springtrack.io
+import springtrack.events
+import springtrack.params
+import springtrack.reference
 from springtrack.model import ShapeModel, TrackerSpec
 from springtrack.sim.synthetic import blob_stream
 from springtrack.commands.track import DOUBTFUL_EXIT
@@ -67,7 +70,8 @@ def _track(path, model, tmp_path, capsys, *extra):
     return read_csv(out)
 
 
-PAPER_TOML = "[params]\nmotion_tau_us = 0.0\n"      # the paper's step, asked for
+PAPER = dict(motion_tau_us=0.0, polarity_gain=0.0)
+PAPER_TOML = "[params]\n" + "".join(f"{k} = {v!r}\n" for k, v in PAPER.items())  # asked for
 
 
 @pytest.mark.parametrize("acquire", [[], ["--acquire"]])
@@ -199,9 +203,49 @@ def test_after_a_gap_the_update_predicts_no_further_than_the_gate(backend):
 
 def test_the_paper_tracker_lags_a_bright_disk_the_motion_model_does_not():
     ev, scene, model = fast_disk(5000, dark=False)
-    paper = np.median(errors(scene, springtrack.Tracker(model).run(ev, sample_us=200))[5:])
+    paper = np.median(errors(scene, springtrack.Tracker(model, PAPER).run(ev, sample_us=200))[5:])
     motion = np.median(errors(scene, springtrack.Tracker(model, MOTION).run(ev, sample_us=200))[5:])
     assert paper > 8 and motion < 2
+
+
+def _cloud(n, mu, half, on_share, seed):
+    """n events of a Gaussian cloud (sigma 3 px): ON about mu + half, OFF about mu - half."""
+    rng = np.random.default_rng(seed)
+    on = rng.random(n) < on_share
+    xy = rng.normal(0.0, 3.0, (n, 2)) + np.asarray(mu) + np.where(on[:, None], 1, -1) * half
+    return springtrack.events.make(np.arange(n) * 20, np.round(xy[:, 0]), np.round(xy[:, 1]),
+                                   on.astype(np.uint8))
+
+
+@pytest.mark.parametrize("backend", ["reference", "cython", "fixed"])
+def test_without_a_velocity_one_polarity_leaves_no_half_offset(backend):
+    """eq. (M6b), the default: a part that fires one polarity does not tell its edges apart,
+    so the half offset goes to 0 and the mean to the part (eq. M6 alone split the residual
+    between them: a tracker started 5 px off stopped 2.7 px off); a part whose edges fire
+    apart, both polarities mixed, keeps them apart and its mean on the midpoint."""
+    m = ShapeModel("one", 120, 100, [TrackerSpec("a", 56.0, 53.0, (9.0, 0.0, 9.0))], [])
+    for share, half in ((1.0, (0.0, 0.0)), (0.0, (0.0, 0.0)), (0.5, (4.0, 0.0))):
+        ev = _cloud(20_000, (60.0, 50.0), np.array(half), share, seed=3)
+        tr = springtrack.Tracker(m, backend=backend).run(ev, sample_us=1000)
+        late = slice(len(tr) // 2, None)
+        # the mean's bias (alpha1 = 0.2 jitters it by ~1 px about it)
+        err = np.hypot(tr.x[late, 0].mean() - 60.0, tr.y[late, 0].mean() - 50.0)
+        assert err < 0.3, (share, err)
+    # the half offset itself: b = 4 f (1 - f) < 1 as f jitters about 1/2, so h settles
+    # below the true 4 px (measured 3.2 px at alpha1 = 0.2; the mean stays on the midpoint)
+    ref = springtrack.reference.ReferenceTracker(m, springtrack.params.Params())
+    h = []
+    for t, x, y, p in zip(*(_cloud(20_000, (60.0, 50.0), np.array([4.0, 0.0]), 0.5, 4)[k]
+                            .tolist() for k in "txyp")):
+        ref.step(t, x, y, p)
+        h.append((ref.hx[0], ref.hy[0]))
+    hx, hy = np.array(h[10_000:]).mean(axis=0)
+    assert 2.8 < hx < 4.2 and abs(hy) < 0.3, (hx, hy)
+    # then the part fires ON only: the edges are no longer told apart
+    for t, x, y in zip(*(_cloud(20_000, (60.0, 50.0), np.zeros(2), 1.0, 5)[k].tolist()
+                         for k in "txy")):
+        ref.step(400_000 + t, x, y, 1)
+    assert abs(ref.hx[0]) < 0.1 and abs(ref.hy[0]) < 0.1 and ref.fon[0] > 0.99
 
 
 def test_a_still_part_keeps_a_still_velocity_and_the_papers_position():
