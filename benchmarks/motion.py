@@ -44,6 +44,11 @@ from support.fast_parts import errors, fast_disk                  # noqa: E402
 
 MOTION = dict(motion_tau_us=1000.0, polarity_gain=1.0)
 OFF = dict(motion_tau_us=0.0, polarity_gain=0.0)
+# both edges without the velocity (eq. M6b)
+EDGES = dict(OFF, polarity_gain=1.0)
+# the columns of every table: the paper's step (the defaults), both edges, the whole model
+COLUMNS = (OFF, EDGES, MOTION)
+HEAD = "paper (motion off) | both edges (eq. M6b) | motion model"
 SCENES = ("grid_rot_y", "grid_pull", "grid_inplane", "face_occlusion")
 DATA = ROOT.parent / "shared" / "data" / "evt2_sample.raw"
 
@@ -57,15 +62,15 @@ def dot_rows():
     rows = []
     for acquire in (False, True):
         out = []
-        for p in (OFF, MOTION):
+        for p in COLUMNS:
             tr = springtrack.Tracker(m, p, acquire=acquire).run(ev, sample_us=1000)
             e = track_errors(truth, tr.t_us, tr.x[:, 0], tr.y[:, 0])
             out.append(f"{np.median(e):.2f} px ({100 * np.mean(e <= 2):.0f} % within 2 px)")
-        rows.append(f"| {'--acquire' if acquire else 'placed on the dot'} | {out[0]} | {out[1]} |")
+        rows.append(f"| {'--acquire' if acquire else 'placed on the dot'} | " + " | ".join(out) + " |")
     head = (f"Truth: radius {truth.radius:.2f} px, {truth.turns_per_s:.2f} turns/s, "
             f"{truth.speed_px_s:,.0f} px/s, radial residual {truth.radial_rms:.2f} px RMS "
             f"({truth.windows} windows of 200 us).\n\n"
-            "| one-tracker model | paper (motion off) | motion model |\n|---|---|---|\n")
+            f"| one-tracker model | {HEAD} |\n|---|---|---|---|\n")
     return head + "\n".join(rows)
 
 
@@ -73,7 +78,7 @@ def disk_rows(speeds):
     lines = ["| disk | " + " | ".join(f"{s:,} px/s" for s in speeds) + " |",
              "|---|" + "---|" * len(speeds)]
     for dark in (True, False):
-        for name, p in (("paper", OFF), ("motion", MOTION)):
+        for name, p in (("paper", OFF), ("edges", EDGES), ("motion", MOTION)):
             cells = []
             for s in speeds:
                 ev, scene, model = fast_disk(s, dark)
@@ -84,7 +89,7 @@ def disk_rows(speeds):
 
 
 def scene_rows(seconds):
-    lines = ["| scene | events | paper (motion off) | motion model |", "|---|---|---|---|"]
+    lines = [f"| scene | events | {HEAD} |", "|---|---|---|---|---|"]
     face = None
     for name in SCENES:
         scene = make_scene(name, seed=0)
@@ -92,10 +97,10 @@ def scene_rows(seconds):
         model = scene.initial_model()
         t = truth_from_array(truth)
         out = []
-        for p in (OFF, MOTION):
+        for p in COLUMNS:
             tr = springtrack.Tracker(model, p).run(ev, sample_us=10_000)
             out.append(f"{score_track(t, tr).mean_pct:.2f} %")
-        lines.append(f"| {name} | {len(ev):,} | {out[0]} | {out[1]} |")
+        lines.append(f"| {name} | {len(ev):,} | " + " | ".join(out) + " |")
         if name == "face_occlusion":
             face = (model, ev)
     return "\n".join(lines), face
@@ -112,13 +117,13 @@ def screen_rows(seconds):
     motion model off and on: mean error (% of the object's length) and the median
     per-part error in px; the dots: the dark and the bright disc's median error in px
     (the model's ids are the truth's, in its order)."""
-    lines = ["| scene | events | paper (motion off) | motion model |", "|---|---|---|---|"]
+    lines = [f"| scene | events | {HEAD} |", "|---|---|---|---|---|"]
     for name, kw, hz in SCREEN:
         ev, truth = screen_simulate(name, seconds, 0, config=ScreenConfig(refresh_hz=hz), **kw)
         model = screen_scene(name, **kw).initial_model()
         t = truth_from_array(truth)
         out = []
-        for p in (OFF, MOTION):
+        for p in COLUMNS:
             tr = springtrack.Tracker(model, p).run(ev, sample_us=1000)
             if name == "dots":          # no object length: the dark and the bright disc, px
                 out.append(dots_error(t, tr) + " px")
@@ -126,14 +131,14 @@ def screen_rows(seconds):
                 es = score_track(t, tr)
                 out.append(f"{es.mean_pct:.2f} % ({np.nanmedian(es.err_px):.2f} px)")
         label = name + "".join(f", {k} {v:g} px/s" for k, v in kw.items()) + f", {hz} Hz"
-        lines.append(f"| {label} | {len(ev):,} | {out[0]} | {out[1]} |")
+        lines.append(f"| {label} | {len(ev):,} | " + " | ".join(out) + " |")
     return "\n".join(lines)
 
 
 # each part of the model alone: (label, params); the real dot and the screen's dots
 PARTS = (("off", OFF), ("tau_m 1000, c_h 1 (the model)", MOTION),
          ("tau_m 1000, c_h 0 (velocity only)", dict(OFF, motion_tau_us=1000.0)),
-         ("tau_m 0, c_h 1 (both edges only)", dict(OFF, polarity_gain=1.0)),
+         ("tau_m 0, c_h 1 (both edges only, eq. M6b)", EDGES),
          ("tau_m 10000, c_h 1", dict(MOTION, motion_tau_us=10000.0)))
 PART_DOTS = (("dots", {}, 100, 4.0), ("dots", dict(speed=3000.0), 3000, 2.0))
 
@@ -186,7 +191,9 @@ def main(argv=None):
     flags = " --quick" if a.quick else ""
     body = (f"`.venv/bin/python benchmarks/motion.py{flags}` "
             f"({time.time() - t0:.0f} s), {machine()}.  Motion model on: "
-            + ", ".join(f"{k} = {v:g}" for k, v in MOTION.items()) + ".\n\n"
+            + ", ".join(f"{k} = {v:g}" for k, v in MOTION.items()) + "; both edges: "
+            "motion_tau_us = 0, polarity_gain = 1 (eq. M6b); the paper (motion off, the "
+            "defaults): both 0.\n\n"
             "### The real dot (evt2_sample.raw), median error\n\n" + dot + "\n\n"
             "### Fast disks on the simulated sensor (ON latency 40 us, OFF 20 us mean), "
             "median error, px\n\n" + disks + "\n\n"

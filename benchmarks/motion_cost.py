@@ -1,13 +1,14 @@
 """The motion model's cost per event (eqs. M1-M8, docs/motion.md) on every backend that
 runs it fast: the float kernel (`cython`), the integer kernel (`fixed`) and its
 microcontroller build (Cortex-M4 and Cortex-M7 instructions, counted in the emulator as
-`springtrack mcu profile` counts them), the model off (the defaults) and on
-(motion_tau_us = 1000, polarity_gain = 1).
+`springtrack mcu profile` counts them): the model off (the defaults, the paper's step:
+motion_tau_us = polarity_gain = 0), both edges without the velocity (polarity_gain = 1,
+eq. M6b) and the whole model (motion_tau_us = 1000, polarity_gain = 1).
 
 Streams: the simulator's face_occlusion scene (face26, seed 1, 1 s, as benchmarks/mcu.py)
 and the real dot of evt2_sample.raw (a one-tracker model placed on it,
 tests/support/dot_truth.py).  Host: ns per event in process CPU time, best of --repeat
-runs, the four contenders alternating run by run (the machine is shared).  Cortex-M: the
+runs, the six contenders alternating run by run (the machine is shared).  Cortex-M: the
 mean instructions per event over the first --events events.
 
 Run: .venv/bin/python benchmarks/motion_cost.py [--repeat N] [--events N] [--no-write]
@@ -36,7 +37,8 @@ from support.dot_truth import dot_model_toml, dot_truth   # noqa: E402
 from _report import machine, write_section                # noqa: E402
 
 MOTION = dict(motion_tau_us=1000.0, polarity_gain=1.0)
-SETTINGS = (("off", {}), ("on", MOTION))
+OFF = dict(motion_tau_us=0.0, polarity_gain=0.0)
+SETTINGS = (("off", OFF), ("edges", dict(OFF, polarity_gain=1.0)), ("on", MOTION))
 TARGETS = ("cortex-m4", "cortex-m7")
 
 
@@ -83,24 +85,26 @@ def main(argv=None):
     ap.add_argument("--no-write", action="store_true", help="print only")
     a = ap.parse_args(argv)
     t0 = time.time()
-    lines = ["| stream | backend | motion off | motion on | extra per event |",
-             "|---|---|---:|---:|---:|"]
+    lines = ["| stream | backend | motion off (the defaults) | both edges (eq. M6b) "
+             "| motion on | extra per event: edges / on |",
+             "|---|---|---:|---:|---:|---:|"]
     for label, model, ev in streams():
         ns = host_ns(model, ev, a.repeat)
         for b in ("cython", "fixed"):
-            off, on = ns[(b, "off")], ns[(b, "on")]
+            off, de, on = ns[(b, "off")], ns[(b, "edges")], ns[(b, "on")]
             lines.append(f"| {label}, {len(ev):,} events | {b} (ns/event) | {off:.1f} | "
-                         f"{on:.1f} | {on - off:+.1f} ns |")
+                         f"{de:.1f} | {on:.1f} | {de - off:+.1f} / {on - off:+.1f} ns |")
         ins = mcu_instructions(model, ev, a.events)
         for tgt in TARGETS:
-            off, on = ins[(tgt, "off")], ins[(tgt, "on")]
+            off, de, on = ins[(tgt, "off")], ins[(tgt, "edges")], ins[(tgt, "on")]
             lines.append(f"| {label}, first {min(a.events, len(ev)):,} events | {tgt} "
-                         f"(instructions/event) | {off:.0f} | {on:.0f} | {on - off:+.0f} "
-                         f"({100 * (on - off) / off:+.0f} %) |")
+                         f"(instructions/event) | {off:.0f} | {de:.0f} | {on:.0f} | "
+                         f"{de - off:+.0f} ({100 * (de - off) / off:+.0f} %) / "
+                         f"{on - off:+.0f} ({100 * (on - off) / off:+.0f} %) |")
         print("\n".join(lines[-4:]), flush=True)
     body = (f"`.venv/bin/python benchmarks/motion_cost.py --repeat {a.repeat} --events "
             f"{a.events}` ({time.time() - t0:.0f} s), {machine()}.  Motion model on: "
-            + ", ".join(f"{k} = {v:g}" for k, v in MOTION.items()) + "; off: the defaults.  "
+            + ", ".join(f"{k} = {v:g}" for k, v in MOTION.items()) + "; off: the defaults (the paper's step, both 0); both edges: polarity_gain = 1 alone.  "
             "Host: best of the runs in process CPU time, the contenders alternating; the "
             "machine is shared and loaded, so expect tens of percent of noise in ns.  "
             "Cortex-M: exact counts of the emulated instructions (`springtrack mcu "

@@ -68,7 +68,7 @@ SPECS: dict[str, ParamSpec] = {s.name: s for s in [
     ParamSpec("prediction_horizon_us", float, 500.0, 0.0, 1e6, "us",
               "H, eq. (M1): a mean is carried along its velocity at most this long after "
               "the tracker's last event"),
-    ParamSpec("polarity_gain", float, 1.0, 0.0, 1.0, "",
+    ParamSpec("polarity_gain", float, 0.0, 0.0, 1.0, "",
               "c_h, eqs. (M6)/(M6b): weight of the half offset between a part's ON and OFF "
               "edges (relative to the mean's gain; without a velocity, of the share of it "
               "the tracker's balance of polarities supports); 0: one mean for both "

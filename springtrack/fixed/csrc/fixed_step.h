@@ -156,7 +156,6 @@ typedef struct {
        the Kalman covariance in units of tau_m: pp, pv tau_m, vv tau_m^2, Q.32 */
     int32_t vx[FX_MAX_TRACKERS], vy[FX_MAX_TRACKERS];
     int64_t hx[FX_MAX_TRACKERS], hy[FX_MAX_TRACKERS];
-    uint32_t fon[FX_MAX_TRACKERS];            /* ON share of its events Q.30 (tau_m = 0: M6b) */
     int64_t tm[FX_MAX_TRACKERS];
     int64_t kpp[FX_MAX_TRACKERS], kpv[FX_MAX_TRACKERS], kvv[FX_MAX_TRACKERS];
     uint32_t mq[FX_MAX_TRACKERS];             /* mass / max mass, Q.24 (centre of mass) */
@@ -213,6 +212,9 @@ typedef struct {
     int64_t mean_dth;
     int32_t dth[FX_MAX_CONNECTIONS];
 #endif
+    /* eq. (M6b) without a velocity: each tracker's ON share of its events, Q.30 (last, so
+       that the fields the paper's step uses keep their offsets from the state's start) */
+    uint32_t fon[FX_MAX_TRACKERS];
 } fx_state;
 
 /* Several model instances (springtrack.instances): one loaded fx_state per instance

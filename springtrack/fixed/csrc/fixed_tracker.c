@@ -190,6 +190,38 @@ static __attribute__((noinline)) void update_tracker(fx_state *s, int i, int64_t
     covariance_step(s, i, dx, dy);
 }
 
+/* eqs. (M6) / (M6b) for tracker i after an event of polarity p with the residual (rx, ry)
+   about its edge (eq. M4), the mean's gain K_p = gain */
+static inline __attribute__((always_inline)) void half_offsets(fx_state *s, int i, int32_t p,
+                                                             int64_t rx, int64_t ry,
+                                                             uint32_t gain)
+{
+    uint32_t gh;
+    if (s->c_h <= 0)
+        return;
+    gh = (uint32_t)((umul(s->c_h, gain) + (1u << 29)) >> 30);
+    if (s->tau_ceil > 0) {                                /* eq. (M6): h += c_h K_p s r */
+        int64_t hx = mulsh(rx, gh, 30), hy = mulsh(ry, gh, 30);
+        s->hx[i] = clamp64(p ? s->hx[i] + hx : s->hx[i] - hx, s->h_max);
+        s->hy[i] = clamp64(p ? s->hy[i] + hy : s->hy[i] - hy, s->h_max);
+    } else {
+        /* eq. (M6b): f += K (on - f), b = 4 f (1 - f) (Q.30, <= 1),
+           h += c_h K (b s r - (1 - b) h) */
+        int64_t f = (int64_t)s->fon[i], hx, hy;
+        uint32_t b, nb;
+        f += mulsh((p ? (int64_t)1 << 30 : 0) - f, gain, 30);
+        s->fon[i] = (uint32_t)f;
+        b = (uint32_t)(((uint64_t)f * (uint64_t)(((int64_t)1 << 30) - f)) >> 28);
+        nb = (1u << 30) - b;
+        hx = mulsh(rx, b, 30);
+        hy = mulsh(ry, b, 30);
+        hx = (p ? hx : -hx) - mulsh(s->hx[i], nb, 30);
+        hy = (p ? hy : -hy) - mulsh(s->hy[i], nb, 30);
+        s->hx[i] = clamp64(s->hx[i] + mulsh(hx, gh, 30), s->h_max);
+        s->hy[i] = clamp64(s->hy[i] + mulsh(hy, gh, 30), s->h_max);
+    }
+}
+
 /* [ref] _update with the motion model (eqs. M1-M7, fixed_motion.c) for the winning
    tracker i of an event of polarity p at pixel (x, y), its d^2 about the predicted mean
    given */
@@ -213,33 +245,29 @@ static __attribute__((noinline)) void update_moving(fx_state *s, int i, int64_t 
     /* eq. (M5): m = m^ + K_p r (eq. 3 when v = h = 0 and K_p = alpha1) */
     s->mx[i] = sat_pos(s, px + mulsh(rx, gain, 30));
     s->my[i] = sat_pos(s, py + mulsh(ry, gain, 30));
-    if (s->c_h > 0) {
-        uint32_t gh = (uint32_t)((umul(s->c_h, gain) + (1u << 29)) >> 30);
-        if (s->tau_ceil > 0) {                            /* eq. (M6): h += c_h K_p s r */
-            int64_t hx = mulsh(rx, gh, 30), hy = mulsh(ry, gh, 30);
-            s->hx[i] = clamp64(p ? s->hx[i] + hx : s->hx[i] - hx, s->h_max);
-            s->hy[i] = clamp64(p ? s->hy[i] + hy : s->hy[i] - hy, s->h_max);
-        } else {
-            /* eq. (M6b): f += K (on - f), b = 4 f (1 - f) (Q.30, <= 1),
-               h += c_h K (b s r - (1 - b) h) */
-            int64_t f = (int64_t)s->fon[i], hx, hy;
-            uint32_t b, nb;
-            f += mulsh((p ? (int64_t)1 << 30 : 0) - f, gain, 30);
-            s->fon[i] = (uint32_t)f;
-            b = (uint32_t)(((uint64_t)f * (uint64_t)(((int64_t)1 << 30) - f)) >> 28);
-            nb = (1u << 30) - b;
-            hx = mulsh(rx, b, 30);
-            hy = mulsh(ry, b, 30);
-            hx = (p ? hx : -hx) - mulsh(s->hx[i], nb, 30);
-            hy = (p ? hy : -hy) - mulsh(s->hy[i], nb, 30);
-            s->hx[i] = clamp64(s->hx[i] + mulsh(hx, gh, 30), s->h_max);
-            s->hy[i] = clamp64(s->hy[i] + mulsh(hy, gh, 30), s->h_max);
-        }
-    }
+    half_offsets(s, i, p, rx, ry, gain);                  /* eq. (M6) or (M6b) */
     if (s->tau_ceil > 0)                                  /* eq. (M7): v += K_v r */
         set_velocity(s, i, (int32_t)clamp64(s->vx[i] + velocity_step(s, rx, kv), V_MAX),
                      (int32_t)clamp64(s->vy[i] + velocity_step(s, ry, kv), V_MAX));
     covariance_step(s, i, dx, dy);                        /* eqs. (4)-(5) about m^ */
+}
+
+/* update_moving at FX_MOTION_EDGES (tau_m = 0, every v = 0): eq. (M1)'s prediction adds
+   zeros and the gain is alpha1, so they are left out (the same integers) */
+static __attribute__((noinline)) void update_edges(fx_state *s, int i, int64_t t, int32_t x,
+                                                 int32_t y, uint32_t d2, int32_t p)
+{
+    int64_t dx, dy, rx, ry;
+    activity_step(s, i, t, d2);
+    s->tm[i] = t;
+    dx = shl64(x, FX_POS_FRAC) - s->mx[i];                /* eq. (5) */
+    dy = shl64(y, FX_POS_FRAC) - s->my[i];
+    rx = p ? dx - s->hx[i] : dx + s->hx[i];               /* eq. (M4) */
+    ry = p ? dy - s->hy[i] : dy + s->hy[i];
+    s->mx[i] = sat_pos(s, s->mx[i] + mulsh(rx, s->a1, 30));   /* eq. (M5), K_p = alpha1 */
+    s->my[i] = sat_pos(s, s->my[i] + mulsh(ry, s->a1, 30));
+    half_offsets(s, i, p, rx, ry, s->a1);                 /* eq. (M6b) */
+    covariance_step(s, i, dx, dy);                        /* eqs. (4)-(5) */
 }
 
 /* eq. (2) for candidate i: it becomes the best if its d^2 is below the best so far; with
@@ -301,8 +329,10 @@ static inline __attribute__((always_inline)) void take(fx_state *s, int best, in
                                                       int32_t x, int32_t y, uint32_t d2,
                                                       int32_t p, int moving)
 {
-    if (moving)
+    if (moving == FX_MOTION_FULL)
         update_moving(s, best, t, x, y, d2, p);
+    else if (moving == FX_MOTION_EDGES)
+        update_edges(s, best, t, x, y, d2, p);
     else
         update_tracker(s, best, t, shl64(x, FX_POS_FRAC) - s->mx[best],
                        shl64(y, FX_POS_FRAC) - s->my[best], d2);

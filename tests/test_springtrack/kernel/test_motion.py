@@ -71,6 +71,7 @@ def _track(path, model, tmp_path, capsys, *extra):
 
 
 PAPER = dict(motion_tau_us=0.0, polarity_gain=0.0)
+EDGES = dict(polarity_gain=1.0)             # both edges, no velocity: eq. (M6b)
 PAPER_TOML = "[params]\n" + "".join(f"{k} = {v!r}\n" for k, v in PAPER.items())  # asked for
 
 
@@ -219,21 +220,21 @@ def _cloud(n, mu, half, on_share, seed):
 
 @pytest.mark.parametrize("backend", ["reference", "cython", "fixed"])
 def test_without_a_velocity_one_polarity_leaves_no_half_offset(backend):
-    """eq. (M6b), the default: a part that fires one polarity does not tell its edges apart,
+    """eq. (M6b), both edges without a velocity (polarity_gain = 1): a part that fires one polarity does not tell its edges apart,
     so the half offset goes to 0 and the mean to the part (eq. M6 alone split the residual
     between them: a tracker started 5 px off stopped 2.7 px off); a part whose edges fire
     apart, both polarities mixed, keeps them apart and its mean on the midpoint."""
     m = ShapeModel("one", 120, 100, [TrackerSpec("a", 56.0, 53.0, (9.0, 0.0, 9.0))], [])
     for share, half in ((1.0, (0.0, 0.0)), (0.0, (0.0, 0.0)), (0.5, (4.0, 0.0))):
         ev = _cloud(20_000, (60.0, 50.0), np.array(half), share, seed=3)
-        tr = springtrack.Tracker(m, backend=backend).run(ev, sample_us=1000)
+        tr = springtrack.Tracker(m, EDGES, backend=backend).run(ev, sample_us=1000)
         late = slice(len(tr) // 2, None)
         # the mean's bias (alpha1 = 0.2 jitters it by ~1 px about it)
         err = np.hypot(tr.x[late, 0].mean() - 60.0, tr.y[late, 0].mean() - 50.0)
         assert err < 0.3, (share, err)
     # the half offset itself: b = 4 f (1 - f) < 1 as f jitters about 1/2, so h settles
     # below the true 4 px (measured 3.2 px at alpha1 = 0.2; the mean stays on the midpoint)
-    ref = springtrack.reference.ReferenceTracker(m, springtrack.params.Params())
+    ref = springtrack.reference.ReferenceTracker(m, springtrack.params.Params(**EDGES))
     h = []
     for t, x, y, p in zip(*(_cloud(20_000, (60.0, 50.0), np.array([4.0, 0.0]), 0.5, 4)[k]
                             .tolist() for k in "txyp")):

@@ -55,8 +55,8 @@ def host_energies(model, ev):
     k = FixedKernel(model, sparams.resolve(model))
     kind = sparams.resolve(model).energy_kind_index
     out, updates = [k.energies()[kind].astype(np.float32)], 0
-    for t, x, y in zip(ev["t"].tolist(), ev["x"].tolist(), ev["y"].tolist()):
-        k.step(t, x, y)
+    for t, x, y, p in zip(*(ev[c].tolist() for c in "txyp")):
+        k.step(t, x, y, p)
         u = k.counters()["spring_updates"]
         if u != updates:
             updates = u
