@@ -107,7 +107,7 @@ def learn_model(events, trackers: int | None = None, width: int | None = None,
     if pool.n == 0 or counts.sum() == 0:
         raise NoObjectFound("no object found: the learned trackers took no events")
     model, springs, cands, counts = _build_model(pool, rec, counts, lp, tp, width, height,
-                                                 names, name)
+                                                 names, name, stats["outline_merged"])
     model.learned = stability(rec, springs, cands, lp, t0, t1, len(ev)) | model.learned
     hz, share = mains_flicker(ev["t"])
     if share >= FLICKER_SHARE:
@@ -321,11 +321,14 @@ def energy_scale(energies: np.ndarray, quantile: float, floor: float,
     return min(max(floor, float(np.quantile(ratio, quantile))), max(floor, ceiling))
 
 
-def _build_model(pool, rec, counts, lp, track_params, width, height, names, name):
+def _build_model(pool, rec, counts, lp, track_params, width, height, names, name,
+                 outlines=0):
     """The ShapeModel of the pool's trackers, with springs and tracking parameters:
     ``track_params`` (a dict) as given, the others learned (alpha_position: motion_alpha;
     alpha_covariance: alpha_position / covariance_ratio, at most the default;
-    energy_scale: energy_scale; energy_kind: cartesian if every spring is)."""
+    energy_scale: energy_scale; energy_kind: cartesian if every spring is; the motion
+    model for fast parts; both edges, polarity_gain 1, where ``outlines`` pairs of pieces
+    of one outline were merged)."""
     n = pool.n
     st = pool.st
     sig = np.sqrt(0.5 * (st[F["sxx"], :n] + st[F["syy"], :n]))
@@ -367,8 +370,13 @@ def _build_model(pool, rec, counts, lp, track_params, width, height, names, name
     if fast_enough(fast, lp.motion_sigmas_per_ms) and not sets_motion(params):
         # fast parts: velocity and both edges per tracker (eqs. M1-M9) unless given
         params.update(MOTION_ON)
-    motion_on = any(float(params.get(k, 0.0)) > 0 for k in MOTION_ON)
-    if "alpha_covariance" not in params and not motion_on:
+    elif outlines and not sets_motion(params):
+        # uniform parts (the outline merge joined the pieces of their outlines) fire their
+        # ON and OFF edges apart by their size: a half offset per tracker (eq. M6b) puts
+        # its mean between them, where one mean for both sits on the busier edge
+        params["polarity_gain"] = 1.0
+    kalman = float(params.get("motion_tau_us", 0.0)) > 0       # the velocity of eq. (M3)
+    if "alpha_covariance" not in params and not kalman:
         # eq. (4)'s alpha_2 follows alpha_1: the covariance averages covariance_ratio
         # times the events the mean does, as in the paper's grid (0.02 / 5e-5), never
         # faster than the default (the paper's face, 2e-4: faster lost the biplane's

@@ -146,10 +146,13 @@ def test_face_learned_model_tracks_within_2x_the_hand_model():
 
 def test_slow_parts_keep_the_papers_step():
     """The simulator's face moves its parts well under one part size per millisecond: the
-    learned model records its speed and keeps eq. (3) (no motion model written)."""
-    m = learned("face_occlusion", FACE_LEARN_US).model
+    learned model records its speed and writes no velocity; both edges (polarity_gain 1,
+    eq. M6b) only where the outline merge joined pieces of a part (here it does)."""
+    res = learned("face_occlusion", FACE_LEARN_US)
+    m = res.model
     assert 0 < m.learned["sizes_per_ms"] < 0.1 and m.learned["speed_px_s"] > 0
-    assert "motion_tau_us" not in m.params and "polarity_gain" not in m.params
+    assert "motion_tau_us" not in m.params
+    assert res.lifecycle["outline_merged"] > 0 and m.params["polarity_gain"] == 1.0
 
 
 def test_fast_parts_get_the_motion_model_unless_told_otherwise(data_file):
