@@ -220,10 +220,11 @@ def _cloud(n, mu, half, on_share, seed):
 
 @pytest.mark.parametrize("backend", ["reference", "cython", "fixed"])
 def test_without_a_velocity_one_polarity_leaves_no_half_offset(backend):
-    """eq. (M6b), both edges without a velocity (polarity_gain = 1): a part that fires one polarity does not tell its edges apart,
-    so the half offset goes to 0 and the mean to the part (eq. M6 alone split the residual
-    between them: a tracker started 5 px off stopped 2.7 px off); a part whose edges fire
-    apart, both polarities mixed, keeps them apart and its mean on the midpoint."""
+    """eq. (M6b), both edges without a velocity (polarity_gain = 1): a part that fires one
+    polarity does not tell its edges apart, so the half offset goes to 0 and the mean to
+    the part (eq. M6 alone split the residual between them: a tracker started 5 px off
+    stopped 2.7 px off); a part whose edges fire apart, both polarities mixed, keeps them
+    apart and its mean on the midpoint."""
     m = ShapeModel("one", 120, 100, [TrackerSpec("a", 56.0, 53.0, (9.0, 0.0, 9.0))], [])
     for share, half in ((1.0, (0.0, 0.0)), (0.0, (0.0, 0.0)), (0.5, (4.0, 0.0))):
         ev = _cloud(20_000, (60.0, 50.0), np.array(half), share, seed=3)
