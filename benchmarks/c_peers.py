@@ -5,8 +5,8 @@ face scene and the paper's scenes:
 
 * contenders: the float kernel (``Tracker.process``, the default parameters, the similarity
   frame of eq. 22 included, one mean for both polarities as the peers: polarity_gain = 0,
-  the paper's eq. 3, asked for explicitly), the fixed-point kernel (``backend="fixed"``), and the peers of
-  benchmarks/ctrackers (``plain``: plain C, the spring passes vectorised by the compiler;
+  the paper's eq. 3, asked for explicitly), the fixed-point kernel (``backend="fixed"``),
+  and the peers of benchmarks/ctrackers (``plain``: plain C, the spring passes vectorised by the compiler;
   ``simd``: AVX-512 intrinsics, AVX2 where the processor has no AVX-512), all on the same
   numpy structured array of packed records (t int64, x/y int16, p uint8: 13 bytes, as
   expelliarmus, tonic and numpy files hold events);

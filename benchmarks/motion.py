@@ -30,6 +30,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 import springtrack                                        # noqa: E402
 import springtrack.io                                     # noqa: E402
+from springtrack.learning.motion import MOTION_OFF, MOTION_ON         # noqa: E402
 from springtrack.metrics import match_times, score_track, truth_from_array   # noqa: E402
 from springtrack.model import ShapeModel, TrackerSpec     # noqa: E402
 from springtrack.sim.scenes import make_scene             # noqa: E402
@@ -42,8 +43,7 @@ from _report import machine, write_section                # noqa: E402
 from support.dot_truth import dot_truth, track_errors             # noqa: E402
 from support.fast_parts import errors, fast_disk                  # noqa: E402
 
-MOTION = dict(motion_tau_us=1000.0, polarity_gain=1.0)
-OFF = dict(motion_tau_us=0.0, polarity_gain=0.0)
+MOTION, OFF = MOTION_ON, MOTION_OFF
 # both edges without the velocity (eq. M6b)
 EDGES = dict(OFF, polarity_gain=1.0)
 # the columns of every table: the paper's step (the defaults), both edges, the whole model

@@ -30,14 +30,14 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 import springtrack                                        # noqa: E402
 import springtrack.io                                     # noqa: E402
+from springtrack.learning.motion import MOTION_OFF, MOTION_ON   # noqa: E402
 from springtrack.params import Params                     # noqa: E402
 from springtrack.sim.sensor import simulate_all           # noqa: E402
 from support.dot_truth import dot_model_toml, dot_truth   # noqa: E402
 
 from _report import machine, write_section                # noqa: E402
 
-MOTION = dict(motion_tau_us=1000.0, polarity_gain=1.0)
-OFF = dict(motion_tau_us=0.0, polarity_gain=0.0)
+MOTION, OFF = MOTION_ON, MOTION_OFF
 SETTINGS = (("off", OFF), ("edges", dict(OFF, polarity_gain=1.0)), ("on", MOTION))
 TARGETS = ("cortex-m4", "cortex-m7")
 
@@ -104,7 +104,8 @@ def main(argv=None):
         print("\n".join(lines[-4:]), flush=True)
     body = (f"`.venv/bin/python benchmarks/motion_cost.py --repeat {a.repeat} --events "
             f"{a.events}` ({time.time() - t0:.0f} s), {machine()}.  Motion model on: "
-            + ", ".join(f"{k} = {v:g}" for k, v in MOTION.items()) + "; off: the defaults (the paper's step, both 0); both edges: polarity_gain = 1 alone.  "
+            + ", ".join(f"{k} = {v:g}" for k, v in MOTION.items()) + "; off: the defaults "
+            "(the paper's step, both 0); both edges: polarity_gain = 1 alone.  "
             "Host: best of the runs in process CPU time, the contenders alternating; the "
             "machine is shared and loaded, so expect tens of percent of noise in ns.  "
             "Cortex-M: exact counts of the emulated instructions (`springtrack mcu "

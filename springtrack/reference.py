@@ -162,7 +162,7 @@ class ReferenceTracker:
         self.hx = [0.0] * self.n
         self.hy = [0.0] * self.n
         # without a velocity (tau_m = 0), the ON share of the tracker's events at its
-        # mean's gain: how far eq. (M6) may tell its two edges apart
+        # mean's gain: how far eq. (M6b) may tell its two edges apart
         self.fon = [0.5] * self.n
         self.tm = [0] * self.n
         self.kpp = [P_UNKNOWN] * self.n

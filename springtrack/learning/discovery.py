@@ -124,7 +124,7 @@ def _discover(pool: Pool, ev: np.ndarray, t0: int, t1: int, stats: dict) -> Hist
             if len(batch) and lp.outline_cover > 0:
                 # the parts' outlines among the pixels that fired over the trackers' memory
                 ok = outlines.find(pool.last, te - int(lp.life_tau_us), lp.sigma_max_px,
-                                     lp.outline_cover)
+                                   lp.outline_cover)
                 pool.book["outline"][:pool.n] = outlines.of_trackers(ok, batch, w, pool.x, pool.y)
         while pool.n > 1:
             pair = _merge_candidate(pool)

@@ -13,6 +13,7 @@ import springtrack.io
 import springtrack.events
 import springtrack.params
 import springtrack.reference
+from springtrack.learning.motion import MOTION_OFF
 from springtrack.model import ShapeModel, TrackerSpec
 from springtrack.sim.synthetic import blob_stream
 from springtrack.commands.track import DOUBTFUL_EXIT
@@ -70,9 +71,9 @@ def _track(path, model, tmp_path, capsys, *extra):
     return read_csv(out)
 
 
-PAPER = dict(motion_tau_us=0.0, polarity_gain=0.0)
+PAPER = MOTION_OFF                          # the paper's step, asked for
 EDGES = dict(polarity_gain=1.0)             # both edges, no velocity: eq. (M6b)
-PAPER_TOML = "[params]\n" + "".join(f"{k} = {v!r}\n" for k, v in PAPER.items())  # asked for
+PAPER_TOML = "[params]\n" + "".join(f"{k} = {v!r}\n" for k, v in PAPER.items())
 
 
 @pytest.mark.parametrize("acquire", [[], ["--acquire"]])
