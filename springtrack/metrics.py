@@ -18,6 +18,10 @@ Scored parts and length, computed from the truth at the matched time:
   parts only (``face_length="internal"``, brows to mouth, about 0.48 of the face height,
   which gives about twice the percentage).
 
+A rigid scene's image motion scores any track, a learned model's too
+(:func:`rigid_motion_error`: each tracker against where the scene's motion takes the point
+it sat on at the first sample, beside standing still).
+
 Time matching: truth is sampled every 1 ms; each track sample time is matched to the
 nearest truth time (ties to the earlier one).  Track samples farther than ``max_gap_us``
 (default 1000 us) from any truth time are not scored and are counted, as are parts
@@ -165,6 +169,54 @@ def _nanmean_rows(a: np.ndarray) -> np.ndarray:
     n = (~np.isnan(a)).sum(axis=1)
     s = np.nansum(a, axis=1)
     return np.where(n > 0, s / np.maximum(n, 1), np.nan)
+
+
+@dataclass
+class MotionError:
+    """:func:`rigid_motion_error`'s result: per-sample errors of a track and of standing
+    still (the trackers left where they were at the first sample)."""
+    t_us: np.ndarray        # (n,) sample times
+    err_px: np.ndarray      # (n, K) distance of each tracker from where the motion takes it
+    still_px: np.ndarray    # (n, K) the same for a tracker that never moved
+    length: np.ndarray      # (n,) object length, px
+    pct: np.ndarray         # (n,) mean of err_px over the trackers, % of length
+    still_pct: np.ndarray   # (n,) the same standing still
+
+    @property
+    def mean_pct(self) -> float:
+        return float(np.nanmean(self.pct)) if len(self.pct) else float("nan")
+
+    @property
+    def still_mean_pct(self) -> float:
+        return float(np.nanmean(self.still_pct)) if len(self.still_pct) else float("nan")
+
+
+def rigid_motion_error(track, transform, length) -> MotionError:
+    """The error of a track of a rigid scene against the scene's image motion, whatever
+    the trackers sit on (a learned model's pieces of edges as well as a hand-made
+    model's parts): each tracker should move as the point of the scene under it at the
+    first sample does.
+
+    ``transform(t_s)`` -> (A (2, 2), b (2,)): the scene point of rest coordinates p is
+    seen at A p + b at time t_s; ``length(t_s)`` -> the object's length (px) for the
+    percentage.  A tracker at m0 at the first sample t0 belongs at
+    A(t) A(t0)^-1 (m0 - b(t0)) + b(t) at time t."""
+    t_us = np.asarray(track.t_us, np.int64)
+    x, y = np.asarray(track.x, float), np.asarray(track.y, float)
+    n, k = x.shape
+    err, still = np.full((n, k), np.nan), np.full((n, k), np.nan)
+    lens = np.full(n, np.nan)
+    if n:
+        a0, b0 = transform(t_us[0] * 1e-6)
+        rest = (np.column_stack([x[0], y[0]]) - b0) @ np.linalg.inv(a0).T
+        for i, t in enumerate(t_us):
+            a, b = transform(t * 1e-6)
+            want = rest @ np.asarray(a).T + b
+            err[i] = np.hypot(x[i] - want[:, 0], y[i] - want[:, 1])
+            still[i] = np.hypot(x[0] - want[:, 0], y[0] - want[:, 1])
+            lens[i] = length(t * 1e-6)
+    return MotionError(t_us, err, still, lens, 100.0 * _nanmean_rows(err) / lens,
+                       100.0 * _nanmean_rows(still) / lens)
 
 
 def score_track(truth: Truth, track, **kw) -> ErrorSeries:

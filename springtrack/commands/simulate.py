@@ -31,6 +31,8 @@ EPILOG = """\
   grid_rot_y      rotation about the vertical axis +-60 deg at 15 deg/s
   face_occlusion  a bright face with dark features before a dark wall; a hand passes 3 times
   dots            a dark and a bright disc back and forth at --speed px/s (--radius px)
+  shapes_handheld eight dark shapes on a wall filmed by a hand-held camera moving at
+                  --speed px/s RMS (default 150; use --refresh-hz 1000)
 truth CSV: t_us,part,x,y every 1 ms; part = the tracker ids of the matching preset
 (grid3x3 / face26); --model-out writes that preset placed at the scene's start.
 """
@@ -55,7 +57,8 @@ def add_arguments(p):
     p.add_argument("--refresh-hz", type=float,
                    help="screen refresh rate in Hz, --generator screen only (default 100)")
     p.add_argument("--speed", type=float,
-                   help="dots: speed of the discs in px/s (default 100)")
+                   help="dots: speed of the discs in px/s (default 100); shapes_handheld: "
+                        "RMS speed of the camera's image motion in px/s (default 150)")
     p.add_argument("--radius", type=float, help="dots: radius of the discs in px (default 6)")
     p.add_argument("--hot-pixels", type=int,
                    help="number of hot pixels (default: the generator's, sensor 0, screen 2)")
@@ -94,8 +97,10 @@ def run(args) -> int:
         extra["refresh_hz"] = args.refresh_hz
     scene_params = {k: v for k, v in (("speed", args.speed), ("radius", args.radius))
                     if v is not None}
-    if scene_params and args.scene != "dots":
-        raise ValueError("--speed and --radius apply to the dots scene only")
+    if args.radius is not None and args.scene != "dots":
+        raise ValueError("--radius applies to the dots scene only")
+    if args.speed is not None and args.scene not in ("dots", "shapes_handheld"):
+        raise ValueError("--speed applies to the dots and shapes_handheld scenes only")
     cfg = gen.config(args.noise_rate, args.hot_pixels, **extra)
     scene = gen.make_scene(args.scene, seed=args.seed, **scene_params)
     if args.model_out:

@@ -20,6 +20,10 @@ of the rim: a disc of radius r has sigma = r / sqrt(2).
                    dark brows, eyes, nostrils and mouth (the 7 internal parts of face26)
                    before a dark wall, moving, rolling and approaching; a hand (palm,
                    four fingers, thumb; opaque) sweeps across its lower half 3 times.
+``shapes_handheld`` eight dark shapes (discs, a ring, ellipses, a bar, a pair) on a bright
+                   wall filmed by a hand-held camera (shift, roll, zoom; ``speed`` px/s
+                   RMS); ``transform(t)`` gives the whole image motion, the truth of a
+                   learned model's trackers wherever they sit.
 ``dots``           a dark and a bright disc (ids ``dark``, ``bright``) going back and forth
                    along rows y = 80 and 160 at ``speed`` px/s (radius ``radius`` px) on a
                    mid-grey screen; for fast-motion and learning tests.
@@ -312,8 +316,106 @@ class Dots(ScreenScene):
                           source="screen scene dots")
 
 
+class ShapesHandheld(ScreenScene):
+    """Eight dark shapes of different sizes and elongations on a bright wall (a disc, a
+    ring, ellipses, a bar, a small dot and a pair of touching discs), filmed by a camera
+    held in the hand: the image shifts by a sum of three sinusoids per axis (1.2-3.5 Hz)
+    whose RMS speed is ``speed`` px/s, rolls by up to 3 deg and zooms by up to 3 %; a
+    rigid scene of distinct parts for learning a model from a short window.  Its truth is
+    each shape's centre; :meth:`transform` gives the whole image motion, so any point
+    learned at one time can be scored at another."""
+    name = "shapes_handheld"
+    part_ids = [f"s{k}" for k in range(8)]
+    default_seconds = 1.0
+    background = 0.9
+    value = 0.08
+
+    def __init__(self, seed=0, speed=150.0):
+        super().__init__(seed)
+        self.speed = float(speed)
+        if not self.speed >= 0:
+            raise ValueError(f"shapes_handheld: speed must be >= 0, got {speed}")
+        rng = np.random.default_rng([self.seed, 61])
+        cells = np.array([[(c - 1.5) * 62.0, (r - 0.5) * 70.0] for r in range(2)
+                          for c in range(4)])
+        self.layout = cells + rng.uniform(-10.0, 10.0, size=cells.shape)
+
+        def ellipse(a, b):
+            th = rng.uniform(0.0, math.pi)
+            c, s = math.cos(th), math.sin(th)
+            return np.array([[c, -s], [s, c]]) @ np.diag([a, b])
+
+        # (matrix, extra rows in shape coordinates: (dx, dy, matrix, value))
+        self.kinds = [(12.0 * np.eye(2), []),                               # disc
+                      (13.0 * np.eye(2), [(0.0, 0.0, 6.5 * np.eye(2), self.background)]),
+                      (ellipse(15.0, 7.0), []),
+                      (ellipse(18.0, 4.0), []),                             # bar
+                      (6.0 * np.eye(2), []),                                # small dot
+                      (ellipse(11.0, 8.0), []),
+                      (7.0 * np.eye(2), [(14.0, 0.0, 7.0 * np.eye(2), self.value)]),  # pair
+                      (ellipse(14.0, 10.0), [])]
+        order = rng.permutation(len(self.kinds))
+        self.kinds = [self.kinds[k] for k in order]
+        self.f = rng.uniform(1.2, 3.5, size=(2, 3))
+        self.ph = rng.uniform(0.0, 2 * math.pi, size=(2, 3))
+        self.a = self.speed / (2 * math.pi * self.f * math.sqrt(3.0))
+        self.rot = (math.radians(3.0), rng.uniform(0.4, 1.2), rng.uniform(0, 2 * math.pi))
+        self.zoom = (0.03, rng.uniform(0.3, 1.0), rng.uniform(0, 2 * math.pi))
+
+    def pose(self, t):
+        """image shift (dx, dy) px, roll (rad), scale."""
+        d = (self.a * (np.sin(2 * math.pi * self.f * t + self.ph) - np.sin(self.ph))).sum(axis=1)
+        amp, f, ph = self.rot
+        roll = amp * (math.sin(2 * math.pi * f * t + ph) - math.sin(ph))
+        amp, f, ph = self.zoom
+        scale = 1.0 + amp * (math.sin(2 * math.pi * f * t + ph) - math.sin(ph))
+        return d[0], d[1], roll, scale
+
+    def transform(self, t):
+        """(A, b): the scene point at rest position p (px, about the sensor's centre)
+        is seen at A p + b at time t."""
+        dx, dy, roll, scale = self.pose(t)
+        c, s = math.cos(roll), math.sin(roll)
+        return scale * np.array([[c, -s], [s, c]]), np.array([CX + dx, CY + dy])
+
+    def truth(self, t):
+        A, b = self.transform(t)
+        return self.layout @ A.T + b
+
+    def shapes(self, t):
+        A, b = self.transform(t)
+        rows = []
+        for (x, y), (m, extra) in zip(self.layout, self.kinds):
+            u, v = A @ (x, y) + b
+            rows.append(shape(u, v, A @ m, self.value))
+            for ex, ey, em, val in extra:
+                eu, ev = A @ (x + ex, y + ey) + b
+                rows.append(shape(eu, ev, A @ em, val))
+        return np.array(rows)
+
+    def initial_model(self, **kw):
+        """One tracker per shape at rest (its rim's covariance), each linked to its two
+        nearest neighbours by a Euclidean spring (stiffness ``kw.get('stiffness', 0.001)``)."""
+        from springtrack.model import Connection
+        xy = self.truth(0.0)
+        trackers = []
+        for k, (x, y), (m, _) in zip(self.part_ids, xy, self.kinds):
+            c = 0.5 * m @ m.T
+            trackers.append(TrackerSpec(k, float(x), float(y), (c[0, 0], c[0, 1], c[1, 1])))
+        links = set()
+        for i in range(len(xy)):
+            dist = np.hypot(*(xy - xy[i]).T)
+            for j in np.argsort(dist)[1:3]:
+                links.add((min(i, int(j)), max(i, int(j))))
+        conns = [Connection(self.part_ids[i], self.part_ids[j], ("euclidean",),
+                            float(kw.get("stiffness", 0.001))) for i, j in sorted(links)]
+        return ShapeModel("shapes_handheld", WIDTH, HEIGHT, trackers, conns, {},
+                          source="screen scene shapes_handheld")
+
+
 SCENES: dict[str, type[ScreenScene]] = {c.name: c for c in
-                                         (GridPull, GridInplane, GridRotY, FaceOcclusion, Dots)}
+                                         (GridPull, GridInplane, GridRotY, FaceOcclusion, Dots,
+                                          ShapesHandheld)}
 
 
 def make_scene(name, seed: int = 0, **params) -> ScreenScene:

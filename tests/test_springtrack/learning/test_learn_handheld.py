@@ -1,0 +1,69 @@
+"""Learning a rigid scene of distinct parts filmed by a hand-held camera
+(springtrack.sim.screen's ``shapes_handheld``: eight dark shapes on a bright wall, the
+image shifting, rolling and zooming), from 30 ms and the defaults, as `track
+--learn-first-ms 30` does; scored by the scene's own image motion
+(springtrack.metrics.rigid_motion_error), beside standing still.  docs/learning.md
+("A rigid scene, a hand-held camera")."""
+from __future__ import annotations
+
+import functools
+import math
+
+import numpy as np
+import pytest
+
+from springtrack import Tracker
+from springtrack.learning.learner import learn_model
+from springtrack.metrics import rigid_motion_error
+from springtrack.sim import screen
+from springtrack.sim.screen.pixels import ScreenConfig
+
+SECONDS = 0.5
+LEARN_US = 30_000
+# the camera sees the wall move continuously: a fast refresh, not a 100 Hz screen's steps
+CONFIG = ScreenConfig(refresh_hz=1000.0)
+
+
+@functools.lru_cache(maxsize=None)
+def learned_and_tracked(speed: float):
+    """(scene, learned model, its track of the rest of the stream)."""
+    sc = screen.make_scene("shapes_handheld", seed=0, speed=speed)
+    ev, _ = screen.simulate_all(sc, SECONDS, seed=0, config=CONFIG)
+    cut = int(np.searchsorted(ev["t"], LEARN_US))
+    model = learn_model(ev[:cut], width=CONFIG.width, height=CONFIG.height).model
+    return sc, model, Tracker(model).run(ev[cut:], 1000)
+
+
+def layout_length(sc):
+    """The diagonal of the shapes' centres' bounding box at t_s (px)."""
+    def length(t_s):
+        xy = sc.truth(t_s)
+        return math.hypot(*(xy.max(axis=0) - xy.min(axis=0)))
+    return length
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("speed,limit", [(60.0, 1.2), (150.0, 1.2)])
+def test_a_model_learned_from_30_ms_follows_the_scene(speed, limit):
+    """The learned trackers move with the wall: mean error under ``limit`` % of the
+    layout's diagonal and under a third of standing still's (measured on 0.5 s: 60 px/s
+    0.73 % against 3.85 %, 150 px/s 0.76 % against 10.01 %)."""
+    sc, model, track = learned_and_tracked(speed)
+    assert 8 <= len(model.trackers) <= 40
+    err = rigid_motion_error(track, sc.transform, layout_length(sc))
+    assert err.mean_pct < limit, (err.mean_pct, err.still_mean_pct)
+    assert err.mean_pct < err.still_mean_pct / 3, (err.mean_pct, err.still_mean_pct)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="the learned trackers sit on the shapes' edges, "
+                   "5-12 px from their centres: a part-centred truth scores the model "
+                   "3-4 % where it follows the scene within 1 % (docs/learning.md)")
+def test_each_shape_has_a_tracker_near_its_centre():
+    """Each shape's nearest learned tracker within 3 px of its centre (median over the
+    shapes) when the learning ends."""
+    sc, model, _ = learned_and_tracked(150.0)
+    xy = np.array([(t.x, t.y) for t in model.trackers])
+    centres = sc.truth(LEARN_US * 1e-6)
+    d = np.hypot(xy[:, None, 0] - centres[None, :, 0], xy[:, None, 1] - centres[None, :, 1])
+    assert float(np.median(d.min(axis=0))) < 3.0, np.round(d.min(axis=0), 1)
