@@ -8,6 +8,7 @@ import warnings
 
 import numpy as np
 
+from .edges import bends, facing_pairs
 from .outlines import Outlines
 from .pool import BirthField, Pool, contrast_sign, union_series
 from .settings import F, LEVEL_EVERY
@@ -15,6 +16,8 @@ from .springs import relative_neighbours
 
 
 # ---- the passes -------------------------------------------------------------------------
+SERIES = ("x", "y", "act", "cnt", "valid")     # a tracker's samples in History.series
+
 # Empty batches in a row after which the rest of a pause is skipped: the pool's decay is
 # exact over any time step (Pool.decay), so a long pause costs no more than this many
 # batches (and History rows): time and memory follow the events, not the time span.
@@ -182,6 +185,30 @@ def _merge_candidate(pool: Pool):
     return None
 
 
+def join_edges(pool: Pool, rec: dict, t: int, stats: dict) -> dict:
+    """The discovery's end: the pairs of trackers that are the two edges of one uniform
+    part (learning.edges, over the pixels of the last ``life_tau_us``) merged, the
+    nearest first, each into the union of both; returns the samples ``rec`` of the new set
+    (a merged pair's those of the union, :func:`union_series`)."""
+    if pool.lp.edge_polarity <= 0 or pool.n < 2:
+        return rec
+    rec = dict(rec)
+    bends(pool, t - int(pool.lp.life_tau_us))
+    while True:
+        pair = next(((a, b) for a, b in zip(*(v.tolist() for v in facing_pairs(pool)[:2]))
+                     if pool.union_fits(a, b)), None)
+        if pair is None:
+            return rec
+        i, j = pair
+        wi, wj = pool.recent[i] + 1e-9, pool.recent[j] + 1e-9
+        pool.merge(i, j, t)                     # the union's bend unknown: it pairs no more
+        cols = [tuple(rec[f][:, k] for f in SERIES) for k in (i, j)]
+        for f, v in zip(SERIES, union_series(cols[0], wi, cols[1], wj, len(rec["t"]))):
+            rec[f][:, i] = v
+        rec = _keep_cols(rec, np.arange(pool.n + 1) != j)
+        stats["edge_merged"] += 1
+
+
 def _dying(pool: Pool, births: "BirthField", t: int) -> np.ndarray:
     """(n,) trackers older than life_tau_us whose recent count is below death_share of
     the pool's median, or below birth_contrast times what the background would give."""
@@ -282,9 +309,9 @@ def _to_count(pool: Pool, rec: dict, n_target: int, t: int, stats: dict) -> dict
         i, j = _closest_pair(pool)
         wi, wj = pool.recent[i] + 1e-9, pool.recent[j] + 1e-9
         pool.merge(i, j, t)
-        cols = [tuple(rec[f][:, k] for f in ("x", "y", "act", "cnt", "valid")) for k in (i, j)]
+        cols = [tuple(rec[f][:, k] for f in SERIES) for k in (i, j)]
         union = union_series(cols[0], wi, cols[1], wj, len(rec["t"]))
-        for f, v in zip(("x", "y", "act", "cnt", "valid"), union):
+        for f, v in zip(SERIES, union):
             rec[f][:, i] = v
         rec = _keep_cols(rec, np.arange(pool.n + 1) != j)
         stats["merged_to_n"] += 1

@@ -13,15 +13,18 @@ from .settings import CONTRAST_MARGIN, CONTRAST_MIN_EVENTS, COVERED_MIN_LEVEL, F
 
 # ---- the pool ---------------------------------------------------------------------------
 # per-tracker bookkeeping next to the state array (all of length POOL_CAPACITY)
-BOOK = ("recent", "total", "born", "uid", "outline")
+BOOK = ("recent", "on", "total", "born", "uid", "outline", "arc_x", "arc_y", "arc_r")
 
 
 class Pool:
     """Free Gaussian trackers (eqs. 2-6) in a state array, with their bookkeeping (``book``:
     ``recent`` event counts decayed with ``life_tau_us``, ``total`` events since birth,
-    ``born`` (µs), ``uid`` (a new one at each birth, merge or split; ``lineage``
-    records the pieces of a merge) and ``outline`` (the part's outline its events lay on
-    at the last look, 0 none: springtrack.learning.outlines)), the events shared by pairs
+    ``on`` the ON events among ``recent``, ``born`` (µs), ``uid`` (a new one at each
+    birth, merge or split; ``lineage`` records the pieces of a merge), ``outline`` (the
+    part's outline its events lay on at the last look, 0 none:
+    springtrack.learning.outlines) and ``arc_x``, ``arc_y``, ``arc_r`` (the centre and
+    radius of curvature of its recent pixels, measured at the discovery's end, radius 0
+    none: springtrack.learning.edges)), the events shared by pairs
     of gates (``overlap``, decayed like ``recent``), each pixel's ON minus OFF events
     (``net``, see :meth:`gaps`) and its latest event time (``last``, µs)."""
 
@@ -68,8 +71,10 @@ class Pool:
         _learn.pool_batch(ev, self.st, n, lp.alpha_position, a2, a2, lp.gate_d2, lp.activity_tau_us, self.smin2,
                           self.smax2, self.width, self.height, w, self.overlap, self.net,
                           self.last)
-        got = np.bincount(w[w >= 0], minlength=n)[:n]
+        took = w >= 0
+        got = np.bincount(w[took], minlength=n)[:n]
         self.recent[:n] += got
+        self.book["on"][:n] += np.bincount(w[took], ev["p"][took] > 0, minlength=n)[:n]
         self.book["total"][:n] += got
         return w
 
@@ -78,6 +83,7 @@ class Pool:
         n = self.n
         f = math.exp(-dt_us / self.lp.life_tau_us)
         self.recent[:n] *= f
+        self.book["on"][:n] *= f
         self.overlap[:n, :n] *= f
 
     def activity(self, t: int) -> np.ndarray:
@@ -151,10 +157,11 @@ class Pool:
         act = self.activity(t)
         self.set_gaussian(i, mu, cov)
         self.st[F["act"], i], self.st[F["tlast"], i] = act[i] + act[j], t
-        for k in ("recent", "total"):
+        for k in ("recent", "on", "total"):
             self.book[k][i] += self.book[k][j]
         self.book["born"][i] = min(self.book["born"][i], self.book["born"][j])
-        self.book["outline"][i] = 0          # the union's own outline: at the next look
+        for k in ("outline", "arc_x", "arc_y", "arc_r"):
+            self.book[k][i] = 0              # the union's own outline and bend: next look
         parents = (int(self.book["uid"][i]), float(wi), int(self.book["uid"][j]), float(wj))
         self.book["uid"][i] = self.new_uid()
         self.lineage[int(self.book["uid"][i])] = parents
@@ -176,7 +183,7 @@ class Pool:
         off = 0.5 * math.sqrt(lam) * v
         half = cov - 0.25 * lam * np.outer(v, v)
         act = 0.5 * self.activity(t)[i]
-        book = {k: 0.5 * self.book[k][i] for k in ("recent", "total")}
+        book = {k: 0.5 * self.book[k][i] for k in ("recent", "on", "total")}
         self.set_gaussian(i, mu - off, half)
         self.st[F["act"], i], self.st[F["tlast"], i] = act, t
         for k, v in book.items():

@@ -60,6 +60,9 @@ class LearnParams:
     outline_cover: float = 0.75        # merge pieces on one outline of recent pixels that
                                        # surrounds its centre in this share of directions
                                        # (learning.outlines; 0: off)
+    edge_polarity: float = 0.75        # merge a uniform part's two edges, arcs bending
+                                       # toward each other whose recent events are each
+                                       # this share one polarity (learning.edges; 0: off)
     death_share: float = 0.05          # of the pool's median recent event count
     keep_share: float = 0.4            # a part takes this share of the median's events
     idle_share: float = 0.1            # ... and is awake (awake()) at the end: this share
@@ -95,6 +98,8 @@ class LearnParams:
             raise ValueError("learn: p_threshold must be in (0, 1)")
         if self.outline_cover > 1:
             raise ValueError("learn: outline_cover is a share of directions, in [0, 1] (0: off)")
+        if self.edge_polarity and not 0.5 < self.edge_polarity <= 1:
+            raise ValueError("learn: edge_polarity is a share of events, in (0.5, 1] (0: off)")
         if not 0 < self.sigma_min_px < self.sigma_max_px:
             raise ValueError("learn: need 0 < sigma_min_px < sigma_max_px")
         for name in ("batch_us", "birth_cell_px", "activity_tau_us", "life_tau_us", "smooth_us",
