@@ -134,6 +134,18 @@ class Track:
                 return None
         return rows
 
+    def between(self, t0_us: int | None, t1_us: int | None) -> "Track":
+        """The samples at times in [t0_us, t1_us) (None: unbounded), their fields copies."""
+        t = self.t_us
+        keep = np.ones(len(t), bool)
+        if t0_us is not None:
+            keep &= t >= t0_us
+        if t1_us is not None:
+            keep &= t < t1_us
+        kw = {f: getattr(self, f)[keep] for f in TRACK_FIELDS}
+        energy = self.energy[keep] if self.energy is not None else None
+        return Track(t[keep], list(self.ids), energy=energy, meta=dict(self.meta), **kw)
+
     def tracker(self, tracker_id) -> dict:
         k = self.ids.index(tracker_id)
         return {f: getattr(self, f)[:, k] for f in TRACK_FIELDS} | {"t_us": self.t_us}

@@ -140,6 +140,11 @@ def overlay(args, events, width, height, origin: int = 0) -> int:
         for f in TRACK_FIELDS:
             setattr(track, f, getattr(track, f)[:, order])
         track.ids = list(mset.ids)
+        if args.start_us is not None or args.end_us is not None:
+            # the frames follow the track's samples: those of the events' span only
+            track = track.between(args.start_us, args.end_us)
+            if not len(track):
+                raise ValueError(f"{args.track}: no samples between --start-us and --end-us")
     else:
         model = models if len(models) > 1 else models[0]
         # as track does: a fast model's motion model and acquisition window (docs/motion.md)

@@ -76,6 +76,9 @@ def add_arguments(p):
                         "then track the rest with it")
     p.add_argument("--params", help="TOML file of parameter overrides (see docs/algorithm.md); "
                                     "with --learn-first-ms its [learn] table sets the learner's")
+    p.add_argument("--model-out", metavar="M.toml",
+                   help="with --learn-first-ms: write the learned model there (for render "
+                        "--model M.toml --track OUT, or to track other recordings with it)")
     options.add_learn_arguments(p)
     options.add_backend_argument(p)
     p.add_argument("--mcu-target", default="cortex-m4", metavar="CORE",
@@ -108,6 +111,9 @@ def open_stream(args):
     from ..model import load_model
     if (not args.model) == (args.learn_first_ms is None):
         raise ValueError("give either --model or --learn-first-ms")
+    if args.model_out and args.learn_first_ms is None:
+        raise ValueError("--model-out writes the model --learn-first-ms learns; with --model "
+                         "the model is already a file")
     reader = stio.open(args.input)
     width, height = reader.width, reader.height
     if args.model:
@@ -134,6 +140,9 @@ def open_stream(args):
         model, source = learn_first(source, args.learn_first_ms, width, height,
                                     name=Path(args.input).stem, params=args.params,
                                     learner=options.learn_params(args))
+        if args.model_out:
+            model.save(args.model_out)
+            print(f"wrote the learned model to {args.model_out}", file=sys.stderr)
     return model, source, prep, reader
 
 
