@@ -200,13 +200,47 @@ def join_edges(pool: Pool, rec: dict, t: int, stats: dict) -> dict:
         if pair is None:
             return rec
         i, j = pair
-        wi, wj = pool.recent[i] + 1e-9, pool.recent[j] + 1e-9
-        pool.merge(i, j, t)                     # the union's bend unknown: it pairs no more
-        cols = [tuple(rec[f][:, k] for f in SERIES) for k in (i, j)]
-        for f, v in zip(SERIES, union_series(cols[0], wi, cols[1], wj, len(rec["t"]))):
-            rec[f][:, i] = v
-        rec = _keep_cols(rec, np.arange(pool.n + 1) != j)
+        rec = _merge_in(pool, rec, i, j, t)
         stats["edge_merged"] += 1
+
+
+def join_outlines(pool: Pool, rec: dict, t: int, stats: dict) -> dict:
+    """The discovery's end: the trackers on one outline of the last ``life_tau_us``'s
+    pixels merged, the nearest first, an outline here any closed curve that keeps one
+    radius per direction and as wide as a part may be (Outlines.find's ``any_shape``; the
+    discovery's outline merge takes thin circles half as wide, whose pieces join while
+    the pool runs); returns the samples ``rec`` of the new set."""
+    lp = pool.lp
+    if lp.outline_cover <= 0 or pool.n < 2:
+        return rec
+    outlines = Outlines(pool.width, pool.height)
+    ok = outlines.find(pool.last, t - int(lp.life_tau_us), lp.sigma_max_px, lp.outline_cover,
+                       any_shape=True)
+    on = outlines.of_pixels(ok, pool)
+    rec = dict(rec)
+    while True:
+        same = (on[:, None] == on[None, :]) & (on[:, None] > 0)
+        i, j = np.nonzero(np.triu(same, 1))
+        d = np.hypot(pool.x[i] - pool.x[j], pool.y[i] - pool.y[j])
+        pair = next(((int(i[k]), int(j[k])) for k in np.argsort(d, kind="stable")
+                     if pool.union_fits(i[k], j[k])), None)
+        if pair is None:
+            return rec
+        a, b = pair
+        rec = _merge_in(pool, rec, a, b, t)
+        on = np.delete(on, b)
+        stats["end_outline_merged"] += 1
+
+
+def _merge_in(pool: Pool, rec: dict, i: int, j: int, t: int) -> dict:
+    """Tracker i becomes the union of i and j (Pool.merge) and its samples ``rec`` those
+    of the union (:func:`union_series`); returns ``rec`` without j's."""
+    wi, wj = pool.recent[i] + 1e-9, pool.recent[j] + 1e-9
+    pool.merge(i, j, t)                         # the union's bend unknown: it pairs no more
+    cols = [tuple(rec[f][:, k] for f in SERIES) for k in (i, j)]
+    for f, v in zip(SERIES, union_series(cols[0], wi, cols[1], wj, len(rec["t"]))):
+        rec[f][:, i] = v
+    return _keep_cols(rec, np.arange(pool.n + 1) != j)
 
 
 def _dying(pool: Pool, births: "BirthField", t: int) -> np.ndarray:

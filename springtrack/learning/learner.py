@@ -13,7 +13,8 @@ from ..model import SPRING_BIT, Connection, ShapeModel, TrackerSpec
 from .motion import MOTION_ON, SPEED_QUANTILE, fast_enough, sets_motion, sizes_per_ms
 from ..params import Params
 from .discovery import (_discover, _keep_cols, _to_count, awake, dominant, event_rates,
-                        event_shares, join_edges, quiet_nan, reference_value)
+                        event_shares, join_edges, join_outlines, quiet_nan,
+                        reference_value)
 from .flicker import FLICKER_SHARE, mains_flicker
 from .pool import Pool
 from .settings import (F, LearnParams, LearnResult, MASS_RANGE, MAX_PARTS, MIN_EVENTS,
@@ -56,7 +57,8 @@ def learn_model(events, trackers: int | None = None, width: int | None = None,
     height = int(height) if height else int(ev["y"].max()) + 1
     t0, t1 = int(ev["t"][0]), int(ev["t"][-1])
     lp = lp.for_window(t1 - t0)
-    stats = {"born": 0, "merged": 0, "outline_merged": 0, "edge_merged": 0, "died": 0,
+    stats = {"born": 0, "merged": 0, "outline_merged": 0, "end_outline_merged": 0,
+             "edge_merged": 0, "died": 0,
              "birth_refused_full": 0, "weak": 0, "dropped_to_n": 0, "merged_to_n": 0,
              "split_to_n": 0, "found": 0,
              "time_scale": round(lp.batch_us / LearnParams().batch_us, 4)}
@@ -75,6 +77,7 @@ def learn_model(events, trackers: int | None = None, width: int | None = None,
                             f"--learn-first-ms) or a shorter grace period (--learn-param "
                             f"life_tau_us=US)")
     rec = history.series(pool.book["uid"][:pool.n], pool.lineage)
+    rec = join_outlines(pool, rec, t1, stats)
     rec = join_edges(pool, rec, t1, stats)
     if trackers is None:
         # pieces of parts that no merge joined take a small share of the events, and

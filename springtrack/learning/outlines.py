@@ -53,11 +53,14 @@ class Outlines:
         self.circle = np.zeros((1, 3))            # (n + 1, 3): centre x, y, radius
 
     def find(self, last: np.ndarray, t_from: int, sigma_max_px: float,
-             cover: float) -> np.ndarray:
+             cover: float, any_shape: bool = False) -> np.ndarray:
         """Label the components of the pixels that fired since ``t_from`` (``last``: each
         pixel's latest event time) into ``self.label`` and fit their circles
         (``self.circle``); returns (n + 1,) bool: component k is a part's outline (index
-        0, no component, is false)."""
+        0, no component, is false).  ``any_shape``: an outline may be as wide as a part
+        (sigma up to ``sigma_max_px``) and any curve that keeps one radius per direction
+        (:func:`_radial_spread`; ``self.circle`` then holds its centroid and median
+        radius), not only a thin circle at most half as wide."""
         n = _learn.recent_components(last, t_from, self.label, self.stack)
         ok = np.zeros(n + 1, bool)
         self.circle = np.zeros((n + 1, 3))
@@ -74,21 +77,51 @@ class Outlines:
         vy = np.bincount(lab, dy * dy, n + 1) / c
         far = dx * dx + dy * dy >= 0.25 * (vx + vy)[lab]
         directions = _directions(dx[far], dy[far], lab[far], n + 1)
+        size = (1.0 if any_shape else OUTLINE_SIZE) * sigma_max_px
         ok = ((cnt >= OUTLINE_MIN_PIXELS)
-              & (np.maximum(vx, vy) <= (OUTLINE_SIZE * sigma_max_px) ** 2)
+              & (np.maximum(vx, vy) <= size ** 2)
               & (directions >= cover * OUTLINE_BINS))
         ok[0] = False
+        r_max = math.sqrt(2.0) * size
         for k in np.flatnonzero(ok).tolist():
             on = lab == k
             fit = _circle(dx[on], dy[on])
-            if fit is None:
-                ok[k] = False
+            if fit is not None and fit[3] <= OUTLINE_THIN * fit[2] and fit[2] <= r_max:
+                cx, cy, r, _ = fit
+                self.circle[k] = (mx[k] + cx, my[k] + cy, r)
                 continue
-            cx, cy, r, rms = fit
-            self.circle[k] = (mx[k] + cx, my[k] + cy, r)
-            ok[k] = (rms <= OUTLINE_THIN * r
-                     and r <= math.sqrt(2.0) * OUTLINE_SIZE * sigma_max_px)
+            ok[k] = False
+            if any_shape:        # not a circle: an outline if it keeps one radius per direction
+                r, thick = _radial_spread(dx[on], dy[on])
+                self.circle[k] = (mx[k], my[k], r)
+                ok[k] = thick <= OUTLINE_THIN * r and r <= r_max
         return ok
+
+    def of_pixels(self, ok: np.ndarray, pool) -> np.ndarray:
+        """(n,) the outline most of each of ``pool``'s trackers' labelled pixels within two
+        sigmas of its mean lie on, if its mean lies within OUTLINE_INSIDE radii of the
+        outline's centre (plus a pixel); 0 if none (:meth:`of_trackers` without the
+        events: at the discovery's end)."""
+        n = pool.n
+        out = np.zeros(n, np.int64)
+        h, w = self.label.shape
+        for i in range(n):
+            mu, cov = pool.gaussian(i)
+            half = 2.0 * math.sqrt(max(float(np.linalg.eigvalsh(cov)[-1]), 0.0)) + 1.0
+            x0, x1 = max(0, int(mu[0] - half)), min(w, int(mu[0] + half) + 2)
+            y0, y1 = max(0, int(mu[1] - half)), min(h, int(mu[1] + half) + 2)
+            if x0 >= x1 or y0 >= y1:
+                continue
+            yy, xx = np.nonzero(self.label[y0:y1, x0:x1])
+            d = np.column_stack([xx + x0 - mu[0], yy + y0 - mu[1]])
+            inside = np.einsum("ij,jk,ik->i", d, np.linalg.inv(cov), d) <= 4.0
+            lab = self.label[yy[inside] + y0, xx[inside] + x0]
+            lab = lab[ok[lab]]
+            if len(lab):
+                out[i] = int(np.bincount(lab).argmax())
+        cx, cy, r = self.circle[out].T
+        out[np.hypot(pool.x - cx, pool.y - cy) > OUTLINE_INSIDE * r + 1.0] = 0
+        return out
 
     def of_trackers(self, ok: np.ndarray, ev: np.ndarray, winner: np.ndarray,
                     x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -123,6 +156,28 @@ def _directions(dx: np.ndarray, dy: np.ndarray, group: np.ndarray, groups: int) 
     seen = np.zeros(groups * OUTLINE_BINS, bool)
     seen[group * OUTLINE_BINS + b] = True
     return seen.reshape(groups, OUTLINE_BINS).sum(axis=1)
+
+
+def _radial_spread(dx: np.ndarray, dy: np.ndarray):
+    """(median radius, RMS distance of the points from their direction's median radius)
+    of offsets (dx, dy) from a centroid, over OUTLINE_BINS directions: small for the
+    outline of a shape seen from inside (a square 0.07 of the radius, a triangle 0.12, a
+    15 x 7 ellipse 0.11), large for a shape that fires all over (a filled disc 0.34) or two
+    outlines that touch (a figure eight 0.28)."""
+    r = np.hypot(dx, dy)
+    b = (np.floor((np.arctan2(dy, dx) + math.pi) * (OUTLINE_BINS / (2.0 * math.pi)))
+         .astype(np.int64) % OUTLINE_BINS)
+    order = np.lexsort((r, b))
+    rs, bs = r[order], b[order]
+    start = np.searchsorted(bs, np.arange(OUTLINE_BINS))
+    count = np.bincount(bs, minlength=OUTLINE_BINS)
+    lo = start + (count - 1) // 2                       # the median of each direction
+    hi = start + count // 2
+    seen = count > 0
+    med = np.zeros(OUTLINE_BINS)
+    med[seen] = 0.5 * (rs[lo[seen]] + rs[hi[seen]])
+    res = rs - med[bs]
+    return float(np.median(r)), math.sqrt(float(np.mean(res * res)))
 
 
 def _circle(x: np.ndarray, y: np.ndarray):

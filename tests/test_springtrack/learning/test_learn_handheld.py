@@ -68,7 +68,7 @@ def layout_length(sc):
 def test_a_model_learned_from_30_ms_follows_the_scene(speed, limit):
     """The learned trackers move with the wall: mean error under ``limit`` % of the
     layout's diagonal and under a third of standing still's (measured on 0.5 s: 60 px/s
-    0.73 % against 3.85 %, 150 px/s 0.76 % against 10.01 %)."""
+    0.65 % against 3.90 %, 150 px/s 0.75 % against 9.85 %)."""
     sc, model, track = learned_and_tracked(speed)
     assert 8 <= len(model.trackers) <= 40
     err = rigid_motion_error(track, sc.transform, layout_length(sc))
@@ -78,7 +78,7 @@ def test_a_model_learned_from_30_ms_follows_the_scene(speed, limit):
 
 @pytest.mark.slow
 @pytest.mark.xfail(strict=True, reason="elongated shapes keep learned trackers on their "
-                   "edges, a median 5 px from the shapes' centres: a part-centred truth "
+                   "edges, a median 4.2 px from the shapes' centres: a part-centred truth "
                    "scores the model 2-3 % where it follows the scene within 1-2 % "
                    "(docs/learning.md)")
 def test_each_shape_has_a_tracker_near_its_centre():
@@ -90,12 +90,16 @@ def test_each_shape_has_a_tracker_near_its_centre():
 
 
 @pytest.mark.slow
-def test_the_edge_merge_puts_trackers_on_the_shapes():
-    """The two edges of a shape merged (learning.edges) bring trackers nearer the shapes'
-    centres than the learner without it (measured at 150 px/s: 3 merges, median 5.2 px
-    against 6.9 px, 22 trackers against 25)."""
+def test_the_merges_at_the_end_put_trackers_on_the_shapes():
+    """At the discovery's end, pieces on one closed outline of any shape
+    (discovery.join_outlines) and the two edges of one shape (learning.edges) merged bring
+    trackers nearer the shapes' centres (measured at 150 px/s: 3 outline and 2 edge
+    merges, 20 trackers, a shape's nearest a median 4.2 px from its centre; without the
+    edge merge 22 and 4.8 px; without either, nor the discovery's outline merge, 30 and
+    6.8 px)."""
     sc, _ = window(150.0)
     on, off = learned(150.0), learned(150.0, edge_polarity=0.0)
-    assert on.lifecycle["edge_merged"] >= 2 and off.lifecycle["edge_merged"] == 0
+    assert on.lifecycle["end_outline_merged"] >= 1 and on.lifecycle["edge_merged"] >= 1
+    assert off.lifecycle["edge_merged"] == 0
     assert len(on.model.trackers) < len(off.model.trackers)
-    assert np.median(centre_offsets(sc, on.model)) < np.median(centre_offsets(sc, off.model)) - 1.0
+    assert np.median(centre_offsets(sc, on.model)) < np.median(centre_offsets(sc, off.model)) - 0.5

@@ -103,3 +103,37 @@ def test_a_square_is_close_enough_to_a_circle_a_triangle_is_not():
     assert o.label.max() == 2
     assert ok[o.label[40, 40]]                   # the square's right corner
     assert not ok[o.label[40, 95]]               # the triangle's right corner
+
+
+def test_any_shape_takes_closed_outlines_as_wide_as_a_part():
+    """At the discovery's end (Outlines.find(any_shape=True)): a square's, a triangle's and a
+    wide ring's outlines are outlines, a figure eight and a filled disc are not."""
+    pts = polygon(30, 30, 12, 4) + polygon(85, 30, 12, 3) + ring(30, 75, 14)
+    eight = ring(80, 75, 8) + ring(96, 75, 8)
+    o = Outlines(W, H)
+    ok = o.find(fired(pts + eight), 0, 16.0, 0.75, any_shape=True)
+    assert ok[o.label[30, 42]] and ok[o.label[30, 97]] and ok[o.label[75, 44]]
+    assert not ok[o.label[75, 72]]                     # the eight
+    s = Outlines(W, H)
+    strict = s.find(fired(pts), 0, 16.0, 0.75)        # the discovery's: thin circles, half as wide
+    assert not strict[s.label[30, 97]] and not strict[s.label[75, 44]]
+    o = Outlines(W, H)
+    ok = o.find(fired(disc(60, 50, 10)), 0, 16.0, 0.75, any_shape=True)
+    assert not ok.any()
+
+
+def test_trackers_on_one_square_outline_merge_at_the_end():
+    from springtrack.learning.discovery import join_outlines
+    from springtrack.learning.pool import Pool
+    from springtrack.learning.settings import LearnParams
+    pool = Pool(LearnParams(), W, H)
+    sq = np.array(polygon(50, 50, 13, 4))
+    for half in (sq[sq[:, 0] < 50], sq[sq[:, 0] >= 50]):
+        assert pool.add(half.mean(axis=0), np.cov(half.T) + 0.25 * np.eye(2), 1000)
+    pool.last[:] = fired([tuple(p) for p in sq], t=1000)
+    rec = {"t": np.array([1000]), "x": pool.x[None, :].copy(), "y": pool.y[None, :].copy(),
+           "act": np.ones((1, 2)), "cnt": np.ones((1, 2)), "valid": np.ones((1, 2), bool)}
+    stats = {"end_outline_merged": 0}
+    rec = join_outlines(pool, rec, 1000, stats)
+    assert pool.n == 1 and stats["end_outline_merged"] == 1 and rec["x"].shape == (1, 1)
+    assert math.hypot(pool.x[0] - 50, pool.y[0] - 50) < 1.5
