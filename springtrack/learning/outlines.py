@@ -25,6 +25,11 @@ and a tracker is on it when most of its events in the look's batch lie on it and
 lies within :data:`OUTLINE_INSIDE` radii (plus a pixel) of the circle's centre: a tracker
 between two parts is not a piece of either.
 
+At the discovery's end (discovery.join_outlines) the test is wider (``any_shape``): any
+closed curve that keeps one radius per direction (a square, a triangle, an ellipse) or
+rings a hole, as wide as a part may be; a tracker is on it when most of its recent pixels
+within two sigmas are (:meth:`Outlines.of_pixels`).
+
 Measured in docs/learning.md ("Uniform parts"): one tracker per disc on the second
 generator's grid; its face learns the same models as without it, the project
 simulator's face one tracker fewer on two of three seeds (one part less covered on one).
@@ -42,6 +47,8 @@ OUTLINE_MIN_PIXELS = 8        # a component of fewer pixels is no outline
 OUTLINE_SIZE = 0.5            # an outline's sigma is at most this share of sigma_max_px
 OUTLINE_THIN = 0.15           # RMS distance of its pixels from its fitted circle / radius
 OUTLINE_INSIDE = 1.25         # a tracker on it lies this many radii (+1 px) from its centre
+OUTLINE_HOLE = 0.35           # any_shape: or no pixel within this many radii of its centroid
+                              # (a part that moved: a thick ring round its silent inside)
 
 
 class Outlines:
@@ -59,8 +66,9 @@ class Outlines:
         (``self.circle``); returns (n + 1,) bool: component k is a part's outline (index
         0, no component, is false).  ``any_shape``: an outline may be as wide as a part
         (sigma up to ``sigma_max_px``) and any curve that keeps one radius per direction
-        (:func:`_radial_spread`; ``self.circle`` then holds its centroid and median
-        radius), not only a thin circle at most half as wide."""
+        (:func:`_radial_spread`) or rings a hole (no pixel within OUTLINE_HOLE of its
+        median radius from its centroid); ``self.circle`` then holds its centroid and
+        median radius.  Without it: only a thin circle at most half as wide."""
         n = _learn.recent_components(last, t_from, self.label, self.stack)
         ok = np.zeros(n + 1, bool)
         self.circle = np.zeros((n + 1, 3))
@@ -91,10 +99,11 @@ class Outlines:
                 self.circle[k] = (mx[k] + cx, my[k] + cy, r)
                 continue
             ok[k] = False
-            if any_shape:        # not a circle: an outline if it keeps one radius per direction
-                r, thick = _radial_spread(dx[on], dy[on])
+            if any_shape:        # not a circle: an outline if it keeps one radius per
+                r, thick = _radial_spread(dx[on], dy[on])     # direction, or rings a hole
+                hole = float(np.min(np.hypot(dx[on], dy[on])))
                 self.circle[k] = (mx[k], my[k], r)
-                ok[k] = thick <= OUTLINE_THIN * r and r <= r_max
+                ok[k] = (thick <= OUTLINE_THIN * r or hole >= OUTLINE_HOLE * r) and r <= r_max
         return ok
 
     def of_pixels(self, ok: np.ndarray, pool) -> np.ndarray:

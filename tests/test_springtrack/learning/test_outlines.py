@@ -137,3 +137,15 @@ def test_trackers_on_one_square_outline_merge_at_the_end():
     rec = join_outlines(pool, rec, 1000, stats)
     assert pool.n == 1 and stats["end_outline_merged"] == 1 and rec["x"].shape == (1, 1)
     assert math.hypot(pool.x[0] - 50, pool.y[0] - 50) < 1.5
+
+
+def test_any_shape_takes_a_thick_ring_round_a_hole():
+    """A disc that moved part of its size fires a thick ring round its silent inside: too
+    thick for the radial test, an outline by its hole (no pixel within 0.35 of its median
+    radius from its centroid); a filled disc has none."""
+    thick = [(x, y) for x in range(W) for y in range(H)
+             if 6.0 <= math.hypot(x - 50, y - 50) <= 12.0]
+    o = Outlines(W, H)
+    ok = o.find(fired(thick), 0, 16.0, 0.75, any_shape=True)
+    assert ok[o.label[50, 61]]
+    assert not Outlines(W, H).find(fired(thick), 0, 16.0, 0.75).any()
