@@ -236,7 +236,7 @@ def _merge_in(pool: Pool, rec: dict, i: int, j: int, t: int) -> dict:
     """Tracker i becomes the union of i and j (Pool.merge) and its samples ``rec`` those
     of the union (:func:`union_series`); returns ``rec`` without j's."""
     wi, wj = pool.recent[i] + 1e-9, pool.recent[j] + 1e-9
-    pool.merge(i, j, t)                         # the union's bend unknown: it pairs no more
+    pool.merge(i, j, t)                 # its bend reset: join_edges pairs the union no more
     cols = [tuple(rec[f][:, k] for f in SERIES) for k in (i, j)]
     for f, v in zip(SERIES, union_series(cols[0], wi, cols[1], wj, len(rec["t"]))):
         rec[f][:, i] = v
