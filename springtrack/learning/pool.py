@@ -161,7 +161,7 @@ class Pool:
             self.book[k][i] += self.book[k][j]
         self.book["born"][i] = min(self.book["born"][i], self.book["born"][j])
         for k in ("outline", "arc_x", "arc_y", "arc_r"):
-            self.book[k][i] = 0              # the union's outline: at the next look; its bend: unmeasured
+            self.book[k][i] = 0      # the union's outline: at the next look; its bend: unmeasured
         parents = (int(self.book["uid"][i]), float(wi), int(self.book["uid"][j]), float(wj))
         self.book["uid"][i] = self.new_uid()
         self.lineage[int(self.book["uid"][i])] = parents

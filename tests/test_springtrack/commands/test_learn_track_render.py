@@ -43,7 +43,8 @@ def test_track_keeps_the_learned_model_and_render_draws_its_track(recording, tmp
     r = cli("render", recording, "--model", model, "--track", track, "--out", out,
             "--start-us", 100_000, "--end-us", 130_000, "--window-us", 10_000)
     assert r.returncode == 0, r.stderr
-    assert "wrote" in r.stderr and len(list(out.glob("frame_*.png"))) == 2   # not the 11 of 30-150 ms
+    # two frames (110 and 120 ms), not the 11 of the whole track (30-150 ms)
+    assert "wrote" in r.stderr and len(list(out.glob("frame_*.png"))) == 2
     r = cli("render", recording, "--model", model, "--track", track, "--out", tmp_path / "x.png",
             "--start-us", 200_000)
     assert r.returncode == 2 and "no samples between --start-us and --end-us" in r.stderr
