@@ -95,7 +95,7 @@ class History:
 
         cols = [get(int(u)) for u in uids]
         out = {"t": np.array([r[0] for r in self.rows], np.int64)}
-        for k, name in enumerate(("x", "y", "act", "cnt", "valid")):
+        for k, name in enumerate(SERIES):
             out[name] = (np.stack([c[k] for c in cols], axis=1) if cols else
                          np.zeros((T, 0), bool if name == "valid" else float))
         return out
@@ -341,13 +341,7 @@ def _to_count(pool: Pool, rec: dict, n_target: int, t: int, stats: dict) -> dict
             stats["dropped_to_n"] += 1
             continue
         i, j = _closest_pair(pool)
-        wi, wj = pool.recent[i] + 1e-9, pool.recent[j] + 1e-9
-        pool.merge(i, j, t)
-        cols = [tuple(rec[f][:, k] for f in SERIES) for k in (i, j)]
-        union = union_series(cols[0], wi, cols[1], wj, len(rec["t"]))
-        for f, v in zip(SERIES, union):
-            rec[f][:, i] = v
-        rec = _keep_cols(rec, np.arange(pool.n + 1) != j)
+        rec = _merge_in(pool, rec, i, j, t)
         stats["merged_to_n"] += 1
     while pool.n < n_target:
         st = pool.st
@@ -357,7 +351,7 @@ def _to_count(pool: Pool, rec: dict, n_target: int, t: int, stats: dict) -> dict
         if not pool.split(i, t):
             break
         off = pool.gaussian(i)[0] - before
-        new = {f: rec[f][:, i:i + 1].copy() for f in ("x", "y", "act", "cnt", "valid")}
+        new = {f: rec[f][:, i:i + 1].copy() for f in SERIES}
         for k, f in enumerate(("x", "y")):         # i moved by off, the new half by -off
             rec[f][:, i] += off[k]
             new[f] -= off[k]

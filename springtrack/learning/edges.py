@@ -31,11 +31,7 @@ pieces.  Measured in docs/learning.md ("A rigid scene, a hand-held camera").
 """
 from __future__ import annotations
 
-import math
-
 import numpy as np
-
-from .settings import F
 
 BEND_MIN_PX = 0.5        # the sag (px) over an edge's length that makes it an arc
 BEND_MIN_PIXELS = 8      # recent pixels an edge needs for its bend to be measured
@@ -53,26 +49,14 @@ def bends(pool, t_from: int) -> None:
     n = pool.n
     for k in ("arc_x", "arc_y", "arc_r"):
         pool.book[k][:n] = 0.0
-    st, last = pool.st, pool.last
-    h, w = last.shape
+    recent = pool.last >= t_from
     for i in np.flatnonzero(pool.recent[:n] >= EDGE_MIN_EVENTS).tolist():
-        mx, my = st[F["mx"], i], st[F["my"], i]
-        cov = np.array([[st[F["sxx"], i], st[F["sxy"], i]], [st[F["sxy"], i], st[F["syy"], i]]])
-        vals, vecs = np.linalg.eigh(cov)
-        half = 2.0 * math.sqrt(max(vals[-1], 0.0)) + 1.0
-        x0, x1 = max(0, int(mx - half)), min(w, int(mx + half) + 2)
-        y0, y1 = max(0, int(my - half)), min(h, int(my + half) + 2)
-        if x0 >= x1 or y0 >= y1:
-            continue
-        yy, xx = np.nonzero(last[y0:y1, x0:x1] >= t_from)
+        xx, yy = pool.pixels_near(i, recent)
         if len(xx) < BEND_MIN_PIXELS:
             continue
-        dx, dy = xx + (x0 - mx), yy + (y0 - my)
-        ia, ib, ic = st[F["ia"], i], st[F["ib"], i], st[F["ic"], i]
-        inside = ia * dx * dx + 2.0 * ib * dx * dy + ic * dy * dy <= 4.0
-        if inside.sum() < BEND_MIN_PIXELS:
-            continue
-        dx, dy = dx[inside], dy[inside]
+        (mx, my), cov = pool.gaussian(i)
+        dx, dy = xx - mx, yy - my
+        vecs = np.linalg.eigh(cov)[1]
         e1, e2 = vecs[:, -1], vecs[:, 0]
         u = dx * e1[0] + dy * e1[1]                  # along the edge
         v = dx * e2[0] + dy * e2[1]                  # across it

@@ -58,9 +58,8 @@ def learn_model(events, trackers: int | None = None, width: int | None = None,
     t0, t1 = int(ev["t"][0]), int(ev["t"][-1])
     lp = lp.for_window(t1 - t0)
     stats = {"born": 0, "merged": 0, "outline_merged": 0, "end_outline_merged": 0,
-             "edge_merged": 0, "died": 0,
-             "birth_refused_full": 0, "weak": 0, "dropped_to_n": 0, "merged_to_n": 0,
-             "split_to_n": 0, "found": 0,
+             "edge_merged": 0, "died": 0, "birth_refused_full": 0, "weak": 0,
+             "dropped_to_n": 0, "merged_to_n": 0, "split_to_n": 0, "found": 0,
              "time_scale": round(lp.batch_us / LearnParams().batch_us, 4)}
     pool = Pool(lp, width, height)
     history = _discover(pool, ev, t0, t1, stats)

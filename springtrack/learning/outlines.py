@@ -111,20 +111,11 @@ class Outlines:
         sigmas of its mean lie on, if its mean lies within OUTLINE_INSIDE radii of the
         outline's centre (plus a pixel); 0 if none (:meth:`of_trackers` without the
         events: at the discovery's end)."""
-        n = pool.n
-        out = np.zeros(n, np.int64)
-        h, w = self.label.shape
-        for i in range(n):
-            mu, cov = pool.gaussian(i)
-            half = 2.0 * math.sqrt(max(float(np.linalg.eigvalsh(cov)[-1]), 0.0)) + 1.0
-            x0, x1 = max(0, int(mu[0] - half)), min(w, int(mu[0] + half) + 2)
-            y0, y1 = max(0, int(mu[1] - half)), min(h, int(mu[1] + half) + 2)
-            if x0 >= x1 or y0 >= y1:
-                continue
-            yy, xx = np.nonzero(self.label[y0:y1, x0:x1])
-            d = np.column_stack([xx + x0 - mu[0], yy + y0 - mu[1]])
-            inside = np.einsum("ij,jk,ik->i", d, np.linalg.inv(cov), d) <= 4.0
-            lab = self.label[yy[inside] + y0, xx[inside] + x0]
+        out = np.zeros(pool.n, np.int64)
+        labelled = self.label > 0
+        for i in range(pool.n):
+            xx, yy = pool.pixels_near(i, labelled)
+            lab = self.label[yy, xx]
             lab = lab[ok[lab]]
             if len(lab):
                 out[i] = int(np.bincount(lab).argmax())
@@ -157,11 +148,16 @@ class Outlines:
         return out
 
 
+def _direction_bins(dx: np.ndarray, dy: np.ndarray) -> np.ndarray:
+    """Which of the OUTLINE_BINS directions (0 .. OUTLINE_BINS - 1) each offset points in."""
+    return (np.floor((np.arctan2(dy, dx) + math.pi) * (OUTLINE_BINS / (2.0 * math.pi)))
+            .astype(np.int64) % OUTLINE_BINS)
+
+
 def _directions(dx: np.ndarray, dy: np.ndarray, group: np.ndarray, groups: int) -> np.ndarray:
     """(groups,) how many of the OUTLINE_BINS directions the offsets (dx, dy) of each
     group (``group``: its index per offset) point in."""
-    b = (np.floor((np.arctan2(dy, dx) + math.pi) * (OUTLINE_BINS / (2.0 * math.pi)))
-         .astype(np.int64) % OUTLINE_BINS)
+    b = _direction_bins(dx, dy)
     seen = np.zeros(groups * OUTLINE_BINS, bool)
     seen[group * OUTLINE_BINS + b] = True
     return seen.reshape(groups, OUTLINE_BINS).sum(axis=1)
@@ -174,8 +170,7 @@ def _radial_spread(dx: np.ndarray, dy: np.ndarray):
     15 x 7 ellipse 0.11), large for a shape that fires all over (a filled disc 0.34) or two
     outlines that touch (a figure eight 0.28)."""
     r = np.hypot(dx, dy)
-    b = (np.floor((np.arctan2(dy, dx) + math.pi) * (OUTLINE_BINS / (2.0 * math.pi)))
-         .astype(np.int64) % OUTLINE_BINS)
+    b = _direction_bins(dx, dy)
     order = np.lexsort((r, b))
     rs, bs = r[order], b[order]
     start = np.searchsorted(bs, np.arange(OUTLINE_BINS))

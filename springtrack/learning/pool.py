@@ -133,6 +133,24 @@ class Pool:
         cov = np.array([[st[F["sxx"], i], st[F["sxy"], i]], [st[F["sxy"], i], st[F["syy"], i]]])
         return mu, cov
 
+    def pixels_near(self, i: int, mask: np.ndarray):
+        """(x, y) int arrays: the pixels where ``mask`` (height x width, bool) is true
+        within two sigmas of tracker i's mean (eq. 2's d^2 <= 4)."""
+        st = self.st
+        mx, my = st[F["mx"], i], st[F["my"], i]
+        half = 2.0 * math.sqrt(max(st[F["sxx"], i], st[F["syy"], i])) + 1.0  # >= 2 sigma
+        h, w = mask.shape
+        x0, x1 = max(0, int(mx - half)), min(w, int(mx + half) + 2)
+        y0, y1 = max(0, int(my - half)), min(h, int(my + half) + 2)
+        if x0 >= x1 or y0 >= y1:
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
+        yy, xx = np.nonzero(mask[y0:y1, x0:x1])
+        xx, yy = xx + x0, yy + y0
+        dx, dy = xx - mx, yy - my
+        d2 = st[F["ia"], i] * dx * dx + 2.0 * st[F["ib"], i] * dx * dy + st[F["ic"], i] * dy * dy
+        inside = d2 <= 4.0
+        return xx[inside], yy[inside]
+
     def set_gaussian(self, i: int, mu, cov) -> None:
         st = self.st
         st[F["mx"], i], st[F["my"], i] = mu
