@@ -53,8 +53,10 @@ SPECS: dict[str, ParamSpec] = {s.name: s for s in [
               "alpha_en, eq. (22): pull toward the equilibrium position about G"),
     ParamSpec("spring_period", int, 55, 1, 1_000_000, "events",
               "springs and energy criteria are applied every this many events"),
-    ParamSpec("energy_kind", str, "euclidean", None, None, "",
-              "energy feeding eqs. (21)-(22): euclidean | torsional | cartesian", ENERGY_KINDS),
+    ParamSpec("energy_kind", str, "cartesian", None, None, "",
+              "energy feeding eqs. (21)-(22): cartesian (each connection's offset from its "
+              "rest offset in the cartesian_frame, every spring kind) | euclidean (its length) "
+              "| torsional (its angle)", ENERGY_KINDS),
     ParamSpec("pull_frame", str, "similarity", None, None, "",
               "frame of eq. (22)'s rest offsets: similarity (fitted to the trackers at each "
               "spring update) | image (the paper)", FRAMES),

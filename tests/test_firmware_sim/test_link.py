@@ -12,6 +12,7 @@ from firmware_sim import link, transport
 from hostctl import Device, Nacked, NoAnswer, NoSuchPort, VersionMismatch
 from springtrack import model as _model
 from springtrack import wire
+from springtrack.params import ENERGY_KINDS, Params
 from springtrack.wire import MsgType
 from support.engine import SimEngine
 from support.link import Served, raw_host, read_frames
@@ -257,7 +258,9 @@ def test_telemetry_stream_and_applied_generation(served):
     # ahead with the last snapshots), each for the 40 face26 connections
     assert 3 <= dev.counts["energies"] <= 4
     t_e, kind, energies = dev.energies
-    assert kind == 0 and energies.shape == (40,) and t_e % 1000 == 0
+    # the kind that feeds the criteria: face26 names none, so the default
+    assert kind == ENERGY_KINDS.index(Params().energy_kind)
+    assert energies.shape == (40,) and t_e % 1000 == 0
     assert (t_e - t[0]) % 100_000 == 0
 
 

@@ -53,7 +53,8 @@ def test_parameters_per_instance_and_shared():
     a, f = grid3x3(width=W, height=H), face26(width=W, height=H)
     s = ModelSet([f, a])
     assert s[0].params.alpha_position == 0.2 and s[1].params.alpha_position == 0.02
-    assert s[1].params.energy_kind == "cartesian" and s[0].params.energy_kind == "euclidean"
+    e = ModelSet([f, grid3x3(width=W, height=H, springs=("euclidean",))])
+    assert e[1].params.energy_kind == "euclidean" and e[0].params.energy_kind == "cartesian"
     s = ModelSet([f, a], {"energy_gain": 0.3})           # --params: over both
     assert s[0].params.energy_gain == s[1].params.energy_gain == 0.3
     a2 = grid3x3(width=W, height=H)

@@ -131,9 +131,10 @@ def test_param_validation(changes, needle):
 
 
 def test_param_defaults_are_the_face_experiment():
+    """The paper's face values; the criteria read the Cartesian energy (docs/parameters.md)."""
     p = Params()
     assert (p.alpha_position, p.alpha_covariance, p.p_threshold, p.energy_scale,
-            p.spring_period, p.energy_kind) == (0.2, 2e-4, 0.1, 2.5, 55, "euclidean")
+            p.spring_period, p.energy_kind) == (0.2, 2e-4, 0.1, 2.5, 55, "cartesian")
 
 
 @pytest.mark.parametrize("value", [math.inf, -math.inf, math.nan, 10 ** 400])
