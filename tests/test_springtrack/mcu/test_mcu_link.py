@@ -86,8 +86,9 @@ def test_heartbeat_and_energies_as_firmware_sim_sends_them(scene):
     assert len(got) == 2, [g[0] for g in got]
     assert got[1][0] - got[0][0] >= wire.ENERGY_PERIOD_US
     ref = host_energies(model, ev)
+    want = sparams.resolve(model).energy_kind_index          # the model's, or the default
     for t, kind, values in got:
-        assert kind == 0 and len(values) == len(model.connections)
+        assert kind == want and len(values) == len(model.connections)
         assert any(np.array_equal(values.astype(np.float32), r) for r in ref), t
     assert np.any(got[-1][2] > 0)
 
