@@ -44,7 +44,7 @@
 #define PEER_FRAME_MIN_SPREAD (1.0 / 1048576.0)
 #define PEER_FRAME_REFITS 2
 #define PEER_FRAME_AGREE_PX2 (1.0 / 16.0)
-#define PEER_FRAME_RAMP 0.25
+#define PEER_FRAME_RAMP 0.5
 /* the index: 2^3 = 8 px cells; a gate box grown by 1/4 of its half-size plus 3 px */
 #define PEER_CELL_SHIFT 3
 #define PEER_SLACK_REL 0.25

@@ -94,7 +94,7 @@ ST_CLONES static void st_pull(int n, uint64_t pulled, double gx, double gy, doub
 #define ST_FRAME_SCALE_MAX 4.0
 #define ST_FRAME_MIN_SPREAD 0x1p-20
 #define ST_FRAME_AGREE_PX2 0x1p-4                     /* [ref] FRAME_AGREE_PX2 */
-#define ST_FRAME_RAMP 0x1p-2                          /* [ref] FRAME_RAMP */
+#define ST_FRAME_RAMP 0x1p-1                          /* [ref] FRAME_RAMP */
 #define ST_MAX_FIT 64                           /* trackers (MAX_TRACKERS of kernel/state.pxd) */
 
 /* [ref] fit_frame: the similarity x -> G + s R (x - G0) that best maps the rest shape onto

@@ -18,7 +18,7 @@
 #define FRAME_REFITS 2                                /* [ref] FRAME_REFITS */
 #define FRAME_AGREE_Q ((int64_t)1 << 30)              /* [ref] FRAME_AGREE_PX2 = 2^-4, Q.34 px^2 */
 #define FRAME_W_ONE ((uint32_t)1 << 24)              /* a weight of 1, Q.24 */
-#define FRAME_RAMP_SHIFT 2                            /* [ref] FRAME_RAMP = 2^-2 */
+#define FRAME_RAMP_SHIFT 1                            /* [ref] FRAME_RAMP = 2^-1 */
 
 /* the index of the lowest set bit of m != 0 (on a 32-bit core from two 32-bit halves) */
 static inline int lowest_bit(uint64_t m)
@@ -216,8 +216,8 @@ static __attribute__((noinline)) uint64_t frame_weights(fx_state *s, uint64_t fi
     thr = mulsh(mean, s->escale, s->escale_sh);       /* eq. (21)'s test on r^2 */
     if (thr < FRAME_AGREE_Q)
         thr = FRAME_AGREE_Q;
-    ramp = thr >> FRAME_RAMP_SHIFT;                   /* FRAME_RAMP T, >= 2^27 */
-    k = bitlen64((uint64_t)ramp) - 31;                /* ramp >> k in [2^27, 2^31) */
+    ramp = thr >> FRAME_RAMP_SHIFT;                   /* FRAME_RAMP T, >= 2^29 */
+    k = bitlen64((uint64_t)ramp) - 31;                /* ramp >> k in [2^29, 2^31) */
     if (k < 0)
         k = 0;
     for (m = fit; m; m &= m - 1) {

@@ -62,3 +62,16 @@ def test_fixed_within_bound_on_simulated_scenes(name):
     assert res["samples"] > 1000 and res["metric_float_pct"] < 5.0
     assert not violations(res), (name, violations(res))
     assert res["counters_fixed"]["state_resets"] == 0
+
+
+def test_pulled_corner_on_the_frame_ramp_keeps_the_kernels_together():
+    """grid_pull (the simulator's seed 0, its first 7.7 s) with both edges on
+    (polarity_gain = 1): the pulled corner r0c2 sits on the frame's refit ramp
+    (docs/algorithm.md (e)) for seconds, and each spring update multiplies a difference
+    between the kernels' means there by the ramp's slope.  With the ramp at 1/4 the
+    kernels went from 1e-7 px apart to 2.8 px within 80 ms (7.60-7.68 s; samples beyond
+    0.25 px from 7.675 s on); with 1/2 they stay within 4.4e-6 px."""
+    model, ev, truth, params = sim_stream("grid_pull", 7.7)
+    res = compare(model, ev, sample_us=1000, truth=truth, params=dict(params, polarity_gain=1.0))
+    assert res["samples"] > 7000 and res["metric_float_pct"] < 5.0
+    assert res["pos_max_px"] < 1e-4 and not res["episodes"], res["pos_max_px"]

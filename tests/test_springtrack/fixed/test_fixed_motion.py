@@ -159,20 +159,22 @@ def test_off_the_velocity_and_half_offset_stay_zero():
     assert (raw["kpp"] == 1 << 32).all()
 
 
-def test_two_instances_within_the_bound():
+@pytest.mark.parametrize("seeds", [(5, 6), (9, 10)])
+def test_two_instances_within_the_bound(seeds):
     """A grid and a face side by side (fixed_set.c: one event assignment over both
     instances' predicted means, each instance's springs at the batch's time), the motion
-    model on: fixed within the bound of the float kernel, the same events assigned.  This
-    seed pair only: on one of five others (seeds 1-2) one near-tie decided the other way
-    parts the kernels beyond the bound (docs/fixed_point.md, "The motion model"), so this
-    checks the set's motion path, not a bound that holds for every stream.  Measured:
-    position RMS 3.8e-6 px, max 9.1e-5 px, well inside the bound's 0.05 / 0.25."""
+    model on: fixed within the bound of the float kernel, the same events assigned.  With
+    the frame's refit ramp at 1/4 (until 2026-11-29) the pair (9, 10) parted the kernels by
+    1.56 px (20 events assigned differently) and (5, 6) reached 8e-3 px: a tracker on the
+    ramp multiplied their difference at every spring update (docs/fixed_point.md, "The
+    motion model"); with 1/2 six pairs stay within 4.5e-5 px."""
     from springtrack.model import face26, grid3x3
     w, h = 400, 240
     g = grid3x3(cx=90, cy=120, spacing=30, sigma_px=4, width=w, height=h)
     f = face26(cx=290, cy=120, scale=110, width=w, height=h)
-    eg, _ = blob_stream(g, 40_000, noise=0.2, speed_px_s=(300, 150), seed=5)
-    ef, _ = blob_stream(f, 60_000, noise=0.2, speed_px_s=(-200, 100), rot_deg_s=20, seed=6)
+    eg, _ = blob_stream(g, 40_000, noise=0.2, speed_px_s=(300, 150), seed=seeds[0])
+    ef, _ = blob_stream(f, 60_000, noise=0.2, speed_px_s=(-200, 100), rot_deg_s=20,
+                        seed=seeds[1])
     ev = np.sort(np.concatenate([eg, ef]), order="t", kind="stable")
     runs = {}
     for b in ("cython", "fixed"):
@@ -181,6 +183,6 @@ def test_two_instances_within_the_bound():
     (a, ca), (fx, cf) = runs["cython"], runs["fixed"]
     assert ca["events_assigned"] == cf["events_assigned"]
     fig = figures(a, fx)
-    assert fig["pos_rms_px"] < 1e-3 and fig["pos_max_px"] <= 0.05, fig
+    assert fig["pos_rms_px"] < 1e-4 and fig["pos_max_px"] < 1e-3, fig
     assert fig["active_agree"] == 1.0 and fig["sensitive_agree"] == 1.0
     assert np.abs(a.vx - fx.vx).max() <= VEL_TOL and np.abs(fx.vx).max() > 50

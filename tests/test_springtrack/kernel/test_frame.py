@@ -186,7 +186,7 @@ def test_a_pulled_part_moves_neither_the_frame_nor_its_place_and_is_pulled_back(
 
 
 @pytest.mark.parametrize("backend", ["cython", "fixed"])
-@pytest.mark.parametrize("dx,fits", [(0.0, 1), (30.0, 2), (0.32, 1 + FRAME_REFITS)])
+@pytest.mark.parametrize("dx,fits", [(0.0, 1), (30.0, 2), (0.34, 1 + FRAME_REFITS)])
 def test_the_refits_stop_early_only_where_they_would_repeat_the_fit(backend, dx, fits):
     """The frame's refit loop (fit_frame) stops as soon as the weights a refit would use
     are those of the fit just made (or fewer than 2 trackers agree): that refit would
