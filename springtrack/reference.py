@@ -98,10 +98,10 @@ FRAME_AGREE_PX2 = 2.0 ** -4
 # A tracker's weight in the refit falls from 1 at its threshold T to 0 at
 # (1 + FRAME_RAMP) T (fit_frame): continuous, so that kernels whose means differ by
 # rounding fit the same frame, and narrow, so that a part that left its place drops out.
-# Its slope multiplies a difference in a mean on the ramp at every spring update (a
-# tracker near T feeds the fit and eq. (22) by 1 - v): at 1/4, with both edges on, the
-# pulled grid's corner took the float and integer kernels from 1e-7 px apart to 2.8 px
-# within 80 ms; at 1/2 they stay within 5e-6 px (docs/algorithm.md (e)).
+# Shallow enough, too: its slope multiplies a difference in a mean on the ramp at every
+# spring update (a tracker near T feeds the fit and eq. (22) by 1 - v), so a steeper ramp
+# lets the float and integer kernels' roundings grow apart (1/4 parted them by 2.8 px on
+# the pulled grid's corner, 1/2 keeps them within 5e-6 px: docs/algorithm.md (e)).
 FRAME_RAMP = 2.0 ** -1
 
 # Result codes of step(): >= 0 is the index of the tracker that took the event.

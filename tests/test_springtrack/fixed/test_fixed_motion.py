@@ -164,10 +164,10 @@ def test_two_instances_within_the_bound(seeds):
     """A grid and a face side by side (fixed_set.c: one event assignment over both
     instances' predicted means, each instance's springs at the batch's time), the motion
     model on: fixed within the bound of the float kernel, the same events assigned.  With
-    the frame's refit ramp at 1/4 (until 2026-11-29) the pair (9, 10) parted the kernels by
-    1.56 px (20 events assigned differently) and (5, 6) reached 8e-3 px: a tracker on the
-    ramp multiplied their difference at every spring update (docs/fixed_point.md, "The
-    motion model"); with 1/2 six pairs stay within 4.5e-5 px."""
+    a steeper refit ramp of the frame (1/4) the pair (9, 10) parted the kernels by 1.56 px
+    (20 events assigned differently) and (5, 6) reached 8e-3 px: a tracker on the ramp
+    multiplied their difference at every spring update (docs/fixed_point.md, "The motion
+    model"); with 1/2 six pairs stay within 4.5e-5 px."""
     from springtrack.model import face26, grid3x3
     w, h = 400, 240
     g = grid3x3(cx=90, cy=120, spacing=30, sigma_px=4, width=w, height=h)
