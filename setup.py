@@ -21,8 +21,19 @@ if os.environ.get("SPRINGTRACK_NATIVE", "0") == "1":
     COMPILE_ARGS.append("-march=native")
 
 
+def c_sources() -> list:
+    """The hand-written C and headers below ``springtrack/`` (not the .c Cython writes
+    beside a .pyx, nor the firmware's, which only the microcontroller build compiles): an
+    extension may include any of them, directly or through another C file, and Cython
+    tracks only the files a .pyx names, so a change to one rebuilds them all."""
+    files = glob.glob("springtrack/**/*.[ch]", recursive=True)
+    return sorted(f for f in files if not f.startswith("springtrack/mcu/")
+                  and not os.path.exists(os.path.splitext(f)[0] + ".pyx"))
+
+
 def extensions():
     exts = []
+    depends = c_sources()
     roots = ["springtrack", "firmware_sim"]
     if os.environ.get("SPRINGTRACK_TEST_EXTENSIONS", "0") == "1":
         roots.append("tests")
@@ -33,6 +44,7 @@ def extensions():
             continue
         exts.append(Extension(
             module, [pyx],
+            depends=depends,
             include_dirs=[np.get_include(), os.path.dirname(pyx), ROOT],
             extra_compile_args=COMPILE_ARGS,
             define_macros=[("NPY_NO_DEPRECATED_API", "NPY_1_7_API_VERSION")],
