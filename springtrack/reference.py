@@ -53,18 +53,20 @@ Interpretation choices (docs/algorithm.md explains them):
   similarity frame per instance, each with its own parameters of INSTANCE_PARAMS; only
   tracking instances are sensitive and run their springs (``set_state``; the loss rule
   that decides a state is springtrack.acquisition.loss, the same for every backend).
-  Each instance has its own spring clock: it counts the valid events no OTHER instance
-  takes (those one of its trackers takes and those no tracker takes), and when it
-  reaches ``spring_period`` that instance's spring update runs (its springs, eq. (13)'s
-  mean, eqs. (21)-(22) and frame if it is tracking; then the state guard of its
-  trackers) and its count restarts.  So an object's springs keep their pace per its own
-  events whether or not other objects are in view, and a set of N instances does N
-  instances' spring work per ``spring_period`` events of all of them together, not N
-  times that; with one instance the clock counts every valid event (the paper's rule).
-  A searching or lost instance's trackers take no event, so its clock counts every
-  event the others leave; its updates run the guard only; ``set_state``, ``place``,
-  ``move`` and ``relocate`` leave its count as it is.  Several clocks due at one event
-  run in instance order.
+  Each instance has its own spring clock: it counts the valid events its trackers take
+  and those no tracker takes inside its spring box (the box of its means at its last
+  spring update, SPRING_BOX_PX around; before its first update, every event); an event
+  no tracker takes inside no box counts on every clock.  When a count reaches
+  ``spring_period`` that instance's spring update runs (its springs, eq. (13)'s mean,
+  eqs. (21)-(22) and frame if it is tracking; then the state guard of its trackers; then
+  its box) and its count restarts.  So an object's springs keep their pace per its own
+  events and its surroundings' whether or not other objects are in view, and N
+  instances do not do N times one instance's spring work; with one instance the clock
+  counts every valid event (the paper's rule).  A searching or lost instance's trackers
+  take no event, so its clock counts the events near them and those near no instance;
+  its updates run the guard only; ``set_state``, ``place``, ``move`` and ``relocate``
+  leave its count and its box as they are.  Several clocks due at one event run in
+  instance order.
 """
 from __future__ import annotations
 
@@ -103,6 +105,12 @@ FRAME_AGREE_PX2 = 2.0 ** -4
 # lets the float and integer kernels' roundings grow apart (1/4 parted them by 2.8 px on
 # the pulled grid's corner, 1/2 keeps them within 5e-6 px: docs/algorithm.md (e)).
 FRAME_RAMP = 2.0 ** -1
+
+# Each instance's spring box (step): the events no tracker takes within SPRING_BOX_PX of
+# the box of its means count on its spring clock; before its first spring update, every
+# event (the box of all)
+SPRING_BOX_PX = 16
+SPRING_BOX_ALL = (-(1 << 30), 1 << 30, -(1 << 30), 1 << 30)
 
 # Result codes of step(): >= 0 is the index of the tracker that took the event.
 NO_TRACKER = -1          # valid event, no sensitive tracker within its gate
@@ -209,6 +217,7 @@ class ReferenceTracker:
         self.last_t = -(1 << 62)
         self.n_valid = self.n_assigned = self.n_back = self.n_outside = 0
         self.since_spring = [0] * self.ni            # each instance's spring clock
+        self.sbox = [SPRING_BOX_ALL] * self.ni        # and its spring box
         self.n_spring_updates = 0                    # instances' spring updates, summed
         self.n_resets = 0
         self.set_params(mset.params_list)
@@ -344,9 +353,16 @@ class ReferenceTracker:
             self._update(best, t, fx, fy, best_d2, p)
             self.n_assigned += 1
             owner = self.inst[best]
-        # each instance's spring clock counts the events no other instance took
+        # each instance's spring clock counts the events its trackers took and those no
+        # tracker took inside its spring box (the box of its means at its last spring
+        # update, SPRING_BOX_PX around); an event no tracker took outside every box counts
+        # for every instance
+        near = [owner == g or (owner < 0 and self.in_spring_box(g, x, y))
+                for g in range(self.ni)]
+        if owner < 0 and not any(near):
+            near = [True] * self.ni
         for g in range(self.ni):
-            if owner < 0 or owner == g:
+            if near[g]:
                 self.since_spring[g] += 1
                 if self.since_spring[g] >= self.period:
                     self.since_spring[g] = 0
@@ -559,6 +575,20 @@ class ReferenceTracker:
                 self.tm[i] = t
             self._springs(g)
         self._guard(g)
+        self._spring_box(g)
+
+    def _spring_box(self, g: int) -> None:
+        """Instance g's spring box, in whole pixels: the events x, y (integers) within
+        SPRING_BOX_PX of the box of its means, [ceil(min) - SPRING_BOX_PX,
+        floor(max) + SPRING_BOX_PX] on each axis."""
+        xs = self.mx[self.t0[g]:self.t1[g]]
+        ys = self.my[self.t0[g]:self.t1[g]]
+        self.sbox[g] = (math.ceil(min(xs)) - SPRING_BOX_PX, math.floor(max(xs)) + SPRING_BOX_PX,
+                        math.ceil(min(ys)) - SPRING_BOX_PX, math.floor(max(ys)) + SPRING_BOX_PX)
+
+    def in_spring_box(self, g: int, x: int, y: int) -> bool:
+        x0, x1, y0, y1 = self.sbox[g]
+        return x0 <= x <= x1 and y0 <= y <= y1
 
     def _guard(self, g: int) -> None:
         """The state guard, after each of instance g's spring updates: a tracker outside

@@ -19,8 +19,8 @@ Several model instances (springtrack.instances, a ModelSet) as in the reference:
 trackers side by side, eq. (2)'s argmin over the union of the sensitive trackers (an event
 feeds at most one tracker of one instance; ties: the lowest index), springs, eq. (13)'s
 mean energy, eqs. (21)-(22), the centre of mass and the similarity frame per instance
-with its own parameters, each on its own spring clock (the events no other instance
-takes); only a tracking instance is sensitive and runs its springs.
+with its own parameters, each on its own spring clock (the events it takes and those no
+tracker takes near it); only a tracking instance is sensitive and runs its springs.
 
 The step, the index, the covariance clamp and the activity log are cdef inline functions
 in .pxd files, so the whole per-event path compiles into this module as one unit (ksteps

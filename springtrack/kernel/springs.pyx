@@ -21,7 +21,7 @@ reference's _guard) checks each of its means against the position box (springtra
 or not a number, is a state no valid model reaches, and resets its instance to the
 model's state.
 """
-from libc.math cimport cos, sin, fabs, M_PI
+from libc.math cimport cos, sin, fabs, ceil, floor, M_PI
 from libc.stdint cimport int64_t, uint64_t
 
 from springtrack import reference as _ref
@@ -78,6 +78,8 @@ assert (_ref.FRAME_SCALE_MIN, _ref.FRAME_SCALE_MAX, _ref.FRAME_MIN_SPREAD,
 
 cdef double TWO_PI = 2.0 * M_PI
 cdef int FRAME_REFITS = _ref.FRAME_REFITS
+cdef int SPRING_BOX_PX = _ref.SPRING_BOX_PX
+cdef int SPRING_BOX_ALL = _ref.SPRING_BOX_ALL[1]
 # The frame of eq. (14)'s fast path (st_torsion_angles_framed) follows the mean angle once
 # it is this far (rad) from it: connections within 3 pi/8 - pi/16 of the mean angle then
 # stay on the fast path.
@@ -143,6 +145,23 @@ cdef void kspring_update(KState* s, int g) noexcept nogil:
     for i in range(n):
         if left[i]:
             reindex(s, t0 + i)
+    spring_box(s, g)
+
+
+cdef inline void spring_box(KState* s, int g) noexcept nogil:
+    # [ref] _spring_box(g): [ceil(min) - SPRING_BOX_PX, floor(max) + SPRING_BOX_PX] of
+    # instance g's means on each axis
+    cdef int i, t0 = s.g_t0[g]
+    cdef double x0 = s.mx[t0], x1 = s.mx[t0], y0 = s.my[t0], y1 = s.my[t0]
+    for i in range(t0 + 1, s.g_t1[g]):
+        x0 = x0 if x0 <= s.mx[i] else s.mx[i]
+        x1 = x1 if x1 >= s.mx[i] else s.mx[i]
+        y0 = y0 if y0 <= s.my[i] else s.my[i]
+        y1 = y1 if y1 >= s.my[i] else s.my[i]
+    s.sbox[g][0] = <int>ceil(x0) - SPRING_BOX_PX
+    s.sbox[g][1] = <int>floor(x1) + SPRING_BOX_PX
+    s.sbox[g][2] = <int>ceil(y0) - SPRING_BOX_PX
+    s.sbox[g][3] = <int>floor(y1) + SPRING_BOX_PX
 
 
 cdef void ksprings(KState* s) noexcept nogil:
@@ -461,5 +480,9 @@ cdef void init_springs(KState* s) noexcept nogil:
     for g in range(s.ni):
         init_instance(s, g)
         s.isens[g] = all_of(s.g_t1[g] - s.g_t0[g])
+        s.sbox[g][0] = -SPRING_BOX_ALL          # [ref] SPRING_BOX_ALL: every event
+        s.sbox[g][1] = SPRING_BOX_ALL
+        s.sbox[g][2] = -SPRING_BOX_ALL
+        s.sbox[g][3] = SPRING_BOX_ALL
     s.n_frame_moves = 0
     compose_sensitive(s)

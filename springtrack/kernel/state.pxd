@@ -198,10 +198,15 @@ ctypedef struct KState:
     int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates, n_reindex
     int64_t n_frame_misses, n_frame_moves
     int64_t n_resets                 # instance states the guard reset to the model
-    # each instance's spring clock ([ref] step: it counts the valid events no other
-    # instance takes), kept so that an event no tracker takes costs one count, not one per
-    # instance: n_free counts the valid events no tracker took; instance g's update is due
-    # once n_free reaches due[g], which each event one of its trackers takes brings one
-    # nearer (its count = period - (due[g] - n_free)); next_due is the smallest due[g]
+    # each instance's spring clock ([ref] step: it counts the valid events it takes and
+    # those no tracker takes inside its spring box or inside none), kept so that an event
+    # outside every box costs one count, not one per instance: n_free counts the valid
+    # events no tracker took outside every box; instance g's update is due once n_free
+    # reaches due[g], which each event it counts otherwise brings one nearer (its count =
+    # period - (due[g] - n_free)); next_due is the smallest due[g]
     int64_t n_free, next_due
     int64_t due[MAX_INSTANCES]
+    # each instance's spring box ([ref] _spring_box: whole pixels, x0, x1, y0, y1): an
+    # event no tracker takes inside it counts on its clock as one of its own (due[g]); one
+    # outside every box counts on every clock (n_free)
+    int sbox[MAX_INSTANCES][4]

@@ -154,11 +154,13 @@ cdef inline int assign_event(KState* s, int64_t t, int x, int y, int pol,
     return best
 
 
-cdef inline void count_event(KState* s, int best) noexcept nogil:
-    """[ref] step's spring clocks, after a valid event: one that tracker ``best`` took
-    moves its instance's clock only, one no tracker took (best < 0) every instance's
-    (KState.due: one count for all); kclocks runs the updates then due."""
-    cdef int g = -1
+cdef inline void count_event(KState* s, int best, int x, int y) noexcept nogil:
+    """[ref] step's spring clocks, after a valid event at (x, y): one that tracker
+    ``best`` took moves its instance's clock only, one no tracker took (best < 0) the
+    clocks of the instances whose spring boxes hold it, or every instance's if none does
+    (KState.n_free: one count for all); kclocks runs the updates then due."""
+    cdef int g = -1, q
+    cdef bint near = False
     cdef int64_t d
     if best >= 0:
         g = s.inst[best]
@@ -167,7 +169,16 @@ cdef inline void count_event(KState* s, int best) noexcept nogil:
         if d < s.next_due:
             s.next_due = d
     else:
-        s.n_free += 1
+        for q in range(s.ni):
+            if (x >= s.sbox[q][0] and x <= s.sbox[q][1]
+                    and y >= s.sbox[q][2] and y <= s.sbox[q][3]):
+                near = True
+                d = s.due[q] - 1
+                s.due[q] = d
+                if d < s.next_due:
+                    s.next_due = d
+        if not near:
+            s.n_free += 1
     if s.n_free >= s.next_due:
         kclocks(s, g)
 
@@ -206,7 +217,7 @@ cdef inline Py_ssize_t ksteps_of(KState* s, const Event* ev, Py_ssize_t n, int64
                 kclocks(s, 0)
         else:
             s.last_t = last_t
-            count_event(s, best)
+            count_event(s, best, x, y)
     else:
         k = n
     flush_activity(s)
@@ -255,5 +266,5 @@ cdef inline int kstep(KState* s, int64_t t, int x, int y, int p) noexcept nogil:
     s.n_valid += 1
     cdef int best = assign_event(s, t, x, y, p, s.ni == 1, MOTION_FULL)
     flush_activity(s)
-    count_event(s, best)
+    count_event(s, best, x, y)
     return best

@@ -13,7 +13,7 @@ from springtrack.acquisition.loss import LOSS_CHECK_US, LossRule, loss_hold_us
 from springtrack.limits import MAX_INSTANCES, MAX_SET_TRACKERS
 from springtrack.model import Connection, ModelError, ShapeModel, TrackerSpec, face26, grid3x3
 from springtrack.params import Params
-from springtrack.reference import NO_TRACKER, ReferenceTracker
+from springtrack.reference import NO_TRACKER, SPRING_BOX_PX, ReferenceTracker
 from springtrack.sim.synthetic import blob_stream
 
 W, H = 400, 240
@@ -106,11 +106,11 @@ def _on_trackers(model, n, t):
 
 @pytest.mark.parametrize("backend", ["reference", "cython", "fixed"])
 def test_an_object_keeps_its_spring_pace_when_another_comes_into_view(backend):
-    """Each instance's spring clock counts the events no other instance takes: object A's
-    events as in a run alone, object B far away with as many events, each exactly on one
-    of B's trackers (all taken by B): A's track equals A alone, sample for sample, and
-    its springs ran as often.  (With one clock for all, B's events would double the pace
-    of A's springs.)"""
+    """Each instance's spring clock counts the events it takes and those no tracker takes
+    near it or near no instance: object A's events as in a run alone, object B far away
+    with as many events, each exactly on one of B's trackers (all taken by B): A's track
+    equals A alone, sample for sample, and its springs ran as often.  (With one clock for
+    all, B's events would double the pace of A's springs.)"""
     a, b = two_grids()
     prm = {"spring_period": 5}
     ev, _ = blob_stream(a, 6000, noise=0.1, speed_px_s=(10, 5), rot_deg_s=8, seed=3)
@@ -126,9 +126,33 @@ def test_an_object_keeps_its_spring_pace_when_another_comes_into_view(backend):
         assert np.array_equal(getattr(ta, f), getattr(tb, f)[:rows, :9]), f
     ca, cb = alone.counters, both.counters
     assert cb["events_assigned"] == ca["events_assigned"] + len(ev)     # B took all of its own
-    free = len(ev) - ca["events_assigned"]              # B's clock: the events no one took
+    free = len(ev) - ca["events_assigned"]
     assert ca["spring_updates"] == len(ev) // 5 > 100
-    assert cb["spring_updates"] == len(ev) // 5 + (len(ev) + free) // 5
+    # B's clock: its own events, and of A's that no one took those before its first update
+    # (its spring box then holds every event) and those outside A's box
+    assert len(ev) // 5 < cb["spring_updates"] - ca["spring_updates"] < (len(ev) + free) // 5
+
+
+@pytest.mark.parametrize("backend", ["reference", "cython", "fixed"])
+def test_an_event_no_tracker_takes_counts_on_the_clocks_near_it(backend):
+    """Each instance's spring box (reference.py, SPRING_BOX_PX): after an instance's
+    first spring update, an event no tracker takes within SPRING_BOX_PX of its means
+    counts on its clock only; one outside every box on every clock."""
+    a = ShapeModel("a", W, H, [TrackerSpec("a", 40.0, 40.0, (4.0, 0.0, 4.0))], [])
+    b = ShapeModel("b", W, H, [TrackerSpec("b", 200.0, 150.0, (4.0, 0.0, 4.0))], [])
+    tr = springtrack.Tracker([a, b], {"spring_period": 4}, backend=backend)
+
+    def run(t0, xs, ys):
+        tr.process(make(np.arange(t0, t0 + len(xs)), np.array(xs), np.array(ys),
+                        np.arange(len(xs)) % 2))
+        return tr.counters["spring_updates"], tr.counters["events_assigned"]
+
+    assert run(1, [40] * 4 + [200] * 4, [40] * 4 + [150] * 4) == (2, 8)   # each its own
+    d = SPRING_BOX_PX
+    assert run(10, [40 + d] * 8, [40 - d] * 8) == (4, 8)        # A's box corner: A's only
+    assert run(20, [40 + d + 1] * 8, [40] * 8) == (8, 8)        # outside both: both
+    assert run(30, [200] * 8, [150 + d] * 8) == (10, 8)         # B's box: B's only
+    assert run(40, [200 - d - 1] * 4, [150] * 4) == (12, 8)     # outside both again
 
 
 def test_mixed_models_each_with_its_own_criteria():

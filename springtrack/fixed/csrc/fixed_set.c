@@ -43,9 +43,26 @@ static inline __attribute__((always_inline)) int set_assign(fx_set *g, int64_t t
    guard */
 static void set_spring_update(fx_set *g, int q)
 {
+    const fx_state *s = g->inst[q];
+    int64_t x0, x1, y0, y1;
+    int i;
     g->n_spring_updates++;
     if (g->state[q] == FX_TRACKING)
         fx_springs(g->inst[q]);
+    /* [ref] _spring_box: [ceil(min) - SPRING_BOX_PX, floor(max) + SPRING_BOX_PX] of
+       instance q's means on each axis */
+    x0 = x1 = s->mx[0];
+    y0 = y1 = s->my[0];
+    for (i = 1; i < s->n; i++) {
+        x0 = s->mx[i] < x0 ? s->mx[i] : x0;
+        x1 = s->mx[i] > x1 ? s->mx[i] : x1;
+        y0 = s->my[i] < y0 ? s->my[i] : y0;
+        y1 = s->my[i] > y1 ? s->my[i] : y1;
+    }
+    g->sbox[q][0] = (int32_t)-((-x0) >> FX_POS_FRAC) - FX_SPRING_BOX_PX;
+    g->sbox[q][1] = (int32_t)(x1 >> FX_POS_FRAC) + FX_SPRING_BOX_PX;
+    g->sbox[q][2] = (int32_t)-((-y0) >> FX_POS_FRAC) - FX_SPRING_BOX_PX;
+    g->sbox[q][3] = (int32_t)(y1 >> FX_POS_FRAC) + FX_SPRING_BOX_PX;
 }
 
 /* [ref] springs: every instance's spring update, in order (the clocks left as they are) */
@@ -57,9 +74,10 @@ void fx_set_springs(fx_set *g)
 }
 
 /* ---- each instance's spring clock ([ref] step) ---------------------------------------
-   Instance q's count is own[q] + n_free - free0[q] (the events its trackers took since
-   its last update and those no tracker took since then); its update runs when the count
-   reaches the period.  An event no tracker takes costs one count, not one per instance:
+   Instance q's count is own[q] + n_free - free0[q]: own[q] the events its trackers took
+   since its last update and those no tracker took inside its spring box, n_free - free0[q]
+   those no tracker took outside every box since then; its update runs when the count
+   reaches the period.  An event outside every box costs one count, not one per instance:
    the loops compare n_free with next_due, the smallest n_free at which an update is due
    (set_next_due, computed again at every batch: the period may have changed). */
 
@@ -80,22 +98,35 @@ static int64_t set_next_due(const fx_set *g)
     return nd;
 }
 
-/* The clocks after a valid event that instance `taker` took (only its clock moved) or no
-   tracker took (taker -1: every clock moved), at time t: the updates then due, in
-   instance order, each count restarted.  Returns next_due. */
+/* The clocks after a valid event at (x, y) that instance `taker` took (only its clock
+   moved) or no tracker took (taker -1: the clocks of the instances whose spring boxes
+   hold it, or every clock if none does), at time t: the updates then due, in instance
+   order, each count restarted.  Returns next_due. */
 static inline __attribute__((always_inline)) int64_t set_count(fx_set *g, int taker,
+                                                               int32_t x, int32_t y,
                                                                int64_t next_due, int64_t t)
 {
     int32_t period = g->inst[0]->period;
     int64_t d;
-    int q;
+    int q, near = 0;
     if (taker >= 0) {
         g->own[taker]++;
         d = clock_due(g, taker, period);
         if (d > g->n_free)
             return d < next_due ? d : next_due;
-    } else if (++g->n_free < next_due) {
-        return next_due;
+    } else {
+        for (q = 0; q < g->ni; q++)
+            if (x >= g->sbox[q][0] && x <= g->sbox[q][1] && y >= g->sbox[q][2]
+                && y <= g->sbox[q][3]) {
+                near = 1;
+                g->own[q]++;
+                d = clock_due(g, q, period);
+                next_due = d < next_due ? d : next_due;
+            }
+        if (!near)
+            g->n_free++;
+        if (g->n_free < next_due)
+            return next_due;
     }
     for (q = 0; q < g->ni; q++)
         if ((taker < 0 || q == taker) && clock_due(g, q, period) <= g->n_free) {
@@ -160,7 +191,7 @@ int fx_set_step(fx_set *g, int64_t t, int32_t x, int32_t y, int32_t p)
     }
     if (best >= 0)
         g->n_assigned++;
-    set_count(g, best >= 0 ? taker : -1, set_next_due(g), t);
+    set_count(g, best >= 0 ? taker : -1, x, y, set_next_due(g), t);
     return best;
 }
 
@@ -214,6 +245,8 @@ int fx_set_init(fx_set *g, fx_state *const *inst, int32_t ni)
     for (q = 0, t0 = 0; q < ni; q++) {
         g->inst[q] = inst[q];
         g->own[q] = g->free0[q] = 0;
+        g->sbox[q][0] = g->sbox[q][2] = -FX_SPRING_BOX_ALL;
+        g->sbox[q][1] = g->sbox[q][3] = FX_SPRING_BOX_ALL;
         g->t0[q] = t0;
         t0 += inst[q]->n;
         fx_set_state(g, q, FX_TRACKING);

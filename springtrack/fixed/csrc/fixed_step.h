@@ -69,6 +69,8 @@
 #define FX_CELL_SHIFT 3                     /* spatial index cells of 8 x 8 px */
 #define FX_POS_FRAC 32                      /* positions Q.32 */
 #define FX_POS_LIM ((int64_t)8192 << 32)    /* |position| < 8192 px */
+#define FX_SPRING_BOX_PX 16                 /* [ref] SPRING_BOX_PX */
+#define FX_SPRING_BOX_ALL (1 << 30)         /* [ref] SPRING_BOX_ALL: every event */
 #define FX_D2_FRAC 27                       /* Mahalanobis d^2 Q.27 */
 #define FX_EXP2_BITS 10                     /* exp2 table: 1024 intervals + 1 */
 #define FX_EXP2_N (1 << FX_EXP2_BITS)
@@ -223,8 +225,9 @@ typedef struct {
    instances' sensitive trackers, ties to the lowest instance, then the lowest index; one
    clock, one count of valid events and one spring period (the shared parameters:
    springtrack.instances.SHARED_PARAMS, equal in every instance); each instance's own
-   spring clock (springtrack/reference.py step: the valid events no other instance
-   takes), its count own[q] + n_free - free0[q]. */
+   spring clock (springtrack/reference.py step: the valid events it takes and those no
+   tracker takes inside its spring box or inside none), its count
+   own[q] + n_free - free0[q]. */
 enum { FX_SEARCHING = 0, FX_TRACKING = 1, FX_LOST = 2 };   /* instances.InstanceState */
 typedef struct {
     int32_t ni;
@@ -232,12 +235,16 @@ typedef struct {
     int32_t t0[FX_MAX_INSTANCES];             /* instance q's trackers: t0[q] + [0, n) */
     int32_t state[FX_MAX_INSTANCES];          /* FX_SEARCHING, FX_TRACKING, FX_LOST */
     int64_t last_t, n_valid, n_assigned, n_back, n_outside, n_spring_updates;
-    /* the spring clocks: n_free counts the valid events no tracker took (one count for
-       every instance); own[q] the events instance q's trackers took since its last
-       update, free0[q] n_free then */
+    /* the spring clocks: n_free counts the valid events no tracker took outside every
+       spring box (one count for every instance); own[q] the events instance q's trackers
+       took since its last update and those no tracker took inside its box, free0[q]
+       n_free then */
     int64_t n_free;
     int64_t own[FX_MAX_INSTANCES];
     int64_t free0[FX_MAX_INSTANCES];
+    /* each instance's spring box ([ref] _spring_box: whole pixels x0, x1, y0, y1): an
+       event no tracker takes inside it counts in own[q]; one outside every box in n_free */
+    int32_t sbox[FX_MAX_INSTANCES][4];
 } fx_set;
 
 /* one event as springtrack.events.EVENT_DTYPE lays it out (16 bytes, springtrack/events.pxd) */

@@ -396,6 +396,7 @@ static inline __attribute__((always_inline)) int set_assign(fx_set *g, int64_t t
                                                             int32_t y, int32_t p, int moving,
                                                             int *taker);
 static inline __attribute__((always_inline)) int64_t set_count(fx_set *g, int taker,
+                                                               int32_t x, int32_t y,
                                                                int64_t next_due, int64_t t);
 static int64_t set_next_due(const fx_set *g);
 
@@ -429,7 +430,8 @@ static inline __attribute__((always_inline)) batch steps_loop(fx_state *s, fx_se
         if (g) {                                          /* each instance's clock */
             best = set_assign(g, t, (int32_t)x, (int32_t)y, p, moving, &taker);
             o.n_assigned += best >= 0;
-            next_due = set_count(g, best >= 0 ? taker : -1, next_due, o.last_t);
+            next_due = set_count(g, best >= 0 ? taker : -1, (int32_t)x, (int32_t)y,
+                                 next_due, o.last_t);
             continue;
         }
         o.n_assigned += assign(s, mask, t, (int32_t)x, (int32_t)y, p, moving) >= 0;

@@ -71,10 +71,11 @@ def test_an_instance_alone_in_its_events_equals_its_model_alone_bit_for_bit():
         other = mset[1 - q]
         np.testing.assert_allclose(st["x"][other.t0:other.t1], other.model.arrays()["x"],
                                    rtol=0, atol=1e-5)     # its springs at rest: Q.32 rounding
-        # its clock counts every event (the other takes none), the other's those no
-        # tracker took (reference.py: each instance's spring clock)
-        free = len(ev) - both.counters()["events_assigned"]
-        assert both.counters()["spring_updates"] == len(ev) // 5 + free // 5
+        # its clock counts every event (the other takes none); the other's those no
+        # tracker took until its first update (its spring box then held every event), then
+        # none: they fall inside the first's box (reference.py: each instance's spring clock)
+        assert len(ev) - both.counters()["events_assigned"] >= 10
+        assert both.counters()["spring_updates"] == len(ev) // 5 + 1
         assert both.counters()["events_valid"] == len(ev)
 
 
