@@ -103,7 +103,7 @@ def main() -> None:
             "the spring updates column counts all instances' updates, about one per "
             "spring_period events of all instances together (with every event no tracker "
             "takes on every clock, 8 faces ran 3.6 times as many).  On 8 faces the event "
-            "loop is now most of the cost (callgrind: 577 x86 instructions per event, 222 "
+            "loop is now most of the cost (callgrind: 571 x86 instructions per event, 216 "
             "of them in the spring updates): their trackers sit close, so an event's cell "
             "holds several candidates for eq. (2) (its d^2 line alone: 56 per event).  The "
             "reference's argmin also grows with the trackers of all instances.  "

@@ -23,6 +23,7 @@
  *   st_turn_offsets         eq. (18)'s rest offsets in that frame, s R d0
  *   st_pull                 eq. (22): the pull of the former toward G + s R dG0
  *   st_boxes_left           which trackers' gate boxes left their indexed boxes
+ *   st_bounds               the smallest and largest of n values (an instance's spring box)
  */
 #ifndef SPRINGTRACK_SPRINGS_H
 #define SPRINGTRACK_SPRINGS_H
@@ -421,6 +422,18 @@ ST_CLONES static void st_boxes_left(int n, const double *restrict mx, const doub
     for (int i = 0; i < n; i++)
         out[i] = st_box_left(mx[i], my[i], sxx[i], syy[i], bcx[i], bcy[i], dev_x[i], dev_y[i],
                              sxx_lim[i], syy_lim[i]);
+}
+
+/* lo = min, hi = max of x[0..n), n >= 1 (x < lo ? x : lo: the vector min's own rule) */
+ST_CLONES static void st_bounds(int n, const double *restrict x, double *lo, double *hi)
+{
+    double a = x[0], b = x[0];
+    for (int i = 1; i < n; i++) {
+        a = x[i] < a ? x[i] : a;
+        b = x[i] > b ? x[i] : b;
+    }
+    *lo = a;
+    *hi = b;
 }
 
 #endif /* SPRINGTRACK_SPRINGS_H */

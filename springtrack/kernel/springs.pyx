@@ -70,6 +70,7 @@ cdef extern from "springtrack/csrc/springs.h" nogil:
                        const double* syy, const double* bcx, const double* bcy,
                        const double* dev_x, const double* dev_y, const double* sxx_lim,
                        const double* syy_lim, int64_t* out)
+    void st_bounds(int n, const double* x, double* lo, double* hi)
 
 assert (_ref.FRAME_SCALE_MIN, _ref.FRAME_SCALE_MAX, _ref.FRAME_MIN_SPREAD,
         _ref.FRAME_AGREE_PX2, _ref.FRAME_RAMP) == (
@@ -151,13 +152,10 @@ cdef void kspring_update(KState* s, int g) noexcept nogil:
 cdef inline void spring_box(KState* s, int g) noexcept nogil:
     # [ref] _spring_box(g): [ceil(min) - SPRING_BOX_PX, floor(max) + SPRING_BOX_PX] of
     # instance g's means on each axis
-    cdef int i, t0 = s.g_t0[g]
-    cdef double x0 = s.mx[t0], x1 = s.mx[t0], y0 = s.my[t0], y1 = s.my[t0]
-    for i in range(t0 + 1, s.g_t1[g]):
-        x0 = x0 if x0 <= s.mx[i] else s.mx[i]
-        x1 = x1 if x1 >= s.mx[i] else s.mx[i]
-        y0 = y0 if y0 <= s.my[i] else s.my[i]
-        y1 = y1 if y1 >= s.my[i] else s.my[i]
+    cdef int t0 = s.g_t0[g], n = s.g_t1[g] - s.g_t0[g]
+    cdef double x0, x1, y0, y1
+    st_bounds(n, s.mx + t0, &x0, &x1)
+    st_bounds(n, s.my + t0, &y0, &y1)
     s.sbox[g][0] = <int>ceil(x0) - SPRING_BOX_PX
     s.sbox[g][1] = <int>floor(x1) + SPRING_BOX_PX
     s.sbox[g][2] = <int>ceil(y0) - SPRING_BOX_PX

@@ -41,7 +41,7 @@ static inline __attribute__((always_inline)) int set_assign(fx_set *g, int64_t t
 
 /* [ref] spring_update(q): a tracking instance's springs and criteria (eqs. 7-22) and its
    guard */
-static void set_spring_update(fx_set *g, int q)
+static __attribute__((noinline)) void set_spring_update(fx_set *g, int q)
 {
     const fx_state *s = g->inst[q];
     int64_t x0, x1, y0, y1;
@@ -98,6 +98,28 @@ static int64_t set_next_due(const fx_set *g)
     return nd;
 }
 
+/* The clocks after a valid event at (x, y) no tracker took: the instances' whose spring
+   boxes hold it counted (own), or every instance's if none does (n_free).  Returns
+   next_due.  Out of line: the loops keep one call, not a copy of it in each. */
+static __attribute__((noinline)) int64_t set_count_free(fx_set *g, int32_t x, int32_t y,
+                                                        int64_t next_due)
+{
+    int32_t period = g->inst[0]->period;
+    int64_t d;
+    int q, near = 0;
+    for (q = 0; q < g->ni; q++)
+        if (x >= g->sbox[q][0] && x <= g->sbox[q][1] && y >= g->sbox[q][2]
+            && y <= g->sbox[q][3]) {
+            near = 1;
+            g->own[q]++;
+            d = clock_due(g, q, period);
+            next_due = d < next_due ? d : next_due;
+        }
+    if (!near)
+        g->n_free++;
+    return next_due;
+}
+
 /* The clocks after a valid event at (x, y) that instance `taker` took (only its clock
    moved) or no tracker took (taker -1: the clocks of the instances whose spring boxes
    hold it, or every clock if none does), at time t: the updates then due, in instance
@@ -108,25 +130,14 @@ static inline __attribute__((always_inline)) int64_t set_count(fx_set *g, int ta
 {
     int32_t period = g->inst[0]->period;
     int64_t d;
-    int q, near = 0;
+    int q;
     if (taker >= 0) {
         g->own[taker]++;
         d = clock_due(g, taker, period);
         if (d > g->n_free)
             return d < next_due ? d : next_due;
-    } else {
-        for (q = 0; q < g->ni; q++)
-            if (x >= g->sbox[q][0] && x <= g->sbox[q][1] && y >= g->sbox[q][2]
-                && y <= g->sbox[q][3]) {
-                near = 1;
-                g->own[q]++;
-                d = clock_due(g, q, period);
-                next_due = d < next_due ? d : next_due;
-            }
-        if (!near)
-            g->n_free++;
-        if (g->n_free < next_due)
-            return next_due;
+    } else if ((next_due = set_count_free(g, x, y, next_due)) > g->n_free) {
+        return next_due;
     }
     for (q = 0; q < g->ni; q++)
         if ((taker < 0 || q == taker) && clock_due(g, q, period) <= g->n_free) {
