@@ -40,7 +40,8 @@ static inline __attribute__((always_inline)) int set_assign(fx_set *g, int64_t t
 }
 
 /* [ref] spring_update(q): a tracking instance's springs and criteria (eqs. 7-22) and its
-   guard */
+   guard; then, in any state, its spring box.  Out of line: one copy, not one in each of
+   the loop's motion modes. */
 static __attribute__((noinline)) void set_spring_update(fx_set *g, int q)
 {
     const fx_state *s = g->inst[q];
