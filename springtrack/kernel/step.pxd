@@ -87,28 +87,6 @@ cdef inline void update_tracker(KState* s, int i, int64_t t, double fx, double f
     check_index(s, i)
 
 
-cdef inline void scan_word(const KState* s, uint64_t m, int base, int64_t t, double fx,
-                           double fy, int* best, double* best_d2, int moving) noexcept nogil:
-    """eq. (2) over the trackers of one mask word (tracker base + bit), in index order:
-    the smallest d^2 below *best_d2 wins (ties: the lowest index)."""
-    cdef int i
-    cdef double dx, dy, d2, lead
-    while m:
-        i = base + st_ctz64(m)
-        m &= m - 1
-        if moving == MOTION_FULL:
-            lead = predict_dt(s, i, t)                               # eq. (M1)
-            dx = fx - (s.mx[i] + s.vx[i] * lead)
-            dy = fy - (s.my[i] + s.vy[i] * lead)
-        else:
-            dx = fx - s.mx[i]
-            dy = fy - s.my[i]
-        d2 = s.ia[i] * dx * dx + s.ic[i] * dy * dy + s.ib2[i] * dx * dy
-        if d2 < best_d2[0]:
-            best_d2[0] = d2
-            best[0] = i
-
-
 cdef inline int assign_event(KState* s, int64_t t, int x, int y, int pol,
                              bint one, int moving) noexcept nogil:
     """eqs. (2)-(6) for a valid event: the most probable sensitive tracker of every
@@ -119,18 +97,19 @@ cdef inline int assign_event(KState* s, int64_t t, int x, int y, int pol,
     (ksteps), which then compile this path without the others."""
     cdef double fx = x, fy = y, dx, dy, d2, lead
     cdef double best_d2 = s.gate
-    cdef int best = K_NO_TRACKER, i, w
+    cdef int best = K_NO_TRACKER, i, w, nw = 1 if one else s.nw, base
     # eq. (2): candidates are the sensitive trackers indexed in this event's cell, in
-    # increasing index order (word by word), so ties resolve exactly as in the
-    # reference's full scan: the lowest index, the first instance.
-    cdef Py_ssize_t c = (y >> CELL_SHIFT) * s.gw + (x >> CELL_SHIFT)
+    # increasing index order (word by word: one word per 64 trackers, one for one
+    # instance), so ties resolve exactly as in the reference's full scan: the lowest
+    # index, the first instance.  One loop over the words, best and best_d2 in locals
+    # (registers), for one word and several.
+    cdef Py_ssize_t c = ((y >> CELL_SHIFT) * s.gw + (x >> CELL_SHIFT)) * nw
     cdef uint64_t m
-    if one or s.nw == 1:               # up to 64 trackers: one word
-        # scan_word's loop written out: best and best_d2 stay in registers (through
-        # scan_word's pointers, a few instructions more per candidate)
-        m = s.cells[c] & s.sensitive[0]
+    for w in range(nw):
+        m = s.cells[c + w] & s.sensitive[w]
+        base = w << 6
         while m:
-            i = st_ctz64(m)
+            i = base + st_ctz64(m)
             m &= m - 1
             if moving == MOTION_FULL:
                 lead = predict_dt(s, i, t)                           # eq. (M1): about the
@@ -143,11 +122,6 @@ cdef inline int assign_event(KState* s, int64_t t, int x, int y, int pol,
             if d2 < best_d2:
                 best_d2 = d2
                 best = i
-    else:
-        c *= s.nw
-        for w in range(s.nw):
-            scan_word(s, s.cells[c + w] & s.sensitive[w], w << 6, t, fx, fy, &best, &best_d2,
-                      moving)
     if best >= 0:
         update_tracker(s, best, t, fx, fy, best_d2, pol, one, moving)
         s.n_assigned += 1
