@@ -108,9 +108,9 @@ FRAME_RAMP = 2.0 ** -1
 
 # Each instance's spring box (step): the events no tracker takes within SPRING_BOX_PX of
 # the box of its means count on its spring clock; before its first spring update, every
-# event (the box of all)
+# event (the box reaching SPRING_BOX_ALL px each way)
 SPRING_BOX_PX = 16
-SPRING_BOX_ALL = (-(1 << 30), 1 << 30, -(1 << 30), 1 << 30)
+SPRING_BOX_ALL = 1 << 30
 
 # Result codes of step(): >= 0 is the index of the tracker that took the event.
 NO_TRACKER = -1          # valid event, no sensitive tracker within its gate
@@ -217,7 +217,8 @@ class ReferenceTracker:
         self.last_t = -(1 << 62)
         self.n_valid = self.n_assigned = self.n_back = self.n_outside = 0
         self.since_spring = [0] * self.ni            # each instance's spring clock
-        self.sbox = [SPRING_BOX_ALL] * self.ni        # and its spring box
+        A = SPRING_BOX_ALL
+        self.sbox = [(-A, A, -A, A)] * self.ni        # and its spring box
         self.n_spring_updates = 0                    # instances' spring updates, summed
         self.n_resets = 0
         self.set_params(mset.params_list)

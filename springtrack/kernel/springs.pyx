@@ -80,7 +80,7 @@ assert (_ref.FRAME_SCALE_MIN, _ref.FRAME_SCALE_MAX, _ref.FRAME_MIN_SPREAD,
 cdef double TWO_PI = 2.0 * M_PI
 cdef int FRAME_REFITS = _ref.FRAME_REFITS
 cdef int SPRING_BOX_PX = _ref.SPRING_BOX_PX
-cdef int SPRING_BOX_ALL = _ref.SPRING_BOX_ALL[1]
+cdef int SPRING_BOX_ALL = _ref.SPRING_BOX_ALL
 # The frame of eq. (14)'s fast path (st_torsion_angles_framed) follows the mean angle once
 # it is this far (rad) from it: connections within 3 pi/8 - pi/16 of the mean angle then
 # stay on the fast path.

@@ -128,6 +128,14 @@ cdef inline int assign_event(KState* s, int64_t t, int x, int y, int pol,
     return best
 
 
+cdef inline void count_own(KState* s, int g) noexcept nogil:
+    """One count on instance g's clock alone: its update one event nearer (KState.due)."""
+    cdef int64_t d = s.due[g] - 1
+    s.due[g] = d
+    if d < s.next_due:
+        s.next_due = d
+
+
 cdef inline void count_event(KState* s, int best, int x, int y) noexcept nogil:
     """[ref] step's spring clocks, after a valid event at (x, y): one that tracker
     ``best`` took moves its instance's clock only, one no tracker took (best < 0) the
@@ -135,22 +143,15 @@ cdef inline void count_event(KState* s, int best, int x, int y) noexcept nogil:
     (KState.n_free: one count for all); kclocks runs the updates then due."""
     cdef int g = -1, q
     cdef bint near = False
-    cdef int64_t d
     if best >= 0:
         g = s.inst[best]
-        d = s.due[g] - 1
-        s.due[g] = d
-        if d < s.next_due:
-            s.next_due = d
+        count_own(s, g)
     else:
         for q in range(s.ni):
             if (x >= s.sbox[q][0] and x <= s.sbox[q][1]
                     and y >= s.sbox[q][2] and y <= s.sbox[q][3]):
                 near = True
-                d = s.due[q] - 1
-                s.due[q] = d
-                if d < s.next_due:
-                    s.next_due = d
+                count_own(s, q)
         if not near:
             s.n_free += 1
     if s.n_free >= s.next_due:

@@ -70,7 +70,7 @@
 #define FX_POS_FRAC 32                      /* positions Q.32 */
 #define FX_POS_LIM ((int64_t)8192 << 32)    /* |position| < 8192 px */
 #define FX_SPRING_BOX_PX 16                 /* [ref] SPRING_BOX_PX */
-#define FX_SPRING_BOX_ALL (1 << 30)         /* [ref] SPRING_BOX_ALL: every event */
+#define FX_SPRING_BOX_ALL (1 << 30)         /* [ref] SPRING_BOX_ALL: the box of every event */
 #define FX_D2_FRAC 27                       /* Mahalanobis d^2 Q.27 */
 #define FX_EXP2_BITS 10                     /* exp2 table: 1024 intervals + 1 */
 #define FX_EXP2_N (1 << FX_EXP2_BITS)
